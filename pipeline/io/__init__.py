@@ -1,0 +1,1 @@
+"""Input/output: mesh and sidecar loading and validation, atomic writes."""
