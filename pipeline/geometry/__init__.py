@@ -1,0 +1,1 @@
+"""Geometry: frames and units, safe repairs, sphere fits, segmentation, remeshing, projection, snapping."""

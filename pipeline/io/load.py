@@ -1,0 +1,870 @@
+"""Mesh and texture loading for untrusted scan files (OBJ+MTL, PLY, STL, GLB).
+
+Every loader returns a :class:`LoadedMesh` in the file's own units and axes and
+raises :class:`pipeline.errors.ScanError` (naming the file and the problem) for
+anything it cannot read. Sizes are checked before data is read: element counts
+in PLY/STL headers, file size, and image pixel counts from the image header
+before decoding (decompression bombs).
+
+UVs are kept per corner (``UV`` + ``FUV``): OBJ seams keep their exact layout
+(one ``UV`` row per ``vt`` line, the vertex positions are not split). PLY
+per-vertex ``s,t`` / ``u,v`` / ``texture_u,texture_v`` become ``UV`` with
+``FUV = F``; PLY per-face ``texcoord`` lists become one ``UV`` row per corner.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import struct
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.io.scan import TEXTURE_SUFFIXES, one_line, safe_path
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Resource limits for untrusted inputs.
+
+    Attributes
+    ----------
+    max_file_bytes : int
+        Largest mesh, material or texture file read.
+    max_vertices, max_faces : int
+        Largest vertex / (triangulated) face count accepted.
+    max_texture_pixels : int
+        Largest texture (width * height), checked from the header before decoding.
+    """
+
+    max_file_bytes: int = 1 << 30
+    max_vertices: int = 5_000_000
+    max_faces: int = 10_000_000
+    max_texture_pixels: int = 8192 * 8192
+
+
+@dataclass
+class LoadedMesh:
+    """A mesh as stored in its file (file units and axes).
+
+    Attributes
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    UV : (k, 2) float64 or None
+        Texture coordinates, origin bottom-left.
+    FUV : (m, 3) int64 or None
+        Per-corner indices into ``UV``.
+    VC : (n, 3) uint8 or None
+        Per-vertex colour.
+    texture_path : pathlib.Path or None
+        Texture named by the mesh file (MTL ``map_Kd``, PLY ``TextureFile``), resolved inside the folder.
+    texture_bytes : bytes or None
+        Texture embedded in the mesh file (GLB), still encoded.
+    files_read : list of pathlib.Path
+        Every file read (mesh, MTL), for the source hash.
+    polygons_triangulated : int
+        Faces with more than three corners that were fan-triangulated.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    UV: np.ndarray | None = None
+    FUV: np.ndarray | None = None
+    VC: np.ndarray | None = None
+    texture_path: Path | None = None
+    texture_bytes: bytes | None = None
+    files_read: list = field(default_factory=list)
+    polygons_triangulated: int = 0
+
+
+def check_file_size(path, limits: Limits) -> int:
+    """Refuse a file over ``limits.max_file_bytes``; return its size in bytes."""
+    size = Path(path).stat().st_size
+    if size > limits.max_file_bytes:
+        raise ScanError(path, f"file is {size / 2**20:.1f} MiB, over the limit of "
+                              f"{limits.max_file_bytes / 2**20:.1f} MiB (ingest.max_file_mb)")
+    if size == 0:
+        raise ScanError(path, "file is empty")
+    return size
+
+
+def _check_counts(path, n_vertices: int, n_faces: int, limits: Limits) -> None:
+    if n_vertices > limits.max_vertices:
+        raise ScanError(path, f"{n_vertices} vertices, over the limit of {limits.max_vertices} (ingest.max_vertices)")
+    if n_faces > limits.max_faces:
+        raise ScanError(path, f"{n_faces} faces, over the limit of {limits.max_faces} (ingest.max_faces)")
+
+
+def fan_triangulate(polys: np.ndarray) -> np.ndarray:
+    """Fan-triangulate polygons of one size.
+
+    Parameters
+    ----------
+    polys : (p, k) int array, k >= 3
+
+    Returns
+    -------
+    (p * (k - 2), 3) int64, triangles of each polygon consecutive.
+    """
+    polys = np.asarray(polys, dtype=np.int64)
+    k = polys.shape[1]
+    if k == 3:
+        return polys
+    i = np.arange(1, k - 1)
+    tris = np.stack([np.repeat(polys[:, :1], k - 2, axis=1), polys[:, i], polys[:, i + 1]], axis=2)
+    return tris.reshape(-1, 3)
+
+
+# ---------------------------------------------------------------------------- OBJ
+
+def _parse_floats(rows: list, path: Path, what: str, first_line: np.ndarray, min_cols: int) -> np.ndarray:
+    """Rows of whitespace-separated numbers -> float64 array (k, c); ragged rows keep min_cols."""
+    if not rows:
+        return np.zeros((0, min_cols))
+    split = [r.split() for r in rows]
+    lengths = np.fromiter((len(s) for s in split), dtype=np.int64, count=len(split))
+    short = np.flatnonzero(lengths < min_cols)
+    if short.size:
+        raise ScanError(path, f"line {first_line[short[0]] + 1}: {what} needs {min_cols} numbers")
+    cols = int(lengths.min())
+    if not np.all(lengths == cols):
+        split = [s[:cols] for s in split]
+    try:
+        return np.array(split, dtype=np.float64)
+    except ValueError:
+        for i, s in enumerate(split):
+            try:
+                [float(x) for x in s]
+            except ValueError:
+                raise ScanError(path, f"line {first_line[i] + 1}: cannot parse {what} numbers "
+                                      f"{one_line(' '.join(s))[:60]!r}") from None
+        raise
+
+
+def _parse_obj_faces(face_rows: list, path: Path, line_no: np.ndarray):
+    """Face rows -> (corner vertex idx, corner vt idx or None, corners per face) as flat arrays."""
+    split = [r.split() for r in face_rows]
+    counts = np.fromiter((len(s) for s in split), dtype=np.int64, count=len(split))
+    bad = np.flatnonzero(counts < 3)
+    if bad.size:
+        raise ScanError(path, f"line {line_no[bad[0]] + 1}: a face needs at least 3 vertices")
+    tokens = [t for s in split for t in s]
+    first = tokens[0]
+    n_fields = first.count("/") + 1
+    has_vt = n_fields >= 2 and first.split("/")[1] != ""
+    try:
+        if n_fields == 1:
+            vidx = np.array(tokens, dtype=np.int64)
+            tidx = None
+        else:
+            # each token has fields separated by '/', empty fields allowed ("a//c")
+            pieces = [t.split("/") for t in tokens]
+            if any(len(p) != n_fields for p in pieces):
+                raise ValueError("mixed face formats")
+            vidx = np.array([p[0] for p in pieces], dtype=np.int64)
+            tidx = np.array([p[1] for p in pieces], dtype=np.int64) if has_vt else None
+    except ValueError:
+        raise ScanError(path, "faces: cannot parse vertex indices (mixed or malformed 'f' lines; "
+                              f"first face is line {line_no[0] + 1})") from None
+    return vidx, tidx, counts
+
+
+def _resolve_obj_index(idx: np.ndarray, count_before: np.ndarray, total: int, path: Path,
+                       what: str, corner_line: np.ndarray) -> np.ndarray:
+    """OBJ 1-based / negative-relative indices -> 0-based, range-checked."""
+    out = np.where(idx < 0, count_before + idx, idx - 1)
+    bad = np.flatnonzero((idx == 0) | (out < 0) | (out >= total))
+    if bad.size:
+        i = bad[0]
+        raise ScanError(path, f"line {corner_line[i] + 1}: face refers to {what} {idx[i]} but the file has "
+                              f"{total} {what}s (index out of range)")
+    return out
+
+
+def _parse_mtl(mtl_path: Path, folder: Path, obj_path: Path, limits: Limits) -> dict:
+    """MTL -> {material name: resolved map_Kd path or None}."""
+    check_file_size(mtl_path, limits)
+    text = mtl_path.read_bytes().decode("utf-8", errors="replace")
+    maps, current = {}, None
+    for raw in text.splitlines():
+        line = raw.strip()
+        if line.startswith("newmtl"):
+            current = line[6:].strip()
+            maps.setdefault(current, None)
+        elif line.startswith("map_Kd") and current is not None:
+            rest = line[6:].strip()
+            name = rest.split()[-1] if rest.startswith("-") else rest
+            if not name:
+                continue
+            maps[current] = safe_path(folder, name.replace("\\", "/"), mtl_path, "map_Kd", TEXTURE_SUFFIXES)
+    return maps
+
+
+def load_obj(path, folder, limits: Limits = Limits()) -> LoadedMesh:
+    """Load a Wavefront OBJ (+ MTL ``map_Kd``) keeping per-corner UVs.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The OBJ file (already checked to be inside ``folder``).
+    folder : pathlib.Path
+        The scan folder; ``mtllib`` and ``map_Kd`` must stay inside it.
+    limits : Limits
+
+    Returns
+    -------
+    LoadedMesh
+    """
+    path, folder = Path(path), Path(folder)
+    check_file_size(path, limits)
+    raw = path.read_bytes()
+    if b"\x00" in raw[:65536]:
+        raise ScanError(path, "not a text OBJ file (binary bytes found)")
+    lines = raw.decode("utf-8", errors="replace").splitlines()
+    del raw
+    v_rows, v_ln, vt_rows, vt_ln, f_rows, f_ln = [], [], [], [], [], []
+    mtllibs, usemtl = [], set()
+    for i, line in enumerate(lines):
+        if not line:
+            continue
+        c = line[0]
+        if c == "v":
+            if line.startswith("v "):
+                v_rows.append(line[2:]); v_ln.append(i)
+            elif line.startswith("vt ") or line.startswith("vt\t"):
+                vt_rows.append(line[3:]); vt_ln.append(i)
+            elif line.startswith("v\t"):
+                v_rows.append(line[2:]); v_ln.append(i)
+        elif c == "f" and (line.startswith("f ") or line.startswith("f\t")):
+            f_rows.append(line[2:]); f_ln.append(i)
+        elif c == "m" and line.startswith("mtllib"):
+            mtllibs.append(line[6:].strip())
+        elif c == "u" and line.startswith("usemtl"):
+            usemtl.add(line[6:].strip())
+    del lines
+    v_ln, vt_ln, f_ln = (np.array(a, dtype=np.int64) for a in (v_ln, vt_ln, f_ln))
+    _check_counts(path, len(v_rows), len(f_rows), limits)
+    if not v_rows or not f_rows:
+        raise ScanError(path, f"no mesh found ({len(v_rows)} vertices, {len(f_rows)} faces)")
+    vdata = _parse_floats(v_rows, path, "vertex", v_ln, 3)
+    del v_rows
+    V = vdata[:, :3]
+    VC = None
+    if vdata.shape[1] >= 6:
+        rgb = vdata[:, 3:6]
+        if np.all(np.isfinite(rgb)):
+            scale = 255.0 if rgb.max(initial=0.0) <= 1.0 else 1.0
+            VC = np.clip(np.round(rgb * scale), 0, 255).astype(np.uint8)
+    UV = _parse_floats(vt_rows, path, "texture coordinate", vt_ln, 2)[:, :2] if vt_rows else None
+    del vt_rows
+    vidx, tidx, counts = _parse_obj_faces(f_rows, path, f_ln)
+    del f_rows
+    corner_line = np.repeat(f_ln, counts)
+    v_before = np.searchsorted(v_ln, corner_line)
+    vidx = _resolve_obj_index(vidx, v_before, len(V), path, "vertex", corner_line)
+    if tidx is not None:
+        if UV is None:
+            raise ScanError(path, "faces refer to texture coordinates but the file has no 'vt' lines")
+        t_before = np.searchsorted(vt_ln, corner_line)
+        tidx = _resolve_obj_index(tidx, t_before, len(UV), path, "texture coordinate", corner_line)
+    else:
+        UV = None
+    # triangulate polygons, grouped by corner count
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    F_parts, FT_parts, order = [], [], []
+    for k in np.unique(counts):
+        sel = np.flatnonzero(counts == k)
+        cols = starts[sel, None] + np.arange(k)[None, :]
+        F_parts.append(fan_triangulate(vidx[cols]))
+        if tidx is not None:
+            FT_parts.append(fan_triangulate(tidx[cols]))
+        order.append(np.repeat(sel, k - 2))
+    # keep the file's face order
+    perm = np.argsort(np.concatenate(order), kind="stable")
+    F = np.concatenate(F_parts)[perm]
+    FUV = np.concatenate(FT_parts)[perm] if tidx is not None else None
+    _check_counts(path, len(V), len(F), limits)
+    files = [path]
+    texture_path = None
+    if mtllibs:
+        maps = {}
+        for name in mtllibs:
+            mtl = safe_path(folder, name.replace("\\", "/"), path, "mtllib")
+            files.append(mtl)
+            maps.update(_parse_mtl(mtl, folder, path, limits))
+        used = [maps.get(m) for m in (usemtl or maps.keys())]
+        textures = sorted({p for p in used if p is not None})
+        if len(textures) > 1:
+            raise ScanError(path, f"materials use {len(textures)} different textures "
+                                  f"({', '.join(p.name for p in textures)}); one texture per scan is supported")
+        texture_path = textures[0] if textures else None
+    return LoadedMesh(V=V, F=F, UV=UV, FUV=FUV, VC=VC, texture_path=texture_path, files_read=files,
+                      polygons_triangulated=int(np.count_nonzero(counts > 3)))
+
+
+# ---------------------------------------------------------------------------- PLY
+
+def _column(data, name):
+    """A scalar property of a parsed PLY element (structured array or dict) or None."""
+    if data is None:
+        return None
+    if isinstance(data, dict):
+        if name not in data:
+            return None
+        return np.asarray(data[name]).reshape(-1)
+    if data.dtype.names and name in data.dtype.names:
+        return np.asarray(data[name]).reshape(-1)
+    return None
+
+
+def _list_property(data, names):
+    """A list property (faces) -> (m, k) array or list of 1-D arrays, or None."""
+    if data is None:
+        return None
+    for name in names:
+        if isinstance(data, dict) and name in data:
+            return data[name]
+        if not isinstance(data, dict) and data.dtype.names and name in data.dtype.names:
+            col = data[name]
+            if col.dtype.names and "f1" in col.dtype.names:
+                return col["f1"]
+            return col
+    return None
+
+
+def _polys_to_tris(polys, path: Path, what: str):
+    """(m, k) array or ragged list of polygons -> (t, 3) int64 triangles, #polygons split."""
+    if isinstance(polys, np.ndarray) and polys.dtype != object and polys.ndim == 2:
+        if polys.shape[1] < 3:
+            raise ScanError(path, f"{what} with fewer than 3 corners")
+        return fan_triangulate(polys), (len(polys) if polys.shape[1] > 3 else 0)
+    rows = [np.asarray(p, dtype=np.int64).reshape(-1) for p in polys]
+    counts = np.array([len(r) for r in rows], dtype=np.int64)
+    if np.any(counts < 3):
+        raise ScanError(path, f"{what} with fewer than 3 corners")
+    flat = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    parts, order = [], []
+    for k in np.unique(counts):
+        sel = np.flatnonzero(counts == k)
+        parts.append(fan_triangulate(flat[starts[sel, None] + np.arange(k)[None, :]]))
+        order.append(np.repeat(sel, k - 2))
+    perm = np.argsort(np.concatenate(order), kind="stable")
+    return np.concatenate(parts)[perm], int(np.count_nonzero(counts > 3))
+
+
+def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
+    """Load an ASCII or binary PLY (vertices, triangles/polygons, UVs, vertex colours).
+
+    The header's element counts are checked against ``limits`` before any data is read.
+    A ``comment TextureFile name`` is resolved inside ``folder``.
+    """
+    from trimesh.exchange import ply as tply
+
+    path, folder = Path(path), Path(folder)
+    size = check_file_size(path, limits)
+    with open(path, "rb") as fh:
+        head = fh.read(min(size, 65536))
+        if not head.lower().startswith(b"ply"):
+            raise ScanError(path, "not a PLY file (no 'ply' magic)")
+        if b"end_header" not in head:
+            raise ScanError(path, "PLY header has no end_header in its first 64 KiB")
+        fh.seek(0)
+        try:
+            elements, is_ascii, image_name = tply._parse_header(fh)
+        except Exception as exc:  # noqa: BLE001 - any parse failure is bad input
+            raise ScanError(path, f"cannot parse PLY header: {one_line(exc)[:120]}") from None
+        n_v = int(elements.get("vertex", {}).get("length", 0))
+        n_f = int(elements.get("face", {}).get("length", 0))
+        if n_v < 0 or n_f < 0:
+            raise ScanError(path, "PLY header has negative element counts")
+        _check_counts(path, n_v, n_f, limits)
+        if not is_ascii:
+            # a lower bound of the data size from the header: refuse before allocating
+            try:
+                min_bytes = sum(int(e["length"]) * np.dtype(",".join(
+                    p.split(",")[0] if "$LIST" in p else p for p in e["properties"].values())).itemsize
+                    for e in elements.values() if e["properties"])
+            except Exception:  # noqa: BLE001
+                min_bytes = 0
+            if min_bytes > size:
+                raise ScanError(path, f"PLY header promises at least {min_bytes} bytes of data but the file "
+                                      f"has {size} (truncated or corrupt)")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                (tply._ply_ascii if is_ascii else tply._ply_binary)(elements, fh)
+        except Exception as exc:  # noqa: BLE001
+            raise ScanError(path, f"cannot read PLY data: {one_line(exc)[:120]}") from None
+    vdata = elements.get("vertex", {}).get("data")
+    xyz = [_column(vdata, c) for c in "xyz"]
+    if any(c is None for c in xyz):
+        raise ScanError(path, "PLY has no vertex x, y, z properties")
+    V = np.column_stack(xyz).astype(np.float64)
+    fdata = elements.get("face", {}).get("data")
+    polys = _list_property(fdata, ("vertex_indices", "vertex_index"))
+    if polys is None or len(V) == 0:
+        raise ScanError(path, f"no mesh found ({len(V)} vertices, {0 if polys is None else len(polys)} faces)")
+    F, n_poly = _polys_to_tris(polys, path, "face")
+    UV = FUV = None
+    texcoord = _list_property(fdata, ("texcoord",))
+    if texcoord is not None:
+        tc = np.asarray(texcoord, dtype=np.float64) if not isinstance(texcoord, list) else None
+        if tc is None or tc.ndim != 2 or tc.shape[1] != 6 or n_poly or tc.shape[0] != len(F):
+            raise ScanError(path, "per-face 'texcoord' lists are supported for triangle faces only")
+        UV = tc.reshape(-1, 2)
+        FUV = np.arange(len(UV), dtype=np.int64).reshape(-1, 3)
+    else:
+        for u, v in (("texture_u", "texture_v"), ("u", "v"), ("s", "t")):
+            cu, cv = _column(vdata, u), _column(vdata, v)
+            if cu is not None and cv is not None:
+                UV = np.column_stack([cu, cv]).astype(np.float64)
+                FUV = F.copy()
+                break
+    VC = None
+    rgb = [_column(vdata, c) for c in ("red", "green", "blue")]
+    if all(c is not None for c in rgb):
+        rgb = np.column_stack(rgb)
+        if rgb.dtype.kind == "f":
+            rgb = np.round(np.clip(np.nan_to_num(rgb), 0, 1) * 255)
+        VC = np.clip(rgb, 0, 255).astype(np.uint8)
+    texture_path = None
+    if image_name:
+        texture_path = safe_path(folder, image_name.replace("\\", "/"), path, "TextureFile", TEXTURE_SUFFIXES)
+    return LoadedMesh(V=V, F=F, UV=UV, FUV=FUV, VC=VC, texture_path=texture_path, files_read=[path],
+                      polygons_triangulated=n_poly)
+
+
+# ---------------------------------------------------------------------------- STL
+
+def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
+    """Load an ASCII or binary STL (a triangle soup; duplicates are merged by the repair step)."""
+    from trimesh.exchange import stl as tstl
+
+    path = Path(path)
+    size = check_file_size(path, limits)
+    with open(path, "rb") as fh:
+        head = fh.read(84)
+    is_ascii = head[:5].lower() == b"solid" and b"\x00" not in head
+    if not is_ascii:
+        if len(head) < 84:
+            raise ScanError(path, "not an STL file (too short for a binary STL header)")
+        n = struct.unpack("<I", head[80:84])[0]
+        _check_counts(path, 3 * n, n, limits)
+        if 84 + 50 * n != size:
+            raise ScanError(path, f"binary STL header says {n} triangles ({84 + 50 * n} bytes) but the file "
+                                  f"has {size} bytes (truncated or not an STL)")
+    try:
+        with open(path, "rb") as fh, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            kw = tstl.load_stl(fh)
+    except Exception as exc:  # noqa: BLE001
+        raise ScanError(path, f"cannot read STL: {one_line(exc)[:120]}") from None
+    V = np.asarray(kw.get("vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+    F = np.asarray(kw.get("faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+    if len(F) == 0:
+        raise ScanError(path, "no triangles found")
+    _check_counts(path, len(V), len(F), limits)
+    return LoadedMesh(V=V, F=F, files_read=[path])
+
+
+# ---------------------------------------------------------------------------- GLB
+
+def _glb_json(path: Path, size: int) -> dict:
+    with open(path, "rb") as fh:
+        header = fh.read(20)
+        if len(header) < 20 or header[:4] != b"glTF":
+            raise ScanError(path, "not a GLB file (no 'glTF' magic)")
+        version, length, chunk_len, chunk_type = struct.unpack("<IIII", header[4:20])
+        if version != 2:
+            raise ScanError(path, f"GLB version {version} is not supported (need 2)")
+        if length != size or chunk_type != 0x4E4F534A or chunk_len > size - 20:
+            raise ScanError(path, "GLB header is inconsistent with the file (truncated or corrupt)")
+        try:
+            return json.loads(fh.read(chunk_len).decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+            raise ScanError(path, f"GLB JSON chunk is invalid: {one_line(exc)[:100]}") from None
+
+
+def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
+    """Load a self-contained binary glTF (GLB): all meshes with their node transforms, one texture.
+
+    External URIs (buffers or images outside the file) are refused: they could point
+    anywhere. Embedded images are returned still encoded (checked later by :func:`load_texture`).
+    """
+    import trimesh
+
+    path = Path(path)
+    size = check_file_size(path, limits)
+    doc = _glb_json(path, size)
+    for kind in ("buffers", "images"):
+        for item in doc.get(kind, []) or []:
+            if isinstance(item, dict) and "uri" in item:
+                raise ScanError(path, f"GLB {kind[:-1]} refers to an external URI; only self-contained GLB is supported")
+    n_img = len(doc.get("images", []) or [])
+    try:
+        from PIL import Image
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with _max_pixels(limits.max_texture_pixels):
+                scene = trimesh.load(str(path), file_type="glb", process=False, force="scene")
+    except ScanError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        raise ScanError(path, f"cannot read GLB: {one_line(exc)[:120]}") from None
+    meshes = [g for g in scene.dump(concatenate=False) if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+    if not meshes:
+        raise ScanError(path, "no triangle mesh found in the GLB")
+    Vs, Fs, UVs, VCs, images = [], [], [], [], []
+    offset = 0
+    for g in meshes:
+        Vs.append(np.asarray(g.vertices, dtype=np.float64))
+        Fs.append(np.asarray(g.faces, dtype=np.int64) + offset)
+        offset += len(g.vertices)
+        vis = g.visual
+        uv = getattr(vis, "uv", None) if getattr(vis, "kind", None) == "texture" else None
+        UVs.append(None if uv is None else np.asarray(uv, dtype=np.float64))
+        if getattr(vis, "kind", None) == "vertex":
+            VCs.append(np.asarray(vis.vertex_colors)[:, :3].astype(np.uint8))
+        else:
+            VCs.append(None)
+        mat = getattr(vis, "material", None)
+        img = getattr(mat, "baseColorTexture", None) or getattr(mat, "image", None)
+        if img is not None:
+            images.append(img)
+    V, F = np.concatenate(Vs), np.concatenate(Fs)
+    _check_counts(path, len(V), len(F), limits)
+    UV = FUV = None
+    if all(u is not None for u in UVs):
+        UV, FUV = np.concatenate(UVs), F.copy()
+    VC = np.concatenate(VCs) if all(c is not None for c in VCs) else None
+    texture_bytes = None
+    if images:
+        if len({id(i) for i in images}) > 1 and n_img > 1:
+            raise ScanError(path, f"GLB uses {n_img} different textures; one texture per scan is supported")
+        buf = io.BytesIO()
+        images[0].save(buf, format="PNG")
+        texture_bytes = buf.getvalue()
+    return LoadedMesh(V=V, F=F, UV=UV, FUV=FUV, VC=VC, texture_bytes=texture_bytes, files_read=[path])
+
+
+LOADERS = {".obj": load_obj, ".ply": load_ply, ".stl": load_stl, ".glb": load_glb}
+
+
+def load_mesh_file(path, folder, limits: Limits = Limits()) -> LoadedMesh:
+    """Load any supported mesh file (by suffix) and check the basic facts.
+
+    Checks: non-empty, finite coordinates, face indices in range, UV indices in
+    range and finite UVs.
+    """
+    path = Path(path)
+    loader = LOADERS.get(path.suffix.lower())
+    if loader is None:
+        raise ScanError(path, f"unsupported mesh format {path.suffix!r}; use OBJ, PLY, STL or GLB")
+    mesh = loader(path, folder, limits)
+    if len(mesh.V) == 0 or len(mesh.F) == 0:
+        raise ScanError(path, f"mesh is empty ({len(mesh.V)} vertices, {len(mesh.F)} faces)")
+    bad = ~np.isfinite(mesh.V).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ScanError(path, f"{int(bad.sum())} vertices have non-finite coordinates (NaN/inf), first is vertex {i}")
+    if mesh.F.min() < 0 or mesh.F.max() >= len(mesh.V):
+        worst = int(mesh.F.max()) if mesh.F.max() >= len(mesh.V) else int(mesh.F.min())
+        raise ScanError(path, f"face index {worst} out of range (the mesh has {len(mesh.V)} vertices)")
+    if mesh.UV is not None:
+        if not np.isfinite(mesh.UV).all():
+            raise ScanError(path, "texture coordinates contain NaN or inf")
+        if mesh.FUV.shape != mesh.F.shape or (len(mesh.UV) and (mesh.FUV.min() < 0 or mesh.FUV.max() >= len(mesh.UV))):
+            raise ScanError(path, "texture coordinate indices out of range")
+    return mesh
+
+
+# ---------------------------------------------------------------------------- textures
+
+@contextlib.contextmanager
+def _max_pixels(limit: int):
+    from PIL import Image
+
+    old = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = int(limit)
+    try:
+        yield
+    finally:
+        Image.MAX_IMAGE_PIXELS = old
+
+
+def load_texture(source, limits: Limits = Limits(), name=None):
+    """Open and fully decode a texture image, refusing oversize images before decoding.
+
+    Parameters
+    ----------
+    source : pathlib.Path or bytes
+        An image file inside the scan folder, or encoded bytes (GLB).
+    limits : Limits
+    name : str or pathlib.Path, optional
+        What to name in errors for ``bytes`` sources.
+
+    Returns
+    -------
+    PIL.Image.Image
+        Decoded, in mode ``RGB`` or ``RGBA``; ``info["source_format"]`` / ``info["source_mode"]``
+        hold the file's own format and mode.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    label = name if isinstance(source, (bytes, bytearray)) else source
+    if not isinstance(source, (bytes, bytearray)):
+        check_file_size(source, limits)
+        data = Path(source).read_bytes()
+    else:
+        data = bytes(source)
+    with _max_pixels(limits.max_texture_pixels), warnings.catch_warnings():
+        warnings.simplefilter("error", Image.DecompressionBombWarning)
+        try:
+            img = Image.open(io.BytesIO(data))  # reads the header only
+        except (UnidentifiedImageError, Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+            raise ScanError(label, f"texture cannot be opened: {one_line(exc)[:140]}") from None
+        except Exception as exc:  # noqa: BLE001
+            raise ScanError(label, f"texture cannot be opened: {one_line(exc)[:140]}") from None
+        w, h = img.size
+        if w <= 0 or h <= 0 or w * h > limits.max_texture_pixels:
+            raise ScanError(label, f"texture header claims {w}x{h} = {w * h} pixels, over the limit of "
+                                   f"{limits.max_texture_pixels} (ingest.max_texture_pixels); not decoded")
+        try:
+            img.load()
+        except Exception as exc:  # noqa: BLE001 - truncated/corrupt image data
+            raise ScanError(label, f"texture cannot be decoded: {one_line(exc)[:140]}") from None
+    fmt, mode = img.format, img.mode
+    if img.mode not in ("RGB", "RGBA"):
+        img = img.convert("RGBA" if "A" in img.getbands() or "transparency" in img.info else "RGB")
+    img.info["source_format"], img.info["source_mode"] = fmt, mode
+    return img
+
+
+# ---------------------------------------------------------------------------- the whole ingest
+
+@dataclass(frozen=True)
+class IngestSettings:
+    """Every limit and threshold of the ingest stage (the ``ingest:`` block of params.yaml).
+
+    Attributes
+    ----------
+    max_file_mb, max_yaml_bytes, max_vertices, max_faces, max_texture_pixels
+        Resource limits (see :class:`Limits`).
+    head_size_mm : (2,) float
+        Accepted range of the largest bounding-box side, mm.
+    eye_separation_mm : (2,) float
+        Accepted distance between the eye hints, mm.
+    float32_tolerance_mm : float
+        Largest float32 step accepted at the largest coordinate, mm.
+    max_hint_distance_mm : float
+        Largest distance from an eye hint to the mesh surface, mm.
+    merge_tolerance_mm, degenerate_area_mm2, max_degenerate_fraction, debris_max_fraction,
+    eye_radius_mm, max_eye_region_removed_fraction
+        See :class:`pipeline.geometry.repair.RepairSettings`.
+    flip_inward_winding : bool
+        Flip all faces when the faces around the eyes point backward (inward winding);
+        when False such a scan is refused.
+    """
+
+    max_file_mb: float = 1024.0
+    max_yaml_bytes: int = 65536
+    max_vertices: int = 5_000_000
+    max_faces: int = 10_000_000
+    max_texture_pixels: int = 8192 * 8192
+    head_size_mm: tuple = (40.0, 1000.0)
+    eye_separation_mm: tuple = (30.0, 120.0)
+    float32_tolerance_mm: float = 0.01
+    max_hint_distance_mm: float = 15.0
+    merge_tolerance_mm: float = 1e-4
+    degenerate_area_mm2: float = 1e-10
+    max_degenerate_fraction: float = 0.1
+    debris_max_fraction: float = 0.01
+    eye_radius_mm: float = 20.0
+    max_eye_region_removed_fraction: float = 0.05
+    flip_inward_winding: bool = True
+
+    @classmethod
+    def from_params(cls, params: dict) -> "IngestSettings":
+        """Build from a params dict; unknown keys are a configuration bug (ValueError)."""
+        import dataclasses
+
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(params) - names)
+        if unknown:
+            raise ValueError(f"unknown ingest params: {', '.join(unknown)}")
+        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
+        return cls(**kw)
+
+    @property
+    def limits(self) -> Limits:
+        return Limits(max_file_bytes=int(self.max_file_mb * 2**20), max_vertices=int(self.max_vertices),
+                      max_faces=int(self.max_faces), max_texture_pixels=int(self.max_texture_pixels))
+
+    @property
+    def repair(self):
+        from pipeline.geometry.repair import RepairSettings
+
+        return RepairSettings(merge_tolerance_mm=self.merge_tolerance_mm,
+                              degenerate_area_mm2=self.degenerate_area_mm2,
+                              max_degenerate_fraction=self.max_degenerate_fraction,
+                              debris_max_fraction=self.debris_max_fraction,
+                              eye_radius_mm=self.eye_radius_mm,
+                              max_eye_region_removed_fraction=self.max_eye_region_removed_fraction)
+
+
+@dataclass
+class IngestResult:
+    """A validated, repaired scan in the head frame (mm).
+
+    Attributes
+    ----------
+    mesh : dict of numpy.ndarray
+        ``V`` (n,3) float64, ``F`` (m,3) int64, optional ``UV`` (k,2) + ``FUV`` (m,3), ``VC`` (n,3) uint8.
+    texture : PIL.Image.Image or None
+    texture_png_bytes : bytes or None
+        The texture file's own bytes when it already is a PNG (copied unchanged).
+    scan : dict
+        Contents of ``scan.json`` (``texture`` is ``"texture.png"`` or None).
+    metrics : dict
+    """
+
+    mesh: dict
+    texture: object
+    texture_png_bytes: bytes | None
+    scan: dict
+    metrics: dict
+
+
+def source_sha256(folder, files) -> str:
+    """SHA-256 over the (relative path, content hash) of every file read, sorted by path."""
+    import hashlib
+
+    folder = Path(folder).resolve()
+    outer = hashlib.sha256()
+    for rel, p in sorted({(Path(f).resolve().relative_to(folder).as_posix(), Path(f).resolve()) for f in files}):
+        h = hashlib.sha256()
+        with open(p, "rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 22), b""):
+                h.update(chunk)
+        outer.update(f"{rel}\0{h.hexdigest()}\n".encode())
+    return outer.hexdigest()
+
+
+def ingest_scan(folder, settings: IngestSettings = IngestSettings()) -> IngestResult:
+    """Load, validate, convert to head-frame mm and safely repair one scan folder.
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The scan folder (``scan.yaml`` + mesh [+ texture]); only files it names are read.
+    settings : IngestSettings
+
+    Returns
+    -------
+    IngestResult
+
+    Raises
+    ------
+    pipeline.errors.ScanError
+        For any bad input, naming the file and the problem.
+    """
+    from pipeline.geometry import frame, repair
+    from pipeline.io.scan import read_sidecar
+
+    spec = read_sidecar(folder, settings.max_yaml_bytes)
+    limits = settings.limits
+    loaded = load_mesh_file(spec.mesh, spec.folder, limits)
+    files = [spec.sidecar, *loaded.files_read]
+    n_in, m_in = len(loaded.V), len(loaded.F)
+    mesh_file = spec.mesh
+    V = frame.to_head_frame(loaded.V, spec.units, spec.up_axis, spec.forward_axis)
+    loaded.V = None
+    hints = {s: frame.to_head_frame(h, spec.units, spec.up_axis, spec.forward_axis) for s, h in spec.hints.items()}
+    step = frame.check_float32(V, mesh_file, settings.float32_tolerance_mm)
+    frame.check_head_size(V, spec.units, mesh_file, settings.head_size_mm)
+    separation = frame.check_eye_layout(hints["left"], hints["right"], spec.sidecar, settings.eye_separation_mm)
+    fixed = repair.repair_mesh(V, loaded.F, hints, settings.repair, path=mesh_file)
+    del V
+    V, F = fixed.V, fixed.F
+    # texture coordinates and colours follow the kept faces / vertices
+    UV = FUV = None
+    if loaded.UV is not None:
+        FUV_all = loaded.FUV[fixed.face_index]
+        used, FUV = np.unique(FUV_all, return_inverse=True)
+        UV, FUV = loaded.UV[used], FUV.reshape(-1, 3).astype(np.int64)
+    VC = loaded.VC[fixed.vertex_index] if loaded.VC is not None else None
+    hint_dist = {}
+    for side, h in hints.items():
+        d = repair.point_surface_distance(V, F, h)
+        hint_dist[side] = round(d, 4)
+        if d > settings.max_hint_distance_mm:
+            raise ScanError(spec.sidecar, f"eyes.{side}.hint is {d:.1f} mm from the mesh surface, over the limit "
+                                          f"of {settings.max_hint_distance_mm:g} mm (wrong hint, units or axes?)")
+    normal_z = sum(float(repair.mean_normal_near(V, F, h, settings.eye_radius_mm)[2]) for h in hints.values())
+    flipped = False
+    if normal_z < 0:
+        if not settings.flip_inward_winding:
+            raise ScanError(mesh_file, "faces around the eyes point backward (-Z): inward winding or wrong "
+                                       "forward_axis")
+        F = F[:, ::-1].copy()
+        if FUV is not None:
+            FUV = FUV[:, ::-1].copy()
+        flipped = True
+    # texture
+    texture = png_bytes = None
+    tex_src = spec.texture or loaded.texture_path
+    tex_label = tex_src if tex_src is not None else f"{mesh_file} (embedded texture)"
+    if tex_src is not None or loaded.texture_bytes is not None:
+        if UV is None:
+            raise ScanError(tex_label, f"a texture is given but the mesh {mesh_file.name} has no texture coordinates")
+        texture = load_texture(tex_src if tex_src is not None else loaded.texture_bytes, limits, name=tex_label)
+        if tex_src is not None:
+            files.append(tex_src)
+            if texture.info.get("source_format") == "PNG" and texture.info.get("source_mode") in ("RGB", "RGBA"):
+                png_bytes = Path(tex_src).read_bytes()
+    mesh = {"V": V, "F": F}
+    if UV is not None:
+        mesh.update(UV=UV, FUV=FUV)
+    if VC is not None:
+        mesh["VC"] = VC
+    scan = {
+        "name": spec.folder.name,
+        "source_sha256": source_sha256(spec.folder, files),
+        "licence": spec.licence,
+        "eyes": {s: {"hint": [float(x) for x in hints[s]]} for s in ("left", "right")},
+        "texture": "texture.png" if texture is not None else None,
+        "units_in": spec.units,
+        "up_axis_in": spec.up_axis,
+        "forward_axis_in": spec.forward_axis,
+    }
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    metrics = {
+        "mesh_file": mesh_file.name,
+        "vertices_in": n_in, "faces_in": m_in,
+        "vertices_out": int(len(V)), "faces_out": int(len(F)),
+        "polygons_triangulated": loaded.polygons_triangulated,
+        "repairs": fixed.counts,
+        "flipped_winding": flipped,
+        "eye_region": fixed.eye_region,
+        "hint_surface_distance_mm": hint_dist,
+        "eye_hint_separation_mm": round(separation, 3),
+        "bbox_min_mm": [round(float(x), 4) for x in lo],
+        "bbox_max_mm": [round(float(x), 4) for x in hi],
+        "float32_step_mm": step,
+        "has_uv": UV is not None,
+        "uv_count": 0 if UV is None else int(len(UV)),
+        "uv_outside_unit_square_fraction": 0.0 if UV is None else
+        round(float(np.mean(np.any((UV < 0) | (UV > 1), axis=1))), 6),
+        "has_vertex_colors": VC is not None,
+        "texture_size": list(texture.size) if texture is not None else None,
+        "unknown_sidecar_keys": list(spec.unknown_keys),
+        "files_read": sorted(Path(f).resolve().relative_to(spec.folder).as_posix() for f in set(files)),
+    }
+    return IngestResult(mesh=mesh, texture=texture, texture_png_bytes=png_bytes, scan=scan, metrics=metrics)

@@ -1,0 +1,270 @@
+"""The scan folder's sidecar ``scan.yaml``: schema, validation and safe paths.
+
+Everything in a scan folder is untrusted. :func:`read_sidecar` refuses, with a
+:class:`pipeline.errors.ScanError` naming the file and the problem, anything
+that is not exactly what the scan folder contract (DESIGN.md) describes:
+
+``mesh``          str, relative path inside the folder (OBJ, PLY, STL or GLB)
+``texture``       optional str, relative path inside the folder
+``units``         ``mm`` | ``cm`` | ``m``
+``up_axis``       one of ``+X -X +Y -Y +Z -Z``
+``forward_axis``  one of the same, not parallel to ``up_axis``
+``eyes``          ``{left: {hint: [x, y, z]}, right: {hint: [x, y, z]}}`` finite numbers,
+                  scan coordinates and units
+``licence``       non-empty str
+
+Unknown top-level keys are tolerated (and listed in :attr:`ScanSpec.unknown_keys`
+so a stage can report them) unless they look like a misspelling of a known key
+(``textrue:``), which is refused: a silently ignored typo would drop the texture.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath, PureWindowsPath
+
+import numpy as np
+
+from pipeline.errors import ScanError
+
+SIDECAR_NAME = "scan.yaml"
+UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+AXES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
+KNOWN_KEYS = ("mesh", "texture", "units", "up_axis", "forward_axis", "eyes", "licence")
+FREE_FORM_KEYS = ("source", "notes", "description", "name", "comment")
+EYE_SIDES = ("left", "right")
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
+TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".tga", ".webp")
+DEFAULT_MAX_YAML_BYTES = 65536
+
+
+@dataclass(frozen=True)
+class ScanSpec:
+    """A validated ``scan.yaml``.
+
+    Attributes
+    ----------
+    folder : pathlib.Path
+        The scan folder, resolved.
+    sidecar : pathlib.Path
+        Path of ``scan.yaml``.
+    mesh : pathlib.Path
+        Resolved mesh path, a regular file inside ``folder``.
+    texture : pathlib.Path or None
+        Resolved texture path from the sidecar (overrides one named by the mesh file).
+    units : str
+        ``"mm"``, ``"cm"`` or ``"m"``.
+    up_axis, forward_axis : str
+        Signed scan axes, e.g. ``"+Y"``.
+    hints : dict[str, numpy.ndarray]
+        ``{"left": (3,), "right": (3,)}`` float64 eye hints in scan coordinates and units.
+    licence : str
+    unknown_keys : tuple of str
+        Top-level keys that are neither known nor free-form (tolerated, reported).
+    """
+
+    folder: Path
+    sidecar: Path
+    mesh: Path
+    texture: Path | None
+    units: str
+    up_axis: str
+    forward_axis: str
+    hints: dict = field(default_factory=dict)
+    licence: str = ""
+    unknown_keys: tuple = ()
+
+    @property
+    def scale_to_mm(self) -> float:
+        """Factor taking scan units to millimetres."""
+        return UNITS_TO_MM[self.units]
+
+
+def one_line(text) -> str:
+    """Collapse ``text`` to one line (error messages must be one line)."""
+    return " ".join(str(text).split())
+
+
+def safe_path(folder, value, sidecar, key: str, suffixes=None) -> Path:
+    """Resolve a relative path from an untrusted file and check it stays inside ``folder``.
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        The scan folder (resolved).
+    value : object
+        The untrusted value (must be a non-empty str).
+    sidecar : pathlib.Path
+        The file the value came from (named in errors).
+    key : str
+        What the value is (``"mesh"``, ``"texture"``, ``"map_Kd"``), named in errors.
+    suffixes : tuple of str, optional
+        Allowed lower-case file suffixes.
+
+    Returns
+    -------
+    pathlib.Path
+        The resolved path of an existing regular file inside ``folder``.
+    """
+    if not isinstance(value, str) or not value.strip():
+        raise ScanError(sidecar, f"{key} must be a non-empty string, got {_type_name(value)}")
+    value = value.strip()
+    if "\x00" in value:
+        raise ScanError(sidecar, f"{key} path contains a NUL byte")
+    posix, win = PurePosixPath(value), PureWindowsPath(value)
+    if posix.is_absolute() or win.is_absolute() or win.drive or value.startswith(("/", "\\", "~")):
+        raise ScanError(sidecar, f"{key} path {value!r} is absolute; give a path relative to the scan folder")
+    if ".." in posix.parts or ".." in win.parts:
+        raise ScanError(sidecar, f"{key} path {value!r} leaves the scan folder ('..')")
+    folder = Path(folder).resolve()
+    candidate = folder / value
+    try:
+        resolved = candidate.resolve(strict=False)
+    except (OSError, RuntimeError) as exc:  # symlink loop
+        raise ScanError(sidecar, f"{key} path {value!r} cannot be resolved: {one_line(exc)}") from None
+    if resolved != folder and folder not in resolved.parents:
+        raise ScanError(sidecar, f"{key} path {value!r} resolves outside the scan folder (symlink?)")
+    if not resolved.exists():
+        raise ScanError(candidate, f"{key} file does not exist (named in {Path(sidecar).name})")
+    if not resolved.is_file():
+        raise ScanError(candidate, f"{key} is not a regular file")
+    if suffixes is not None and resolved.suffix.lower() not in suffixes:
+        raise ScanError(candidate, f"{key} has unsupported file type {resolved.suffix or '(none)'!r}; "
+                                   f"expected one of {', '.join(suffixes)}")
+    return resolved
+
+
+def _type_name(value) -> str:
+    return "nothing" if value is None else type(value).__name__
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _hint(eyes, side: str, sidecar: Path) -> np.ndarray:
+    entry = eyes.get(side)
+    if entry is None:
+        raise ScanError(sidecar, f"eyes.{side} is missing (need eyes.{side}.hint: [x, y, z])")
+    if not isinstance(entry, dict) or "hint" not in entry:
+        raise ScanError(sidecar, f"eyes.{side} must be a mapping with a 'hint' key")
+    hint = entry["hint"]
+    if not isinstance(hint, (list, tuple)) or len(hint) != 3 or not all(_is_number(x) for x in hint):
+        raise ScanError(sidecar, f"eyes.{side}.hint must be three numbers [x, y, z], got {one_line(repr(hint))[:80]}")
+    if not all(math.isfinite(float(x)) for x in hint):
+        raise ScanError(sidecar, f"eyes.{side}.hint {one_line(repr(hint))[:80]} is not finite")
+    return np.array(hint, dtype=np.float64)
+
+
+def parse_sidecar(data, folder, sidecar) -> ScanSpec:
+    """Validate an already-parsed sidecar mapping.
+
+    Parameters
+    ----------
+    data : object
+        What ``yaml.safe_load`` returned.
+    folder : pathlib.Path
+        The scan folder.
+    sidecar : pathlib.Path
+        The sidecar path (named in errors).
+
+    Returns
+    -------
+    ScanSpec
+    """
+    folder = Path(folder).resolve()
+    if not isinstance(data, dict):
+        raise ScanError(sidecar, f"must be a YAML mapping of keys to values, got {_type_name(data)}")
+    for key in data:
+        if not isinstance(key, str):
+            raise ScanError(sidecar, f"keys must be strings, got {one_line(repr(key))[:40]}")
+    unknown = []
+    for key in data:
+        if key in KNOWN_KEYS or key in FREE_FORM_KEYS:
+            continue
+        close = difflib.get_close_matches(key, KNOWN_KEYS, n=1, cutoff=0.75)
+        if close:
+            raise ScanError(sidecar, f"unknown key {key!r} (did you mean {close[0]!r}?)")
+        unknown.append(key)
+    for key in ("mesh", "units", "up_axis", "forward_axis", "eyes", "licence"):
+        if key not in data:
+            raise ScanError(sidecar, f"required key {key!r} is missing")
+    units = data["units"]
+    if not isinstance(units, str) or units not in UNITS_TO_MM:
+        raise ScanError(sidecar, f"units must be one of mm, cm, m; got {one_line(repr(units))[:40]}")
+    axes = {}
+    for key in ("up_axis", "forward_axis"):
+        value = data[key]
+        if not isinstance(value, str) or value.strip().upper() not in AXES:
+            raise ScanError(sidecar, f"{key} must be one of {', '.join(AXES)}; got {one_line(repr(value))[:40]}")
+        axes[key] = value.strip().upper()
+    if axes["up_axis"][1] == axes["forward_axis"][1]:
+        raise ScanError(sidecar, f"up_axis {axes['up_axis']} and forward_axis {axes['forward_axis']} "
+                                 "are parallel; they must be different axes")
+    licence = data["licence"]
+    if not isinstance(licence, str) or not licence.strip():
+        raise ScanError(sidecar, f"licence must be a non-empty string, got {_type_name(licence)}")
+    eyes = data["eyes"]
+    if not isinstance(eyes, dict):
+        raise ScanError(sidecar, f"eyes must be a mapping with left and right, got {_type_name(eyes)}")
+    hints = {side: _hint(eyes, side, sidecar) for side in EYE_SIDES}
+    mesh = safe_path(folder, data["mesh"], sidecar, "mesh", MESH_SUFFIXES)
+    texture = None
+    if data.get("texture") is not None:
+        texture = safe_path(folder, data["texture"], sidecar, "texture", TEXTURE_SUFFIXES)
+    return ScanSpec(folder=folder, sidecar=Path(sidecar), mesh=mesh, texture=texture, units=units,
+                    up_axis=axes["up_axis"], forward_axis=axes["forward_axis"], hints=hints,
+                    licence=licence.strip(), unknown_keys=tuple(unknown))
+
+
+def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSpec:
+    """Read and validate ``<folder>/scan.yaml`` (``yaml.safe_load`` only, size-capped).
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The scan folder.
+    max_yaml_bytes : int
+        Refuse a sidecar larger than this.
+
+    Returns
+    -------
+    ScanSpec
+    """
+    import yaml
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ScanError(folder, "scan folder does not exist or is not a folder")
+    sidecar = folder / SIDECAR_NAME
+    if not sidecar.exists():
+        raise ScanError(sidecar, "missing: every scan folder needs a scan.yaml sidecar")
+    real = sidecar.resolve()
+    if sidecar.is_symlink() and folder.resolve() not in real.parents:
+        raise ScanError(sidecar, "is a symlink to outside the scan folder")
+    if not real.is_file():
+        raise ScanError(sidecar, "is not a regular file")
+    size = real.stat().st_size
+    if size > max_yaml_bytes:
+        raise ScanError(sidecar, f"is {size} bytes, over the limit of {max_yaml_bytes} bytes")
+    raw = real.read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScanError(sidecar, f"is not UTF-8 text ({one_line(exc)})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ScanError(sidecar, f"YAML error: {one_line(exc)[:200]}") from None
+    except RecursionError:
+        raise ScanError(sidecar, "YAML error: nesting too deep") from None
+    return parse_sidecar(data, folder, sidecar)
+
+
+def is_inside(folder, path) -> bool:
+    """Whether ``path`` resolves to a location inside ``folder``."""
+    folder = Path(folder).resolve()
+    return folder in Path(os.path.realpath(path)).parents

@@ -1,0 +1,422 @@
+"""Stage ingest: good inputs in every format, repairs, real scans.
+
+The helpers at the top build small synthetic scan folders (a head-sized
+ellipsoid with two eye bumps); ``test_ingest_bad_inputs.py`` and
+``test_frame.py`` reuse them.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from pipeline.io.meshfile import load_mesh
+from stages._common import run_stage
+from stages.ingest import main
+
+ROOT = Path(__file__).resolve().parents[1]
+RADII = np.array([75.0, 100.0, 90.0])      # head-sized ellipsoid, mm (x, y, z)
+EYE_XY = {"left": (32.0, 35.0), "right": (-32.0, 35.0)}  # subject's left = +X
+BUMP_MM, BUMP_SIGMA = 4.0, 8.0
+
+
+# ---------------------------------------------------------------------------- builders
+
+def head_mesh(subdivisions: int = 4):
+    """A head-sized ellipsoid with two eye bumps, head frame mm.
+
+    Returns
+    -------
+    V : (n, 3) float64, F : (m, 3) int64, hints : dict side -> (3,) float64 (on the bump surface + 1 mm)
+    """
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=subdivisions)
+    unit = np.asarray(s.vertices, dtype=np.float64)
+    V = unit * RADII
+    F = np.asarray(s.faces, dtype=np.int64)
+    hints = {}
+    for side, (x, y) in EYE_XY.items():
+        z = RADII[2] * np.sqrt(1 - (x / RADII[0]) ** 2 - (y / RADII[1]) ** 2)
+        c = np.array([x, y, z])
+        d = np.linalg.norm(V - c, axis=1)
+        V = V + unit * (BUMP_MM * np.exp(-0.5 * (d / BUMP_SIGMA) ** 2))[:, None]
+        hints[side] = c + c / np.linalg.norm(c) * (BUMP_MM + 1.0)
+    return V, F, hints
+
+
+def sphere_uv(V):
+    """Per-vertex spherical UVs in [0, 1], shape (n, 2)."""
+    d = V / np.linalg.norm(V, axis=1, keepdims=True)
+    u = 0.5 + np.arctan2(d[:, 0], d[:, 2]) / (2 * np.pi)
+    v = 0.5 + np.arcsin(np.clip(d[:, 1], -1, 1)) / np.pi
+    return np.column_stack([u, v])
+
+
+def write_ply(path, V, F, *, binary=True, uv=None, vc=None, uv_names=("s", "t"), header_extra=""):
+    """Write a PLY with float32 xyz, optional per-vertex UV (``s``, ``t``) and uchar colours."""
+    V = np.asarray(V)
+    props = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if uv is not None:
+        props += [(uv_names[0], "<f4"), (uv_names[1], "<f4")]
+    if vc is not None:
+        props += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    head = ["ply", "format binary_little_endian 1.0" if binary else "format ascii 1.0"]
+    if header_extra:
+        head.append(header_extra)
+    head.append(f"element vertex {len(V)}")
+    for name, dt in props:
+        head.append(f"property {'float' if dt == '<f4' else 'uchar'} {name}")
+    head += [f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
+    text = "\n".join(head) + "\n"
+    vert = np.zeros(len(V), dtype=props)
+    vert["x"], vert["y"], vert["z"] = V[:, 0], V[:, 1], V[:, 2]
+    if uv is not None:
+        vert[uv_names[0]], vert[uv_names[1]] = uv[:, 0], uv[:, 1]
+    if vc is not None:
+        vert["red"], vert["green"], vert["blue"] = vc[:, 0], vc[:, 1], vc[:, 2]
+    with open(path, "wb") as fh:
+        fh.write(text.encode())
+        if binary:
+            fh.write(vert.tobytes())
+            face = np.zeros(len(F), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+            face["n"], face["i"] = 3, F
+            fh.write(face.tobytes())
+        else:
+            lines = [" ".join(repr(float(x)) if isinstance(x, (float, np.floating)) else str(x) for x in row)
+                     for row in vert.tolist()]
+            lines += [f"3 {a} {b} {c}" for a, b, c in F]
+            fh.write(("\n".join(lines) + "\n").encode())
+
+
+def write_obj(path, V, F, *, UV=None, FUV=None, mtl=None, extra_lines=()):
+    """Write an OBJ with optional per-corner UVs (``f v/vt``) and ``mtllib``."""
+    out = []
+    if mtl:
+        out.append(f"mtllib {mtl}")
+    out += [f"v {x!r} {y!r} {z!r}" for x, y, z in np.asarray(V, dtype=float).tolist()]
+    if UV is not None:
+        out += [f"vt {u!r} {v!r}" for u, v in np.asarray(UV, dtype=float).tolist()]
+        if mtl:
+            out.append("usemtl skin")
+        out += [f"f {a + 1}/{p + 1} {b + 1}/{q + 1} {c + 1}/{r + 1}" for (a, b, c), (p, q, r) in zip(F, FUV)]
+    else:
+        out += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F]
+    out += list(extra_lines)
+    Path(path).write_text("\n".join(out) + "\n")
+
+
+def write_png(path, size=(64, 32)):
+    from PIL import Image
+
+    w, h = size
+    img = np.zeros((h, w, 3), dtype=np.uint8)
+    img[..., 0] = np.linspace(0, 255, w)[None, :]
+    img[..., 1] = np.linspace(0, 255, h)[:, None]
+    img[..., 2] = 128
+    Image.fromarray(img).save(path)
+
+
+def write_sidecar(folder, hints, *, mesh="scan.ply", units="mm", up="+Y", forward="+Z", texture=None,
+                  licence="CC0 test data", **extra):
+    data = {"mesh": mesh, "units": units, "up_axis": up, "forward_axis": forward,
+            "eyes": {s: {"hint": [float(x) for x in hints[s]]} for s in ("left", "right")},
+            "licence": licence}
+    if texture:
+        data["texture"] = texture
+    data.update(extra)
+    Path(folder, "scan.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+def make_scan(folder, fmt="ply", **kw):
+    """A good synthetic scan folder in the head frame (mm). Returns (V, F, hints)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    V, F, hints = head_mesh()
+    if fmt == "ply":
+        write_ply(folder / "scan.ply", V, F)
+        write_sidecar(folder, hints, **kw)
+    elif fmt == "obj":
+        write_obj(folder / "scan.obj", V, F)
+        write_sidecar(folder, hints, mesh="scan.obj", **kw)
+    else:
+        raise ValueError(fmt)
+    return V, F, hints
+
+
+def ingest(scan, out, params=None, capsys=None):
+    """Run the stage in-process; returns exit code."""
+    argv = [str(scan), str(out), "--metrics", str(Path(out).with_suffix(".metrics.json"))]
+    if params is not None:
+        argv += ["--params", str(params)]
+    return run_stage(main, argv)
+
+
+def read_metrics(out):
+    return json.loads(Path(out).with_suffix(".metrics.json").read_text())
+
+
+# ---------------------------------------------------------------------------- tests
+
+def test_good_ply_ingests(tmp_path):
+    V, F, hints = make_scan(tmp_path / "head")
+    out = tmp_path / "build" / "ingest"
+    assert ingest(tmp_path / "head", out) == 0
+    mesh = load_mesh(out / "mesh.npz")
+    assert mesh["V"].dtype == np.float64 and mesh["F"].dtype == np.int64
+    assert mesh["F"].shape == F.shape and mesh["V"].shape == V.shape
+    np.testing.assert_allclose(mesh["V"], V.astype(np.float32), atol=1e-9)  # PLY stored float32
+    scan = json.loads((out / "scan.json").read_text())
+    assert scan["name"] == "head" and scan["texture"] is None and scan["licence"] == "CC0 test data"
+    assert len(scan["source_sha256"]) == 64
+    np.testing.assert_allclose(scan["eyes"]["left"]["hint"], hints["left"])
+    assert (scan["units_in"], scan["up_axis_in"], scan["forward_axis_in"]) == ("mm", "+Y", "+Z")
+    m = read_metrics(out)
+    assert m["faces_in"] == m["faces_out"] == len(F)
+    assert all(v == 0 for k, v in m["repairs"].items() if k != "components")
+    assert m["hint_surface_distance_mm"]["left"] == pytest.approx(1.0, abs=0.3)
+    assert m["flipped_winding"] is False
+    assert "wall_time_s" in m and "peak_memory_mib" in m
+    assert not (out / "texture.png").exists()
+    # outward winding: the mesh's signed volume is positive
+    T = mesh["V"][mesh["F"]]
+    assert np.einsum("ij,ij->i", T[:, 0], np.cross(T[:, 1], T[:, 2])).sum() > 0
+
+
+def test_obj_with_seams_mtl_texture(tmp_path):
+    """Per-corner UVs survive exactly (positions are not split at seams); MTL map_Kd texture is kept."""
+    folder = tmp_path / "objscan"
+    folder.mkdir()
+    V, F, hints = head_mesh()
+    rng = np.random.default_rng(0)
+    # one UV row per corner, so every edge is a seam
+    UV = rng.uniform(0, 1, (3 * len(F), 2))
+    FUV = np.arange(3 * len(F)).reshape(-1, 3)
+    write_obj(folder / "scan.obj", V, F, UV=UV, FUV=FUV, mtl="scan.mtl")
+    (folder / "scan.mtl").write_text("newmtl skin\nKd 1 1 1\nmap_Kd tex/skin.png\n")
+    (folder / "tex").mkdir()
+    write_png(folder / "tex" / "skin.png", (64, 32))
+    write_sidecar(folder, hints, mesh="scan.obj")
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 0
+    mesh = load_mesh(out / "mesh.npz")
+    assert len(mesh["V"]) == len(V)                    # not split at seams
+    np.testing.assert_allclose(mesh["V"], V, atol=1e-12)
+    np.testing.assert_array_equal(mesh["F"], F)
+    np.testing.assert_allclose(mesh["UV"][mesh["FUV"]], UV[FUV], atol=1e-12)
+    from PIL import Image
+    with Image.open(out / "texture.png") as img:
+        assert img.size == (64, 32)
+    scan = json.loads((out / "scan.json").read_text())
+    assert scan["texture"] == "texture.png"
+    assert read_metrics(out)["files_read"] == ["scan.mtl", "scan.obj", "scan.yaml", "tex/skin.png"]
+
+
+def test_obj_quads_negative_indices_and_vertex_colours(tmp_path):
+    folder = tmp_path / "quads"
+    folder.mkdir()
+    V, F, hints = head_mesh()
+    # same surface, but the first face written as a quad made of two triangles sharing an edge is hard;
+    # instead append a far-away quad (debris) using negative indices and coloured vertices
+    lines = [f"v {x!r} {y!r} {z!r} 0.5 0.25 1.0" for x, y, z in V.tolist()]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F]
+    lines += ["v 0 -160 0 0 0 0", "v 5 -160 0 0 0 0", "v 5 -155 0 0 0 0", "v 0 -155 0 0 0 0", "f -4 -3 -2 -1"]
+    (folder / "scan.obj").write_text("\n".join(lines) + "\n")
+    write_sidecar(folder, hints, mesh="scan.obj")
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 0
+    m = read_metrics(out)
+    assert m["polygons_triangulated"] == 1 and m["faces_in"] == len(F) + 2
+    assert m["repairs"]["debris_components"] == 1 and m["repairs"]["debris_faces"] == 2
+    assert m["repairs"]["unreferenced_vertices"] == 4
+    mesh = load_mesh(out / "mesh.npz")
+    assert mesh["VC"].shape == (len(V), 3)
+    np.testing.assert_array_equal(mesh["VC"][0], [128, 64, 255])
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_ply_with_st_uv_texture_and_colours(tmp_path, binary):
+    """The synthetic-head layout: PLY with per-vertex s,t and a texture named in scan.yaml."""
+    folder = tmp_path / "syn"
+    folder.mkdir()
+    V, F, hints = head_mesh(3)
+    uv = sphere_uv(V)
+    vc = np.full((len(V), 3), 200, dtype=np.uint8)
+    write_ply(folder / "scan.ply", V, F, binary=binary, uv=uv, vc=vc)
+    write_png(folder / "texture.png", (32, 16))
+    write_sidecar(folder, hints, texture="texture.png")
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 0
+    mesh = load_mesh(out / "mesh.npz")
+    np.testing.assert_allclose(mesh["UV"][mesh["FUV"]], uv[F].astype(np.float32), atol=1e-6)
+    assert mesh["VC"].shape == (len(V), 3) and (mesh["VC"] == 200).all()
+    assert (out / "texture.png").read_bytes() == (folder / "texture.png").read_bytes()  # PNG copied
+
+
+def test_stl_and_glb(tmp_path):
+    import trimesh
+
+    V, F, hints = head_mesh(3)
+    for ext in ("stl", "glb"):
+        folder = tmp_path / ext
+        folder.mkdir()
+        tm = trimesh.Trimesh(V, F, process=False)
+        if ext == "glb":
+            from PIL import Image
+            tm.visual = trimesh.visual.TextureVisuals(uv=sphere_uv(V), image=Image.new("RGB", (16, 8), (9, 99, 199)))
+        tm.export(folder / f"scan.{ext}")
+        write_sidecar(folder, hints, mesh=f"scan.{ext}")
+        out = tmp_path / f"out_{ext}"
+        assert ingest(folder, out) == 0, ext
+        mesh = load_mesh(out / "mesh.npz")
+        assert len(mesh["F"]) == len(F)
+        assert len(mesh["V"]) == len(V)            # the STL soup is merged back
+        m = read_metrics(out)
+        if ext == "stl":
+            assert m["repairs"]["merged_vertices"] == 3 * len(F) - len(V)
+        else:
+            np.testing.assert_allclose(mesh["UV"][mesh["FUV"]], sphere_uv(V)[F], atol=1e-6)
+            assert json.loads((out / "scan.json").read_text())["texture"] == "texture.png"
+
+
+def test_debris_removed_and_counted(tmp_path):
+    folder = tmp_path / "debris"
+    folder.mkdir()
+    V, F, hints = head_mesh()
+    import trimesh
+
+    blob = trimesh.creation.icosphere(0)                      # 20 faces < 1 % of 5120
+    far = np.asarray(blob.vertices) * 3 + [0, -160, 20]       # below the chin
+    near = np.asarray(blob.vertices) * 2 + hints["left"] + [0, 0, 6]  # floating just in front of the left eye
+    Vall = np.vstack([V, far, near])
+    Fall = np.vstack([F, blob.faces + len(V), blob.faces + len(V) + len(far)])
+    # plus exact duplicates and a degenerate face far from the eyes
+    low = np.argsort(V[F].mean(axis=1)[:, 1])[:3]             # the three lowest faces (chin)
+    Fall = np.vstack([Fall, F[low], [[F[low[0], 0], F[low[0], 0], F[low[0], 1]]]])
+    write_ply(folder / "scan.ply", Vall, Fall)
+    write_sidecar(folder, hints)
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 0
+    r = read_metrics(out)["repairs"]
+    assert r["debris_components"] == 1 and r["debris_faces"] == 20
+    assert r["small_components_kept_near_eyes"] == 1
+    assert r["duplicate_faces"] == 3 and r["degenerate_faces"] == 1
+    assert r["unreferenced_vertices"] == len(far)
+    mesh = load_mesh(out / "mesh.npz")
+    assert len(mesh["F"]) == len(F) + 20 and len(mesh["V"]) == len(V) + len(near)
+    assert mesh["V"][:, 1].min() > -110                       # the far blob is gone
+
+
+def test_repairs_near_eye_refused(tmp_path, capsys):
+    folder = tmp_path / "eyedamage"
+    folder.mkdir()
+    V, F, hints = head_mesh()
+    c = V[F].mean(axis=1)
+    near = F[np.linalg.norm(c - hints["left"], axis=1) < 20]
+    write_ply(folder / "scan.ply", V, np.vstack([F, near]))  # duplicate every face around the left eye
+    write_sidecar(folder, hints)
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "scan.ply" in err and "left eye hint" in err and "repairs would remove" in err
+    assert not out.exists()
+
+
+def test_inward_winding_flipped(tmp_path):
+    folder = tmp_path / "inward"
+    folder.mkdir()
+    V, F, hints = head_mesh(3)
+    write_ply(folder / "scan.ply", V, F[:, ::-1])
+    write_sidecar(folder, hints)
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 0
+    assert read_metrics(out)["flipped_winding"] is True
+    np.testing.assert_array_equal(np.sort(load_mesh(out / "mesh.npz")["F"], axis=1), np.sort(F, axis=1))
+
+
+def test_subprocess_cli_and_stale_free_rerun(tmp_path):
+    make_scan(tmp_path / "cli")
+    out = tmp_path / "build" / "cli" / "ingest"
+    metrics = tmp_path / "build" / "cli" / "ingest.metrics.json"
+    cmd = [sys.executable, "-m", "stages.ingest", str(tmp_path / "cli"), str(out), "--metrics", str(metrics)]
+    for _ in range(2):  # a re-run replaces the folder atomically
+        p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+        assert p.returncode == 0, p.stderr
+    assert sorted(x.name for x in out.iterdir()) == ["mesh.npz", "scan.json"]
+    assert json.loads(metrics.read_text())["faces_out"] == 5120
+    assert [x.name for x in out.parent.iterdir() if ".tmp-" in x.name] == []
+
+
+# ---------------------------------------------------------------------------- real scans
+
+def _obj_corners(path):
+    """Independent reference parse of an OBJ's (position, uv) per corner, by a plain loop."""
+    v, vt, corners = [], [], set()
+    for line in Path(path).read_text().splitlines():
+        t = line.split()
+        if not t:
+            continue
+        if t[0] == "v":
+            v.append(tuple(float(x) for x in t[1:4]))
+        elif t[0] == "vt":
+            vt.append(tuple(float(x) for x in t[1:3]))
+        elif t[0] == "f":
+            for c in t[1:]:
+                a, b = c.split("/")[:2]
+                corners.add((v[int(a) - 1], vt[int(b) - 1]))
+    return corners
+
+
+def test_real_james(extra_scan, tmp_path):
+    folder = extra_scan("james")
+    out = tmp_path / "james"
+    assert ingest(folder, out) == 0
+    mesh = load_mesh(out / "mesh.npz")
+    from PIL import Image
+    with Image.open(out / "texture.png") as img:
+        assert img.size == (2400, 1600)
+    assert mesh["FUV"].shape == mesh["F"].shape
+    assert mesh["UV"].min() >= 0 and mesh["UV"].max() <= 1
+    # every output corner (position, uv) pair exists in the source file: UVs belong to their corners
+    ref = _obj_corners(folder / "james.obj")
+    got = set(zip(map(tuple, mesh["V"][mesh["F"]].reshape(-1, 3).tolist()),
+                  map(tuple, mesh["UV"][mesh["FUV"]].reshape(-1, 2).tolist())))
+    assert got <= ref
+    m = read_metrics(out)
+    assert m["vertices_in"] == 6393 and m["faces_in"] == 12228 and m["uv_count"] > m["vertices_out"]
+    assert m["repairs"]["debris_faces"] < 100
+    assert max(m["hint_surface_distance_mm"].values()) < 2.0
+
+
+def test_real_ict_neutral(extra_scan, tmp_path):
+    folder = extra_scan("ict_neutral")
+    out = tmp_path / "ict"
+    assert ingest(folder, out) == 0
+    mesh = load_mesh(out / "mesh.npz")
+    assert len(mesh["F"]) == 300000 and len(mesh["V"]) == 151590
+    m = read_metrics(out)
+    assert max(m["hint_surface_distance_mm"].values()) < 3.0      # hints are 2 mm off the opening centre
+    gt = json.loads((folder / "ground_truth.json").read_text())
+    assert gt["eyes"]["left"]["eyeball_sphere"]["center_mm"][0] > 0  # subject's left at +X, as our frame
+    scan = json.loads((out / "scan.json").read_text())
+    assert scan["eyes"]["left"]["hint"][0] > 0 > scan["eyes"]["right"]["hint"][0]
+
+
+def test_synthetic_head_if_present(tmp_path):
+    folder = ROOT / "raw_scans" / "synthetic_head"
+    if not (folder / "scan.yaml").exists():
+        pytest.skip("raw_scans/synthetic_head not generated yet")
+    out = tmp_path / "syn"
+    assert ingest(folder, out) == 0
+    mesh = load_mesh(out / "mesh.npz")
+    assert len(mesh["F"]) > 0
+    scan = json.loads((out / "scan.json").read_text())
+    if scan["texture"]:
+        assert "UV" in mesh and (out / "texture.png").exists()
