@@ -401,6 +401,9 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
                 warnings.simplefilter("ignore")
                 (tply._ply_ascii if is_ascii else tply._ply_binary)(elements, fh)
         except Exception as exc:  # noqa: BLE001
+            if "unexpected length" in str(exc):
+                raise ScanError(path, "PLY data length does not match its header (truncated or corrupt file, "
+                                      "or binary faces with mixed corner counts)") from None
             raise ScanError(path, f"cannot read PLY data: {one_line(exc)[:120]}") from None
     vdata = elements.get("vertex", {}).get("data")
     xyz = [_column(vdata, c) for c in "xyz"]
@@ -628,7 +631,11 @@ def load_texture(source, limits: Limits = Limits(), name=None):
         warnings.simplefilter("error", Image.DecompressionBombWarning)
         try:
             img = Image.open(io.BytesIO(data))  # reads the header only
-        except (UnidentifiedImageError, Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+            raise ScanError(label, f"texture is over the limit of {limits.max_texture_pixels} pixels "
+                                   f"(ingest.max_texture_pixels), possible decompression bomb; not decoded "
+                                   f"({one_line(exc)[:80]})") from None
+        except UnidentifiedImageError as exc:
             raise ScanError(label, f"texture cannot be opened: {one_line(exc)[:140]}") from None
         except Exception as exc:  # noqa: BLE001
             raise ScanError(label, f"texture cannot be opened: {one_line(exc)[:140]}") from None
