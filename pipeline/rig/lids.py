@@ -1,0 +1,828 @@
+"""Eyelid blend shapes driven by eyeball pitch (SynthesEyes paper, section 3.4).
+
+Two blend shapes, ``lids_up`` (eyes pitched up by ``max_pitch_deg``) and
+``lids_down`` (pitched down by the same angle), are computed automatically from
+the sealed eye-region mesh and the fitted eyeball spheres:
+
+* The eyelid margin (the loop where skin meets the eyeball) rotates about the
+  eye's horizontal axis through the eyeball centre ``c``: the upper lid by
+  ``gain_upper * pitch``, the lower lid by ``gain_lower * pitch`` (the lower lid
+  moves less), tapered to zero at both canthi by :func:`canthus_taper` (a sine
+  ramp over ``canthus_width`` of the lid width at each end, 1 in the middle;
+  ``u`` = 0 at the medial and 1 at the lateral canthus, measured along the eye's
+  horizontal axis). A rotation about ``c`` keeps every point at its
+  distance from ``c``, so a margin that lies on the eyeball sphere stays on it.
+* Skin around the margin rotates the same way with an angle that fades with
+  the (edge-graph) geodesic distance ``D`` from the margin: ``theta(v) =
+  Theta(v) * S(D / R(v))``, where ``Theta`` and ``R`` are harmonic extensions of
+  the margin's angle gains and falloff radii (``upper_falloff_mm`` above,
+  ``lower_falloff_mm`` below) and ``S`` is the C2 "smootherstep" falloff
+  (``S(0) = 1``, ``S(1) = 0``, first and second derivatives zero at both ends),
+  so there is no visible step at the edge of the support and nothing moves
+  beyond it.
+
+Linear blend shapes move each point along the straight chord of its rotation
+arc, which would sink the margin into the eyeball (for 25 degrees on a 15 mm
+eye the sag at half weight is ~0.3 mm). Each shape therefore carries
+*inbetweens* (UsdSkel ``inbetweens:<name>``) at the weights ``j / N``: the
+posed mesh is sampled at ``N`` evenly spaced pitches and interpolated piecewise
+linearly, with ``N`` chosen so the chord sag stays below ``max_chord_sag_mm``.
+
+The pitch-to-weight rule (:func:`lid_weights`, documented in
+:data:`WEIGHT_RULE`) is the single function that the renderer and the USD
+stage use; it is stored in the asset. For shape-key systems without
+inbetweens (Blender shape keys) :func:`flat_shape_weights` expands channel
+weights to one weight per stored pose (hat functions), which gives exactly the
+same points as the UsdSkel inbetween evaluation (:func:`evaluate_shapes`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+SHAPE_UP = "lids_up"
+SHAPE_DOWN = "lids_down"
+MAX_PITCH_DEG = 25.0
+
+#: The pitch-to-weight rule, as stored in the asset (rig.json, USD metadata).
+WEIGHT_RULE = {
+    "function": "pipeline.rig.lids.lid_weights",
+    "formula": "w_lids_up = clamp(pitch_deg / max_pitch_deg, 0, 1); "
+               "w_lids_down = clamp(-pitch_deg / max_pitch_deg, 0, 1)",
+    "pitch_definition": "eyeball rotation about its horizontal axis (through the eyeball centre, "
+                        "perpendicular to the rest forward direction and head +Y) from its rest "
+                        "orientation, degrees, positive = looking up; both eyes share one pitch",
+    "channels": [SHAPE_UP, SHAPE_DOWN],
+    "inbetweens": "UsdSkel semantics: a channel weight w between two stored poses (implicit 0, "
+                  "inbetween weights, 1) interpolates their offsets linearly; see "
+                  "pipeline.rig.lids.evaluate_shapes / flat_shape_weights",
+}
+
+
+def lid_weights(pitch_deg: float, max_pitch_deg: float = MAX_PITCH_DEG) -> dict[str, float]:
+    """Blend-shape channel weights for an eyeball pitch: THE pitch-to-weight rule.
+
+    ``w_lids_up = clamp(pitch / max_pitch, 0, 1)``,
+    ``w_lids_down = clamp(-pitch / max_pitch, 0, 1)``.
+
+    Parameters
+    ----------
+    pitch_deg : float
+        Eyeball pitch from its rest orientation, degrees, positive = looking up.
+    max_pitch_deg : float
+        Pitch at which each shape reaches weight 1 (the anatomical limit, 25 deg).
+
+    Returns
+    -------
+    dict
+        ``{"lids_up": w_up, "lids_down": w_down}``, each in [0, 1], at most one non-zero.
+    """
+    p = float(pitch_deg)
+    m = float(max_pitch_deg)
+    if not math.isfinite(p):
+        raise ValueError(f"pitch must be finite, got {pitch_deg!r}")
+    if not (math.isfinite(m) and m > 0):
+        raise ValueError(f"max_pitch_deg must be positive, got {max_pitch_deg!r}")
+    return {SHAPE_UP: min(max(p / m, 0.0), 1.0), SHAPE_DOWN: min(max(-p / m, 0.0), 1.0)}
+
+
+@dataclass(frozen=True)
+class LidParams:
+    """Settings of the lid shapes (the ``rig:`` block of params.yaml).
+
+    Gains are lid rotation / eyeball rotation at the middle of each lid.
+    """
+
+    max_pitch_deg: float = MAX_PITCH_DEG
+    gain_upper_up: float = 0.8
+    gain_upper_down: float = 0.9
+    gain_lower_up: float = 0.3
+    gain_lower_down: float = 0.4
+    canthus_width: float = 0.35
+    canthus_exponent: float = 1.0
+    upper_falloff_mm: float = 12.0
+    lower_falloff_mm: float = 8.0
+    max_chord_sag_mm: float = 0.03
+    max_segments: int = 12
+    min_offset_mm: float = 1e-6
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "LidParams":
+        """Build from a params dict, ignoring keys that are not lid settings."""
+        d = dict(d or {})
+        names = {f for f in cls.__dataclass_fields__}
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
+@dataclass
+class EyeFrame:
+    """One eye: its fitted sphere, rest forward direction and eyelid-margin loop.
+
+    Attributes
+    ----------
+    side : str
+        ``"left"`` (subject's left, +X) or ``"right"``.
+    center : (3,) float64
+        Eyeball sphere centre, mm, head frame.
+    radius : float
+        Eyeball sphere radius, mm.
+    forward : (3,) float64
+        Unit rest gaze direction.
+    loop : (L,) int64
+        Eyelid-margin vertex indices: medial canthus first, upper lid, lateral canthus, lower lid.
+    lateral_index : int
+        Position of the lateral canthus in ``loop``.
+    """
+
+    side: str
+    center: np.ndarray
+    radius: float
+    forward: np.ndarray
+    loop: np.ndarray
+    lateral_index: int
+
+    def basis(self) -> np.ndarray:
+        """(3, 3) rows ``e_x`` (horizontal, toward head +X), ``e_y`` (up), ``e_z`` (forward)."""
+        return eye_basis(self.forward)
+
+    @property
+    def axis(self) -> np.ndarray:
+        """(3,) unit rotation axis: a positive angle about it pitches the eye up."""
+        return -self.basis()[0]
+
+
+def eye_basis(forward) -> np.ndarray:
+    """Orthonormal eye frame from a forward direction and head +Y.
+
+    Returns
+    -------
+    (3, 3) float64
+        Rows ``e_x = normalize(Y x f)`` (toward head +X), ``e_y = f x e_x`` (up), ``e_z = f``.
+    """
+    f = np.asarray(forward, dtype=np.float64)
+    f = f / np.linalg.norm(f)
+    ex = np.cross([0.0, 1.0, 0.0], f)
+    n = np.linalg.norm(ex)
+    if n < 1e-6:
+        raise ValueError("forward direction is vertical; pitch axis undefined")
+    ex /= n
+    ey = np.cross(f, ex)
+    return np.stack([ex, ey, f])
+
+
+def find_lateral_canthus(points, center, forward, side: str) -> int:
+    """Index of the lateral canthus in an eyelid loop (the most lateral point).
+
+    Parameters
+    ----------
+    points : (L, 3) float64
+        Loop points, medial canthus first.
+    center, forward : (3,)
+        Eyeball centre and rest forward direction.
+    side : {"left", "right"}
+        Lateral is head +X for the left eye, -X for the right eye.
+    """
+    ex = eye_basis(forward)[0]
+    sign = 1.0 if side == "left" else -1.0
+    x = (np.asarray(points, dtype=np.float64) - np.asarray(center)) @ ex * sign
+    return int(np.argmax(x))
+
+
+def rotate_about_axis(P, center, axis, angles) -> np.ndarray:
+    """Rotate points about the line through ``center`` along unit ``axis`` (Rodrigues).
+
+    Parameters
+    ----------
+    P : (n, 3) float64
+    center, axis : (3,) float64
+    angles : (n,) float64 or float
+        Radians, right-handed about ``axis``.
+
+    Returns
+    -------
+    (n, 3) float64
+    """
+    P = np.asarray(P, dtype=np.float64)
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    w = P - np.asarray(center, dtype=np.float64)
+    th = np.broadcast_to(np.asarray(angles, dtype=np.float64), (len(P),))[:, None]
+    cos, sin = np.cos(th), np.sin(th)
+    return (np.asarray(center) + w * cos + np.cross(a, w) * sin
+            + a[None, :] * (w @ a)[:, None] * (1.0 - cos))
+
+
+def canthus_taper(u, width: float = 0.35, exponent: float = 1.0) -> np.ndarray:
+    """How much of the lid gain applies at horizontal position ``u`` (0 medial, 1 lateral canthus).
+
+    ``sin(pi/2 * min(1, u / width, (1 - u) / width)) ** exponent``: zero at both canthi,
+    a plateau of 1 over the middle ``[width, 1 - width]``, C1 where ramp and plateau meet.
+    ``width = 0.5, exponent = 1`` gives ``sin(pi u)``.
+    """
+    u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
+    w = float(width)
+    if not 0.0 < w <= 0.5:
+        raise ValueError(f"canthus width must be in (0, 0.5], got {width!r}")
+    x = np.minimum(1.0, np.minimum(u, 1.0 - u) / w)
+    return np.sin(0.5 * np.pi * x) ** float(exponent)
+
+
+def smootherstep_falloff(t) -> np.ndarray:
+    """C2 falloff: 1 at ``t <= 0``, 0 at ``t >= 1``, ``1 - (6t^5 - 15t^4 + 10t^3)`` between."""
+    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)
+    return 1.0 - t * t * t * (t * (6.0 * t - 15.0) + 10.0)
+
+
+def mesh_edges(F) -> np.ndarray:
+    """(e, 2) int64 unique undirected edges of a triangle mesh."""
+    F = np.asarray(F, dtype=np.int64)
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    E.sort(axis=1)
+    E = E[E[:, 0] != E[:, 1]]
+    return np.unique(E, axis=0)
+
+
+def _edge_graph(V, E):
+    from scipy.sparse import coo_matrix
+
+    n = len(V)
+    length = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
+    length = np.maximum(length, 1e-9)
+    rows = np.concatenate([E[:, 0], E[:, 1]])
+    cols = np.concatenate([E[:, 1], E[:, 0]])
+    data = np.concatenate([length, length])
+    return coo_matrix((data, (rows, cols)), shape=(n, n)).tocsr()
+
+
+def _harmonic_extension(G, region, fixed, values):
+    """Extend ``values`` (k, c) at ``fixed`` vertices harmonically over ``region``.
+
+    Inverse-edge-length weighted graph Laplacian, Dirichlet at ``fixed``, natural
+    (Neumann) boundary at the rim of ``region``. Returns (n, c), zero outside.
+    """
+    from scipy.sparse import csr_matrix, diags
+    from scipy.sparse.linalg import splu
+
+    n = G.shape[0]
+    out = np.zeros((n, values.shape[1]))
+    out[fixed] = values
+    is_fixed = np.zeros(n, bool)
+    is_fixed[fixed] = True
+    free = np.flatnonzero(region & ~is_fixed)
+    if len(free) == 0:
+        return out
+    keep = np.flatnonzero(region | is_fixed)
+    W = G[keep][:, keep].tocsr()
+    W = csr_matrix((1.0 / W.data, W.indices, W.indptr), shape=W.shape)
+    pos = np.full(n, -1)
+    pos[keep] = np.arange(len(keep))
+    fi, ci = pos[free], pos[fixed]
+    deg = np.asarray(W.sum(axis=1)).ravel()
+    A_ff = (diags(deg[fi]) - W[fi][:, fi]).tocsc()
+    rhs = W[fi][:, ci] @ values
+    out[free] = splu(A_ff).solve(np.asarray(rhs))
+    return out
+
+
+@dataclass
+class EyeField:
+    """Per-vertex lid rotation of one eye at full weight (diagnostics and reuse).
+
+    Attributes
+    ----------
+    theta_up, theta_down : (n,) float64
+        Rotation angle about ``eye.axis`` at weight 1 of lids_up / lids_down, radians.
+    distance : (n,) float64
+        Edge-graph distance from the margin loop, mm (inf beyond the support search).
+    falloff : (n,) float64
+        ``S(D / R)`` in [0, 1].
+    loop_u : (L,) float64
+        Horizontal position of each margin vertex, 0 medial .. 1 lateral canthus.
+    """
+
+    theta_up: np.ndarray
+    theta_down: np.ndarray
+    distance: np.ndarray
+    falloff: np.ndarray
+    loop_u: np.ndarray
+
+
+def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeField:
+    """Rotation angle of every vertex for the full lids_up and lids_down poses of one eye.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    eye : EyeFrame
+    params : LidParams
+    graph : scipy.sparse matrix, optional
+        Edge-length graph of (V, F), reused across eyes.
+
+    Returns
+    -------
+    EyeField
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    V = np.asarray(V, dtype=np.float64)
+    G = _edge_graph(V, mesh_edges(F)) if graph is None else graph
+    loop = np.asarray(eye.loop, dtype=np.int64)
+    L, li = len(loop), int(eye.lateral_index)
+    B = eye.basis()
+    x = (V[loop] - eye.center) @ B[0]
+    x0, x1 = x[0], x[li]
+    u = np.clip((x - x0) / (x1 - x0), 0.0, 1.0) if abs(x1 - x0) > 1e-9 else np.zeros(L)
+    taper = canthus_taper(u, params.canthus_width, params.canthus_exponent)
+    taper[[0, li]] = 0.0
+    upper = np.zeros(L, bool)
+    upper[1:li] = True
+    lower = np.zeros(L, bool)
+    lower[li + 1:] = True
+    gain_up = np.where(upper, params.gain_upper_up, params.gain_lower_up) * taper
+    gain_dn = np.where(upper, params.gain_upper_down, params.gain_lower_down) * taper
+    radius = np.where(upper, params.upper_falloff_mm,
+                      np.where(lower, params.lower_falloff_mm,
+                               0.5 * (params.upper_falloff_mm + params.lower_falloff_mm)))
+    r_max = float(max(params.upper_falloff_mm, params.lower_falloff_mm))
+    D = dijkstra(G, directed=False, indices=loop, min_only=True, limit=r_max * 1.0001)
+    region = np.isfinite(D)
+    ext = _harmonic_extension(G, region, loop, np.stack([gain_up, gain_dn, radius], axis=1))
+    R = np.where(region, np.maximum(ext[:, 2], 1e-6), 1.0)
+    S = np.where(region, smootherstep_falloff(np.where(region, D, 0.0) / R), 0.0)
+    pmax = math.radians(params.max_pitch_deg)
+    return EyeField(theta_up=pmax * ext[:, 0] * S, theta_down=-pmax * ext[:, 1] * S,
+                    distance=D, falloff=S, loop_u=u)
+
+
+@dataclass
+class BlendShape:
+    """One blend-shape channel in UsdSkel layout.
+
+    Attributes
+    ----------
+    name : str
+    point_indices : (k,) int64
+        Mesh vertices the shape moves.
+    offsets : (k, 3) float64
+        Offsets at weight 1, mm.
+    inbetween_weights : (j,) float64
+        Weights in (0, 1) of the inbetween shapes, increasing.
+    inbetween_offsets : (j, k, 3) float64
+        Offsets of each inbetween (same ``point_indices``).
+    """
+
+    name: str
+    point_indices: np.ndarray
+    offsets: np.ndarray
+    inbetween_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    inbetween_offsets: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3)))
+
+    def knots(self):
+        """(weights (j+2,), offsets (j+2, k, 3)) including the implicit 0 and the full shape."""
+        k = len(self.point_indices)
+        w = np.concatenate([[0.0], np.asarray(self.inbetween_weights, float), [1.0]])
+        o = np.concatenate([np.zeros((1, k, 3)),
+                            np.asarray(self.inbetween_offsets, float).reshape(-1, k, 3),
+                            np.asarray(self.offsets, float)[None]])
+        return w, o
+
+    def inbetween_names(self) -> list[str]:
+        """Names for the inbetweens: ``<name>_ib<j>`` (j = 1 .. number of inbetweens)."""
+        return [f"{self.name}_ib{j + 1}" for j in range(len(self.inbetween_weights))]
+
+
+def subshape_weights(shape: BlendShape, w: float) -> np.ndarray:
+    """Weights of the stored poses (inbetweens..., full) for channel weight ``w``.
+
+    UsdSkel semantics: piecewise-linear between the knots (implicit 0, inbetweens,
+    1); outside [0, 1] linear extrapolation of the end segment.
+
+    Returns
+    -------
+    (j+1,) float64
+        One weight per inbetween, then the full shape.
+    """
+    knots, _ = shape.knots()
+    w = float(w)
+    if w <= knots[1]:
+        seg = 0
+    elif w >= knots[-2]:
+        seg = len(knots) - 2
+    else:
+        seg = int(np.searchsorted(knots, w, side="right") - 1)
+    a = (w - knots[seg]) / (knots[seg + 1] - knots[seg])
+    full = np.zeros(len(knots))
+    full[seg] = 1.0 - a
+    full[seg + 1] = a
+    return full[1:]
+
+
+def flat_shape_weights(shapes, channel_weights: dict) -> dict[str, float]:
+    """Expand channel weights to one weight per stored pose, for shape keys without inbetweens.
+
+    Parameters
+    ----------
+    shapes : sequence of BlendShape
+    channel_weights : dict
+        ``{name: w}``, e.g. from :func:`lid_weights`.
+
+    Returns
+    -------
+    dict
+        ``{"<name>_ib1": .., ..., "<name>": ..}`` for every shape; a renderer that
+        creates one shape key per stored pose (offsets relative to the rest mesh)
+        and sets these values reproduces :func:`evaluate_shapes` exactly.
+    """
+    out = {}
+    for s in shapes:
+        sub = subshape_weights(s, channel_weights.get(s.name, 0.0))
+        for name, w in zip(s.inbetween_names() + [s.name], sub):
+            out[name] = float(w)
+    return out
+
+
+def evaluate_shapes(V, shapes, channel_weights: dict) -> np.ndarray:
+    """Posed points: rest ``V`` plus every shape at its channel weight (UsdSkel semantics).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    shapes : sequence of BlendShape
+    channel_weights : dict
+
+    Returns
+    -------
+    (n, 3) float64
+    """
+    P = np.array(V, dtype=np.float64, copy=True)
+    for s in shapes:
+        w = channel_weights.get(s.name, 0.0)
+        if w == 0.0 or len(s.point_indices) == 0:
+            continue
+        _, offs = s.knots()
+        sub = subshape_weights(s, w)
+        P[s.point_indices] += np.tensordot(sub, offs[1:], axes=1)
+    return P
+
+
+def n_segments_for_sag(dist_to_axis, theta, max_sag_mm: float, max_segments: int) -> int:
+    """Fewest even pitch segments whose chord sag ``d (1 - cos(theta / 2N))`` stays below a bound."""
+    d = np.asarray(dist_to_axis, float)
+    th = np.abs(np.asarray(theta, float))
+    for n in range(1, int(max_segments) + 1):
+        if d.size == 0 or float(np.max(d * (1.0 - np.cos(th / (2.0 * n))))) <= max_sag_mm:
+            return n
+    return int(max_segments)
+
+
+def chord_sag(dist_to_axis, theta, n: int) -> float:
+    """Largest chord sag, mm, of points rotated by ``theta`` sampled at ``n`` even segments."""
+    d = np.asarray(dist_to_axis, float)
+    th = np.abs(np.asarray(theta, float))
+    return float(np.max(d * (1.0 - np.cos(th / (2.0 * n))))) if d.size else 0.0
+
+
+@dataclass
+class LidRig:
+    """The lid blend shapes of a mesh and how they were made.
+
+    Attributes
+    ----------
+    shapes : list of BlendShape
+        ``lids_up`` and ``lids_down``.
+    fields : dict
+        ``side -> EyeField``.
+    n_segments : int
+        Stored poses per direction (inbetweens = n_segments - 1).
+    predicted_sag_mm : float
+        Largest chord sag of the piecewise-linear interpolation, mm.
+    """
+
+    shapes: list
+    fields: dict
+    n_segments: int
+    predicted_sag_mm: float
+
+    def shape(self, name: str) -> BlendShape:
+        return next(s for s in self.shapes if s.name == name)
+
+
+def pose_points(P, eyes, angles_by_side: dict, scale: float = 1.0) -> np.ndarray:
+    """Rotate points ``P`` by each eye's angle field times ``scale`` (displacements summed).
+
+    Parameters
+    ----------
+    P : (n, 3) float64
+    eyes : sequence of EyeFrame
+    angles_by_side : dict
+        ``side -> (n,) radians``.
+    """
+    P = np.asarray(P, dtype=np.float64)
+    out = P.copy()
+    for eye in eyes:
+        th = angles_by_side[eye.side] * scale
+        moving = np.flatnonzero(th != 0.0)
+        if len(moving):
+            out[moving] += rotate_about_axis(P[moving], eye.center, eye.axis, th[moving]) - P[moving]
+    return out
+
+
+def build_lid_shapes(V, F, eyes, params: LidParams | None = None) -> LidRig:
+    """Compute the ``lids_up`` and ``lids_down`` blend shapes (with inbetweens).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+        Sealed eye-region vertices, mm, head frame (margins on the eyeball spheres).
+    F : (m, 3) int64
+    eyes : sequence of EyeFrame
+    params : LidParams, optional
+
+    Returns
+    -------
+    LidRig
+    """
+    params = params or LidParams()
+    V = np.asarray(V, dtype=np.float64)
+    G = _edge_graph(V, mesh_edges(F))
+    fields = {e.side: lid_angle_field(V, F, e, params, graph=G) for e in eyes}
+    n_seg, sag = 1, 0.0
+    for e in eyes:
+        w = V - e.center
+        d_axis = np.linalg.norm(w - np.outer(w @ e.axis, e.axis), axis=1)
+        f = fields[e.side]
+        for th in (f.theta_up, f.theta_down):
+            n_seg = max(n_seg, n_segments_for_sag(d_axis, th, params.max_chord_sag_mm,
+                                                  params.max_segments))
+    for e in eyes:
+        w = V - e.center
+        d_axis = np.linalg.norm(w - np.outer(w @ e.axis, e.axis), axis=1)
+        f = fields[e.side]
+        sag = max(sag, chord_sag(d_axis, f.theta_up, n_seg), chord_sag(d_axis, f.theta_down, n_seg))
+    shapes = []
+    for name, key in ((SHAPE_UP, "theta_up"), (SHAPE_DOWN, "theta_down")):
+        angles = {e.side: getattr(fields[e.side], key) for e in eyes}
+        poses = np.stack([pose_points(V, eyes, angles, j / n_seg) - V for j in range(1, n_seg + 1)])
+        moved = np.flatnonzero(np.max(np.linalg.norm(poses, axis=2), axis=0) > params.min_offset_mm)
+        shapes.append(BlendShape(
+            name=name, point_indices=moved.astype(np.int64), offsets=poses[-1][moved],
+            inbetween_weights=np.arange(1, n_seg) / n_seg,
+            inbetween_offsets=poses[:-1][:, moved]))
+    return LidRig(shapes=shapes, fields=fields, n_segments=n_seg, predicted_sag_mm=sag)
+
+
+# ----------------------------------------------------------------------------------------------
+# checks
+
+def face_normals(V, F) -> np.ndarray:
+    """(m, 3) unnormalised face normals (twice the area)."""
+    V = np.asarray(V, float)
+    F = np.asarray(F, np.int64)
+    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+
+
+def lid_opening(P, eye: EyeFrame, n_lines: int = 64, margin_frac: float = 0.02) -> np.ndarray:
+    """Vertical opening along vertical lines: lowest upper-lid minus highest lower-lid height.
+
+    The loop is projected on the eye's (horizontal, up) plane; vertical lines sample
+    the span between the canthi (leaving ``margin_frac`` at each end).
+
+    Parameters
+    ----------
+    P : (n, 3) float64
+        Posed mesh points.
+    eye : EyeFrame
+
+    Returns
+    -------
+    (n_lines,) float64
+        Opening per line, mm (negative = the upper lid crossed the lower lid);
+        NaN where a lid does not reach the line.
+    """
+    B = eye.basis()
+    loop = np.asarray(eye.loop)
+    li = int(eye.lateral_index)
+    Q = (np.asarray(P)[loop] - eye.center) @ B[:2].T
+    up = Q[: li + 1]
+    lo = np.concatenate([Q[li:], Q[:1]])
+    xa, xb = sorted((Q[0, 0], Q[li, 0]))
+    span = xb - xa
+    xs = np.linspace(xa + margin_frac * span, xb - margin_frac * span, n_lines)
+
+    def heights(poly, reduce):
+        x0, y0, x1, y1 = poly[:-1, 0], poly[:-1, 1], poly[1:, 0], poly[1:, 1]
+        res = np.full(len(xs), np.nan)
+        for k, s in enumerate(xs):
+            hit = ((x0 - s) * (x1 - s) <= 0) & (np.abs(x1 - x0) > 1e-12)
+            if hit.any():
+                y = y0[hit] + (s - x0[hit]) / (x1[hit] - x0[hit]) * (y1[hit] - y0[hit])
+                res[k] = reduce(y)
+        return res
+
+    return heights(up, np.min) - heights(lo, np.max)
+
+
+def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITCH_DEG) -> dict:
+    """Pose the rig at every pitch and measure the lid invariants.
+
+    The eyeball is a sphere about its centre, so rotating it by the pitch leaves
+    its surface in place: the margin-to-eyeball distance is ``|v - c| - r``.
+
+    Returns
+    -------
+    dict
+        ``max_gap_mm`` (margin outside the sphere), ``max_penetration_mm`` (inside),
+        ``rest_max_abs_mm`` (same at pitch 0), ``flipped_faces`` (max over pitches of
+        faces whose normal turned by more than 90 degrees), ``min_opening_mm``
+        (smallest upper-minus-lower lid height along vertical lines; < 0 = crossing),
+        ``min_skin_clearance_mm`` (smallest |v - c| - r of moved non-margin vertices),
+        ``worst_pitch_deg`` for the gap/penetration, and ``n_pitches``.
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F, np.int64)
+    n0 = face_normals(V, F)
+    ok = np.linalg.norm(n0, axis=1) > 1e-12
+    moved = np.zeros(len(V), bool)
+    for s in shapes:
+        moved[s.point_indices] = True
+    margin = np.zeros(len(V), bool)
+    for e in eyes:
+        margin[e.loop] = True
+    check_faces = ok & moved[F].any(axis=1)
+    res = {"max_gap_mm": 0.0, "max_penetration_mm": 0.0, "flipped_faces": 0,
+           "min_opening_mm": math.inf, "min_skin_clearance_mm": math.inf,
+           "worst_pitch_deg": 0.0, "n_pitches": 0}
+    rest = max(float(np.max(np.abs(np.linalg.norm(V[e.loop] - e.center, axis=1) - e.radius)))
+               for e in eyes)
+    res["rest_max_abs_mm"] = rest
+    worst = -1.0
+    for p in pitches_deg:
+        P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch_deg))
+        for e in eyes:
+            d = np.linalg.norm(P[e.loop] - e.center, axis=1) - e.radius
+            gap, pen = float(max(d.max(), 0.0)), float(max(-d.min(), 0.0))
+            res["max_gap_mm"] = max(res["max_gap_mm"], gap)
+            res["max_penetration_mm"] = max(res["max_penetration_mm"], pen)
+            if max(gap, pen) > worst:
+                worst, res["worst_pitch_deg"] = max(gap, pen), float(p)
+            op = lid_opening(P, e)
+            if np.isfinite(op).any():
+                res["min_opening_mm"] = min(res["min_opening_mm"], float(np.nanmin(op)))
+            skin = moved & ~margin
+            if skin.any():
+                ds = np.linalg.norm(P[skin] - e.center, axis=1) - e.radius
+                near = np.linalg.norm(V[skin] - e.center, axis=1) < 2.0 * e.radius
+                if near.any():
+                    res["min_skin_clearance_mm"] = min(res["min_skin_clearance_mm"],
+                                                       float(ds[near].min()))
+        n1 = face_normals(P, F)
+        flipped = int(np.count_nonzero(np.einsum("ij,ij->i", n0[check_faces], n1[check_faces]) <= 0))
+        res["flipped_faces"] = max(res["flipped_faces"], flipped)
+        res["n_pitches"] += 1
+    for k in ("min_opening_mm", "min_skin_clearance_mm"):
+        if not math.isfinite(res[k]):
+            res[k] = None
+    return res
+
+
+# ----------------------------------------------------------------------------------------------
+# array layout of rig.npz (pure conversions; the stage does the file I/O)
+
+def shapes_to_arrays(shapes, prefix: str = "") -> dict[str, np.ndarray]:
+    """Flatten blend shapes into named arrays (the rig.npz layout).
+
+    Keys per shape ``<prefix><name>.point_indices`` (k,) int64, ``.offsets`` (k, 3),
+    ``.inbetween_weights`` (j,), ``.inbetween_offsets`` (j, k, 3); plus
+    ``<prefix>shape_names`` (s,) str.
+    """
+    out = {f"{prefix}shape_names": np.array([s.name for s in shapes], dtype=str)}
+    for s in shapes:
+        k = len(s.point_indices)
+        out[f"{prefix}{s.name}.point_indices"] = np.asarray(s.point_indices, np.int64)
+        out[f"{prefix}{s.name}.offsets"] = np.asarray(s.offsets, np.float64).reshape(k, 3)
+        out[f"{prefix}{s.name}.inbetween_weights"] = np.asarray(s.inbetween_weights, np.float64)
+        out[f"{prefix}{s.name}.inbetween_offsets"] = np.asarray(
+            s.inbetween_offsets, np.float64).reshape(-1, k, 3)
+    return out
+
+
+def shapes_from_arrays(arrays, prefix: str = "") -> list[BlendShape]:
+    """Inverse of :func:`shapes_to_arrays` (accepts a dict or an open ``np.load`` file)."""
+    names = [str(n) for n in arrays[f"{prefix}shape_names"]]
+    return [BlendShape(name=n,
+                       point_indices=np.asarray(arrays[f"{prefix}{n}.point_indices"], np.int64),
+                       offsets=np.asarray(arrays[f"{prefix}{n}.offsets"], np.float64),
+                       inbetween_weights=np.asarray(arrays[f"{prefix}{n}.inbetween_weights"],
+                                                    np.float64),
+                       inbetween_offsets=np.asarray(arrays[f"{prefix}{n}.inbetween_offsets"],
+                                                    np.float64))
+            for n in names]
+
+
+# ----------------------------------------------------------------------------------------------
+# input validation
+
+def _first(d: dict, keys):
+    for k in keys:
+        if k in d and d[k] is not None:
+            return d[k]
+    return None
+
+
+def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="mesh.npz",
+               max_rest_gap_mm: float = 0.5) -> list[EyeFrame]:
+    """Validated :class:`EyeFrame` per eye from the snap stage's eyes.json and mesh arrays.
+
+    Parameters
+    ----------
+    eyes : dict
+        ``{"left": {"center": [3], "radius": r, "forward": [3], optional
+        "lateral_index" | "lateral_canthus_index"}, "right": {...}}`` (``center_mm`` /
+        ``radius_mm`` / ``gaze_direction`` accepted too).
+    mesh : dict
+        Arrays ``V``, ``F``, ``loop_left``, ``loop_right`` (ordered margin vertex indices).
+    eyes_source, mesh_source : str
+        Names used in error messages.
+    max_rest_gap_mm : float
+        Largest allowed distance of a margin vertex from its eyeball sphere.
+
+    Raises
+    ------
+    pipeline.errors.ScanError
+        On missing, malformed or inconsistent input (one sentence naming the problem).
+    """
+    from pipeline.errors import ScanError
+
+    for key in ("V", "F"):
+        if key not in mesh:
+            raise ScanError(mesh_source, f"missing array {key}")
+    V = np.asarray(mesh["V"], dtype=np.float64)
+    F = np.asarray(mesh["F"])
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        raise ScanError(mesh_source, f"V must be (n, 3), got {V.shape}")
+    if not np.isfinite(V).all():
+        raise ScanError(mesh_source, "V has non-finite coordinates")
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
+        raise ScanError(mesh_source, f"F must be (m, 3), got {F.shape}")
+    if F.min() < 0 or F.max() >= len(V):
+        raise ScanError(mesh_source, "F indexes vertices out of range")
+    if not isinstance(eyes, dict):
+        raise ScanError(eyes_source, "must be a JSON object with 'left' and 'right' eyes")
+    out = []
+    for side in ("left", "right"):
+        e = eyes.get(side)
+        if not isinstance(e, dict):
+            raise ScanError(eyes_source, f"no '{side}' eye")
+        c = _first(e, ("center", "center_mm"))
+        r = _first(e, ("radius", "radius_mm"))
+        f = _first(e, ("forward", "gaze_direction"))
+        if c is None or r is None or f is None:
+            raise ScanError(eyes_source, f"{side} eye needs center, radius and forward")
+        try:
+            c = np.asarray(c, dtype=np.float64).reshape(3)
+            f = np.asarray(f, dtype=np.float64).reshape(3)
+            r = float(r)
+        except (TypeError, ValueError):
+            raise ScanError(eyes_source, f"{side} eye: center/forward must be 3 numbers, "
+                                         f"radius a number") from None
+        if not (np.isfinite(c).all() and np.isfinite(f).all() and math.isfinite(r)):
+            raise ScanError(eyes_source, f"{side} eye has non-finite values")
+        if not 3.0 <= r <= 40.0:
+            raise ScanError(eyes_source, f"{side} eye radius {r:g} is not a plausible eyeball "
+                                         f"radius in mm (3..40)")
+        if np.linalg.norm(f) < 1e-9:
+            raise ScanError(eyes_source, f"{side} eye forward is zero")
+        f = f / np.linalg.norm(f)
+        if abs(f[1]) > 0.95:
+            raise ScanError(eyes_source, f"{side} eye forward {f.round(3).tolist()} is vertical")
+        key = f"loop_{side}"
+        if key not in mesh:
+            raise ScanError(mesh_source, f"missing array {key} (eyelid margin loop)")
+        loop = np.asarray(mesh[key]).ravel()
+        if not np.issubdtype(loop.dtype, np.integer):
+            raise ScanError(mesh_source, f"{key} must hold integer vertex indices")
+        loop = loop.astype(np.int64)
+        if len(loop) < 8:
+            raise ScanError(mesh_source, f"{key} has {len(loop)} vertices; at least 8 needed")
+        if loop.min() < 0 or loop.max() >= len(V):
+            raise ScanError(mesh_source, f"{key} indexes vertices out of range")
+        if len(np.unique(loop)) != len(loop):
+            raise ScanError(mesh_source, f"{key} repeats vertices")
+        li = _first(e, ("lateral_index", "lateral_canthus_index", "loop_lateral_index"))
+        if li is None:
+            li = find_lateral_canthus(V[loop], c, f, side)
+        li = int(li)
+        if not 2 <= li <= len(loop) - 2:
+            raise ScanError(eyes_source, f"{side} lateral canthus index {li} must leave at least one "
+                                         f"vertex on each lid of the {len(loop)}-vertex loop")
+        d = np.linalg.norm(V[loop] - c, axis=1) - r
+        if np.max(np.abs(d)) > max_rest_gap_mm:
+            raise ScanError(mesh_source, f"{side} eyelid margin is up to {np.max(np.abs(d)):.3g} mm "
+                                         f"off the eyeball sphere (limit {max_rest_gap_mm:g} mm); "
+                                         f"the snap stage must put it on the eyeball")
+        out.append(EyeFrame(side=side, center=c, radius=r, forward=f, loop=loop, lateral_index=li))
+    return out

@@ -1,0 +1,151 @@
+"""Stage ``rig``: eyelid blend shapes and eye-region landmarks for one scan.
+
+    python -m stages.rig build/<scan>/snap build/<scan>/rig --metrics build/<scan>/rig.metrics.json
+
+Reads ``snap/mesh.npz`` (V, F, loop_left, loop_right) and ``snap/eyes.json``;
+writes ``rig/rig.npz`` (blend shapes with inbetweens, eyelid landmark curves and
+their shapes) and ``rig/rig.json`` (pitch-to-weight rule, shapes, eye joints,
+landmark order). See pipeline/rig/lids.py for the method.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.io.atomic import atomic_dir, write_json
+from pipeline.io.meshfile import load_mesh
+from pipeline.rig import landmarks as lmk
+from pipeline.rig import lids
+from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+
+
+def _read_inputs(snap: Path):
+    mesh_path, eyes_path = snap / "mesh.npz", snap / "eyes.json"
+    if not mesh_path.is_file():
+        raise ScanError(mesh_path, "not found")
+    if not eyes_path.is_file():
+        raise ScanError(eyes_path, "not found")
+    try:
+        mesh = load_mesh(mesh_path)
+    except Exception as exc:  # corrupt zip / npy
+        raise ScanError(mesh_path, f"cannot be read as a mesh .npz ({type(exc).__name__})") from None
+    try:
+        eyes = json.loads(eyes_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ScanError(eyes_path, f"is not valid JSON ({exc.__class__.__name__})") from None
+    return mesh, eyes, mesh_path, eyes_path
+
+
+def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
+              eyes_path="eyes.json"):
+    """Everything the stage computes: (arrays for rig.npz, rig.json dict, metrics dict)."""
+    lp = lids.LidParams.from_dict(params)
+    eyes = lids.eye_frames(eyes_json, mesh, eyes_source=str(eyes_path), mesh_source=str(mesh_path),
+                           max_rest_gap_mm=float(params.get("max_rest_gap_mm", 0.5)))
+    V = np.asarray(mesh["V"], np.float64)
+    F = np.asarray(mesh["F"], np.int64)
+    t0 = time.perf_counter()
+    rig = lids.build_lid_shapes(V, F, eyes, lp)
+    t_build = time.perf_counter() - t0
+
+    arrays = lids.shapes_to_arrays(rig.shapes)
+    eyes_doc, lm_doc = {}, {}
+    for e in eyes:
+        lm = lmk.eyelid_landmarks(V, e)
+        lshapes = lmk.landmark_shapes(lm, e, rig)
+        pre = f"landmarks.{e.side}."
+        arrays[pre + "points"] = lm.points
+        arrays[pre + "edge"] = lm.edge
+        arrays[pre + "t"] = lm.t
+        arrays.update(lids.shapes_to_arrays(lshapes, prefix=pre))
+        arrays[f"loop_{e.side}"] = e.loop
+        eyes_doc[e.side] = {
+            "joint": f"eye_{e.side}",
+            "center": e.center, "radius": e.radius, "forward": e.forward,
+            "pitch_axis": e.axis,
+            "lateral_index": e.lateral_index, "loop_length": len(e.loop),
+        }
+        lm_doc[e.side] = {"eyelid_loop_position": lm.loop_position, "eyelid_edges": lm.edge}
+
+    step = float(params.get("sweep_step_deg", 0.5))
+    pitches = np.unique(np.concatenate([np.arange(-lp.max_pitch_deg, lp.max_pitch_deg + 1e-9, step),
+                                        [-lp.max_pitch_deg, 0.0, lp.max_pitch_deg]]))
+    t0 = time.perf_counter()
+    sweep = lids.sweep_check(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg)
+    t_sweep = time.perf_counter() - t0
+
+    # margin motion at the extremes (mean vertical displacement per lid, mm)
+    motion = {}
+    for name in (lids.SHAPE_UP, lids.SHAPE_DOWN):
+        P = lids.evaluate_shapes(V, rig.shapes, {name: 1.0})
+        for e in eyes:
+            dy = (P[e.loop] - V[e.loop]) @ e.basis()[1]
+            li = e.lateral_index
+            motion[f"{name}_{e.side}_upper_mean_dy_mm"] = float(dy[1:li].mean())
+            motion[f"{name}_{e.side}_lower_mean_dy_mm"] = float(dy[li + 1:].mean())
+
+    doc = {
+        "weight_rule": {**lids.WEIGHT_RULE, "max_pitch_deg": lp.max_pitch_deg},
+        "shapes": [{"name": s.name, "n_points": int(len(s.point_indices)),
+                    "inbetweens": [{"name": n, "weight": float(w)} for n, w in
+                                   zip(s.inbetween_names(), s.inbetween_weights)],
+                    "max_offset_mm": float(np.linalg.norm(s.offsets, axis=1).max(initial=0.0))}
+                   for s in rig.shapes],
+        "n_segments": rig.n_segments,
+        "eyes": eyes_doc,
+        "landmarks": {
+            "per_eye": lmk.N_PER_EYE,
+            "eyelid": {"count": lmk.N_EYELID, "order": lmk.EYELID_ORDER,
+                       "curve": "closed curve through the 12 points, in order; carries the same "
+                                "shapes and inbetweens as the mesh", **lm_doc},
+            **lmk.EYEBALL_LANDMARKS,
+        },
+        "params": {k: getattr(lp, k) for k in lp.__dataclass_fields__},
+        "npz_layout": {
+            "shape_names": "(s,) str: lids_up, lids_down",
+            "<shape>.point_indices": "(k,) int64 mesh vertex indices",
+            "<shape>.offsets": "(k,3) float64 mm at weight 1",
+            "<shape>.inbetween_weights": "(j,) float64 in (0,1)",
+            "<shape>.inbetween_offsets": "(j,k,3) float64 mm, same point_indices",
+            "landmarks.<side>.points": "(12,3) float64 rest eyelid landmarks",
+            "landmarks.<side>.edge": "(12,2) int64 margin edge of each landmark",
+            "landmarks.<side>.t": "(12,) float64 position on the edge",
+            "landmarks.<side>.shape_names / .<shape>.*": "landmark-curve shapes, same layout, "
+                                                          "point_indices 0..11",
+            "loop_<side>": "(L,) int64 eyelid margin loop (medial canthus first, upper lid first)",
+        },
+    }
+    metrics = {
+        "n_vertices": int(len(V)), "n_faces": int(len(F)),
+        "n_segments": rig.n_segments, "predicted_chord_sag_mm": rig.predicted_sag_mm,
+        **{f"{s.name}_n_points": int(len(s.point_indices)) for s in rig.shapes},
+        "sweep_step_deg": step,
+        **{f"sweep_{k}": v for k, v in sweep.items()},
+        **motion,
+        "build_s": round(t_build, 4), "sweep_s": round(t_sweep, 4),
+    }
+    return arrays, doc, metrics
+
+
+def main(argv) -> dict:
+    parser = stage_parser(__doc__.splitlines()[0])
+    parser.add_argument("snap", type=Path, help="build/<scan>/snap")
+    parser.add_argument("out", type=Path, help="build/<scan>/rig")
+    args = parser.parse_args(argv)
+    params = load_params("rig", args.params)
+    mesh, eyes, mesh_path, eyes_path = _read_inputs(args.snap)
+    arrays, doc, metrics = build_rig(mesh, eyes, params, mesh_path, eyes_path)
+    with atomic_dir(args.out) as tmp:
+        with open(tmp / "rig.npz", "wb") as fh:
+            np.savez(fh, **arrays)
+        write_json(tmp / "rig.json", doc)
+    return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
+
+
+if __name__ == "__main__":
+    stage_exit(main)

@@ -1,0 +1,418 @@
+"""Tests of the eyelid rig (pipeline/rig, stages/rig.py) on constructed sealed eye regions."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.errors import ScanError
+from pipeline.io.meshfile import save_mesh
+from pipeline.rig import landmarks as lmk
+from pipeline.rig import lids
+from stages import rig as rig_stage
+from stages._common import run_stage
+
+PITCHES_1DEG = np.arange(-25.0, 25.0 + 1e-9, 1.0)
+
+
+def eye_patch(center, radius=12.0, side="left", n_loop=48, n_rings=10, half_width_deg=48.0,
+              upper_deg=20.0, lower_deg=16.0, d_phi=3.0, d_psi=5.0, rise_mm=1.0):
+    """Skin rings around an almond-like eye opening whose first ring lies on the eyeball sphere.
+
+    Returns V (n,3), F (m,3) outward-oriented, loop (medial canthus first, upper lid
+    first) and the loop position of the lateral canthus.
+    """
+    c = np.asarray(center, float)
+    t = np.pi - np.arange(n_loop) * 2 * np.pi / n_loop  # pi = medial, pi/2 = top, 0 = lateral
+    sgn = 1.0 if side == "left" else -1.0               # lateral is +X for the left eye
+    rings = []
+    for j in range(n_rings + 1):
+        a = np.radians(half_width_deg + j * d_phi)
+        b = np.where(np.sin(t) >= 0, np.radians(upper_deg + j * d_psi),
+                     np.radians(lower_deg + j * d_psi))
+        phi, psi = a * np.cos(t) * sgn, b * np.sin(t)
+        d = np.stack([np.sin(phi) * np.cos(psi), np.sin(psi), np.cos(phi) * np.cos(psi)], 1)
+        rings.append(c + (radius + rise_mm * j ** 1.2) * d)
+    V = np.concatenate(rings)
+    L = n_loop
+    F = []
+    for j in range(n_rings):
+        for i in range(L):
+            a, b = j * L + i, j * L + (i + 1) % L
+            cc, dd = a + L, b + L
+            F += [[a, cc, b], [b, cc, dd]]
+    F = np.array(F, np.int64)
+    n = lids.face_normals(V, F)
+    if np.mean(np.einsum("ij,ij->i", n, V[F].mean(1) - c)) < 0:
+        F = F[:, [0, 2, 1]]
+    return V, F, np.arange(L, dtype=np.int64), L // 2
+
+
+def two_eye_region(radius=12.0, **kw):
+    """Both eyes (left at +X) in one mesh, as the snap stage delivers them."""
+    cl, cr = np.array([31.0, 36.0, 79.0]), np.array([-31.0, 36.0, 79.0])
+    Vl, Fl, loopl, lil = eye_patch(cl, radius, "left", **kw)
+    Vr, Fr, loopr, lir = eye_patch(cr, radius, "right", **kw)
+    V = np.concatenate([Vl, Vr])
+    F = np.concatenate([Fl, Fr + len(Vl)])
+    eyes = [lids.EyeFrame("left", cl, radius, np.array([0.0, 0, 1]), loopl, lil),
+            lids.EyeFrame("right", cr, radius, np.array([0.0, 0, 1]), loopr + len(Vl), lir)]
+    return V, F, eyes
+
+
+@pytest.fixture(scope="module")
+def region():
+    V, F, eyes = two_eye_region()
+    return V, F, eyes, lids.build_lid_shapes(V, F, eyes)
+
+
+# ---------------------------------------------------------------- the pitch-to-weight rule
+
+def test_weight_rule_extremes_and_clamping():
+    assert lids.lid_weights(0.0) == {"lids_up": 0.0, "lids_down": 0.0}
+    assert lids.lid_weights(25.0) == {"lids_up": 1.0, "lids_down": 0.0}
+    assert lids.lid_weights(-25.0) == {"lids_up": 0.0, "lids_down": 1.0}
+    assert lids.lid_weights(12.5)["lids_up"] == pytest.approx(0.5)
+    assert lids.lid_weights(40.0) == {"lids_up": 1.0, "lids_down": 0.0}
+    assert lids.lid_weights(-90.0) == {"lids_up": 0.0, "lids_down": 1.0}
+    assert lids.lid_weights(10.0, max_pitch_deg=20.0)["lids_up"] == pytest.approx(0.5)
+    for p in np.linspace(-30, 30, 61):
+        w = lids.lid_weights(p)
+        assert 0.0 <= w["lids_up"] <= 1.0 and 0.0 <= w["lids_down"] <= 1.0
+        assert w["lids_up"] * w["lids_down"] == 0.0
+    with pytest.raises(ValueError):
+        lids.lid_weights(float("nan"))
+    with pytest.raises(ValueError):
+        lids.lid_weights(10.0, max_pitch_deg=0.0)
+
+
+def test_flat_shape_keys_reproduce_inbetween_evaluation(region):
+    V, F, eyes, rig = region
+    assert rig.n_segments >= 2  # 25 deg on a 12 mm eye needs inbetweens
+    for p in (-25.0, -17.3, -8.0, 0.0, 3.0, 12.5, 24.9, 25.0):
+        flat = lids.flat_shape_weights(rig.shapes, lids.lid_weights(p))
+        P = V.copy()
+        for s in rig.shapes:
+            poses = list(s.inbetween_offsets) + [s.offsets]
+            for name, off in zip(s.inbetween_names() + [s.name], poses):
+                P[s.point_indices] += flat[name] * off
+        np.testing.assert_allclose(P, lids.evaluate_shapes(V, rig.shapes, lids.lid_weights(p)),
+                                   atol=1e-12)
+    # hat weights: exactly one pose at the sample weights
+    s = rig.shape("lids_up")
+    for j, w in enumerate(s.inbetween_weights):
+        sub = lids.subshape_weights(s, w)
+        assert sub[j] == pytest.approx(1.0) and sub.sum() == pytest.approx(1.0)
+
+
+# ---------------------------------------------------------------- the sweep invariants
+
+@pytest.mark.parametrize("radius", [12.0, 15.4, 17.1])
+def test_sweep_keeps_margin_on_eyeball_no_flips_no_crossing(radius):
+    V, F, eyes = two_eye_region(radius=radius)
+    rig = lids.build_lid_shapes(V, F, eyes)
+    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    assert res["n_pitches"] == 51
+    assert res["rest_max_abs_mm"] < 1e-9
+    assert res["max_gap_mm"] <= 0.1
+    assert res["max_penetration_mm"] <= 0.1
+    assert res["max_penetration_mm"] <= lids.LidParams().max_chord_sag_mm + 1e-9
+    assert res["flipped_faces"] == 0
+    assert res["min_opening_mm"] > 0.5
+    assert res["min_skin_clearance_mm"] > 0.0
+
+
+def test_margin_exactly_on_sphere_at_stored_poses(region):
+    V, F, eyes, rig = region
+    n = rig.n_segments
+    for j in range(-n, n + 1):
+        P = lids.evaluate_shapes(V, rig.shapes, lids.lid_weights(25.0 * j / n))
+        for e in eyes:
+            d = np.linalg.norm(P[e.loop] - e.center, axis=1) - e.radius
+            assert np.abs(d).max() < 1e-9
+
+
+def test_without_inbetweens_the_chord_sinks_into_the_eyeball():
+    V, F, eyes = two_eye_region(radius=15.4)
+    one = lids.build_lid_shapes(V, F, eyes, lids.LidParams(max_segments=1))
+    assert one.n_segments == 1
+    res = lids.sweep_check(V, F, eyes, one.shapes, np.arange(-25.0, 25.01, 0.5))
+    assert res["max_penetration_mm"] > 0.1          # the problem inbetweens fix
+    assert res["max_penetration_mm"] == pytest.approx(one.predicted_sag_mm, rel=0.02)
+    assert res["max_gap_mm"] < 1e-9                 # chords only ever cut inside the sphere
+
+
+def test_lids_move_the_right_way(region):
+    V, F, eyes, rig = region
+    for e in eyes:
+        ey = e.basis()[1]
+        li = e.lateral_index
+        top, bottom = e.loop[li // 2], e.loop[li + (len(e.loop) - li) // 2]
+        up = lids.evaluate_shapes(V, rig.shapes, {"lids_up": 1.0}) - V
+        dn = lids.evaluate_shapes(V, rig.shapes, {"lids_down": 1.0}) - V
+        assert up[top] @ ey > 2.0 and up[bottom] @ ey > 0.0
+        assert up[top] @ ey > 2.0 * (up[bottom] @ ey)          # lower lid moves less
+        assert dn[top] @ ey < -2.0 and dn[bottom] @ ey < 0.0
+        assert -(dn[top] @ ey) > 1.5 * -(dn[bottom] @ ey)
+        # canthi stay put (taper to zero)
+        for k in (e.loop[0], e.loop[li]):
+            assert np.linalg.norm(up[k]) < 1e-12 and np.linalg.norm(dn[k]) < 1e-12
+
+
+# ---------------------------------------------------------------- falloff
+
+def test_falloff_support_and_smoothness(region):
+    V, F, eyes, rig = region
+    p = lids.LidParams()
+    edges = lids.mesh_edges(F)
+    elen = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
+    for s in rig.shapes:
+        full = np.zeros_like(V)
+        full[s.point_indices] = s.offsets
+        moved = np.linalg.norm(full, axis=1) > 0
+        D = np.min([rig.fields[e.side].distance for e in eyes], axis=0)
+        # nothing moves beyond the largest falloff radius; everything moved is within it
+        assert np.all(D[moved] < max(p.upper_falloff_mm, p.lower_falloff_mm))
+        assert not moved[D >= max(p.upper_falloff_mm, p.lower_falloff_mm)].any()
+        # the rim fades out: vertices near the end of the support barely move
+        S = np.max([rig.fields[e.side].falloff for e in eyes], axis=0)
+        rim = (S > 0) & (S < 0.01)
+        assert rim.any() and np.linalg.norm(full[rim], axis=1).max() < 0.1
+        # continuity: offsets change at most by a fraction of the edge length (no step)
+        jump = np.linalg.norm(full[edges[:, 0]] - full[edges[:, 1]], axis=1)
+        assert np.max(jump / elen) < 0.9
+        # offsets are a rotation about the eye centre: distance to the centre is preserved
+        for e in eyes:
+            side = np.linalg.norm(V - e.center, axis=1) < 40
+            for w in (1.0,):
+                P = V + w * full
+                np.testing.assert_allclose(np.linalg.norm(P[side] - e.center, axis=1),
+                                           np.linalg.norm(V[side] - e.center, axis=1), atol=1e-9)
+
+
+def test_smootherstep_is_c1_at_both_ends():
+    assert lids.smootherstep_falloff(0.0) == 1.0 and lids.smootherstep_falloff(1.0) == 0.0
+    h = 1e-4
+    assert abs(lids.smootherstep_falloff(h) - 1.0) < 1e-9
+    assert abs(lids.smootherstep_falloff(1 - h)) < 1e-9
+    assert lids.smootherstep_falloff(-3.0) == 1.0 and lids.smootherstep_falloff(7.0) == 0.0
+    t = np.linspace(0, 1, 101)
+    assert np.all(np.diff(lids.smootherstep_falloff(t)) <= 0)
+
+
+# ---------------------------------------------------------------- landmarks
+
+def _arclength_positions(P):
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+
+
+def test_eyelid_landmarks_order_and_even_arclength(region):
+    V, F, eyes, rig = region
+    for e in eyes:
+        lm = lmk.eyelid_landmarks(V, e)
+        assert lm.points.shape == (12, 3)
+        np.testing.assert_allclose(lm.points[0], V[e.loop[0]])
+        np.testing.assert_allclose(lm.points[6], V[e.loop[e.lateral_index]])
+        li, L = e.lateral_index, len(e.loop)
+        upper = V[e.loop[: li + 1]]
+        lower = V[np.concatenate([e.loop[li:], e.loop[:1]])]
+        for poly, idx in ((upper, range(0, 7)), (lower, list(range(6, 12)) + [0])):
+            cum = _arclength_positions(poly)
+            s = []
+            for k in idx:
+                pos = lm.loop_position[k]
+                local = pos - (0 if poly is upper else li) if k != 0 or poly is upper else L - li
+                i = int(np.floor(local + 1e-12))
+                i = min(i, len(poly) - 2)
+                s.append(cum[i] + (local - i) * (cum[i + 1] - cum[i]))
+            np.testing.assert_allclose(np.diff(s), cum[-1] / 6, rtol=1e-9)
+        # upper landmarks are above the lower ones (documented order)
+        ey = e.basis()[1]
+        assert np.all((lm.points[1:6] - e.center) @ ey > ((lm.points[7:12] - e.center) @ ey)[::-1])
+        # lateral landmark is lateral
+        ex = e.basis()[0] * (1 if e.side == "left" else -1)
+        assert (lm.points[6] - lm.points[0]) @ ex > 0
+
+
+def test_landmark_curve_follows_the_lid_shapes(region):
+    V, F, eyes, rig = region
+    for e in eyes:
+        lm = lmk.eyelid_landmarks(V, e)
+        shapes = lmk.landmark_shapes(lm, e, rig)
+        assert [s.name for s in shapes] == ["lids_up", "lids_down"]
+        for p in PITCHES_1DEG:
+            w = lids.lid_weights(p)
+            P = lids.evaluate_shapes(V, rig.shapes, w)
+            Q = lids.evaluate_shapes(lm.points, shapes, w)
+            on_edge = (1 - lm.t)[:, None] * P[lm.edge[:, 0]] + lm.t[:, None] * P[lm.edge[:, 1]]
+            assert np.abs(Q - on_edge).max() < 0.05
+            d = np.linalg.norm(Q - e.center, axis=1) - np.linalg.norm(lm.points - e.center, axis=1)
+            assert np.abs(d).max() <= lids.LidParams().max_chord_sag_mm + 1e-9
+
+
+def test_lateral_canthus_detection(region):
+    V, F, eyes, rig = region
+    for e in eyes:
+        assert lids.find_lateral_canthus(V[e.loop], e.center, e.forward, e.side) == e.lateral_index
+
+
+# ---------------------------------------------------------------- the stage
+
+def _write_snap(folder, V, F, eyes, drop=(), eyes_override=None, **extra):
+    folder.mkdir(parents=True, exist_ok=True)
+    arrays = {"V": V, "F": F, **{f"loop_{e.side}": e.loop for e in eyes}, **extra}
+    for k in drop:
+        arrays.pop(k, None)
+    save_mesh(folder / "mesh.npz", **arrays)
+    doc = {e.side: {"center": e.center.tolist(), "radius": e.radius, "forward": e.forward.tolist(),
+                    "residual_rms_mm": 0.0} for e in eyes}
+    if eyes_override:
+        for side, d in eyes_override.items():
+            doc[side].update(d)
+    (folder / "eyes.json").write_text(json.dumps(doc))
+
+
+def test_stage_writes_rig_that_reopens(tmp_path, region):
+    V, F, eyes, _ = region
+    snap, out = tmp_path / "snap", tmp_path / "rig"
+    _write_snap(snap, V, F, eyes)
+    metrics = tmp_path / "rig.metrics.json"
+    assert run_stage(rig_stage.main, [str(snap), str(out), "--metrics", str(metrics),
+                                      "--params", str(tmp_path / "none.yaml")]) == 0
+    m = json.loads(metrics.read_text())
+    assert m["sweep_max_gap_mm"] <= 0.1 and m["sweep_max_penetration_mm"] <= 0.1
+    assert m["sweep_flipped_faces"] == 0 and m["sweep_min_opening_mm"] > 0
+    assert m["sweep_n_pitches"] == 101 and "wall_time_s" in m
+    doc = json.loads((out / "rig.json").read_text())
+    assert doc["weight_rule"]["max_pitch_deg"] == 25.0
+    assert "clamp(pitch_deg / max_pitch_deg, 0, 1)" in doc["weight_rule"]["formula"]
+    assert doc["landmarks"]["per_eye"] == 28
+    assert set(doc["eyes"]) == {"left", "right"}
+    with np.load(out / "rig.npz", allow_pickle=False) as z:
+        shapes = lids.shapes_from_arrays(z)
+        assert [s.name for s in shapes] == ["lids_up", "lids_down"]
+        for s in shapes:
+            assert s.offsets.shape == (len(s.point_indices), 3)
+            assert s.inbetween_offsets.shape == (len(s.inbetween_weights), len(s.point_indices), 3)
+            assert np.all(np.diff(s.inbetween_weights) > 0)
+            assert s.point_indices.max() < len(V) and np.isfinite(s.offsets).all()
+            assert len(np.unique(s.point_indices)) == len(s.point_indices)
+        for side in ("left", "right"):
+            assert z[f"landmarks.{side}.points"].shape == (12, 3)
+            ls = lids.shapes_from_arrays(z, prefix=f"landmarks.{side}.")
+            assert [len(s.point_indices) for s in ls] == [12, 12]
+        # the stored shapes reproduce the library's posing
+        res = lids.sweep_check(V, F, eyes, shapes, PITCHES_1DEG)
+        assert res["max_penetration_mm"] <= 0.1
+    assert not list(tmp_path.glob(".rig.tmp-*"))
+
+
+def test_stage_reads_lateral_index_from_eyes_json(tmp_path):
+    V, F, eyes = two_eye_region()
+    # start the right loop elsewhere: a rotated loop must be honoured via the given index
+    _write_snap(tmp_path / "snap", V, F, eyes,
+                eyes_override={"left": {"lateral_index": eyes[0].lateral_index}})
+    arrays, doc, m = rig_stage.build_rig(
+        dict(np.load(tmp_path / "snap" / "mesh.npz")),
+        json.loads((tmp_path / "snap" / "eyes.json").read_text()), {"sweep_step_deg": 5.0})
+    assert doc["eyes"]["left"]["lateral_index"] == eyes[0].lateral_index
+    assert doc["eyes"]["right"]["lateral_index"] == eyes[1].lateral_index
+
+
+@pytest.mark.parametrize("case, message", [
+    ("no_loop", "missing array loop_right"),
+    ("metres", "not a plausible eyeball radius"),
+    ("off_sphere", "off the eyeball sphere"),
+    ("no_eye", "no 'right' eye"),
+    ("short_loop", "at least 8 needed"),
+    ("bad_index", "out of range"),
+    ("nan", "non-finite"),
+])
+def test_stage_bad_inputs_exit_2_with_one_line(tmp_path, capsys, case, message):
+    V, F, eyes = two_eye_region()
+    snap = tmp_path / "snap"
+    if case == "no_loop":
+        _write_snap(snap, V, F, eyes, drop=["loop_right"])
+    elif case == "metres":
+        _write_snap(snap, V, F, eyes, eyes_override={"left": {"radius": 0.012}})
+    elif case == "off_sphere":
+        V2 = V.copy()
+        V2[eyes[0].loop[5]] += 2.0 * (V2[eyes[0].loop[5]] - eyes[0].center) / 12.0
+        _write_snap(snap, V2, F, eyes)
+    elif case == "no_eye":
+        _write_snap(snap, V, F, eyes)
+        doc = json.loads((snap / "eyes.json").read_text())
+        del doc["right"]
+        (snap / "eyes.json").write_text(json.dumps(doc))
+    elif case == "short_loop":
+        _write_snap(snap, V, F, eyes, loop_left=eyes[0].loop[:5])
+    elif case == "bad_index":
+        _write_snap(snap, V, F, eyes, loop_left=np.append(eyes[0].loop, len(V) + 3))
+    elif case == "nan":
+        V2 = V.copy()
+        V2[3] = np.nan
+        _write_snap(snap, V2, F, eyes)
+    rc = run_stage(rig_stage.main, [str(snap), str(tmp_path / "rig"), "--params",
+                                    str(tmp_path / "none.yaml")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "rig").exists()
+
+
+def test_stage_missing_inputs(tmp_path, capsys):
+    rc = run_stage(rig_stage.main, [str(tmp_path / "nothing"), str(tmp_path / "rig")])
+    assert rc == 2 and "mesh.npz: not found" in capsys.readouterr().err
+
+
+def test_degenerate_triangles_do_not_break_the_rig():
+    V, F, eyes = two_eye_region()
+    F2 = np.concatenate([F, [[0, 0, 1], [5, 5, 5]]])
+    rig = lids.build_lid_shapes(V, F2, eyes)
+    res = lids.sweep_check(V, F2, eyes, rig.shapes, [-25.0, -10.0, 0.0, 10.0, 25.0])
+    assert res["flipped_faces"] == 0 and res["max_penetration_mm"] <= 0.1
+    with pytest.raises(ScanError):
+        lids.eye_frames({"left": {}, "right": {}}, {"V": V, "F": F})
+
+
+# ---------------------------------------------------------------- the real ICT head
+
+def test_ict_head_sweep(extra_scan):
+    import importlib.util
+    from pathlib import Path
+
+    scans = extra_scan("ict_facekit").parent
+    extra_scan("ict_neutral")
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_ict_lids.py"
+    spec = importlib.util.spec_from_file_location("compare_ict_lids", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    V, F, remap, gt, deltas = mod.load_ict(scans)
+    eyes = []
+    for side in ("left", "right"):
+        g = gt["eyes"][side]
+        loop = remap[np.asarray(g["eyelid_margin"]["ict_vertex_ids"])]
+        c = np.asarray(g["eyeball_sphere"]["center_mm"])
+        r = g["eyeball_sphere"]["radius_mm"]
+        w = V[loop] - c
+        V[loop] = c + r * w / np.linalg.norm(w, axis=1, keepdims=True)  # what snap does
+        eyes.append(lids.EyeFrame(side, c, r, np.asarray(g["gaze_direction"]), loop,
+                                  g["eyelid_margin"]["lateral_canthus_index"]))
+        assert lids.find_lateral_canthus(V[loop], c, eyes[-1].forward, side) == \
+            g["eyelid_margin"]["lateral_canthus_index"]
+    rig = lids.build_lid_shapes(V, F, eyes)
+    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    assert res["max_gap_mm"] <= 0.1 and res["max_penetration_mm"] <= 0.1
+    assert res["flipped_faces"] == 0 and res["min_opening_mm"] > 0.5
+    # same direction as ICT's eyeLookUp/eyeLookDown on the upper-lid margin
+    for e in eyes:
+        up_ax = e.basis()[1]
+        upper = e.loop[1:e.lateral_index]
+        for name, kind, sign in (("lids_up", "Up", 1), ("lids_down", "Down", -1)):
+            ours = (lids.evaluate_shapes(V, rig.shapes, {name: 1.0}) - V)[upper] @ up_ax
+            ict = deltas[(e.side, kind)][upper] @ up_ax
+            assert sign * ours.mean() > 0 and sign * ict.mean() > 0
+            assert math.isfinite(float(np.abs(ours - ict).mean()))
