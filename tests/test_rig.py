@@ -330,6 +330,8 @@ def test_stage_reads_lateral_index_from_eyes_json(tmp_path):
     ("short_loop", "at least 8 needed"),
     ("bad_index", "out of range"),
     ("nan", "non-finite"),
+    ("reversed", "upper lid must come first"),
+    ("not_medial", "does not start at the medial canthus"),
 ])
 def test_stage_bad_inputs_exit_2_with_one_line(tmp_path, capsys, case, message):
     V, F, eyes = two_eye_region()
@@ -351,6 +353,11 @@ def test_stage_bad_inputs_exit_2_with_one_line(tmp_path, capsys, case, message):
         _write_snap(snap, V, F, eyes, loop_left=eyes[0].loop[:5])
     elif case == "bad_index":
         _write_snap(snap, V, F, eyes, loop_left=np.append(eyes[0].loop, len(V) + 3))
+    elif case == "reversed":
+        loop = eyes[0].loop
+        _write_snap(snap, V, F, eyes, loop_left=np.concatenate([loop[:1], loop[1:][::-1]]))
+    elif case == "not_medial":
+        _write_snap(snap, V, F, eyes, loop_left=np.roll(eyes[0].loop, -eyes[0].lateral_index))
     elif case == "nan":
         V2 = V.copy()
         V2[3] = np.nan

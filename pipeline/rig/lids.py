@@ -812,6 +812,13 @@ def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="
             raise ScanError(mesh_source, f"{key} indexes vertices out of range")
         if len(np.unique(loop)) != len(loop):
             raise ScanError(mesh_source, f"{key} repeats vertices")
+        # ordering contract: medial canthus first, then over the upper lid
+        B = eye_basis(f)
+        Q = (V[loop] - c) @ B[:2].T
+        lat = Q[:, 0] * (1.0 if side == "left" else -1.0)
+        if lat[0] - lat.min() > 0.25 * (lat.max() - lat.min()):
+            raise ScanError(mesh_source, f"{key} does not start at the medial canthus (its first "
+                                         f"vertex is not at the nose side of the loop)")
         li = _first(e, ("lateral_index", "lateral_canthus_index", "loop_lateral_index"))
         if li is None:
             li = find_lateral_canthus(V[loop], c, f, side)
@@ -819,6 +826,9 @@ def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="
         if not 2 <= li <= len(loop) - 2:
             raise ScanError(eyes_source, f"{side} lateral canthus index {li} must leave at least one "
                                          f"vertex on each lid of the {len(loop)}-vertex loop")
+        if Q[1:li, 1].mean() <= Q[li + 1:, 1].mean():
+            raise ScanError(mesh_source, f"{key} runs over the lower lid first; the upper lid "
+                                         f"must come first")
         d = np.linalg.norm(V[loop] - c, axis=1) - r
         if np.max(np.abs(d)) > max_rest_gap_mm:
             raise ScanError(mesh_source, f"{side} eyelid margin is up to {np.max(np.abs(d)):.3g} mm "
