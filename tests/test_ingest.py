@@ -420,3 +420,55 @@ def test_synthetic_head_if_present(tmp_path):
     scan = json.loads((out / "scan.json").read_text())
     if scan["texture"]:
         assert "UV" in mesh and (out / "texture.png").exists()
+
+
+# ---------------------------------------------------------------------------- library pieces
+
+def test_closest_point_matches_dense_sampling():
+    from pipeline.geometry.repair import closest_point_on_triangles, point_surface_distance
+
+    rng = np.random.default_rng(3)
+    A, B, C = (rng.normal(0, 1, (200, 3)) for _ in range(3))
+    for p in rng.normal(0, 2, (5, 3)):
+        cp = closest_point_on_triangles(A, B, C, p)
+        # brute force: dense barycentric samples can only be farther
+        w = rng.dirichlet([1, 1, 1], 4000)
+        w = np.vstack([w, np.eye(3)])
+        S = w[None, :, 0, None] * A[:, None] + w[None, :, 1, None] * B[:, None] + w[None, :, 2, None] * C[:, None]
+        brute = np.linalg.norm(S - p, axis=2).min(axis=1)
+        got = np.linalg.norm(cp - p, axis=1)
+        assert np.all(got <= brute + 1e-9) and np.all(got >= brute - 0.05)
+    from trimesh.triangles import closest_point
+
+    V, F, hints = head_mesh(3)
+    for p in [hints["left"], hints["right"], np.array([0.0, 0, 0]), np.array([10.0, 300, -40])]:
+        ref = float(np.linalg.norm(closest_point(V[F], np.repeat(p[None], len(F), 0)) - p, axis=1).min())
+        assert point_surface_distance(V, F, p) == pytest.approx(ref, abs=1e-9)
+    assert point_surface_distance(V, F, V[7]) == 0.0
+
+
+@pytest.mark.parametrize("endian", ["<", ">"])
+def test_binary_ply_mixed_polygons_and_big_endian(tmp_path, endian):
+    """Binary PLY with triangles and quads mixed (row-by-row path) and big-endian data."""
+    V, F, hints = head_mesh(3)
+    # glue pairs of triangles that share an edge into quads? simpler: add a far-away quad (debris)
+    quad_v = np.array([[0, -160, 0], [5, -160, 0], [5, -155, 0], [0, -155, 0]], float)
+    Vall = np.vstack([V, quad_v])
+    rows = [np.array([3, *f]) for f in F] + [np.array([4, *(len(V) + np.arange(4))])]
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    e = "binary_little_endian" if endian == "<" else "binary_big_endian"
+    head = (f"ply\nformat {e} 1.0\ncomment made by a test\nelement vertex {len(Vall)}\nproperty double x\n"
+            f"property double y\nproperty double z\nelement face {len(rows)}\n"
+            "property list uchar uint vertex_indices\nend_header\n")
+    body = Vall.astype(endian + "f8").tobytes()
+    body += b"".join(np.uint8(r[0]).tobytes() + r[1:].astype(endian + "u4").tobytes() for r in rows)
+    (folder / "scan.ply").write_bytes(head.encode() + body)
+    write_sidecar(folder, hints)
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 0
+    m = read_metrics(out)
+    assert m["faces_in"] == len(F) + 2 and m["polygons_triangulated"] == 1
+    assert m["repairs"]["debris_faces"] == 2
+    mesh = load_mesh(out / "mesh.npz")
+    np.testing.assert_array_equal(mesh["V"], V)  # float64 stored: exact

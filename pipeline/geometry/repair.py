@@ -61,7 +61,7 @@ class RepairResult:
         What was removed: merged_vertices, degenerate_faces, duplicate_faces, debris_components,
         debris_faces, unreferenced_vertices, small_components_kept_near_eyes.
     eye_region : dict
-        Per eye: faces within the radius and how many repairs removed.
+        Per eye: faces with a vertex within the radius and how many repairs removed.
     """
 
     V: np.ndarray
@@ -91,8 +91,7 @@ def merge_vertices(V, F, tolerance: float):
     """
     q = np.round(V / tolerance).astype(np.int64) if tolerance > 0 else V
     q = np.ascontiguousarray(q)
-    rows = q.view(np.dtype((np.void, q.dtype.itemsize * 3))).ravel()
-    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    first, inverse = _unique_rows(q)
     # renumber groups in order of first appearance so the output keeps the input order
     order = np.argsort(first, kind="stable")
     rank = np.empty_like(order)
@@ -107,12 +106,27 @@ def face_areas(V, F) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
 
 
+def _unique_rows(q):
+    """First index of each distinct row and the group of every row (int64 or float64 (n, 3)).
+
+    Rows are hashed to one int64 key (fast 1-D unique); a hash collision falls back to
+    the exact row-wise unique.
+    """
+    q = np.ascontiguousarray(q)
+    if q.dtype.kind == "i" and len(q):
+        key = (q[:, 0] * np.int64(73856093)) ^ (q[:, 1] * np.int64(19349663)) ^ (q[:, 2] * np.int64(83492791))
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        if np.array_equal(q[first[inverse]], q):
+            return first, inverse
+    rows = q.view(np.dtype((np.void, q.dtype.itemsize * q.shape[1]))).ravel()
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    return first, inverse.reshape(-1)
+
+
 def duplicate_face_mask(F) -> np.ndarray:
     """True for every face whose vertex set repeats an earlier face (either orientation)."""
-    s = np.sort(F, axis=1)
-    s = np.ascontiguousarray(s)
-    rows = s.view(np.dtype((np.void, s.dtype.itemsize * 3))).ravel()
-    _, first = np.unique(rows, return_index=True)
+    first, _ = _unique_rows(np.sort(F, axis=1))
     mask = np.ones(len(F), dtype=bool)
     mask[first] = False
     return mask
@@ -137,33 +151,89 @@ def face_components(F, n_vertices: int):
     return n, vlabels[F[:, 0]].astype(np.int64)
 
 
-def point_surface_distance(V, F, p, radius_hint: float | None = None) -> float:
+def closest_point_on_triangles(A, B, C, p) -> np.ndarray:
+    """Closest point to ``p`` on each triangle (Ericson, Real-Time Collision Detection 5.1.5).
+
+    Parameters
+    ----------
+    A, B, C : (t, 3) float64
+        Triangle corners.
+    p : (3,) float64
+
+    Returns
+    -------
+    (t, 3) float64
+    """
+    ab, ac, ap = B - A, C - A, p - A
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    bp = p - B
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    cp = p - C
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v = np.where(denom != 0, vb / denom, 0.0)
+        w = np.where(denom != 0, vc / denom, 0.0)
+        out = A + ab * v[:, None] + ac * w[:, None]                       # interior
+        # edge regions
+        t_ab = np.clip(np.where(d1 - d3 != 0, d1 / (d1 - d3), 0.0), 0, 1)
+        t_ac = np.clip(np.where(d2 - d6 != 0, d2 / (d2 - d6), 0.0), 0, 1)
+        t_bc = np.clip(np.where((d4 - d3) + (d5 - d6) != 0, (d4 - d3) / ((d4 - d3) + (d5 - d6)), 0.0), 0, 1)
+    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    out[m] = A[m] + ab[m] * t_ab[m, None]
+    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    out[m] = A[m] + ac[m] * t_ac[m, None]
+    m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+    out[m] = B[m] + (C[m] - B[m]) * t_bc[m, None]
+    # vertex regions last (they win)
+    m = (d1 <= 0) & (d2 <= 0)
+    out[m] = A[m]
+    m = (d3 >= 0) & (d4 <= d3)
+    out[m] = B[m]
+    m = (d6 >= 0) & (d5 <= d6)
+    out[m] = C[m]
+    return out
+
+
+def face_longest_edges(V, F) -> np.ndarray:
+    """Longest edge of each triangle, shape (m,)."""
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    sq = [np.einsum("ij,ij->i", x, x) for x in (a - b, b - c, c - a)]
+    return np.sqrt(np.maximum(np.maximum(sq[0], sq[1]), sq[2]))
+
+
+def point_surface_distance(V, F, p, longest_edges=None) -> float:
     """Distance from point ``p`` to the triangle surface ``(V, F)``.
+
+    Only triangles that can hold the closest point are tested exactly: every point of a
+    triangle lies within its longest edge of each of its vertices, so a triangle whose
+    nearest vertex is farther than (nearest mesh vertex distance + its longest edge)
+    cannot beat that vertex.
 
     Parameters
     ----------
     V : (n, 3) float64
     F : (m, 3) int64
     p : (3,) float64
-    radius_hint : float, optional
-        Unused by the result; faces are pre-selected by their bounding spheres so
-        only triangles that can be the closest are tested exactly.
+    longest_edges : (m,) float64, optional
+        :func:`face_longest_edges`, when computed once for several points.
 
     Returns
     -------
     float
     """
-    from trimesh.triangles import closest_point
-
     p = np.asarray(p, dtype=np.float64)
-    tri = V[F]
-    centre = tri.mean(axis=1)
-    rad = np.linalg.norm(tri - centre[:, None, :], axis=2).max(axis=1)
-    dc = np.linalg.norm(centre - p, axis=1)
-    upper = float((dc + rad).min())  # every point of that triangle is within this
-    cand = np.flatnonzero(dc - rad <= upper)
-    cp = closest_point(tri[cand], np.repeat(p[None], len(cand), axis=0))
-    return float(np.linalg.norm(cp - p, axis=1).min())
+    if longest_edges is None:
+        longest_edges = face_longest_edges(V, F)
+    d = V - p
+    dv = np.sqrt(np.einsum("ij,ij->i", d, d))
+    upper = float(dv.min())                  # the nearest vertex is on the surface
+    dmin = dv[F].min(axis=1)
+    cand = np.flatnonzero(dmin - longest_edges <= upper)
+    A, B, C = V[F[cand, 0]], V[F[cand, 1]], V[F[cand, 2]]
+    q = closest_point_on_triangles(A, B, C, p) - p
+    return float(np.sqrt(np.einsum("ij,ij->i", q, q)).min(initial=upper))
 
 
 def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), path="mesh") -> RepairResult:
@@ -209,19 +279,16 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
     small = (sizes < settings.debris_max_fraction * len(idx)) & (np.arange(n_comp) != np.argmax(sizes))
     near = np.zeros(n_comp, dtype=bool)
     for h in hints.values():
-        dv = np.linalg.norm(V1 - np.asarray(h, float), axis=1) <= settings.eye_radius_mm
-        face_near = dv[F1[idx]].any(axis=1)
-        near[np.unique(labels[face_near])] = True
+        near[np.unique(labels[_faces_near(V1, F1[idx], h, settings.eye_radius_mm)])] = True
     debris_comp = small & ~near
     debris = np.zeros(m0, dtype=bool)
     debris[idx] = debris_comp[labels]
     alive &= ~debris
     # eye-region accounting (faces of the input, by centroid)
     removed = ~alive
-    centroids = V[F].mean(axis=1)
     eye_region = {}
     for side, h in hints.items():
-        inside = np.linalg.norm(centroids - np.asarray(h, float), axis=1) <= settings.eye_radius_mm
+        inside = _faces_near(V, F, h, settings.eye_radius_mm)
         total, lost = int(inside.sum()), int((inside & removed).sum())
         eye_region[side] = {"faces": total, "removed": lost}
         if total and lost > settings.max_eye_region_removed_fraction * total:
@@ -247,8 +314,14 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
                         counts=counts, eye_region=eye_region)
 
 
+def _faces_near(V, F, p, radius: float) -> np.ndarray:
+    """Mask of faces with at least one vertex within ``radius`` of ``p`` (the eye region), shape (m,)."""
+    d = V - np.asarray(p, dtype=np.float64)
+    return (np.einsum("ij,ij->i", d, d) <= radius * radius)[F].any(axis=1)
+
+
 def mean_normal_near(V, F, p, radius: float) -> np.ndarray:
-    """Area-weighted mean face normal (unnormalised) of faces with centroid within ``radius`` of ``p``."""
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    inside = np.linalg.norm((a + b + c) / 3.0 - p, axis=1) <= radius
-    return 0.5 * np.cross(b[inside] - a[inside], c[inside] - a[inside]).sum(axis=0)
+    """Area-weighted mean face normal (unnormalised) of faces with a vertex within ``radius`` of ``p``."""
+    Fn = F[_faces_near(V, F, p, radius)]
+    a, b, c = V[Fn[:, 0]], V[Fn[:, 1]], V[Fn[:, 2]]
+    return 0.5 * np.cross(b - a, c - a).sum(axis=0)

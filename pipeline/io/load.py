@@ -359,14 +359,130 @@ def _polys_to_tris(polys, path: Path, what: str):
     return np.concatenate(parts)[perm], int(np.count_nonzero(counts > 3))
 
 
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _ply_header(head: bytes, path: Path):
+    """Parse a PLY header -> (format, {element: {"length", "props": [(name, dtype | (count_dtype, item_dtype))]}},
+    TextureFile name or None, offset of the data)."""
+    end = head.index(b"end_header")
+    nl = head.find(b"\n", end)
+    if nl < 0:
+        raise ScanError(path, "PLY header is not terminated by a newline")
+    lines = head[:end].decode("ascii", errors="replace").splitlines()
+    fmt, elements, current, image = None, {}, None, None
+    for raw in lines[1:]:
+        t = raw.split()
+        if not t:
+            continue
+        try:
+            if t[0] == "format":
+                fmt = t[1]
+            elif t[0] == "element":
+                current = elements.setdefault(t[1], {"length": int(t[2]), "props": []})
+                if current["length"] < 0:
+                    raise ValueError("negative element count")
+            elif t[0] == "property":
+                if current is None:
+                    raise ValueError("property before any element")
+                if t[1] == "list":
+                    current["props"].append((t[4], (_PLY_TYPES[t[2]], _PLY_TYPES[t[3]])))
+                else:
+                    current["props"].append((t[2], _PLY_TYPES[t[1]]))
+            elif t[0] in ("comment", "obj_info") and len(t) > 2 and t[1].lower() == "texturefile":
+                image = raw.split(None, 2)[2].strip()
+        except (IndexError, KeyError, ValueError) as exc:
+            raise ScanError(path, f"cannot parse PLY header line {one_line(raw)[:60]!r} ({one_line(exc)[:40]})") from None
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise ScanError(path, f"unknown PLY format {fmt!r}")
+    return fmt, elements, image, nl + 1
+
+
+def _ply_ascii_trimesh(fh, path: Path):
+    """ASCII PLY through trimesh's parser -> ({element: {"data": dict}}, TextureFile)."""
+    from trimesh.exchange import ply as tply
+
+    fh.seek(0)
+    try:
+        elements, _, image = tply._parse_header(fh)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            tply._ply_ascii(elements, fh)
+    except Exception as exc:  # noqa: BLE001 - any parse failure is bad input
+        raise ScanError(path, f"cannot read ASCII PLY data: {one_line(exc)[:120]}") from None
+    return elements, image
+
+
+def _ply_binary(fh, elements: dict, endian: str, n_bytes: int, path: Path) -> None:
+    """Read binary PLY data into ``elements[name]["data"]`` (dict of arrays; lists as (m, k) arrays).
+
+    Fast path: every list of an element has the length of its first row (checked);
+    otherwise a row-by-row reader (slow, rare: mixed triangles and quads).
+    """
+    buf = fh.read(n_bytes)
+    pos = 0
+    for name, el in elements.items():
+        n, props = el["length"], el["props"]
+        fields, row_probe = [], pos
+        for pname, dt in props:
+            if isinstance(dt, tuple):
+                cdt = np.dtype(endian + dt[0])
+                if row_probe + cdt.itemsize > len(buf):
+                    k = 0
+                else:
+                    k = int(np.frombuffer(buf, cdt, 1, row_probe)[0]) if n else 0
+                fields.append((pname + "__n", endian + dt[0]))
+                fields.append((pname, endian + dt[1], (k,)))
+                row_probe += cdt.itemsize + k * np.dtype(dt[1]).itemsize
+            else:
+                fields.append((pname, endian + dt))
+                row_probe += np.dtype(dt).itemsize
+        dtype = np.dtype(fields)
+        need = n * dtype.itemsize
+        ok = pos + need <= len(buf)
+        if ok:
+            arr = np.frombuffer(buf, dtype, n, pos)
+            ok = all(np.all(arr[p + "__n"] == dtype[p].shape[0]) for p, dt in props if isinstance(dt, tuple))
+        if ok:
+            el["data"] = {p: arr[p] for p, _ in props}
+            pos += need
+        elif not any(isinstance(dt, tuple) for _, dt in props):
+            raise ScanError(path, f"PLY data is shorter than its header says (element {name!r}: truncated file)")
+        else:
+            el["data"], pos = _ply_binary_rows(buf, pos, n, props, endian, path, name)
+    if pos != len(buf):
+        raise ScanError(path, f"PLY has {len(buf) - pos} bytes after the data its header describes (corrupt?)")
+
+
+def _ply_binary_rows(buf, pos, n, props, endian, path, name):
+    """Row-by-row binary PLY element reader (lists of varying length)."""
+    cols = {p: [] for p, _ in props}
+    try:
+        for _ in range(n):
+            for p, dt in props:
+                if isinstance(dt, tuple):
+                    cdt, idt = np.dtype(endian + dt[0]), np.dtype(endian + dt[1])
+                    k = int(np.frombuffer(buf, cdt, 1, pos)[0])
+                    pos += cdt.itemsize
+                    cols[p].append(np.frombuffer(buf, idt, k, pos))
+                    pos += k * idt.itemsize
+                else:
+                    d = np.dtype(endian + dt)
+                    cols[p].append(np.frombuffer(buf, d, 1, pos)[0])
+                    pos += d.itemsize
+    except ValueError:
+        raise ScanError(path, f"PLY data is shorter than its header says (element {name!r}: truncated file)") from None
+    return {p: (v if isinstance(dt, tuple) else np.array(v)) for (p, dt), v in zip(props, cols.values())}, pos
+
+
 def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     """Load an ASCII or binary PLY (vertices, triangles/polygons, UVs, vertex colours).
 
     The header's element counts are checked against ``limits`` before any data is read.
     A ``comment TextureFile name`` is resolved inside ``folder``.
     """
-    from trimesh.exchange import ply as tply
-
     path, folder = Path(path), Path(folder)
     size = check_file_size(path, limits)
     with open(path, "rb") as fh:
@@ -375,36 +491,15 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
             raise ScanError(path, "not a PLY file (no 'ply' magic)")
         if b"end_header" not in head:
             raise ScanError(path, "PLY header has no end_header in its first 64 KiB")
-        fh.seek(0)
-        try:
-            elements, is_ascii, image_name = tply._parse_header(fh)
-        except Exception as exc:  # noqa: BLE001 - any parse failure is bad input
-            raise ScanError(path, f"cannot parse PLY header: {one_line(exc)[:120]}") from None
+        fmt, elements, image_name, data_start = _ply_header(head, path)
         n_v = int(elements.get("vertex", {}).get("length", 0))
         n_f = int(elements.get("face", {}).get("length", 0))
-        if n_v < 0 or n_f < 0:
-            raise ScanError(path, "PLY header has negative element counts")
         _check_counts(path, n_v, n_f, limits)
-        if not is_ascii:
-            # a lower bound of the data size from the header: refuse before allocating
-            try:
-                min_bytes = sum(int(e["length"]) * np.dtype(",".join(
-                    p.split(",")[0] if "$LIST" in p else p for p in e["properties"].values())).itemsize
-                    for e in elements.values() if e["properties"])
-            except Exception:  # noqa: BLE001
-                min_bytes = 0
-            if min_bytes > size:
-                raise ScanError(path, f"PLY header promises at least {min_bytes} bytes of data but the file "
-                                      f"has {size} (truncated or corrupt)")
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                (tply._ply_ascii if is_ascii else tply._ply_binary)(elements, fh)
-        except Exception as exc:  # noqa: BLE001
-            if "unexpected length" in str(exc):
-                raise ScanError(path, "PLY data length does not match its header (truncated or corrupt file, "
-                                      "or binary faces with mixed corner counts)") from None
-            raise ScanError(path, f"cannot read PLY data: {one_line(exc)[:120]}") from None
+        if fmt == "ascii":
+            elements, image_name = _ply_ascii_trimesh(fh, path)
+        else:
+            fh.seek(data_start)
+            _ply_binary(fh, elements, "<" if fmt == "binary_little_endian" else ">", size - data_start, path)
     vdata = elements.get("vertex", {}).get("data")
     xyz = [_column(vdata, c) for c in "xyz"]
     if any(c is None for c in xyz):
@@ -808,8 +903,9 @@ def ingest_scan(folder, settings: IngestSettings = IngestSettings()) -> IngestRe
         UV, FUV = loaded.UV[used], FUV.reshape(-1, 3).astype(np.int64)
     VC = loaded.VC[fixed.vertex_index] if loaded.VC is not None else None
     hint_dist = {}
+    edges = repair.face_longest_edges(V, F)
     for side, h in hints.items():
-        d = repair.point_surface_distance(V, F, h)
+        d = repair.point_surface_distance(V, F, h, edges)
         hint_dist[side] = round(d, 4)
         if d > settings.max_hint_distance_mm:
             raise ScanError(spec.sidecar, f"eyes.{side}.hint is {d:.1f} mm from the mesh surface, over the limit "
