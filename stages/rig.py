@@ -21,6 +21,7 @@ from pipeline.io.atomic import atomic_dir, write_json
 from pipeline.io.meshfile import load_mesh
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
+from pipeline.rig import textures as tex
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
 
 
@@ -54,6 +55,8 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
     t_build = time.perf_counter() - t0
 
     arrays = lids.shapes_to_arrays(rig.shapes)
+    down = rig.shape(lids.SHAPE_DOWN)
+    arrays["lids_down.texture_mask"] = tex.motion_mask(len(V), down.point_indices, down.offsets)
     eyes_doc, lm_doc = {}, {}
     for e in eyes:
         lm = lmk.eyelid_landmarks(V, e)
@@ -105,6 +108,14 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
                                 "shapes and inbetweens as the mesh", **lm_doc},
             **lmk.EYEBALL_LANDMARKS,
         },
+        "smoothed_down_variant": {
+            "mask": "lids_down.texture_mask (n,) per-vertex weight in [0, 1] (rig.npz)",
+            "rule": "texture_down = mix(texture, gaussian_blur(texture, sigma_mm), "
+                    "w_lids_down * mask), for the colour and the displacement map",
+            "sigma_mm": float(params.get("down_smoothing_sigma_mm", 0.75)),
+            "functions": "pipeline.rig.textures.rasterize_vertex_scalar, texels_per_mm, "
+                         "smoothed_variant",
+        },
         "params": {k: getattr(lp, k) for k in lp.__dataclass_fields__},
         "npz_layout": {
             "shape_names": "(s,) str: lids_up, lids_down",
@@ -118,6 +129,7 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
             "landmarks.<side>.shape_names / .<shape>.*": "landmark-curve shapes, same layout, "
                                                           "point_indices 0..11",
             "loop_<side>": "(L,) int64 eyelid margin loop (medial canthus first, upper lid first)",
+            "lids_down.texture_mask": "(n,) float64 per-vertex mask of the smoothed down variant",
         },
     }
     metrics = {

@@ -423,3 +423,55 @@ def test_ict_head_sweep(extra_scan):
             ict = deltas[(e.side, kind)][upper] @ up_ax
             assert sign * ours.mean() > 0 and sign * ict.mean() > 0
             assert math.isfinite(float(np.abs(ours - ict).mean()))
+
+
+# ---------------------------------------------------------------- smoothed down-looking variant
+
+def test_smoothed_variant_mixes_by_mask():
+    from pipeline.rig import textures as tex
+
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    zero = np.zeros((64, 64))
+    np.testing.assert_array_equal(tex.smoothed_variant(img, zero, 3.0), img)
+    out = tex.smoothed_variant(img, np.ones((64, 64)), 3.0)
+    assert out.dtype == np.uint8 and out.std() < 0.3 * img.std()
+    disp = rng.normal(0, 0.2, (32, 48)).astype(np.float32)
+    half = np.zeros((32, 48))
+    half[:, 24:] = 1.0
+    sm = tex.smoothed_variant(disp, half, 2.0)
+    assert sm.dtype == np.float32
+    np.testing.assert_array_equal(sm[:, :24], disp[:, :24])
+    assert sm[:, 30:].std() < 0.5 * disp[:, 30:].std()
+    const = np.full((16, 16), 0.7, np.float32)
+    np.testing.assert_allclose(tex.smoothed_variant(const, np.ones((16, 16)), 4.0), const, rtol=1e-6)
+
+
+def test_uv_rasterisation_and_texel_density():
+    from pipeline.rig import textures as tex
+
+    V = np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]], float)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    UV = V[:, :2] / 10.0
+    assert tex.texels_per_mm(V, F, UV, F, (100, 100)) == pytest.approx(10.0)
+    values = V[:, 0] / 10.0                       # u itself
+    img = tex.rasterize_vertex_scalar(UV, F, F, values, (50, 40))
+    xs = (np.arange(50) + 0.5) / 50
+    np.testing.assert_allclose(img, np.broadcast_to(xs, (40, 50)), atol=1e-9)
+    mask = tex.motion_mask(4, np.array([1, 2]), np.array([[0, 2.0, 0], [0, 1.0, 0]]), power=1.0)
+    np.testing.assert_allclose(mask, [0, 1.0, 0.5, 0])
+
+
+def test_stage_stores_down_mask(region):
+    V, F, eyes, _ = region
+    arrays, doc, _ = rig_stage.build_rig({"V": V, "F": F, "loop_left": eyes[0].loop,
+                                          "loop_right": eyes[1].loop},
+                                         {e.side: {"center": e.center, "radius": e.radius,
+                                                   "forward": e.forward} for e in eyes},
+                                         {"sweep_step_deg": 25.0})
+    m = arrays["lids_down.texture_mask"]
+    assert m.shape == (len(V),) and m.min() >= 0 and m.max() == pytest.approx(1.0)
+    moved = np.zeros(len(V), bool)
+    moved[arrays["lids_down.point_indices"]] = True
+    assert np.all(m[~moved] == 0)
+    assert doc["smoothed_down_variant"]["sigma_mm"] == 0.75
