@@ -123,6 +123,7 @@ def test_sweep_keeps_margin_on_eyeball_no_flips_no_crossing(radius):
     assert res["flipped_faces"] == 0
     assert res["min_opening_mm"] > 0.5
     assert res["min_skin_clearance_mm"] > 0.0
+    assert res["max_skin_sink_mm"] <= lids.LidParams().max_chord_sag_mm + 1e-9
 
 
 def test_margin_exactly_on_sphere_at_stored_poses(region):

@@ -639,7 +639,9 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         ``rest_max_abs_mm`` (same at pitch 0), ``flipped_faces`` (max over pitches of
         faces whose normal turned by more than 90 degrees), ``min_opening_mm``
         (smallest upper-minus-lower lid height along vertical lines; < 0 = crossing),
-        ``min_skin_clearance_mm`` (smallest |v - c| - r of moved non-margin vertices),
+        ``min_skin_clearance_mm`` (smallest |v - c| - r of moved non-margin vertices within
+        2 r of the centre; ``rest_min_skin_clearance_mm`` the same at rest) and
+        ``max_skin_sink_mm`` (largest decrease of that clearance by posing),
         ``worst_pitch_deg`` for the gap/penetration, and ``n_pitches``.
     """
     V = np.asarray(V, float)
@@ -655,7 +657,16 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
     check_faces = ok & moved[F].any(axis=1)
     res = {"max_gap_mm": 0.0, "max_penetration_mm": 0.0, "flipped_faces": 0,
            "min_opening_mm": math.inf, "min_skin_clearance_mm": math.inf,
+           "rest_min_skin_clearance_mm": math.inf, "max_skin_sink_mm": 0.0,
            "worst_pitch_deg": 0.0, "n_pitches": 0}
+    skin = moved & ~margin
+    near_skin = {}
+    for e in eyes:
+        sel = np.flatnonzero(skin & (np.linalg.norm(V - e.center, axis=1) < 2.0 * e.radius))
+        near_skin[e.side] = (sel, np.linalg.norm(V[sel] - e.center, axis=1) - e.radius)
+        if len(sel):
+            res["rest_min_skin_clearance_mm"] = min(res["rest_min_skin_clearance_mm"],
+                                                    float(near_skin[e.side][1].min()))
     rest = max(float(np.max(np.abs(np.linalg.norm(V[e.loop] - e.center, axis=1) - e.radius)))
                for e in eyes)
     res["rest_max_abs_mm"] = rest
@@ -672,18 +683,17 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
             op = lid_opening(P, e)
             if np.isfinite(op).any():
                 res["min_opening_mm"] = min(res["min_opening_mm"], float(np.nanmin(op)))
-            skin = moved & ~margin
-            if skin.any():
-                ds = np.linalg.norm(P[skin] - e.center, axis=1) - e.radius
-                near = np.linalg.norm(V[skin] - e.center, axis=1) < 2.0 * e.radius
-                if near.any():
-                    res["min_skin_clearance_mm"] = min(res["min_skin_clearance_mm"],
-                                                       float(ds[near].min()))
+            sel, rest_clear = near_skin[e.side]
+            if len(sel):
+                ds = np.linalg.norm(P[sel] - e.center, axis=1) - e.radius
+                res["min_skin_clearance_mm"] = min(res["min_skin_clearance_mm"], float(ds.min()))
+                res["max_skin_sink_mm"] = max(res["max_skin_sink_mm"],
+                                              float(np.max(rest_clear - ds)))
         n1 = face_normals(P, F)
         flipped = int(np.count_nonzero(np.einsum("ij,ij->i", n0[check_faces], n1[check_faces]) <= 0))
         res["flipped_faces"] = max(res["flipped_faces"], flipped)
         res["n_pitches"] += 1
-    for k in ("min_opening_mm", "min_skin_clearance_mm"):
+    for k in ("min_opening_mm", "min_skin_clearance_mm", "rest_min_skin_clearance_mm"):
         if not math.isfinite(res[k]):
             res[k] = None
     return res
