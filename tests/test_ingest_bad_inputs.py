@@ -233,7 +233,57 @@ def c_float32_offset(f, t):
     write_sidecar(f, {k: v + off for k, v in hints.items()}, mesh="scan.obj")
 
 
+def c_yaml_alias_bomb(f, t):
+    lines = ["a0: &a0 [1, 2, 3, 4, 5, 6, 7, 8, 9]"]
+    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, 10)]
+    text = (f / "scan.yaml").read_text().replace("eyes:", "eyes_unused:", 1)
+    (f / "scan.yaml").write_text("\n".join(lines) + "\n" + text + "eyes: {left: {hint: *a9}, right: {hint: *a9}}\n")
+
+
+def c_scan_folder_missing(f, t):
+    import shutil
+    shutil.rmtree(f)
+
+
+def _glb_from_trimesh(f, image_size=(16, 8)):
+    import trimesh
+    from PIL import Image
+
+    from test_ingest import sphere_uv
+    V, F, hints = head_mesh(3)
+    tm = trimesh.Trimesh(V, F, process=False)
+    tm.visual = trimesh.visual.TextureVisuals(uv=sphere_uv(V), image=Image.new("RGB", image_size, (1, 2, 3)))
+    data = tm.export(file_type="glb")
+    write_sidecar(f, hints, mesh="scan.glb")
+    return bytearray(data)
+
+
+def c_glb_image_bomb(f, t):
+    data = _glb_from_trimesh(f)
+    i = data.index(b"IHDR")
+    ihdr = bytearray(data[i + 4:i + 17])
+    ihdr[0:8] = struct.pack(">II", 100000, 100000)
+    data[i + 4:i + 17] = ihdr
+    data[i + 17:i + 21] = struct.pack(">I", zlib.crc32(b"IHDR" + bytes(ihdr)) & 0xFFFFFFFF)
+    (f / "scan.glb").write_bytes(bytes(data))
+
+
+def c_glb_external_uri(f, t):
+    import json as _json
+    (t / "secret.bin").write_bytes(b"\0" * 64)
+    doc = {"asset": {"version": "2.0"}, "buffers": [{"uri": "../secret.bin", "byteLength": 64}]}
+    js = _json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    glb = struct.pack("<III", 0x46546C67, 2, 12 + 8 + len(js)) + struct.pack("<II", len(js), 0x4E4F534A) + js
+    (f / "scan.glb").write_bytes(glb)
+    _edit_yaml(f, mesh="scan.glb")
+
+
 CASES = [
+    (c_yaml_alias_bomb, "scan.yaml", "eyes.left.hint must be three numbers"),
+    (c_scan_folder_missing, "scan", "scan folder does not exist"),
+    (c_glb_image_bomb, "scan.glb", "header claims 100000x100000"),
+    (c_glb_external_uri, "scan.glb", "external URI"),
     # (builder, file named in the message, problem text)
     (c_missing_sidecar, "scan.yaml", "missing"),
     (c_yaml_syntax, "scan.yaml", "YAML error"),

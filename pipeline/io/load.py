@@ -574,6 +574,40 @@ def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
 
 # ---------------------------------------------------------------------------- GLB
 
+def _glb_check_images(path: Path, doc: dict, limits: Limits) -> None:
+    """Check every embedded GLB image's pixel count from its header before trimesh decodes it."""
+    from PIL import Image
+
+    images = doc.get("images", []) or []
+    if not images:
+        return
+    with open(path, "rb") as fh:
+        fh.seek(12)
+        json_len = struct.unpack("<I", fh.read(4))[0]
+        fh.seek(20 + json_len)
+        head = fh.read(8)
+        if len(head) < 8:
+            raise ScanError(path, "GLB has images but no binary chunk")
+        bin_len = struct.unpack("<I", head[:4])[0]
+        blob = fh.read(bin_len)
+    views = doc.get("bufferViews", []) or []
+    for i, img in enumerate(images):
+        try:
+            view = views[int(img["bufferView"])]
+            start = int(view.get("byteOffset", 0))
+            data = blob[start:start + int(view["byteLength"])]
+        except (KeyError, IndexError, TypeError, ValueError):
+            raise ScanError(path, f"GLB image {i} has no valid bufferView") from None
+        try:
+            with _max_pixels(2**62):
+                w, h = Image.open(io.BytesIO(data)).size  # header only
+        except Exception as exc:  # noqa: BLE001
+            raise ScanError(path, f"GLB image {i} cannot be opened: {one_line(exc)[:100]}") from None
+        if w * h > limits.max_texture_pixels:
+            raise ScanError(path, f"GLB image {i} header claims {w}x{h} = {w * h} pixels, over the limit of "
+                                  f"{limits.max_texture_pixels} (ingest.max_texture_pixels); not decoded")
+
+
 def _glb_json(path: Path, size: int) -> dict:
     with open(path, "rb") as fh:
         header = fh.read(20)
@@ -606,6 +640,7 @@ def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
             if isinstance(item, dict) and "uri" in item:
                 raise ScanError(path, f"GLB {kind[:-1]} refers to an external URI; only self-contained GLB is supported")
     n_img = len(doc.get("images", []) or [])
+    _glb_check_images(path, doc, limits)
     try:
         from PIL import Image
         with warnings.catch_warnings():
@@ -938,7 +973,7 @@ def ingest_scan(folder, settings: IngestSettings = IngestSettings()) -> IngestRe
     if VC is not None:
         mesh["VC"] = VC
     scan = {
-        "name": spec.folder.name,
+        "name": Path(folder).name or spec.folder.name,
         "source_sha256": source_sha256(spec.folder, files),
         "licence": spec.licence,
         "eyes": {s: {"hint": [float(x) for x in hints[s]]} for s in ("left", "right")},

@@ -88,6 +88,15 @@ def one_line(text) -> str:
     return " ".join(str(text).split())
 
 
+def short_repr(value) -> str:
+    """A bounded one-line repr of an untrusted value (YAML aliases can make huge nested structures)."""
+    import reprlib
+
+    r = reprlib.Repr()
+    r.maxlevel, r.maxlist, r.maxtuple, r.maxdict, r.maxstring, r.maxother = 2, 4, 4, 4, 40, 40
+    return one_line(r.repr(value))[:80]
+
+
 def safe_path(folder, value, sidecar, key: str, suffixes=None) -> Path:
     """Resolve a relative path from an untrusted file and check it stays inside ``folder``.
 
@@ -153,9 +162,9 @@ def _hint(eyes, side: str, sidecar: Path) -> np.ndarray:
         raise ScanError(sidecar, f"eyes.{side} must be a mapping with a 'hint' key")
     hint = entry["hint"]
     if not isinstance(hint, (list, tuple)) or len(hint) != 3 or not all(_is_number(x) for x in hint):
-        raise ScanError(sidecar, f"eyes.{side}.hint must be three numbers [x, y, z], got {one_line(repr(hint))[:80]}")
+        raise ScanError(sidecar, f"eyes.{side}.hint must be three numbers [x, y, z], got {short_repr(hint)}")
     if not all(math.isfinite(float(x)) for x in hint):
-        raise ScanError(sidecar, f"eyes.{side}.hint {one_line(repr(hint))[:80]} is not finite")
+        raise ScanError(sidecar, f"eyes.{side}.hint {short_repr(hint)} is not finite")
     return np.array(hint, dtype=np.float64)
 
 
@@ -180,7 +189,7 @@ def parse_sidecar(data, folder, sidecar) -> ScanSpec:
         raise ScanError(sidecar, f"must be a YAML mapping of keys to values, got {_type_name(data)}")
     for key in data:
         if not isinstance(key, str):
-            raise ScanError(sidecar, f"keys must be strings, got {one_line(repr(key))[:40]}")
+            raise ScanError(sidecar, f"keys must be strings, got {short_repr(key)}")
     unknown = []
     for key in data:
         if key in KNOWN_KEYS or key in FREE_FORM_KEYS:
@@ -194,12 +203,12 @@ def parse_sidecar(data, folder, sidecar) -> ScanSpec:
             raise ScanError(sidecar, f"required key {key!r} is missing")
     units = data["units"]
     if not isinstance(units, str) or units not in UNITS_TO_MM:
-        raise ScanError(sidecar, f"units must be one of mm, cm, m; got {one_line(repr(units))[:40]}")
+        raise ScanError(sidecar, f"units must be one of mm, cm, m; got {short_repr(units)}")
     axes = {}
     for key in ("up_axis", "forward_axis"):
         value = data[key]
         if not isinstance(value, str) or value.strip().upper() not in AXES:
-            raise ScanError(sidecar, f"{key} must be one of {', '.join(AXES)}; got {one_line(repr(value))[:40]}")
+            raise ScanError(sidecar, f"{key} must be one of {', '.join(AXES)}; got {short_repr(value)}")
         axes[key] = value.strip().upper()
     if axes["up_axis"][1] == axes["forward_axis"][1]:
         raise ScanError(sidecar, f"up_axis {axes['up_axis']} and forward_axis {axes['forward_axis']} "
