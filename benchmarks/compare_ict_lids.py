@@ -154,6 +154,36 @@ def report(title, result):
                 print(f"{side:5s} {key}: {v:.2f} mm")
 
 
+def draw_figure(path, Vs, F, eyes, deltas, params):
+    """Front view of the left eye's margin: rest, ours and ICT at +-25 deg (PNG)."""
+    from PIL import Image, ImageDraw
+
+    e = next(e for e in eyes if e.side == "left")
+    rig = lids.build_lid_shapes(Vs, F, eyes, params)
+    B = e.basis()
+    curves = {"rest": Vs[e.loop]}
+    for pitch, name, kind in ((25.0, lids.SHAPE_UP, "Up"), (-25.0, lids.SHAPE_DOWN, "Down")):
+        curves[f"ours {pitch:+.0f}"] = lids.evaluate_shapes(Vs, rig.shapes, {name: 1.0})[e.loop]
+        curves[f"ICT {pitch:+.0f}"] = Vs[e.loop] + deltas[(e.side, kind)][e.loop]
+    colours = {"rest": (90, 90, 90), "ours +25": (30, 90, 220), "ICT +25": (120, 190, 255),
+               "ours -25": (210, 40, 40), "ICT -25": (255, 160, 60)}
+    Q = {k: (v - e.center) @ B[:2].T for k, v in curves.items()}
+    allq = np.concatenate(list(Q.values()))
+    lo, hi = allq.min(0) - 2, allq.max(0) + 2
+    scale = 760 / (hi[0] - lo[0])
+    W, H = 800, int((hi[1] - lo[1]) * scale) + 80
+    img = Image.new("RGB", (W, H), "white")
+    d = ImageDraw.Draw(img)
+    for k, q in Q.items():
+        xy = [(20 + (x - lo[0]) * scale, 60 + (hi[1] - y) * scale) for x, y in q]
+        d.line(xy + xy[:1], fill=colours[k], width=3 if k.startswith("ours") or k == "rest" else 2)
+    for i, k in enumerate(Q):
+        d.text((20 + 150 * i, 10), k, fill=colours[k])
+    d.text((20, 30), "left eye margin, front view (eye frame), 1 px = %.3f mm" % (1 / scale),
+           fill=(0, 0, 0))
+    img.save(path)
+
+
 def main() -> int:
     scans = Path(os.environ.get("EYERIG_EXTRA_SCANS", "/work/shared/scans"))
     V, F, remap, gt, deltas = load_ict(scans)
@@ -177,6 +207,7 @@ def main() -> int:
               "default_params": default, "ict_fitted_params": {"fitted": fitted_params, **fitted}}
     out = ROOT / "benchmarks" / "results" / "ict_lids.json"
     write_json(out, result)
+    draw_figure(out.with_suffix(".png"), Vs, F, eyes, deltas, lids.LidParams())
     report("default params", default)
     report(f"gains fitted to ICT {fitted_params}", fitted)
     print(f"wrote {out}")
