@@ -476,3 +476,22 @@ def test_stage_stores_down_mask(region):
     moved[arrays["lids_down.point_indices"]] = True
     assert np.all(m[~moved] == 0)
     assert doc["smoothed_down_variant"]["sigma_mm"] == 0.75
+
+
+def test_upper_lid_never_crosses_lower_lid_even_with_extreme_gains():
+    V, F, eyes = two_eye_region(upper_deg=7.0, lower_deg=5.0)
+    extreme = dict(gain_upper_down=1.0, gain_lower_down=0.0, gain_upper_up=0.0, gain_lower_up=1.0)
+    unguarded = lids.build_lid_shapes(V, F, eyes, lids.LidParams(**extreme, min_opening_fraction=-50))
+    res = lids.sweep_check(V, F, eyes, unguarded.shapes, [-25.0, 25.0])
+    assert res["min_opening_mm"] < 0                     # the lids would cross
+    rig = lids.build_lid_shapes(V, F, eyes, lids.LidParams(**extreme))
+    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    assert res["min_opening_mm"] > 0 and res["flipped_faces"] == 0
+    assert res["max_penetration_mm"] <= 0.1
+    # at every vertical line at least ~20 % of the rest opening remains
+    for e in eyes:
+        rest = lids.lid_opening(V, e)
+        for p in (-25.0, 25.0):
+            op = lids.lid_opening(lids.evaluate_shapes(V, rig.shapes, lids.lid_weights(p)), e)
+            ok = np.isfinite(op) & np.isfinite(rest)
+            assert np.all(op[ok] >= 0.2 * rest[ok] - 0.05)

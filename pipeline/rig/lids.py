@@ -107,6 +107,7 @@ class LidParams:
     lower_falloff_mm: float = 8.0
     max_chord_sag_mm: float = 0.03
     max_segments: int = 12
+    min_opening_fraction: float = 0.2
     min_offset_mm: float = 1e-6
 
     @classmethod
@@ -310,6 +311,34 @@ class EyeField:
     loop_u: np.ndarray
 
 
+def _keep_lids_apart(W, B, u, upper, lower, gain_up, gain_dn, pmax, frac):
+    """Limit the margin gains so the upper lid stays above the lower lid in both full poses.
+
+    A rotation about the pitch axis changes a margin point's angle ``phi`` about that
+    axis by exactly the rotation angle and keeps its horizontal coordinate, so along
+    each vertical line the opening is ``phi_upper - phi_lower`` (for points on the
+    sphere). Each pose must keep at least ``frac`` of the rest opening: in the down pose
+    the upper lid may not drop farther than the lower lid below it plus
+    ``(1 - frac)`` of the opening, and vice versa for the lower lid in the up pose.
+    """
+    phi = np.arctan2(W @ B[1], W @ B[2])
+    iu, il = np.flatnonzero(upper), np.flatnonzero(lower)
+    if len(iu) < 1 or len(il) < 1:
+        return gain_up, gain_dn
+    gain_up, gain_dn = gain_up.copy(), gain_dn.copy()
+    ol, ou = np.argsort(u[il]), np.argsort(u[iu])
+    # lower lid under each upper point, upper lid over each lower point
+    phi_lo = np.interp(u[iu], u[il][ol], phi[il][ol])
+    dn_lo = np.interp(u[iu], u[il][ol], gain_dn[il][ol])
+    phi_up = np.interp(u[il], u[iu][ou], phi[iu][ou])
+    up_up = np.interp(u[il], u[iu][ou], gain_up[iu][ou])
+    slack_u = np.maximum(phi[iu] - phi_lo, 0.0) * (1.0 - frac) / pmax
+    slack_l = np.maximum(phi_up - phi[il], 0.0) * (1.0 - frac) / pmax
+    gain_dn[iu] = np.minimum(gain_dn[iu], dn_lo + slack_u)       # upper lid going down
+    gain_up[il] = np.minimum(gain_up[il], up_up + slack_l)       # lower lid going up
+    return gain_up, gain_dn
+
+
 def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeField:
     """Rotation angle of every vertex for the full lids_up and lids_down poses of one eye.
 
@@ -344,6 +373,9 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
     lower[li + 1:] = True
     gain_up = np.where(upper, params.gain_upper_up, params.gain_lower_up) * taper
     gain_dn = np.where(upper, params.gain_upper_down, params.gain_lower_down) * taper
+    gain_up, gain_dn = _keep_lids_apart(V[loop] - eye.center, B, u, upper, lower, gain_up, gain_dn,
+                                        math.radians(params.max_pitch_deg),
+                                        params.min_opening_fraction)
     radius = np.where(upper, params.upper_falloff_mm,
                       np.where(lower, params.lower_falloff_mm,
                                0.5 * (params.upper_falloff_mm + params.lower_falloff_mm)))
