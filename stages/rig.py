@@ -93,7 +93,7 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
             motion[f"{name}_{e.side}_lower_mean_dy_mm"] = float(dy[li + 1:].mean())
 
     doc = {
-        "weight_rule": {**lids.WEIGHT_RULE, "max_pitch_deg": lp.max_pitch_deg},
+        "weight_rule": lids.weight_rule(lp.max_pitch_deg),
         "shapes": [{"name": s.name, "n_points": int(len(s.point_indices)),
                     "inbetweens": [{"name": n, "weight": float(w)} for n, w in
                                    zip(s.inbetween_names(), s.inbetween_weights)],

@@ -305,6 +305,12 @@ def test_stage_writes_rig_that_reopens(tmp_path, region):
             assert z[f"landmarks.{side}.points"].shape == (12, 3)
             ls = lids.shapes_from_arrays(z, prefix=f"landmarks.{side}.")
             assert [len(s.point_indices) for s in ls] == [12, 12]
+        # posed landmarks for render labels: on the margin edge of the posed mesh
+        Pm = lids.evaluate_shapes(V, shapes, lids.lid_weights(-17.0))
+        Lp = lmk.posed_eyelid_landmarks(z, "left", -17.0)
+        edge, t = z["landmarks.left.edge"], z["landmarks.left.t"]
+        on_edge = (1 - t)[:, None] * Pm[edge[:, 0]] + t[:, None] * Pm[edge[:, 1]]
+        assert np.abs(Lp - on_edge).max() < 0.05
         # the stored shapes reproduce the library's posing
         res = lids.sweep_check(V, F, eyes, shapes, PITCHES_1DEG)
         assert res["max_penetration_mm"] <= 0.1

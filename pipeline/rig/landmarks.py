@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.rig.lids import BlendShape, EyeFrame, LidRig, rotate_about_axis
+from pipeline.rig.lids import (MAX_PITCH_DEG, BlendShape, EyeFrame, LidRig, evaluate_shapes,
+                              lid_weights, rotate_about_axis, shapes_from_arrays)
 
 N_EYELID = 12
 N_IRIS = 8
@@ -134,3 +135,28 @@ def landmark_shapes(lm: EyelidLandmarks, eye: EyeFrame, rig: LidRig) -> list[Ble
                               offsets=poses[-1], inbetween_weights=s.inbetween_weights.copy(),
                               inbetween_offsets=poses[:-1]))
     return out
+
+
+def posed_eyelid_landmarks(rig_arrays, side: str, pitch_deg: float,
+                           max_pitch_deg: float = MAX_PITCH_DEG) -> np.ndarray:
+    """The 12 eyelid landmarks of one eye posed for an eyeball pitch (for render labels).
+
+    Parameters
+    ----------
+    rig_arrays : mapping
+        The arrays of rig.npz (dict or open ``np.load`` file).
+    side : {"left", "right"}
+    pitch_deg : float
+        Eyeball pitch, degrees, up positive (the same value that drives the lid shapes).
+    max_pitch_deg : float
+        From rig.json ``weight_rule.max_pitch_deg``.
+
+    Returns
+    -------
+    (12, 3) float64
+        Head-frame positions, mm, in :data:`EYELID_ORDER`.
+    """
+    pre = f"landmarks.{side}."
+    points = np.asarray(rig_arrays[pre + "points"], np.float64)
+    shapes = shapes_from_arrays(rig_arrays, prefix=pre)
+    return evaluate_shapes(points, shapes, lid_weights(pitch_deg, max_pitch_deg))

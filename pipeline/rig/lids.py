@@ -62,6 +62,11 @@ WEIGHT_RULE = {
 }
 
 
+def weight_rule(max_pitch_deg: float = MAX_PITCH_DEG) -> dict:
+    """The pitch-to-weight rule as metadata for the asset: :data:`WEIGHT_RULE` plus its parameter."""
+    return {**WEIGHT_RULE, "max_pitch_deg": float(max_pitch_deg)}
+
+
 def lid_weights(pitch_deg: float, max_pitch_deg: float = MAX_PITCH_DEG) -> dict[str, float]:
     """Blend-shape channel weights for an eyeball pitch: THE pitch-to-weight rule.
 
