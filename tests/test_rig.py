@@ -501,3 +501,21 @@ def test_upper_lid_never_crosses_lower_lid_even_with_extreme_gains():
             op = lids.lid_opening(lids.evaluate_shapes(V, rig.shapes, lids.lid_weights(p)), e)
             ok = np.isfinite(op) & np.isfinite(rest)
             assert np.all(op[ok] >= 0.2 * rest[ok] - 0.05)
+
+
+def test_stage_command_line(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    V, F, eyes = two_eye_region()
+    _write_snap(tmp_path / "snap", V, F, eyes)
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, "-m", "stages.rig", str(tmp_path / "snap"),
+                           str(tmp_path / "rig"), "--metrics", str(tmp_path / "m.json"),
+                           "--params", str(root / "params.yaml")],
+                          cwd=root, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["sweep_max_penetration_mm"] <= 0.1 and m["sweep_flipped_faces"] == 0
+    assert (tmp_path / "rig" / "rig.npz").is_file() and (tmp_path / "rig" / "rig.json").is_file()
