@@ -472,3 +472,39 @@ def test_binary_ply_mixed_polygons_and_big_endian(tmp_path, endian):
     assert m["repairs"]["debris_faces"] == 2
     mesh = load_mesh(out / "mesh.npz")
     np.testing.assert_array_equal(mesh["V"], V)  # float64 stored: exact
+
+
+def _obj_variants():
+    V, F, _ = head_mesh(2)
+    uv = sphere_uv(V)
+    v = [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()]
+    vt = [f"vt {a!r} {b!r}" for a, b in uv.tolist()]
+    vn = ["vn 0 0 1"]
+    yield "plain", v + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F], True
+    yield "v/vt", ["mtllib m.mtl"] + v + vt + ["usemtl skin"] + [
+        f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}" for a, b, c in F], True
+    yield "v//vn crlf", [ln + "\r" for ln in v + vn + [f"f {a + 1}//1 {b + 1}//1 {c + 1}//1" for a, b, c in F]], True
+    yield "v/vt/vn groups", v[:20] + ["g head", "# c"] + v[20:] + vt + vn + [
+        f"f {a + 1}/{a + 1}/1 {b + 1}/{b + 1}/1 {c + 1}/{c + 1}/1" for a, b, c in F], True
+    quads = [f"f {a + 1} {b + 1} {c + 1} {c + 1}" for a, b, c in F]
+    yield "quads", v + quads, True
+    yield "mixed", v + quads[:5] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F[5:]], False
+    yield "negative", v + [f"f {a - len(V)} {b - len(V)} {c - len(V)}" for a, b, c in F], False
+    yield "trailing comment", v + [f"f {a + 1} {b + 1} {c + 1} # x" for a, b, c in F], False
+
+
+@pytest.mark.parametrize("name,lines,fast", list(_obj_variants()), ids=[v[0] for v in _obj_variants()])
+def test_obj_fast_parser_agrees_with_line_parser(name, lines, fast):
+    from pipeline.io.load import Limits, _obj_fast, _obj_slow
+
+    raw = ("\n".join(lines) + "\n").encode()
+    got = _obj_fast(raw, Path("x.obj"), Limits())
+    ref = _obj_slow(raw, Path("x.obj"), Limits())
+    assert (got is not None) == fast
+    if got is None:
+        return
+    for a, b in zip(got, ref):
+        if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+            np.testing.assert_array_equal(a, b)
+        else:
+            assert a == b

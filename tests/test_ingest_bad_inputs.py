@@ -279,7 +279,19 @@ def c_glb_external_uri(f, t):
     _edit_yaml(f, mesh="scan.glb")
 
 
+def c_mesh_control_chars(f, t):
+    _edit_yaml(f, mesh="scan\nply.ply")
+
+
+def c_sidecar_symlink_escape(f, t):
+    (t / "other.yaml").write_text((f / "scan.yaml").read_text())
+    (f / "scan.yaml").unlink()
+    os.symlink(t / "other.yaml", f / "scan.yaml")
+
+
 CASES = [
+    (c_mesh_control_chars, "scan.yaml", "contains control characters"),
+    (c_sidecar_symlink_escape, "scan.yaml", "symlink to outside the scan folder"),
     (c_yaml_alias_bomb, "scan.yaml", "eyes.left.hint must be three numbers"),
     (c_scan_folder_missing, "scan", "scan folder does not exist"),
     (c_glb_image_bomb, "scan.glb", "header claims 100000x100000"),

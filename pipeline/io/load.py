@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 import struct
 import warnings
 from dataclasses import dataclass, field
@@ -206,34 +207,17 @@ def _parse_mtl(mtl_path: Path, folder: Path, obj_path: Path, limits: Limits) -> 
     return maps
 
 
-def load_obj(path, folder, limits: Limits = Limits()) -> LoadedMesh:
-    """Load a Wavefront OBJ (+ MTL ``map_Kd``) keeping per-corner UVs.
-
-    Parameters
-    ----------
-    path : pathlib.Path
-        The OBJ file (already checked to be inside ``folder``).
-    folder : pathlib.Path
-        The scan folder; ``mtllib`` and ``map_Kd`` must stay inside it.
-    limits : Limits
-
-    Returns
-    -------
-    LoadedMesh
-    """
-    path, folder = Path(path), Path(folder)
-    check_file_size(path, limits)
-    raw = path.read_bytes()
-    if b"\x00" in raw[:65536]:
-        raise ScanError(path, "not a text OBJ file (binary bytes found)")
+def _obj_slow(raw: bytes, path: Path, limits: Limits):
+    """Line-by-line OBJ parser: any layout (negative indices, mixed polygons), errors name the line."""
     lines = raw.decode("utf-8", errors="replace").splitlines()
-    del raw
     v_rows, v_ln, vt_rows, vt_ln, f_rows, f_ln = [], [], [], [], [], []
     mtllibs, usemtl = [], set()
     for i, line in enumerate(lines):
         if not line:
             continue
-        c = line[0]
+        if "#" in line:
+            line = line.split("#", 1)[0]
+        c = line[0] if line else ""
         if c == "v":
             if line.startswith("v "):
                 v_rows.append(line[2:]); v_ln.append(i)
@@ -290,6 +274,167 @@ def load_obj(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     F = np.concatenate(F_parts)[perm]
     FUV = np.concatenate(FT_parts)[perm] if tidx is not None else None
     _check_counts(path, len(V), len(F), limits)
+    return V, VC, UV, F, FUV, int(np.count_nonzero(counts > 3)), mtllibs, usemtl
+
+
+def _tokens_per_row(text: bytes, n_rows: int) -> np.ndarray:
+    """Whitespace-separated token count of each newline-separated row of ``text``, shape (n_rows,)."""
+    b = np.frombuffer(text, dtype=np.uint8)
+    ws = (b == 32) | (b == 9) | (b == 10) | (b == 13)
+    start = ~ws
+    start[1:] &= ws[:-1]
+    row = np.searchsorted(np.flatnonzero(b == 10), np.flatnonzero(start))
+    return np.bincount(row, minlength=n_rows)
+
+
+def _floats_fast(text: bytes, n_rows: int, min_cols: int):
+    """Newline-separated rows of numbers -> (n_rows, c) float64 by one C-level parse, or None when irregular."""
+    if not n_rows:
+        return np.zeros((0, min_cols))
+    cols = len(text[:text.find(b"\n") if b"\n" in text else len(text)].split())
+    if cols < min_cols:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            vals = np.fromstring(text, dtype=np.float64, sep=" ")
+        except ValueError:
+            return None
+    if vals.size != n_rows * cols or np.any(_tokens_per_row(text, n_rows) != cols):
+        return None
+    return vals.reshape(n_rows, cols)
+
+
+def _obj_line_blocks(raw: bytes):
+    """Classify OBJ lines with numpy; return a getter for the text of one line kind.
+
+    ``get(kind)`` -> (text of those lines joined by newlines with the keyword blanked, line count),
+    or None when the lines are too scattered (the caller then falls back to the slow parser).
+    """
+    b = np.frombuffer(raw, dtype=np.uint8)
+    nl = np.flatnonzero(b == 10)
+    starts = np.concatenate([[0], nl + 1])
+    ends = np.concatenate([nl, [len(b)]])
+    bp = np.concatenate([b, np.zeros(3, np.uint8)])
+    c0, c1, c2 = bp[starts], bp[starts + 1], bp[starts + 2]
+    ws1, ws2 = (c1 == 32) | (c1 == 9), (c2 == 32) | (c2 == 9)
+    masks = {"v": (c0 == 118) & ws1, "vt": (c0 == 118) & (c1 == 116) & ws2, "f": (c0 == 102) & ws1,
+             "mtllib": c0 == 109, "usemtl": c0 == 117}
+
+    def get(kind):
+        idx = np.flatnonzero(masks[kind])
+        if len(idx) == 0:
+            return b"", 0
+        brk = np.flatnonzero(np.diff(idx) != 1)
+        r0, r1 = idx[np.r_[0, brk + 1]], idx[np.r_[brk, len(idx) - 1]]
+        if len(r0) > 10000:
+            return None
+        text = b"\n".join(raw[starts[i]:ends[j]] for i, j in zip(r0, r1))
+        return text, len(idx)
+
+    return get
+
+
+def _obj_fast(raw: bytes, path: Path, limits: Limits):
+    """Numpy OBJ parser for the regular case (one polygon size, one face format, positive
+    indices in range, no trailing comments). Returns None for anything else (the slow parser
+    then handles it and names the offending line)."""
+    get = _obj_line_blocks(raw)
+    vb, fb, tb = get("v"), get("f"), get("vt")
+    if vb is None or fb is None or tb is None:
+        return None
+    (vtext, n_v), (ftext, n_f), (ttext, n_t) = vb, fb, tb
+    _check_counts(path, n_v, n_f, limits)
+    if not n_v or not n_f:
+        return None
+    vdata = _floats_fast(vtext.replace(b"v", b" "), n_v, 3)
+    del vtext
+    if vdata is None:
+        return None
+    f_rows = [ftext[:ftext.find(b"\n") if b"\n" in ftext else len(ftext)].replace(b"f", b" ", 1)]
+    text = ftext.replace(b"f", b" ")
+    del ftext
+    first = f_rows[0].split()
+    k = len(first)
+    tok = first[0]
+    n_fields = tok.count(b"/") + 1
+    has_vt = n_fields >= 2 and tok.split(b"/")[1] != b""
+    if np.any(_tokens_per_row(text, n_f) != k):
+        return None                                   # mixed polygon sizes
+    if n_fields == 3 and not has_vt:
+        text = text.replace(b"//", b" ")
+        per = 2
+    else:
+        text = text.replace(b"/", b" ")
+        per = n_fields
+    if b"-" in text or b"." in text:
+        return None                                   # negative (relative) or malformed indices
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            idx = np.fromstring(text, dtype=np.int64, sep=" ")
+        except ValueError:
+            return None
+    if idx.size != n_f * k * per or k < 3:
+        return None                                   # mixed face formats or malformed
+    idx = idx.reshape(n_f, k, per) - 1
+    V = vdata[:, :3]
+    vidx = idx[:, :, 0]
+    if vidx.min() < 0 or vidx.max() >= len(V):
+        return None
+    UV = tidx = None
+    if has_vt:
+        UV = _floats_fast(ttext.replace(b"vt", b"  "), n_t, 2)
+        if UV is None:
+            return None
+        UV = UV[:, :2]
+        tidx = idx[:, :, 1]
+        if len(UV) == 0 or tidx.min() < 0 or tidx.max() >= len(UV):
+            return None
+    VC = None
+    if vdata.shape[1] >= 6 and np.all(np.isfinite(vdata[:, 3:6])):
+        rgb = vdata[:, 3:6]
+        scale = 255.0 if rgb.max(initial=0.0) <= 1.0 else 1.0
+        VC = np.clip(np.round(rgb * scale), 0, 255).astype(np.uint8)
+    mtllibs, usemtl = [], set()
+    for kind in ("mtllib", "usemtl"):
+        block = get(kind)
+        if block is None:
+            return None
+        for line in block[0].decode("utf-8", errors="replace").splitlines():
+            if line.startswith(kind):
+                name = line[len(kind):].strip()
+                (mtllibs.append(name) if kind == "mtllib" else usemtl.add(name))
+    F = fan_triangulate(vidx)
+    FUV = fan_triangulate(tidx) if tidx is not None else None
+    return V, VC, UV, F, FUV, (n_f if k > 3 else 0), mtllibs, usemtl
+
+
+def load_obj(path, folder, limits: Limits = Limits()) -> LoadedMesh:
+    """Load a Wavefront OBJ (+ MTL ``map_Kd``) keeping per-corner UVs.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The OBJ file (already checked to be inside ``folder``).
+    folder : pathlib.Path
+        The scan folder; ``mtllib`` and ``map_Kd`` must stay inside it.
+    limits : Limits
+
+    Returns
+    -------
+    LoadedMesh
+    """
+    path, folder = Path(path), Path(folder)
+    check_file_size(path, limits)
+    raw = path.read_bytes()
+    if b"\x00" in raw[:65536]:
+        raise ScanError(path, "not a text OBJ file (binary bytes found)")
+    parsed = _obj_fast(raw, path, limits)
+    if parsed is None:
+        parsed = _obj_slow(raw, path, limits)
+    del raw
+    V, VC, UV, F, FUV, n_poly, mtllibs, usemtl = parsed
     files = [path]
     texture_path = None
     if mtllibs:
@@ -305,7 +450,7 @@ def load_obj(path, folder, limits: Limits = Limits()) -> LoadedMesh:
                                   f"({', '.join(p.name for p in textures)}); one texture per scan is supported")
         texture_path = textures[0] if textures else None
     return LoadedMesh(V=V, F=F, UV=UV, FUV=FUV, VC=VC, texture_path=texture_path, files_read=files,
-                      polygons_triangulated=int(np.count_nonzero(counts > 3)))
+                      polygons_triangulated=n_poly)
 
 
 # ---------------------------------------------------------------------------- PLY

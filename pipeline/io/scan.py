@@ -121,8 +121,8 @@ def safe_path(folder, value, sidecar, key: str, suffixes=None) -> Path:
     if not isinstance(value, str) or not value.strip():
         raise ScanError(sidecar, f"{key} must be a non-empty string, got {_type_name(value)}")
     value = value.strip()
-    if "\x00" in value:
-        raise ScanError(sidecar, f"{key} path contains a NUL byte")
+    if any(ord(ch) < 32 or ord(ch) == 127 for ch in value):
+        raise ScanError(sidecar, f"{key} path {value!r} contains control characters")
     posix, win = PurePosixPath(value), PureWindowsPath(value)
     if posix.is_absolute() or win.is_absolute() or win.drive or value.startswith(("/", "\\", "~")):
         raise ScanError(sidecar, f"{key} path {value!r} is absolute; give a path relative to the scan folder")
