@@ -99,14 +99,14 @@ def fit_gains(V, eyes, deltas):
     return {"canthus_width": best[1], **best[2]}
 
 
-def compare(Vs, F, eyes, deltas, params):
+def compare(Vs, F, eyes, deltas, params, corneas=None):
     times = []
     for _ in range(3):
         t0 = time.perf_counter()
         rig = lids.build_lid_shapes(Vs, F, eyes, params)
         times.append(time.perf_counter() - t0)
     pitches = np.arange(-25.0, 25.0 + 1e-9, 0.5)
-    sweep = lids.sweep_check(Vs, F, eyes, rig.shapes, pitches)
+    sweep = lids.sweep_check(Vs, F, eyes, rig.shapes, pitches, corneas=corneas)
     result = {"n_segments": rig.n_segments, "build_s_median": float(np.median(times)),
               "sweep": sweep, "params": {k: getattr(params, k) for k in params.__dataclass_fields__},
               "eyes": {}}
@@ -141,7 +141,8 @@ def report(title, result):
     print(f"== {title}: build {result['build_s_median']:.2f} s (median of 3), {result['n_segments']} "
           f"poses/direction; sweep -25..25 step 0.5: gap {sw['max_gap_mm']:.3f} mm, penetration "
           f"{sw['max_penetration_mm']:.3f} mm, flipped {sw['flipped_faces']}, min opening "
-          f"{sw['min_opening_mm']:.2f} mm")
+          f"{sw['min_opening_mm']:.2f} mm; cornea pokes past the margin by up to "
+          f"{sw['max_cornea_intrusion_mm']:.2f} mm (rest {sw['rest_cornea_intrusion_mm']:.2f} mm)")
     for side, per in result["eyes"].items():
         for key, v in per.items():
             if isinstance(v, dict):
@@ -200,9 +201,11 @@ def main() -> int:
         eyes.append(lids.EyeFrame(side=side, center=c, radius=r,
                                   forward=np.asarray(e["gaze_direction"], float), loop=loop,
                                   lateral_index=int(e["eyelid_margin"]["lateral_canthus_index"])))
-    default = compare(Vs, F, eyes, deltas, lids.LidParams())
+    corneas = {side: (np.asarray(gt["eyes"][side]["cornea_sphere"]["center_mm"], float),
+                      float(gt["eyes"][side]["cornea_sphere"]["radius_mm"])) for side in SIDES}
+    default = compare(Vs, F, eyes, deltas, lids.LidParams(), corneas)
     fitted_params = fit_gains(Vs, eyes, deltas)
-    fitted = compare(Vs, F, eyes, deltas, lids.LidParams(**fitted_params))
+    fitted = compare(Vs, F, eyes, deltas, lids.LidParams(**fitted_params), corneas)
     result = {"assumption": "ICT eyeLook weight 1 = 25 deg pitch", "n_vertices": int(len(V)),
               "default_params": default, "ict_fitted_params": {"fitted": fitted_params, **fitted}}
     out = ROOT / "benchmarks" / "results" / "ict_lids.json"

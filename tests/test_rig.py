@@ -519,3 +519,14 @@ def test_stage_command_line(tmp_path):
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["sweep_max_penetration_mm"] <= 0.1 and m["sweep_flipped_faces"] == 0
     assert (tmp_path / "rig" / "rig.npz").is_file() and (tmp_path / "rig" / "rig.json").is_file()
+
+
+def test_cornea_intrusion_geometry():
+    eye = lids.EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4)
+    cornea_c, cornea_r = np.array([0.0, 0, 5.5]), 8.0            # apex at 13.5 mm
+    pts = np.array([[0, 0, 12.0], [0, 12.0, 0], [0, 0, -12.0]])
+    got = lids.cornea_intrusion(pts, eye, cornea_c, cornea_r, 0.0)
+    np.testing.assert_allclose(got, [1.5, 0.0, 0.0], atol=1e-12)
+    # pitched up 90 deg, the apex points along +Y
+    got = lids.cornea_intrusion(pts, eye, cornea_c, cornea_r, 90.0)
+    np.testing.assert_allclose(got, [0.0, 1.5, 0.0], atol=1e-9)

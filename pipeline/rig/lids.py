@@ -663,7 +663,40 @@ def lid_opening(P, eye: EyeFrame, n_lines: int = 64, margin_frac: float = 0.02) 
     return heights(up, np.min) - heights(lo, np.max)
 
 
-def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITCH_DEG) -> dict:
+def cornea_intrusion(points, eye: EyeFrame, cornea_center, cornea_radius: float,
+                     pitch_deg: float) -> np.ndarray:
+    """How far the corneal bulge of the pitched eye pokes out past each margin point, mm.
+
+    Along the ray from the eyeball centre through each point, the distance of the
+    outer cornea-sphere surface (cornea rotated with the eye by ``pitch_deg``) minus
+    the point's distance; 0 where the ray misses the cornea or the cornea lies inside.
+
+    Parameters
+    ----------
+    points : (k, 3) float64
+    eye : EyeFrame
+    cornea_center : (3,) float64
+        Cornea sphere centre at rest.
+    cornea_radius : float
+    pitch_deg : float
+
+    Returns
+    -------
+    (k,) float64, >= 0
+    """
+    cc = rotate_about_axis(np.asarray(cornea_center, float)[None], eye.center, eye.axis,
+                           math.radians(pitch_deg))[0] - eye.center
+    w = np.asarray(points, float) - eye.center
+    dist = np.linalg.norm(w, axis=1)
+    d = w / dist[:, None]
+    b = d @ cc
+    disc = b * b - (cc @ cc - float(cornea_radius) ** 2)
+    t = np.where(disc >= 0, b + np.sqrt(np.maximum(disc, 0.0)), -np.inf)
+    return np.maximum(t - dist, 0.0)
+
+
+def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITCH_DEG,
+                corneas: dict | None = None) -> dict:
     """Pose the rig at every pitch and measure the lid invariants.
 
     The eyeball is a sphere about its centre, so rotating it by the pitch leaves
@@ -678,7 +711,9 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         (smallest upper-minus-lower lid height along vertical lines; < 0 = crossing),
         ``min_skin_clearance_mm`` (smallest |v - c| - r of moved non-margin vertices within
         2 r of the centre; ``rest_min_skin_clearance_mm`` the same at rest) and
-        ``max_skin_sink_mm`` (largest decrease of that clearance by posing),
+        ``max_skin_sink_mm`` (largest decrease of that clearance by posing), and with
+        ``corneas`` (``side -> (centre (3,), radius)``) ``max_cornea_intrusion_mm`` /
+        ``rest_cornea_intrusion_mm`` (:func:`cornea_intrusion` of the margin),
         ``worst_pitch_deg`` for the gap/penetration, and ``n_pitches``.
     """
     V = np.asarray(V, float)
@@ -717,6 +752,12 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
             res["max_penetration_mm"] = max(res["max_penetration_mm"], pen)
             if max(gap, pen) > worst:
                 worst, res["worst_pitch_deg"] = max(gap, pen), float(p)
+            if corneas and e.side in corneas:
+                cin = cornea_intrusion(P[e.loop], e, *corneas[e.side], p)
+                res["max_cornea_intrusion_mm"] = max(res.get("max_cornea_intrusion_mm", 0.0),
+                                                     float(cin.max()))
+                if p == 0:
+                    res["rest_cornea_intrusion_mm"] = float(cin.max())
             op = lid_opening(P, e)
             if np.isfinite(op).any():
                 res["min_opening_mm"] = min(res["min_opening_mm"], float(np.nanmin(op)))
