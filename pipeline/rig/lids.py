@@ -52,9 +52,12 @@ WEIGHT_RULE = {
     "function": "pipeline.rig.lids.lid_weights",
     "formula": "w_lids_up = clamp(pitch_deg / max_pitch_deg, 0, 1); "
                "w_lids_down = clamp(-pitch_deg / max_pitch_deg, 0, 1)",
-    "pitch_definition": "eyeball rotation about its horizontal axis (through the eyeball centre, "
-                        "perpendicular to the rest forward direction and head +Y) from its rest "
-                        "orientation, degrees, positive = looking up; both eyes share one pitch",
+    "pitch_definition": "gaze elevation relative to the rest gaze, degrees, positive = looking up: "
+                        "pitch_deg = degrees(asin(g_y) - asin(forward_y)) for the head-frame unit "
+                        "gaze g and the eye's rest forward (eyes.<side>.forward); for a pure pitch "
+                        "this is the eyeball's rotation about its horizontal axis (through the "
+                        "centre, perpendicular to forward and head +Y). Both eyes share one pitch "
+                        "(use their mean if they differ).",
     "channels": [SHAPE_UP, SHAPE_DOWN],
     "inbetweens": "UsdSkel semantics: a channel weight w between two stored poses (implicit 0, "
                   "inbetween weights, 1) interpolates their offsets linearly; see "
