@@ -92,6 +92,8 @@ def merge_vertices(V, F, tolerance: float):
     q = np.round(V / tolerance).astype(np.int64) if tolerance > 0 else V
     q = np.ascontiguousarray(q)
     first, inverse = _unique_rows(q)
+    if len(first) == len(V):                         # nothing to merge
+        return V, F, np.arange(len(V))
     # renumber groups in order of first appearance so the output keeps the input order
     order = np.argsort(first, kind="stable")
     rank = np.empty_like(order)
@@ -102,8 +104,12 @@ def merge_vertices(V, F, tolerance: float):
 
 def face_areas(V, F) -> np.ndarray:
     """Triangle areas, shape (m,)."""
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    a = V[F[:, 0]]
+    ab, ac = V[F[:, 1]] - a, V[F[:, 2]] - a
+    cx = ab[:, 1] * ac[:, 2] - ab[:, 2] * ac[:, 1]
+    cy = ab[:, 2] * ac[:, 0] - ab[:, 0] * ac[:, 2]
+    cz = ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0]
+    return 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
 
 
 def _unique_rows(q):

@@ -1079,8 +1079,10 @@ def ingest_scan(folder, settings: IngestSettings = IngestSettings()) -> IngestRe
     UV = FUV = None
     if loaded.UV is not None:
         FUV_all = loaded.FUV[fixed.face_index]
-        used, FUV = np.unique(FUV_all, return_inverse=True)
-        UV, FUV = loaded.UV[used], FUV.reshape(-1, 3).astype(np.int64)
+        used = np.zeros(len(loaded.UV), dtype=bool)
+        used[FUV_all.ravel()] = True
+        remap = np.cumsum(used) - 1
+        UV, FUV = loaded.UV[used], remap[FUV_all].astype(np.int64)
     VC = loaded.VC[fixed.vertex_index] if loaded.VC is not None else None
     hint_dist = {}
     edges = repair.face_longest_edges(V, F)
