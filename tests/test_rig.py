@@ -530,3 +530,16 @@ def test_cornea_intrusion_geometry():
     # pitched up 90 deg, the apex points along +Y
     got = lids.cornea_intrusion(pts, eye, cornea_c, cornea_r, 90.0)
     np.testing.assert_allclose(got, [0.0, 1.5, 0.0], atol=1e-9)
+
+
+def test_pitch_from_gaze_matches_eye_rotation():
+    f = np.array([0.1366, 0.0117, 0.9906])
+    f /= np.linalg.norm(f)
+    eye = lids.EyeFrame("left", np.zeros(3), 15.0, f, np.arange(8), 4)
+    for p in (-25.0, -7.0, 0.0, 13.0, 25.0):
+        g = lids.rotate_about_axis(f[None], np.zeros(3), eye.axis, np.radians(p))[0]
+        assert lids.pitch_from_gaze(g, f) == pytest.approx(p, abs=1e-9)
+    # pure yaw does not change the pitch
+    yaw = np.radians(20.0)
+    g = np.array([np.sin(yaw), 0.0, np.cos(yaw)])
+    assert lids.pitch_from_gaze(g, [0, 0, 1]) == pytest.approx(0.0, abs=1e-12)

@@ -49,7 +49,7 @@ MAX_PITCH_DEG = 25.0
 
 #: The pitch-to-weight rule, as stored in the asset (rig.json, USD metadata).
 WEIGHT_RULE = {
-    "function": "pipeline.rig.lids.lid_weights",
+    "function": "pipeline.rig.lids.lid_weights (pitch from pipeline.rig.lids.pitch_from_gaze)",
     "formula": "w_lids_up = clamp(pitch_deg / max_pitch_deg, 0, 1); "
                "w_lids_down = clamp(-pitch_deg / max_pitch_deg, 0, 1)",
     "pitch_definition": "gaze elevation relative to the rest gaze, degrees, positive = looking up: "
@@ -68,6 +68,24 @@ WEIGHT_RULE = {
 def weight_rule(max_pitch_deg: float = MAX_PITCH_DEG) -> dict:
     """The pitch-to-weight rule as metadata for the asset: :data:`WEIGHT_RULE` plus its parameter."""
     return {**WEIGHT_RULE, "max_pitch_deg": float(max_pitch_deg)}
+
+
+def pitch_from_gaze(gaze, forward) -> float:
+    """Lid-rule pitch of a head-frame gaze direction: its elevation above the rest gaze, degrees.
+
+    ``degrees(asin(g_y) - asin(f_y))`` with ``g``, ``f`` normalised; positive = looking up.
+
+    Parameters
+    ----------
+    gaze : (3,) float64
+        Gaze direction in the head frame.
+    forward : (3,) float64
+        The eye's rest forward direction (rig.json ``eyes.<side>.forward``).
+    """
+    g = np.asarray(gaze, dtype=np.float64)
+    f = np.asarray(forward, dtype=np.float64)
+    g, f = g / np.linalg.norm(g), f / np.linalg.norm(f)
+    return math.degrees(math.asin(float(np.clip(g[1], -1, 1))) - math.asin(float(np.clip(f[1], -1, 1))))
 
 
 def lid_weights(pitch_deg: float, max_pitch_deg: float = MAX_PITCH_DEG) -> dict[str, float]:
