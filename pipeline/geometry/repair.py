@@ -270,7 +270,8 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
     n_deg = int(degenerate.sum())
     if n_deg > settings.max_degenerate_fraction * m0:
         raise ScanError(path, f"{n_deg} of {m0} faces ({100.0 * n_deg / m0:.1f}%) are degenerate (zero area), "
-                              f"over the limit of {100.0 * settings.max_degenerate_fraction:g}% (ingest.max_degenerate_fraction)")
+                              f"over the limit of {100.0 * settings.max_degenerate_fraction:g}% "
+                              "(ingest.max_degenerate_fraction)")
     alive = ~degenerate
     dup = np.zeros(m0, dtype=bool)
     idx = np.flatnonzero(alive)

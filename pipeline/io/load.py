@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import re
 import struct
 import warnings
 from dataclasses import dataclass, field
@@ -539,7 +538,8 @@ def _ply_header(head: bytes, path: Path):
             elif t[0] in ("comment", "obj_info") and len(t) > 2 and t[1].lower() == "texturefile":
                 image = raw.split(None, 2)[2].strip()
         except (IndexError, KeyError, ValueError) as exc:
-            raise ScanError(path, f"cannot parse PLY header line {one_line(raw)[:60]!r} ({one_line(exc)[:40]})") from None
+            raise ScanError(path, f"cannot parse PLY header line {one_line(raw)[:60]!r} "
+                                  f"({one_line(exc)[:40]})") from None
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise ScanError(path, f"unknown PLY format {fmt!r}")
     return fmt, elements, image, nl + 1
@@ -783,7 +783,8 @@ def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     for kind in ("buffers", "images"):
         for item in doc.get(kind, []) or []:
             if isinstance(item, dict) and "uri" in item:
-                raise ScanError(path, f"GLB {kind[:-1]} refers to an external URI; only self-contained GLB is supported")
+                raise ScanError(path, f"GLB {kind[:-1]} refers to an external URI (file or data: URI); "
+                                      "only self-contained GLB is supported")
     n_img = len(doc.get("images", []) or [])
     _glb_check_images(path, doc, limits)
     try:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import difflib
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
@@ -272,8 +271,3 @@ def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSp
         raise ScanError(sidecar, "YAML error: nesting too deep") from None
     return parse_sidecar(data, folder, sidecar)
 
-
-def is_inside(folder, path) -> bool:
-    """Whether ``path`` resolves to a location inside ``folder``."""
-    folder = Path(folder).resolve()
-    return folder in Path(os.path.realpath(path)).parents
