@@ -182,6 +182,7 @@ def test_good_ply_ingests(tmp_path):
     assert all(v == 0 for k, v in m["repairs"].items() if k != "components")
     assert m["hint_surface_distance_mm"]["left"] == pytest.approx(1.0, abs=0.3)
     assert m["flipped_winding"] is False
+    assert m["edges"] == {"edges": 3 * len(F) // 2, "boundary": 0, "non_manifold": 0, "inconsistent_winding": 0}
     assert "wall_time_s" in m and "peak_memory_mib" in m
     assert not (out / "texture.png").exists()
     # outward winding: the mesh's signed volume is positive
@@ -508,3 +509,14 @@ def test_obj_fast_parser_agrees_with_line_parser(name, lines, fast):
             np.testing.assert_array_equal(a, b)
         else:
             assert a == b
+
+
+def test_edge_stats_counts():
+    from pipeline.geometry.repair import edge_stats
+
+    F = np.array([[0, 1, 2], [0, 2, 3]])                  # two triangles, consistent, 4 boundary edges
+    assert edge_stats(F, 4) == {"edges": 5, "boundary": 4, "non_manifold": 0, "inconsistent_winding": 0}
+    F = np.array([[0, 1, 2], [0, 3, 2]])                  # second flipped: shared edge same direction
+    assert edge_stats(F, 4)["inconsistent_winding"] == 1
+    F = np.array([[0, 1, 2], [0, 2, 3], [2, 0, 4]])       # three faces on edge 0-2
+    assert edge_stats(F, 5)["non_manifold"] == 1

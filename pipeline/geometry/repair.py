@@ -321,6 +321,35 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
                         counts=counts, eye_region=eye_region)
 
 
+def edge_stats(F, n_vertices: int) -> dict:
+    """Boundary, non-manifold and inconsistently oriented edges of a triangle mesh.
+
+    Parameters
+    ----------
+    F : (m, 3) int64
+    n_vertices : int
+
+    Returns
+    -------
+    dict
+        ``edges`` (distinct undirected), ``boundary`` (used by one face), ``non_manifold``
+        (used by more than two), ``inconsistent_winding`` (two faces traversing the edge in the
+        same direction: their normals disagree).
+    """
+    u = F.ravel()
+    v = F[:, [1, 2, 0]].ravel()
+    key = np.minimum(u, v) * np.int64(n_vertices) + np.maximum(u, v)
+    sign = np.where(u < v, 1, -1).astype(np.int64)
+    order = np.argsort(key)
+    key, sign = key[order], sign[order]
+    starts = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
+    counts = np.diff(np.concatenate([starts, [len(key)]]))
+    sums = np.add.reduceat(sign, starts)
+    return {"edges": int(len(starts)), "boundary": int(np.count_nonzero(counts == 1)),
+            "non_manifold": int(np.count_nonzero(counts > 2)),
+            "inconsistent_winding": int(np.count_nonzero((counts == 2) & (sums != 0)))}
+
+
 def _faces_near(V, F, p, radius: float) -> np.ndarray:
     """Mask of faces with at least one vertex within ``radius`` of ``p`` (the eye region), shape (m,)."""
     d = V - np.asarray(p, dtype=np.float64)

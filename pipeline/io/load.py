@@ -1137,6 +1137,7 @@ def ingest_scan(folder, settings: IngestSettings = IngestSettings()) -> IngestRe
         "vertices_out": int(len(V)), "faces_out": int(len(F)),
         "polygons_triangulated": loaded.polygons_triangulated,
         "repairs": fixed.counts,
+        "edges": repair.edge_stats(F, len(V)),
         "flipped_winding": flipped,
         "eye_region": fixed.eye_region,
         "hint_surface_distance_mm": hint_dist,
