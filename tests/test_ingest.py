@@ -520,3 +520,22 @@ def test_edge_stats_counts():
     assert edge_stats(F, 4)["inconsistent_winding"] == 1
     F = np.array([[0, 1, 2], [0, 2, 3], [2, 0, 4]])       # three faces on edge 0-2
     assert edge_stats(F, 5)["non_manifold"] == 1
+
+
+def test_ascii_ply_mixed_polygons(tmp_path):
+    V, F, hints = head_mesh(3)
+    quad_v = np.array([[0, -160, 0], [5, -160, 0], [5, -155, 0], [0, -155, 0]], float)
+    Vall = np.vstack([V, quad_v])
+    folder = tmp_path / "ascii"
+    folder.mkdir()
+    head = (f"ply\r\nformat ascii 1.0\r\nelement vertex {len(Vall)}\r\nproperty double x\r\nproperty double y\r\n"
+            f"property double z\r\nelement face {len(F) + 1}\r\nproperty list uchar int vertex_indices\r\nend_header\r\n")
+    rows = [f"{x!r} {y!r} {z!r}" for x, y, z in Vall.tolist()]
+    rows += [f"3 {a} {b} {c}" for a, b, c in F] + [f"4 {len(V)} {len(V) + 1} {len(V) + 2} {len(V) + 3}"]
+    (folder / "scan.ply").write_text(head + "\r\n".join(rows) + "\r\n")
+    write_sidecar(folder, hints)
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 0
+    m = read_metrics(out)
+    assert m["polygons_triangulated"] == 1 and m["repairs"]["debris_faces"] == 2
+    np.testing.assert_array_equal(load_mesh(out / "mesh.npz")["V"], V)

@@ -289,7 +289,43 @@ def c_sidecar_symlink_escape(f, t):
     os.symlink(t / "other.yaml", f / "scan.yaml")
 
 
+def c_texture_truncated(f, t):
+    from test_ingest import sphere_uv
+    from PIL import Image
+    V, F, hints = head_mesh(3)
+    write_ply(f / "scan.ply", V, F, uv=sphere_uv(V))
+    rng = np.random.default_rng(0)
+    Image.fromarray(rng.integers(0, 255, (64, 64, 3), dtype=np.uint8)).save(f / "skin.png")
+    data = (f / "skin.png").read_bytes()
+    (f / "skin.png").write_bytes(data[: len(data) // 2])
+    write_sidecar(f, hints, texture="skin.png")
+
+
+def c_obj_two_textures(f, t):
+    from test_ingest import write_png
+    V, F, hints = head_mesh(3)
+    lines = ["mtllib scan.mtl"] + [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()] + ["vt 0 0"]
+    half = len(F) // 2
+    lines += ["usemtl a"] + [f"f {a + 1}/1 {b + 1}/1 {c + 1}/1" for a, b, c in F[:half]]
+    lines += ["usemtl b"] + [f"f {a + 1}/1 {b + 1}/1 {c + 1}/1" for a, b, c in F[half:]]
+    (f / "scan.obj").write_text("\n".join(lines) + "\n")
+    (f / "scan.mtl").write_text("newmtl a\nmap_Kd a.png\nnewmtl b\nmap_Kd b.png\n")
+    write_png(f / "a.png")
+    write_png(f / "b.png")
+    write_sidecar(f, hints, mesh="scan.obj")
+
+
+def c_ascii_ply_garbage(f, t):
+    V, F, _ = head_mesh(3)
+    write_ply(f / "scan.ply", V, F, binary=False)
+    text = (f / "scan.ply").read_text().replace("3 0 ", "3 zero ", 1)
+    (f / "scan.ply").write_text(text)
+
+
 CASES = [
+    (c_texture_truncated, "skin.png", "texture cannot be decoded"),
+    (c_obj_two_textures, "scan.obj", "one texture per scan is supported"),
+    (c_ascii_ply_garbage, "scan.ply", "(face 0) cannot be parsed"),
     (c_mesh_control_chars, "scan.yaml", "contains control characters"),
     (c_sidecar_symlink_escape, "scan.yaml", "symlink to outside the scan folder"),
     (c_yaml_alias_bomb, "scan.yaml", "eyes.left.hint must be three numbers"),

@@ -545,19 +545,81 @@ def _ply_header(head: bytes, path: Path):
     return fmt, elements, image, nl + 1
 
 
-def _ply_ascii_trimesh(fh, path: Path):
-    """ASCII PLY through trimesh's parser -> ({element: {"data": dict}}, TextureFile)."""
-    from trimesh.exchange import ply as tply
-
-    fh.seek(0)
-    try:
-        elements, _, image = tply._parse_header(fh)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            tply._ply_ascii(elements, fh)
-    except Exception as exc:  # noqa: BLE001 - any parse failure is bad input
-        raise ScanError(path, f"cannot read ASCII PLY data: {one_line(exc)[:120]}") from None
-    return elements, image
+def _ply_ascii(fh, elements: dict, data_start: int, path: Path) -> None:
+    """Read ASCII PLY data into ``elements[name]["data"]`` (dict of arrays; lists as (m, k) arrays
+    or lists of arrays). Uniform elements are parsed in one numpy call; others row by row."""
+    fh.seek(data_start)
+    lines = fh.read().split(b"\n")
+    row = 0
+    for name, el in elements.items():
+        n, props = el["length"], el["props"]
+        block = lines[row:row + n]
+        if len(block) < n:
+            raise ScanError(path, f"PLY has {len(block)} {name} rows but its header says {n} (truncated file)")
+        first_line = row
+        row += n
+        if n == 0:
+            el["data"] = {p: np.zeros(0) for p, _ in props}
+            continue
+        text = b"\n".join(block)
+        n_tok = _tokens_per_row(text, n)
+        lists = [i for i, (_, dt) in enumerate(props) if isinstance(dt, tuple)]
+        width = len(props)
+        if lists:
+            first = block[0].split()
+            try:
+                k = int(first[lists[0]]) if len(first) > lists[0] else -1
+            except ValueError:
+                k = -1
+            width = len(props) + len(lists) * k if k >= 0 else -1
+        vals = None
+        if width > 0 and np.all(n_tok == width):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    vals = np.fromstring(text, dtype=np.float64, sep=" ")
+                except ValueError:
+                    vals = None
+            if vals is not None and vals.size != n * width:
+                vals = None
+        if vals is not None:
+            vals = vals.reshape(n, width)
+            data, col = {}, 0
+            for pname, dt in props:
+                if isinstance(dt, tuple):
+                    if np.any(vals[:, col] != k):
+                        vals = None
+                        break
+                    data[pname] = vals[:, col + 1:col + 1 + k].astype(np.dtype(dt[1]))
+                    col += 1 + k
+                else:
+                    data[pname] = vals[:, col].astype(np.dtype(dt))
+                    col += 1
+            if vals is not None:
+                el["data"] = data
+                continue
+        # row by row: any layout; errors name the line (1-based, counted after the header)
+        cols = {p: [] for p, _ in props}
+        for i, line in enumerate(block):
+            tok = line.split()
+            j = 0
+            try:
+                for pname, dt in props:
+                    if isinstance(dt, tuple):
+                        cnt = int(tok[j])
+                        cols[pname].append(np.array([float(x) for x in tok[j + 1:j + 1 + cnt]],
+                                                    dtype=np.dtype(dt[1])))
+                        if len(cols[pname][-1]) != cnt:
+                            raise IndexError
+                        j += 1 + cnt
+                    else:
+                        cols[pname].append(float(tok[j]))
+                        j += 1
+            except (IndexError, ValueError):
+                raise ScanError(path, f"PLY data row {first_line + i + 1} ({name} {i}) cannot be parsed: "
+                                      f"{one_line(line.decode('ascii', 'replace'))[:60]!r}") from None
+        el["data"] = {p: (v if isinstance(dt, tuple) else np.array(v, dtype=np.dtype(dt)))
+                      for (p, dt), v in zip(props, cols.values())}
 
 
 def _ply_binary(fh, elements: dict, endian: str, n_bytes: int, path: Path) -> None:
@@ -641,7 +703,7 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         n_f = int(elements.get("face", {}).get("length", 0))
         _check_counts(path, n_v, n_f, limits)
         if fmt == "ascii":
-            elements, image_name = _ply_ascii_trimesh(fh, path)
+            _ply_ascii(fh, elements, data_start, path)
         else:
             fh.seek(data_start)
             _ply_binary(fh, elements, "<" if fmt == "binary_little_endian" else ">", size - data_start, path)
