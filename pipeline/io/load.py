@@ -7,9 +7,14 @@ in PLY/STL headers, file size, and image pixel counts from the image header
 before decoding (decompression bombs).
 
 UVs are kept per corner (``UV`` + ``FUV``): OBJ seams keep their exact layout
-(one ``UV`` row per ``vt`` line, the vertex positions are not split). PLY
-per-vertex ``s,t`` / ``u,v`` / ``texture_u,texture_v`` become ``UV`` with
-``FUV = F``; PLY per-face ``texcoord`` lists become one ``UV`` row per corner.
+(one ``UV`` row per ``vt`` line, the vertex positions are not split, unlike
+trimesh's OBJ loader which duplicates seam vertices). PLY per-vertex ``s,t`` /
+``u,v`` / ``texture_u,texture_v`` become ``UV`` with ``FUV = F``; PLY per-face
+``texcoord`` lists become one ``UV`` row per corner.
+
+Readers: OBJ and PLY (ASCII and binary) are parsed here with numpy (a
+vectorised fast path for regular files, a row-by-row fallback for the rest that
+names the offending line); STL and GLB go through trimesh after header checks.
 """
 
 from __future__ import annotations
