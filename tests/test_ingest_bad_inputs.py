@@ -367,7 +367,7 @@ CASES = [
     (c_texture_bomb, "bomb.png", "over the limit"),
     (c_texture_without_uv, "skin.png", "no texture coordinates"),
     (c_mtl_texture_escape, "scan.mtl", "leaves the scan folder"),
-    (c_file_over_limit, "scan.ply", "over the limit of 0.0 MiB"),
+    (c_file_over_limit, "scan.ply", "over the limit of 0.01 MiB"),
     (c_faces_over_limit, "scan.ply", "5120 faces, over the limit of 1000"),
     (c_float32_offset, "scan.obj", "float32"),
 ]

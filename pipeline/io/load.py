@@ -92,8 +92,8 @@ def check_file_size(path, limits: Limits) -> int:
     """Refuse a file over ``limits.max_file_bytes``; return its size in bytes."""
     size = Path(path).stat().st_size
     if size > limits.max_file_bytes:
-        raise ScanError(path, f"file is {size / 2**20:.1f} MiB, over the limit of "
-                              f"{limits.max_file_bytes / 2**20:.1f} MiB (ingest.max_file_mb)")
+        raise ScanError(path, f"file is {size / 2**20:.3g} MiB, over the limit of "
+                              f"{limits.max_file_bytes / 2**20:.3g} MiB (ingest.max_file_mb)")
     if size == 0:
         raise ScanError(path, "file is empty")
     return size
@@ -187,8 +187,9 @@ def _resolve_obj_index(idx: np.ndarray, count_before: np.ndarray, total: int, pa
     bad = np.flatnonzero((idx == 0) | (out < 0) | (out >= total))
     if bad.size:
         i = bad[0]
+        plural = "vertices" if what == "vertex" else what + "s"
         raise ScanError(path, f"line {corner_line[i] + 1}: face refers to {what} {idx[i]} but the file has "
-                              f"{total} {what}s (index out of range)")
+                              f"{total} {plural} (index out of range)")
     return out
 
 
