@@ -539,3 +539,18 @@ def test_ascii_ply_mixed_polygons(tmp_path):
     m = read_metrics(out)
     assert m["polygons_triangulated"] == 1 and m["repairs"]["debris_faces"] == 2
     np.testing.assert_array_equal(load_mesh(out / "mesh.npz")["V"], V)
+
+
+def test_ply_texturefile_comment(tmp_path):
+    folder = tmp_path / "texcomment"
+    folder.mkdir()
+    V, F, hints = head_mesh(3)
+    write_ply(folder / "scan.ply", V, F, uv=sphere_uv(V), uv_names=("u", "v"), header_extra="comment TextureFile tex.jpg")
+    from PIL import Image
+    Image.new("RGB", (40, 20), (10, 200, 30)).save(folder / "tex.jpg")
+    write_sidecar(folder, hints)
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 0
+    with Image.open(out / "texture.png") as img:
+        assert img.size == (40, 20) and img.format == "PNG"
+    assert "tex.jpg" in read_metrics(out)["files_read"]
