@@ -42,6 +42,21 @@ def _read_inputs(snap: Path):
     return mesh, eyes, mesh_path, eyes_path
 
 
+def _model_corneas(eyes):
+    """Cornea sphere of the parametric eyeball placed in each fitted eye (for a metric)."""
+    try:
+        from pipeline.eyeball.geometry import EyeballParams
+        p = EyeballParams()
+        p.r1, p.r2, p.apex  # noqa: B018 -- the fields used below
+    except (ImportError, AttributeError, TypeError):
+        return None
+    out = {}
+    for e in eyes:
+        s = e.radius / p.r1
+        out[e.side] = (e.center + e.forward * (p.apex - p.r2) * s, p.r2 * s)
+    return out
+
+
 def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
               eyes_path="eyes.json"):
     """Everything the stage computes: (arrays for rig.npz, rig.json dict, metrics dict)."""
@@ -79,7 +94,8 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
     pitches = np.unique(np.concatenate([np.arange(-lp.max_pitch_deg, lp.max_pitch_deg + 1e-9, step),
                                         [-lp.max_pitch_deg, 0.0, lp.max_pitch_deg]]))
     t0 = time.perf_counter()
-    sweep = lids.sweep_check(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg)
+    sweep = lids.sweep_check(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg,
+                             corneas=_model_corneas(eyes))
     t_sweep = time.perf_counter() - t0
 
     # margin motion at the extremes (mean vertical displacement per lid, mm)
@@ -106,7 +122,7 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
             "eyelid": {"count": lmk.N_EYELID, "order": lmk.EYELID_ORDER,
                        "curve": "closed curve through the 12 points, in order; carries the same "
                                 "shapes and inbetweens as the mesh", **lm_doc},
-            **lmk.EYEBALL_LANDMARKS,
+            **lmk.eyeball_landmark_doc(),
         },
         "smoothed_down_variant": {
             "mask": "lids_down.texture_mask (n,) per-vertex weight in [0, 1] (rig.npz)",

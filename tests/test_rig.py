@@ -291,6 +291,11 @@ def test_stage_writes_rig_that_reopens(tmp_path, region):
     assert doc["weight_rule"]["max_pitch_deg"] == 25.0
     assert "clamp(pitch_deg / max_pitch_deg, 0, 1)" in doc["weight_rule"]["formula"]
     assert doc["landmarks"]["per_eye"] == 28
+    assert doc["landmarks"]["iris"]["count"] == 8 and doc["landmarks"]["pupil"]["count"] == 8
+    if "api" in doc["landmarks"]["iris"]:
+        from pipeline.eyeball.geometry import landmark_indices
+        assert len(landmark_indices()["iris"]) == 8
+    assert m.get("sweep_max_cornea_intrusion_mm", 0.0) >= 0.0
     assert set(doc["eyes"]) == {"left", "right"}
     with np.load(out / "rig.npz", allow_pickle=False) as z:
         shapes = lids.shapes_from_arrays(z)
@@ -327,6 +332,27 @@ def test_stage_reads_lateral_index_from_eyes_json(tmp_path):
         json.loads((tmp_path / "snap" / "eyes.json").read_text()), {"sweep_step_deg": 5.0})
     assert doc["eyes"]["left"]["lateral_index"] == eyes[0].lateral_index
     assert doc["eyes"]["right"]["lateral_index"] == eyes[1].lateral_index
+
+
+def test_lateral_canthus_from_dense_loop_points_and_mesh_arrays():
+    V, F, eyes = two_eye_region()
+    e = eyes[0]
+    li = e.lateral_index
+    mesh = {"V": V, "F": F, "loop_left": e.loop, "loop_right": eyes[1].loop}
+    base = {s.side: {"center": s.center, "radius": s.radius, "forward": s.forward} for s in eyes}
+    # remove_eyeballs carries its dense loop: 100 points, lateral canthus at 37
+    dense = np.zeros((100, 3))
+    dense[37] = V[e.loop[li]] + 0.2
+    doc = {**base, "left": {**base["left"], "loop_points": dense.tolist(),
+                            "loop_indices": list(range(100)), "lateral_canthus_index": 37}}
+    assert lids.eye_frames(doc, mesh)[0].lateral_index == li
+    # an index into another loop (different length, no points) is ignored
+    doc = {**base, "left": {**base["left"], "loop_indices": list(range(100)),
+                            "lateral_canthus_index": 37}}
+    assert lids.eye_frames(doc, mesh)[0].lateral_index == li
+    # an explicit mesh array wins
+    assert lids.eye_frames(base, {**mesh, "lateral_index_left": np.array(li - 1)})[0] \
+        .lateral_index == li - 1
 
 
 @pytest.mark.parametrize("case, message", [

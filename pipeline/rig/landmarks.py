@@ -41,6 +41,27 @@ EYEBALL_LANDMARKS = {
 }
 
 
+def eyeball_landmark_doc() -> dict:
+    """Where the iris and pupil landmarks come from (for rig.json / the asset metadata).
+
+    They are inner-mesh vertices of the eyeball asset
+    (``pipeline.eyeball.geometry.landmark_indices(resolution)``); their indices depend
+    on the eyeball asset's resolution, so they are read from that asset, not stored here.
+    """
+    doc = {k: dict(v) for k, v in EYEBALL_LANDMARKS.items()}
+    try:
+        from pipeline.eyeball import geometry as eg
+        n, direction = int(eg.N_LANDMARKS), str(eg.LANDMARK_DIRECTION)
+        eg.landmark_indices  # noqa: B018 -- the API named below
+    except (ImportError, AttributeError, TypeError, ValueError):
+        return doc
+    for k in doc:
+        doc[k].update({"api": "pipeline.eyeball.geometry.landmark_indices(resolution)"
+                              f"['{k}'] (inner mesh vertex indices)",
+                       "order": f"azimuth {360 // n} deg * k from the eye's +X, {direction}"})
+    return doc
+
+
 @dataclass
 class EyelidLandmarks:
     """The 12 eyelid landmarks of one eye.

@@ -842,6 +842,34 @@ def _first(d: dict, keys):
     return None
 
 
+def _lateral_index_for_loop(e: dict, mesh: dict, side: str, V, loop, c, f) -> int:
+    """Position of the lateral canthus in this mesh's loop.
+
+    In order of preference: a mesh array ``lateral_index_<side>``; the eyes.json
+    lateral canthus *point* (``loop_points[lateral_canthus_index]`` of the dense
+    remove_eyeballs loop, which has other indices) mapped to the nearest vertex of
+    this loop; an eyes.json index when its ``loop_indices`` has this loop's length;
+    else the most lateral loop vertex (:func:`find_lateral_canthus`).
+    """
+    key = f"lateral_index_{side}"
+    if key in mesh:
+        return int(np.asarray(mesh[key]).ravel()[0])
+    li = _first(e, ("lateral_index", "lateral_canthus_index", "loop_lateral_index"))
+    pts = e.get("loop_points")
+    if li is not None and pts is not None:
+        try:
+            pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+            p = pts[int(li)]
+        except (TypeError, ValueError, IndexError):
+            p = None
+        if p is not None and np.isfinite(p).all():
+            return int(np.argmin(np.linalg.norm(V[loop] - p, axis=1)))
+    ids = e.get("loop_indices")
+    if li is not None and (ids is None or len(ids) == len(loop)):
+        return int(li)
+    return find_lateral_canthus(V[loop], c, f, side)
+
+
 def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="mesh.npz",
                max_rest_gap_mm: float = 0.5) -> list[EyeFrame]:
     """Validated :class:`EyeFrame` per eye from the snap stage's eyes.json and mesh arrays.
@@ -850,10 +878,12 @@ def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="
     ----------
     eyes : dict
         ``{"left": {"center": [3], "radius": r, "forward": [3], optional
-        "lateral_index" | "lateral_canthus_index"}, "right": {...}}`` (``center_mm`` /
-        ``radius_mm`` / ``gaze_direction`` accepted too).
+        "lateral_index" | "lateral_canthus_index", "loop_points", "loop_indices"},
+        "right": {...}}`` (``center_mm`` / ``radius_mm`` / ``gaze_direction`` accepted too);
+        see :func:`_lateral_index_for_loop` for how the lateral canthus is found.
     mesh : dict
-        Arrays ``V``, ``F``, ``loop_left``, ``loop_right`` (ordered margin vertex indices).
+        Arrays ``V``, ``F``, ``loop_left``, ``loop_right`` (ordered margin vertex indices),
+        optional ``lateral_index_left`` / ``lateral_index_right``.
     eyes_source, mesh_source : str
         Names used in error messages.
     max_rest_gap_mm : float
@@ -928,10 +958,7 @@ def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="
         if lat[0] - lat.min() > 0.25 * (lat.max() - lat.min()):
             raise ScanError(mesh_source, f"{key} does not start at the medial canthus (its first "
                                          f"vertex is not at the nose side of the loop)")
-        li = _first(e, ("lateral_index", "lateral_canthus_index", "loop_lateral_index"))
-        if li is None:
-            li = find_lateral_canthus(V[loop], c, f, side)
-        li = int(li)
+        li = _lateral_index_for_loop(e, mesh, side, V, loop, c, f)
         if not 2 <= li <= len(loop) - 2:
             raise ScanError(eyes_source, f"{side} lateral canthus index {li} must leave at least one "
                                          f"vertex on each lid of the {len(loop)}-vertex loop")
