@@ -554,3 +554,25 @@ def test_ply_texturefile_comment(tmp_path):
     with Image.open(out / "texture.png") as img:
         assert img.size == (40, 20) and img.format == "PNG"
     assert "tex.jpg" in read_metrics(out)["files_read"]
+
+
+def test_synthetic_head_generator_output(tmp_path):
+    """The teammate's generator (pipeline/synthetic_head.py) writes a folder ingest accepts as is."""
+    synthetic = pytest.importorskip("pipeline.synthetic_head")
+    if not all(hasattr(synthetic, f) for f in ("make_synthetic_head", "write_scan_folder")):
+        pytest.skip("synthetic head generator API not available")
+    head = synthetic.make_synthetic_head(seed=3, target_triangles=20000, texture_size=128)
+    folder = tmp_path / "synthetic_head"
+    folder.mkdir()
+    synthetic.write_scan_folder(head, folder)
+    out = tmp_path / "out"
+    assert ingest(folder, out) == 0
+    mesh = load_mesh(out / "mesh.npz")
+    np.testing.assert_allclose(mesh["V"], head.V.astype(np.float32), atol=1e-9)   # head frame mm already
+    np.testing.assert_array_equal(mesh["F"], head.F)
+    np.testing.assert_allclose(mesh["UV"][mesh["FUV"]], head.UV[head.F].astype(np.float32), atol=1e-7)
+    m = read_metrics(out)
+    assert all(v == 0 for k, v in m["repairs"].items() if k != "components")
+    assert m["edges"]["inconsistent_winding"] == 0 and m["flipped_winding"] is False
+    assert max(m["hint_surface_distance_mm"].values()) < 6.0
+    assert m["texture_size"] == [128, 128]
