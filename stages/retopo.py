@@ -1,0 +1,75 @@
+"""Stage ``retopo``: crop the dense head to the eye region and remesh it low-poly, keeping the eyelid loops.
+
+    python -m stages.retopo REMOVE_EYEBALLS_DIR OUT_DIR [--metrics PATH] [--params params.yaml]
+
+Reads ``REMOVE_EYEBALLS_DIR/mesh.npz`` (V, F) and ``eyes.json`` (per eye: center,
+loop_indices); writes ``OUT_DIR/mesh.npz`` (V, F [, poly_counts, poly_indices],
+loop_left, loop_right) atomically.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.geometry.retopo import RetopoSettings, retopologize
+from pipeline.io.atomic import atomic_dir
+from pipeline.io.meshfile import load_mesh, save_mesh
+from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+
+
+def load_eyes(path: Path, n_vertices: int) -> dict:
+    """eyes.json -> {side: {"center", "loop_indices"}}, validated against the mesh size."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ScanError(path, f"cannot read eyes.json ({exc})") from None
+    eyes = {}
+    for side in ("left", "right"):
+        e = data.get(side) if isinstance(data, dict) else None
+        if not isinstance(e, dict) or "center" not in e or "loop_indices" not in e:
+            raise ScanError(path, f"missing eye '{side}' with center and loop_indices")
+        li = np.asarray(e["loop_indices"], dtype=np.int64)
+        c = np.asarray(e["center"], dtype=np.float64)
+        if li.ndim != 1 or len(li) < 8 or c.shape != (3,) or not np.isfinite(c).all():
+            raise ScanError(path, f"eye '{side}': need a 3-vector center and at least 8 loop_indices")
+        if li.min() < 0 or li.max() >= n_vertices:
+            raise ScanError(path, f"eye '{side}': loop_indices outside the mesh's {n_vertices} vertices")
+        eyes[side] = {"center": c, "loop_indices": li}
+    return eyes
+
+
+def main(argv) -> dict:
+    parser = stage_parser(__doc__.splitlines()[0])
+    parser.add_argument("in_dir", help="build/<scan>/remove_eyeballs")
+    parser.add_argument("out_dir", help="build/<scan>/retopo")
+    args = parser.parse_args(argv)
+    settings = RetopoSettings.from_params(load_params("retopo", args.params))
+    in_dir = Path(args.in_dir)
+    mesh_path = in_dir / "mesh.npz"
+    try:
+        mesh = load_mesh(mesh_path)
+    except (OSError, ValueError, KeyError) as exc:
+        raise ScanError(mesh_path, f"cannot read mesh ({exc})") from None
+    if "V" not in mesh or "F" not in mesh:
+        raise ScanError(mesh_path, "mesh.npz lacks V or F")
+    eyes = load_eyes(in_dir / "eyes.json", len(mesh["V"]))
+    try:
+        result = retopologize(mesh["V"], mesh["F"], eyes, settings)
+    except ValueError as exc:
+        raise ScanError(mesh_path, str(exc)) from None
+    out = Path(args.out_dir)
+    arrays = {"V": result.V, "F": result.F, "loop_left": result.loops["left"],
+              "loop_right": result.loops["right"]}
+    if result.poly_counts is not None:
+        arrays.update(poly_counts=result.poly_counts, poly_indices=result.poly_indices)
+    with atomic_dir(out) as tmp:
+        save_mesh(tmp / "mesh.npz", **arrays)
+    return {"_path": args.metrics or default_metrics_path(out), **result.metrics}
+
+
+if __name__ == "__main__":
+    stage_exit(main)

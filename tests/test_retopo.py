@@ -1,0 +1,179 @@
+"""retopo: crop + low-poly remesh keeping the eyelid loops (both methods), mesh checks, stage CLI."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from pipeline.geometry import mesh_checks as mc
+from pipeline.geometry.retopo import (RetopoSettings, _project_to_polyline, clean_mesh,
+                                      count_flipped, retopologize)
+from pipeline.io.meshfile import load_mesh, save_mesh
+
+EYE_CENTRES = {"left": np.array([32.0, 36.0, 70.0]), "right": np.array([-32.0, 36.0, 70.0])}
+
+
+def height(x, y):
+    return 80.0 + 2.0 * np.sin(x / 7.0) * np.cos(y / 9.0) + 0.3 * np.sin(x / 1.3 + y / 1.7)
+
+
+def face_patch(step=0.8, hole_a=12.0, hole_b=5.0):
+    """A bumpy height-field 'face' (z up to the viewer) with two elliptical eye openings.
+
+    Returns V, F (CCW seen from +z) and eyes = {side: {center, loop_indices}} with each
+    loop ordered from the medial canthus over the upper lid (contract of remove_eyeballs).
+    """
+    xs = np.arange(-60.0, 60.0 + 1e-9, step)
+    ys = np.arange(0.0, 72.0 + 1e-9, step)
+    X, Y = np.meshgrid(xs, ys)
+    V = np.stack([X.ravel(), Y.ravel(), height(X, Y).ravel()], axis=1)
+    nx = len(xs)
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(len(ys) - 1))
+    a = (j * nx + i).ravel()
+    b, c, d = a + 1, a + nx + 1, a + nx
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    cen = V[F].mean(axis=1)
+    keep = np.ones(len(F), dtype=bool)
+    for c0 in EYE_CENTRES.values():
+        keep &= ((cen[:, 0] - c0[0]) / hole_a) ** 2 + ((cen[:, 1] - (c0[1] - 3)) / hole_b) ** 2 > 1.0
+    F = F[keep]
+    used = np.unique(F)
+    remap = -np.ones(len(V), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    V, F = V[used], remap[F]
+    eyes = {}
+    for side, c0 in EYE_CENTRES.items():
+        loop = min(mc.boundary_loops(F), key=lambda l: np.linalg.norm(V[l].mean(0)[:2] - c0[:2]))
+        P = V[loop]
+        loop = np.roll(loop, -int(np.argmin(np.abs(P[:, 0]))))
+        if V[loop[len(loop) // 4], 1] < V[loop, 1].mean():
+            loop = np.roll(loop[::-1], 1)
+        eyes[side] = {"center": c0, "loop_indices": loop}
+    return V, F, eyes
+
+
+@pytest.fixture(scope="module")
+def patch():
+    return face_patch()
+
+
+def check_result(r, V, eyes, n_loop):
+    rep = mc.check_mesh(r.V, r.F)
+    assert rep.manifold, rep
+    assert rep.degenerate_faces == 0 and rep.unreferenced_vertices == 0
+    assert rep.boundary_loops == 3                    # two eye openings + the crop border
+    assert count_flipped(r.V, r.F, r.crop_V, r.crop_F) == 0
+    bset = set(np.concatenate(mc.boundary_loops(r.F)).tolist())
+    for side, e in eyes.items():
+        lp = r.loops[side]
+        assert len(lp) == n_loop and len(set(lp.tolist())) == n_loop
+        assert all(int(v) in bset for v in lp)
+        # consecutive loop vertices share a boundary edge: the loop is a boundary loop, in order
+        loops = mc.boundary_loops(r.F)
+        ring = next(l for l in loops if int(lp[0]) in set(l.tolist()))
+        assert len(ring) == n_loop
+        pos = {int(v): k for k, v in enumerate(ring)}
+        steps = {(pos[int(lp[(k + 1) % n_loop])] - pos[int(lp[k])]) % n_loop for k in range(n_loop)}
+        assert steps in ({1}, {n_loop - 1})
+        # on the scan's loop curve, starting at the medial canthus, upper lid first
+        curve = V[e["loop_indices"]]
+        assert _project_to_polyline(r.V[lp], curve)[2].max() < 1e-6
+        assert np.linalg.norm(r.V[lp[0]] - curve[0]) < 0.5
+        assert r.V[lp[n_loop // 4], 1] > r.V[lp, 1].mean()
+    m = r.metrics
+    assert m["distance_lowpoly_to_scan"]["mean_mm"] < 0.1
+    assert m["distance_scan_to_lowpoly"]["mean_mm"] < 0.1
+
+
+def test_quadric_keeps_loops_and_is_manifold(patch):
+    V, F, eyes = patch
+    s = RetopoSettings(method="quadric", target_polygons=1500, loop_points=32)
+    r = retopologize(V, F, eyes, s)
+    check_result(r, V, eyes, 32)
+    assert abs(r.metrics["polygons"] - 1500) < 300
+    assert r.poly_counts is None
+    # the crop is the box around both eyes
+    assert r.V[:, 0].max() <= 32 + s.margin_lateral_mm + 1e-9
+    assert r.V[:, 1].min() >= 36 - s.margin_below_mm - 1e-9
+
+
+def test_isotropic_quad_dominant(patch):
+    V, F, eyes = patch
+    r = retopologize(V, F, eyes, RetopoSettings(method="isotropic", target_polygons=1200, loop_points=40,
+                                                predecimate_faces=8000))
+    check_result(r, V, eyes, 40)
+    pc, pi = r.poly_counts, r.poly_indices
+    assert pc.sum() == len(pi) and set(np.unique(pc)) <= {3, 4}
+    assert np.count_nonzero(pc == 4) > 0.5 * len(pc)          # quad-dominant
+    assert len(r.F) == np.sum(pc - 2)                          # F is the fan triangulation
+    assert 600 < len(pc) < 2000
+
+
+def test_clean_mesh_removes_duplicates_and_nonmanifold_faces():
+    V, F, _ = face_patch(step=3.0)
+    bad = np.concatenate([F, F[:5], F[10:12][:, ::-1]])          # duplicates and reversed duplicates
+    assert not mc.check_mesh(V, bad).manifold
+    V2, F2 = clean_mesh(V, bad)
+    rep = mc.check_mesh(V2, F2)
+    assert rep.manifold and rep.duplicate_faces == 0
+
+
+def test_mesh_checks_counts():
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], dtype=float)
+    F = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])                # edge 0-1 used by three faces
+    rep = mc.check_mesh(V, F)
+    assert rep.nonmanifold_edges == 1 and not rep.manifold
+    F = np.array([[0, 1, 2], [0, 1, 3]])                            # neighbours wound oppositely
+    assert mc.check_mesh(V, F).inconsistent_edges == 1
+    V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], dtype=float)
+    assert mc.check_mesh(V, np.array([[0, 1, 2]])).degenerate_faces == 1
+    sq = mc.triangle_angles_deg(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]]))
+    assert np.allclose(sorted(sq[0]), [45, 45, 90])
+
+
+def test_settings_validation():
+    with pytest.raises(ValueError, match="method"):
+        RetopoSettings.from_params({"method": "zremesher"})
+    with pytest.raises(ValueError, match="unknown"):
+        RetopoSettings.from_params({"target_poly": 9000})
+
+
+def write_input(folder, V, F, eyes):
+    folder.mkdir(parents=True)
+    save_mesh(folder / "mesh.npz", V=V, F=F)
+    (folder / "eyes.json").write_text(json.dumps({k: {"center": e["center"].tolist(), "radius": 12.0,
+                                                       "loop_indices": e["loop_indices"].tolist()}
+                                                   for k, e in eyes.items()}))
+
+
+def run_stage(*args):
+    return subprocess.run([sys.executable, "-m", "stages.retopo", *map(str, args)],
+                          capture_output=True, text=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))
+
+
+def test_stage_cli(tmp_path, patch):
+    V, F, eyes = patch
+    write_input(tmp_path / "remove_eyeballs", V, F, eyes)
+    params = tmp_path / "params.yaml"
+    params.write_text("retopo:\n  target_polygons: 1500\n  loop_points: 24\n")
+    r = run_stage(tmp_path / "remove_eyeballs", tmp_path / "retopo", "--metrics", tmp_path / "m.json",
+                  "--params", params)
+    assert r.returncode == 0, r.stderr
+    m = load_mesh(tmp_path / "retopo" / "mesh.npz")
+    assert len(m["loop_left"]) == 24 and len(m["loop_right"]) == 24
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    assert metrics["mesh"]["manifold"] and "wall_time_s" in metrics
+
+
+def test_stage_bad_eyes_json(tmp_path, patch):
+    V, F, eyes = patch
+    write_input(tmp_path / "re", V, F, eyes)
+    (tmp_path / "re" / "eyes.json").write_text(json.dumps({"left": {"center": [0, 0, 0], "loop_indices": [1, 2]}}))
+    r = run_stage(tmp_path / "re", tmp_path / "out", "--metrics", tmp_path / "m.json")
+    assert r.returncode == 2
+    assert "eyes.json" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
