@@ -1,0 +1,45 @@
+"""Single-channel float32 OpenEXR read/write (OpenEXR >= 3 python API) and 16-bit PNG previews."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def write_exr(path, img, channel="Y"):
+    """Write an (H, W) float image as a 32-bit float, zip-compressed EXR."""
+    import OpenEXR
+
+    a = np.ascontiguousarray(np.asarray(img, dtype=np.float32))
+    if a.ndim != 2:
+        raise ValueError("write_exr expects an (H, W) image")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, {channel: a}) as f:
+        f.write(str(path))
+
+
+def read_exr(path, channel="Y"):
+    """Read one channel of an EXR as an (H, W) float32 array."""
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        ch = f.channels()
+        if channel not in ch:
+            raise ValueError(f"{path}: no channel {channel!r} (has {sorted(ch)})")
+        return np.array(ch[channel].pixels, dtype=np.float32)
+
+
+def preview_16bit(img, mask=None):
+    """Map a float image to uint16 with a recorded scale/offset: ``value = offset + scale * pixel``.
+
+    Returns
+    -------
+    (H, W) uint16, scale (float), offset (float)
+    """
+    a = np.asarray(img, dtype=np.float64)
+    vals = a[mask] if mask is not None and mask.any() else a.ravel()
+    lo, hi = float(vals.min()), float(vals.max())
+    if hi <= lo:
+        hi = lo + 1e-6
+    scale = (hi - lo) / 65535.0
+    q = np.clip(np.round((a - lo) / scale), 0, 65535).astype(np.uint16)
+    return q, scale, lo

@@ -1,0 +1,171 @@
+"""UV unwrapping of the low-poly eye region (xatlas) and texel rasterisation (numpy)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def unwrap(V, F, resolution=2048, padding=4, seed_options=None):
+    """UV-unwrap a triangle mesh with xatlas.
+
+    Parameters
+    ----------
+    V : (n, 3) float64, F : (m, 3) int64
+    resolution : int
+        Atlas resolution the charts are packed for (texels).
+    padding : int
+        Texels between charts.
+
+    Returns
+    -------
+    UV : (k, 2) float64 in [0, 1], origin bottom-left
+    FUV : (m, 3) int64 per-corner indices into UV, same face order as ``F``
+    """
+    import xatlas
+
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(V.astype(np.float32) - V.mean(axis=0).astype(np.float32), F.astype(np.uint32))
+    co = xatlas.ChartOptions()
+    po = xatlas.PackOptions()
+    po.resolution = int(resolution)
+    po.padding = int(padding)
+    po.bilinear = True
+    po.blockAlign = False
+    atlas.generate(co, po)
+    vmap, idx, uvs = atlas[0]
+    idx = np.asarray(idx, dtype=np.int64)
+    vmap = np.asarray(vmap, dtype=np.int64)
+    if len(idx) != len(F) or not np.array_equal(vmap[idx], F):
+        raise RuntimeError("xatlas changed the face order or topology")
+    return np.asarray(uvs, dtype=np.float64), idx
+
+
+def rasterize(UV, FUV, width, height):
+    """Texels whose centres fall inside each UV triangle.
+
+    Image convention: texel (row j, column i) has its centre at
+    ``u = (i + 0.5) / width``, ``v = 1 - (j + 0.5) / height``.
+
+    Returns
+    -------
+    rows : (t,) int64, cols : (t,) int64
+    face : (t,) int64 triangle of each texel
+    bary : (t, 3) float64 barycentric coordinates of the texel centre in that triangle
+    (a texel covered by two triangles keeps the first one).
+    """
+    UV = np.asarray(UV, dtype=np.float64)
+    T = UV[np.asarray(FUV, dtype=np.int64)]                # (m, 3, 2)
+    X = T[..., 0] * width - 0.5                            # texel-centre coordinates
+    Y = (1.0 - T[..., 1]) * height - 0.5
+    x0 = np.clip(np.ceil(X.min(axis=1)), 0, width - 1).astype(np.int64)
+    x1 = np.clip(np.floor(X.max(axis=1)), -1, width - 1).astype(np.int64)
+    y0 = np.clip(np.ceil(Y.min(axis=1)), 0, height - 1).astype(np.int64)
+    y1 = np.clip(np.floor(Y.max(axis=1)), -1, height - 1).astype(np.int64)
+    w = np.maximum(x1 - x0 + 1, 0)
+    h = np.maximum(y1 - y0 + 1, 0)
+    cnt = w * h
+    rows_out, cols_out, face_out, bary_out = [], [], [], []
+    total = int(cnt.sum())
+    if total == 0:
+        e = np.zeros(0, dtype=np.int64)
+        return e, e, e, np.zeros((0, 3))
+    # process in chunks of faces to bound memory
+    starts = np.concatenate([[0], np.cumsum(cnt)])
+    chunk = 8_000_000
+    f_lo = 0
+    m = len(T)
+    while f_lo < m:
+        f_hi = int(np.searchsorted(starts, starts[f_lo] + chunk, side="right")) - 1
+        f_hi = min(max(f_hi, f_lo + 1), m)
+        fs = np.arange(f_lo, f_hi)
+        c = cnt[fs]
+        fid = np.repeat(fs, c)
+        local = np.arange(int(c.sum())) - np.repeat(starts[fs] - starts[f_lo], c)
+        ww = np.repeat(w[fs], c)
+        xi = x0[fid] + local % np.maximum(ww, 1)
+        yi = y0[fid] + local // np.maximum(ww, 1)
+        ax, ay = X[fid, 0], Y[fid, 0]
+        bx, by = X[fid, 1], Y[fid, 1]
+        cx, cy = X[fid, 2], Y[fid, 2]
+        det = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
+        ok_det = np.abs(det) > 1e-14
+        det = np.where(ok_det, det, 1.0)
+        l0 = ((by - cy) * (xi - cx) + (cx - bx) * (yi - cy)) / det
+        l1 = ((cy - ay) * (xi - cx) + (ax - cx) * (yi - cy)) / det
+        l2 = 1.0 - l0 - l1
+        eps = -1e-9
+        inside = ok_det & (l0 >= eps) & (l1 >= eps) & (l2 >= eps)
+        rows_out.append(yi[inside])
+        cols_out.append(xi[inside])
+        face_out.append(fid[inside])
+        bary_out.append(np.stack([l0[inside], l1[inside], l2[inside]], axis=1))
+        f_lo = f_hi
+    rows = np.concatenate(rows_out)
+    cols = np.concatenate(cols_out)
+    face = np.concatenate(face_out)
+    bary = np.clip(np.concatenate(bary_out), 0.0, 1.0)
+    bary /= bary.sum(axis=1, keepdims=True)
+    lin = rows * width + cols
+    _, first = np.unique(lin, return_index=True)
+    return rows[first], cols[first], face[first], bary[first]
+
+
+def dilate(img, mask, iterations):
+    """Pad ``img`` past the edges of ``mask``: texels within ``iterations`` texels of the mask
+    take the value of the nearest masked texel (Euclidean distance transform).
+
+    Parameters
+    ----------
+    img : (H, W) or (H, W, C) array
+    mask : (H, W) bool, True where ``img`` holds baked values
+
+    Returns
+    -------
+    img, mask : the padded image (same dtype) and the grown mask (inputs are not modified)
+    """
+    from scipy import ndimage
+
+    mask = np.asarray(mask, dtype=bool)
+    img = np.array(img, copy=True)
+    if not mask.any() or iterations <= 0:
+        return img, mask.copy()
+    dist, (iy, ix) = ndimage.distance_transform_edt(~mask, return_indices=True)
+    grow = (~mask) & (dist <= iterations)
+    img[grow] = img[iy[grow], ix[grow]]
+    return img, mask | grow
+
+
+def sample_bilinear(img, uv):
+    """Bilinear lookup of an image at UVs (origin bottom-left; clamped at the borders).
+
+    Parameters
+    ----------
+    img : (H, W) or (H, W, C) array
+    uv : (k, 2) float
+
+    Returns
+    -------
+    (k,) or (k, C) float64
+    """
+    img = np.asarray(img)
+    H, W = img.shape[:2]
+    x = np.asarray(uv)[:, 0] * W - 0.5
+    y = (1.0 - np.asarray(uv)[:, 1]) * H - 0.5
+    x = np.clip(x, 0, W - 1)
+    y = np.clip(y, 0, H - 1)
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    x1 = np.minimum(x0 + 1, W - 1)
+    y1 = np.minimum(y0 + 1, H - 1)
+    fx = x - x0
+    fy = y - y0
+    if img.ndim == 3:
+        fx = fx[:, None]
+        fy = fy[:, None]
+    a = img[y0, x0].astype(np.float64)
+    b = img[y0, x1].astype(np.float64)
+    c = img[y1, x0].astype(np.float64)
+    d = img[y1, x1].astype(np.float64)
+    return (a * (1 - fx) + b * fx) * (1 - fy) + (c * (1 - fx) + d * fx) * fy
