@@ -1,0 +1,253 @@
+"""Procedural eyeball textures (numpy), deterministic by seed.
+
+Iris textures use the polar layout of :func:`pipeline.eyeball.geometry.inner_mesh`:
+the image centre is the pupil centre, the pupil boundary sits at radius
+``IRIS_TEXTURE_PUPIL_FRACTION`` and the iris boundary at
+``IRIS_TEXTURE_IRIS_FRACTION`` of the half-width. They are built from
+radial fibres (angle-stretched smoothed noise with a wavy warp), the
+collarette (a wavy ridge separating the pupillary and ciliary zones, with a
+differently tinted pupillary zone), crypts (dark radially elongated lacunae
+near the collarette), concentric contraction furrows, a dark pupillary ruff
+and a darker limbal ring. The pupil is black.
+
+Sclera textures are equirectangular over the inner sclera UVs (u = azimuth /
+2pi, v = 1 at the limbus, 0 at the back pole): a near-white base with faint
+mottling and a veins layer (``bloodshot``: many red branching vessels
+running from the back toward the limbus, densest at the eye corners; ``clear``:
+a few faint ones). The tint layer is a colour multiplier (:data:`SCLERA_TINTS`),
+applied by the material (UsdUVTexture ``scale``, Cycles mix), not baked in.
+
+All images are float32 RGB in [0, 1], sRGB-encoded, row 0 = top (v = 1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.eyeball.geometry import IRIS_TEXTURE_IRIS_FRACTION, IRIS_TEXTURE_PUPIL_FRACTION
+
+IRIS_COLORS = ("amber", "blue", "brown", "grey")
+SCLERA_TINTS = {"white": (1.0, 1.0, 1.0), "pink": (1.0, 0.84, 0.82), "yellow": (1.0, 0.94, 0.74)}
+VEINS = ("bloodshot", "clear")
+
+# (stroma dark, fibre light, pupillary zone, limbal ring), sRGB
+_PALETTES = {
+    "blue": ((0.16, 0.27, 0.42), (0.52, 0.68, 0.84), (0.42, 0.46, 0.44), (0.06, 0.09, 0.16)),
+    "grey": ((0.30, 0.33, 0.35), (0.66, 0.70, 0.72), (0.50, 0.48, 0.40), (0.14, 0.15, 0.17)),
+    "brown": ((0.09, 0.045, 0.02), (0.36, 0.21, 0.10), (0.20, 0.10, 0.04), (0.04, 0.02, 0.01)),
+    "amber": ((0.33, 0.18, 0.04), (0.84, 0.58, 0.20), (0.52, 0.28, 0.08), (0.16, 0.08, 0.02)),
+}
+_SEED_OFFSET = {"amber": 11, "blue": 23, "brown": 37, "grey": 53}
+
+
+def _smooth_noise(rng, shape, sigma, wrap_axes=()):
+    from scipy.ndimage import gaussian_filter
+
+    a = rng.standard_normal(shape)
+    modes = ["wrap" if i in wrap_axes else "reflect" for i in range(len(shape))]
+    a = gaussian_filter(a, sigma, mode=modes)
+    return (a - a.mean()) / (a.std() + 1e-12)
+
+
+def _sample_polar(grid, ang, t):
+    """Bilinear sample of grid (n_ang, n_t) at angle fraction ang in [0,1) and t in [0,1]."""
+    na, nt = grid.shape
+    x = (ang % 1.0) * na
+    y = np.clip(t, 0, 1) * (nt - 1)
+    x0 = np.floor(x).astype(int)
+    y0 = np.clip(np.floor(y).astype(int), 0, nt - 2)
+    fx, fy = x - x0, y - y0
+    x0 %= na
+    x1 = (x0 + 1) % na
+    g = grid
+    return ((g[x0, y0] * (1 - fx) + g[x1, y0] * fx) * (1 - fy)
+            + (g[x0, y0 + 1] * (1 - fx) + g[x1, y0 + 1] * fx) * fy)
+
+
+def _smoothstep(a, b, x):
+    t = np.clip((x - a) / (b - a), 0, 1)
+    return t * t * (3 - 2 * t)
+
+
+def iris_texture(color: str, size: int = 512, seed: int = 0) -> np.ndarray:
+    """One iris texture.
+
+    Parameters
+    ----------
+    color : {"amber", "blue", "brown", "grey"}
+    size : int, image width = height (pixels)
+    seed : int
+
+    Returns
+    -------
+    (size, size, 3) float32 sRGB in [0, 1]
+    """
+    if color not in _PALETTES:
+        raise ValueError(f"unknown iris colour {color!r}; choose one of {IRIS_COLORS}")
+    if size < 16:
+        raise ValueError("iris texture size must be >= 16")
+    rng = np.random.default_rng([int(seed), _SEED_OFFSET[color]])
+    dark, light, inner, limbal = (np.array(c, float) for c in _PALETTES[color])
+    c = (np.arange(size) + 0.5) / size * 2 - 1           # [-1, 1] with v up after flip
+    X, Y = np.meshgrid(c, c)
+    r = np.hypot(X, Y)
+    ang = (np.arctan2(Y, X) / (2 * np.pi)) % 1.0
+    fp, fi = IRIS_TEXTURE_PUPIL_FRACTION, IRIS_TEXTURE_IRIS_FRACTION
+    t = (r - fp) / (fi - fp)                               # 0 at pupil, 1 at limbus
+
+    # wavy warp of the angle (fibres are not perfectly radial)
+    warp = _smooth_noise(rng, (64, 16), (3, 2), wrap_axes=(0,))
+    a_w = ang + 0.0025 * _sample_polar(warp, ang, t)
+    # radial fibres: fine (sigma ~1 px in angle) and coarse bundles
+    fib_f = _smooth_noise(rng, (1400, 48), (0.9, 5.0), wrap_axes=(0,))
+    fib_c = _smooth_noise(rng, (360, 24), (1.5, 3.0), wrap_axes=(0,))
+    fib = 0.55 * _sample_polar(fib_f, a_w, t) + 0.45 * _sample_polar(fib_c, a_w, t)
+    fibre = 1 / (1 + np.exp(-1.3 * fib))                   # 0..1, light = raised fibres
+
+    # collarette: wavy ring at ~35 % of the iris width
+    wav = _smooth_noise(rng, (96, 4), (2.5, 1), wrap_axes=(0,))
+    t_col = 0.33 + 0.035 * _sample_polar(wav, ang, np.zeros_like(t))
+    ridge = np.exp(-((t - t_col) / 0.035) ** 2)
+    pupillary = 1 - _smoothstep(t_col - 0.08, t_col + 0.06, t)
+
+    col = dark[None, None] * (1 - fibre[..., None]) + light[None, None] * fibre[..., None]
+    # pupillary zone tint
+    col = col * (1 - 0.4 * pupillary[..., None]) + inner[None, None] * (0.4 * pupillary * (0.6 + 0.8 * fibre))[..., None]
+    # collarette ridge lighter
+    col = col + 0.18 * ridge[..., None] * (light - dark)[None, None]
+
+    # crypts: dark radially elongated blobs near the collarette and in the ciliary zone
+    crypt = np.zeros_like(t)
+    n_crypts = int(rng.integers(28, 44))
+    ca = rng.random(n_crypts)
+    ct = np.clip(rng.normal(0.45, 0.14, n_crypts), 0.2, 0.85)
+    for a0, t0 in zip(ca, ct):
+        wa = rng.uniform(0.004, 0.012)
+        wt = rng.uniform(0.03, 0.08)
+        da = ((a_w - a0 + 0.5) % 1.0) - 0.5
+        crypt = np.maximum(crypt, np.exp(-(da / wa) ** 2 - ((t - t0) / wt) ** 2) * rng.uniform(0.5, 1.0))
+    col = col * (1 - 0.6 * crypt[..., None]) + dark[None, None] * 0.35 * crypt[..., None]
+
+    # contraction furrows: broken concentric darker rings in the ciliary zone
+    brk = _smooth_noise(rng, (128, 4), (4, 1), wrap_axes=(0,))
+    for tf in (0.62, 0.74, 0.85):
+        ring = np.exp(-((t - tf) / 0.012) ** 2) * (_sample_polar(brk, ang, np.full_like(t, tf)) > 0.2)
+        col *= 1 - 0.25 * ring[..., None]
+
+    # limbal ring and pupillary ruff
+    limb = _smoothstep(0.78, 1.0, t)
+    col = col * (1 - 0.85 * limb[..., None]) + limbal[None, None] * 0.85 * limb[..., None]
+    ruff = np.exp(-(np.clip(t, 0, None) / 0.035) ** 2) * (t >= 0)
+    col = col * (1 - 0.5 * ruff[..., None])
+    # fine grain
+    grain = _smooth_noise(rng, (size, size), 0.7)
+    col *= (1 + 0.05 * grain)[..., None]
+    # pupil (soft 1 px edge) and outside the iris (limbal colour)
+    pm = _smoothstep(fp - 1.5 / size, fp + 0.5 / size, r)
+    col = col * pm[..., None]
+    outside = _smoothstep(fi, fi + 2.0 / size, r)
+    col = col * (1 - outside[..., None]) + limbal[None, None] * outside[..., None]
+    img = np.clip(col, 0, 1).astype(np.float32)
+    return np.flipud(img)  # row 0 = top = v 1
+
+
+def _splat_paths(img_shape, paths, widths, rng):
+    from scipy.ndimage import gaussian_filter
+
+    h, w = img_shape
+    acc = np.zeros((h, w))
+    for pts, wd in zip(paths, widths):
+        x = (pts[:, 0] % 1.0) * w
+        y = np.clip(pts[:, 1], 0, 0.9999) * h
+        np.add.at(acc, (y.astype(int), x.astype(int) % w), wd)
+    return gaussian_filter(acc, (0.8, 0.8), mode=["reflect", "wrap"])
+
+
+def sclera_texture(veins: str, width: int = 1024, height: int = 512, seed: int = 0) -> np.ndarray:
+    """Sclera base + veins layer (untinted).
+
+    Parameters
+    ----------
+    veins : {"bloodshot", "clear"}
+    width, height : int
+    seed : int
+
+    Returns
+    -------
+    (height, width, 3) float32 sRGB in [0, 1], row 0 = v 1 (limbus).
+    """
+    from scipy.ndimage import gaussian_filter
+
+    if veins not in VEINS:
+        raise ValueError(f"unknown veins layer {veins!r}; choose one of {VEINS}")
+    rng = np.random.default_rng([int(seed), 101])
+    base = np.array([0.93, 0.91, 0.88])
+    mott = _smooth_noise(rng, (height, width), (6, 12), wrap_axes=(1,))
+    img = base[None, None] * (1 + 0.012 * mott[..., None])
+    # slightly greyer toward the back, slightly warmer near the limbus
+    vv = 1 - (np.arange(height) + 0.5) / height          # v per row (row 0 = v 1)
+    img *= (0.9 + 0.1 * vv)[:, None, None]
+
+    n = 45 if veins == "bloodshot" else 12
+    strength = 1.0 if veins == "bloodshot" else 0.35
+    paths, widths = [], []
+    for _ in range(n):
+        # corners of the eye (azimuth 0 and pi) get more vessels
+        u0 = (rng.choice([0.0, 0.5]) + rng.normal(0, 0.09)) % 1.0 if rng.random() < 0.7 else rng.random()
+        v0 = rng.uniform(0.3, 0.6)
+        stack = [(u0, v0, 1.0, 0)]
+        while stack:
+            u, v, wd, depth = stack.pop()
+            m = int(rng.integers(80, 220))
+            # heading: mostly toward the limbus (+v), slowly meandering; steps ~1 px
+            dev = np.empty(m)
+            d = rng.normal(0, 0.5)
+            eps = rng.normal(0, 0.15, m)
+            for i in range(m):  # mean-reverting meander around "toward the limbus"
+                d = 0.93 * d + eps[i]
+                dev[i] = d
+            head = np.pi / 2 + np.clip(dev, -1.3, 1.3)
+            step = 1.0 / height
+            pts = np.stack([u + np.cumsum(np.cos(head) * step * height / width * 2),
+                            v + np.cumsum(np.sin(head) * step)], 1)
+            # resample to ~0.3 px spacing so strokes are continuous
+            k = 4
+            tt = np.linspace(0, len(pts) - 1, (len(pts) - 1) * k + 1)
+            pts = np.stack([np.interp(tt, np.arange(len(pts)), pts[:, 0]),
+                            np.interp(tt, np.arange(len(pts)), pts[:, 1])], 1)
+            pts = pts[pts[:, 1] < 0.985]
+            if len(pts) < 3:
+                continue
+            paths.append(pts)
+            widths.append(wd * 0.35)
+            if depth < 3:
+                for _k in range(int(rng.integers(0, 3))):
+                    i = int(rng.integers(0, len(pts)))
+                    stack.append((pts[i, 0], pts[i, 1], wd * 0.6, depth + 1))
+    # image rows: v up -> row = (1 - v) * h
+    flipped = [np.stack([p[:, 0], 1 - p[:, 1]], 1) for p in paths]
+    dens = _splat_paths((height, width), flipped, widths, rng)
+    dens = 1 - np.exp(-dens * 1.6)
+    vessel = np.array([0.70, 0.12, 0.10])
+    a = (strength * dens)[..., None]
+    img = img * (1 - a) + vessel[None, None] * a
+    # faint diffuse redness near the corners for bloodshot eyes
+    if veins == "bloodshot":
+        u = (np.arange(width) + 0.5) / width
+        corner = np.maximum(np.cos(2 * np.pi * u), np.cos(2 * np.pi * (u - 0.5))) ** 6
+        red = gaussian_filter(corner[None, :] * (0.3 + 0.7 * vv[:, None]), 3)
+        img = img * (1 - 0.12 * red[..., None]) + np.array([0.85, 0.45, 0.42]) * 0.12 * red[..., None]
+    return np.clip(img, 0, 1).astype(np.float32)
+
+
+def to_uint8(img: np.ndarray) -> np.ndarray:
+    """float [0, 1] -> uint8 (rounded)."""
+    return np.clip(np.round(np.asarray(img) * 255.0), 0, 255).astype(np.uint8)
+
+
+def texture_set(seed: int = 0, iris_size: int = 512, sclera_size=(1024, 512)) -> dict[str, np.ndarray]:
+    """All texture images by file name (``iris_<colour>.png``, ``sclera_<veins>.png``), uint8."""
+    out = {f"iris_{c}.png": to_uint8(iris_texture(c, iris_size, seed)) for c in IRIS_COLORS}
+    for v in VEINS:
+        out[f"sclera_{v}.png"] = to_uint8(sclera_texture(v, sclera_size[0], sclera_size[1], seed))
+    return out

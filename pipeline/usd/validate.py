@@ -1,0 +1,209 @@
+"""Reusable USD asset validator: ``validate_stage(path_or_stage) -> list[str]``.
+
+Runs every registered ``pxr.UsdValidation`` validator (errors only; warnings
+are returned by :func:`validate_stage_report`) and the explicit checks that
+those validators miss:
+
+- stage metadata: default prim, ``metersPerUnit`` (house value 0.001 unless
+  ``meters_per_unit=None``), ``upAxis`` ``Y``;
+- every UsdGeom.Mesh: ``UsdGeom.Mesh.ValidateTopology``, finite points,
+  primvar element counts against their interpolation;
+- every mesh with SkelBindingAPI: ``skel:blendShapes`` and
+  ``skel:blendShapeTargets`` of equal length, each target a UsdSkel.BlendShape;
+  ``UsdSkel.BlendShape.ValidatePointIndices``; offsets (and every inbetween's)
+  count == pointIndices count (== point count without indices); finite offsets;
+- every bound material exists and has a surface output.
+
+An empty list means the asset is valid.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def _open(path_or_stage):
+    from pxr import Usd
+
+    if isinstance(path_or_stage, Usd.Stage):
+        return path_or_stage, []
+    try:
+        stage = Usd.Stage.Open(str(path_or_stage))
+    except Exception as exc:  # pxr raises Tf.ErrorException
+        return None, [f"{path_or_stage}: cannot be opened as a USD stage ({str(exc).strip()[:200]})"]
+    if stage is None:
+        return None, [f"{path_or_stage}: cannot be opened as a USD stage"]
+    return stage, []
+
+
+def usd_validation_errors(stage):
+    """(errors, warnings) from every registered pxr.UsdValidation validator."""
+    from pxr import UsdValidation
+
+    reg = UsdValidation.ValidationRegistry()
+    validators = reg.GetOrLoadAllValidators()
+    ctx = UsdValidation.ValidationContext(validators)
+    errors, warnings = [], []
+    for e in ctx.Validate(stage):
+        if e.HasNoError():
+            continue
+        msg = f"UsdValidation {e.GetName()}: {e.GetMessage()}"
+        if e.GetType() == UsdValidation.ValidationErrorType.Error:
+            errors.append(msg)
+        else:
+            warnings.append(msg)
+    return errors, warnings
+
+
+def _mesh_checks(mesh, errors):
+    from pxr import Usd, UsdGeom
+
+    path = mesh.GetPath()
+    pts = mesh.GetPointsAttr().Get()
+    counts = mesh.GetFaceVertexCountsAttr().Get()
+    idx = mesh.GetFaceVertexIndicesAttr().Get()
+    if pts is None or counts is None or idx is None:
+        errors.append(f"{path}: mesh lacks points, faceVertexCounts or faceVertexIndices")
+        return None
+    P = np.asarray(pts, np.float64).reshape(-1, 3)
+    n = len(P)
+    ok, why = UsdGeom.Mesh.ValidateTopology(idx, counts, n)
+    if not ok:
+        errors.append(f"{path}: bad topology: {why}")
+    if not np.all(np.isfinite(P)):
+        errors.append(f"{path}: {int((~np.isfinite(P)).any(1).sum())} point(s) are not finite")
+    nfaces, ncorners = len(counts), len(idx)
+    expect = {UsdGeom.Tokens.vertex: n, UsdGeom.Tokens.varying: n,
+              UsdGeom.Tokens.faceVarying: ncorners, UsdGeom.Tokens.uniform: nfaces,
+              UsdGeom.Tokens.constant: 1}
+    for pv in UsdGeom.PrimvarsAPI(mesh).GetPrimvars():
+        interp = pv.GetInterpolation()
+        if interp not in expect or pv.GetName().startswith("primvars:skel:"):
+            continue
+        val = pv.Get(Usd.TimeCode.Default())
+        if val is None:
+            continue
+        es = max(pv.GetElementSize(), 1)
+        if pv.IsIndexed():
+            ind = np.asarray(pv.GetIndices(), np.int64)
+            if len(ind) != expect[interp] * es:
+                errors.append(f"{path}: primvar {pv.GetPrimvarName()} has {len(ind)} indices, "
+                              f"{interp} needs {expect[interp] * es}")
+            if len(ind) and (ind.min() < 0 or ind.max() >= len(val)):
+                errors.append(f"{path}: primvar {pv.GetPrimvarName()} indices out of range")
+        elif interp != UsdGeom.Tokens.constant and len(val) != expect[interp] * es:
+            errors.append(f"{path}: primvar {pv.GetPrimvarName()} has {len(val)} values, "
+                          f"{interp} needs {expect[interp] * es}")
+    return n
+
+
+def _blend_shape_checks(stage, mesh, n_points, errors):
+    from pxr import UsdSkel
+
+    prim = mesh.GetPrim()
+    if not prim.HasAPI(UsdSkel.BindingAPI):
+        return
+    api = UsdSkel.BindingAPI(prim)
+    names = api.GetBlendShapesAttr().Get() or []
+    targets = api.GetBlendShapeTargetsRel().GetTargets() if api.GetBlendShapeTargetsRel() else []
+    path = mesh.GetPath()
+    if len(names) != len(targets):
+        errors.append(f"{path}: {len(names)} skel:blendShapes but {len(targets)} skel:blendShapeTargets")
+    for t in targets:
+        bs = UsdSkel.BlendShape(stage.GetPrimAtPath(t))
+        if not bs:
+            errors.append(f"{path}: blend-shape target {t} is not a UsdSkel.BlendShape")
+            continue
+        offsets = bs.GetOffsetsAttr().Get()
+        if offsets is None:
+            errors.append(f"{t}: no offsets")
+            continue
+        O = np.asarray(offsets, np.float64).reshape(-1, 3)
+        ind = bs.GetPointIndicesAttr().Get()
+        if ind is not None and len(ind):
+            ok, why = bs.ValidatePointIndices(ind, n_points)
+            if not ok:
+                errors.append(f"{t}: bad pointIndices: {why}")
+            expect = len(ind)
+        else:
+            expect = n_points
+        if len(O) != expect:
+            errors.append(f"{t}: {len(O)} offsets but {expect} "
+                          f"{'pointIndices' if ind is not None and len(ind) else 'mesh points'}")
+        if not np.all(np.isfinite(O)):
+            errors.append(f"{t}: offsets are not finite")
+        for ib in bs.GetInbetweens():
+            io = ib.GetOffsets()
+            if io is None or len(io) != expect:
+                errors.append(f"{t}: inbetween {ib.GetAttr().GetName()} has "
+                              f"{0 if io is None else len(io)} offsets, expected {expect}")
+            elif not np.all(np.isfinite(np.asarray(io, np.float64))):
+                errors.append(f"{t}: inbetween {ib.GetAttr().GetName()} offsets are not finite")
+            w = ib.GetWeight()
+            if w is None or not math.isfinite(w):
+                errors.append(f"{t}: inbetween {ib.GetAttr().GetName()} weight is not finite")
+
+
+def _material_checks(stage, errors):
+    from pxr import UsdShade
+
+    for prim in stage.Traverse():
+        if not prim.HasAPI(UsdShade.MaterialBindingAPI):
+            continue
+        rel = UsdShade.MaterialBindingAPI(prim).GetDirectBindingRel()
+        if not rel:
+            continue
+        for t in rel.GetTargets():
+            mat = UsdShade.Material(stage.GetPrimAtPath(t))
+            if not mat:
+                errors.append(f"{prim.GetPath()}: bound material {t} does not exist")
+            elif not mat.GetSurfaceOutput().HasConnectedSource():
+                errors.append(f"{t}: material has no connected surface output")
+
+
+def validate_stage_report(path_or_stage, meters_per_unit: float | None = 0.001,
+                          up_axis: str | None = "Y") -> dict:
+    """Full report: ``{"errors": [...], "warnings": [...], "meshes": n, "blend_shapes": n}``."""
+    from pxr import UsdGeom, UsdSkel
+
+    stage, errors = _open(path_or_stage)
+    if stage is None:
+        return {"errors": errors, "warnings": [], "meshes": 0, "blend_shapes": 0}
+    errs, warnings = usd_validation_errors(stage)
+    errors += errs
+    dp = stage.GetDefaultPrim()
+    if not dp:
+        errors.append("stage has no default prim")
+    if meters_per_unit is not None:
+        mpu = UsdGeom.GetStageMetersPerUnit(stage)
+        if not math.isclose(mpu, meters_per_unit, rel_tol=1e-9):
+            errors.append(f"metersPerUnit is {mpu}, expected {meters_per_unit}")
+    if up_axis is not None and UsdGeom.GetStageUpAxis(stage) != up_axis:
+        errors.append(f"upAxis is {UsdGeom.GetStageUpAxis(stage)}, expected {up_axis}")
+    n_mesh = n_bs = 0
+    for prim in stage.Traverse():
+        if prim.IsA(UsdGeom.Mesh):
+            n_mesh += 1
+            mesh = UsdGeom.Mesh(prim)
+            n = _mesh_checks(mesh, errors)
+            if n is not None:
+                _blend_shape_checks(stage, mesh, n, errors)
+        elif prim.IsA(UsdSkel.BlendShape):
+            n_bs += 1
+    _material_checks(stage, errors)
+    return {"errors": errors, "warnings": warnings, "meshes": n_mesh, "blend_shapes": n_bs}
+
+
+def validate_stage(path_or_stage, meters_per_unit: float | None = 0.001,
+                   up_axis: str | None = "Y") -> list[str]:
+    """Errors of a USD asset (empty list = valid). See the module docstring for the checks.
+
+    Parameters
+    ----------
+    path_or_stage : str | pathlib.Path | pxr.Usd.Stage
+    meters_per_unit : float or None (skip the check)
+    up_axis : "Y", "Z" or None (skip the check)
+    """
+    return validate_stage_report(path_or_stage, meters_per_unit, up_axis)["errors"]

@@ -1,0 +1,91 @@
+"""Stage ``eyeball``: the shared parametric eyeball asset.
+
+    python -m stages.eyeball rigged_assets/eyeball --metrics build/eyeball.metrics.json
+
+Builds the eyeball (pipeline/eyeball), writes ``eyeball.usda`` and
+``textures/*.png`` (4 iris colours, 2 veins layers), validates the asset
+(pipeline/usd/validate.py; any error fails the stage), and, unless
+``preview: false``, renders ``preview.png`` (Cycles contact sheet) in a Blender
+worker subprocess. Settings: the ``eyeball:`` block of params.yaml.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from PIL import Image
+
+from pipeline.eyeball import geometry as geo
+from pipeline.eyeball import textures as tex
+from pipeline.io.atomic import atomic_dir
+from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+
+
+def build_asset(folder: Path, params: dict) -> dict:
+    """Write eyeball.usda + textures into ``folder``; returns metrics (no preview)."""
+    from pipeline.usd.eyeball import write_eyeball_usd
+    from pipeline.usd.validate import validate_stage_report
+
+    t0 = time.perf_counter()
+    p = geo.EyeballParams.from_dict(params.get("geometry"))
+    eye = geo.build_eyeball(p, params.get("resolution", "high"))
+    t_geo = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    (folder / "textures").mkdir(parents=True, exist_ok=True)
+    images = tex.texture_set(int(params.get("texture_seed", 0)), int(params.get("iris_texture_px", 512)),
+                             tuple(params.get("sclera_texture_px", [1024, 512])))
+    for name, img in images.items():
+        Image.fromarray(img).save(folder / "textures" / name, optimize=False, compress_level=3)
+    t_tex = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    usda = write_eyeball_usd(eye, folder / "eyeball.usda")
+    t_usd = time.perf_counter() - t2
+    t3 = time.perf_counter()
+    report = validate_stage_report(usda)
+    t_val = time.perf_counter() - t3
+    if report["errors"]:
+        raise RuntimeError("eyeball asset failed validation:\n  " + "\n  ".join(report["errors"]))
+    seam = geo.seam_dihedral_report(p, eye.resolution)
+    return {"resolution": eye.resolution.__dict__, **eye.stats(),
+            "geometry_s": round(t_geo, 4), "textures_s": round(t_tex, 4), "usd_write_s": round(t_usd, 4),
+            "validate_s": round(t_val, 4), "validation_errors": len(report["errors"]),
+            "validation_warnings": len(report["warnings"]),
+            "seam_dihedral_deg": round(seam["seam_max_deg"], 3),
+            "max_dihedral_elsewhere_deg": round(max(seam["cornea_max_deg"], seam["sclera_max_deg"]), 3)}
+
+
+def render_preview(folder: Path, params: dict, timings: Path) -> None:
+    """Run the Blender preview worker (subprocess) on the asset in ``folder``."""
+    cmd = [sys.executable, "-m", "pipeline.blender.eyeball_preview", str(folder / "eyeball.usda"),
+           str(folder / "preview.png"), "--size", str(int(params.get("preview_px", 160))),
+           "--samples", str(int(params.get("preview_samples", 16))), "--json", str(timings)]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+    if res.returncode != 0:
+        raise RuntimeError("preview render failed:\n" + res.stdout[-2000:] + res.stderr[-2000:])
+
+
+def main(argv) -> dict:
+    import json
+    import tempfile
+
+    ap = stage_parser(__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path, help="output folder (rigged_assets/eyeball)")
+    args = ap.parse_args(argv)
+    params = load_params("eyeball", args.params)
+    with atomic_dir(args.out) as tmp:
+        metrics = build_asset(tmp, params)
+        if params.get("preview", True):
+            with tempfile.TemporaryDirectory() as td:
+                tj = Path(td) / "preview.json"
+                t = time.perf_counter()
+                render_preview(tmp, params, tj)
+                metrics["preview"] = json.loads(tj.read_text())
+                metrics["preview"]["wall_s"] = round(time.perf_counter() - t, 3)
+    return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
+
+
+if __name__ == "__main__":
+    stage_exit(main)

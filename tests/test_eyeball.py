@@ -1,0 +1,327 @@
+"""The parametric eyeball: geometry, blend shapes, landmarks, textures, USD asset."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.eyeball import geometry as geo
+from pipeline.eyeball import textures as tex
+
+P = geo.EyeballParams()
+
+
+@pytest.fixture(scope="module")
+def eye():
+    return geo.build_eyeball(P, "high")
+
+
+# ------------------------------------------------------------------ outer part
+
+@pytest.mark.parametrize("res", ["low", "medium", "high", "full"])
+def test_meshes_closed_manifold_outward(res):
+    e = geo.build_eyeball(P, res)
+    for m in (e.outer, e.inner):
+        ok, bad = geo.mesh_edges_manifold(m.F)
+        assert ok, f"{bad} non-manifold / inconsistently oriented edges"
+        N = geo.face_normals(m.V, m.F)
+        assert np.linalg.norm(N, axis=1).min() > 1e-8            # no degenerate faces
+        c = m.V[m.F].mean(1)
+        # star-shaped about points on the axis: normals point away from the centre
+        assert np.all(np.einsum("ij,ij->i", N, c - [0, 0, 0]) > 0)
+        assert len(m.poly_indices) == m.poly_counts.sum()
+        assert len(m.poly_uv_indices) == len(m.poly_indices)
+    assert len(e.outer.V) == 2 + e.resolution.n_around * (e.resolution.cornea_rings
+                                                          + e.resolution.sclera_rings - 1)
+
+
+def test_outer_radii_and_apex(eye):
+    r = np.linalg.norm(eye.outer.V, axis=1)
+    assert r.min() == pytest.approx(12.0, abs=1e-9)               # back: the 12 mm sphere
+    assert eye.outer.V[:, 2].max() == pytest.approx(13.5, abs=1e-9)
+    assert 13.0 <= eye.outer.V[:, 2].max() <= 14.0                # anatomical apex distance
+    # the cornea part lies on the 8 mm sphere away from the blend band
+    c = np.array([0, 0, P.cornea_center_z])
+    front = eye.outer.V[r > 12.0 + P.seam_blend_mm + 1e-9]
+    assert np.allclose(np.linalg.norm(front - c, axis=1), 8.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("res", ["medium", "high", "full"])
+def test_seam_has_no_crease(res):
+    """Bound: the largest dihedral angle within 15 deg of the seam <= the largest elsewhere."""
+    rep = geo.seam_dihedral_report(P, res)
+    assert rep["seam_max_deg"] <= max(rep["cornea_max_deg"], rep["sclera_max_deg"])
+    raw = geo.seam_dihedral_report(P, res, smooth=False)
+    assert raw["seam_max_deg"] > 1.5 * max(raw["cornea_max_deg"], raw["sclera_max_deg"])
+
+
+def test_smooth_profile_is_c1():
+    th = np.linspace(0, np.pi, 200001)
+    R = geo.outer_radial(th, P)
+    d1 = np.diff(R) / np.diff(th)
+    assert np.abs(np.diff(d1)).max() < 1e-3                      # no jump in slope
+
+
+# ------------------------------------------------------------------ inner part, gap
+
+def test_inner_iris_and_gap(eye):
+    iris = eye.inner.V[eye.landmarks["iris"]]
+    assert 11.5 <= 2 * np.hypot(iris[:, 0], iris[:, 1]).mean() <= 12.0
+    front = eye.inner.V[eye.inner.rings[0]]
+    assert np.ptp(eye.inner.V[np.concatenate(eye.inner.rings[:P and 11]), 2]) < 1e-9  # planar front
+    _, _, d = geo.outer_surface_closest_point(eye.inner.V)
+    assert -d.max() == pytest.approx(0.5, abs=1e-4)               # 0.5 mm gap, nothing closer
+    assert np.all(d < 0)
+    assert front[:, 2].max() < eye.outer.V[:, 2].max()
+
+
+def test_closest_point_scaled_and_rotated():
+    rng = np.random.default_rng(1)
+    f = np.array([0.3, -0.2, 1.0]); f /= np.linalg.norm(f)
+    c = np.array([31.0, 4.0, -7.0])
+    m = geo.outer_mesh(P, "full")
+    s = 15.4 / 12.0
+    # a point of the unit-frame mesh, placed with the same frame as the function
+    a = np.array([1.0, 0, 0])
+    e1 = np.cross(a, f); e1 /= np.linalg.norm(e1)
+    e2 = np.cross(f, e1)
+    Rm = np.stack([e1, e2, f], 1)
+    Vw = c + s * m.V @ Rm.T
+    Q, N, d = geo.outer_surface_closest_point(Vw, c, f, radius=15.4)
+    assert np.abs(d).max() < 1e-4 and np.abs(Q - Vw).max() < 1e-4
+    # off-surface points project back along the normal
+    P0 = Vw[rng.choice(len(Vw), 200)]
+    _, N0, _ = geo.outer_surface_closest_point(P0, c, f, radius=15.4)
+    Q2, _, d2 = geo.outer_surface_closest_point(P0 + 0.3 * N0, c, f, radius=15.4)
+    assert np.allclose(d2, 0.3, atol=1e-3)
+    assert np.allclose(Q2, P0, atol=1e-3)
+
+
+# ------------------------------------------------------------------ blend shapes
+
+def _check_pose(e, W, rest_normals):
+    Vp = geo.apply_blend_shapes(e.inner.V, e.shapes, W)
+    N = geo.face_normals(Vp, e.inner.F)
+    assert np.linalg.norm(N, axis=1).min() > 1e-10, "degenerate face"
+    cosang = np.einsum("ij,ij->i", N, rest_normals) / (
+        np.linalg.norm(N, axis=1) * np.linalg.norm(rest_normals, axis=1))
+    assert cosang.min() > 0.5, "flipped face"
+    ok, _ = geo.mesh_edges_manifold(e.inner.F)
+    assert ok
+    pr = np.hypot(*Vp[e.landmarks["pupil"], :2].T)
+    ir = np.hypot(*Vp[e.landmarks["iris"], :2].T)
+    assert pr.max() < ir.min() - 0.5, "pupil leaves the iris"
+    _, _, d = geo.outer_surface_closest_point(Vp)
+    assert d.max() <= -0.5 + 1e-6, "inner part pokes toward/through the outer part"
+    return pr.mean(), ir.mean()
+
+
+def test_blend_shape_corners_and_random_interior():
+    e = geo.build_eyeball(P, "medium")
+    rest_N = geo.face_normals(e.inner.V, e.inner.F)
+    for corner in itertools.product([0.0, 1.0], repeat=4):
+        _check_pose(e, dict(zip(geo.SHAPE_NAMES, corner)), rest_N)
+    rng = np.random.default_rng(0)
+    for w in rng.random((40, 4)):
+        _check_pose(e, dict(zip(geo.SHAPE_NAMES, w)), rest_N)
+
+
+def test_blend_shape_targets_hit_ranges():
+    e = geo.build_eyeball(P, "medium")
+    rest_N = geo.face_normals(e.inner.V, e.inner.F)
+    pr, _ = _check_pose(e, {"pupil_dilate": 1}, rest_N)
+    assert pr == pytest.approx(4.0)
+    pr, _ = _check_pose(e, {"pupil_constrict": 1}, rest_N)
+    assert pr == pytest.approx(1.0)
+    _, ir = _check_pose(e, {"iris_large": 1}, rest_N)
+    assert ir == pytest.approx(5.9 * 1.1)
+    _, ir = _check_pose(e, {"iris_small": 1}, rest_N)
+    assert ir == pytest.approx(5.9 * 0.9)
+
+
+def test_weight_rule_clamps_and_refuses():
+    e = geo.build_eyeball(P, "low")
+    a = geo.apply_blend_shapes(e.inner.V, e.shapes, {"pupil_dilate": 3.0, "iris_small": -2})
+    b = geo.apply_blend_shapes(e.inner.V, e.shapes, {"pupil_dilate": 1.0})
+    assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match="finite"):
+        geo.clamp_weights({"pupil_dilate": float("nan")})
+    with pytest.raises(ValueError, match="unknown"):
+        geo.clamp_weights({"wink": 1.0})
+
+
+# ------------------------------------------------------------------ landmarks
+
+@pytest.mark.parametrize("res", ["low", "high", "full"])
+def test_landmark_order_and_count(res):
+    e = geo.build_eyeball(P, res)
+    for key, radius in (("iris", P.iris_radius), ("pupil", P.pupil_radius)):
+        idx = e.landmarks[key]
+        assert idx.shape == (8,) and len(set(idx.tolist())) == 8
+        pts = e.inner.V[idx]
+        ang = np.degrees(np.arctan2(pts[:, 1], pts[:, 0])) % 360
+        assert np.allclose(ang, 45.0 * np.arange(8), atol=1e-6)     # start +X, counter-clockwise
+        assert np.allclose(np.hypot(pts[:, 0], pts[:, 1]), radius)
+
+
+def test_landmarks_follow_blend_shapes():
+    e = geo.build_eyeball(P, "high")
+    Vp = geo.apply_blend_shapes(e.inner.V, e.shapes, {"pupil_dilate": 1, "iris_large": 1})
+    assert np.allclose(np.hypot(*Vp[e.landmarks["pupil"], :2].T), 4.0)
+    assert np.allclose(np.hypot(*Vp[e.landmarks["iris"], :2].T), 6.49)
+
+
+def test_bad_parameters_refused():
+    with pytest.raises(ValueError, match="multiple of 8"):
+        geo.Resolution(n_around=30)
+    with pytest.raises(ValueError, match="unknown resolution"):
+        geo.Resolution.preset("ultra")
+    with pytest.raises(ValueError, match="apex"):
+        geo.EyeballParams(apex=11.0)
+    with pytest.raises(ValueError):
+        geo.EyeballParams(pupil_dilated_mm=6.0)
+    with pytest.raises(ValueError):
+        geo.EyeballParams(r1=float("nan"))
+
+
+def test_tiny_and_huge_eyes_scale_cleanly():
+    e = geo.build_eyeball(geo.EyeballParams(r1=1.2, r2=0.8, apex=1.35, seam_blend_mm=0.1, gap=0.05,
+                                            iris_radius=0.59, pupil_radius=0.2, pupil_dilated_mm=0.4,
+                                            pupil_constricted_mm=0.1), "low")
+    assert geo.mesh_edges_manifold(e.outer.F)[0] and geo.mesh_edges_manifold(e.inner.F)[0]
+    big = geo.EyeballParams(r1=1200, r2=800, apex=1350, seam_blend_mm=100, gap=50, iris_radius=590,
+                            pupil_radius=200, pupil_dilated_mm=400, pupil_constricted_mm=100)
+    e2 = geo.build_eyeball(big, "low")
+    assert np.allclose(e2.outer.V, 100 * geo.build_eyeball(P, "low").outer.V, rtol=1e-9, atol=1e-7)
+
+
+# ------------------------------------------------------------------ textures
+
+def test_iris_textures_deterministic_distinct_and_structured():
+    imgs = {c: tex.iris_texture(c, 256, seed=3) for c in tex.IRIS_COLORS}
+    assert np.array_equal(imgs["blue"], tex.iris_texture("blue", 256, seed=3))
+    assert not np.array_equal(imgs["blue"], tex.iris_texture("blue", 256, seed=4))
+    n = 256
+    c = (np.arange(n) + 0.5) / n * 2 - 1
+    X, Y = np.meshgrid(c, -c)                                        # image rows top = +v
+    r = np.hypot(X, Y)
+    t = (r - geo.IRIS_TEXTURE_PUPIL_FRACTION) / (geo.IRIS_TEXTURE_IRIS_FRACTION
+                                                 - geo.IRIS_TEXTURE_PUPIL_FRACTION)
+    means = {}
+    for col, im in imgs.items():
+        lum = im.mean(-1)
+        assert lum[r < geo.IRIS_TEXTURE_PUPIL_FRACTION - 0.02].max() < 0.02    # black pupil
+        mid = lum[(t > 0.4) & (t < 0.6)].mean()
+        assert lum[(t > 0.93) & (t < 1.0)].mean() < 0.6 * mid                   # darker limbal ring
+        ring = (t > 0.5) & (t < 0.55)
+        assert lum[ring].std() > 0.1 * lum[ring].mean()                        # fibres / crypts
+        means[col] = im[(t > 0.3) & (t < 0.8)].mean(0)
+    assert means["blue"][2] > means["blue"][0]                                 # blue is blue
+    assert means["brown"].mean() < means["amber"].mean()                       # brown darker
+    assert means["amber"][0] > means["amber"][2] * 2                           # amber warm
+    assert np.ptp(means["grey"]) < 0.1                                         # grey neutral
+    for a, b in itertools.combinations(tex.IRIS_COLORS, 2):
+        assert np.abs(means[a] - means[b]).max() > 0.05
+
+
+def test_sclera_textures():
+    bs = tex.sclera_texture("bloodshot", 256, 128, seed=1)
+    cl = tex.sclera_texture("clear", 256, 128, seed=1)
+    redness = lambda im: (im[..., 0] - im[..., 1]).mean()  # noqa: E731
+    assert redness(bs) > redness(cl) + 0.01
+    assert cl.mean() > 0.8
+    with pytest.raises(ValueError):
+        tex.sclera_texture("green")
+    with pytest.raises(ValueError):
+        tex.iris_texture("violet")
+
+
+# ------------------------------------------------------------------ USD asset
+
+@pytest.fixture(scope="module")
+def asset(tmp_path_factory):
+    from PIL import Image
+
+    from pipeline.usd.eyeball import write_eyeball_usd
+
+    d = tmp_path_factory.mktemp("eyeball")
+    e = geo.build_eyeball(P, "medium")
+    (d / "textures").mkdir()
+    for name, img in tex.texture_set(0, 64, (64, 32)).items():
+        Image.fromarray(img).save(d / "textures" / name)
+    return write_eyeball_usd(e, d / "eyeball.usda"), e
+
+
+def test_usd_asset_contents(asset):
+    from pxr import Kind, Usd, UsdGeom, UsdShade, UsdSkel
+
+    from pipeline.usd.validate import validate_stage
+
+    path, e = asset
+    assert validate_stage(path) == []
+    st = Usd.Stage.Open(str(path))
+    root = st.GetDefaultPrim()
+    assert root.GetPath().pathString == "/Eyeball"
+    assert Usd.ModelAPI(root).GetKind() == Kind.Tokens.component
+    assert UsdGeom.GetStageMetersPerUnit(st) == 0.001 and UsdGeom.GetStageUpAxis(st) == "Y"
+    outer, inner = UsdGeom.Mesh.Get(st, "/Eyeball/Outer"), UsdGeom.Mesh.Get(st, "/Eyeball/Inner")
+    assert outer and inner
+    assert np.allclose(np.asarray(inner.GetPointsAttr().Get()), e.inner.V, atol=1e-5)
+    pts = np.asarray(outer.GetPointsAttr().Get())
+    assert pts[:, 2].max() == pytest.approx(13.5, abs=1e-5)          # still looking down +Z
+    api = UsdSkel.BindingAPI(inner.GetPrim())
+    assert list(api.GetBlendShapesAttr().Get()) == list(geo.SHAPE_NAMES)
+    for s in e.shapes:
+        bs = UsdSkel.BlendShape(st.GetPrimAtPath(f"/Eyeball/Inner/{s.name}"))
+        assert np.array_equal(np.asarray(bs.GetPointIndicesAttr().Get()), s.point_indices)
+        assert np.allclose(np.asarray(bs.GetOffsetsAttr().Get()), s.offsets, atol=1e-5)
+    for key in ("iris", "pupil"):
+        a = inner.GetPrim().GetAttribute(f"eyerig:landmarks:{key}")
+        assert list(a.Get()) == e.landmarks[key].tolist()
+        assert "counter-clockwise" in a.GetDocumentation()
+    ior = UsdShade.Shader(st.GetPrimAtPath("/Eyeball/Materials/Cornea/PreviewSurface"))
+    assert ior.GetInput("ior").Get() == pytest.approx(1.376)
+    assert ior.GetInput("opacity").Get() < 0.2
+    vsets = root.GetVariantSets()
+    assert set(vsets.GetNames()) == {"irisColor", "scleraTint", "veins"}
+    assert set(vsets.GetVariantSet("irisColor").GetVariantNames()) == set(tex.IRIS_COLORS)
+    assert set(vsets.GetVariantSet("scleraTint").GetVariantNames()) == set(tex.SCLERA_TINTS)
+    assert set(vsets.GetVariantSet("veins").GetVariantNames()) == set(tex.VEINS)
+    # switching a variant switches the bound texture
+    texs = UsdShade.Shader(st.GetPrimAtPath("/Eyeball/Materials/Iris/DiffuseTexture"))
+    for c in tex.IRIS_COLORS:
+        vsets.GetVariantSet("irisColor").SetVariantSelection(c)
+        f = texs.GetInput("file").Get()
+        assert f.path.endswith(f"iris_{c}.png") and f.resolvedPath
+    vsets.GetVariantSet("scleraTint").SetVariantSelection("yellow")
+    sc = UsdShade.Shader(st.GetPrimAtPath("/Eyeball/Materials/Sclera/DiffuseTexture"))
+    assert tuple(sc.GetInput("scale").Get())[:3] == pytest.approx(tex.SCLERA_TINTS["yellow"])
+    assert validate_stage(st) == []
+    # every face has a material
+    sub = UsdShade.MaterialBindingAPI(inner.GetPrim()).GetMaterialBindSubsets()
+    assert sorted(len(s.GetIndicesAttr().Get()) for s in sub) and \
+        sum(len(s.GetIndicesAttr().Get()) for s in sub) == len(e.inner.poly_counts)
+
+
+def test_stage_cli_builds_asset_without_preview(tmp_path):
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    params = tmp_path / "params.yaml"
+    params.write_text("eyeball:\n  resolution: low\n  iris_texture_px: 64\n"
+                      "  sclera_texture_px: [64, 32]\n  preview: false\n")
+    out = tmp_path / "rigged_assets" / "eyeball"
+    res = subprocess.run([sys.executable, "-m", "stages.eyeball", str(out), "--params", str(params),
+                          "--metrics", str(tmp_path / "m.json")], cwd=root, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["validation_errors"] == 0 and m["outer_vertices"] == 338
+    assert (out / "eyeball.usda").is_file() and len(list((out / "textures").glob("*.png"))) == 6
+    assert not any(p.name.startswith(".eyeball.tmp") for p in out.parent.iterdir())
+    assert math.isfinite(m["wall_time_s"])
