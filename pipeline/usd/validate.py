@@ -10,7 +10,7 @@ those validators miss:
   primvar element counts against their interpolation;
 - every mesh with SkelBindingAPI: ``skel:blendShapes`` and
   ``skel:blendShapeTargets`` of equal length, each target a UsdSkel.BlendShape;
-  ``UsdSkel.BlendShape.ValidatePointIndices``; offsets (and every inbetween's)
+  ``UsdSkel.BlendShape.ValidatePointIndices`` and no duplicate indices; offsets (and every inbetween's)
   count == pointIndices count (== point count without indices); finite offsets;
 - every bound material exists and has a surface output.
 
@@ -126,6 +126,9 @@ def _blend_shape_checks(stage, mesh, n_points, errors):
             ok, why = bs.ValidatePointIndices(ind, n_points)
             if not ok:
                 errors.append(f"{t}: bad pointIndices: {why}")
+            ia = np.asarray(ind, np.int64)
+            if len(np.unique(ia)) != len(ia):
+                errors.append(f"{t}: pointIndices has {len(ia) - len(np.unique(ia))} duplicate(s)")
             expect = len(ind)
         else:
             expect = n_points

@@ -1,0 +1,139 @@
+"""The reusable USD validator catches deliberately broken assets."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.eyeball import geometry as geo
+from pipeline.usd.validate import validate_stage, validate_stage_report
+
+
+@pytest.fixture()
+def good(tmp_path):
+    from pipeline.usd.eyeball import write_eyeball_usd
+
+    from PIL import Image
+
+    from pipeline.eyeball import textures as tex
+
+    (tmp_path / "textures").mkdir()
+    for name, img in tex.texture_set(0, 32, (32, 16)).items():
+        Image.fromarray(img).save(tmp_path / "textures" / name)
+    return write_eyeball_usd(geo.build_eyeball(resolution="low"), tmp_path / "eyeball.usda")
+
+
+def _open(path):
+    from pxr import Usd
+
+    return Usd.Stage.Open(str(path))
+
+
+def test_good_asset_has_no_errors(good):
+    rep = validate_stage_report(good)
+    assert rep["errors"] == []
+    assert rep["meshes"] == 2 and rep["blend_shapes"] == 4
+
+
+def test_wrong_point_indices(good):
+    from pxr import UsdSkel
+
+    st = _open(good)
+    bs = UsdSkel.BlendShape(st.GetPrimAtPath("/Eyeball/Inner/pupil_dilate"))
+    idx = list(bs.GetPointIndicesAttr().Get())
+    idx[3] = 10 ** 6                                       # out of range
+    bs.GetPointIndicesAttr().Set(idx)
+    errs = validate_stage(st)
+    assert any("pupil_dilate" in e and "pointIndices" in e for e in errs), errs
+    idx[3] = idx[4]                                        # duplicate index
+    bs.GetPointIndicesAttr().Set(idx)
+    assert any("pupil_dilate" in e for e in validate_stage(st))
+
+
+def test_nan_point(good):
+    from pxr import UsdGeom
+
+    st = _open(good)
+    m = UsdGeom.Mesh(st.GetPrimAtPath("/Eyeball/Outer"))
+    pts = np.array(m.GetPointsAttr().Get())
+    pts[5, 1] = np.nan
+    m.GetPointsAttr().Set(pts.astype(np.float32))
+    errs = validate_stage(st)
+    assert any("/Eyeball/Outer" in e and "not finite" in e for e in errs), errs
+
+
+def test_mismatched_offsets(good):
+    from pxr import UsdSkel
+
+    st = _open(good)
+    bs = UsdSkel.BlendShape(st.GetPrimAtPath("/Eyeball/Inner/iris_large"))
+    off = np.array(bs.GetOffsetsAttr().Get())
+    bs.GetOffsetsAttr().Set(off[:-2])
+    errs = validate_stage(st)
+    assert any("iris_large" in e and "offsets" in e for e in errs), errs
+
+
+def test_nan_offset_and_dangling_target(good):
+    from pxr import Sdf, UsdSkel
+
+    st = _open(good)
+    bs = UsdSkel.BlendShape(st.GetPrimAtPath("/Eyeball/Inner/iris_small"))
+    off = np.array(bs.GetOffsetsAttr().Get())
+    off[0, 0] = np.inf
+    bs.GetOffsetsAttr().Set(off)
+    api = UsdSkel.BindingAPI(st.GetPrimAtPath("/Eyeball/Inner"))
+    api.GetBlendShapeTargetsRel().AddTarget(Sdf.Path("/Eyeball/Nowhere"))
+    errs = validate_stage(st)
+    assert any("iris_small" in e and "not finite" in e for e in errs)
+    assert any("skel:blendShapeTargets" in e for e in errs)
+
+
+def test_bad_topology(good):
+    from pxr import UsdGeom
+
+    st = _open(good)
+    m = UsdGeom.Mesh(st.GetPrimAtPath("/Eyeball/Inner"))
+    idx = list(m.GetFaceVertexIndicesAttr().Get())
+    idx[0] = -1
+    m.GetFaceVertexIndicesAttr().Set(idx)
+    assert any("topology" in e for e in validate_stage(st))
+    counts = list(m.GetFaceVertexCountsAttr().Get())
+    counts[0] += 1
+    m.GetFaceVertexCountsAttr().Set(counts)
+    assert any("topology" in e for e in validate_stage(st))
+
+
+def test_primvar_count_and_stage_metadata(good):
+    from pxr import UsdGeom
+
+    st = _open(good)
+    m = UsdGeom.Mesh(st.GetPrimAtPath("/Eyeball/Inner"))
+    pv = UsdGeom.PrimvarsAPI(m).GetPrimvar("st")
+    pv.SetIndices(list(pv.GetIndices())[:-3])
+    UsdGeom.SetStageMetersPerUnit(st, 1.0)
+    UsdGeom.SetStageUpAxis(st, UsdGeom.Tokens.z)
+    errs = validate_stage(st)
+    assert any("primvar st" in e for e in errs)
+    assert any("metersPerUnit" in e for e in errs)
+    assert any("upAxis" in e for e in errs)
+    assert not any("metersPerUnit" in e for e in validate_stage(st, meters_per_unit=None, up_axis=None))
+
+
+def test_missing_material_and_default_prim(good):
+    st = _open(good)
+    st.RemovePrim("/Eyeball/Materials/Pupil")
+    st.ClearDefaultPrim()
+    errs = validate_stage(st)
+    assert any("default prim" in e for e in errs)
+    assert any("Pupil" in e for e in errs)
+
+
+def test_unreadable_file(tmp_path):
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\n( this is not usd")
+    errs = validate_stage(bad)
+    assert len(errs) == 1 and "cannot be opened" in errs[0]
+    assert "cannot be opened" in validate_stage(tmp_path / "missing.usda")[0]
+    assert math.isfinite(len(errs))
