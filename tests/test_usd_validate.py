@@ -137,3 +137,13 @@ def test_unreadable_file(tmp_path):
     assert len(errs) == 1 and "cannot be opened" in errs[0]
     assert "cannot be opened" in validate_stage(tmp_path / "missing.usda")[0]
     assert math.isfinite(len(errs))
+
+
+def test_missing_texture(good):
+    st = _open(good)
+    (good.parent / "textures" / "iris_brown.png").unlink()   # the default irisColor variant
+    errs = validate_stage(good)
+    assert any("iris_brown.png" in e and "does not resolve" in e for e in errs), errs
+    # UsdValidation's dependency check also sees files of variants that are not selected
+    st.GetDefaultPrim().GetVariantSets().GetVariantSet("irisColor").SetVariantSelection("blue")
+    assert any("iris_brown.png" in e for e in validate_stage(st))

@@ -117,15 +117,25 @@ def iris_texture(color: str, size: int = 512, seed: int = 0) -> np.ndarray:
     col = col + 0.18 * ridge[..., None] * (light - dark)[None, None]
 
     # crypts: dark radially elongated blobs near the collarette and in the ciliary zone
-    crypt = np.zeros_like(t)
+    # (drawn on a polar grid, then sampled: cheap and seamless across the angle wrap)
+    na, nt = 1024, 128
+    ga = (np.arange(na) + 0.5) / na
+    gt = np.linspace(0, 1, nt)
+    grid = np.zeros((na, nt))
     n_crypts = int(rng.integers(28, 44))
     ca = rng.random(n_crypts)
     ct = np.clip(rng.normal(0.45, 0.14, n_crypts), 0.2, 0.85)
     for a0, t0 in zip(ca, ct):
         wa = rng.uniform(0.004, 0.012)
         wt = rng.uniform(0.03, 0.08)
-        da = ((a_w - a0 + 0.5) % 1.0) - 0.5
-        crypt = np.maximum(crypt, np.exp(-(da / wa) ** 2 - ((t - t0) / wt) ** 2) * rng.uniform(0.5, 1.0))
+        amp = rng.uniform(0.5, 1.0)
+        ia = (np.arange(int(a0 * na - 3 * wa * na) - 1, int(a0 * na + 3 * wa * na) + 2)) % na
+        it = np.flatnonzero(np.abs(gt - t0) < 3 * wt)
+        da = ((ga[ia] - a0 + 0.5) % 1.0) - 0.5
+        blob = np.exp(-(da[:, None] / wa) ** 2 - ((gt[it][None, :] - t0) / wt) ** 2) * amp
+        sub = grid[np.ix_(ia, it)]
+        grid[np.ix_(ia, it)] = np.maximum(sub, blob)
+    crypt = _sample_polar(grid, a_w, t) * ((t >= 0) & (t <= 1))
     col = col * (1 - 0.6 * crypt[..., None]) + dark[None, None] * 0.35 * crypt[..., None]
 
     # contraction furrows: broken concentric darker rings in the ciliary zone

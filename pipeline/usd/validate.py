@@ -12,7 +12,9 @@ those validators miss:
   ``skel:blendShapeTargets`` of equal length, each target a UsdSkel.BlendShape;
   ``UsdSkel.BlendShape.ValidatePointIndices`` and no duplicate indices; offsets (and every inbetween's)
   count == pointIndices count (== point count without indices); finite offsets;
-- every bound material exists and has a surface output.
+- every bound material exists and has a surface output;
+- every asset-valued shader input (textures) resolves to an existing file
+  (for the current variant selections).
 
 An empty list means the asset is valid.
 """
@@ -166,6 +168,25 @@ def _material_checks(stage, errors):
                 errors.append(f"{t}: material has no connected surface output")
 
 
+def _asset_checks(stage, errors):
+    import os
+
+    from pxr import Sdf, UsdShade
+
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdShade.Shader):
+            continue
+        for inp in UsdShade.Shader(prim).GetInputs():
+            if inp.GetTypeName() != Sdf.ValueTypeNames.Asset:
+                continue
+            val = inp.Get()
+            if val is None or not val.path:
+                continue
+            if not val.resolvedPath or not os.path.isfile(val.resolvedPath):
+                errors.append(f"{prim.GetPath()}: inputs:{inp.GetBaseName()} @{val.path}@ does not resolve "
+                              "to an existing file")
+
+
 def validate_stage_report(path_or_stage, meters_per_unit: float | None = 0.001,
                           up_axis: str | None = "Y") -> dict:
     """Full report: ``{"errors": [...], "warnings": [...], "meshes": n, "blend_shapes": n}``."""
@@ -196,6 +217,7 @@ def validate_stage_report(path_or_stage, meters_per_unit: float | None = 0.001,
         elif prim.IsA(UsdSkel.BlendShape):
             n_bs += 1
     _material_checks(stage, errors)
+    _asset_checks(stage, errors)
     return {"errors": errors, "warnings": warnings, "meshes": n_mesh, "blend_shapes": n_bs}
 
 
