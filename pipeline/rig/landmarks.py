@@ -58,6 +58,8 @@ def eyeball_landmark_doc() -> dict:
     for k in doc:
         doc[k].update({"api": "pipeline.eyeball.geometry.landmark_indices(resolution)"
                               f"['{k}'] (inner mesh vertex indices)",
+                       "asset_attribute": f"rigged_assets/eyeball/eyeball.usda </Eyeball/Inner> "
+                                          f"eyerig:landmarks:{k}",
                        "order": f"azimuth {360 // n} deg * k from the eye's +X, {direction}"})
     return doc
 
