@@ -176,8 +176,31 @@ def check_mesh(V, F, area_tol=1e-10) -> MeshReport:
     )
 
 
+_TREES: list = []          # small cache of libigl AABB trees: [(key, V, F, tree)]
+
+
+def _tree(V, F):
+    """libigl AABB tree of (V, F), cached by content (a few trees are kept)."""
+    import hashlib
+
+    import igl
+
+    h = hashlib.blake2b(digest_size=16)
+    h.update(memoryview(V).cast("B"))
+    h.update(memoryview(F).cast("B"))
+    key = (V.shape, F.shape, h.hexdigest())
+    for k, v, f, t in _TREES:
+        if k == key:
+            return v, f, t
+    t = igl.AABB()
+    t.init(V, F)
+    _TREES.insert(0, (key, V, F, t))
+    del _TREES[4:]
+    return V, F, t
+
+
 def closest_points(P, V, F):
-    """Closest points on mesh (V, F) to points P.
+    """Closest points on mesh (V, F) to points P (libigl AABB tree, cached per mesh).
 
     Returns
     -------
@@ -185,11 +208,13 @@ def closest_points(P, V, F):
     face : (k,) int64 face index of the closest point
     C : (k, 3) float64 closest points
     """
-    import igl
-
-    P = np.ascontiguousarray(P, dtype=np.float64)
-    sq, fi, C = igl.point_mesh_squared_distance(
-        P, np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(F, dtype=np.int64))
+    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    if len(P) == 0:
+        return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    V, F, tree = _tree(V, F)
+    sq, fi, C = tree.squared_distance(V, F, P)
     return np.sqrt(np.maximum(sq, 0.0)), np.asarray(fi, dtype=np.int64), np.asarray(C)
 
 

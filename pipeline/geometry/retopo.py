@@ -493,11 +493,13 @@ def repair_flips(V, F, fixed, ref_V, ref_F, rounds=10):
     deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1)
     free = np.ones(len(V), dtype=bool)
     free[np.asarray(fixed, dtype=np.int64)] = False
+    last = None
     for _ in range(rounds):
         R = _reference_face_normals(V, F, ref_V, ref_F)
         bad = np.einsum("ij,ij->i", mc.face_normals(V, F), R) <= 0.05
-        if not bad.any():
+        if not bad.any() or (last is not None and bad.sum() >= last):
             break
+        last = int(bad.sum())
         mv = np.unique(F[bad])
         mv = mv[free[mv]]
         if len(mv) == 0:
