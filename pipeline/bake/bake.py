@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from pipeline.bake.raycast import DenseScene, cast_both_ways
-from pipeline.bake.uv import dilate, rasterize, sample_bilinear, unwrap
+from pipeline.bake.uv import dilate_many, rasterize, sample_bilinear, unwrap
 from pipeline.geometry import mesh_checks as mc
 
 
@@ -166,16 +166,16 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     disp_w = disp * w
     mask = np.zeros((res, res), dtype=bool)
     mask[rows, cols] = True
-    dimg = np.zeros((res, res))
+    dimg = np.zeros((res, res), dtype=np.float32)
     dimg[rows, cols] = disp_w
-    dimg, _ = dilate(dimg, mask, s.padding_texels)
     col = _dense_colour(dense, texture, hface, hbary)
     cimg = None
     if col is not None:
-        cimg = np.zeros((res, res, 3))
-        cimg[rows, cols] = col
-        cimg, _ = dilate(cimg, mask, s.padding_texels)
-        cimg = np.clip(np.round(cimg), 0, 255).astype(np.uint8)
+        cimg = np.zeros((res, res, 3), dtype=np.uint8)
+        cimg[rows, cols] = np.clip(np.round(col), 0, 255).astype(np.uint8)
+        (dimg, cimg), _ = dilate_many([dimg, cimg], mask, s.padding_texels)
+    else:
+        (dimg,), _ = dilate_many([dimg], mask, s.padding_texels)
     timings["maps_s"] = time.perf_counter() - t4
     timings["total_s"] = time.perf_counter() - t0
     metrics = {
@@ -190,7 +190,7 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
         "timings_s": {k: round(v, 4) for k, v in timings.items()},
         "time_s": round(timings["total_s"], 4),
     }
-    return BakeResult(UV, FUV, dimg.astype(np.float32), cimg, mask, metrics)
+    return BakeResult(UV, FUV, dimg, cimg, mask, metrics)
 
 
 def _barycentric(P, T):

@@ -112,6 +112,22 @@ def rasterize(UV, FUV, width, height):
     return rows[first], cols[first], face[first], bary[first]
 
 
+def dilate_many(images, mask, iterations):
+    """:func:`dilate` for several images sharing one mask (one distance transform)."""
+    from scipy import ndimage
+
+    mask = np.asarray(mask, dtype=bool)
+    out = [np.array(im, copy=True) for im in images]
+    if not mask.any() or iterations <= 0:
+        return out, mask.copy()
+    dist, (iy, ix) = ndimage.distance_transform_edt(~mask, return_indices=True)
+    grow = (~mask) & (dist <= iterations)
+    sy, sx = iy[grow], ix[grow]
+    for im in out:
+        im[grow] = im[sy, sx]
+    return out, mask | grow
+
+
 def dilate(img, mask, iterations):
     """Pad ``img`` past the edges of ``mask``: texels within ``iterations`` texels of the mask
     take the value of the nearest masked texel (Euclidean distance transform).
