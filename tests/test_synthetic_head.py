@@ -1,0 +1,290 @@
+"""Tests of the procedural synthetic head (pipeline/synthetic_head.py, stages/synthetic_head.py)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from pipeline.synthetic_head import grid_shape, make_synthetic_head, write_scan_folder
+
+SMALL = dict(texture_size=64)
+
+
+@pytest.fixture(scope="module")
+def head():
+    return make_synthetic_head(seed=7, target_triangles=100_000, texture_size=128)
+
+
+@pytest.fixture(scope="module")
+def head_clean():
+    """Same head without skin detail (for the detail amplitude)."""
+    return make_synthetic_head(seed=7, target_triangles=100_000, skin_detail=0.0, **SMALL)
+
+
+def _eye(gt, side):
+    e = gt["eyes"][side]
+    return (np.array(e["eyeball_sphere"]["center_mm"]), e["eyeball_sphere"]["radius_mm"],
+            np.array(e["cornea_sphere"]["center_mm"]), e["cornea_sphere"]["radius_mm"],
+            np.array(e["eyelid_margin"]["points_mm"]), e)
+
+
+def _inside_polygon(pts, poly):
+    """Even-odd point-in-polygon test in 2-D. pts (n, 2), poly (k, 2)."""
+    x, y = pts[:, 0:1], pts[:, 1:2]
+    x0, y0 = poly[:, 0], poly[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    cross = ((y0 > y) != (y1 > y)) & (x < (x1 - x0) * (y - y0) / (y1 - y0 + 1e-300) + x0)
+    return cross.sum(axis=1) % 2 == 1
+
+
+def _dist_to_polyline(pts, poly):
+    a, b = poly, np.roll(poly, -1, axis=0)
+    ab = b - a
+    t = np.clip(((pts[:, None, :] - a) * ab).sum(-1) / (ab * ab).sum(-1), 0, 1)
+    q = a + t[..., None] * ab
+    return np.linalg.norm(pts[:, None, :] - q, axis=-1).min(axis=1)
+
+
+def _opening_vertices(V, margin, center, radius, inset_mm):
+    """Vertices seen inside the eyelid margin (projected along Z), ``inset_mm`` away from it."""
+    near = np.where(np.linalg.norm(V - center, axis=1) < radius + 4.0)[0]
+    inside = _inside_polygon(V[near, :2], margin[:, :2])
+    far = _dist_to_polyline(V[near, :2], margin[:, :2]) > inset_mm
+    return near[inside & far]
+
+
+# ----------------------------------------------------------------------------- determinism, density
+
+def test_same_seed_identical_different_seed_differs():
+    a = make_synthetic_head(seed=3, target_triangles=10_000, **SMALL)
+    b = make_synthetic_head(seed=3, target_triangles=10_000, **SMALL)
+    c = make_synthetic_head(seed=4, target_triangles=10_000, **SMALL)
+    np.testing.assert_array_equal(a.V, b.V)
+    np.testing.assert_array_equal(a.F, b.F)
+    np.testing.assert_array_equal(a.texture, b.texture)
+    assert a.ground_truth == b.ground_truth
+    ra = a.ground_truth["eyes"]["left"]["eyeball_sphere"]["radius_mm"]
+    rc = c.ground_truth["eyes"]["left"]["eyeball_sphere"]["radius_mm"]
+    assert ra != rc
+    assert not np.allclose(a.V, c.V)
+
+
+def test_radius_range_over_seeds():
+    radii = [make_synthetic_head(seed=s, target_triangles=2_000, **SMALL).ground_truth["eyes"][side]
+             ["eyeball_sphere"]["radius_mm"] for s in range(4) for side in ("left", "right")]
+    assert all(11.0 <= r <= 13.5 for r in radii)
+    assert max(radii) - min(radii) > 0.5          # nothing downstream may assume 12 mm
+
+
+@pytest.mark.parametrize("target", [10_000, 100_000, 1_500_000])
+def test_density_control(target):
+    ny, nt = grid_shape(target)
+    assert abs(2 * (ny - 1) * (nt - 1) - target) < 0.02 * target
+    if target <= 100_000:
+        h = make_synthetic_head(seed=1, target_triangles=target, **SMALL)
+        assert abs(len(h.F) - target) < 0.02 * target
+        assert len(h.V) == ny * nt
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(ValueError, match="eye_shape"):
+        make_synthetic_head(eye_shape="squinty", target_triangles=2_000, **SMALL)
+    with pytest.raises(ValueError, match="target_triangles"):
+        make_synthetic_head(target_triangles=10, **SMALL)
+    with pytest.raises(ValueError, match="noise_mm"):
+        make_synthetic_head(noise_mm=-1.0, target_triangles=2_000, **SMALL)
+
+
+# ----------------------------------------------------------------------------- geometry
+
+def test_head_dimensions_and_frame(head):
+    V = head.V
+    ext = V.max(axis=0) - V.min(axis=0)
+    assert 140.0 <= ext[0] <= 170.0                # about 150 mm wide
+    assert ext[1] > 200.0                          # forehead to upper neck
+    gt = head.ground_truth
+    cl, cr = (np.array(gt["eyes"][s]["eyeball_sphere"]["center_mm"]) for s in ("left", "right"))
+    assert cl[0] > 0 > cr[0]                       # subject's left eye at +X
+    assert 60.0 <= np.linalg.norm(cl - cr) <= 66.0
+    for side in ("left", "right"):
+        g = np.array(gt["eyes"][side]["gaze_direction"])
+        assert g[2] > np.cos(np.deg2rad(5.0))      # gaze roughly +Z
+        apex = np.array(gt["eyes"][side]["corneal_apex_mm"])
+        c = np.array(gt["eyes"][side]["eyeball_sphere"]["center_mm"])
+        assert 12.5 <= np.linalg.norm(apex - c) <= 15.0
+        # the nose tip sticks out in front of the corneas
+    assert V[:, 2].max() > max(gt["eyes"][s]["corneal_apex_mm"][2] for s in ("left", "right")) + 15.0
+
+
+def test_eyeball_vertices_lie_on_ground_truth_spheres(head):
+    for side in ("left", "right"):
+        c, r, cc, rc, margin, _ = _eye(head.ground_truth, side)
+        idx = _opening_vertices(head.V, margin, c, r, inset_mm=1.5)
+        assert len(idx) > 40
+        P = head.V[idx]
+        ds = np.abs(np.linalg.norm(P - c, axis=1) - r)
+        dc = np.abs(np.linalg.norm(P - cc, axis=1) - rc)
+        d = np.minimum(ds, dc)
+        assert d.max() < 0.15                      # only the smoothed sclera/cornea seam is off
+        assert np.mean(d < 1e-4) > 0.7            # the rest on a sphere (GT rounded to 1e-5 mm)
+        assert (ds < 1e-4).sum() > 10 and (dc < 1e-4).sum() > 10   # both sclera and cornea seen
+
+
+def test_eyelid_margin_on_eyeball_ordered_and_closed(head):
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        c, r, cc, rc, margin, e = _eye(head.ground_truth, side)
+        m = e["eyelid_margin"]
+        assert m["closed"] and m["medial_canthus_index"] == 0
+        k = m["lateral_canthus_index"]
+        lat = sign * (margin[:, 0] - c[0])
+        assert np.argmin(lat) == 0 and np.argmax(lat) == k
+        assert margin[1:k, 1].mean() > margin[k + 1:, 1].mean()   # upper lid first
+        seg = np.linalg.norm(np.diff(np.vstack([margin, margin[:1]]), axis=0), axis=1)
+        assert seg.max() < 0.05 * seg.sum()        # closed, no jumps (incl. last -> first)
+        # on the eyeball sphere: exactly where the margin runs over sclera, within 1 mm where it
+        # crosses the corneal bulge (as a real lid over the upper cornea does)
+        d = np.linalg.norm(margin - c, axis=1) - r
+        g = np.array(e["gaze_direction"])
+        ang = np.degrees(np.arccos(((margin - c) / np.linalg.norm(margin - c, axis=1)[:, None]) @ g))
+        sclera = ang > e["limbus_half_angle_deg"] + 4.0
+        assert sclera.mean() > 0.6
+        assert np.abs(d[sclera]).max() < 0.01
+        assert np.abs(d).max() < 1.0
+        assert d.min() > -0.02                     # never inside the eyeball
+        # realistic opening: width along the surface ~25-32 mm, height 9-12 mm (round)
+        assert 8.5 <= m["height_mm"] <= 12.0
+        up = margin[:k + 1]
+        arc = np.linalg.norm(np.diff(up, axis=0), axis=1).sum()
+        assert 24.0 <= arc <= 34.0
+        # hint within ~2 mm of the opening centre, which lies on the eyeball sphere
+        o = np.array(e["eye_opening_center_mm"])
+        assert abs(np.linalg.norm(o - c) - r) < 1e-4
+        assert abs(np.linalg.norm(np.array(head.hints[side]) - o) - 2.0) < 1e-3
+
+
+def test_lids_fused_with_eyeball_single_surface(head):
+    V, F = head.V, head.F
+    n = len(V)
+    e = np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    ncomp, _ = connected_components(adj, directed=False)
+    assert ncomp == 1
+    es = np.sort(e, axis=1)
+    uniq, counts = np.unique(es, axis=0, return_counts=True)
+    assert counts.max() == 2                       # manifold
+    boundary = uniq[counts == 1]
+    bverts = np.unique(boundary)
+    for side in ("left", "right"):
+        c = np.array(head.ground_truth["eyes"][side]["eyeball_sphere"]["center_mm"])
+        assert np.linalg.norm(V[bverts] - c, axis=1).min() > 20.0   # no hole near the eye
+    # consistent outward winding: face normals in the eye opening point forward
+    nrm = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    c = np.array(head.ground_truth["eyes"]["left"]["corneal_apex_mm"])
+    near = np.linalg.norm(V[F].mean(axis=1) - c, axis=1) < 3.0
+    assert (nrm[near, 2] > 0).all()
+
+
+def test_hooded_eyes_have_smaller_opening():
+    kw = dict(seed=5, target_triangles=20_000, **SMALL)
+    rnd = make_synthetic_head(eye_shape="round", **kw).ground_truth
+    hood = make_synthetic_head(eye_shape="hooded", **kw).ground_truth
+    for side in ("left", "right"):
+        hr = rnd["eyes"][side]["eyelid_margin"]["height_mm"]
+        hh = hood["eyes"][side]["eyelid_margin"]["height_mm"]
+        assert hh < hr - 1.0
+    assert hood["eye_shape"] == "hooded" and hood["eye_shape_params"]["hoodedness"] == 1.0
+
+
+def test_eye_spacing_parameter():
+    gt = make_synthetic_head(eye_spacing_mm=60.0, target_triangles=2_000, **SMALL).ground_truth
+    cl, cr = (np.array(gt["eyes"][s]["eyeball_sphere"]["center_mm"]) for s in ("left", "right"))
+    assert abs(cl[0] - cr[0] - 60.0) < 0.7
+
+
+def test_noise_along_normals():
+    kw = dict(seed=2, target_triangles=20_000, **SMALL)
+    a = make_synthetic_head(noise_mm=0.0, **kw)
+    b = make_synthetic_head(noise_mm=0.1, **kw)
+    d = np.linalg.norm(b.V - a.V, axis=1)
+    assert 0.08 < np.sqrt(np.mean(d ** 2)) < 0.12
+    assert a.ground_truth["eyes"] == b.ground_truth["eyes"]   # GT describes the noise-free surface
+
+
+def test_skin_detail_amplitude_and_none_on_eyeball(head, head_clean):
+    d = head.V - head_clean.V
+    amp = np.linalg.norm(d, axis=1)
+    assert 0.05 <= amp.max() <= 0.5
+    assert 0.05 <= head.ground_truth["skin_detail_amplitude_mm"] <= 0.5
+    assert head_clean.ground_truth["skin_detail_amplitude_mm"] == 0.0
+    assert np.mean(amp > 0.02) > 0.05              # detail is widespread, not a few spikes
+    for side in ("left", "right"):
+        c, r, _, _, margin, _ = _eye(head.ground_truth, side)
+        idx = _opening_vertices(head.V, margin, c, r, inset_mm=0.3)
+        assert amp[idx].max() == 0.0               # no skin detail on the eyeball
+
+
+# ----------------------------------------------------------------------------- texture, UVs, files
+
+def test_texture_and_uvs(head):
+    assert head.texture.shape == (128, 128, 3) and head.texture.dtype == np.uint8
+    assert head.UV.shape == (len(head.V), 2)
+    assert head.UV.min() >= 0.0 and head.UV.max() <= 1.0
+    # the texel under the left corneal apex is dark (iris/pupil); sclera near the lateral corner bright
+    tex = make_synthetic_head(seed=7, target_triangles=100_000, texture_size=512).texture
+    gt = head.ground_truth["eyes"]["left"]
+    apex = np.array(gt["corneal_apex_mm"])
+    i = np.argmin(np.linalg.norm(head.V - apex, axis=1))
+    u, v = head.UV[i]
+    pix = tex[int((1 - v) * 512), int(u * 512)].astype(float)
+    assert pix.mean() < 110
+    assert tex.reshape(-1, 3).std(axis=0).min() > 5    # not a flat colour
+
+
+def test_write_scan_folder_reloads(tmp_path, head):
+    import trimesh
+
+    from pipeline.io.scan import read_sidecar
+
+    write_scan_folder(head, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ground_truth.json", "scan.ply", "scan.yaml",
+                                                          "texture.png"]
+    raw = (tmp_path / "scan.ply").read_bytes()
+    assert b"format binary_little_endian 1.0" in raw[:200] and b"property float s" in raw[:400]
+    m = trimesh.load(tmp_path / "scan.ply", process=False)
+    assert len(m.vertices) == len(head.V) and len(m.faces) == len(head.F)
+    assert np.isfinite(m.vertices).all() and m.faces.min() >= 0 and m.faces.max() < len(m.vertices)
+    np.testing.assert_allclose(m.vertices, head.V, atol=1e-4 * np.abs(head.V).max())
+    np.testing.assert_allclose(m.visual.uv, head.UV, atol=1e-6)
+    assert m.visual.material.image.size == (128, 128)
+    spec = yaml.safe_load((tmp_path / "scan.yaml").read_text())
+    assert spec["units"] == "mm" and spec["up_axis"] == "+Y" and spec["forward_axis"] == "+Z"
+    assert spec["texture"] == "texture.png" and "CC0" in spec["licence"]
+    sc = read_sidecar(tmp_path)                    # the project's own validation of scan.yaml
+    assert sc is not None
+    gt = json.loads((tmp_path / "ground_truth.json").read_text())
+    assert gt["units"] == "mm" and gt["seed"] == 7
+    for side in ("left", "right"):
+        e = gt["eyes"][side]
+        for key in ("eyeball_sphere", "cornea_sphere", "corneal_apex_mm", "gaze_direction",
+                    "eye_opening_center_mm", "eyelid_margin"):
+            assert key in e
+        np.testing.assert_allclose(spec["eyes"][side]["hint"], head.hints[side], atol=1e-3)
+
+
+def test_stage_writes_folder_and_metrics(tmp_path):
+    from stages.synthetic_head import main
+
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"synthetic_head": {"seed": 11, "target_triangles": 20_000,
+                                                         "texture_size": 64, "noise_mm": 0.02}}))
+    out = tmp_path / "raw_scans" / "synthetic_head"
+    metrics = main([str(out), "--params", str(params), "--metrics", str(tmp_path / "m.json")])
+    assert (out / "scan.ply").is_file() and (out / "ground_truth.json").is_file()
+    assert abs(metrics["n_faces"] - 20_000) < 400 and metrics["texture_size"] == 64
+    assert str(metrics["_path"]).endswith("m.json")
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]   # no temp left
