@@ -3,7 +3,7 @@
     python -m stages.eyeball rigged_assets/eyeball --metrics build/eyeball.metrics.json
 
 Builds the eyeball (pipeline/eyeball), writes ``eyeball.usda`` and
-``textures/*.png`` (4 iris colours, 2 veins layers), validates the asset
+``textures/*.png`` (4 iris colours, 2 veins layers, sclera bump height + normal map), validates the asset
 (pipeline/usd/validate.py; any error fails the stage), and, unless
 ``preview: false``, renders ``preview.png`` (Cycles contact sheet) in a Blender
 worker subprocess. Settings: the ``eyeball:`` block of params.yaml.
@@ -36,7 +36,7 @@ def build_asset(folder: Path, params: dict) -> dict:
     t1 = time.perf_counter()
     (folder / "textures").mkdir(parents=True, exist_ok=True)
     images = tex.texture_set(int(params.get("texture_seed", 0)), int(params.get("iris_texture_px", 512)),
-                             tuple(params.get("sclera_texture_px", [1024, 512])))
+                             tuple(params.get("sclera_texture_px", [1024, 512])), p, eye.resolution)
     for name, img in images.items():
         Image.fromarray(img).save(folder / "textures" / name, optimize=False, compress_level=3)
     t_tex = time.perf_counter() - t1

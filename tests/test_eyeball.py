@@ -250,7 +250,7 @@ def asset(tmp_path_factory):
     d = tmp_path_factory.mktemp("eyeball")
     e = geo.build_eyeball(P, "medium")
     (d / "textures").mkdir()
-    for name, img in tex.texture_set(0, 64, (64, 32)).items():
+    for name, img in tex.texture_set(0, 64, (64, 32), resolution="medium").items():
         Image.fromarray(img).save(d / "textures" / name)
     return write_eyeball_usd(e, d / "eyeball.usda"), e
 
@@ -322,6 +322,38 @@ def test_stage_cli_builds_asset_without_preview(tmp_path):
     assert res.returncode == 0, res.stderr
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["validation_errors"] == 0 and m["outer_vertices"] == 338
-    assert (out / "eyeball.usda").is_file() and len(list((out / "textures").glob("*.png"))) == 6
+    assert (out / "eyeball.usda").is_file() and len(list((out / "textures").glob("*.png"))) == 8
     assert not any(p.name.startswith(".eyeball.tmp") for p in out.parent.iterdir())
     assert math.isfinite(m["wall_time_s"])
+
+
+def test_sclera_bump_maps_smooth_cornea_and_unit_normals():
+    res = geo.Resolution.preset("medium")
+    th = geo.outer_thetas(P, res)
+    args = (th, geo.limbus_theta(P), lambda t: geo.outer_radial(t, P))
+    h, n = tex.sclera_bump_maps(*args, size=(128, 64), seed=2)
+    h2, _ = tex.sclera_bump_maps(*args, size=(128, 64), seed=2)
+    assert np.array_equal(h, h2)
+    N = n * 2 - 1
+    assert np.allclose(np.linalg.norm(N, axis=-1), 1, atol=1e-5) and N[..., 2].min() > 0.9
+    # rows over the cornea (v near 1, image top) carry no bumps; the sclera does
+    rows = len(th) + 2
+    v = 1 - (np.arange(64) + 0.5) / 64
+    theta = np.interp((1 - v) * (rows - 1), np.arange(rows), np.concatenate([[0], th, [np.pi]]))
+    cornea = theta < geo.limbus_theta(P)
+    assert np.allclose(h[cornea], 0.5) and h[theta > geo.limbus_theta(P) + 0.2].std() > 0.02
+    a = tex.solid_noise(np.array([[1.0, 2.0, 3.0]]), seed=0)
+    b = tex.solid_noise(np.array([[1.01, 2.0, 3.0]]), seed=0)
+    assert abs(a - b).max() < 0.1                                 # smooth at 0.01 mm
+
+
+def test_usd_sclera_normal_map(asset):
+    from pxr import Usd, UsdShade
+
+    path, _ = asset
+    st = Usd.Stage.Open(str(path))
+    surf = UsdShade.Shader(st.GetPrimAtPath("/Eyeball/Materials/ScleraCoat/PreviewSurface"))
+    src = surf.GetInput("normal").GetConnectedSources()[0][0].source
+    nt = UsdShade.Shader(src.GetPrim())
+    assert nt.GetInput("file").Get().path.endswith("sclera_normal.png")
+    assert nt.GetInput("sourceColorSpace").Get() == "raw"

@@ -9,8 +9,9 @@ material-bind subsets: ``Cornea`` and ``ScleraCoat`` on the outer mesh,
   Shadow Ray" mix), the usual eye-shading shortcut that lets environment light
   reach the iris without refractive caustics (otherwise Cycles leaves the iris
   dark and noisy at low sample counts).
-- ScleraCoat: the same clear coat plus bumps from smoothed solid noise
-  (Noise Texture on object coordinates in mm, detail 2, through a Bump node).
+- ScleraCoat: the same clear coat plus bumps from smoothed solid noise: the
+  asset's ``sclera_bump.png`` height map (pipeline/eyeball/textures.py, the
+  same field as the USD normal map) through a Bump node.
 - Iris: Principled BSDF with the iris texture (UV map ``st``), roughness 0.55.
 - Pupil: near-black diffuse.
 - Sclera: sclera texture (veins layer) x tint colour (tint layer), roughness 0.4,
@@ -39,22 +40,23 @@ def _principled(nt, **inputs):
     return b
 
 
-def _coat(mat, bump_strength: float = 0.0, bump_scale: float = 0.35):
+def _coat(mat, bump_image=None, bump_distance_mm: float = 0.16, strength: float = 1.0):
     nt, out = _new_tree(mat)
     glass = _principled(nt, **{"Base Color": (1, 1, 1, 1), "Roughness": 0.0, "IOR": CORNEA_IOR,
                                "Transmission Weight": 1.0, "Metallic": 0.0})
-    if bump_strength > 0:
-        tc = nt.nodes.new("ShaderNodeTexCoord")
-        noise = nt.nodes.new("ShaderNodeTexNoise")
-        noise.noise_dimensions = "3D"
-        noise.inputs["Scale"].default_value = bump_scale     # object space (mm): ~3 mm features
-        noise.inputs["Detail"].default_value = 2.0
-        noise.inputs["Roughness"].default_value = 0.45
+    if bump_image is not None:
+        bump_image.colorspace_settings.name = "Non-Color"
+        uv = nt.nodes.new("ShaderNodeUVMap")
+        uv.uv_map = "st"
+        img = nt.nodes.new("ShaderNodeTexImage")
+        img.image = bump_image
+        img.interpolation = "Cubic"
         bump = nt.nodes.new("ShaderNodeBump")
-        bump.inputs["Strength"].default_value = bump_strength
-        bump.inputs["Distance"].default_value = 0.05
-        nt.links.new(tc.outputs["Object"], noise.inputs["Vector"])
-        nt.links.new(noise.outputs["Fac"], bump.inputs["Height"])
+        bump.inputs["Strength"].default_value = strength
+        # height texel 0..1 spans 8 noise amplitudes (textures.sclera_bump_maps); world units = metres
+        bump.inputs["Distance"].default_value = bump_distance_mm * 1e-3
+        nt.links.new(uv.outputs["UV"], img.inputs["Vector"])
+        nt.links.new(img.outputs["Color"], bump.inputs["Height"])
         nt.links.new(bump.outputs["Normal"], glass.inputs["Normal"])
     lp = nt.nodes.new("ShaderNodeLightPath")
     transp = nt.nodes.new("ShaderNodeBsdfTransparent")
@@ -98,7 +100,8 @@ def _pupil(mat):
     return mat
 
 
-def setup_eyeball_materials(objects, iris_image, sclera_image, tint=(1.0, 1.0, 1.0)) -> dict:
+def setup_eyeball_materials(objects, iris_image, sclera_image, tint=(1.0, 1.0, 1.0),
+                            bump_image=None) -> dict:
     """Replace the imported preview materials with the Cycles eyeball materials.
 
     Parameters
@@ -106,6 +109,7 @@ def setup_eyeball_materials(objects, iris_image, sclera_image, tint=(1.0, 1.0, 1
     objects : iterable of bpy mesh objects (the imported Outer and Inner)
     iris_image, sclera_image : bpy.types.Image
     tint : (3,) sclera tint colour
+    bump_image : bpy.types.Image, optional   the asset's ``sclera_bump.png`` (height)
 
     Returns
     -------
@@ -122,7 +126,7 @@ def setup_eyeball_materials(objects, iris_image, sclera_image, tint=(1.0, 1.0, 1
             if name == "Cornea":
                 _coat(m)
             elif name == "ScleraCoat":
-                _coat(m, bump_strength=0.25)
+                _coat(m, bump_image=bump_image)
             elif name == "Pupil":
                 _pupil(m)
             elif name == "Iris":

@@ -111,9 +111,10 @@ def render_sheet(asset: Path, out_png: Path, size: int = 160, samples: int = 16,
     tex_dir = asset.parent / "textures"
     iris_imgs = {c: bpy.data.images.load(str(tex_dir / f"iris_{c}.png")) for c in IRIS_COLORS}
     sclera_img = bpy.data.images.load(str(tex_dir / f"sclera_{veins}.png"))
-    for im in (*iris_imgs.values(), sclera_img):
+    bump_img = bpy.data.images.load(str(tex_dir / "sclera_bump.png"))
+    for im in (*iris_imgs.values(), sclera_img, bump_img):
         im.use_fake_user = True  # survive the orphan purge between renders
-    handles = setup_eyeball_materials(objs, iris_imgs["brown"], sclera_img, tint)
+    handles = setup_eyeball_materials(objs, iris_imgs["brown"], sclera_img, tint, bump_img)
     inner = next(o for o in objs if o.name.startswith("Inner"))
     keys = inner.data.shape_keys.key_blocks
     t_setup = time.perf_counter() - t0

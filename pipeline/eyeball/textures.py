@@ -255,9 +255,91 @@ def to_uint8(img: np.ndarray) -> np.ndarray:
     return np.clip(np.round(np.asarray(img) * 255.0), 0, 255).astype(np.uint8)
 
 
-def texture_set(seed: int = 0, iris_size: int = 512, sclera_size=(1024, 512)) -> dict[str, np.ndarray]:
-    """All texture images by file name (``iris_<colour>.png``, ``sclera_<veins>.png``), uint8."""
+def texture_set(seed: int = 0, iris_size: int = 512, sclera_size=(1024, 512), params=None,
+                resolution=None) -> dict[str, np.ndarray]:
+    """All texture images by file name, uint8 (``sclera_bump.png`` uint16).
+
+    ``iris_<colour>.png``, ``sclera_<veins>.png`` and the outer mesh's
+    ``sclera_bump.png`` (height) / ``sclera_normal.png`` (tangent-space normals)
+    for the given eyeball params and resolution (they follow the outer UVs).
+    """
+    from pipeline.eyeball import geometry as geo
+
     out = {f"iris_{c}.png": to_uint8(iris_texture(c, iris_size, seed)) for c in IRIS_COLORS}
     for v in VEINS:
         out[f"sclera_{v}.png"] = to_uint8(sclera_texture(v, sclera_size[0], sclera_size[1], seed))
+    p = params or geo.EyeballParams()
+    res = geo.Resolution.from_value(resolution or "high")
+    hgt, nrm = sclera_bump_maps(geo.outer_thetas(p, res), geo.limbus_theta(p),
+                                lambda th: geo.outer_radial(th, p), sclera_size, seed)
+    out["sclera_bump.png"] = np.round(hgt * 65535).astype(np.uint16)
+    out["sclera_normal.png"] = to_uint8(nrm)
     return out
+
+
+def solid_noise(points, seed: int = 0, feature_mm: float = 1.2, extent_mm: float = 16.0,
+                voxels: int = 48) -> np.ndarray:
+    """Smoothed solid (3-D) noise at ``points`` (n, 3) mm: zero mean, unit std, cubic interpolation.
+
+    A Gaussian-filtered random volume over [-extent, extent]^3 (sigma = ``feature_mm``).
+    """
+    from scipy.ndimage import gaussian_filter, map_coordinates
+
+    rng = np.random.default_rng([int(seed), 202])
+    vol = gaussian_filter(rng.standard_normal((voxels,) * 3), feature_mm / (2 * extent_mm / voxels),
+                          mode="wrap")
+    vol = (vol - vol.mean()) / (vol.std() + 1e-12)
+    P = np.asarray(points, float)
+    coords = ((P + extent_mm) / (2 * extent_mm) * voxels - 0.5).T
+    return map_coordinates(vol, coords, order=3, mode="grid-wrap")
+
+
+def sclera_bump_maps(outer_ring_thetas, limbus_theta: float, radial, size=(1024, 512), seed: int = 0,
+                     amplitude_mm: float = 0.02):
+    """Sclera bumps on the outer mesh UVs: height map and tangent-space normal map.
+
+    The outer mesh's UVs are u = azimuth / 2pi and v = 1 - row / (rows - 1),
+    row 0 = corneal apex, rows 1.. = rings at ``outer_ring_thetas``, last row
+    = back pole. Each texel is mapped back to its surface point, where the
+    solid noise is sampled; the bumps fade to 0 over the cornea (within 4 deg
+    of the limbus) so the cornea stays smooth.
+
+    Parameters
+    ----------
+    outer_ring_thetas : (k,) polar angles of the outer rings (geometry.outer_thetas)
+    limbus_theta : float (rad)
+    radial : callable theta -> radius (geometry.outer_radial with params bound)
+    size : (width, height)
+    amplitude_mm : height of one standard deviation of the noise
+
+    Returns
+    -------
+    height : (h, w) float32 in [0, 1] (0.5 = no displacement; value = 0.5 + h_mm / (8 amplitude))
+    normal : (h, w, 3) float32 in [0, 1], tangent space (+X = +u, +Y = +v, +Z = outward), encoded n/2 + 0.5
+    """
+    w, h = size
+    th_rows = np.concatenate([[0.0], np.asarray(outer_ring_thetas, float), [np.pi]])
+    rows = len(th_rows)
+    u = (np.arange(w) + 0.5) / w
+    v = 1 - (np.arange(h) + 0.5) / h                         # image row 0 = top = v 1
+    U, Vv = np.meshgrid(u, v)
+    th = np.interp((1 - Vv) * (rows - 1), np.arange(rows), th_rows)
+    phi = 2 * np.pi * U
+    R = radial(th)
+    P = np.stack([R * np.sin(th) * np.cos(phi), R * np.sin(th) * np.sin(phi), R * np.cos(th)], -1)
+    mask = np.clip((th - (limbus_theta + np.radians(1))) / np.radians(4), 0, 1)
+    mask = mask * mask * (3 - 2 * mask)
+    hmm = amplitude_mm * solid_noise(P.reshape(-1, 3), seed).reshape(h, w) * mask
+    # physical derivatives: d/du (columns, wrap) and d/dv (rows, v decreases down the image)
+    dPu = (np.roll(P, -1, 1) - np.roll(P, 1, 1))
+    dhu = (np.roll(hmm, -1, 1) - np.roll(hmm, 1, 1))
+    dPv = np.zeros_like(P)
+    dhv = np.zeros_like(hmm)
+    dPv[1:-1] = P[:-2] - P[2:]                                # toward +v
+    dhv[1:-1] = hmm[:-2] - hmm[2:]
+    lu = np.maximum(np.linalg.norm(dPu, axis=-1), 1e-9)
+    lv = np.maximum(np.linalg.norm(dPv, axis=-1), 1e-9)
+    n = np.stack([-dhu / lu, -dhv / lv, np.ones_like(hmm)], -1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    height = np.clip(0.5 + hmm / (8 * amplitude_mm), 0, 1)
+    return height.astype(np.float32), (n * 0.5 + 0.5).astype(np.float32)

@@ -10,6 +10,7 @@ millimetres, metersPerUnit 0.001, upAxis Y; the eye looks down +Z)::
         Inner                     Mesh: flattened sphere; subsets pupil, iris, sclera
             pupil_dilate ...      UsdSkel.BlendShape (4)
         Materials/Cornea, ScleraCoat, Iris, Pupil, Sclera   UsdPreviewSurface
+                                  (ScleraCoat: normal map of the sclera bumps)
 
 Landmarks are stored on ``Inner`` as ``int[] eyerig:landmarks:iris`` and
 ``int[] eyerig:landmarks:pupil`` (8 vertex indices each; order in their
@@ -33,7 +34,8 @@ DEFAULT_VARIANTS = {"irisColor": "brown", "scleraTint": "white", "veins": "clear
 def texture_names() -> dict:
     """Texture file names (relative to the asset folder) the asset refers to."""
     return {"iris": {c: f"textures/iris_{c}.png" for c in IRIS_COLORS},
-            "sclera": {v: f"textures/sclera_{v}.png" for v in VEINS}}
+            "sclera": {v: f"textures/sclera_{v}.png" for v in VEINS},
+            "sclera_bump": "textures/sclera_bump.png", "sclera_normal": "textures/sclera_normal.png"}
 
 
 def landmark_doc() -> str:
@@ -73,7 +75,8 @@ def write_eyeball_usd(eye: geo.Eyeball, path, defaults: dict | None = None) -> P
                                                clearcoat=1.0)
     mats["ScleraCoat"], _, _ = su.preview_material(stage, "/Eyeball/Materials/ScleraCoat",
                                                    diffuse=(0, 0, 0), roughness=0.05, opacity=0.05,
-                                                   ior=CORNEA_IOR, clearcoat=1.0)
+                                                   ior=CORNEA_IOR, clearcoat=1.0,
+                                                   normal_texture="./" + tex["sclera_normal"])
     mats["Pupil"], _, _ = su.preview_material(stage, "/Eyeball/Materials/Pupil", diffuse=(0.0, 0.0, 0.0),
                                               roughness=0.6)
     mats["Iris"], _, iris_tex = su.preview_material(stage, "/Eyeball/Materials/Iris", roughness=0.6,

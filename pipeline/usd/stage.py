@@ -166,7 +166,7 @@ def write_blend_shapes(mesh, shapes, inbetweens: dict | None = None):
 def preview_material(stage, path: str, *, diffuse=(0.8, 0.8, 0.8), roughness: float = 0.5,
                      metallic: float = 0.0, opacity: float = 1.0, ior: float = 1.5,
                      specular=None, clearcoat: float = 0.0, texture: str | None = None,
-                     texture_variants: bool = False, scale=None):
+                     texture_variants: bool = False, scale=None, normal_texture: str | None = None):
     """A UsdPreviewSurface material, optionally with a ``st``-mapped diffuse texture.
 
     Parameters
@@ -176,6 +176,8 @@ def preview_material(stage, path: str, *, diffuse=(0.8, 0.8, 0.8), roughness: fl
         the ``inputs:file`` is left unauthored so variants can set it.
     scale : (4,) float, optional
         UsdUVTexture ``scale`` (colour multiplier); variants may set it instead.
+    normal_texture : str, optional
+        Asset path of a tangent-space normal map (raw, encoded n/2 + 0.5) for ``inputs:normal``.
 
     Returns
     -------
@@ -217,6 +219,23 @@ def preview_material(stage, path: str, *, diffuse=(0.8, 0.8, 0.8), roughness: fl
             tex.ConnectableAPI(), "rgb")
     else:
         surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*diffuse))
+    if normal_texture is not None:
+        reader = UsdShade.Shader.Get(stage, path + "/stReader")
+        if not reader:
+            reader = UsdShade.Shader.Define(stage, path + "/stReader")
+            reader.CreateIdAttr("UsdPrimvarReader_float2")
+            reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        nt = UsdShade.Shader.Define(stage, path + "/NormalTexture")
+        nt.CreateIdAttr("UsdUVTexture")
+        nt.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(normal_texture))
+        nt.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
+        nt.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
+        nt.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
+        nt.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(2, 2, 2, 1))
+        nt.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(-1, -1, -1, 0))
+        nt.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        nt.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        surf.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(nt.ConnectableAPI(), "rgb")
     mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
     return mat, surf, tex
 
