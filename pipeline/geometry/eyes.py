@@ -1,0 +1,692 @@
+"""Find the scanned eyeballs, fit them, and cut them out of the head mesh.
+
+Method (per eye, see ``find_eye``):
+
+1. Local patch: faces within ``patch_radius_mm`` of the hint, connected to the face
+   nearest the hint.
+2. Sclera sphere: RANSAC over 4-point spheres drawn from vertices near the hint,
+   radius in ``radius_range_mm``, centre behind the hint; the score counts vertices
+   within ``inlier_tol_mm`` of the sphere and penalises vertices inside it (nothing
+   of the head lies inside the eyeball). The corneal bulge, the flattened cornea
+   footprint of scanners that see the iris, lids and lashes are all outliers.
+3. Refinement: robust geometric fit (soft-L1) on the inliers outside a cornea cap
+   of ``cornea_cap_deg`` around the forward axis, with a weak radius prior, iterated;
+   optionally both eyes share one radius (``fit_eye_pair``).
+4. Two-sphere model: a corneal sphere is fitted to the remaining bulge if there is
+   one; forward = centre -> corneal centre, else the normal of the cornea footprint,
+   else centre -> opening centroid.
+5. Removal region: faces whose vertices lie on the two-sphere eye surface (within
+   ``cut_tol_mm`` outside, ``inside_tol_mm`` inside), connected to the hint; islands
+   filled, notches/spikes/bow-ties cleaned so that its border is one simple loop.
+   An open eye has a crease there (lid skin rises steeply off the eyeball); no crease
+   means the eye is closed and is refused.
+6. Scans too coarse to show the eyeball geometrically (``james``) use the colour
+   texture instead: faces near the hint whose colour differs from the surrounding
+   skin form the opening; the sphere is fitted to that region with the radius prior.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.geometry import meshtopo
+from pipeline.geometry.spherefit import (fit_sphere_algebraic, ransac_sphere, refine_sphere,
+                                         signed_distance)
+
+SIDES = ("left", "right")
+
+
+@dataclass
+class EyeSettings:
+    """Parameters of eye finding and removal (``remove_eyeballs:`` block of params.yaml)."""
+
+    patch_radius_mm: float = 22.0
+    sample_radius_mm: float = 13.0
+    radius_range_mm: tuple = (10.0, 18.0)
+    radius_prior_mm: float = 12.0
+    radius_prior_sigma_mm: float = 3.0
+    inlier_tol_mm: float = 0.3
+    inside_tol_mm: float = 1.5
+    cut_tol_mm: float = 0.8
+    cornea_cap_deg: float = 35.0
+    ransac_iterations: int = 1500
+    min_inliers: int = 20
+    crease_margin_mm: float = 0.5
+    fit_iterations: int = 4
+    min_crease_deg: float = 20.0
+    shared_radius: bool = True
+    max_center_hint_distance_mm: float = 22.0
+    texture_fallback: bool = True
+    texture_min_contrast: float = 3.0
+    max_fit_rms_mm: float = 0.6
+    seed: int = 0
+
+    @classmethod
+    def from_params(cls, params: dict) -> "EyeSettings":
+        s = cls()
+        for k, v in (params or {}).items():
+            if hasattr(s, k):
+                setattr(s, k, tuple(v) if isinstance(v, list) else type(getattr(s, k))(v)
+                        if not isinstance(getattr(s, k), tuple) else tuple(v))
+        return s
+
+
+@dataclass
+class EyeFit:
+    """One fitted eye and its removal region.
+
+    Attributes
+    ----------
+    side : str
+    center : (3,) float64
+    radius : float
+    forward : (3,) float64 unit
+    residual_rms_mm : float
+        RMS distance of the sclera inliers to the sphere.
+    n_inliers : int
+    method : str
+        ``"geometry"`` or ``"texture"``.
+    region : (m,) bool
+        Faces to remove.
+    cornea : dict or None
+        ``{"center": (3,), "radius": r, "n_inliers": k}`` when a corneal bulge was fitted.
+    crease_deg : float
+        Median rise of the skin just outside the removal region (open-eye evidence).
+    """
+
+    side: str
+    center: np.ndarray
+    radius: float
+    forward: np.ndarray
+    residual_rms_mm: float
+    n_inliers: int
+    method: str
+    region: np.ndarray
+    cornea: dict | None = None
+    crease_deg: float = 0.0
+    capped: bool = False
+    inliers: np.ndarray = field(default=None, repr=False)
+
+
+def eye_basis(forward):
+    """(3, 3) rows e_x (horizontal, toward head +X), e_y (up), e_z (= forward)."""
+    f = np.asarray(forward, dtype=np.float64)
+    f = f / np.linalg.norm(f)
+    ex = np.cross([0.0, 1.0, 0.0], f)
+    ex /= np.linalg.norm(ex)
+    ey = np.cross(f, ex)
+    return np.stack([ex, ey, f])
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+class _Mesh:
+    """Adjacency cached once per mesh."""
+
+    def __init__(self, V, F):
+        self.V = np.asarray(V, dtype=np.float64)
+        self.F = np.asarray(F, dtype=np.int64)
+        self.pairs, self.pair_edges = meshtopo.face_adjacency(self.F, len(self.V))
+        self.centroids = self.V[self.F].mean(axis=1)
+        e = self.V[self.F[:, [1, 2, 0]]] - self.V[self.F]
+        self.median_edge = float(np.median(np.linalg.norm(e, axis=2)))
+
+    def neighbour_count(self, mask):
+        """Per face: number of edge-neighbours inside ``mask``."""
+        cnt = np.zeros(len(self.F), dtype=np.int64)
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        np.add.at(cnt, a, mask[b])
+        np.add.at(cnt, b, mask[a])
+        return cnt
+
+
+def _patch(mesh: _Mesh, hint, radius):
+    """Faces within ``radius`` of the hint, connected to the face nearest it: (m,) bool."""
+    d = np.linalg.norm(mesh.centroids - hint, axis=1)
+    near = d < radius
+    if not near.any():
+        return near
+    labels = meshtopo.face_components(len(mesh.F), mesh.pairs, near)
+    f0 = int(np.argmin(d))
+    return near & (labels == labels[f0])
+
+
+def _interior(mesh: _Mesh, region, vids, margin_mm):
+    """(len(vids),) bool: vertices of ``region`` farther than ``margin_mm`` from its border."""
+    from scipy.spatial import cKDTree
+
+    Vin = np.zeros(len(mesh.V), bool)
+    Vin[mesh.F[region].ravel()] = True
+    Vout = np.zeros(len(mesh.V), bool)
+    Vout[mesh.F[~region].ravel()] = True
+    border = np.where(Vin & Vout)[0]
+    ok = Vin[vids]
+    if len(border) and margin_mm > 0:
+        dist, _ = cKDTree(mesh.V[border]).query(mesh.V[vids])
+        ok &= dist > margin_mm
+    return ok
+
+
+def _crease(mesh: _Mesh, region, dist=None, radius_mm=2.0):
+    """How sharply the surface folds at the border of ``region``, degrees.
+
+    Median over border vertices of the angle between the mean normal of region faces and
+    the mean normal of non-region faces within ``radius_mm``: an open eye has a concave fold
+    there (the lids rise off the eyeball), a closed lid continues smoothly.
+    """
+    from scipy.spatial import cKDTree
+
+    Vin = np.zeros(len(mesh.V), bool)
+    Vin[mesh.F[region].ravel()] = True
+    Vout = np.zeros(len(mesh.V), bool)
+    Vout[mesh.F[~region].ravel()] = True
+    border = np.where(Vin & Vout)[0]
+    if len(border) == 0:
+        return 0.0
+    N = meshtopo.face_normals(mesh.V, mesh.F)
+    near = np.linalg.norm(mesh.centroids - mesh.V[border].mean(axis=0), axis=1) < 40.0
+    fin, fout = np.where(region & near)[0], np.where(~region & near)[0]
+    if len(fin) == 0 or len(fout) == 0:
+        return 0.0
+    tin, tout = cKDTree(mesh.centroids[fin]), cKDTree(mesh.centroids[fout])
+    r = max(radius_mm, 1.5 * mesh.median_edge)
+    angles = []
+    for v, a_, b_ in zip(border, tin.query_ball_point(mesh.V[border], r),
+                         tout.query_ball_point(mesh.V[border], r)):
+        if not a_ or not b_:
+            continue
+        na, nb = N[fin[a_]].sum(axis=0), N[fout[b_]].sum(axis=0)
+        c = na @ nb / max(np.linalg.norm(na) * np.linalg.norm(nb), 1e-12)
+        angles.append(np.degrees(np.arccos(np.clip(c, -1, 1))))
+    return float(np.median(angles)) if angles else 0.0
+
+
+def _clean_region(mesh: _Mesh, region, keep_seed, local=None, max_iter=30):
+    """Make ``region``'s border one simple loop: keep the seeded component, fill islands,
+    close notches, remove spikes, dissolve bow-tie vertices."""
+    F = mesh.F
+    nF = len(F)
+    region = region.copy()
+    for _ in range(max_iter):
+        changed = False
+        # component containing the seed
+        lab = meshtopo.face_components(nF, mesh.pairs, region)
+        seeds = np.where(region & keep_seed)[0]
+        if len(seeds) == 0:
+            return region & False
+        best = np.bincount(lab[seeds]).argmax()
+        new = region & (lab == best)
+        # fill islands: components of the complement lying wholly inside the local patch
+        lab_c = meshtopo.face_components(nF, mesh.pairs, ~new)
+        outside = np.unique(lab_c[~new & ~local]) if local is not None else \
+            np.array([np.bincount(lab_c[~new]).argmax()])
+        new |= (~new) & ~np.isin(lab_c, outside)
+        # close notches (outside faces with >= 2 region neighbours), remove spikes
+        nc = mesh.neighbour_count(new)
+        new |= (~new) & (nc >= 2)
+        nc = mesh.neighbour_count(new)
+        new &= ~(nc <= 1)
+        # bow-ties: vertices with more than two region/non-region transitions
+        sep = new[mesh.pairs[:, 0]] != new[mesh.pairs[:, 1]]
+        trans = np.zeros(len(mesh.V), dtype=np.int64)
+        np.add.at(trans, mesh.pair_edges[sep, 0], 1)
+        np.add.at(trans, mesh.pair_edges[sep, 1], 1)
+        bad = np.where(trans > 2)[0]
+        if len(bad):
+            badv = np.zeros(len(mesh.V), bool)
+            badv[bad] = True
+            new |= badv[F].any(axis=1)
+        changed = not np.array_equal(new, region)
+        region = new
+        if not changed:
+            break
+    return region
+
+
+def _texture_colours(mesh_arrays, texture, faces, samples=7):
+    """Median sRGB colour of the texture over each face, (k, 3) float64 (0..255)."""
+    UV = np.asarray(mesh_arrays["UV"], dtype=np.float64)
+    FUV = np.asarray(mesh_arrays["FUV"], dtype=np.int64)[faces]
+    H, W = texture.shape[:2]
+    bary = np.array([[1 / 3, 1 / 3, 1 / 3], [0.6, 0.2, 0.2], [0.2, 0.6, 0.2], [0.2, 0.2, 0.6],
+                     [0.45, 0.45, 0.1], [0.1, 0.45, 0.45], [0.45, 0.1, 0.45]])[:samples]
+    uv = np.einsum("sk,fkd->fsd", bary, UV[FUV])
+    px = np.clip((uv[..., 0] % 1.0) * W, 0, W - 1).astype(np.int64)
+    py = np.clip((1.0 - uv[..., 1] % 1.0) * H, 0, H - 1).astype(np.int64)
+    return np.median(texture[py, px, :3].astype(np.float64), axis=1)
+
+
+def _forward_from(center, pts_cornea, pts_region):
+    """Forward direction: normal of the cornea footprint (oriented outward), else opening."""
+    if pts_cornea is not None and len(pts_cornea) >= 20:
+        Q = pts_cornea - pts_cornea.mean(axis=0)
+        _, s, vt = np.linalg.svd(Q, full_matrices=False)
+        n = vt[2]
+        if s[2] < 0.5 * s[1]:
+            out = pts_cornea.mean(axis=0) - center
+            return _unit(n if n @ out > 0 else -n)
+    return _unit(pts_region.mean(axis=0) - center)
+
+
+def _cornea_bulge(mesh: _Mesh, patch_v, center, radius, forward, st: EyeSettings, rng):
+    """Fit a corneal sphere to vertices bulging off the sclera sphere near the forward axis."""
+    V = mesh.V
+    w = V[patch_v] - center
+    dist = np.linalg.norm(w, axis=1) - radius
+    ang = np.degrees(np.arccos(np.clip((w @ forward) / np.linalg.norm(w, axis=1), -1, 1)))
+    cand = patch_v[(ang < st.cornea_cap_deg + 10) & (dist > st.inlier_tol_mm)
+                   & (dist < 0.25 * radius)]
+    if len(cand) < 30:
+        return None
+    P = V[cand]
+
+    def score(c, r):
+        return (np.abs(np.linalg.norm(P - c, axis=1) - r) < st.inlier_tol_mm).sum()
+
+    def accept(c, r):
+        a = (c - center) @ forward
+        off = np.linalg.norm((c - center) - a * forward)
+        return 0.2 * radius < a < 0.8 * radius and off < 0.3 * radius
+
+    best = ransac_sphere(P, score, rng=rng, n_iter=800, r_range=(0.45 * radius, 0.85 * radius),
+                         accept=accept)
+    if best is None or best[2] < max(30, 0.5 * len(cand)):
+        return None
+    c2, r2, _ = best
+    inl = np.abs(np.linalg.norm(P - c2, axis=1) - r2) < st.inlier_tol_mm
+    c2, r2 = refine_sphere(P[inl], c2, r2, scale=0.1)
+    if not (0.45 * radius <= r2 <= 0.85 * radius and accept(c2, r2)):
+        return None
+    inl = np.abs(np.linalg.norm(P - c2, axis=1) - r2) < st.inlier_tol_mm
+    if inl.sum() < max(30, 0.5 * len(cand)):
+        return None
+    return {"center": c2, "radius": float(r2), "n_inliers": int(inl.sum())}
+
+
+def eye_surface_distance(P, center, radius, cornea=None):
+    """Signed distance to the union of the sclera sphere and (optional) corneal sphere, (n,)."""
+    d = signed_distance(P, center, radius)
+    if cornea is not None:
+        d = np.minimum(d, signed_distance(P, cornea["center"], cornea["radius"]))
+    return d
+
+
+def _fit_geometry(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fixed_radius=None,
+                  capped=None):
+    """Geometric eye fit; returns EyeFit or raises ScanError.
+
+    Fits twice, with and without the cornea-cap exclusion; the fit without it wins when
+    including the central part of the opening does not worsen the residual (no cornea bulge
+    or footprint there), since the cap leaves only the canthal sclera to fit.
+    """
+    from dataclasses import replace
+
+    seed = int(rng.integers(1 << 31))
+    if capped is not None:  # decided by an earlier pass
+        s2 = st if capped else replace(st, cornea_cap_deg=0.0)
+        fit = _fit_geometry_once(mesh, hint, side, s2, source, np.random.default_rng(seed),
+                                 fixed_radius)
+        fit.capped = capped
+        return fit
+    full = _fit_geometry_once(mesh, hint, side, replace(st, cornea_cap_deg=0.0), source,
+                              np.random.default_rng(seed), fixed_radius)
+    full.capped = False
+    if st.cornea_cap_deg <= 0:
+        return full
+    if full.cornea is None:
+        # does the central part (cornea cap) fit the sphere as well as the periphery?
+        pv = np.unique(mesh.F[full.region])
+        inner = pv[_interior(mesh, full.region, pv, max(1.0, 1.5 * mesh.median_edge))]
+        w = mesh.V[inner] - full.center
+        nw = np.linalg.norm(w, axis=1)
+        d = nw - full.radius
+        cap = (w @ full.forward) > np.cos(np.radians(st.cornea_cap_deg)) * nw
+        if cap.sum() < 5 or (~cap).sum() < 5:
+            return full
+        rms_in = float(np.sqrt(np.mean(d[cap] ** 2)))
+        rms_out = float(np.sqrt(np.mean(d[~cap] ** 2)))
+        if rms_in <= max(1.4 * rms_out, 0.1):
+            return full
+    try:
+        fit = _fit_geometry_once(mesh, hint, side, st, source, np.random.default_rng(seed),
+                                 fixed_radius)
+        fit.capped = True
+        return fit
+    except ScanError:
+        return full
+
+
+def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fixed_radius=None):
+    """One geometric eye fit with the given settings."""
+    V, F = mesh.V, mesh.F
+    patch = _patch(mesh, hint, st.patch_radius_mm)
+    patch_v = np.unique(F[patch])
+    if len(patch_v) < 20:
+        raise ScanError(source, f"{side} eye: no mesh surface near the hint {np.round(hint, 2).tolist()}")
+    P = V[patch_v]
+    dh = np.linalg.norm(P - hint, axis=1)
+    sample = np.where(dh < st.sample_radius_mm)[0]
+    scored = np.where(dh < st.sample_radius_mm + 2.0)[0]
+    Ps = P[scored]
+    tol = max(st.inlier_tol_mm, 0.0)
+
+    cos_cap = np.cos(np.radians(st.cornea_cap_deg))
+
+    def score(c, r):
+        # sclera inliers outside a cornea cap around centre->hint; nothing may lie inside
+        w = Ps - c
+        nw = np.linalg.norm(w, axis=1)
+        d = nw - r
+        u = hint - c
+        periph = (w @ u) < cos_cap * nw * np.linalg.norm(u)
+        return float((periph & (np.abs(d) < tol)).sum() - 10.0 * (d < -st.inside_tol_mm).sum())
+
+    def accept(c, r):
+        v = hint - c
+        n = np.linalg.norm(v)
+        return abs(n - r) < 5.0 and v[2] > 0.4 * n and n < st.max_center_hint_distance_mm
+
+    best = ransac_sphere(P, score, rng=rng, n_iter=st.ransac_iterations, sample_from=sample,
+                         r_range=tuple(st.radius_range_mm), accept=accept)
+    if best is None or best[2] < st.min_inliers:
+        raise ScanError(source, f"{side} eye: no eyeball surface found near the hint "
+                                f"{np.round(hint, 2).tolist()}")
+    c, r, _ = best
+    forward = _unit(hint - c)
+    cornea = None
+    inl = None
+    in_region = None  # (len(patch_v),) bool: interior vertices of the current removal region
+    # away from the crease only when the whole opening is fitted (with a cornea cap too few
+    # canthal sclera vertices would remain)
+    use_margin = st.crease_margin_mm >= 0 and st.cornea_cap_deg <= 0
+    for it in range(st.fit_iterations):
+        w = P - c
+        nw = np.linalg.norm(w, axis=1)
+        d = nw - r
+        ang = np.degrees(np.arccos(np.clip((w @ forward) / nw, -1, 1)))
+        if in_region is None or not use_margin:
+            inl = (np.abs(d) < tol) & (dh < st.sample_radius_mm + 2.0) & (ang > st.cornea_cap_deg)
+        else:
+            # exposed sclera: inside the cut, away from its (rounded) crease, outside the cornea
+            inl = in_region & (np.abs(d) < 3 * tol) & (ang > st.cornea_cap_deg)
+        if inl.sum() < st.min_inliers:
+            inl = (np.abs(d) < tol) & (dh < st.sample_radius_mm + 2.0)
+        if fixed_radius is not None:
+            c, r = refine_sphere(P[inl], c, r, scale=0.1, fixed_radius=fixed_radius)
+        else:
+            c, r = refine_sphere(P[inl], c, r, scale=0.1, radius_prior=st.radius_prior_mm,
+                                 radius_sigma=st.radius_prior_sigma_mm / 0.1)
+        dn = np.linalg.norm(P[inl] - c, axis=1) - r
+        tol = float(np.clip(3.0 * 1.4826 * np.median(np.abs(dn)), 0.1, st.inlier_tol_mm))
+        # region and forward direction with the current sphere
+        cornea = _cornea_bulge(mesh, patch_v, c, r, forward, st, rng)
+        dd = np.full(len(V), np.inf)
+        dd[patch_v] = eye_surface_distance(P, c, r, cornea)
+        okv = (dd <= st.cut_tol_mm) & (dd >= -st.inside_tol_mm)
+        allowed = patch & okv[F].all(axis=1)
+        seed = np.linalg.norm(mesh.centroids - hint, axis=1) < max(6.0, 3 * mesh.median_edge)
+        region = _clean_region(mesh, allowed, seed, patch)
+        if not region.any():
+            raise ScanError(source, f"{side} eye: no eyeball surface found near the hint "
+                                    f"{np.round(hint, 2).tolist()}")
+        rv = np.unique(F[region])
+        if use_margin:
+            in_region = _interior(mesh, region, patch_v, st.crease_margin_mm)
+        if cornea is not None:
+            forward = _unit(cornea["center"] - c)
+        else:
+            inner = patch_v[_interior(mesh, region, patch_v, max(1.0, 1.5 * mesh.median_edge))]
+            dr = np.linalg.norm(V[inner] - c, axis=1) - r
+            foot = V[inner][dr > 0.5 * tol]
+            forward = _forward_from(c, foot, V[rv])
+    w = P - c
+    d = np.linalg.norm(w, axis=1) - r
+    rms = float(np.sqrt(np.mean(d[inl] ** 2)))
+    crease = _crease(mesh, region, np.where(np.isfinite(dd), dd, np.nan))
+    return EyeFit(side=side, center=c, radius=float(r), forward=forward, residual_rms_mm=rms,
+                  n_inliers=int(inl.sum()), method="geometry", region=region, cornea=cornea,
+                  crease_deg=crease, inliers=patch_v[inl])
+
+
+def _fit_texture(mesh: _Mesh, mesh_arrays, texture, hint, side, st: EyeSettings, source,
+                 fixed_radius=None):
+    """Eye opening from the colour texture (coarse scans), sphere from its vertices."""
+    V, F = mesh.V, mesh.F
+    patch = _patch(mesh, hint, st.patch_radius_mm)
+    faces = np.where(patch)[0]
+    col = _texture_colours(mesh_arrays, texture, faces)
+    dh = np.linalg.norm(mesh.centroids[faces] - hint, axis=1)
+    ring = (dh > 14.0) & (dh < st.patch_radius_mm)
+    if ring.sum() < 10:
+        raise ScanError(source, f"{side} eye: too little skin around the hint to read the texture")
+    # chroma/brightness features; skin statistics from the ring
+    lum = col.mean(axis=1)
+    chroma = col / np.maximum(col.sum(axis=1, keepdims=True), 1.0)
+    feat = np.column_stack([lum / 255.0, chroma[:, 0], chroma[:, 2]])
+    mu = np.median(feat[ring], axis=0)
+    mad = 1.4826 * np.median(np.abs(feat[ring] - mu), axis=0) + np.array([0.02, 0.005, 0.005])
+    z = np.sqrt((((feat - mu) / mad) ** 2).sum(axis=1))
+    eye = (z > st.texture_min_contrast) & (dh < 12.0)
+    mask = np.zeros(len(F), bool)
+    mask[faces[eye]] = True
+    seed = np.zeros(len(F), bool)
+    seed[faces[dh < max(4.0, 1.5 * mesh.median_edge)]] = True
+    region = _clean_region(mesh, mask, seed, patch)
+    if region.sum() < 2:
+        raise ScanError(source, f"{side} eye: no eyeball surface found near the hint "
+                                f"{np.round(hint, 2).tolist()} (geometry and texture)")
+    rv = np.unique(F[region])
+    P = V[rv]
+    r0 = st.radius_prior_mm if fixed_radius is None else fixed_radius
+    # start: sphere of the prior radius behind the region centroid along the mean normal
+    N = meshtopo.face_normals(V, F)[region].mean(axis=0)
+    N = _unit(N if np.linalg.norm(N) > 0 else [0, 0, 1.0])
+    c0 = P.mean(axis=0) - r0 * N
+    c, r = refine_sphere(P, c0, r0, scale=0.3, fixed_radius=r0, center_prior_sigma=1.0)
+    d = signed_distance(P, c, r)
+    rms = float(np.sqrt(np.mean(d ** 2)))
+    forward = _unit(P.mean(axis=0) - c)
+    dd = np.full(len(V), np.nan)
+    pv = np.unique(F[patch])
+    dd[pv] = signed_distance(V[pv], c, r)
+    return EyeFit(side=side, center=c, radius=float(r), forward=forward, residual_rms_mm=rms,
+                  n_inliers=int(len(rv)), method="texture", region=region,
+                  crease_deg=_crease(mesh, region, dd), inliers=rv)
+
+
+def find_eye(mesh: _Mesh, hint, side, st: EyeSettings, *, source="mesh", mesh_arrays=None,
+             texture=None, fixed_radius=None, capped=None) -> EyeFit:
+    """Fit one eye near ``hint`` (geometry first, texture as fallback).
+
+    Raises
+    ------
+    ScanError
+        No eyeball near the hint, or a closed eye.
+    """
+    rng = np.random.default_rng(st.seed + (0 if side == "left" else 1))
+    hint = np.asarray(hint, dtype=np.float64)
+    geo_err = None
+    fit = None
+    try:
+        fit = _fit_geometry(mesh, hint, side, st, source, rng, fixed_radius, capped)
+        if fit.n_inliers < st.min_inliers:
+            geo_err = ScanError(source, f"{side} eye: no eyeball surface found near the hint "
+                                        f"{np.round(hint, 2).tolist()} (only {fit.n_inliers} "
+                                        f"vertices on the fitted sphere)")
+            fit = None
+        elif fit.crease_deg < st.min_crease_deg or fit.residual_rms_mm > st.max_fit_rms_mm:
+            geo_err = ScanError(source, f"{side} eye looks closed: no eyeball surface in the eye "
+                                        f"opening near {np.round(hint, 2).tolist()} (no lid crease around "
+                                        f"the fitted eyeball surface: fold {fit.crease_deg:.0f} deg "
+                                        f"< {st.min_crease_deg:g} deg)")
+            fit = None
+    except ScanError as exc:
+        geo_err = exc
+    if fit is not None:
+        return fit
+    has_tex = (texture is not None and mesh_arrays is not None and "UV" in mesh_arrays
+               and "FUV" in mesh_arrays)
+    if st.texture_fallback and has_tex:
+        tfit = _fit_texture(mesh, mesh_arrays, texture, hint, side, st, source, fixed_radius)
+        return tfit
+    raise geo_err
+
+
+def order_loop(loop, V, center, forward, side):
+    """Rotate/reverse a closed loop: start at the medial canthus, upper lid first.
+
+    Returns
+    -------
+    loop : (L,) int64
+    lateral_index : int
+        Position of the lateral canthus in the returned loop.
+    """
+    B = eye_basis(forward)
+    Q = (V[loop] - center) @ B.T
+    sign = 1.0 if side == "left" else -1.0
+    x = Q[:, 0] * sign  # positive = lateral
+    m = int(np.argmin(x))
+    loop = np.roll(loop, -m)
+    Q = np.roll(Q, -m, axis=0)
+    x = np.roll(x, -m)
+    lat = int(np.argmax(x))
+    y_first = Q[1:lat, 1].mean() if lat > 1 else Q[1, 1]
+    y_second = Q[lat + 1:, 1].mean() if lat + 1 < len(loop) else Q[-1, 1]
+    if y_first < y_second:
+        loop = np.concatenate([loop[:1], loop[1:][::-1]])
+        lat = len(loop) - lat
+    return loop, int(lat)
+
+
+@dataclass
+class RemovalResult:
+    mesh: dict
+    eyes: dict
+    fits: dict
+    metrics: dict
+
+
+def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None):
+    """Fit both eyes; with ``shared_radius`` refit both with their mean radius when both are
+    geometric fits (eyes of one head are the same size)."""
+    mesh = _Mesh(mesh_arrays["V"], mesh_arrays["F"])
+    fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=mesh_arrays,
+                        texture=texture) for s in SIDES}
+    if st.shared_radius and all(fits[s].method == "geometry" for s in SIDES):
+        r = float(np.mean([fits[s].radius for s in SIDES]))
+        fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=mesh_arrays,
+                            texture=texture, fixed_radius=r, capped=fits[s].capped)
+                for s in SIDES}
+    return mesh, fits
+
+
+def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = None, *,
+                    source="mesh", texture=None) -> RemovalResult:
+    """Fit both eyes and cut the scanned eyeball surface out of the head mesh.
+
+    Parameters
+    ----------
+    mesh_arrays : dict
+        ``V`` (n,3) float64 mm head frame, ``F`` (m,3) int64, optional ``UV``/``FUV``/``VC``
+        and other per-face/per-vertex arrays (carried through).
+    hints : dict
+        ``{"left": (3,), "right": (3,)}`` eye hints, head frame mm.
+    st : EyeSettings
+    source : str
+        File named in error messages.
+    texture : (h, w, 3) uint8, optional
+        Colour texture (used when geometry alone cannot find the eye).
+
+    Returns
+    -------
+    RemovalResult
+        ``mesh`` (arrays with the eyeball faces removed and vertices re-indexed),
+        ``eyes`` (eyes.json content), ``fits`` (EyeFit per side), ``metrics``.
+    """
+    st = st or EyeSettings()
+    V = np.asarray(mesh_arrays["V"], dtype=np.float64)
+    F = np.asarray(mesh_arrays["F"], dtype=np.int64)
+    mesh, fits = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture)
+    if (fits["left"].region & fits["right"].region).any():
+        raise ScanError(source, "the two eye regions overlap (hints too close or wrong)")
+    loops_in = meshtopo.boundary_component_count(F)
+    remove = fits["left"].region | fits["right"].region
+    keepF = ~remove
+    F2 = F[keepF]
+    used = np.zeros(len(V), bool)
+    used[F2.ravel()] = True
+    remap = -np.ones(len(V), dtype=np.int64)
+    remap[used] = np.arange(used.sum())
+    out = {}
+    nV, nF = len(V), len(F)
+    for k, a in mesh_arrays.items():
+        a = np.asarray(a)
+        if k == "F":
+            out[k] = remap[F2]
+        elif k == "V":
+            out[k] = V[used]
+        elif k == "FUV":
+            out[k] = a[keepF]
+        elif k in ("poly_counts", "poly_indices"):
+            continue  # polygons are not kept through a cut of the triangulation
+        elif a.ndim >= 1 and a.shape[0] == nV and k not in ("UV",):
+            out[k] = a[used]
+        elif a.ndim >= 1 and a.shape[0] == nF and k not in ("UV",):
+            out[k] = a[keepF]
+        else:
+            out[k] = a
+    if "UV" in out and "FUV" in out:
+        usedt = np.zeros(len(out["UV"]), bool)
+        usedt[out["FUV"].ravel()] = True
+        rt = -np.ones(len(out["UV"]), dtype=np.int64)
+        rt[usedt] = np.arange(usedt.sum())
+        out["UV"] = out["UV"][usedt]
+        out["FUV"] = rt[out["FUV"]]
+    V2, F2n = out["V"], out["F"]
+    n_loops_out = meshtopo.boundary_component_count(F2n)
+    # region border vertices (old ids) per eye -> loops touching them
+    eyes, metrics = {}, {}
+    for s in SIDES:
+        fit = fits[s]
+        border = np.zeros(len(V), bool)
+        border[F[fit.region].ravel()] = True
+        border &= used
+        ids_new = set(remap[border].tolist())
+        try:
+            mine = meshtopo.boundary_loops(F2n, only=np.fromiter(ids_new, dtype=np.int64))
+        except ValueError as exc:
+            raise ScanError(source, f"{s} eye: the cut left a non-simple boundary ({exc})") from None
+        if len(mine) != 1:
+            raise ScanError(source, f"{s} eye: the cut left {len(mine)} boundary loops at the eye "
+                                    f"opening instead of one")
+        loop, lat = order_loop(mine[0], V2, fit.center, fit.forward, s)
+        eyes[s] = {
+            "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
+            "residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
+            "method": fit.method,
+            "cornea": None if fit.cornea is None else {
+                "center": np.asarray(fit.cornea["center"]).tolist(),
+                "radius": fit.cornea["radius"], "n_inliers": fit.cornea["n_inliers"]},
+            "loop_indices": loop.tolist(), "loop_points": V2[loop].tolist(),
+            "lateral_canthus_index": lat,
+        }
+        metrics[s] = {"radius_mm": round(fit.radius, 4), "residual_rms_mm": round(fit.residual_rms_mm, 4),
+                      "n_inliers": fit.n_inliers, "method": fit.method,
+                      "faces_removed": int(fit.region.sum()), "loop_length": len(loop),
+                      "crease_deg": round(fit.crease_deg, 3),
+                      "cornea_fitted": fit.cornea is not None}
+    if n_loops_out != loops_in + 2:
+        raise ScanError(source, f"cutting the eyeballs gave {n_loops_out} boundary loops, expected "
+                                f"{loops_in} + 2")
+    metrics.update({"vertices_in": nV, "faces_in": nF, "vertices_out": int(len(V2)),
+                    "faces_out": int(len(F2n)), "vertices_removed": int(nV - len(V2)),
+                    "faces_removed": int(remove.sum()), "boundary_loops_in": loops_in,
+                    "boundary_loops_out": n_loops_out,
+                    "edge_manifold_out": meshtopo.is_edge_manifold(F2n)})
+    return RemovalResult(mesh=out, eyes=eyes, fits=fits, metrics=metrics)

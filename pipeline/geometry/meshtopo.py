@@ -1,0 +1,151 @@
+"""Small triangle-mesh topology helpers (face adjacency, boundary loops, manifold checks)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def face_adjacency(F, n_vertices=None):
+    """Pairs of faces sharing an edge.
+
+    Parameters
+    ----------
+    F : (m, 3) int64
+    n_vertices : int, optional
+
+    Returns
+    -------
+    pairs : (k, 2) int64
+        Face index pairs; an edge with more than two faces links consecutive ones.
+    edge_vertices : (k, 2) int64
+        The shared edge (sorted vertex ids) of each pair.
+    """
+    F = np.asarray(F, dtype=np.int64)
+    n = int(F.max()) + 1 if n_vertices is None else int(n_vertices)
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    E.sort(axis=1)
+    fid = np.tile(np.arange(len(F)), 3)
+    key = E[:, 0] * n + E[:, 1]
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    same = ks[1:] == ks[:-1]
+    a, b = order[:-1][same], order[1:][same]
+    return np.column_stack([fid[a], fid[b]]), E[a]
+
+
+def face_components(n_faces, pairs, mask=None):
+    """Connected components of faces over shared edges.
+
+    Parameters
+    ----------
+    n_faces : int
+    pairs : (k, 2) int64
+        From :func:`face_adjacency`.
+    mask : (n_faces,) bool, optional
+        Only faces in the mask are linked (others end up in singleton components).
+
+    Returns
+    -------
+    labels : (n_faces,) int64
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    p = pairs
+    if mask is not None:
+        keep = mask[p[:, 0]] & mask[p[:, 1]]
+        p = p[keep]
+    G = coo_matrix((np.ones(len(p)), (p[:, 0], p[:, 1])), shape=(n_faces, n_faces))
+    _, labels = connected_components(G, directed=False)
+    return labels.astype(np.int64)
+
+
+def boundary_halfedges(F):
+    """Directed edges (a, b) of faces whose opposite (b, a) belongs to no face, (k, 2) int64."""
+    F = np.asarray(F, dtype=np.int64)
+    H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    n = int(F.max()) + 1 if len(F) else 0
+    fwd = H[:, 0] * n + H[:, 1]
+    rev = H[:, 1] * n + H[:, 0]
+    return H[~np.isin(fwd, rev)]
+
+
+def boundary_component_count(F) -> int:
+    """Number of connected pieces of the boundary-edge graph (= boundary loops when simple)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    H = boundary_halfedges(F)
+    if len(H) == 0:
+        return 0
+    u, inv = np.unique(H.ravel(), return_inverse=True)
+    inv = inv.reshape(-1, 2)
+    G = coo_matrix((np.ones(len(inv)), (inv[:, 0], inv[:, 1])), shape=(len(u), len(u)))
+    return int(connected_components(G, directed=False)[0])
+
+
+def boundary_loops(F, only=None):
+    """Boundary loops of a triangle mesh as ordered vertex-index arrays.
+
+    ``only`` (vertex ids): walk just the loops through these vertices.
+
+    Raises
+    ------
+    ValueError
+        When a boundary vertex has more than one outgoing boundary edge (a bow-tie).
+    """
+    H = boundary_halfedges(F)
+    if only is not None:
+        H = H[np.isin(H[:, 0], only) | np.isin(H[:, 1], only)]
+    if len(H) == 0:
+        return []
+    starts, counts = np.unique(H[:, 0], return_counts=True)
+    if (counts > 1).any():
+        raise ValueError(f"{int((counts > 1).sum())} boundary vertices are bow-ties")
+    nxt = dict(zip(H[:, 0].tolist(), H[:, 1].tolist()))
+    seen = set()
+    loops = []
+    for s in H[:, 0].tolist():
+        if s in seen:
+            continue
+        loop = [s]
+        seen.add(s)
+        v = nxt[s]
+        while v != s:
+            if v in seen or v not in nxt:
+                raise ValueError("boundary edges do not form closed loops")
+            loop.append(v)
+            seen.add(v)
+            v = nxt[v]
+        loops.append(np.asarray(loop, dtype=np.int64))
+    return loops
+
+
+def is_edge_manifold(F) -> bool:
+    """True when every edge has at most two faces and opposite orientations where it has two."""
+    F = np.asarray(F, dtype=np.int64)
+    H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    n = int(F.max()) + 1
+    fwd = H[:, 0] * n + H[:, 1]
+    if len(np.unique(fwd)) != len(fwd):  # a directed edge used twice: >2 faces or flipped
+        return False
+    E = np.sort(H, axis=1)
+    _, c = np.unique(E[:, 0] * n + E[:, 1], return_counts=True)
+    return bool((c <= 2).all())
+
+
+def face_normals(V, F):
+    """Unit face normals (m, 3) (zero for degenerate faces)."""
+    N = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    L = np.linalg.norm(N, axis=1, keepdims=True)
+    return np.divide(N, L, out=np.zeros_like(N), where=L > 0)
+
+
+def vertex_normals(V, F):
+    """Area-weighted unit vertex normals (n, 3)."""
+    N = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    VN = np.zeros_like(V, dtype=np.float64)
+    for k in range(3):
+        np.add.at(VN, F[:, k], N)
+    L = np.linalg.norm(VN, axis=1, keepdims=True)
+    return np.divide(VN, L, out=np.zeros_like(VN), where=L > 0)

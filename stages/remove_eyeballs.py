@@ -1,0 +1,72 @@
+"""Stage ``remove_eyeballs``: fit each scanned eyeball and cut it out of the head mesh.
+
+    python -m stages.remove_eyeballs build/<scan>/ingest build/<scan>/remove_eyeballs \
+        --metrics build/<scan>/remove_eyeballs.metrics.json
+
+Reads ``ingest/mesh.npz``, ``ingest/scan.json`` (eye hints) and ``ingest/texture.png`` when
+present; writes ``mesh.npz`` (head with the two eye openings, UV/FUV/VC carried), ``eyes.json``
+(per eye: center, radius, forward, residual_rms_mm, n_inliers, loop_indices, loop_points,
+lateral_canthus_index) and copies ``texture.png``. See pipeline/geometry/eyes.py.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.geometry.eyes import EyeSettings, remove_eyeballs
+from pipeline.io.atomic import atomic_dir, write_json
+from pipeline.io.meshfile import load_mesh, save_mesh
+from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+
+
+def _read(ingest: Path):
+    mesh_path, scan_path = ingest / "mesh.npz", ingest / "scan.json"
+    for p in (mesh_path, scan_path):
+        if not p.is_file():
+            raise ScanError(p, "not found")
+    try:
+        mesh = load_mesh(mesh_path)
+    except Exception as exc:
+        raise ScanError(mesh_path, f"cannot be read as a mesh .npz ({type(exc).__name__})") from None
+    if "V" not in mesh or "F" not in mesh:
+        raise ScanError(mesh_path, "needs arrays V and F")
+    try:
+        scan = json.loads(scan_path.read_text(encoding="utf-8"))
+        hints = {s: np.asarray(scan["eyes"][s]["hint"], dtype=np.float64).reshape(3)
+                 for s in ("left", "right")}
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ScanError(scan_path, f"has no valid eye hints ({type(exc).__name__})") from None
+    if not all(np.isfinite(h).all() for h in hints.values()):
+        raise ScanError(scan_path, "eye hints are not finite")
+    texture = None
+    tex_path = ingest / "texture.png"
+    if tex_path.is_file():
+        from PIL import Image
+        with Image.open(tex_path) as im:
+            texture = np.asarray(im.convert("RGB"))
+    return mesh, hints, texture, mesh_path, tex_path
+
+
+def main(argv) -> dict:
+    parser = stage_parser(__doc__.splitlines()[0])
+    parser.add_argument("ingest", type=Path, help="build/<scan>/ingest")
+    parser.add_argument("out", type=Path, help="build/<scan>/remove_eyeballs")
+    args = parser.parse_args(argv)
+    st = EyeSettings.from_params(load_params("remove_eyeballs", args.params))
+    mesh, hints, texture, mesh_path, tex_path = _read(args.ingest)
+    res = remove_eyeballs(mesh, hints, st, source=str(mesh_path), texture=texture)
+    with atomic_dir(args.out) as tmp:
+        save_mesh(tmp / "mesh.npz", **res.mesh)
+        write_json(tmp / "eyes.json", res.eyes)
+        if texture is not None:
+            shutil.copyfile(tex_path, tmp / "texture.png")
+    return {"_path": args.metrics or default_metrics_path(args.out), **res.metrics}
+
+
+if __name__ == "__main__":
+    stage_exit(main)

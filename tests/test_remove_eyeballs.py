@@ -1,0 +1,202 @@
+"""remove_eyeballs: eye fit ground truth, cut topology, errors, stage I/O."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pipeline.errors import ScanError
+from pipeline.geometry import meshtopo
+from pipeline.geometry.eyes import EyeSettings, eye_basis, remove_eyeballs
+from pipeline.io.meshfile import load_mesh, save_mesh
+
+R_EYE = 12.0
+CX = 30.0
+A, B = 10.0, 4.5  # almond half-width / half-height
+
+
+def _grid(nx, ny, x0, x1, y0, y1):
+    xs, ys = np.linspace(x0, x1, nx), np.linspace(y0, y1, ny)
+    X, Y = np.meshgrid(xs, ys)
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]
+    F = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return X.ravel(), Y.ravel(), F
+
+
+def _almond_s(x, y):
+    """< 0 inside the almond opening (normalised), > 0 outside."""
+    xn = np.clip(np.abs(x) / A, 0, 1.5)
+    h = B * np.clip(1 - xn ** 2, 1e-3, None)
+    return np.maximum(np.abs(x) / A - 1, np.abs(y) / h - 1)
+
+
+def make_head(step=0.5, closed=False, seed=0, noise=0.0):
+    """Height-field 'face' (+Z forward) with two fused r=12 eyeballs in almond openings.
+
+    Returns mesh arrays, hints and ground truth (centres, radius, margin polylines).
+    """
+    nx, ny = int(round(100 / step)) + 1, int(round(40 / step)) + 1
+    X, Y, F = _grid(nx, ny, -50, 50, -20, 20)
+    Z = np.full_like(X, 4.0)
+    gt = {}
+    for side, cx in (("left", CX), ("right", -CX)):
+        x = X - cx
+        rho2 = x ** 2 + Y ** 2
+        zs = np.sqrt(np.clip(R_EYE ** 2 - rho2, 0, None))
+        s = _almond_s(x, Y)
+        if closed:  # smooth lid bump over the eye: no crease anywhere
+            Z = np.maximum(Z, 4.0 + 10.5 * np.exp(-rho2 / (2 * 9.0 ** 2)))
+        else:
+            lid = 2.0 * np.clip(s / 0.15, 0, 1) + 4.0 * np.clip(s - 0.15, 0, None)
+            near = rho2 < (R_EYE - 0.3) ** 2
+            Z = np.where(near, np.maximum(Z, zs + lid), Z)
+        t = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+        mx = A * np.cos(t)
+        my = B * (1 - np.cos(t) ** 2) * np.sign(np.sin(t))
+        M = np.column_stack([mx + cx, my, np.sqrt(R_EYE ** 2 - mx ** 2 - my ** 2)])
+        gt[side] = {"center": np.array([cx, 0.0, 0.0]), "radius": R_EYE, "margin": M}
+    V = np.column_stack([X, Y, Z])
+    if noise:
+        V[:, 2] += np.random.default_rng(seed).normal(0, noise, len(V))
+    rng = np.random.default_rng(seed + 100)
+    hints = {s: np.array([c, 0.0, R_EYE]) + rng.normal(0, 1.2, 3)
+             for s, c in (("left", CX), ("right", -CX))}
+    UV = np.column_stack([(X + 50) / 100, (Y + 20) / 40])
+    return {"V": V, "F": F, "UV": UV, "FUV": F.copy()}, hints, gt
+
+
+def _polyline_distance(P, M):
+    M2 = np.roll(M, -1, axis=0)
+    best = np.full(len(P), np.inf)
+    for a, b in zip(M, M2):
+        ab = b - a
+        t = np.clip(((P - a) @ ab) / (ab @ ab), 0, 1)
+        best = np.minimum(best, np.linalg.norm(P - (a + t[:, None] * ab), axis=1))
+    return best
+
+
+@pytest.mark.parametrize("step,seed,noise", [(0.5, 0, 0.0), (0.4, 1, 0.03), (0.7, 2, 0.05)])
+def test_ground_truth_and_topology(step, seed, noise):
+    mesh, hints, gt = make_head(step, seed=seed, noise=noise)
+    res = remove_eyeballs(mesh, hints, EyeSettings())
+    out = res.mesh
+    # topology: one new simple loop per eye, edge-manifold, untouched vertices unchanged
+    assert res.metrics["boundary_loops_out"] == res.metrics["boundary_loops_in"] + 2 == 3
+    assert meshtopo.is_edge_manifold(out["F"])
+    loops = meshtopo.boundary_loops(out["F"])
+    assert len(loops) == 3
+    kept = np.isin(mesh["V"].view([("", float)] * 3).ravel(), out["V"].view([("", float)] * 3).ravel())
+    assert kept.sum() == len(out["V"])
+    assert out["FUV"].shape == out["F"].shape and out["FUV"].max() < len(out["UV"])
+    for s in ("left", "right"):
+        e = res.eyes[s]
+        assert np.linalg.norm(np.array(e["center"]) - gt[s]["center"]) <= 0.5
+        assert abs(e["radius"] - gt[s]["radius"]) <= 0.5
+        L = np.array(e["loop_points"])
+        assert np.allclose(out["V"][e["loop_indices"]], L)
+        assert len(set(e["loop_indices"])) == len(L)  # simple
+        assert _polyline_distance(L, gt[s]["margin"]).mean() <= 0.5
+        # ordering: medial first, upper lid first, lateral canthus at lateral_canthus_index
+        sign = 1 if s == "left" else -1
+        x = sign * ((L - e["center"]) @ eye_basis(e["forward"])[0])
+        assert x[0] == x.min() and x[e["lateral_canthus_index"]] == x.max()
+        li = e["lateral_canthus_index"]
+        assert L[1:li, 1].mean() > L[li + 1:, 1].mean()
+        assert np.dot(e["forward"], [0, 0, 1]) > 0.9
+
+
+def test_no_eye_near_hint_fails():
+    mesh, hints, _ = make_head(0.7)
+    hints["left"] = np.array([0.0, 15.0, 4.0])  # flat forehead-like area between the eyes
+    with pytest.raises(ScanError, match="left eye"):
+        remove_eyeballs(mesh, hints, EyeSettings(), source="flat.npz")
+
+
+def test_closed_eyes_fail():
+    mesh, hints, _ = make_head(0.7, closed=True)
+    with pytest.raises(ScanError) as exc:
+        remove_eyeballs(mesh, hints, EyeSettings(texture_fallback=False), source="closed.npz")
+    msg = str(exc.value)
+    assert "closed.npz" in msg and "\n" not in msg and ("closed" in msg or "no eyeball" in msg)
+
+
+def test_stage_writes_outputs(tmp_path):
+    from stages.remove_eyeballs import main
+
+    mesh, hints, _ = make_head(0.7)
+    ing = tmp_path / "ingest"
+    ing.mkdir()
+    save_mesh(ing / "mesh.npz", **mesh)
+    (ing / "scan.json").write_text(json.dumps(
+        {"name": "t", "eyes": {s: {"hint": h.tolist()} for s, h in hints.items()}}))
+    out = tmp_path / "remove_eyeballs"
+    metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"])
+    assert metrics["boundary_loops_out"] == 3
+    eyes = json.loads((out / "eyes.json").read_text())
+    m = load_mesh(out / "mesh.npz")
+    for s in ("left", "right"):
+        for k in ("center", "radius", "forward", "residual_rms_mm", "n_inliers", "loop_indices",
+                  "loop_points", "lateral_canthus_index"):
+            assert k in eyes[s]
+        assert np.allclose(m["V"][eyes[s]["loop_indices"]], eyes[s]["loop_points"])
+
+
+def test_stage_missing_input_is_one_line(tmp_path):
+    from stages._common import run_stage
+    from stages.remove_eyeballs import main
+
+    assert run_stage(main, [str(tmp_path / "nope"), str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()
+
+
+def _gt_errors(folder, res):
+    gt = json.loads((folder / "ground_truth.json").read_text())["eyes"]
+    out = {}
+    for s in ("left", "right"):
+        e, g = res.eyes[s], gt[s]
+        c = np.array(e["center"])
+        errs = [(np.linalg.norm(c - g[k]["center_mm"]), abs(e["radius"] - g[k]["radius_mm"]))
+                for k in ("eyeball_sphere", "anterior_sclera_sphere")]
+        M = np.array(g["eyelid_margin"]["points_mm"])
+        out[s] = (min(errs), _polyline_distance(np.array(e["loop_points"]), M).mean())
+    return out
+
+
+@pytest.mark.slow
+def test_ict_neutral(extra_scan):
+    from pipeline.io.load import IngestSettings, ingest_scan
+
+    folder = extra_scan("ict_neutral")
+    r = ingest_scan(folder, IngestSettings())
+    hints = {s: r.scan["eyes"][s]["hint"] for s in ("left", "right")}
+    res = remove_eyeballs(r.mesh, hints, EyeSettings(), source="scan.ply")
+    assert res.metrics["edge_manifold_out"]
+    for s, ((cerr, rerr), loop_d) in _gt_errors(folder, res).items():
+        # measured: centre 0.55/0.83 mm, radius 0.36 mm (anterior sphere); the scan surface
+        # itself lies 1-3.4 mm from the true margin (hidden crease), so the loop cannot reach it
+        assert cerr <= 1.0 and rerr <= 0.5, (s, cerr, rerr)
+        assert loop_d <= 2.5, (s, loop_d)
+
+
+def test_james_texture_fallback(extra_scan):
+    from PIL import Image
+
+    from pipeline.io.load import IngestSettings, ingest_scan
+
+    folder = extra_scan("james")
+    r = ingest_scan(folder, IngestSettings())
+    tex = r.texture if r.texture is not None else None
+    if tex is None:
+        import io
+        tex = Image.open(io.BytesIO(r.texture_png_bytes))
+    tex = np.asarray(tex.convert("RGB"))
+    hints = {s: r.scan["eyes"][s]["hint"] for s in ("left", "right")}
+    res = remove_eyeballs(r.mesh, hints, EyeSettings(), source="james.obj", texture=tex)
+    assert res.metrics["boundary_loops_out"] == res.metrics["boundary_loops_in"] + 2
+    for s in ("left", "right"):
+        e = res.eyes[s]
+        assert e["method"] == "texture" and e["residual_rms_mm"] < 2.0
+        assert np.linalg.norm(np.array(e["center"]) - hints[s]) < 20.0
