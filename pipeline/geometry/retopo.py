@@ -519,6 +519,34 @@ def repair_flips(V, F, fixed, ref_V, ref_F, rounds=10):
     return V
 
 
+def _mirror_flipped(V, F, fixed, ref_V, ref_F):
+    """Flipped faces with one free corner ``c`` and a fixed edge ``a-b`` (slivers at the eyelid
+    loop): move ``c`` to the inner side of the edge, a third of the edge length from it, keeping
+    the move only when it lowers the number of flipped faces."""
+    V = np.asarray(V, dtype=np.float64).copy()
+    fixed_m = np.zeros(len(V), dtype=bool)
+    fixed_m[np.asarray(fixed, dtype=np.int64)] = True
+    R = _reference_face_normals(V, F, ref_V, ref_F)
+    dots = np.einsum("ij,ij->i", mc.face_normals(V, F), R)
+    for f in np.flatnonzero(dots <= 0):
+        face = F[f]
+        free = [k for k in range(3) if not fixed_m[face[k]]]
+        if len(free) != 1:
+            continue
+        k = free[0]
+        c, a, b = face[k], face[(k + 1) % 3], face[(k + 2) % 3]
+        e = V[b] - V[a]
+        inward = np.cross(R[f], e)          # for face (c, a, b) wound CCW about R, c lies on this side
+        inward /= max(np.linalg.norm(inward), 1e-300)
+        mid = 0.5 * (V[a] + V[b])
+        before = count_flipped(V, F, ref_V, ref_F)
+        old = V[c].copy()
+        V[c] = mid + inward * np.linalg.norm(e) / 3.0
+        if count_flipped(V, F, ref_V, ref_F) >= before:
+            V[c] = old
+    return V
+
+
 def _collapse_flipped(V, F, loops, fixed, ref_V, ref_F):
     """Remove flipped faces by collapsing their free vertex into one of the face's other corners."""
     R = _reference_face_normals(V, F, ref_V, ref_F)
@@ -740,6 +768,8 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     for _ in range(3):
         if count_flipped(Vn, Fn, Vc, Fc):   # repair remaining flips next to the (fixed) loops
             Vn = repair_flips(Vn, Fn, fixed, Vc, Fc)
+        if count_flipped(Vn, Fn, Vc, Fc):   # slivers at the loop: move the free corner inside
+            Vn = _mirror_flipped(Vn, Fn, fixed, Vc, Fc)
         if count_flipped(Vn, Fn, Vc, Fc):   # still flipped: collapse their free vertex into a neighbour
             Vn, Fn, loops = _collapse_flipped(Vn, Fn, loops, fixed, Vc, Fc)
             fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
