@@ -71,11 +71,22 @@ def rasterize(UV, FUV, width, height):
     if total == 0:
         e = np.zeros(0, dtype=np.int64)
         return e, e, e, np.zeros((0, 3))
-    # process in chunks of faces to bound memory
+    # barycentric coordinates as affine functions of the texel centre: l_k = a_k x + b_k y + c_k
+    ax, ay, bx, by, cx, cy = X[:, 0], Y[:, 0], X[:, 1], Y[:, 1], X[:, 2], Y[:, 2]
+    det = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
+    ok = np.abs(det) > 1e-14
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    a0, b0 = (by - cy) * inv, (cx - bx) * inv
+    c0 = -(a0 * cx + b0 * cy)
+    a1, b1 = (cy - ay) * inv, (ax - cx) * inv
+    c1 = -(a1 * cx + b1 * cy)
+    cnt = np.where(ok, cnt, 0)
     starts = np.concatenate([[0], np.cumsum(cnt)])
+    # process in chunks of faces to bound memory
     chunk = 8_000_000
     f_lo = 0
     m = len(T)
+    eps = -1e-9
     while f_lo < m:
         f_hi = int(np.searchsorted(starts, starts[f_lo] + chunk, side="right")) - 1
         f_hi = min(max(f_hi, f_lo + 1), m)
@@ -83,20 +94,14 @@ def rasterize(UV, FUV, width, height):
         c = cnt[fs]
         fid = np.repeat(fs, c)
         local = np.arange(int(c.sum())) - np.repeat(starts[fs] - starts[f_lo], c)
-        ww = np.repeat(w[fs], c)
-        xi = x0[fid] + local % np.maximum(ww, 1)
-        yi = y0[fid] + local // np.maximum(ww, 1)
-        ax, ay = X[fid, 0], Y[fid, 0]
-        bx, by = X[fid, 1], Y[fid, 1]
-        cx, cy = X[fid, 2], Y[fid, 2]
-        det = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
-        ok_det = np.abs(det) > 1e-14
-        det = np.where(ok_det, det, 1.0)
-        l0 = ((by - cy) * (xi - cx) + (cx - bx) * (yi - cy)) / det
-        l1 = ((cy - ay) * (xi - cx) + (ax - cx) * (yi - cy)) / det
+        ww = np.maximum(np.repeat(w[fs], c), 1)
+        yl, xl = np.divmod(local, ww)
+        xi = x0[fid] + xl
+        yi = y0[fid] + yl
+        l0 = a0[fid] * xi + b0[fid] * yi + c0[fid]
+        l1 = a1[fid] * xi + b1[fid] * yi + c1[fid]
         l2 = 1.0 - l0 - l1
-        eps = -1e-9
-        inside = ok_det & (l0 >= eps) & (l1 >= eps) & (l2 >= eps)
+        inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps)
         rows_out.append(yi[inside])
         cols_out.append(xi[inside])
         face_out.append(fid[inside])
