@@ -177,3 +177,26 @@ def test_stage_bad_eyes_json(tmp_path, patch):
     assert r.returncode == 2
     assert "eyes.json" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_degenerate_input_faces_and_tiny_target(patch):
+    V, F, eyes = patch
+    V = V.copy()
+    # make ~1 % of the scan's triangles zero-area (vertices moved onto a neighbour), away from the loops
+    loopset = set(np.concatenate([e["loop_indices"] for e in eyes.values()]).tolist())
+    rng = np.random.default_rng(3)
+    for f in rng.choice(len(F), len(F) // 100, replace=False):
+        a, b = F[f, 0], F[f, 1]
+        if a not in loopset and b not in loopset:
+            V[a] = V[b]
+    assert mc.check_mesh(V, F).degenerate_faces > 0
+    r = retopologize(V, F, eyes, RetopoSettings(target_polygons=300, loop_points=16))
+    rep = mc.check_mesh(r.V, r.F)
+    assert rep.manifold and rep.degenerate_faces == 0
+    assert len(r.loops["left"]) == 16 and r.metrics["polygons"] < 600
+
+
+def test_loop_outside_crop_is_refused(patch):
+    V, F, eyes = patch
+    with pytest.raises(ValueError, match="margins"):
+        retopologize(V, F, eyes, RetopoSettings(margin_above_mm=1.0))

@@ -120,7 +120,15 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
     vmap = np.unique(Fk)
     remap = -np.ones(n, dtype=np.int64)
     remap[vmap] = np.arange(len(vmap))
-    return V[vmap], remap[Fk], vmap
+    Vc, Fc = V[vmap], remap[Fk]
+    # weld coincident vertices (zero-area faces then have a repeated index and are dropped),
+    # so decimation sees one closed surface instead of pinholes
+    _, first, inv = np.unique(Vc, axis=0, return_index=True, return_inverse=True)
+    if len(first) < len(Vc):
+        rep = first[inv.ravel()]
+        Fc = rep[Fc]
+        Fc = Fc[(Fc[:, 0] != Fc[:, 1]) & (Fc[:, 1] != Fc[:, 2]) & (Fc[:, 0] != Fc[:, 2])]
+    return Vc, Fc, vmap
 
 
 # ----------------------------------------------------------------------------- cleaning
@@ -159,6 +167,16 @@ def clean_mesh(V, F, area_tol=1e-12):
         area = 0.5 * np.linalg.norm(mc.face_normals(V, F[idx], normalize=False), axis=1)
         drop = idx[np.argsort(area)[: max(1, len(idx) // 2)]]
         F = np.delete(F, drop, axis=0)
+    for _ in range(10):
+        # boundary vertices with two outgoing boundary edges (pinched boundary): drop their faces
+        n = len(V)
+        he = mc.edges_of(F)
+        key = he[:, 0] * n + he[:, 1]
+        bnd = he[~np.isin(key, he[:, 1] * n + he[:, 0])]
+        pinched = np.bincount(bnd[:, 0], minlength=n) > 1
+        if not pinched.any():
+            break
+        F = F[~pinched[F].any(axis=1)]
     used = np.unique(F)
     remap = -np.ones(len(V), dtype=np.int64)
     remap[used] = np.arange(len(used))
