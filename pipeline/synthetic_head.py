@@ -299,7 +299,7 @@ class _Model:
             upper = _smoothstep(-0.02, 0.02, beta - base_b)
             # lid profile T(d): thickness outside, behind the eye inside
             thick = 2.3 + 0.4 * upper
-            tout = thick * np.tanh(np.maximum(d, 0.0) / 1.1) + 0.12 * np.maximum(d - 2.0, 0.0)
+            tout = thick * np.tanh(np.maximum(d, 0.0) / 1.1) + 0.3 * np.maximum(d - 2.0, 0.0)
             tin = -4.0 * (1.0 - np.exp(np.minimum(d, 0.0) / 1.0))
             tlid = np.where(d >= 0, tout, tin)
             # upper-lid crease (round) or a hanging skin fold (hooded)
@@ -315,7 +315,10 @@ class _Model:
             hl_c, _, _ = _ray_sphere(ox, oy, oz, mx, mz, e.cornea_center,
                                      np.maximum(e.cornea_radius + tlid, 0.5))
             h_lid = _smax(hl_s, hl_c, _K_CORNEA)
-            w = 1.0 - _smoothstep(2.5, 10.0, d)
+            # a few mm out from the margin the skin never sinks behind the face (no moat)
+            q = _smoothstep(1.0, 4.0, d)
+            h_lid = h_lid + q * (_smax(h_lid, h_skin[box], 3.0) - h_lid)
+            w = 1.0 - _smoothstep(2.5, 12.0, d)
             hsk = w * h_lid + (1 - w) * h_skin[box]
             h_skin[box] = hsk
             h_eye[box] = np.maximum(h_eye[box], he)
@@ -329,7 +332,7 @@ class _Model:
                 cf = np.zeros_like(rr)
                 for a0 in e.crow_angles:
                     cf += _gauss(rr * np.sin(ang - a0), 0.35) * (np.cos(ang - a0) > 0)
-                cf *= _smoothstep(2.0, 5.0, rr) * (1 - _smoothstep(14.0, 22.0, rr))
+                cf *= _smoothstep(2.0, 5.0, rr) * (1 - _smoothstep(9.0, 15.0, rr))
                 ll = (1 - upper) * (_gauss(d - 3.2, 0.35) + 0.7 * _gauss(d - 6.0, 0.4)) \
                     * _smoothstep(0.15, 0.45, s) * (1 - _smoothstep(0.75, 1.05, s))
                 wr = np.zeros(t.shape)
