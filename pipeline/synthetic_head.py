@@ -360,7 +360,8 @@ class _Model:
     def skin_detail(self, x, y, d, wrinkle):
         """Signed skin displacement (mm): pores, forehead lines, crow's feet, lid lines."""
         pores = self.noise_pore(x / 0.55, y / 0.55)
-        pores = -self.pore_depth * _smoothstep(0.55, 0.85, pores) + 0.03 * (self.noise_pore(x / 2.3 + 91.0, y / 2.3) - 0.5)
+        pores = -self.pore_depth * _smoothstep(0.55, 0.85, pores) \
+            + 0.03 * (self.noise_pore(x / 2.3 + 91.0, y / 2.3) - 0.5)
         fl = np.zeros_like(x)
         for yk, ph in zip(self.forehead_lines, self.forehead_phase):
             yy = yk + 2.0 * np.sin(x / 23.0 + ph) + 0.00045 * x * x
@@ -432,7 +433,7 @@ def _grid_faces(ny, nt):
     return np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
 
 
-def _points(model, t, y, f, h):
+def _points(f, y, h):
     return np.stack([f["bx"] + h * f["nx"], y, f["bz"] + h * f["nz"]], axis=-1)
 
 
@@ -485,7 +486,7 @@ def _trace_margin(model, eye, n=256):
     rad = 0.5 * (lo_r + hi_r)
     tt, yy = t0 + rad * ux, y0 + rad * uy
     f = model.fields(tt, yy, detail=False)
-    pts = _points(model, tt, yy, f, f["h_eye"])
+    pts = _points(f, yy, f["h_eye"])
     # order: medial canthus first, over the upper lid to the lateral canthus, back below
     lat = eye.lat * (pts[:, 0] - c[0])
     i_med = int(np.argmin(lat))
@@ -553,6 +554,8 @@ def _ground_truth(model, hints_rng, target_triangles):
                 "distance_to_eyeball_sphere_mm": {"max": round(float(dist.max()), 5),
                                                   "rms": round(float(np.sqrt(np.mean(dist ** 2))), 5)},
                 "width_mm": round(width, 4),
+                "upper_lid_length_mm": round(float(np.linalg.norm(np.diff(margin[: i_lat + 1], axis=0),
+                                                                  axis=1).sum()), 4),
                 "height_mm": round(float(up[:, 1].max() - lo[:, 1].min()), 4),
             },
         }
@@ -614,7 +617,8 @@ def _paint(model, t, y, base=None):
     # redder cheeks, nose and lips; darker creases and pores
     ax = np.abs(x)
     red = 0.5 * np.exp(-(((ax - 40) / 16) ** 2 + ((yy + 28) / 14) ** 2)) \
-        + 0.8 * np.exp(-((x / 21.0) ** 4 + ((yy + 72.0) / 8.0) ** 2)) + 0.3 * np.exp(-((x / 8) ** 2 + ((yy + 40) / 10) ** 2))
+        + 0.8 * np.exp(-((x / 21.0) ** 4 + ((yy + 72.0) / 8.0) ** 2)) \
+        + 0.3 * np.exp(-((x / 8) ** 2 + ((yy + 40) / 10) ** 2))
     col = col * (1 - 0.25 * red[:, None]) + np.array([190.0, 80.0, 80.0]) * 0.25 * red[:, None]
     crease = np.clip(-f["detail"] / 0.3, 0, 1)
     col *= (1.0 - 0.35 * crease)[:, None]
@@ -696,7 +700,7 @@ def make_synthetic_head(seed: int = 7, target_triangles: int = 300_000, eye_shap
     T, Y = np.meshgrid(tv, yv)
     base = tuple(np.broadcast_to(b, T.shape).ravel() for b in _base(tv))
     f = model.fields(T.ravel(), Y.ravel(), detail=True, base=base)
-    P = _points(model, T.ravel(), Y.ravel(), f, f["h"]).reshape(ny, nt, 3)
+    P = _points(f, Y.ravel(), f["h"]).reshape(ny, nt, 3)
     if noise_mm > 0:
         nrng = np.random.default_rng([seed, 1])
         P = P + _normals(P) * nrng.normal(0.0, float(noise_mm), size=(ny, nt, 1))

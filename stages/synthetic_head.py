@@ -51,8 +51,9 @@ def main(argv) -> dict:
     }
     for side, eye in gt["eyes"].items():
         metrics[f"{side}_eyeball_radius_mm"] = eye["eyeball_sphere"]["radius_mm"]
-        metrics[f"{side}_margin_to_sphere_max_mm"] = eye["eyelid_margin"]["distance_to_eyeball_sphere_mm"]["max"]
-        metrics[f"{side}_opening_height_mm"] = eye["eyelid_margin"]["height_mm"]
+        margin = eye["eyelid_margin"]
+        metrics[f"{side}_margin_to_sphere_max_mm"] = margin["distance_to_eyeball_sphere_mm"]["max"]
+        metrics[f"{side}_opening_height_mm"] = margin["height_mm"]
     return metrics
 
 
