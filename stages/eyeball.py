@@ -19,6 +19,7 @@ from pathlib import Path
 from PIL import Image
 
 from pipeline.eyeball import geometry as geo
+from pipeline.errors import ScanError
 from pipeline.eyeball import textures as tex
 from pipeline.io.atomic import atomic_dir
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
@@ -75,6 +76,11 @@ def main(argv) -> dict:
     ap.add_argument("out", type=Path, help="output folder (rigged_assets/eyeball)")
     args = ap.parse_args(argv)
     params = load_params("eyeball", args.params)
+    try:  # settings are checked before anything is written
+        geo.EyeballParams.from_dict(params.get("geometry"))
+        geo.Resolution.from_value(params.get("resolution", "high"))
+    except (ValueError, TypeError) as exc:
+        raise ScanError(args.params, f"eyeball: {exc}") from None
     with atomic_dir(args.out) as tmp:
         metrics = build_asset(tmp, params)
         if params.get("preview", True):

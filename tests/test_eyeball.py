@@ -185,6 +185,9 @@ def test_bad_parameters_refused():
         geo.EyeballParams(pupil_dilated_mm=6.0)
     with pytest.raises(ValueError):
         geo.EyeballParams(r1=float("nan"))
+    with pytest.raises(ValueError, match="unknown eyeball geometry"):
+        geo.EyeballParams.from_dict({"radius": 12})
+    assert geo.EyeballParams.from_dict({"r1": "12.5", "apex": 14}).r1 == 12.5
 
 
 def test_tiny_and_huge_eyes_scale_cleanly():
@@ -357,3 +360,18 @@ def test_usd_sclera_normal_map(asset):
     nt = UsdShade.Shader(src.GetPrim())
     assert nt.GetInput("file").Get().path.endswith("sclera_normal.png")
     assert nt.GetInput("sourceColorSpace").Get() == "raw"
+
+
+def test_stage_cli_refuses_bad_settings(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    params = tmp_path / "params.yaml"
+    params.write_text("eyeball:\n  resolution: {n_around: 30}\n  preview: false\n")
+    out = tmp_path / "eyeball"
+    res = subprocess.run([sys.executable, "-m", "stages.eyeball", str(out), "--params", str(params)],
+                         cwd=root, capture_output=True, text=True)
+    assert res.returncode == 2 and "multiple of 8" in res.stderr and "Traceback" not in res.stderr
+    assert not out.exists()

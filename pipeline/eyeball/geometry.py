@@ -34,7 +34,7 @@ landmark 0 is at image right and landmark 2 at the top.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -96,8 +96,10 @@ class EyeballParams:
     @classmethod
     def from_dict(cls, d: dict | None) -> "EyeballParams":
         d = dict(d or {})
-        names = set(cls.__dataclass_fields__)
-        return cls(**{k: float(v) for k, v in d.items() if k in names})
+        unknown = set(d) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown eyeball geometry setting(s) {sorted(unknown)}")
+        return cls(**{k: float(v) for k, v in d.items()})
 
 
 @dataclass(frozen=True)
@@ -713,5 +715,3 @@ def with_resolution(eye: Eyeball, resolution) -> Eyeball:
     """The same eyeball at another resolution."""
     return build_eyeball(eye.params, resolution)
 
-
-__all__ = [n for n in dir() if not n.startswith("_")] + ["replace"]
