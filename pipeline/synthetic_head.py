@@ -91,6 +91,23 @@ def _base(t):
     return x, z, -dz / n, dx / n
 
 
+_ARC_T = np.linspace(-_T_RANGE, _T_RANGE, 4001)
+
+
+def _arc_table():
+    x, z = _rho(_ARC_T) * np.sin(_ARC_T), _rho(_ARC_T) * np.cos(_ARC_T)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(z)))])
+    return s - np.interp(0.0, _ARC_T, s)
+
+
+_ARC_S = _arc_table()
+
+
+def _arc(t):
+    """Signed arc length (mm) along the base curve from the midline (t = 0)."""
+    return np.interp(t, _ARC_T, _ARC_S)
+
+
 def _t_for_x(x):
     """Base-curve angle whose base point has abscissa ``x`` (front half)."""
     lo, hi = -_T_RANGE, _T_RANGE
@@ -350,18 +367,18 @@ class _Model:
                 out["upper"][box] = np.maximum(out["upper"][box], upper)
         det = np.zeros(t.shape)
         if detail and self.detail_scale > 0:
-            det = self.skin_detail(bx, y, d_all, wrinkle) * self.detail_scale
+            det = self.skin_detail(bx, _arc(t), y, d_all, wrinkle) * self.detail_scale
             h_skin = h_skin + det
         h = _smax(h_skin, h_eye, _K_LID)
         out.update(h=h, h_skin=h_skin, h_eye=h_eye, d=d_all, detail=det, bx=bx, bz=bz, nx=nx, nz=nz,
                    wrinkle=wrinkle)
         return out
 
-    def skin_detail(self, x, y, d, wrinkle):
+    def skin_detail(self, x, u, y, d, wrinkle):
         """Signed skin displacement (mm): pores, forehead lines, crow's feet, lid lines."""
-        pores = self.noise_pore(x / 0.55, y / 0.55)
+        pores = self.noise_pore(u / 0.55, y / 0.55)
         pores = -self.pore_depth * _smoothstep(0.55, 0.85, pores) \
-            + 0.03 * (self.noise_pore(x / 2.3 + 91.0, y / 2.3) - 0.5)
+            + 0.03 * (self.noise_pore(u / 2.3 + 91.0, y / 2.3) - 0.5)
         fl = np.zeros_like(x)
         for yk, ph in zip(self.forehead_lines, self.forehead_phase):
             yy = yk + 2.0 * np.sin(x / 23.0 + ph) + 0.00045 * x * x
@@ -610,8 +627,9 @@ def _paint(model, t, y, base=None):
     f = model.fields(t, y, detail=True, want_texture=True, base=base)
     x = f["bx"]
     yy = y
-    tone = model.noise_tone(x / 9.0, yy / 9.0) - 0.5
-    fine = model.noise_pore(x / 0.8 + 17.0, yy / 0.8) - 0.5
+    u = _arc(t)
+    tone = model.noise_tone(u / 9.0, yy / 9.0) - 0.5
+    fine = model.noise_pore(u / 0.8 + 17.0, yy / 0.8) - 0.5
     skin = np.array([224.0, 172.0, 146.0])
     col = skin[None, :] * (1.0 + 0.10 * tone[:, None] + 0.04 * fine[:, None])
     # redder cheeks, nose and lips; darker creases and pores
