@@ -62,6 +62,7 @@ class EyeSettings:
     texture_fallback: bool = True
     texture_min_contrast: float = 3.0
     max_fit_rms_mm: float = 0.6
+    max_gaze_deg: float = 40.0
     seed: int = 0
 
     @classmethod
@@ -309,6 +310,40 @@ def _cornea_bulge(mesh: _Mesh, patch_v, center, radius, forward, st: EyeSettings
     return {"center": c2, "radius": float(r2), "n_inliers": int(inl.sum())}
 
 
+def _central_cornea(mesh: _Mesh, hint, st: EyeSettings, rng, radius_mm=5.0):
+    """A corneal sphere (r 5.5-10 mm) fitting most of the surface right around the hint, or None.
+
+    A scan that reconstructed the corneal bulge shows a small, very regular sphere in the middle
+    of the opening; lids, a flattened cornea footprint (scanner saw the iris) or a closed lid
+    do not fit one that well.
+    """
+    V = mesh.V
+    near = np.unique(mesh.F[np.linalg.norm(mesh.centroids - hint, axis=1) < radius_mm])
+    if len(near) < 30:
+        return None
+    P = V[near]
+    tol = 0.15
+
+    def score(c, r):
+        return float((np.abs(np.linalg.norm(P - c, axis=1) - r) < tol).sum())
+
+    def accept(c, r):
+        v = hint - c
+        return v[2] > 0.5 * np.linalg.norm(v)
+
+    best = ransac_sphere(P, score, rng=rng, n_iter=400, r_range=(5.5, 10.0), accept=accept)
+    if best is None or best[2] < max(30, 0.7 * len(P)):
+        return None
+    c2, r2, _ = best
+    inl = np.abs(np.linalg.norm(P - c2, axis=1) - r2) < tol
+    c2, r2 = refine_sphere(P[inl], c2, r2, scale=0.05)
+    d = np.linalg.norm(P - c2, axis=1) - r2
+    inl = np.abs(d) < tol
+    if not (5.5 <= r2 <= 10.0) or inl.sum() < 0.7 * len(P) or np.sqrt(np.mean(d[inl] ** 2)) > 0.08:
+        return None
+    return {"center": c2, "radius": float(r2), "n_inliers": int(inl.sum())}
+
+
 def eye_surface_distance(P, center, radius, cornea=None):
     """Signed distance to the union of the sclera sphere and (optional) corneal sphere, (n,)."""
     d = signed_distance(P, center, radius)
@@ -328,6 +363,12 @@ def _fit_geometry(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fixed_r
     from dataclasses import replace
 
     seed = int(rng.integers(1 << 31))
+    cornea = _central_cornea(mesh, np.asarray(hint, float), st, np.random.default_rng(seed))
+    if cornea is not None:  # two-sphere eye: sclera fitted outside the fitted cornea
+        fit = _fit_geometry_once(mesh, hint, side, st, source, np.random.default_rng(seed),
+                                 fixed_radius, cornea_fixed=cornea)
+        fit.capped = True
+        return fit
     if capped is not None:  # decided by an earlier pass
         s2 = st if capped else replace(st, cornea_cap_deg=0.0)
         fit = _fit_geometry_once(mesh, hint, side, s2, source, np.random.default_rng(seed),
@@ -362,8 +403,9 @@ def _fit_geometry(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fixed_r
         return full
 
 
-def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fixed_radius=None):
-    """One geometric eye fit with the given settings."""
+def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fixed_radius=None,
+                       cornea_fixed=None):
+    """One geometric eye fit with the given settings (and optionally a known corneal sphere)."""
     V, F = mesh.V, mesh.F
     patch = _patch(mesh, hint, st.patch_radius_mm)
     patch_v = np.unique(F[patch])
@@ -378,19 +420,30 @@ def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fi
 
     cos_cap = np.cos(np.radians(st.cornea_cap_deg))
 
+    if cornea_fixed is not None:
+        c2, r2 = np.asarray(cornea_fixed["center"]), cornea_fixed["radius"]
+        on_cornea = np.abs(np.linalg.norm(Ps - c2, axis=1) - r2) < 0.2
+    else:
+        on_cornea = np.zeros(len(Ps), bool)
+
     def score(c, r):
         # sclera inliers outside a cornea cap around centre->hint; nothing may lie inside
         w = Ps - c
         nw = np.linalg.norm(w, axis=1)
         d = nw - r
-        u = hint - c
-        periph = (w @ u) < cos_cap * nw * np.linalg.norm(u)
+        u = hint - c if cornea_fixed is None else c2 - c
+        periph = ((w @ u) < cos_cap * nw * np.linalg.norm(u)) & ~on_cornea
         return float((periph & (np.abs(d) < tol)).sum() - 10.0 * (d < -st.inside_tol_mm).sum())
 
     def accept(c, r):
         v = hint - c
         n = np.linalg.norm(v)
-        return abs(n - r) < 5.0 and v[2] > 0.4 * n and n < st.max_center_hint_distance_mm
+        ok = abs(n - r) < 5.0 and v[2] > 0.4 * n and n < st.max_center_hint_distance_mm
+        if ok and cornea_fixed is not None:
+            a = np.linalg.norm(c2 - c)  # cornea centre in front, apex beyond the sclera
+            ok = (0.2 * r < a < 0.8 * r and 1.03 * r < a + r2 < 1.25 * r and r2 < r
+                  and (c2 - c)[2] > np.cos(np.radians(st.max_gaze_deg)) * a)
+        return ok
 
     best = ransac_sphere(P, score, rng=rng, n_iter=st.ransac_iterations, sample_from=sample,
                          r_range=tuple(st.radius_range_mm), accept=accept)
@@ -398,23 +451,28 @@ def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fi
         raise ScanError(source, f"{side} eye: no eyeball surface found near the hint "
                                 f"{np.round(hint, 2).tolist()}")
     c, r, _ = best
-    forward = _unit(hint - c)
-    cornea = None
+    forward = _unit(hint - c) if cornea_fixed is None else _unit(c2 - c)
+    cornea = cornea_fixed
     inl = None
     in_region = None  # (len(patch_v),) bool: interior vertices of the current removal region
     # away from the crease only when the whole opening is fitted (with a cornea cap too few
     # canthal sclera vertices would remain)
-    use_margin = st.crease_margin_mm >= 0 and st.cornea_cap_deg <= 0
+    use_margin = st.crease_margin_mm >= 0 and (st.cornea_cap_deg <= 0 or cornea_fixed is not None)
     for it in range(st.fit_iterations):
         w = P - c
         nw = np.linalg.norm(w, axis=1)
         d = nw - r
         ang = np.degrees(np.arccos(np.clip((w @ forward) / nw, -1, 1)))
+        cap_deg = st.cornea_cap_deg
+        if cornea_fixed is not None:  # limbus of the two-sphere model + seam margin
+            a = np.linalg.norm(c2 - c)
+            x = (r * r - r2 * r2 + a * a) / (2 * a)
+            cap_deg = np.degrees(np.arccos(np.clip(x / r, -1, 1))) + 5.0
         if in_region is None or not use_margin:
-            inl = (np.abs(d) < tol) & (dh < st.sample_radius_mm + 2.0) & (ang > st.cornea_cap_deg)
+            inl = (np.abs(d) < tol) & (dh < st.sample_radius_mm + 2.0) & (ang > cap_deg)
         else:
             # exposed sclera: inside the cut, away from its (rounded) crease, outside the cornea
-            inl = in_region & (np.abs(d) < 3 * tol) & (ang > st.cornea_cap_deg)
+            inl = in_region & (np.abs(d) < 3 * tol) & (ang > cap_deg)
         if inl.sum() < st.min_inliers:
             inl = (np.abs(d) < tol) & (dh < st.sample_radius_mm + 2.0)
         if fixed_radius is not None:
@@ -425,7 +483,8 @@ def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fi
         dn = np.linalg.norm(P[inl] - c, axis=1) - r
         tol = float(np.clip(3.0 * 1.4826 * np.median(np.abs(dn)), 0.1, st.inlier_tol_mm))
         # region and forward direction with the current sphere
-        cornea = _cornea_bulge(mesh, patch_v, c, r, forward, st, rng)
+        cornea = cornea_fixed if cornea_fixed is not None else \
+            _cornea_bulge(mesh, patch_v, c, r, forward, st, rng)
         dd = np.full(len(V), np.inf)
         dd[patch_v] = eye_surface_distance(P, c, r, cornea)
         okv = (dd <= st.cut_tol_mm) & (dd >= -st.inside_tol_mm)
