@@ -12,7 +12,7 @@ and a darker limbal ring. The pupil is black.
 
 Sclera textures are equirectangular over the inner sclera UVs (u = azimuth /
 2pi, v = 1 at the limbus, 0 at the back pole): a near-white base with faint
-mottling and a veins layer (``bloodshot``: many red branching vessels
+mottling, a soft grey limbal transition (last ~1 mm before the iris) and a veins layer (``bloodshot``: many red branching vessels
 running from the back toward the limbus, densest at the eye corners; ``clear``:
 a few faint ones). The tint layer is a colour multiplier (:data:`SCLERA_TINTS`),
 applied by the material (UsdUVTexture ``scale``, Cycles mix), not baked in.
@@ -247,6 +247,9 @@ def sclera_texture(veins: str, width: int = 1024, height: int = 512, seed: int =
         corner = np.maximum(np.cos(2 * np.pi * u), np.cos(2 * np.pi * (u - 0.5))) ** 6
         red = gaussian_filter(corner[None, :] * (0.3 + 0.7 * vv[:, None]), 3)
         img = img * (1 - 0.12 * red[..., None]) + np.array([0.85, 0.45, 0.42]) * 0.12 * red[..., None]
+    # limbus: the sclera greys into the iris over ~1 mm (v within 0.035 of the limbus)
+    lim = np.clip((vv - 0.965) / 0.035, 0, 1) ** 1.5
+    img = img * (1 - 0.55 * lim)[:, None, None] + np.array([0.30, 0.30, 0.33]) * 0.25 * lim[:, None, None]
     return np.clip(img, 0, 1).astype(np.float32)
 
 
