@@ -202,7 +202,7 @@ def _make_eye(side, rng, ipd, hood, y_eye):
     al = {
         "a_m": -d(rng.uniform(55.0, 60.0)), "a_l": d(rng.uniform(73.0, 78.0)),
         "b_m": d(rng.uniform(-3.0, -1.0)), "b_l": d(rng.uniform(1.0, 4.0)),
-        "h_u": d((1 - hood) * rng.uniform(25.5, 27.5) + hood * rng.uniform(16.0, 18.0)),
+        "h_u": d((1 - hood) * rng.uniform(25.5, 27.5) + hood * rng.uniform(19.0, 21.0)),
         "h_l": d(rng.uniform(23.0, 25.0)),
         "g_u": float(rng.uniform(0.8, 0.95)), "g_l": float(rng.uniform(1.1, 1.25)),
     }

@@ -196,7 +196,7 @@ def test_hooded_eyes_have_smaller_opening():
     for side in ("left", "right"):
         hr = rnd["eyes"][side]["eyelid_margin"]["height_mm"]
         hh = hood["eyes"][side]["eyelid_margin"]["height_mm"]
-        assert hh < hr - 1.0
+        assert hh < hr - 0.8                      # lid lower by ~6 deg, fold over it
     assert hood["eye_shape"] == "hooded" and hood["eye_shape_params"]["hoodedness"] == 1.0
 
 
