@@ -189,15 +189,29 @@ def test_lids_fused_with_eyeball_single_surface(head):
     assert (nrm[near, 2] > 0).all()
 
 
+def _visible_eye_height(h, side):
+    """Vertical extent of the mesh vertices that lie on the eyeball or cornea sphere."""
+    e = h.ground_truth["eyes"][side]
+    c, r = np.array(e["eyeball_sphere"]["center_mm"]), e["eyeball_sphere"]["radius_mm"]
+    cc, rc = np.array(e["cornea_sphere"]["center_mm"]), e["cornea_sphere"]["radius_mm"]
+    on = (np.abs(np.linalg.norm(h.V - c, axis=1) - r) < 1e-3) | \
+        (np.abs(np.linalg.norm(h.V - cc, axis=1) - rc) < 1e-3)
+    return np.ptp(h.V[on, 1])
+
+
 def test_hooded_eyes_have_smaller_opening():
-    kw = dict(seed=5, target_triangles=20_000, **SMALL)
-    rnd = make_synthetic_head(eye_shape="round", **kw).ground_truth
-    hood = make_synthetic_head(eye_shape="hooded", **kw).ground_truth
+    kw = dict(seed=5, target_triangles=60_000, **SMALL)
+    rnd = make_synthetic_head(eye_shape="round", **kw)
+    hood = make_synthetic_head(eye_shape="hooded", **kw)
+    half = make_synthetic_head(eye_shape=0.5, **kw)
     for side in ("left", "right"):
-        hr = rnd["eyes"][side]["eyelid_margin"]["height_mm"]
-        hh = hood["eyes"][side]["eyelid_margin"]["height_mm"]
-        assert hh < hr - 0.8                      # lid lower by ~6 deg, fold over it
-    assert hood["eye_shape"] == "hooded" and hood["eye_shape_params"]["hoodedness"] == 1.0
+        hr = rnd.ground_truth["eyes"][side]["eyelid_margin"]["height_mm"]
+        hh = hood.ground_truth["eyes"][side]["eyelid_margin"]["height_mm"]
+        hm = half.ground_truth["eyes"][side]["eyelid_margin"]["height_mm"]
+        assert hh + 0.8 < hr and hh < hm < hr     # lid lower by ~6 deg, fold over it
+        assert _visible_eye_height(hood, side) < _visible_eye_height(rnd, side) - 0.5
+    assert hood.ground_truth["eye_shape"] == "hooded"
+    assert hood.ground_truth["eye_shape_params"]["hoodedness"] == 1.0
 
 
 def test_eye_spacing_parameter():
