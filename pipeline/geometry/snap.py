@@ -1,0 +1,213 @@
+"""Snap the eyelid margin onto the placed eyeball (SynthesEyes 3.3).
+
+Each margin-loop vertex moves along its vertex normal to where that line meets the eyeball's
+outer surface (the parametric eye of pipeline/eyeball scaled to the fitted radius, placed at
+the fitted centre and forward direction); when the line misses or grazes the surface (no
+crossing within ``max_move_mm``) the vertex goes to its closest surface point instead.
+Vertices near the margin follow with a smooth falloff of the margin displacement over the
+edge-graph distance ``falloff_mm`` (C1 smoothstep, weight 1 at the margin, 0 beyond), so no
+vertex farther than ``falloff_mm`` moves. Any vertex of the falloff zone left inside the
+eyeball is finally pushed out to the surface.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.geometry import meshtopo
+
+
+@dataclass
+class SnapSettings:
+    """Settings (``snap:`` block of params.yaml)."""
+
+    falloff_mm: float = 4.0
+    max_move_mm: float = 6.0
+    ray_samples: int = 49
+    clearance_mm: float = 0.0
+    max_pitch_deg: float = 25.0
+    max_yaw_deg: float = 35.0
+
+    @classmethod
+    def from_params(cls, params: dict) -> "SnapSettings":
+        s = cls()
+        for k, v in (params or {}).items():
+            if hasattr(s, k):
+                setattr(s, k, type(getattr(s, k))(v))
+        return s
+
+
+@dataclass
+class PlacedEye:
+    """The eyeball placed in the head: centre (3,), radius (mm), unit forward (3,), params."""
+
+    center: np.ndarray
+    radius: float
+    forward: np.ndarray
+    params: object = None
+
+    def closest(self, P):
+        """(Q, N, d): closest outer-surface points, normals, signed distances (n,)."""
+        from pipeline.eyeball.geometry import outer_surface_closest_point
+
+        return outer_surface_closest_point(P, center=self.center, forward=self.forward,
+                                           radius=self.radius, params=self.params)
+
+    def signed_distance(self, P):
+        return self.closest(P)[2]
+
+
+def _ray_hit(eye: PlacedEye, P, N, max_move, samples):
+    """Parameter t (n,) of the crossing of P + t N with the surface nearest t = 0 (nan if none)."""
+    ts = np.linspace(-max_move, max_move, samples)
+    n = len(P)
+    D = np.stack([eye.signed_distance(P + t * N) for t in ts], axis=1)  # (n, samples)
+    out = np.full(n, np.nan)
+    sgn = np.sign(D)
+    cross = sgn[:, :-1] * sgn[:, 1:] <= 0
+    has = cross.any(axis=1)
+    if not has.any():
+        return out
+    # bracket nearest t = 0 per point
+    score = np.where(cross, np.minimum(np.abs(ts[:-1]), np.abs(ts[1:]))[None, :], np.inf)
+    j = np.argmin(score, axis=1)[has]
+    idx = np.where(has)[0]
+    a, b = ts[j].copy(), ts[j + 1].copy()
+    fa = D[idx, j]
+    for _ in range(48):  # vectorised bisection on the signed distance
+        m = 0.5 * (a + b)
+        fm = eye.signed_distance(P[idx] + m[:, None] * N[idx])
+        same = np.sign(fm) == np.sign(fa)
+        a = np.where(same, m, a)
+        fa = np.where(same, fm, fa)
+        b = np.where(same, b, m)
+    out[idx] = 0.5 * (a + b)
+    return out
+
+
+def _edge_graph(V, F):
+    from scipy.sparse import coo_matrix
+
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    E = np.unique(np.sort(E, axis=1), axis=0)
+    w = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
+    n = len(V)
+    return coo_matrix((np.concatenate([w, w]), (np.concatenate([E[:, 0], E[:, 1]]),
+                                                np.concatenate([E[:, 1], E[:, 0]]))),
+                      shape=(n, n)).tocsr()
+
+
+def smoothstep_falloff(dist, radius):
+    """Weight 1 at distance 0, 0 at ``radius`` and beyond, C1 smoothstep in between."""
+    x = np.clip(1.0 - np.asarray(dist, float) / radius, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=None):
+    """Snap one eyelid loop (and its falloff zone) onto the eye.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    loop : (L,) int64
+        Margin vertex indices.
+    eye : PlacedEye
+    st : SnapSettings
+    graph : scipy.sparse matrix, optional
+        Edge-length graph of (V, F).
+
+    Returns
+    -------
+    V2 : (n, 3) float64
+        Snapped positions.
+    info : dict
+        ``moved`` (k,) int64 vertices that moved, ``grazing`` count (closest-point fallback),
+        ``pushed_out`` count, ``falloff_distance`` (n,) float64.
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    st = st or SnapSettings()
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    loop = np.asarray(loop, dtype=np.int64)
+    N = meshtopo.vertex_normals(V, F)[loop]
+    P = V[loop]
+    t = _ray_hit(eye, P, N, st.max_move_mm, st.ray_samples)
+    target = P + np.nan_to_num(t)[:, None] * N
+    graze = ~np.isfinite(t)
+    if graze.any():
+        target[graze] = eye.closest(P[graze])[0]
+    if st.clearance_mm:
+        _, Nq, _ = eye.closest(target)
+        target = target + st.clearance_mm * Nq
+    delta = target - P
+    G = _edge_graph(V, F) if graph is None else graph
+    dist, _, src = dijkstra(G, directed=False, indices=loop, min_only=True,
+                            return_predecessors=True, limit=st.falloff_mm)
+    w = smoothstep_falloff(dist, st.falloff_mm)
+    w[~np.isfinite(dist)] = 0.0
+    moved = np.where(w > 0)[0]
+    pos_in_loop = -np.ones(len(V), dtype=np.int64)
+    pos_in_loop[loop] = np.arange(len(loop))
+    V2 = V.copy()
+    V2[moved] += w[moved, None] * delta[pos_in_loop[src[moved]]]
+    V2[loop] = target
+    # nothing of the falloff zone may end up inside the eyeball
+    zone = moved[~np.isin(moved, loop)]
+    pushed = 0
+    if len(zone):
+        Q, Nq, d = eye.closest(V2[zone])
+        inside = d < 0
+        V2[zone[inside]] = Q[inside] + st.clearance_mm * Nq[inside]
+        pushed = int(inside.sum())
+    return V2, {"moved": moved, "grazing": int(graze.sum()), "pushed_out": pushed,
+                "falloff_distance": dist}
+
+
+def flipped_faces(V0, V1, F):
+    """Number of faces whose normal turned by more than 90 degrees (or collapsed)."""
+    n0 = np.cross(V0[F[:, 1]] - V0[F[:, 0]], V0[F[:, 2]] - V0[F[:, 0]])
+    n1 = np.cross(V1[F[:, 1]] - V1[F[:, 0]], V1[F[:, 2]] - V1[F[:, 0]])
+    return int(((n0 * n1).sum(axis=1) <= 0).sum())
+
+
+def rotated(eye: PlacedEye, pitch_deg, yaw_deg) -> PlacedEye:
+    """The eye turned by pitch (up +) and yaw (toward head +X +) about its centre."""
+    p, y = np.radians(pitch_deg), np.radians(yaw_deg)
+    Rx = np.array([[1, 0, 0], [0, np.cos(p), np.sin(p)], [0, -np.sin(p), np.cos(p)]])
+    Ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
+    f = Ry @ Rx @ np.asarray(eye.forward, float)
+    return PlacedEye(eye.center, eye.radius, f / np.linalg.norm(f), eye.params)
+
+
+def margin_report(V, loop, eye: PlacedEye, st: SnapSettings, n_steps=5):
+    """Gap/penetration of the margin at rest and over the anatomical rotation range.
+
+    Returns
+    -------
+    dict
+        ``gap_max_mm`` (largest |signed distance| of margin vertices at rest),
+        ``edge_midpoint_min_mm`` (chord sag of margin edges, negative = inside),
+        ``rotated_gap_max_mm`` / ``rotated_inside_max_mm`` (over pitch x yaw grid),
+        ``meets_cornea`` (True when some rotation moves the surface under a margin vertex by
+        more than 0.01 mm, i.e. the corneal bulge reaches the margin).
+    """
+    P = V[loop]
+    d = eye.signed_distance(P)
+    mids = 0.5 * (P + np.roll(P, -1, axis=0))
+    dm = eye.signed_distance(mids)
+    gmax, imax, cornea = 0.0, 0.0, False
+    base = eye.signed_distance(P)
+    for pitch in np.linspace(-st.max_pitch_deg, st.max_pitch_deg, n_steps):
+        for yaw in np.linspace(-st.max_yaw_deg, st.max_yaw_deg, n_steps):
+            dr = rotated(eye, pitch, yaw).signed_distance(P)
+            gmax = max(gmax, float(dr.max()))
+            imax = max(imax, float(-dr.min()))
+            if np.abs(dr - base).max() > 0.01:  # the corneal bulge (not the sphere) under the margin
+                cornea = True
+    return {"gap_max_mm": float(np.abs(d).max()), "inside_max_mm": float(max(0.0, -d.min())),
+            "edge_midpoint_min_mm": float(dm.min()),
+            "rotated_gap_max_mm": gmax, "rotated_inside_max_mm": imax, "meets_cornea": cornea}

@@ -1,0 +1,144 @@
+"""snap: margin gap/penetration bounds, grazing normals, falloff support, stage I/O."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pipeline.eyeball.geometry import EyeballParams
+from pipeline.geometry import meshtopo
+from pipeline.geometry import snap as sn
+from pipeline.io.meshfile import load_mesh, save_mesh
+
+CENTER = np.array([31.0, 2.0, 70.0])
+R = 12.5
+
+
+def lid_ring(lift0=0.3, theta0=42.0, theta1=75.0, n_around=72, n_rings=14, flat=False):
+    """Annular 'lid' mesh around an eye looking down +Z; ring 0 (the loop) sits ``lift0`` mm off
+    the eyeball sphere (negative = inside). ``flat``: a plane z = const whose inner ring lies
+    outside the eye silhouette, so the loop normals (+Z) never meet the eyeball (grazing)."""
+    th = np.radians(np.linspace(theta0, theta1, n_rings))
+    ph = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    if flat:
+        rho = (R + 0.4) + (T - T[0]) * 20.0
+        pts = np.stack([rho * np.cos(P), rho * np.sin(P), np.full_like(rho, 3.0)], -1)
+    else:
+        rr = R + lift0 + 2.5 * ((T - T[0]) / (T[-1] - T[0])) ** 0.7
+        pts = np.stack([rr * np.sin(T) * np.cos(P), rr * np.sin(T) * np.sin(P), rr * np.cos(T)], -1)
+    V = pts.reshape(-1, 3) + CENTER
+    idx = np.arange(n_rings * n_around).reshape(n_rings, n_around)
+    a, b = idx[:-1], np.roll(idx[:-1], -1, axis=1)
+    c, d = np.roll(idx[1:], -1, axis=1), idx[1:]
+    F = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    # orient CCW seen from outside (normals away from the eye centre / toward +Z)
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    out = V[F].mean(1) - CENTER if not flat else np.array([0, 0, 1.0])
+    if (np.einsum("ij,ij->i", n, np.broadcast_to(out, n.shape)) < 0).mean() > 0.5:
+        F = F[:, ::-1]
+    return V, F, idx[0].copy()
+
+
+def _eye():
+    return sn.PlacedEye(CENTER, R, np.array([0, 0, 1.0]), EyeballParams())
+
+
+@pytest.mark.parametrize("lift0", [0.3, 1.5, -0.6])
+def test_gap_penetration_falloff(lift0):
+    V, F, loop = lid_ring(lift0)
+    st = sn.SnapSettings(falloff_mm=4.0)
+    eye = _eye()
+    V2, info = sn.snap_loop(V, F, loop, eye, st)
+    d = eye.signed_distance(V2[loop])
+    assert np.abs(d).max() <= 0.05
+    zone = eye.signed_distance(V2[info["moved"]])
+    assert zone.min() >= -0.05
+    assert sn.flipped_faces(V, V2, F) == 0
+    assert meshtopo.is_edge_manifold(F)
+    far = ~(info["falloff_distance"] < st.falloff_mm)
+    assert far.any() and np.array_equal(V2[far], V[far])
+    # smooth: displacement decreases with distance from the margin along each spoke
+    disp = np.linalg.norm(V2 - V, axis=1).reshape(-1, 72)
+    assert (np.diff(disp[:, 0]) <= 1e-9).all()
+
+
+def test_grazing_normals_use_closest_point():
+    V, F, loop = lid_ring(flat=True)
+    eye = _eye()
+    V2, info = sn.snap_loop(V, F, loop, eye, sn.SnapSettings(falloff_mm=3.0))
+    assert info["grazing"] == len(loop)
+    assert np.abs(eye.signed_distance(V2[loop])).max() <= 0.05
+    assert not np.allclose(V2[loop], V[loop])
+
+
+def test_margin_report_rotation():
+    V, F, loop = lid_ring(0.3, theta0=30.0)
+    eye = _eye()
+    V2, _ = sn.snap_loop(V, F, loop, eye, sn.SnapSettings())
+    rep = sn.margin_report(V2, loop, eye, sn.SnapSettings(), n_steps=3)
+    assert rep["gap_max_mm"] <= 0.05
+    assert rep["meets_cornea"]  # a loop at 30 deg lies on the corneal seam when the eye turns
+    V, F, loop = lid_ring(0.3, theta0=82.0, theta1=100.0)
+    V2, _ = sn.snap_loop(V, F, loop, eye, sn.SnapSettings())
+    rep = sn.margin_report(V2, loop, eye, sn.SnapSettings(), n_steps=3)
+    assert not rep["meets_cornea"] and rep["rotated_gap_max_mm"] <= 0.05
+
+
+def _write_inputs(tmp_path):
+    Vl, Fl, loopl = lid_ring(0.4)
+    mirror = np.array([-1.0, 1, 1])
+    Vr = (Vl - CENTER) * mirror + CENTER * mirror
+    Fr = Fl[:, ::-1] + len(Vl)
+    V = np.concatenate([Vl, Vr])
+    F = np.concatenate([Fl, Fr])
+    bake = tmp_path / "bake"
+    bake.mkdir()
+    save_mesh(bake / "mesh.npz", V=V, F=F, UV=V[:, :2] / 100, FUV=F.copy(),
+              loop_left=loopl, loop_right=loopl + len(Vl))
+    rem = tmp_path / "remove_eyeballs"
+    rem.mkdir()
+    eyes = {"left": {"center": CENTER.tolist(), "radius": R, "forward": [0, 0, 1], "residual_rms_mm": 0.1},
+            "right": {"center": (CENTER * mirror).tolist(), "radius": R, "forward": [0, 0, 1],
+                      "residual_rms_mm": 0.1}}
+    (rem / "eyes.json").write_text(json.dumps(eyes))
+    eb = tmp_path / "eyeball"
+    eb.mkdir()
+    (eb / "eyeball.usda").write_text(
+        '#usda 1.0\ndef Xform "E" (\n customData = {\n dictionary eyerig = {\n'
+        ' dictionary params = {\n double apex = 13.5\n double r1 = 12\n double r2 = 8\n'
+        ' double seam_blend_mm = 1\n }\n }\n }\n)\n{\n}\n')
+    return bake, rem, eb
+
+
+def test_stage(tmp_path):
+    from stages.snap import main
+
+    bake, rem, eb = _write_inputs(tmp_path)
+    out = tmp_path / "snap"
+    m = main([str(bake), str(rem), str(eb), str(out), "--metrics", str(tmp_path / "m.json"),
+              "--params", "none.yaml"])
+    assert m["gap_max_mm"] <= 0.05 and m["inside_max_mm"] <= 0.05
+    assert m["flipped_faces"] == 0 and m["edge_manifold"]
+    mesh = load_mesh(out / "mesh.npz")
+    src = load_mesh(bake / "mesh.npz")
+    assert set(mesh) == set(src)
+    assert np.array_equal(mesh["F"], src["F"]) and np.array_equal(mesh["UV"], src["UV"])
+    eyes = json.loads((out / "eyes.json").read_text())
+    for s in ("left", "right"):
+        assert np.allclose(mesh["V"][eyes[s]["loop_indices"]], eyes[s]["loop_points"])
+        assert eyes[s]["residual_rms_mm"] == 0.1
+
+
+def test_stage_bad_input_one_line(tmp_path, capsys):
+    from stages._common import run_stage
+    from stages.snap import main
+
+    bake, rem, eb = _write_inputs(tmp_path)
+    (rem / "eyes.json").write_text("{not json")
+    assert run_stage(main, [str(bake), str(rem), str(eb), str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "eyes.json" in err and "\n" not in err
+    assert not (tmp_path / "out").exists()
