@@ -92,6 +92,7 @@ def snap_mesh(mesh: dict, eyes: dict, params, st: sn.SnapSettings, source="mesh.
         reports[s] = rep
         metrics[s] = {"loop_length": int(len(loop)), "moved_vertices": int(len(info["moved"])),
                       "grazing_fallbacks": info["grazing"], "pushed_out": info["pushed_out"],
+                      "relax_iterations": info["relax_iterations"],
                       "moved_outside_falloff": moved_far,
                       "zone_inside_max_mm": float(max(0.0, -d_zone.min())),
                       "max_move_mm": float(np.linalg.norm(V2[info["moved"]] - V[info["moved"]],

@@ -29,6 +29,9 @@ class SnapSettings:
     clearance_mm: float = 0.0
     max_pitch_deg: float = 25.0
     max_yaw_deg: float = 35.0
+    graze_ratio: float = 2.0
+    max_relax_iterations: int = 200
+    graze_slack_mm: float = 0.25
 
     @classmethod
     def from_params(cls, params: dict) -> "SnapSettings":
@@ -136,10 +139,12 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
     N = meshtopo.vertex_normals(V, F)[loop]
     P = V[loop]
     t = _ray_hit(eye, P, N, st.max_move_mm, st.ray_samples)
-    target = P + np.nan_to_num(t)[:, None] * N
-    graze = ~np.isfinite(t)
-    if graze.any():
-        target[graze] = eye.closest(P[graze])[0]
+    Qc, _, dc = eye.closest(P)
+    # along the normal unless the line meets the surface only far away (grazing): then the
+    # closest surface point (paper: "along their normals to the closest positions")
+    graze = ~np.isfinite(t) | (np.abs(t) > st.graze_ratio * np.abs(dc) + st.graze_slack_mm)
+    target = P + np.where(graze, 0.0, np.nan_to_num(t))[:, None] * N
+    target[graze] = Qc[graze]
     if st.clearance_mm:
         _, Nq, _ = eye.closest(target)
         target = target + st.clearance_mm * Nq
@@ -155,6 +160,34 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
     V2 = V.copy()
     V2[moved] += w[moved, None] * delta[pos_in_loop[src[moved]]]
     V2[loop] = target
+    # untangle: where a face flipped, relax the displacement of the falloff zone (Jacobi
+    # smoothing, margin and everything beyond the zone held fixed) until no face flips
+    free = np.zeros(len(V), bool)
+    free[moved] = True
+    free[loop] = False
+    relax_iters = 0
+    if free.any() and flipped_faces(V, V2, F):
+        from scipy.sparse import diags
+
+        A = (G > 0).astype(np.float64)
+        deg = np.asarray(A.sum(axis=1)).ravel()
+        Avg = diags(1.0 / np.maximum(deg, 1)) @ A
+        disp = V2 - V
+        for relax_iters in range(1, st.max_relax_iterations + 1):
+            disp[free] = 0.5 * disp[free] + 0.5 * (Avg @ disp)[free]
+            V2 = V + disp
+            if flipped_faces(V, V2, F) == 0:
+                break
+        # still tangled (slivers at the margin): carry their free corners with the margin
+        for _ in range(10):
+            bad = _flipped_mask(V, V2, F)
+            if not bad.any():
+                break
+            vs = np.unique(F[bad].ravel())
+            vs = vs[free[vs]]
+            if len(vs) == 0:
+                break
+            V2[vs] = V[vs] + delta[pos_in_loop[src[vs]]]
     # nothing of the falloff zone may end up inside the eyeball
     zone = moved[~np.isin(moved, loop)]
     pushed = 0
@@ -164,14 +197,19 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
         V2[zone[inside]] = Q[inside] + st.clearance_mm * Nq[inside]
         pushed = int(inside.sum())
     return V2, {"moved": moved, "grazing": int(graze.sum()), "pushed_out": pushed,
+                "relax_iterations": relax_iters,
                 "falloff_distance": dist}
+
+
+def _flipped_mask(V0, V1, F):
+    n0 = np.cross(V0[F[:, 1]] - V0[F[:, 0]], V0[F[:, 2]] - V0[F[:, 0]])
+    n1 = np.cross(V1[F[:, 1]] - V1[F[:, 0]], V1[F[:, 2]] - V1[F[:, 0]])
+    return (n0 * n1).sum(axis=1) <= 0
 
 
 def flipped_faces(V0, V1, F):
     """Number of faces whose normal turned by more than 90 degrees (or collapsed)."""
-    n0 = np.cross(V0[F[:, 1]] - V0[F[:, 0]], V0[F[:, 2]] - V0[F[:, 0]])
-    n1 = np.cross(V1[F[:, 1]] - V1[F[:, 0]], V1[F[:, 2]] - V1[F[:, 0]])
-    return int(((n0 * n1).sum(axis=1) <= 0).sum())
+    return int(_flipped_mask(V0, V1, F).sum())
 
 
 def rotated(eye: PlacedEye, pitch_deg, yaw_deg) -> PlacedEye:
