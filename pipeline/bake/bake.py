@@ -88,6 +88,12 @@ def distance_to_polylines(P, loops, step=0.05):
     return d
 
 
+def faces_near_box(V, F, lo, hi):
+    """Indices of faces with at least one vertex inside the axis-aligned box [lo, hi]."""
+    inside = np.all((V >= lo) & (V <= hi), axis=1)
+    return np.flatnonzero(inside[F].any(axis=1))
+
+
 def _dense_colour(dense: dict, texture, face, bary):
     """Colour (k, 3) float64 in 0..255 at barycentric points of the dense mesh, or None."""
     if texture is not None and "UV" in dense and "FUV" in dense:
@@ -138,7 +144,13 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     timings["rasterize_s"] = time.perf_counter() - t1
 
     t2 = time.perf_counter()
-    scene = DenseScene(dense["V"], dense["F"])
+    # only the scan near the low-poly mesh matters: faces with a vertex in its padded bounding box
+    dV = np.asarray(dense["V"], dtype=np.float64)
+    dF_all = np.asarray(dense["F"], dtype=np.int64)
+    near_faces = faces_near_box(dV, dF_all, V.min(axis=0) - s.max_distance_mm - 1.0,
+                                V.max(axis=0) + s.max_distance_mm + 1.0)
+    dF = dF_all[near_faces]
+    scene = DenseScene(dV, dF)
     timings["scene_s"] = time.perf_counter() - t2
     t3 = time.perf_counter()
     disp, hface, hbary = cast_both_ways(scene, P, N, s.max_distance_mm)
@@ -146,12 +158,11 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     miss = np.isnan(disp)
     n_miss = int(miss.sum())
     if n_miss:
-        _, cf, C = mc.closest_points(P[miss], dense["V"], dense["F"])
+        _, cf, C = mc.closest_points(P[miss], dV, dF)
         disp[miss] = np.einsum("ij,ij->i", C - P[miss], N[miss])
-        Fd = np.asarray(dense["F"])[cf]
-        Tv = np.asarray(dense["V"])[Fd]
         hface[miss] = cf
-        hbary[miss] = _barycentric(C, Tv)
+        hbary[miss] = _barycentric(C, dV[dF[cf]])
+    hface = near_faces[hface]                      # back to the scan's own face indices
 
     t4 = time.perf_counter()
     lp = [V[np.asarray(l, dtype=np.int64)] for l in loops.values()]
@@ -260,6 +271,8 @@ def reconstruction_error(V, F, UV, FUV, displacement, dense_V, dense_F, levels=2
     """
     dense_V = np.asarray(dense_V, dtype=np.float64)
     dense_F = np.asarray(dense_F, dtype=np.int64)
+    V = np.asarray(V, dtype=np.float64)
+    dense_F = dense_F[faces_near_box(dense_V, dense_F, V.min(axis=0) - region_mm, V.max(axis=0) + region_mm)]
     cen = dense_V[dense_F].mean(axis=1)
     d, fi, C = mc.closest_points(cen, V, F)
     # keep scan faces that project onto the low-poly surface (not past its borders)
