@@ -4,7 +4,8 @@
 
 Reads ``REMOVE_EYEBALLS_DIR/mesh.npz`` (V, F) and ``eyes.json`` (per eye: center,
 loop_indices); writes ``OUT_DIR/mesh.npz`` (V, F [, poly_counts, poly_indices],
-loop_left, loop_right) atomically.
+loop_left, loop_right [, lateral_index_left, lateral_index_right: position of the
+lateral canthus in each loop, when eyes.json gives lateral_canthus_index]) atomically.
 """
 
 from __future__ import annotations
@@ -39,6 +40,9 @@ def load_eyes(path: Path, n_vertices: int) -> dict:
         if li.min() < 0 or li.max() >= n_vertices:
             raise ScanError(path, f"eye '{side}': loop_indices outside the mesh's {n_vertices} vertices")
         eyes[side] = {"center": c, "loop_indices": li}
+        lat = e.get("lateral_canthus_index")
+        if isinstance(lat, int) and 0 < lat < len(li):
+            eyes[side]["lateral_canthus_index"] = lat
     return eyes
 
 
@@ -64,6 +68,14 @@ def main(argv) -> dict:
     out = Path(args.out_dir)
     arrays = {"V": result.V, "F": result.F, "loop_left": result.loops["left"],
               "loop_right": result.loops["right"]}
+    for side in ("left", "right"):
+        # lateral canthus of the dense loop -> nearest vertex of the resampled loop (for rig)
+        lat = eyes[side].get("lateral_canthus_index")
+        if lat is not None:
+            p = np.asarray(mesh["V"], dtype=np.float64)[eyes[side]["loop_indices"][lat]]
+            lp = result.loops[side]
+            arrays[f"lateral_index_{side}"] = np.array(
+                [int(np.argmin(np.linalg.norm(result.V[lp] - p, axis=1)))], dtype=np.int64)
     if result.poly_counts is not None:
         arrays.update(poly_counts=result.poly_counts, poly_indices=result.poly_indices)
     with atomic_dir(out) as tmp:
