@@ -63,6 +63,8 @@ class EyeSettings:
     texture_min_contrast: float = 3.0
     max_fit_rms_mm: float = 0.6
     max_gaze_deg: float = 40.0
+    cornea_min_inliers: int = 20
+    cornea_min_fraction: float = 0.45
     seed: int = 0
 
     @classmethod
@@ -319,7 +321,7 @@ def _central_cornea(mesh: _Mesh, hint, st: EyeSettings, rng, radius_mm=5.0):
     """
     V = mesh.V
     near = np.unique(mesh.F[np.linalg.norm(mesh.centroids - hint, axis=1) < radius_mm])
-    if len(near) < 30:
+    if len(near) < st.cornea_min_inliers:
         return None
     P = V[near]
     tol = 0.15
@@ -332,14 +334,15 @@ def _central_cornea(mesh: _Mesh, hint, st: EyeSettings, rng, radius_mm=5.0):
         return v[2] > 0.5 * np.linalg.norm(v)
 
     best = ransac_sphere(P, score, rng=rng, n_iter=400, r_range=(5.5, 10.0), accept=accept)
-    if best is None or best[2] < max(30, 0.7 * len(P)):
+    if best is None or best[2] < max(st.cornea_min_inliers, st.cornea_min_fraction * len(P)):
         return None
     c2, r2, _ = best
     inl = np.abs(np.linalg.norm(P - c2, axis=1) - r2) < tol
     c2, r2 = refine_sphere(P[inl], c2, r2, scale=0.05)
     d = np.linalg.norm(P - c2, axis=1) - r2
     inl = np.abs(d) < tol
-    if not (5.5 <= r2 <= 10.0) or inl.sum() < 0.7 * len(P) or np.sqrt(np.mean(d[inl] ** 2)) > 0.08:
+    if (not (5.5 <= r2 <= 10.0) or inl.sum() < st.cornea_min_fraction * len(P)
+            or np.sqrt(np.mean(d[inl] ** 2)) > 0.08):
         return None
     return {"center": c2, "radius": float(r2), "n_inliers": int(inl.sum())}
 
