@@ -58,11 +58,15 @@ def _model_corneas(eyes):
 
 
 def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
-              eyes_path="eyes.json"):
-    """Everything the stage computes: (arrays for rig.npz, rig.json dict, metrics dict)."""
+              eyes_path="eyes.json", profile=None):
+    """Everything the stage computes: (arrays for rig.npz, rig.json dict, metrics dict).
+
+    ``profile``: EyeballParams of the parametric eye the margin was snapped to (None = sphere).
+    """
     lp = lids.LidParams.from_dict(params)
     eyes = lids.eye_frames(eyes_json, mesh, eyes_source=str(eyes_path), mesh_source=str(mesh_path),
-                           max_rest_gap_mm=float(params.get("max_rest_gap_mm", 0.5)))
+                           max_rest_gap_mm=float(params.get("max_rest_gap_mm", 0.5)),
+                           profile=profile)
     V = np.asarray(mesh["V"], np.float64)
     F = np.asarray(mesh["F"], np.int64)
     t0 = time.perf_counter()
@@ -83,6 +87,9 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
         arrays.update(lids.shapes_to_arrays(lshapes, prefix=pre))
         arrays[f"loop_{e.side}"] = e.loop
         eyes_doc[e.side] = {
+            "surface": "sphere" if e.profile is None else
+                       {"parametric_eye": {k: getattr(e.profile, k) for k in ("r1", "r2", "apex",
+                                                                              "seam_blend_mm")}},
             "joint": f"eye_{e.side}",
             "center": e.center, "radius": e.radius, "forward": e.forward,
             "pitch_axis": e.axis,
@@ -150,7 +157,7 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
     }
     metrics = {
         "n_vertices": int(len(V)), "n_faces": int(len(F)),
-        "n_segments": rig.n_segments, "predicted_chord_sag_mm": rig.predicted_sag_mm,
+        "n_segments": rig.n_segments, "interpolation_error_mm": rig.predicted_sag_mm,
         **{f"{s.name}_n_points": int(len(s.point_indices)) for s in rig.shapes},
         "sweep_step_deg": step,
         **{f"sweep_{k}": v for k, v in sweep.items()},
@@ -164,10 +171,18 @@ def main(argv) -> dict:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("snap", type=Path, help="build/<scan>/snap")
     parser.add_argument("out", type=Path, help="build/<scan>/rig")
+    parser.add_argument("--eyeball", type=Path, default=None,
+                        help="rigged_assets/eyeball: follow its outer surface (sphere + cornea), "
+                             "as snap does; without it the margin follows the fitted sphere")
     args = parser.parse_args(argv)
     params = load_params("rig", args.params)
     mesh, eyes, mesh_path, eyes_path = _read_inputs(args.snap)
-    arrays, doc, metrics = build_rig(mesh, eyes, params, mesh_path, eyes_path)
+    profile = None
+    if args.eyeball is not None:
+        from stages.snap import read_eyeball_params
+
+        profile = read_eyeball_params(args.eyeball)
+    arrays, doc, metrics = build_rig(mesh, eyes, params, mesh_path, eyes_path, profile)
     with atomic_dir(args.out) as tmp:
         with open(tmp / "rig.npz", "wb") as fh:
             np.savez(fh, **arrays)

@@ -19,7 +19,7 @@ PITCHES_1DEG = np.arange(-25.0, 25.0 + 1e-9, 1.0)
 
 
 def eye_patch(center, radius=12.0, side="left", n_loop=48, n_rings=10, half_width_deg=48.0,
-              upper_deg=20.0, lower_deg=16.0, d_phi=3.0, d_psi=5.0, rise_mm=1.0):
+              upper_deg=20.0, lower_deg=16.0, d_phi=3.0, d_psi=5.0, rise_mm=1.0, profile=None):
     """Skin rings around an almond-like eye opening whose first ring lies on the eyeball sphere.
 
     Returns V (n,3), F (m,3) outward-oriented, loop (medial canthus first, upper lid
@@ -35,7 +35,12 @@ def eye_patch(center, radius=12.0, side="left", n_loop=48, n_rings=10, half_widt
                      np.radians(lower_deg + j * d_psi))
         phi, psi = a * np.cos(t) * sgn, b * np.sin(t)
         d = np.stack([np.sin(phi) * np.cos(psi), np.sin(psi), np.cos(phi) * np.cos(psi)], 1)
-        rings.append(c + (radius + rise_mm * j ** 1.2) * d)
+        base = radius
+        if profile is not None:  # margin on the parametric eye's outer surface (cornea bulge)
+            from pipeline.eyeball.geometry import outer_radial
+            base = outer_radial(np.arccos(np.clip(d[:, 2], -1, 1)), profile) * radius / profile.r1
+        rings.append(c + (base + rise_mm * j ** 1.2)[..., None] * d if profile is not None
+                     else c + (base + rise_mm * j ** 1.2) * d)
     V = np.concatenate(rings)
     L = n_loop
     F = []
@@ -51,15 +56,16 @@ def eye_patch(center, radius=12.0, side="left", n_loop=48, n_rings=10, half_widt
     return V, F, np.arange(L, dtype=np.int64), L // 2
 
 
-def two_eye_region(radius=12.0, **kw):
+def two_eye_region(radius=12.0, profile=None, **kw):
     """Both eyes (left at +X) in one mesh, as the snap stage delivers them."""
     cl, cr = np.array([31.0, 36.0, 79.0]), np.array([-31.0, 36.0, 79.0])
-    Vl, Fl, loopl, lil = eye_patch(cl, radius, "left", **kw)
-    Vr, Fr, loopr, lir = eye_patch(cr, radius, "right", **kw)
+    Vl, Fl, loopl, lil = eye_patch(cl, radius, "left", profile=profile, **kw)
+    Vr, Fr, loopr, lir = eye_patch(cr, radius, "right", profile=profile, **kw)
     V = np.concatenate([Vl, Vr])
     F = np.concatenate([Fl, Fr + len(Vl)])
-    eyes = [lids.EyeFrame("left", cl, radius, np.array([0.0, 0, 1]), loopl, lil),
-            lids.EyeFrame("right", cr, radius, np.array([0.0, 0, 1]), loopr + len(Vl), lir)]
+    eyes = [lids.EyeFrame("left", cl, radius, np.array([0.0, 0, 1]), loopl, lil, profile),
+            lids.EyeFrame("right", cr, radius, np.array([0.0, 0, 1]), loopr + len(Vl), lir,
+                          profile)]
     return V, F, eyes
 
 
@@ -569,3 +575,35 @@ def test_pitch_from_gaze_matches_eye_rotation():
     yaw = np.radians(20.0)
     g = np.array([np.sin(yaw), 0.0, np.cos(yaw)])
     assert lids.pitch_from_gaze(g, [0, 0, 1]) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("radius", [12.0, 15.4])
+def test_margin_rides_the_corneal_bulge(radius):
+    geometry = pytest.importorskip("pipeline.eyeball.geometry")
+    profile = geometry.EyeballParams()
+    V, F, eyes = two_eye_region(radius=radius, profile=profile, upper_deg=12.0, lower_deg=10.0,
+                                half_width_deg=40.0)
+    # the margin really lies on the cornea somewhere (off the sphere by > 0.5 mm)
+    off = max((np.linalg.norm(V[e.loop] - e.center, axis=1) - e.radius).max() for e in eyes)
+    assert off > 0.5
+    rig = lids.build_lid_shapes(V, F, eyes)
+    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    assert res["rest_max_abs_mm"] < 1e-6
+    assert res["max_gap_mm"] <= 0.1 and res["max_penetration_mm"] <= 0.1
+    assert res["flipped_faces"] == 0 and res["min_opening_mm"] > 0
+    # the sphere-only rig would let the cornea cut through the lids
+    sphere_eyes = [lids.EyeFrame(e.side, e.center, e.radius, e.forward, e.loop, e.lateral_index)
+                   for e in eyes]
+    plain = lids.build_lid_shapes(V, F, sphere_eyes)
+    bad = lids.sweep_check(V, F, eyes, plain.shapes, PITCHES_1DEG)
+    assert max(bad["max_gap_mm"], bad["max_penetration_mm"]) > 0.3
+    # and the stage validates the margin against the same surface
+    frames = lids.eye_frames({e.side: {"center": e.center, "radius": e.radius,
+                                       "forward": e.forward} for e in eyes},
+                             {"V": V, "F": F, "loop_left": eyes[0].loop,
+                              "loop_right": eyes[1].loop}, profile=profile)
+    assert all(f.profile is profile for f in frames)
+    with pytest.raises(ScanError, match="off the eyeball sphere"):
+        lids.eye_frames({e.side: {"center": e.center, "radius": e.radius,
+                                  "forward": e.forward} for e in eyes},
+                        {"V": V, "F": F, "loop_left": eyes[0].loop, "loop_right": eyes[1].loop})

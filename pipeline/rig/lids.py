@@ -134,6 +134,7 @@ class LidParams:
     max_chord_sag_mm: float = 0.03
     max_segments: int = 12
     min_opening_fraction: float = 0.2
+    surface_falloff_mm: float = 4.0
     min_offset_mm: float = 1e-6
 
     @classmethod
@@ -170,6 +171,7 @@ class EyeFrame:
     forward: np.ndarray
     loop: np.ndarray
     lateral_index: int
+    profile: object = None
 
     def basis(self) -> np.ndarray:
         """(3, 3) rows ``e_x`` (horizontal, toward head +X), ``e_y`` (up), ``e_z`` (forward)."""
@@ -179,6 +181,33 @@ class EyeFrame:
     def axis(self) -> np.ndarray:
         """(3,) unit rotation axis: a positive angle about it pitches the eye up."""
         return -self.basis()[0]
+
+    def gaze(self, pitch_deg: float) -> np.ndarray:
+        """(3,) forward direction of the eye pitched by ``pitch_deg``."""
+        f = np.asarray(self.forward, float)
+        return rotate_about_axis(f[None], np.zeros(3), self.axis, math.radians(pitch_deg))[0]
+
+    def surface_radius(self, P, pitch_deg: float = 0.0) -> np.ndarray:
+        """(n,) distance from the centre to the eyeball's outer surface along each point's ray.
+
+        ``profile`` None: the sphere (``radius``). Else an ``EyeballParams`` of the parametric
+        eye (pipeline.eyeball.geometry), scaled so its sphere has ``radius``, looking along
+        the pitched gaze: the sphere joined smoothly with the corneal bulge.
+        """
+        P = np.asarray(P, float)
+        if self.profile is None:
+            return np.full(len(P), float(self.radius))
+        from pipeline.eyeball.geometry import outer_radial
+
+        w = P - self.center
+        u = w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+        alpha = np.arccos(np.clip(u @ self.gaze(pitch_deg), -1.0, 1.0))
+        return outer_radial(alpha, self.profile) * (float(self.radius) / float(self.profile.r1))
+
+    def surface_distance(self, P, pitch_deg: float = 0.0) -> np.ndarray:
+        """(n,) radial distance of points outside (+) / inside (-) the pitched eyeball surface."""
+        P = np.asarray(P, float)
+        return np.linalg.norm(P - self.center, axis=1) - self.surface_radius(P, pitch_deg)
 
 
 def eye_basis(forward) -> np.ndarray:
@@ -557,7 +586,8 @@ class LidRig:
     n_segments : int
         Stored poses per direction (inbetweens = n_segments - 1).
     predicted_sag_mm : float
-        Largest chord sag of the piecewise-linear interpolation, mm.
+        Largest drift of the margin from its rest surface offset at the mid-points between
+        stored poses (where piecewise-linear interpolation deviates most), mm.
     """
 
     shapes: list
@@ -589,6 +619,68 @@ def pose_points(P, eyes, angles_by_side: dict, scale: float = 1.0) -> np.ndarray
     return out
 
 
+class _SurfaceFollow:
+    """Radial correction that keeps the margin on a non-spherical eyeball (corneal bulge).
+
+    A rotation about the centre keeps a margin vertex on a sphere, but the parametric
+    eye's cornea (pipeline.eyeball) bulges out of it and turns with the eye. For each
+    pitch the margin's radial offset from the surface at rest is restored:
+    ``delta = R_surface(pitched eye, rotated point) - R_surface(rest)``, extended over
+    the skin harmonically and faded out by the C2 falloff over ``surface_falloff_mm``.
+    Eyes without a ``profile`` (spheres) need no correction.
+    """
+
+    def __init__(self, V, G, eyes, fields, params: LidParams):
+        self.eyes = [e for e in eyes if e.profile is not None]
+        self.eyes_all = list(eyes)
+        self.ops = {}
+        rf = float(params.surface_falloff_mm)
+        for e in self.eyes:
+            D = fields[e.side].distance
+            region = np.isfinite(D) & (D <= rf)
+            fall = np.where(region, smootherstep_falloff(np.where(region, D, 0.0) / rf), 0.0)
+            self.ops[e.side] = (G, region, fall, e.surface_radius(V[e.loop], 0.0))
+
+    def correction(self, V_rot, eye: EyeFrame, pitch_deg: float) -> np.ndarray:
+        """(n,) radial offsets for the rotated points of one eye at an eyeball pitch."""
+        G, region, fall, r0 = self.ops[eye.side]
+        delta = eye.surface_radius(V_rot[eye.loop], pitch_deg) - r0
+        ext = _harmonic_extension(G, region, eye.loop, delta[:, None])[:, 0]
+        return ext * fall
+
+    def interpolation_error(self, V, shapes, n_seg, max_pitch) -> float:
+        """Largest margin drift from its rest surface offset at the mid-points between poses."""
+        all_eyes = self.eyes_all
+        worst = 0.0
+        for j in range(n_seg):
+            for sign in (1.0, -1.0):
+                p = sign * max_pitch * (j + 0.5) / n_seg
+                P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch))
+                for e in all_eyes:
+                    d0 = e.surface_distance(V[e.loop], 0.0)
+                    worst = max(worst, float(np.abs(e.surface_distance(P[e.loop], p) - d0).max()))
+        return worst
+
+
+def _lid_shape(V, eyes, fields, follow: _SurfaceFollow, name, key, n_seg, params) -> BlendShape:
+    sign = 1.0 if name == SHAPE_UP else -1.0
+    poses = []
+    for j in range(1, n_seg + 1):
+        frac = j / n_seg
+        P = pose_points(V, eyes, {e.side: getattr(fields[e.side], key) for e in eyes}, frac)
+        for e in follow.eyes:
+            dr = follow.correction(P, e, sign * params.max_pitch_deg * frac)
+            moving = np.flatnonzero(dr != 0.0)
+            w = P[moving] - e.center
+            P[moving] += w / np.linalg.norm(w, axis=1, keepdims=True) * dr[moving, None]
+        poses.append(P - V)
+    poses = np.stack(poses)
+    moved = np.flatnonzero(np.max(np.linalg.norm(poses, axis=2), axis=0) > params.min_offset_mm)
+    return BlendShape(name=name, point_indices=moved.astype(np.int64), offsets=poses[-1][moved],
+                      inbetween_weights=np.arange(1, n_seg) / n_seg,
+                      inbetween_offsets=poses[:-1][:, moved])
+
+
 def build_lid_shapes(V, F, eyes, params: LidParams | None = None) -> LidRig:
     """Compute the ``lids_up`` and ``lids_down`` blend shapes (with inbetweens).
 
@@ -616,20 +708,14 @@ def build_lid_shapes(V, F, eyes, params: LidParams | None = None) -> LidRig:
         for th in (f.theta_up, f.theta_down):
             n_seg = max(n_seg, n_segments_for_sag(d_axis, th, params.max_chord_sag_mm,
                                                   params.max_segments))
-    for e in eyes:
-        w = V - e.center
-        d_axis = np.linalg.norm(w - np.outer(w @ e.axis, e.axis), axis=1)
-        f = fields[e.side]
-        sag = max(sag, chord_sag(d_axis, f.theta_up, n_seg), chord_sag(d_axis, f.theta_down, n_seg))
-    shapes = []
-    for name, key in ((SHAPE_UP, "theta_up"), (SHAPE_DOWN, "theta_down")):
-        angles = {e.side: getattr(fields[e.side], key) for e in eyes}
-        poses = np.stack([pose_points(V, eyes, angles, j / n_seg) - V for j in range(1, n_seg + 1)])
-        moved = np.flatnonzero(np.max(np.linalg.norm(poses, axis=2), axis=0) > params.min_offset_mm)
-        shapes.append(BlendShape(
-            name=name, point_indices=moved.astype(np.int64), offsets=poses[-1][moved],
-            inbetween_weights=np.arange(1, n_seg) / n_seg,
-            inbetween_offsets=poses[:-1][:, moved]))
+    follow = _SurfaceFollow(V, G, eyes, fields, params)
+    while True:
+        shapes = [_lid_shape(V, eyes, fields, follow, name, key, n_seg, params)
+                  for name, key in ((SHAPE_UP, "theta_up"), (SHAPE_DOWN, "theta_down"))]
+        sag = follow.interpolation_error(V, shapes, n_seg, params.max_pitch_deg)
+        if sag <= params.max_chord_sag_mm or n_seg >= params.max_segments:
+            break
+        n_seg += 1
     return LidRig(shapes=shapes, fields=fields, n_segments=n_seg, predicted_sag_mm=sag)
 
 
@@ -760,14 +846,13 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         if len(sel):
             res["rest_min_skin_clearance_mm"] = min(res["rest_min_skin_clearance_mm"],
                                                     float(near_skin[e.side][1].min()))
-    rest = max(float(np.max(np.abs(np.linalg.norm(V[e.loop] - e.center, axis=1) - e.radius)))
-               for e in eyes)
+    rest = max(float(np.max(np.abs(e.surface_distance(V[e.loop], 0.0)))) for e in eyes)
     res["rest_max_abs_mm"] = rest
     worst = -1.0
     for p in pitches_deg:
         P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch_deg))
         for e in eyes:
-            d = np.linalg.norm(P[e.loop] - e.center, axis=1) - e.radius
+            d = e.surface_distance(P[e.loop], p)
             gap, pen = float(max(d.max(), 0.0)), float(max(-d.min(), 0.0))
             res["max_gap_mm"] = max(res["max_gap_mm"], gap)
             res["max_penetration_mm"] = max(res["max_penetration_mm"], pen)
@@ -871,7 +956,7 @@ def _lateral_index_for_loop(e: dict, mesh: dict, side: str, V, loop, c, f) -> in
 
 
 def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="mesh.npz",
-               max_rest_gap_mm: float = 0.5) -> list[EyeFrame]:
+               max_rest_gap_mm: float = 0.5, profile=None) -> list[EyeFrame]:
     """Validated :class:`EyeFrame` per eye from the snap stage's eyes.json and mesh arrays.
 
     Parameters
@@ -887,7 +972,10 @@ def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="
     eyes_source, mesh_source : str
         Names used in error messages.
     max_rest_gap_mm : float
-        Largest allowed distance of a margin vertex from its eyeball sphere.
+        Largest allowed distance of a margin vertex from its eyeball surface.
+    profile : EyeballParams, optional
+        Outer surface of the parametric eye the snap stage snapped to (sphere + cornea);
+        None = the fitted sphere.
 
     Raises
     ------
@@ -965,10 +1053,13 @@ def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="
         if Q[1:li, 1].mean() <= Q[li + 1:, 1].mean():
             raise ScanError(mesh_source, f"{key} runs over the lower lid first; the upper lid "
                                          f"must come first")
-        d = np.linalg.norm(V[loop] - c, axis=1) - r
+        frame = EyeFrame(side=side, center=c, radius=r, forward=f, loop=loop, lateral_index=li,
+                         profile=profile)
+        d = frame.surface_distance(V[loop], 0.0)
         if np.max(np.abs(d)) > max_rest_gap_mm:
+            what = "sphere" if profile is None else "surface"
             raise ScanError(mesh_source, f"{side} eyelid margin is up to {np.max(np.abs(d)):.3g} mm "
-                                         f"off the eyeball sphere (limit {max_rest_gap_mm:g} mm); "
+                                         f"off the eyeball {what} (limit {max_rest_gap_mm:g} mm); "
                                          f"the snap stage must put it on the eyeball")
-        out.append(EyeFrame(side=side, center=c, radius=r, forward=f, loop=loop, lateral_index=li))
+        out.append(frame)
     return out
