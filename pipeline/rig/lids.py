@@ -816,8 +816,8 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         ``rest_max_abs_mm`` (same at pitch 0), ``flipped_faces`` (max over pitches of
         faces whose normal turned by more than 90 degrees), ``min_opening_mm``
         (smallest upper-minus-lower lid height along vertical lines; < 0 = crossing),
-        ``min_skin_clearance_mm`` (smallest |v - c| - r of moved non-margin vertices within
-        2 r of the centre; ``rest_min_skin_clearance_mm`` the same at rest) and
+        ``min_skin_clearance_mm`` (smallest distance outside the pitched eyeball surface of
+        moved non-margin vertices within 2 r of the centre; ``rest_min_skin_clearance_mm`` the same at rest) and
         ``max_skin_sink_mm`` (largest decrease of that clearance by posing), and with
         ``corneas`` (``side -> (centre (3,), radius)``) ``max_cornea_intrusion_mm`` /
         ``rest_cornea_intrusion_mm`` (:func:`cornea_intrusion` of the margin),
@@ -842,7 +842,7 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
     near_skin = {}
     for e in eyes:
         sel = np.flatnonzero(skin & (np.linalg.norm(V - e.center, axis=1) < 2.0 * e.radius))
-        near_skin[e.side] = (sel, np.linalg.norm(V[sel] - e.center, axis=1) - e.radius)
+        near_skin[e.side] = (sel, e.surface_distance(V[sel], 0.0))
         if len(sel):
             res["rest_min_skin_clearance_mm"] = min(res["rest_min_skin_clearance_mm"],
                                                     float(near_skin[e.side][1].min()))
@@ -869,7 +869,7 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
                 res["min_opening_mm"] = min(res["min_opening_mm"], float(np.nanmin(op)))
             sel, rest_clear = near_skin[e.side]
             if len(sel):
-                ds = np.linalg.norm(P[sel] - e.center, axis=1) - e.radius
+                ds = e.surface_distance(P[sel], p)
                 res["min_skin_clearance_mm"] = min(res["min_skin_clearance_mm"], float(ds.min()))
                 res["max_skin_sink_mm"] = max(res["max_skin_sink_mm"],
                                               float(np.max(rest_clear - ds)))
