@@ -565,6 +565,38 @@ def _mirror_flipped(V, F, fixed, ref_V, ref_F):
     return V
 
 
+def _flip_slivers(V, F, ref_V, ref_F, min_angle_deg=10.0):
+    """Flip the longest edge of sliver triangles (min angle below ``min_angle_deg``) when the edge
+    is interior and both new triangles are better shaped and agree with the reference normal."""
+    ang = mc.triangle_angles_deg(V, F)
+    bad = np.flatnonzero(ang.min(axis=1) < min_angle_deg)
+    if len(bad) == 0:
+        return F
+    R = _reference_face_normals(V, F, ref_V, ref_F)
+    tm = _TriMesh(V, F)
+    key = {tuple(f): i for i, f in enumerate(F.tolist())}
+    for f in bad[np.argsort(ang[bad].min(axis=1))]:
+        fi = key.get(tuple(F[f].tolist()))
+        if fi is None or fi not in tm.F or tm.F[fi] != list(F[f]):
+            continue
+        face = tm.F[fi]
+        k = int(np.argmax(ang[f]))                 # largest angle; its opposite edge is the longest
+        a, c = face[(k + 1) % 3], face[(k + 2) % 3]
+        twins = [g for g in tm.vf[a] & tm.vf[c] if g != fi]
+        if len(twins) != 1:
+            continue
+        g = twins[0]
+        old_min = min(ang[f].min(), mc.triangle_angles_deg(np.array(tm.V), np.array([tm.F[g]])).min())
+        b = face[k]
+        d = [v for v in tm.F[g] if v not in (a, c)][0]
+        new = np.array([[a, b, d], [b, c, d]])
+        if mc.triangle_angles_deg(np.array(tm.V), new).min() <= old_min:
+            continue
+        tm.flip_edge(fi, a, c, R[f], min_cos=0.3)
+    Vn, Fn, _ = tm.arrays()
+    return Fn
+
+
 def _collapse_flipped(V, F, loops, fixed, ref_V, ref_F):
     """Remove flipped faces by collapsing their free vertex into one of the face's other corners."""
     R = _reference_face_normals(V, F, ref_V, ref_F)
@@ -791,6 +823,9 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         if count_flipped(Vn, Fn, Vc, Fc):   # still flipped: collapse their free vertex into a neighbour
             Vn, Fn, loops = _collapse_flipped(Vn, Fn, loops, fixed, Vc, Fc)
             fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
+    Fs = _flip_slivers(Vn, Fn, Vc, Fc)
+    if len(Fs) == len(Fn) and count_flipped(Vn, Fs, Vc, Fc) <= count_flipped(Vn, Fn, Vc, Fc):
+        Fn = Fs
     poly_counts = poly_indices = None
     if s.method == "isotropic":
         poly_counts, poly_indices, Fn = pair_triangles(Vn, Fn, max_angle_dev_deg=s.quad_max_angle_dev_deg)
