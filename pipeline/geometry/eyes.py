@@ -142,11 +142,10 @@ class _Mesh:
 
     def neighbour_count(self, mask):
         """Per face: number of edge-neighbours inside ``mask``."""
-        cnt = np.zeros(len(self.F), dtype=np.int64)
         a, b = self.pairs[:, 0], self.pairs[:, 1]
-        np.add.at(cnt, a, mask[b])
-        np.add.at(cnt, b, mask[a])
-        return cnt
+        n = len(self.F)
+        return (np.bincount(a, weights=mask[b], minlength=n)
+                + np.bincount(b, weights=mask[a], minlength=n)).astype(np.int64)
 
 
 def _patch(mesh: _Mesh, hint, radius):
@@ -237,9 +236,8 @@ def _clean_region(mesh: _Mesh, region, keep_seed, local=None, max_iter=30):
         new &= ~(nc <= 1)
         # bow-ties: vertices with more than two region/non-region transitions
         sep = new[mesh.pairs[:, 0]] != new[mesh.pairs[:, 1]]
-        trans = np.zeros(len(mesh.V), dtype=np.int64)
-        np.add.at(trans, mesh.pair_edges[sep, 0], 1)
-        np.add.at(trans, mesh.pair_edges[sep, 1], 1)
+        trans = (np.bincount(mesh.pair_edges[sep, 0], minlength=len(mesh.V))
+                 + np.bincount(mesh.pair_edges[sep, 1], minlength=len(mesh.V)))
         bad = np.where(trans > 2)[0]
         if len(bad):
             badv = np.zeros(len(mesh.V), bool)
