@@ -266,15 +266,24 @@ def texture_set(seed: int = 0, iris_size: int = 512, sclera_size=(1024, 512), pa
     ``sclera_bump.png`` (height) / ``sclera_normal.png`` (tangent-space normals)
     for the given eyeball params and resolution (they follow the outer UVs).
     """
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
     from pipeline.eyeball import geometry as geo
 
-    out = {f"iris_{c}.png": to_uint8(iris_texture(c, iris_size, seed)) for c in IRIS_COLORS}
-    for v in VEINS:
-        out[f"sclera_{v}.png"] = to_uint8(sclera_texture(v, sclera_size[0], sclera_size[1], seed))
     p = params or geo.EyeballParams()
     res = geo.Resolution.from_value(resolution or "high")
-    hgt, nrm = sclera_bump_maps(geo.outer_thetas(p, res), geo.limbus_theta(p),
-                                lambda th: geo.outer_radial(th, p), sclera_size, seed)
+    jobs = {f"iris_{c}.png": (lambda c=c: to_uint8(iris_texture(c, iris_size, seed))) for c in IRIS_COLORS}
+    for v in VEINS:
+        jobs[f"sclera_{v}.png"] = lambda v=v: to_uint8(sclera_texture(v, sclera_size[0], sclera_size[1], seed))
+    jobs["sclera_bump"] = lambda: sclera_bump_maps(geo.outer_thetas(p, res), geo.limbus_theta(p),
+                                                   lambda th: geo.outer_radial(th, p), sclera_size, seed)
+    # Each image has its own seeded generator, so running them on threads (numpy and
+    # scipy.ndimage release the GIL on large arrays) changes nothing but the wall time.
+    with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
+        futures = {name: pool.submit(job) for name, job in jobs.items()}
+        out = {name: fut.result() for name, fut in futures.items()}
+    hgt, nrm = out.pop("sclera_bump")
     out["sclera_bump.png"] = np.round(hgt * 65535).astype(np.uint16)
     out["sclera_normal.png"] = to_uint8(nrm)
     return out
