@@ -132,13 +132,14 @@ def _unit(v):
 class _Mesh:
     """Adjacency cached once per mesh."""
 
-    def __init__(self, V, F):
+    def __init__(self, V, F, median_edge=None):
         self.V = np.asarray(V, dtype=np.float64)
         self.F = np.asarray(F, dtype=np.int64)
         self.pairs, self.pair_edges = meshtopo.face_adjacency(self.F, len(self.V))
         self.centroids = self.V[self.F].mean(axis=1)
-        e = self.V[self.F[:, [1, 2, 0]]] - self.V[self.F]
-        self.median_edge = float(np.median(np.linalg.norm(e, axis=2)))
+        if median_edge is None:
+            median_edge = _median_edge(self.V, self.F)
+        self.median_edge = float(median_edge)
 
     def neighbour_count(self, mask):
         """Per face: number of edge-neighbours inside ``mask``."""
@@ -146,6 +147,26 @@ class _Mesh:
         n = len(self.F)
         return (np.bincount(a, weights=mask[b], minlength=n)
                 + np.bincount(b, weights=mask[a], minlength=n)).astype(np.int64)
+
+
+def _median_edge(V, F):
+    e = V[F[:, [1, 2, 0]]] - V[F]
+    return float(np.median(np.linalg.norm(e, axis=2)))
+
+
+def _local_mesh(V, F, hints, radius):
+    """The faces with centroid within ``radius`` of any hint, as a sub-mesh.
+
+    Returns ``(V_sub, F_sub, faces, verts)``: ``faces``/``verts`` (sorted) map sub-mesh face and
+    vertex ids back to the full mesh, so the sub-mesh keeps the full mesh's face and vertex order.
+    """
+    c = V[F].mean(axis=1)
+    sel = np.zeros(len(F), bool)
+    for h in hints:
+        sel |= np.linalg.norm(c - h, axis=1) < radius
+    faces = np.flatnonzero(sel)
+    verts, Fs = np.unique(F[faces], return_inverse=True)
+    return V[verts], Fs.reshape(-1, 3).astype(np.int64), faces, verts
 
 
 def _patch(mesh: _Mesh, hint, radius):
@@ -635,14 +656,30 @@ class RemovalResult:
 def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None):
     """Fit both eyes; with ``shared_radius`` refit both with their mean radius when both are
     geometric fits (eyes of one head are the same size)."""
-    mesh = _Mesh(mesh_arrays["V"], mesh_arrays["F"])
-    fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=mesh_arrays,
+    V = np.asarray(mesh_arrays["V"], dtype=np.float64)
+    F = np.asarray(mesh_arrays["F"], dtype=np.int64)
+    median_edge = _median_edge(V, F)
+    # Everything a fit reads lies within patch_radius_mm of its hint, plus a few edge rings
+    # (region borders, crease neighbourhoods): fit on that sub-mesh, which keeps the full mesh's
+    # face/vertex order (same random samples, same results) and map regions back.
+    reach = st.patch_radius_mm + 5.0 + 6.0 * median_edge + max(2.0, 1.5 * median_edge)
+    Vs, Fs, faces, verts = _local_mesh(V, F, [np.asarray(hints[s], float) for s in SIDES], reach)
+    mesh = _Mesh(Vs, Fs, median_edge=median_edge)
+    sub_arrays = {k: (np.asarray(mesh_arrays[k])[faces] if k == "FUV" else mesh_arrays[k])
+                  for k in ("UV", "FUV") if k in mesh_arrays}
+    fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=sub_arrays,
                         texture=texture) for s in SIDES}
     if st.shared_radius and all(fits[s].method == "geometry" for s in SIDES):
         r = float(np.mean([fits[s].radius for s in SIDES]))
-        fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=mesh_arrays,
+        fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=sub_arrays,
                             texture=texture, fixed_radius=r, capped=fits[s].capped)
                 for s in SIDES}
+    for fit in fits.values():       # back to full-mesh ids
+        region = np.zeros(len(F), bool)
+        region[faces[fit.region]] = True
+        fit.region = region
+        if fit.inliers is not None:
+            fit.inliers = verts[np.asarray(fit.inliers, dtype=np.int64)]
     return mesh, fits
 
 
@@ -709,7 +746,8 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         out["UV"] = out["UV"][usedt]
         out["FUV"] = rt[out["FUV"]]
     V2, F2n = out["V"], out["F"]
-    n_loops_out = meshtopo.boundary_component_count(F2n)
+    H2 = meshtopo.boundary_halfedges(F2n)
+    n_loops_out = meshtopo.boundary_component_count(F2n, H2)
     # region border vertices (old ids) per eye -> loops touching them
     eyes, metrics = {}, {}
     for s in SIDES:
@@ -719,7 +757,7 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         border &= used
         ids_new = set(remap[border].tolist())
         try:
-            mine = meshtopo.boundary_loops(F2n, only=np.fromiter(ids_new, dtype=np.int64))
+            mine = meshtopo.boundary_loops(F2n, only=np.fromiter(ids_new, dtype=np.int64), H=H2)
         except ValueError as exc:
             raise ScanError(source, f"{s} eye: the cut left a non-simple boundary ({exc})") from None
         if len(mine) != 1:

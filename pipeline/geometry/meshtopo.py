@@ -67,15 +67,22 @@ def boundary_halfedges(F):
     n = int(F.max()) + 1 if len(F) else 0
     fwd = H[:, 0] * n + H[:, 1]
     rev = H[:, 1] * n + H[:, 0]
-    return H[~np.isin(fwd, rev)]
+    if len(fwd) == 0:
+        return H
+    sf = np.sort(fwd)                     # (b, a) exists iff rev is among the sorted fwd keys
+    i = np.minimum(np.searchsorted(sf, rev), len(sf) - 1)
+    return H[sf[i] != rev]
 
 
-def boundary_component_count(F) -> int:
-    """Number of connected pieces of the boundary-edge graph (= boundary loops when simple)."""
+def boundary_component_count(F, H=None) -> int:
+    """Number of connected pieces of the boundary-edge graph (= boundary loops when simple).
+
+    ``H``: the mesh's :func:`boundary_halfedges`, when already computed.
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    H = boundary_halfedges(F)
+    H = boundary_halfedges(F) if H is None else H
     if len(H) == 0:
         return 0
     u, inv = np.unique(H.ravel(), return_inverse=True)
@@ -84,17 +91,18 @@ def boundary_component_count(F) -> int:
     return int(connected_components(G, directed=False)[0])
 
 
-def boundary_loops(F, only=None):
+def boundary_loops(F, only=None, H=None):
     """Boundary loops of a triangle mesh as ordered vertex-index arrays.
 
     ``only`` (vertex ids): walk just the loops through these vertices.
+    ``H``: the mesh's :func:`boundary_halfedges`, when already computed.
 
     Raises
     ------
     ValueError
         When a boundary vertex has more than one outgoing boundary edge (a bow-tie).
     """
-    H = boundary_halfedges(F)
+    H = boundary_halfedges(F) if H is None else H
     if only is not None:
         H = H[np.isin(H[:, 0], only) | np.isin(H[:, 1], only)]
     if len(H) == 0:
