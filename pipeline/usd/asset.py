@@ -1,0 +1,332 @@
+"""The per-scan rigged USD asset (``rigged_assets/<scan>/<scan>.usda``).
+
+Hierarchy (default prim ``/<scan>``, a SkelRoot with kind = component; millimetres in the
+head frame, metersPerUnit 0.001, upAxis Y, +Z out of the face)::
+
+    /<scan>                       SkelRoot; variant sets irisColor, scleraTint, veins (forwarded
+                                  to both eyes); customData["eyerig"] = provenance + weight rule
+        Skel                      Skeleton: joints head, head/eye_left, head/eye_right
+            Anim                  SkelAnimation: rest pose; weights of lids_up, lids_down and the
+                                  eyeball's pupil/iris shapes (0)
+        EyeRegion                 Mesh: the eye-region skin (primvars:st, normals); bound to
+                                  joint "head"; blend shapes lids_up, lids_down (with inbetweens)
+        Eyes/eye_left, eye_right  Xform referencing ../eyeball/eyeball.usda (typeName overridden
+                                  from SkelRoot to Xform, kind subcomponent, its own Skel
+                                  deactivated); Outer/Inner rebound rigidly to the eye joint
+        Landmarks/eyelid_left,    BasisCurves (12 points, linear, periodic) with the same lid
+                  eyelid_right    blend shapes and inbetweens
+        Landmarks/eye_left, ...   Scope: eyerig:landmarks:iris / :pupil (Inner vertex indices,
+                                  copied from the eyeball) + rel eyerig:landmarks:mesh -> Inner
+        Materials/Skin            UsdPreviewSurface: diffuse = textures/color.png,
+                                  displacement = textures/displacement.exr (scale 1: mm = stage units)
+
+Eyes and joints: UsdSkel does not move child prims of joints, so each eye's meshes are
+skinned rigidly (constant ``jointIndices``/``jointWeights``) to their eye joint. The joint's
+bind/rest transform is the fitted eye frame (rotation rows e_x, e_y, forward; translation =
+fitted centre); ``geomBindTransform`` = scale(radius / r1) * that frame, so at rest the
+parametric eye (r1 at the origin, looking +Z) sits at the fitted centre with the fitted
+radius and forward direction, and rotating the joint rotates the eye about its centre.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.rig import lids
+
+SIDES = ("left", "right")
+JOINTS = ("head", "head/eye_left", "head/eye_right")
+DISPLACEMENT_DOC = ("textures/displacement.exr: float32, signed distance in mm (= stage units) along "
+                    "the interpolated vertex normal, positive outward; UsdPreviewSurface "
+                    "displacement input connected with scale 1, bias 0")
+
+
+def vertex_normals(V, F) -> np.ndarray:
+    """Area-weighted unit vertex normals.
+
+    Parameters
+    ----------
+    V : (n, 3) float64 ; F : (m, 3) int64
+
+    Returns
+    -------
+    (n, 3) float64 (zero-area-only vertices get +Z)
+    """
+    V = np.asarray(V, np.float64)
+    F = np.asarray(F, np.int64)
+    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    N = np.zeros_like(V)
+    for k in range(3):
+        N += np.stack([np.bincount(F[:, k], fn[:, j], len(V)) for j in range(3)], 1)
+    L = np.linalg.norm(N, axis=1)
+    N[L == 0] = (0.0, 0.0, 1.0)
+    L[L == 0] = 1.0
+    return N / L[:, None]
+
+
+def eye_frame_matrix(center, forward, scale: float = 1.0) -> np.ndarray:
+    """(4, 4) row-vector matrix (USD convention): rows scale*e_x, scale*e_y, scale*forward, centre."""
+    M = np.eye(4)
+    M[:3, :3] = lids.eye_basis(forward) * float(scale)
+    M[3, :3] = np.asarray(center, np.float64)
+    return M
+
+
+def _gf(M):
+    from pxr import Gf
+
+    return Gf.Matrix4d(*[float(x) for x in np.asarray(M, np.float64).ravel()])
+
+
+def _shape_inbetweens(shapes):
+    return {s.name: list(zip(np.asarray(s.inbetween_weights, float), s.inbetween_offsets)) for s in shapes}
+
+
+def _skin_material(stage, path, color_tex: str | None, disp_tex: str | None):
+    from pxr import Sdf, UsdShade
+
+    from pipeline.usd import stage as su
+
+    mat, surf, _ = su.preview_material(stage, path, roughness=0.55, texture=color_tex,
+                                       diffuse=(0.75, 0.6, 0.55))
+    if disp_tex is not None:
+        reader = UsdShade.Shader.Get(stage, path + "/stReader")
+        if not reader:
+            reader = UsdShade.Shader.Define(stage, path + "/stReader")
+            reader.CreateIdAttr("UsdPrimvarReader_float2")
+            reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        dt = UsdShade.Shader.Define(stage, path + "/DisplacementTexture")
+        dt.CreateIdAttr("UsdUVTexture")
+        dt.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(disp_tex))
+        dt.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
+        dt.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
+        dt.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
+        dt.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        dt.CreateOutput("r", Sdf.ValueTypeNames.Float)
+        dt.GetPrim().SetDocumentation(DISPLACEMENT_DOC)
+        surf.CreateInput("displacement", Sdf.ValueTypeNames.Float).ConnectToSource(
+            dt.ConnectableAPI(), "r")
+        mat.CreateDisplacementOutput().ConnectToSource(surf.ConnectableAPI(), "displacement")
+    return mat
+
+
+def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves: dict, eyes: dict,
+                     eyeball_ref: str, color_tex: str | None = "./textures/color.png",
+                     disp_tex: str | None = "./textures/displacement.exr",
+                     metadata: dict | None = None) -> Path:
+    """Write the per-scan asset's root layer to ``path`` (textures and the eyeball must exist).
+
+    Parameters
+    ----------
+    path : str | Path        ``rigged_assets/<scan>/<scan>.usda``
+    name : str               default prim name (made a valid identifier)
+    V : (n, 3) float64 mm ; F : (m, 3) int64 ; UV : (k, 2) ; FUV : (m, 3) per-corner UV indices
+    shapes : list of pipeline.rig.lids.BlendShape (lids_up, lids_down with inbetweens)
+    landmark_curves : dict side -> (points (12, 3) mm, list of BlendShape on points 0..11)
+    eyes : dict side -> {"center": (3,), "radius": r, "forward": (3,)}
+    eyeball_ref : str        asset path of eyeball.usda relative to this layer (``../eyeball/eyeball.usda``)
+    metadata : dict          stored as customData["eyerig"] on the default prim
+
+    Returns
+    -------
+    Path of the written layer.
+    """
+    from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, UsdSkel, Vt
+
+    from pipeline.usd import stage as su
+
+    path = Path(path)
+    root_name = Tf.MakeValidIdentifier(name)
+    stage, root = su.new_stage(path, root_name, root_type="SkelRoot",
+                               doc=f"Rigged eye region of scan '{name}', generated by eyerig "
+                                   "pipeline/usd/asset.py. Millimetres, head frame (+Y up, +Z out "
+                                   "of the face, +X = subject's left).")
+    rp = "/" + root_name
+
+    # eyeball: its variant sets, landmark indices and blend-shape names (composed through the reference)
+    eye_prims = {}
+    for side in SIDES:
+        p = stage.DefinePrim(f"{rp}/Eyes/eye_{side}", "Xform")
+        p.GetReferences().AddReference(eyeball_ref)
+        eye_prims[side] = p
+    UsdGeom.Xform.Define(stage, rp + "/Eyes")
+    probe = eye_prims["left"]
+    if not probe.GetChild("Inner"):
+        raise ValueError(f"eyeball reference {eyeball_ref!r} does not resolve to an eyeball asset "
+                         "with an Inner mesh")
+    eye_shape_names = list(UsdSkel.BindingAPI(probe.GetChild("Inner")).GetBlendShapesAttr().Get() or [])
+    vsets = {vs: probe.GetVariantSets().GetVariantSet(vs).GetVariantNames()
+             for vs in probe.GetVariantSets().GetNames()}
+    vsel = {vs: probe.GetVariantSets().GetVariantSet(vs).GetVariantSelection() for vs in vsets}
+
+    # skeleton: head + one joint per eye
+    skel = UsdSkel.Skeleton.Define(stage, rp + "/Skel")
+    skel.CreateJointsAttr(list(JOINTS))
+    J = {s: eye_frame_matrix(eyes[s]["center"], eyes[s]["forward"]) for s in SIDES}
+    world = [np.eye(4), J["left"], J["right"]]
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray([_gf(M) for M in world]))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray([_gf(M) for M in world]))   # parent = identity
+    anim = UsdSkel.Animation.Define(stage, rp + "/Skel/Anim")
+    anim.CreateJointsAttr(list(JOINTS))
+    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, M[3, :3])) for M in world]))
+    anim.CreateRotationsAttr(Vt.QuatfArray([Gf.Quatf(_gf(M).ExtractRotationQuat()) for M in world]))
+    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1)] * len(JOINTS)))
+    channel_names = [s.name for s in shapes] + eye_shape_names
+    anim.CreateBlendShapesAttr(channel_names)
+    anim.CreateBlendShapeWeightsAttr(Vt.FloatArray([0.0] * len(channel_names)))
+    UsdSkel.BindingAPI.Apply(root).CreateSkeletonRel().SetTargets([skel.GetPath()])
+    UsdSkel.BindingAPI(root).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+
+    # skin mesh
+    F = np.asarray(F, np.int64)
+    mesh = su.write_mesh(stage, rp + "/EyeRegion", V, np.full(len(F), 3, np.int32), F.ravel(),
+                         UV=UV, uv_indices=None if FUV is None else np.asarray(FUV).ravel())
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(vertex_normals(V, F).astype(np.float32)))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    su.bind_rigid(mesh, skel, 0)
+    su.write_blend_shapes(mesh, shapes, _shape_inbetweens(shapes))
+    skin = _skin_material(stage, rp + "/Materials/Skin", color_tex, disp_tex)
+    su.bind_material(mesh.GetPrim(), skin)
+
+    # eyes: rigid skinning to their joints
+    for j, side in enumerate(SIDES, start=1):
+        p = eye_prims[side]
+        Usd.ModelAPI(p).SetKind(Kind.Tokens.subcomponent)
+        p.GetChild("Skel").SetActive(False)
+        s = float(eyes[side]["radius"]) / float(eyes[side].get("model_radius", 12.0))
+        G = _gf(eye_frame_matrix(eyes[side]["center"], eyes[side]["forward"], s))
+        for child in p.GetChildren():
+            if child.IsA(UsdGeom.Mesh):
+                api = UsdSkel.BindingAPI.Apply(child)
+                api.CreateSkeletonRel().SetTargets([skel.GetPath()])
+                api.CreateJointIndicesPrimvar(True, 1).Set([j])
+                api.CreateJointWeightsPrimvar(True, 1).Set([1.0])
+                api.CreateGeomBindTransformAttr().Set(G)
+        p.SetDocumentation(f"Subject's {side} eye: {eyeball_ref} rigidly skinned to joint {JOINTS[j]} "
+                           f"(centre {list(map(float, eyes[side]['center']))} mm, radius "
+                           f"{float(eyes[side]['radius']):.4f} mm, scale {s:.6f})")
+
+    # landmarks
+    UsdGeom.Scope.Define(stage, rp + "/Landmarks")
+    for side in SIDES:
+        pts, lshapes = landmark_curves[side]
+        pts = np.asarray(pts, np.float32)
+        crv = UsdGeom.BasisCurves.Define(stage, f"{rp}/Landmarks/eyelid_{side}")
+        crv.CreateTypeAttr(UsdGeom.Tokens.linear)
+        crv.CreateWrapAttr(UsdGeom.Tokens.periodic)
+        crv.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+        crv.CreateCurveVertexCountsAttr([len(pts)])
+        crv.CreateWidthsAttr([0.15])
+        crv.SetWidthsInterpolation(UsdGeom.Tokens.constant)
+        crv.CreateExtentAttr([Gf.Vec3f(*map(float, pts.min(0) - 0.1)), Gf.Vec3f(*map(float, pts.max(0) + 0.1))])
+        crv.GetPrim().SetDocumentation("12 eyelid landmarks, closed curve in order: "
+                                       "0 medial canthus, 1-5 upper lid medial->lateral, 6 lateral "
+                                       "canthus, 7-11 lower lid lateral->medial")
+        su.bind_rigid(crv, skel, 0)
+        su.write_blend_shapes(crv, lshapes, _shape_inbetweens(lshapes))
+        sc = UsdGeom.Scope.Define(stage, f"{rp}/Landmarks/eye_{side}").GetPrim()
+        inner = eye_prims[side].GetChild("Inner")
+        sc.CreateRelationship("eyerig:landmarks:mesh", custom=True).SetTargets([inner.GetPath()])
+        for key in ("iris", "pupil"):
+            src = inner.GetAttribute(f"eyerig:landmarks:{key}")
+            a = sc.CreateAttribute(f"eyerig:landmarks:{key}", Sdf.ValueTypeNames.IntArray, custom=True)
+            a.Set(src.Get() if src else Vt.IntArray())
+            a.SetDocumentation(f"8 {key} landmarks: vertex indices of eyerig:landmarks:mesh "
+                               f"(copied from the eyeball asset; {src.GetDocumentation() if src else ''})")
+
+    # variant sets forwarded to both eyes
+    for vs_name, names in vsets.items():
+        vs = root.GetVariantSets().AddVariantSet(vs_name)
+        for v in names:
+            vs.AddVariant(v)
+            vs.SetVariantSelection(v)
+            with vs.GetVariantEditContext():
+                for side in SIDES:
+                    over = stage.OverridePrim(eye_prims[side].GetPath())
+                    over.GetVariantSets().GetVariantSet(vs_name).SetVariantSelection(v)
+        vs.SetVariantSelection(vsel[vs_name] or names[0])
+
+    if metadata:
+        root.SetCustomDataByKey("eyerig", metadata)
+    stage.GetRootLayer().Save()
+    return path
+
+
+def package_usdz(usda, usdz, folder_name: str | None = None) -> list[str]:
+    """Package ``usda`` with every dependency (textures, the referenced eyeball) into ``usdz``.
+
+    The archive mirrors ``rigged_assets/``: the root layer is ``<folder>/<scan>.usda`` (the first
+    file, so it is the package's root layer), its textures under ``<folder>/textures/``, the
+    eyeball under ``eyeball/``. Every authored relative path (``../eyeball/eyeball.usda``,
+    ``./textures/...``) therefore stays valid inside the package unchanged (UsdUtils'
+    CreateNewUsdzPackage renames dependencies outside the folder and breaks the eyeball's own
+    texture paths, so it is not used).
+
+    Parameters
+    ----------
+    folder_name : str, optional
+        Name of the asset folder inside the archive (default: the folder holding ``usda``).
+
+    Returns
+    -------
+    list of archive member names.
+    """
+    import os
+
+    from pxr import Sdf, Usd, UsdUtils
+
+    usda = Path(usda).resolve()
+    folder = usda.parent
+    base = folder.parent
+    folder_name = folder_name or folder.name
+    layers, assets, unresolved = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(str(usda)))
+    if unresolved:
+        raise ValueError(f"{usda}: unresolved dependencies {list(unresolved)[:3]}")
+    files = [Path(lay.realPath).resolve() for lay in layers] + [Path(a).resolve() for a in assets]
+    members, seen = [], set()
+    with Sdf.ZipFileWriter.CreateNew(str(usdz)) as zw:
+        for f in files:
+            if f in seen:
+                continue
+            seen.add(f)
+            try:
+                rel = f.relative_to(folder)
+                arc = f"{folder_name}/{rel.as_posix()}"
+            except ValueError:
+                rel = Path(os.path.relpath(f, base))
+                if rel.parts and rel.parts[0] == "..":
+                    raise ValueError(f"{f}: dependency outside {base}, cannot be packaged") from None
+                arc = rel.as_posix()
+            zw.AddFile(str(f), arc)
+            members.append(arc)
+    return members
+
+
+def check_package(usdz) -> list[str]:
+    """Problems of a packaged asset: it must open, have a default prim, and every asset-valued
+    shader input (current variant selections) must resolve to a readable member of the package."""
+    from pxr import Ar, Sdf, Usd, UsdShade
+
+    try:
+        stage = Usd.Stage.Open(str(usdz))
+    except Exception as exc:  # Tf.ErrorException
+        return [f"{usdz}: cannot be opened ({str(exc).strip()[:200]})"]
+    if stage is None or not stage.GetDefaultPrim():
+        return [f"{usdz}: no default prim"]
+    errors = []
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdShade.Shader):
+            continue
+        for inp in UsdShade.Shader(prim).GetInputs():
+            if inp.GetTypeName() != Sdf.ValueTypeNames.Asset:
+                continue
+            val = inp.Get()
+            if val is None or not val.path:
+                continue
+            rp = val.resolvedPath
+            if not rp or Ar.GetResolver().OpenAsset(Ar.ResolvedPath(rp)) is None:
+                errors.append(f"{prim.GetPath()}: inputs:{inp.GetBaseName()} @{val.path}@ is not in the package")
+    return errors

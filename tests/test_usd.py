@@ -1,0 +1,279 @@
+"""Stage ``usd``: the per-scan rigged USD asset, built from small constructed inputs."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.rig import lids
+from pipeline.rig.lids import BlendShape
+from stages import usd as usd_stage
+from stages._common import run_stage
+
+EYES = {"left": {"center": [32.0, 0.5, 76.0], "radius": 12.5,
+                 "forward": list(np.array([0.08, 0.05, 1.0]) / np.linalg.norm([0.08, 0.05, 1.0]))},
+        "right": {"center": [-31.0, -0.4, 76.5], "radius": 12.5, "forward": [0.0, 0.0, 1.0]}}
+R1 = 12.0   # parametric eyeball radius
+
+
+def _shape(name, idx, off, sag):
+    w = np.array([1 / 3, 2 / 3])
+    ib = np.stack([wi * off + sag * np.sin(np.pi * wi) for wi in w])
+    return BlendShape(name=name, point_indices=np.asarray(idx, np.int64), offsets=off,
+                      inbetween_weights=w, inbetween_offsets=ib)
+
+
+def make_inputs(root: Path, n_x: int = 23, n_y: int = 11) -> dict:
+    """build/<scan>/{snap,bake,rig,ingest} + rigged_assets/eyeball for a tiny fake scan under ``root``."""
+    from PIL import Image
+
+    from pipeline.bake.exr import write_exr
+    from pipeline.eyeball import geometry as geo
+    from pipeline.eyeball import textures as etex
+    from pipeline.io.meshfile import save_mesh
+    from pipeline.usd.eyeball import write_eyeball_usd
+
+    b = root / "build" / "tiny"
+    dirs = {k: b / k for k in ("snap", "bake", "rig", "ingest")}
+    for d in dirs.values():
+        d.mkdir(parents=True)
+    eb = root / "rigged_assets" / "eyeball"
+    (eb / "textures").mkdir(parents=True)
+    for name, img in etex.texture_set(0, 32, (32, 16)).items():
+        Image.fromarray(img).save(eb / "textures" / name)
+    write_eyeball_usd(geo.build_eyeball(resolution="low"), eb / "eyeball.usda")
+
+    x, y = np.meshgrid(np.linspace(-55, 55, n_x), np.linspace(-25, 25, n_y))
+    V = np.stack([x.ravel(), y.ravel(), 86.0 + 0.01 * x.ravel() ** 2 * 0], 1)
+    g = np.arange(n_x * n_y).reshape(n_y, n_x)
+    a, bq, c, d = g[:-1, :-1].ravel(), g[:-1, 1:].ravel(), g[1:, 1:].ravel(), g[1:, :-1].ravel()
+    F = np.concatenate([np.stack([a, bq, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+    UV = (V[:, :2] - V[:, :2].min(0)) / np.ptp(V[:, :2], 0)
+    save_mesh(dirs["snap"] / "mesh.npz", V=V, F=F, UV=UV, FUV=F.copy())
+
+    near = np.flatnonzero(np.abs(V[:, 1]) < 12)
+    fall = np.exp(-(V[near, 1] / 6) ** 2)[:, None]
+    shapes = [_shape(lids.SHAPE_UP, near, fall * [0, 1.5, 0.2], fall * [0, 0, -0.15]),
+              _shape(lids.SHAPE_DOWN, near, fall * [0, -1.2, 0.1], fall * [0, 0, -0.1])]
+    arrays = lids.shapes_to_arrays(shapes)
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    for side, e in EYES.items():
+        c = np.asarray(e["center"])
+        pts = c + np.stack([-np.cos(t) * 12 * np.sign(c[0]), 5 * np.sin(t), np.full(12, 10.0)], 1)
+        lup = [_shape(lids.SHAPE_UP, np.arange(12), np.tile([0, 1.0, 0], (12, 1)), np.zeros((12, 3))),
+               _shape(lids.SHAPE_DOWN, np.arange(12), np.tile([0, -1.0, 0], (12, 1)), np.zeros((12, 3)))]
+        arrays[f"landmarks.{side}.points"] = pts
+        arrays.update(lids.shapes_to_arrays(lup, prefix=f"landmarks.{side}."))
+    np.savez(dirs["rig"] / "rig.npz", **arrays)
+    rig_json = {"weight_rule": lids.weight_rule(25.0),
+                "eyes": {s: dict(e, joint=f"eye_{s}", surface={"parametric_eye": {"r1": R1}})
+                         for s, e in EYES.items()}}
+    (dirs["rig"] / "rig.json").write_text(json.dumps(rig_json))
+    (dirs["ingest"] / "scan.json").write_text(json.dumps(
+        {"name": "tiny", "source_sha256": "ab" * 32, "licence": "CC0-1.0 (test)"}))
+    Image.fromarray(np.full((16, 16, 3), 180, np.uint8)).save(dirs["bake"] / "color.png")
+    write_exr(dirs["bake"] / "displacement.exr", np.linspace(-0.2, 0.2, 256).reshape(16, 16))
+    (dirs["bake"] / "bake.json").write_text("{}")
+    return {"dirs": dirs, "eyeball": eb, "out": root / "rigged_assets" / "tiny", "V": V, "F": F,
+            "shapes": shapes, "arrays": arrays, "metrics": b / "usd.metrics.json"}
+
+
+def argv(inp, out=None):
+    d = inp["dirs"]
+    return [str(d["snap"]), str(d["bake"]), str(d["rig"]), str(d["ingest"]), str(inp["eyeball"]),
+            str(out or inp["out"]), "--metrics", str(inp["metrics"]), "--params", "/nonexistent.yaml"]
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    root = tmp_path_factory.mktemp("usd")
+    inp = make_inputs(root)
+    assert run_stage(usd_stage.main, argv(inp)) == 0
+    return inp
+
+
+def test_asset_files_and_validation(built):
+    from pipeline.usd.validate import validate_stage
+
+    out = built["out"]
+    assert sorted(p.name for p in out.iterdir()) == ["textures", "tiny.usda", "tiny.usdz"]
+    assert sorted(p.name for p in (out / "textures").iterdir()) == ["color.png", "displacement.exr"]
+    assert validate_stage(out / "tiny.usda") == []
+    m = json.loads(built["metrics"].read_text())
+    assert m["validation_errors"] == 0 and m["n_vertices"] == len(built["V"])
+
+
+def test_stage_metadata_and_blend_shapes(built):
+    from pxr import Usd, UsdGeom, UsdSkel
+
+    import pipeline
+
+    stage = Usd.Stage.Open(str(built["out"] / "tiny.usda"))
+    root = stage.GetDefaultPrim()
+    assert root.GetPath().pathString == "/tiny" and root.GetTypeName() == "SkelRoot"
+    assert Usd.ModelAPI(root).GetKind() == "component"
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 0.001 and UsdGeom.GetStageUpAxis(stage) == "Y"
+    meta = root.GetCustomDataByKey("eyerig")
+    assert meta["source_sha256"] == "ab" * 32 and meta["licence"] == "CC0-1.0 (test)"
+    assert meta["pipeline_version"] == pipeline.__version__
+    assert meta["weight_rule"]["max_pitch_deg"] == 25.0 and "formula" in meta["weight_rule"]
+    assert "params" in meta and "mm" in meta["displacement"]
+
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/tiny/EyeRegion"))
+    P = np.asarray(mesh.GetPointsAttr().Get())
+    assert np.abs(P - built["V"]).max() < 1e-4
+    st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
+    assert st.GetInterpolation() == "faceVarying" and len(st.GetIndices()) == 3 * len(built["F"])
+    N = np.asarray(mesh.GetNormalsAttr().Get())
+    assert N.shape == P.shape and np.allclose(N, [0, 0, 1], atol=1e-6)    # flat sheet facing +Z
+    api = UsdSkel.BindingAPI(mesh.GetPrim())
+    assert list(api.GetBlendShapesAttr().Get()) == ["lids_up", "lids_down"]
+    for s, t in zip(built["shapes"], api.GetBlendShapeTargetsRel().GetTargets()):
+        bs = UsdSkel.BlendShape(stage.GetPrimAtPath(t))
+        assert np.array_equal(np.asarray(bs.GetPointIndicesAttr().Get()), s.point_indices)
+        assert np.abs(np.asarray(bs.GetOffsetsAttr().Get()) - s.offsets).max() < 1e-6
+        ibs = sorted(bs.GetInbetweens(), key=lambda i: i.GetWeight())
+        assert [round(i.GetWeight(), 6) for i in ibs] == [round(w, 6) for w in s.inbetween_weights]
+        for ib, o in zip(ibs, s.inbetween_offsets):
+            assert np.abs(np.asarray(ib.GetOffsets()) - o).max() < 1e-6
+    skel = UsdSkel.Skeleton(stage.GetPrimAtPath("/tiny/Skel"))
+    assert list(skel.GetJointsAttr().Get()) == ["head", "head/eye_left", "head/eye_right"]
+    mat = stage.GetPrimAtPath("/tiny/Materials/Skin")
+    files = {p.GetName(): p.GetAttribute("inputs:file").Get().path for p in mat.GetChildren()
+             if p.GetAttribute("inputs:file")}
+    assert files == {"DiffuseTexture": "./textures/color.png",
+                     "DisplacementTexture": "./textures/displacement.exr"}
+
+
+def test_eye_references_landmarks_and_variants(built):
+    from pxr import Usd, UsdGeom, UsdShade, UsdSkel
+
+    from pipeline.eyeball import geometry as geo
+
+    stage = Usd.Stage.Open(str(built["out"] / "tiny.usda"))
+    lm_expect = geo.landmark_indices("low")
+    for side in ("left", "right"):
+        eye = stage.GetPrimAtPath(f"/tiny/Eyes/eye_{side}")
+        refs = eye.GetPrimStack()[0].referenceList.prependedItems
+        assert [r.assetPath for r in refs] == ["../eyeball/eyeball.usda"]
+        assert eye.GetTypeName() == "Xform" and Usd.ModelAPI(eye).GetKind() == "subcomponent"
+        assert {c.GetName() for c in eye.GetChildren()} >= {"Outer", "Inner"}
+        crv = UsdGeom.BasisCurves(stage.GetPrimAtPath(f"/tiny/Landmarks/eyelid_{side}"))
+        assert len(crv.GetPointsAttr().Get()) == 12 and crv.GetWrapAttr().Get() == "periodic"
+        assert list(UsdSkel.BindingAPI(crv.GetPrim()).GetBlendShapesAttr().Get()) == ["lids_up", "lids_down"]
+        sc = stage.GetPrimAtPath(f"/tiny/Landmarks/eye_{side}")
+        assert sc.GetRelationship("eyerig:landmarks:mesh").GetTargets()[0] == eye.GetChild("Inner").GetPath()
+        for key in ("iris", "pupil"):
+            assert list(sc.GetAttribute(f"eyerig:landmarks:{key}").Get()) == list(lm_expect[key])
+    root = stage.GetDefaultPrim()
+    assert set(root.GetVariantSets().GetNames()) == {"irisColor", "scleraTint", "veins"}
+    root.GetVariantSets().GetVariantSet("irisColor").SetVariantSelection("blue")
+    for side in ("left", "right"):
+        tex = UsdShade.Shader(stage.GetPrimAtPath(f"/tiny/Eyes/eye_{side}/Materials/Iris/DiffuseTexture"))
+        assert tex.GetInput("file").Get().path.endswith("iris_blue.png")
+
+
+def _skinned_eye(stage, side, extra_deg=0.0):
+    """Skinned Outer points of one eye (skeleton space = stage space), the eye joint rotated by
+    ``extra_deg`` about its local X (the pitch axis)."""
+    from pxr import Gf, Usd, UsdSkel
+
+    anim = UsdSkel.Animation(stage.GetPrimAtPath("/tiny/Skel/Anim"))
+    rots = list(anim.GetRotationsAttr().Get())
+    j = 1 if side == "left" else 2
+    rots[j] = rots[j] * Gf.Quatf(Gf.Rotation(Gf.Vec3d(1, 0, 0), extra_deg).GetQuat())
+    anim.GetRotationsAttr().Set(rots)
+    cache = UsdSkel.Cache()
+    root = UsdSkel.Root(stage.GetDefaultPrim())
+    cache.Populate(root, Usd.PrimDefaultPredicate)
+    skel_q = cache.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/tiny/Skel")))
+    xf = skel_q.ComputeSkinningTransforms(Usd.TimeCode.Default())
+    prim = stage.GetPrimAtPath(f"/tiny/Eyes/eye_{side}/Outer")
+    q = cache.GetSkinningQuery(prim)
+    pts = prim.GetAttribute("points").Get()
+    ok = q.ComputeSkinnedPoints(xf, pts, Usd.TimeCode.Default())
+    assert ok
+    return np.asarray(pts, np.float64), np.asarray(prim.GetAttribute("points").Get(), np.float64)
+
+
+def test_eyes_placed_and_rotated_by_joints(built):
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(built["out"] / "tiny.usda"))
+    for side in ("left", "right"):
+        e = EYES[side]
+        c, f, s = np.asarray(e["center"]), np.asarray(e["forward"]), e["radius"] / R1
+        skinned, local = _skinned_eye(stage, side)
+        expect = c + s * local @ lids.eye_basis(f)
+        assert np.abs(skinned - expect).max() < 1e-3           # placed, scaled and oriented
+        apex = skinned[np.argmax(local[:, 2])]                  # corneal apex: straight ahead
+        d = apex - c
+        assert np.allclose(d / np.linalg.norm(d), f, atol=1e-4)
+        assert np.linalg.norm(d) == pytest.approx(local[:, 2].max() * s, rel=1e-5)
+        posed, _ = _skinned_eye(stage, side, 20.0)
+        # rigid rotation about the centre by 20 degrees
+        assert np.allclose(np.linalg.norm(posed - c, axis=1), np.linalg.norm(skinned - c, axis=1), atol=1e-3)
+        a = posed[np.argmax(local[:, 2])] - c
+        ang = np.degrees(np.arccos(np.clip(a @ d / (np.linalg.norm(a) * np.linalg.norm(d)), -1, 1)))
+        assert ang == pytest.approx(20.0, abs=1e-3)
+
+
+def test_usdz_self_contained_and_folder_movable(built, tmp_path):
+    from pxr import Sdf
+
+    from pipeline.usd.asset import check_package
+    from pipeline.usd.validate import validate_stage
+
+    z = Sdf.ZipFile.Open(str(built["out"] / "tiny.usdz"))
+    names = list(z.GetFileNames())
+    assert names[0] == "tiny/tiny.usda"
+    assert {"eyeball/eyeball.usda", "tiny/textures/color.png", "tiny/textures/displacement.exr",
+            "eyeball/textures/iris_blue.png"} <= set(names)
+    lone = tmp_path / "lone"
+    lone.mkdir()
+    shutil.copy(built["out"] / "tiny.usdz", lone / "x.usdz")       # nothing beside it
+    assert check_package(lone / "x.usdz") == []
+    moved = tmp_path / "moved"
+    shutil.copytree(built["out"].parent, moved)                    # rigged_assets/ as a whole
+    assert validate_stage(moved / "tiny" / "tiny.usda") == []
+
+
+def _fail(inp, capsys):
+    rc = run_stage(usd_stage.main, argv(inp))
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and err.startswith("error: ")
+    assert not inp["out"].exists()
+    return err
+
+
+def test_broken_inputs_refused(tmp_path, capsys):
+    inp = make_inputs(tmp_path)
+    rig = inp["dirs"]["rig"] / "rig.npz"
+    good = dict(inp["arrays"])
+    # rig built for a bigger mesh
+    bad = dict(good, **{"lids_up.point_indices": good["lids_up.point_indices"] + len(inp["V"])})
+    np.savez(rig, **bad)
+    err = _fail(inp, capsys)
+    assert "rig.npz" in err and "outside" in err
+    # non-finite offsets: only the validator sees them -> refused with its message
+    bad = dict(good, **{"lids_down.offsets": good["lids_down.offsets"] * np.nan})
+    np.savez(rig, **bad)
+    err = _fail(inp, capsys)
+    assert "fails validation" in err and "not finite" in err
+    np.savez(rig, **good)
+    # missing displacement map
+    (inp["dirs"]["bake"] / "displacement.exr").unlink()
+    err = _fail(inp, capsys)
+    assert "displacement.exr" in err and "not found" in err
+
+
+def test_eyeball_reference_must_resolve(tmp_path, capsys):
+    inp = make_inputs(tmp_path)
+    (inp["eyeball"] / "eyeball.usda").write_text("#usda 1.0\n(\n    defaultPrim = \"Eyeball\"\n)\n\n"
+                                                  "def Xform \"Eyeball\"\n{\n}\n")
+    err = _fail(inp, capsys)
+    assert "eyeball" in err
