@@ -109,8 +109,8 @@ def build(inp: dict, out_dir: Path, name: str, params: dict, all_params: dict, p
     (out_dir / "textures").mkdir(parents=True, exist_ok=True)
     shutil.copyfile(inp["color"], out_dir / "textures" / "color.png")
     shutil.copyfile(inp["displacement"], out_dir / "textures" / "displacement.exr")
-    ref = Path(os.path.relpath(inp["eyeball"].resolve(), out_dir.resolve().parent /
-                               params.get("final_dir_name", out_dir.name)))
+    # out_dir is a sibling of the final folder (atomic_dir), so the relative path is the same
+    ref = Path(os.path.relpath(inp["eyeball"].resolve(), out_dir.resolve()))
     meta = {
         "scan": inp["scan"].get("name", name),
         "source_sha256": str(inp["scan"].get("source_sha256", "")),
@@ -164,8 +164,7 @@ def main(argv) -> dict:
     inp = read_inputs(args.snap, args.bake, args.rig, args.ingest, args.eyeball)
     name = args.out.name
     with atomic_dir(args.out) as tmp:
-        # tmp is a sibling of args.out, so the relative eyeball path is the same
-        metrics = build(inp, Path(tmp), name, dict(params, final_dir_name=name), _all_params(args.params),
+        metrics = build(inp, Path(tmp), name, params, _all_params(args.params),
                         package=bool(params.get("usdz", True)))
     return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
 

@@ -277,3 +277,29 @@ def test_eyeball_reference_must_resolve(tmp_path, capsys):
                                                   "def Xform \"Eyeball\"\n{\n}\n")
     err = _fail(inp, capsys)
     assert "eyeball" in err
+
+
+@pytest.mark.parametrize("channel,w", [("lids_up", 0.5), ("lids_down", 0.8)])
+def test_usdskel_evaluation_matches_rig(built, channel, w):
+    """UsdSkel's own blend-shape evaluation (inbetweens included) of the skin mesh and of the
+    eyelid landmark curves equals pipeline.rig.lids.evaluate_shapes."""
+    from pxr import Usd, UsdSkel
+
+    stage = Usd.Stage.Open(str(built["out"] / "tiny.usda"))
+    anim = UsdSkel.Animation(stage.GetPrimAtPath("/tiny/Skel/Anim"))
+    names = list(anim.GetBlendShapesAttr().Get())
+    weights = [0.0] * len(names)
+    weights[names.index(channel)] = w
+    anim.GetBlendShapeWeightsAttr().Set(weights)
+    paths = {"mesh": "/tiny/EyeRegion", "left": "/tiny/Landmarks/eyelid_left",
+             "right": "/tiny/Landmarks/eyelid_right"}
+    rest = {k: np.asarray(stage.GetPrimAtPath(p).GetAttribute("points").Get(), np.float64)
+            for k, p in paths.items()}
+    assert UsdSkel.BakeSkinning(stage.Traverse())
+    arrays = built["arrays"]
+    for k, p in paths.items():
+        got = np.asarray(stage.GetPrimAtPath(p).GetAttribute("points").Get(Usd.TimeCode.Default()))
+        shapes = lids.shapes_from_arrays(arrays, prefix="" if k == "mesh" else f"landmarks.{k}.")
+        expect = lids.evaluate_shapes(rest[k], shapes, {channel: w})
+        assert np.abs(expect - rest[k]).max() > 0.3
+        assert np.abs(got - expect).max() < 1e-4, k
