@@ -97,12 +97,10 @@ def faces_near_box(V, F, lo, hi):
 def _dense_colour(dense: dict, texture, face, bary):
     """Colour (k, 3) float64 in 0..255 at barycentric points of the dense mesh, or None."""
     if texture is not None and "UV" in dense and "FUV" in dense:
-        uvc = dense["UV"][dense["FUV"][face]]               # (k, 3, 2)
-        uv = np.einsum("kj,kjc->kc", bary, uvc)
+        uv = _interpolate(bary, np.asarray(dense["UV"], dtype=np.float64), dense["FUV"][face])
         return sample_bilinear(np.asarray(texture)[..., :3], uv)
     if "VC" in dense:
-        vc = dense["VC"][dense["F"][face]].astype(np.float64)
-        return np.einsum("kj,kjc->kc", bary, vc)
+        return _interpolate(bary, np.asarray(dense["VC"], dtype=np.float64), dense["F"][face])
     return None
 
 
@@ -138,8 +136,8 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     t1 = time.perf_counter()
     rows, cols, face, bary = rasterize(UV, FUV, res, res)
     VN = mc.vertex_normals(V, F)
-    P = np.einsum("kj,kjc->kc", bary, V[F[face]])
-    N = np.einsum("kj,kjc->kc", bary, VN[F[face]])
+    P = _interpolate(bary, V, F[face])
+    N = _interpolate(bary, VN, F[face])
     N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
     timings["rasterize_s"] = time.perf_counter() - t1
 
@@ -202,6 +200,14 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
         "time_s": round(timings["total_s"], 4),
     }
     return BakeResult(UV, FUV, dimg, cimg, mask, metrics)
+
+
+def _interpolate(bary, X, corners):
+    """sum_j bary[:, j] X[corners[:, j]], (k, c): corner by corner (no (k, 3, c) temporary)."""
+    out = bary[:, 0, None] * X[corners[:, 0]]
+    out += bary[:, 1, None] * X[corners[:, 1]]
+    out += bary[:, 2, None] * X[corners[:, 2]]
+    return out
 
 
 def _barycentric(P, T):

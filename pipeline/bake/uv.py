@@ -82,8 +82,9 @@ def rasterize(UV, FUV, width, height):
     c1 = -(a1 * cx + b1 * cy)
     cnt = np.where(ok, cnt, 0)
     starts = np.concatenate([[0], np.cumsum(cnt)])
-    # process in chunks of faces to bound memory
-    chunk = 8_000_000
+    # process in chunks of faces to bound memory (~1M candidate texels: temporaries stay small
+    # enough for the allocator to reuse them; bigger chunks page-fault fresh memory every time)
+    chunk = 1_000_000
     f_lo = 0
     m = len(T)
     eps = -1e-9
@@ -96,10 +97,10 @@ def rasterize(UV, FUV, width, height):
         local = np.arange(int(c.sum())) - np.repeat(starts[fs] - starts[f_lo], c)
         ww = np.maximum(np.repeat(w[fs], c), 1)
         yl, xl = np.divmod(local, ww)
-        xi = x0[fid] + xl
-        yi = y0[fid] + yl
-        l0 = a0[fid] * xi + b0[fid] * yi + c0[fid]
-        l1 = a1[fid] * xi + b1[fid] * yi + c1[fid]
+        xi = np.repeat(x0[fs], c) + xl                     # np.repeat: faster than gathers by fid
+        yi = np.repeat(y0[fs], c) + yl
+        l0 = np.repeat(a0[fs], c) * xi + np.repeat(b0[fs], c) * yi + np.repeat(c0[fs], c)
+        l1 = np.repeat(a1[fs], c) * xi + np.repeat(b1[fs], c) * yi + np.repeat(c1[fs], c)
         l2 = 1.0 - l0 - l1
         inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps)
         rows_out.append(yi[inside])
@@ -185,8 +186,10 @@ def sample_bilinear(img, uv):
     if img.ndim == 3:
         fx = fx[:, None]
         fy = fy[:, None]
-    a = img[y0, x0].astype(np.float64)
-    b = img[y0, x1].astype(np.float64)
-    c = img[y1, x0].astype(np.float64)
-    d = img[y1, x1].astype(np.float64)
+    flat = img.reshape((H * W,) + img.shape[2:])   # 1-D gathers: same values, faster than 2-D indexing
+    r0, r1 = y0 * W, y1 * W
+    a = flat.take(r0 + x0, axis=0).astype(np.float64)
+    b = flat.take(r0 + x1, axis=0).astype(np.float64)
+    c = flat.take(r1 + x0, axis=0).astype(np.float64)
+    d = flat.take(r1 + x1, axis=0).astype(np.float64)
     return (a * (1 - fx) + b * fx) * (1 - fy) + (c * (1 - fx) + d * fx) * fy

@@ -134,12 +134,11 @@ def is_edge_manifold(F) -> bool:
     F = np.asarray(F, dtype=np.int64)
     H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     n = int(F.max()) + 1
-    fwd = H[:, 0] * n + H[:, 1]
-    if len(np.unique(fwd)) != len(fwd):  # a directed edge used twice: >2 faces or flipped
+    fwd = np.sort(H[:, 0] * n + H[:, 1])
+    if (fwd[1:] == fwd[:-1]).any():  # a directed edge used twice: >2 faces or flipped
         return False
-    E = np.sort(H, axis=1)
-    _, c = np.unique(E[:, 0] * n + E[:, 1], return_counts=True)
-    return bool((c <= 2).all())
+    und = np.sort(np.minimum(H[:, 0], H[:, 1]) * n + np.maximum(H[:, 0], H[:, 1]))
+    return not bool((und[2:] == und[:-2]).any())   # sorted: 3 equal keys = an edge with > 2 faces
 
 
 def face_normals(V, F):
