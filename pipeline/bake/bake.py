@@ -262,13 +262,43 @@ def subdivide_displaced(V, F, UV, FUV, displacement, levels=2, displace=True):
     return P, Fs
 
 
+def reconstruction_baseline(V, F, dense_V, dense_F, levels=2, n_samples=100000, region_mm=3.0) -> dict:
+    """The UV-independent half of :func:`reconstruction_error` (scan region and the error
+    without displacement), so it can run before/while the mesh is unwrapped and baked.
+
+    Returns
+    -------
+    dict with ``region_faces`` (scan faces compared, (r, 3) int64) and ``without_displacement``.
+    """
+    dense_V = np.asarray(dense_V, dtype=np.float64)
+    dense_F = np.asarray(dense_F, dtype=np.int64)
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    dense_F = dense_F[faces_near_box(dense_V, dense_F, V.min(axis=0) - region_mm, V.max(axis=0) + region_mm)]
+    cen = dense_V[dense_F].mean(axis=1)
+    d, fi, C = mc.closest_points(cen, V, F)
+    # keep scan faces that project onto the low-poly surface (not past its borders)
+    cosang = np.abs(np.einsum("ij,ij->i", cen - C, mc.face_normals(V, F)[fi])) / np.maximum(d, 1e-300)
+    Fr = dense_F[(d <= region_mm) & ((d < 1e-3) | (cosang >= 0.95))]
+    Vs, Fs = subdivide_displaced(V, F, None, None, None, levels, displace=False)
+    return {"region_faces": Fr, "levels": int(levels), "n_samples": int(n_samples),
+            "without_displacement": _distance_entry(Vs, Fs, dense_V, Fr, n_samples)}
+
+
+def _distance_entry(Vs, Fs, dense_V, Fr, n_samples):
+    sd = mc.surface_distance(Vs, Fs, dense_V, Fr, n_samples=n_samples)
+    return {"lowpoly_to_scan": sd["a_to_b"], "scan_to_lowpoly": sd["b_to_a"],
+            "symmetric_mean_mm": sd["symmetric_mean_mm"]}
+
+
 def reconstruction_error(V, F, UV, FUV, displacement, dense_V, dense_F, levels=2,
-                         n_samples=100000, region_mm=3.0) -> dict:
+                         n_samples=100000, region_mm=3.0, baseline=None) -> dict:
     """Distance to the scan of the subdivided low-poly mesh with and without displacement.
 
     The scan is restricted to faces within ``region_mm`` of the low-poly
     surface whose offset to it is along its normal (within 18 degrees), i.e.
     the part the low-poly mesh stands for, not the scan beyond its borders.
+    ``baseline``: :func:`reconstruction_baseline` of the same meshes/settings, when already computed.
 
     Returns
     -------
@@ -276,20 +306,12 @@ def reconstruction_error(V, F, UV, FUV, displacement, dense_V, dense_F, levels=2
     ``mean_error_removed`` = 1 - mean_with / mean_without (symmetric means).
     """
     dense_V = np.asarray(dense_V, dtype=np.float64)
-    dense_F = np.asarray(dense_F, dtype=np.int64)
-    V = np.asarray(V, dtype=np.float64)
-    dense_F = dense_F[faces_near_box(dense_V, dense_F, V.min(axis=0) - region_mm, V.max(axis=0) + region_mm)]
-    cen = dense_V[dense_F].mean(axis=1)
-    d, fi, C = mc.closest_points(cen, V, F)
-    # keep scan faces that project onto the low-poly surface (not past its borders)
-    cosang = np.abs(np.einsum("ij,ij->i", cen - C, mc.face_normals(V, F)[fi])) / np.maximum(d, 1e-300)
-    Fr = dense_F[(d <= region_mm) & ((d < 1e-3) | (cosang >= 0.95))]
-    out = {}
-    for key, disp_on in (("without_displacement", False), ("with_displacement", True)):
-        Vs, Fs = subdivide_displaced(V, F, UV, FUV, displacement, levels, displace=disp_on)
-        sd = mc.surface_distance(Vs, Fs, dense_V, Fr, n_samples=n_samples)
-        out[key] = {"lowpoly_to_scan": sd["a_to_b"], "scan_to_lowpoly": sd["b_to_a"],
-                    "symmetric_mean_mm": sd["symmetric_mean_mm"]}
+    if baseline is None or baseline["levels"] != int(levels) or baseline["n_samples"] != int(n_samples):
+        baseline = reconstruction_baseline(V, F, dense_V, dense_F, levels, n_samples, region_mm)
+    Fr = baseline["region_faces"]
+    out = {"without_displacement": baseline["without_displacement"]}
+    Vs, Fs = subdivide_displaced(V, F, UV, FUV, displacement, levels, displace=True)
+    out["with_displacement"] = _distance_entry(Vs, Fs, dense_V, Fr, n_samples)
     e0 = out["without_displacement"]["symmetric_mean_mm"]
     e1 = out["with_displacement"]["symmetric_mean_mm"]
     out["mean_error_removed"] = float(1.0 - e1 / e0) if e0 > 0 else 0.0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 
@@ -36,12 +38,28 @@ class DenseScene:
         o = np.ascontiguousarray(np.asarray(origins, dtype=np.float64) - self.origin, dtype=np.float32)
         d = np.ascontiguousarray(dirs, dtype=np.float32)
         dist = np.full(len(o), float(max_dist), dtype=np.float32)
-        r = self.scene.run(o, d, dists=dist, output=1)
-        face = np.asarray(r["primID"], dtype=np.int64)
+        # embreex releases the GIL while tracing: split big batches over the cores (rays are
+        # independent, so the results do not depend on the split)
+        n_par = max(1, min(os.cpu_count() or 1, 8, len(o) // 100_000))
+        if n_par == 1:
+            parts = [self.scene.run(o, d, dists=dist, output=1)]
+        else:
+            from concurrent.futures import ThreadPoolExecutor
+
+            bounds = np.linspace(0, len(o), n_par + 1).astype(np.int64)
+            with ThreadPoolExecutor(n_par) as ex:
+                parts = list(ex.map(lambda ab: self.scene.run(o[ab[0]:ab[1]], d[ab[0]:ab[1]],
+                                                             dists=dist[ab[0]:ab[1]], output=1),
+                                    zip(bounds[:-1], bounds[1:])))
+
+        def col(name, dtype):
+            return np.concatenate([np.asarray(p[name], dtype=dtype) for p in parts])
+
+        face = col("primID", np.int64)
         hit = face >= 0
-        t = np.where(hit, np.asarray(r["tfar"], dtype=np.float64), np.nan)
-        u = np.asarray(r["u"], dtype=np.float64)
-        v = np.asarray(r["v"], dtype=np.float64)
+        t = np.where(hit, col("tfar", np.float64), np.nan)
+        u = col("u", np.float64)
+        v = col("v", np.float64)
         bary = np.stack([1.0 - u - v, u, v], axis=1)
         return t, face, bary
 
