@@ -8,6 +8,10 @@ rig/rig.npz + rig/rig.json, ingest/scan.json and rigged_assets/eyeball/eyeball.u
 rigged_assets/<scan>/{<scan>.usda, <scan>.usdz, textures/color.png, textures/displacement.exr}.
 The eyeball is referenced relatively (../eyeball/eyeball.usda); the usdz packages it too.
 Every asset is checked with pipeline.usd.validate; any error refuses the build (exit 2).
+With ``preview: true`` in the ``usd:`` block, a Cycles contact sheet (front views at pitch
++25/0/-25 deg and a three-quarter view; pipeline/blender/asset_preview.py, run as a Blender
+worker subprocess) is written to rigged_assets/<scan>/preview.png (``preview_px`` tile height,
+``preview_samples`` Cycles samples + OpenImageDenoise).
 """
 
 from __future__ import annotations
@@ -15,6 +19,9 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -155,6 +162,24 @@ def build(inp: dict, out_dir: Path, name: str, params: dict, all_params: dict, p
             "write_s": round(t_write, 4), "validate_s": round(t_val, 4), "usdz_s": round(t_pkg, 4)}
 
 
+def render_preview(usda: Path, rig_npz: Path, out_png: Path, size: int, samples: int) -> dict:
+    """Run the Blender contact-sheet worker (subprocess); returns its JSON report + ``preview_s``."""
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as td:
+        info_path = Path(td) / "preview.json"
+        cmd = [sys.executable, "-m", "pipeline.blender.asset_preview", str(usda), str(rig_npz),
+               str(out_png), "--size", str(int(size)), "--samples", str(int(samples)),
+               "--json", str(info_path)]
+        res = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+        if res.returncode != 0 or not out_png.is_file():
+            raise RuntimeError("asset preview render failed:\n" + res.stdout[-2000:] + res.stderr[-2000:])
+        info = json.loads(info_path.read_text(encoding="utf-8"))
+    return {"preview_s": round(time.perf_counter() - t0, 3),
+            "preview_render_s": info.get("render_s_total"),
+            "preview_px": info.get("sheet_px"), "preview_samples": info.get("samples"),
+            "preview_lid_max_error_mm": max(info.get("lid_max_error_mm", {0: 0.0}).values())}
+
+
 def main(argv) -> dict:
     parser = stage_parser(__doc__.splitlines()[0])
     for a in ("snap", "bake", "rig", "ingest", "eyeball", "out"):
@@ -166,6 +191,10 @@ def main(argv) -> dict:
     with atomic_dir(args.out) as tmp:
         metrics = build(inp, Path(tmp), name, params, _all_params(args.params),
                         package=bool(params.get("usdz", True)))
+        if params.get("preview", False):
+            metrics.update(render_preview(Path(tmp) / f"{name}.usda", args.rig / "rig.npz",
+                                          Path(tmp) / "preview.png", int(params.get("preview_px", 240)),
+                                          int(params.get("preview_samples", 8))))
     return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
 
 

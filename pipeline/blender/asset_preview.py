@@ -1,0 +1,344 @@
+"""Blender worker: Cycles contact sheet of a per-scan rigged asset.
+
+    python -m pipeline.blender.asset_preview ASSET.usda RIG.npz OUT.png [--size 240] [--samples 8]
+        [--hdri PATH] [--json INFO.json]
+
+Imports ``rigged_assets/<scan>/<scan>.usda`` with Blender's USD importer and renders four
+tiles with CPU Cycles (+ OpenImageDenoise when built in), lit by one of Blender's bundled
+studio-light HDRIs:
+
+* front views (orthographic, both eyes) at gaze pitch +25, 0 and -25 degrees, and
+* a three-quarter view (35 degrees toward the subject's left, 8 degrees from above) at pitch 0.
+
+For each pitch both eye bones are rotated by the pitch about the head X axis (positive =
+looking up) and the lid shape keys are set with the rig's own pitch-to-weight rule
+(:func:`pipeline.rig.lids.lid_weights`). Blender imports only the full ``lids_up`` /
+``lids_down`` shapes, not the UsdSkel inbetweens, so the inbetween poses are added here from
+``RIG.npz`` as extra shape keys (``<shape>_ib<j>``, offsets relative to the rest mesh) and
+driven with :func:`pipeline.rig.lids.flat_shape_weights`, which reproduces the UsdSkel
+inbetween evaluation exactly (``lid_max_error_mm`` in the JSON checks that against
+:func:`pipeline.rig.lids.evaluate_shapes`).
+
+Materials: skin = Principled BSDF with subsurface scattering, the baked colour texture and
+the baked displacement map as bump (signed mm along the normal = object units); eyes =
+:func:`pipeline.blender.eyeball_materials.setup_eyeball_materials` with the iris / sclera
+textures the asset's variant selection imported. Output: one labelled PNG
+(:func:`sheet_size` gives its pixel size for a tile size).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+PITCHES = (25.0, 0.0, -25.0)
+THREE_QUARTER_YAW_DEG = 35.0
+THREE_QUARTER_ELEV_DEG = 8.0
+TILE_ASPECT = 2            # tile width / height (both eyes side by side)
+PAD, LABEL_H = 6, 18
+BACKDROP = (46, 46, 50)
+
+
+def sheet_size(size: int) -> tuple[int, int]:
+    """(width, height) of the contact sheet for tile height ``size``: a 2 x 2 grid of labelled tiles."""
+    w = 2 * TILE_ASPECT * size + 3 * PAD
+    h = 2 * (size + LABEL_H) + 3 * PAD
+    return w, h
+
+
+def _views():
+    """(label, pitch_deg, view) of the four tiles, row-major."""
+    return [(f"front, pitch +{PITCHES[0]:.0f} deg (up)", PITCHES[0], "front"),
+            ("front, pitch 0 deg", PITCHES[1], "front"),
+            (f"front, pitch {PITCHES[2]:.0f} deg (down)", PITCHES[2], "front"),
+            ("three-quarter (35 deg), subject's left eye, pitch 0 deg", 0.0, "three-quarter")]
+
+
+def _skin_material(mat, color_image, disp_image):
+    """Principled BSDF with subsurface, colour texture and bump from the displacement map."""
+    import bpy  # noqa: F401
+
+    from pipeline.blender.eyeball_materials import _new_tree, _principled
+
+    nt, out = _new_tree(mat)
+    b = _principled(nt, **{"Roughness": 0.5, "Specular IOR Level": 0.4,
+                           "Subsurface Weight": 0.25, "Subsurface Scale": 0.002,
+                           "Subsurface Radius": (1.0, 0.35, 0.2)})
+    uv = nt.nodes.new("ShaderNodeUVMap")
+    uv.uv_map = "st"
+    if color_image is not None:
+        tex = nt.nodes.new("ShaderNodeTexImage")
+        tex.image = color_image
+        nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+        nt.links.new(tex.outputs["Color"], b.inputs["Base Color"])
+    else:
+        b.inputs["Base Color"].default_value = (0.75, 0.6, 0.55, 1.0)
+    if disp_image is not None:
+        disp_image.colorspace_settings.name = "Non-Color"
+        dtex = nt.nodes.new("ShaderNodeTexImage")
+        dtex.image = disp_image
+        dtex.interpolation = "Cubic"
+        nt.links.new(uv.outputs["UV"], dtex.inputs["Vector"])
+        d = nt.nodes.new("ShaderNodeDisplacement")
+        d.space = "OBJECT"                      # object units = stage mm = the map's units
+        d.inputs["Midlevel"].default_value = 0.0
+        d.inputs["Scale"].default_value = 1.0
+        nt.links.new(dtex.outputs["Color"], d.inputs["Height"])
+        nt.links.new(d.outputs["Displacement"], out.inputs["Displacement"])
+        try:
+            mat.displacement_method = "BUMP"
+        except AttributeError:
+            mat.cycles.displacement_method = "BUMP"
+    nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
+    return mat
+
+
+def _images_of(mat) -> list:
+    if mat is None or mat.node_tree is None:
+        return []
+    return [n.image for n in mat.node_tree.nodes if n.type == "TEX_IMAGE" and n.image is not None]
+
+
+def _find_image(objs, material: str, stem_prefix: str):
+    for o in objs:
+        for slot in o.material_slots:
+            if slot.material is not None and slot.material.name.split(".")[0] == material:
+                for im in _images_of(slot.material):
+                    if Path(im.filepath).name.startswith(stem_prefix):
+                        return im
+    return None
+
+
+def add_inbetween_keys(obj, shapes) -> list[str]:
+    """Add one shape key per stored inbetween pose (rest + offsets, object-local = stage mm).
+
+    Full shapes missing from the import are added too. Returns the names added.
+    """
+    me = obj.data
+    if me.shape_keys is None:
+        obj.shape_key_add(name="Basis", from_mix=False)
+    basis = me.shape_keys.reference_key
+    n = len(me.vertices)
+    rest = np.empty(n * 3)
+    basis.data.foreach_get("co", rest)
+    rest = rest.reshape(n, 3)
+    added = []
+    for s in shapes:
+        idx = np.asarray(s.point_indices, np.int64)
+        poses = list(zip(s.inbetween_names(), np.asarray(s.inbetween_offsets, float).reshape(-1, len(idx), 3)))
+        if me.shape_keys.key_blocks.get(s.name) is None:
+            poses.append((s.name, np.asarray(s.offsets, float)))
+        for name, off in poses:
+            kb = obj.shape_key_add(name=name, from_mix=False)
+            P = rest.copy()
+            P[idx] += off
+            kb.data.foreach_set("co", P.ravel())
+            kb.slider_min, kb.slider_max = 0.0, 1.0
+            added.append(name)
+    if me.shape_keys.animation_data is not None:   # imported weight animation would override values
+        me.shape_keys.animation_data_clear()
+    return added
+
+
+def _setup_scene(width: int, height: int, samples: int, hdri: Path):
+    import bpy
+
+    from pipeline.blender.eyeball_preview import _setup_scene as eyeball_scene
+
+    scene, cam = eyeball_scene(height, samples, hdri)
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.cycles.tile_size = 64
+    scene.cycles.adaptive_threshold = 0.05
+    cam.data.type = "ORTHO"
+    cam.data.clip_end = 10.0
+    scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 1.0
+    # rotate the HDRI so its brightest window lights the face from the upper front-left
+    nt = scene.world.node_tree
+    env = next(n for n in nt.nodes if n.type == "TEX_ENVIRONMENT")
+    mapping = nt.nodes.new("ShaderNodeMapping")
+    coord = nt.nodes.new("ShaderNodeTexCoord")
+    mapping.inputs["Rotation"].default_value = (0.0, 0.0, math.radians(200.0))
+    nt.links.new(coord.outputs["Generated"], mapping.inputs["Vector"])
+    nt.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
+    bpy.context.view_layer.update()
+    return scene, cam
+
+
+def _pose_eyes(arm, pitch_deg: float) -> None:
+    """Rotate both eye bones by ``pitch_deg`` about the head X axis (positive = looking up)."""
+    from mathutils import Quaternion, Vector
+
+    # armature space = stage space (mm, +Y up, +Z out of the face): pitch up = rotation about -X
+    axis_arm = Vector((-1.0, 0.0, 0.0))
+    for pb in arm.pose.bones:
+        if not pb.name.startswith("eye_"):
+            continue
+        axis = (pb.bone.matrix_local.to_3x3().normalized().inverted() @ axis_arm).normalized()
+        pb.rotation_mode = "QUATERNION"
+        pb.rotation_quaternion = Quaternion(axis, math.radians(pitch_deg))
+
+
+def _place_camera(cam, view: str, target, distance: float, ortho_scale: float):
+    from mathutils import Vector
+
+    yaw = math.radians(THREE_QUARTER_YAW_DEG if view == "three-quarter" else 0.0)
+    el = math.radians(THREE_QUARTER_ELEV_DEG if view == "three-quarter" else 0.0)
+    # Blender world: head +X -> +X, head +Z (out of the face) -> -Y, head +Y (up) -> +Z
+    d = Vector((math.sin(yaw) * math.cos(el), -math.cos(yaw) * math.cos(el), math.sin(el)))
+    cam.location = Vector(target) + d * distance
+    cam.rotation_euler = (-d).to_track_quat("-Z", "Y").to_euler()
+    cam.data.ortho_scale = ortho_scale
+
+
+def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, samples: int = 8,
+                 hdri: Path | None = None) -> dict:
+    """Render the contact sheet; returns timings and checks (see the module docstring)."""
+    import bpy
+    from PIL import Image, ImageDraw
+
+    from pipeline.blender.eyeball_materials import setup_eyeball_materials
+    from pipeline.blender.eyeball_preview import bundled_hdri
+    from pipeline.blender.usd_roundtrip import import_usd
+    from pipeline.rig import lids
+
+    t0 = time.perf_counter()
+    with np.load(rig_npz) as z:
+        shapes = lids.shapes_from_arrays({k: z[k] for k in z.files})
+    objs = import_usd(asset, unit_conversion=True)
+    skin = next((o for o in objs if o.name.split(".")[0] == "EyeRegion"), None)
+    if skin is None:
+        raise RuntimeError(f"{asset}: no EyeRegion mesh imported")
+    arm = next((o for o in bpy.context.scene.objects if o.type == "ARMATURE"), None)
+    if arm is None:
+        raise RuntimeError(f"{asset}: no skeleton imported")
+    n_v = len(skin.data.vertices)
+    for s in shapes:
+        if len(s.point_indices) and int(np.max(s.point_indices)) >= n_v:
+            raise RuntimeError(f"{rig_npz}: shape {s.name} indexes beyond the {n_v} asset vertices")
+    rest = np.empty(n_v * 3)
+    skin.data.shape_keys.reference_key.data.foreach_get("co", rest) if skin.data.shape_keys else \
+        skin.data.vertices.foreach_get("co", rest)
+    rest = rest.reshape(n_v, 3)
+    add_inbetween_keys(skin, shapes)
+    keys = skin.data.shape_keys.key_blocks
+
+    # materials
+    color = _find_image([skin], "Skin", "color")
+    disp = _find_image([skin], "Skin", "displacement")
+    for slot in skin.material_slots:
+        if slot.material is not None:
+            _skin_material(slot.material, color, disp)
+    eyes = [o for o in objs if o is not skin]
+    iris = _find_image(eyes, "Iris", "iris_")
+    sclera = _find_image(eyes, "Sclera", "sclera_")
+    bump = None
+    if sclera is not None:
+        p = Path(bpy.path.abspath(sclera.filepath)).with_name("sclera_bump.png")
+        if p.is_file():
+            bump = bpy.data.images.load(str(p), check_existing=True)
+    if iris is None or sclera is None:
+        raise RuntimeError(f"{asset}: eyeball textures (iris_*.png, sclera_*.png) not imported")
+    setup_eyeball_materials(eyes, iris, sclera, (1.0, 1.0, 1.0), bump)
+
+    # framing from the eye joints (armature space = stage mm)
+    M = arm.matrix_world
+    heads = {b.name: M @ b.head_local for b in arm.data.bones if b.name.startswith("eye_")}
+    centres = list(heads.values())
+    mid = sum(centres, type(centres[0])((0, 0, 0))) / len(centres)
+    sep = (centres[0] - centres[-1]).length if len(centres) > 1 else 0.03
+    radius = max(o.dimensions.x for o in eyes) / 2.0            # eyeball radius, m
+    front_scale = sep + 2.8 * radius                             # tile width, m (2:1 tile)
+    target = mid.copy()
+    target.y -= radius          # toward the face surface (Blender -Y = out of the face)
+    target.z += 0.15 * radius   # the region reaches higher (brow) than lower (cheek)
+    # three-quarter (camera toward the subject's left): close-up of the near eye (subject's left,
+    # +X), shifted toward the nose so the lateral end of the eye-region crop stays out of frame
+    near = max(centres, key=lambda c: c.x)
+    tq_target = near.copy()
+    tq_target.y -= radius
+    tq_target.x -= 0.7 * radius
+    tq_scale = 4.0 * radius
+    # the landmark curves (BasisCurves) carry no shape keys in Blender: keep them out of the renders
+    for o in bpy.context.scene.objects:
+        if o.type not in ("MESH", "ARMATURE", "CAMERA", "EMPTY"):
+            o.hide_render = True
+
+    w, h = TILE_ASPECT * size, size
+    scene, cam = _setup_scene(w, h, samples, hdri or bundled_hdri())
+    t_setup = time.perf_counter() - t0
+
+    tiles, times, lid_err = [], [], {}
+    with tempfile.TemporaryDirectory() as td:
+        for i, (label, pitch, view) in enumerate(_views()):
+            _pose_eyes(arm, pitch)
+            cw = lids.lid_weights(pitch)
+            flat = lids.flat_shape_weights(shapes, cw)
+            for kb in keys:
+                if kb != skin.data.shape_keys.reference_key:
+                    kb.value = flat.get(kb.name, 0.0)
+            bpy.context.view_layer.update()
+            # check: the Blender shape-key mix equals the UsdSkel inbetween evaluation
+            dg = bpy.context.evaluated_depsgraph_get()
+            em = skin.evaluated_get(dg).to_mesh()
+            P = np.empty(n_v * 3)
+            em.vertices.foreach_get("co", P)
+            skin.evaluated_get(dg).to_mesh_clear()
+            lid_err[f"{pitch:+.0f}"] = float(np.abs(P.reshape(n_v, 3)
+                                                    - lids.evaluate_shapes(rest, shapes, cw)).max())
+            if view == "front":
+                _place_camera(cam, view, target, 0.5, front_scale)
+            else:
+                _place_camera(cam, view, tq_target, 0.5, tq_scale)
+            path = Path(td) / f"tile{i}.png"
+            scene.render.filepath = str(path)
+            t = time.perf_counter()
+            bpy.ops.render.render(write_still=True)
+            times.append(time.perf_counter() - t)
+            tiles.append((label, Image.open(path).convert("RGBA")))
+
+    W, H = sheet_size(size)
+    sheet = Image.new("RGB", (W, H), (30, 30, 33))
+    bg = Image.new("RGBA", (w, h), (*BACKDROP, 255))
+    for i, (label, tile) in enumerate(tiles):
+        x = PAD + (i % 2) * (w + PAD)
+        y = PAD + (i // 2) * (h + LABEL_H + PAD)
+        lab = Image.new("RGB", (w, LABEL_H), (30, 30, 33))   # clipped to the tile width
+        ImageDraw.Draw(lab).text((2, 3), label, fill=(235, 235, 235))
+        sheet.paste(lab, (x, y))
+        sheet.paste(Image.alpha_composite(bg, tile).convert("RGB"), (x, y + LABEL_H))
+    sheet.save(out_png)
+    return {"setup_s": round(t_setup, 3), "render_s_total": round(float(np.sum(times)), 3),
+            "render_s_per_tile_median": round(float(np.median(times)), 3), "tiles": len(times),
+            "tile_px": [w, h], "sheet_px": [W, H], "samples": samples,
+            "denoiser": bool(scene.cycles.use_denoising), "hdri": Path(hdri or bundled_hdri()).name,
+            "shape_keys": [kb.name for kb in keys], "lid_max_error_mm": lid_err}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("asset", type=Path)
+    ap.add_argument("rig", type=Path)
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--size", type=int, default=240, help="tile height, px (tiles are 2:1)")
+    ap.add_argument("--samples", type=int, default=8)
+    ap.add_argument("--hdri", type=Path, default=None)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.size < 8 or args.samples < 1:
+        print("error: --size must be >= 8 and --samples >= 1", file=sys.stderr)
+        return 2
+    info = render_sheet(args.asset, args.rig, args.out, args.size, args.samples, args.hdri)
+    if args.json:
+        args.json.write_text(json.dumps(info, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,69 @@
+"""Cycles contact sheet of the per-scan asset (stage ``usd`` with ``preview: true``, Blender worker)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from pipeline.blender.asset_preview import LABEL_H, PAD, TILE_ASPECT, sheet_size
+from stages import usd as usd_stage
+from stages._common import run_stage
+from test_usd import argv, make_inputs
+
+pytestmark = pytest.mark.blender
+SIZE = 32
+
+
+@pytest.fixture(scope="module")
+def previewed(tmp_path_factory):
+    root = tmp_path_factory.mktemp("asset_preview")
+    inp = make_inputs(root)
+    params = root / "params.yaml"
+    params.write_text(f"usd:\n  usdz: false\n  preview: true\n  preview_px: {SIZE}\n  preview_samples: 2\n")
+    args = argv(inp)
+    args[args.index("--params") + 1] = str(params)
+    assert run_stage(usd_stage.main, args) == 0
+    return inp, json.loads(inp["metrics"].read_text())
+
+
+def _tiles(img):
+    a = np.asarray(img.convert("RGB"), np.float64)
+    w, h = TILE_ASPECT * SIZE, SIZE
+    out = []
+    for i in range(4):
+        x = PAD + (i % 2) * (w + PAD)
+        y = PAD + (i // 2) * (h + LABEL_H + PAD) + LABEL_H
+        out.append(a[y:y + h, x:x + w])
+    return out
+
+
+def test_sheet_written_with_expected_size_and_content(previewed):
+    inp, metrics = previewed
+    png = inp["out"] / "preview.png"
+    assert png.is_file() and not (inp["out"] / "tiny.usdz").exists()
+    img = Image.open(png)
+    assert img.size == sheet_size(SIZE) == (2 * TILE_ASPECT * SIZE + 3 * PAD, 2 * (SIZE + LABEL_H) + 3 * PAD)
+    for t in _tiles(img):
+        assert t.mean() > 40                       # lit, not black
+        assert t.std() > 5                         # something rendered, not a flat backdrop
+    # metrics of the step
+    assert metrics["preview_s"] > 0 and metrics["preview_px"] == list(sheet_size(SIZE))
+    assert metrics["preview_samples"] == 2
+
+
+def test_pose_changes_the_picture_and_lids_match_the_rig(previewed):
+    inp, metrics = previewed
+    up, rest, down, _ = _tiles(Image.open(inp["out"] / "preview.png"))
+    assert np.abs(up - down).mean() > 0.5          # eyes and lids moved between +25 and -25 deg
+    # Blender shape keys (+ inbetween keys from rig.npz) reproduce the UsdSkel inbetween evaluation
+    assert metrics["preview_lid_max_error_mm"] < 1e-4
+
+
+def test_no_preview_by_default(tmp_path):
+    inp = make_inputs(tmp_path)
+    assert run_stage(usd_stage.main, argv(inp)) == 0
+    assert not (inp["out"] / "preview.png").exists()
+    assert "preview_s" not in json.loads(inp["metrics"].read_text())
