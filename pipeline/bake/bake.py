@@ -136,8 +136,8 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     t1 = time.perf_counter()
     rows, cols, face, bary = rasterize(UV, FUV, res, res)
     VN = mc.vertex_normals(V, F)
-    P = _interpolate(bary, V, F[face])
-    N = _interpolate(bary, VN, F[face])
+    PN = _interpolate(bary, np.hstack([V, VN]), F[face])     # position and normal in one pass
+    P, N = PN[:, :3], PN[:, 3:]
     N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
     timings["rasterize_s"] = time.perf_counter() - t1
 
