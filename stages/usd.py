@@ -177,7 +177,8 @@ def render_preview(usda: Path, rig_npz: Path, out_png: Path, size: int, samples:
     return {"preview_s": round(time.perf_counter() - t0, 3),
             "preview_render_s": info.get("render_s_total"),
             "preview_px": info.get("sheet_px"), "preview_samples": info.get("samples"),
-            "preview_lid_max_error_mm": max(info.get("lid_max_error_mm", {0: 0.0}).values())}
+            "preview_lid_max_error_mm": max(info.get("lid_max_error_mm", {0: 0.0}).values()),
+            "preview_gaze_pitch_deg": info.get("gaze_pitch_measured_deg")}
 
 
 def main(argv) -> dict:

@@ -60,6 +60,12 @@ def test_pose_changes_the_picture_and_lids_match_the_rig(previewed):
     assert np.abs(up - down).mean() > 0.5          # eyes and lids moved between +25 and -25 deg
     # Blender shape keys (+ inbetween keys from rig.npz) reproduce the UsdSkel inbetween evaluation
     assert metrics["preview_lid_max_error_mm"] < 1e-4
+    # both eyes turned by the tile's pitch (positive = looking up), measured at the corneal apex
+    meas = metrics["preview_gaze_pitch_deg"]
+    for key, pitch in (("+25", 25.0), ("+0", 0.0), ("-25", -25.0)):
+        assert sorted(meas[key]) == ["eye_left", "eye_right"]
+        for side, got in meas[key].items():
+            assert got == pytest.approx(pitch, abs=0.3), (key, side)
 
 
 def test_no_preview_by_default(tmp_path):

@@ -270,11 +270,34 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
         if o.type not in ("MESH", "ARMATURE", "CAMERA", "EMPTY"):
             o.hide_render = True
 
+    # corneal apex of each eye (largest local z of the Outer mesh, the model looks down +Z)
+    apex = {}
+    for o in eyes:
+        mats = [sl.material.name.split(".")[0] for sl in o.material_slots if sl.material is not None]
+        bone = o.parent.name if o.parent is not None else ""
+        if "Cornea" in mats and f"{bone}" in heads:
+            z = np.empty(len(o.data.vertices) * 3)
+            o.data.vertices.foreach_get("co", z)
+            apex[bone] = (o, int(np.argmax(z.reshape(-1, 3)[:, 2])))
+
+    def gaze_elevation_deg() -> dict:
+        dg = bpy.context.evaluated_depsgraph_get()
+        out = {}
+        for bone, (o, i) in apex.items():
+            oe = o.evaluated_get(dg)
+            em = oe.to_mesh()
+            p = oe.matrix_world @ em.vertices[i].co
+            oe.to_mesh_clear()
+            d = (p - heads[bone]).normalized()
+            out[bone] = math.degrees(math.asin(max(-1.0, min(1.0, d.z))))   # Blender +Z = head up
+        return out
+
+    rest_elev = gaze_elevation_deg()
     w, h = TILE_ASPECT * size, size
     scene, cam = _setup_scene(w, h, samples, hdri or bundled_hdri())
     t_setup = time.perf_counter() - t0
 
-    tiles, times, lid_err = [], [], {}
+    tiles, times, lid_err, pitch_meas = [], [], {}, {}
     with tempfile.TemporaryDirectory() as td:
         for i, (label, pitch, view) in enumerate(_views()):
             _pose_eyes(arm, pitch)
@@ -284,6 +307,7 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
                 if kb != skin.data.shape_keys.reference_key:
                     kb.value = flat.get(kb.name, 0.0)
             bpy.context.view_layer.update()
+            pitch_meas[f"{pitch:+.0f}"] = {b: round(e - rest_elev[b], 4) for b, e in gaze_elevation_deg().items()}
             # check: the Blender shape-key mix equals the UsdSkel inbetween evaluation
             dg = bpy.context.evaluated_depsgraph_get()
             em = skin.evaluated_get(dg).to_mesh()
@@ -318,7 +342,8 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
             "render_s_per_tile_median": round(float(np.median(times)), 3), "tiles": len(times),
             "tile_px": [w, h], "sheet_px": [W, H], "samples": samples,
             "denoiser": bool(scene.cycles.use_denoising), "hdri": Path(hdri or bundled_hdri()).name,
-            "shape_keys": [kb.name for kb in keys], "lid_max_error_mm": lid_err}
+            "shape_keys": [kb.name for kb in keys], "lid_max_error_mm": lid_err,
+            "gaze_pitch_measured_deg": pitch_meas}
 
 
 def main(argv=None) -> int:
