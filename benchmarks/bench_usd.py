@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -48,13 +49,18 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)
         shutil.copytree(eyeball, td / "rigged_assets" / "eyeball")
+        # The asset itself, not the optional Cycles contact sheet (benchmarks/bench_asset_preview.py).
+        params = yaml.safe_load((ROOT / "params.yaml").read_text())
+        params.setdefault("usd", {})["preview"] = False
+        (td / "params.yaml").write_text(yaml.safe_dump(params))
+        common = ["--params", str(td / "params.yaml")]
         for i in range(RUNS):
             rig_out, usd_out = td / f"rig{i}", td / "rigged_assets" / f"scan{i}"
             t_rig = _run([py, "-m", "stages.rig", str(build / "snap"), str(rig_out), "--eyeball",
-                          str(td / "rigged_assets" / "eyeball"), "--metrics", str(td / f"rig{i}.json")])
+                          str(td / "rigged_assets" / "eyeball"), "--metrics", str(td / f"rig{i}.json"), *common])
             t_usd = _run([py, "-m", "stages.usd", str(build / "snap"), str(build / "bake"), str(rig_out),
                           str(build / "ingest"), str(td / "rigged_assets" / "eyeball"), str(usd_out),
-                          "--metrics", str(td / f"usd{i}.json")])
+                          "--metrics", str(td / f"usd{i}.json"), *common])
             m = json.loads((td / f"usd{i}.json").read_text())
             rows.append({"rig_s": t_rig, "usd_s": t_usd, "total_s": t_rig + t_usd,
                          **{k: m[k] for k in ("write_s", "validate_s", "usdz_s", "wall_time_s")}})
