@@ -20,7 +20,7 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.geometry.eyes import EyeSettings, remove_eyeballs
 from pipeline.io.atomic import atomic_dir, write_json
-from pipeline.io.meshfile import load_mesh, save_mesh
+from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
 
 
@@ -29,12 +29,7 @@ def _read(ingest: Path):
     for p in (mesh_path, scan_path):
         if not p.is_file():
             raise ScanError(p, "not found")
-    try:
-        mesh = load_mesh(mesh_path)
-    except Exception as exc:
-        raise ScanError(mesh_path, f"cannot be read as a mesh .npz ({type(exc).__name__})") from None
-    if "V" not in mesh or "F" not in mesh:
-        raise ScanError(mesh_path, "needs arrays V and F")
+    mesh = read_stage_mesh(mesh_path)
     try:
         scan = json.loads(scan_path.read_text(encoding="utf-8"))
         hints = {s: np.asarray(scan["eyes"][s]["hint"], dtype=np.float64).reshape(3)

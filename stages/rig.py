@@ -18,7 +18,7 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_dir, write_json
-from pipeline.io.meshfile import load_mesh
+from pipeline.io.meshfile import read_stage_mesh
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.rig import textures as tex
@@ -27,14 +27,9 @@ from stages._common import default_metrics_path, load_params, stage_exit, stage_
 
 def _read_inputs(snap: Path):
     mesh_path, eyes_path = snap / "mesh.npz", snap / "eyes.json"
-    if not mesh_path.is_file():
-        raise ScanError(mesh_path, "not found")
+    mesh = read_stage_mesh(mesh_path, required=())
     if not eyes_path.is_file():
         raise ScanError(eyes_path, "not found")
-    try:
-        mesh = load_mesh(mesh_path)
-    except Exception as exc:  # corrupt zip / npy
-        raise ScanError(mesh_path, f"cannot be read as a mesh .npz ({type(exc).__name__})") from None
     try:
         eyes = json.loads(eyes_path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:

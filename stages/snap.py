@@ -22,7 +22,7 @@ from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
 from pipeline.geometry import snap as sn
 from pipeline.io.atomic import atomic_dir, write_json
-from pipeline.io.meshfile import load_mesh, save_mesh
+from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
 
 SIDES = ("left", "right")
@@ -117,14 +117,7 @@ def main(argv) -> dict:
     args = parser.parse_args(argv)
     st = sn.SnapSettings.from_params(load_params("snap", args.params))
     mesh_path = args.bake / "mesh.npz"
-    if not mesh_path.is_file():
-        raise ScanError(mesh_path, "not found")
-    try:
-        mesh = load_mesh(mesh_path)
-    except Exception as exc:
-        raise ScanError(mesh_path, f"cannot be read as a mesh .npz ({type(exc).__name__})") from None
-    if "V" not in mesh or "F" not in mesh:
-        raise ScanError(mesh_path, "needs arrays V and F")
+    mesh = read_stage_mesh(mesh_path)
     doc, eyes = _eyes(args.remove_eyeballs / "eyes.json")
     params = read_eyeball_params(args.eyeball)
     out, reports, metrics = snap_mesh(mesh, eyes, params, st, source=str(mesh_path))

@@ -30,7 +30,7 @@ import numpy as np
 import pipeline
 from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_dir
-from pipeline.io.meshfile import load_mesh
+from pipeline.io.meshfile import read_stage_mesh
 from pipeline.rig import lids
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
 
@@ -52,11 +52,8 @@ def _json(path: Path) -> dict:
 
 def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) -> dict:
     """Load and check everything the asset needs (ScanError on a missing/inconsistent input)."""
-    mesh_path = _need(snap / "mesh.npz")
-    try:
-        mesh = load_mesh(mesh_path)
-    except Exception as exc:
-        raise ScanError(mesh_path, f"cannot be read as a mesh .npz ({type(exc).__name__})") from None
+    mesh_path = snap / "mesh.npz"
+    mesh = read_stage_mesh(mesh_path, required=())
     for k in ("V", "F", "UV", "FUV"):
         if k not in mesh:
             raise ScanError(mesh_path, f"has no {k} array (the asset needs UVs from bake)")

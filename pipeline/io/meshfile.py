@@ -54,3 +54,27 @@ def load_mesh(path) -> dict[str, np.ndarray]:
     """Read a mesh written by :func:`save_mesh` into a dict of arrays."""
     with np.load(path, allow_pickle=False) as data:
         return {k: data[k] for k in data.files}
+
+
+def read_stage_mesh(path, required=("V", "F")) -> dict[str, np.ndarray]:
+    """:func:`load_mesh` for a stage's input: missing, unreadable or incomplete is a ScanError.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    required : tuple of str
+        Array names that must be present.
+    """
+    from pipeline.errors import ScanError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ScanError(path, "not found")
+    try:
+        mesh = load_mesh(path)
+    except Exception as exc:  # corrupt zip / npy: whatever numpy raises
+        raise ScanError(path, f"cannot be read as a mesh .npz ({type(exc).__name__})") from None
+    missing = [k for k in required if k not in mesh]
+    if missing:
+        raise ScanError(path, f"needs arrays {' and '.join(required)} (missing {', '.join(missing)})")
+    return mesh

@@ -276,7 +276,7 @@ def package_usdz(usda, usdz, folder_name: str | None = None) -> list[str]:
     """
     import os
 
-    from pxr import Sdf, Usd, UsdUtils
+    from pxr import Sdf, UsdUtils
 
     usda = Path(usda).resolve()
     folder = usda.parent
@@ -308,7 +308,7 @@ def package_usdz(usda, usdz, folder_name: str | None = None) -> list[str]:
 def check_package(usdz) -> list[str]:
     """Problems of a packaged asset: it must open, have a default prim, and every asset-valued
     shader input (current variant selections) must resolve to a readable member of the package."""
-    from pxr import Ar, Sdf, Usd, UsdShade
+    from pxr import Ar, Usd
 
     try:
         stage = Usd.Stage.Open(str(usdz))
@@ -316,17 +316,11 @@ def check_package(usdz) -> list[str]:
         return [f"{usdz}: cannot be opened ({str(exc).strip()[:200]})"]
     if stage is None or not stage.GetDefaultPrim():
         return [f"{usdz}: no default prim"]
+    from pipeline.usd.validate import shader_asset_inputs
+
     errors = []
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdShade.Shader):
-            continue
-        for inp in UsdShade.Shader(prim).GetInputs():
-            if inp.GetTypeName() != Sdf.ValueTypeNames.Asset:
-                continue
-            val = inp.Get()
-            if val is None or not val.path:
-                continue
-            rp = val.resolvedPath
-            if not rp or Ar.GetResolver().OpenAsset(Ar.ResolvedPath(rp)) is None:
-                errors.append(f"{prim.GetPath()}: inputs:{inp.GetBaseName()} @{val.path}@ is not in the package")
+    for prim, inp, val in shader_asset_inputs(stage):
+        rp = val.resolvedPath
+        if not rp or Ar.GetResolver().OpenAsset(Ar.ResolvedPath(rp)) is None:
+            errors.append(f"{prim.GetPath()}: inputs:{inp.GetBaseName()} @{val.path}@ is not in the package")
     return errors

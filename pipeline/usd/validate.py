@@ -168,9 +168,8 @@ def _material_checks(stage, errors):
                 errors.append(f"{t}: material has no connected surface output")
 
 
-def _asset_checks(stage, errors):
-    import os
-
+def shader_asset_inputs(stage):
+    """Yield ``(prim, input, asset_path)`` for every authored asset-valued shader input."""
     from pxr import Sdf, UsdShade
 
     for prim in stage.Traverse():
@@ -180,11 +179,17 @@ def _asset_checks(stage, errors):
             if inp.GetTypeName() != Sdf.ValueTypeNames.Asset:
                 continue
             val = inp.Get()
-            if val is None or not val.path:
-                continue
-            if not val.resolvedPath or not os.path.isfile(val.resolvedPath):
-                errors.append(f"{prim.GetPath()}: inputs:{inp.GetBaseName()} @{val.path}@ does not resolve "
-                              "to an existing file")
+            if val is not None and val.path:
+                yield prim, inp, val
+
+
+def _asset_checks(stage, errors):
+    import os
+
+    for prim, inp, val in shader_asset_inputs(stage):
+        if not val.resolvedPath or not os.path.isfile(val.resolvedPath):
+            errors.append(f"{prim.GetPath()}: inputs:{inp.GetBaseName()} @{val.path}@ does not resolve "
+                          "to an existing file")
 
 
 def validate_stage_report(path_or_stage, meters_per_unit: float | None = 0.001,
