@@ -1,0 +1,351 @@
+"""What a render needs from a per-scan rigged asset, read with pxr + numpy (no Blender).
+
+:func:`load_render_asset` reads ``rigged_assets/<scan>/<scan>.usda`` and ``build/<scan>/rig/rig.npz``
+into a :class:`RenderAsset`, and :func:`posed_landmarks` / :func:`posed_lid_polygon` compute,
+for a posed sample, exactly the points the Blender worker shows:
+
+* eyelid landmarks: the skin mesh (``EyeRegion`` points, float32 in the file like Blender's
+  import) posed with the lid shapes of ``rig.npz`` (UsdSkel inbetween evaluation,
+  :func:`pipeline.rig.lids.evaluate_shapes`, which Blender reproduces with one shape key per
+  stored pose), then ``(1 - t) V[a] + t V[b]`` on the stored margin edge ``(a, b, t)`` of each
+  of the 12 landmarks (``landmarks.<side>.edge/t``). Rigs without edge/t (older or
+  hand-made) fall back to the landmark curve's own blend shapes
+  (:func:`pipeline.rig.landmarks.posed_eyelid_landmarks`).
+* iris / pupil landmarks: ``Inner`` mesh vertices ``eyerig:landmarks:iris/pupil`` of each eye,
+  with the eyeball blend shapes (pupil_dilate, pupil_constrict, iris_large, iris_small) applied
+  in model space, taken to the head frame with the eye's ``geomBindTransform`` (rigid skinning,
+  bind = rest) and rotated about the eye centre by the sample's eye rotation.
+* the eyelid polygon of the pupil-in-lid rule: the posed 64-vertex lid loop
+  (``loop_<side>`` in rig.npz; the 12 landmarks when the rig has no loop).
+
+All positions are head-frame millimetres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.rig import lids
+
+SIDES = ("left", "right")
+N_EYELID, N_IRIS, N_PUPIL = 12, 8, 8
+N_LANDMARKS = N_EYELID + N_IRIS + N_PUPIL
+
+
+@dataclass
+class EyeAsset:
+    """One eye of the asset.
+
+    Attributes
+    ----------
+    center : (3,) float64        eye joint rest translation (eyeball centre), mm
+    basis : (3, 3) float64       rows e_x, e_y, forward of the joint rest rotation
+    bind : (4, 4) float64        geomBindTransform (row-vector convention: p_head = [p, 1] @ bind)
+    radius : float               eyeball radius in the head frame, mm
+    inner_rest : (k, 3) float64  Inner mesh points (model space, mm)
+    inner_shapes : dict          name -> (indices (j,) int64, offsets (j, 3) float64)
+    iris : (8,) int64 ; pupil : (8,) int64   Inner vertex indices of the landmarks
+    pupil_center : int           Inner vertex at the pupil centre (front pole, vertex 0)
+    lm_edge : (12, 2) int64 | None ; lm_t : (12,) float64 | None   eyelid landmark edges
+    loop : (L,) int64 | None     lid loop (skin vertex indices)
+    """
+
+    side: str
+    center: np.ndarray
+    basis: np.ndarray
+    bind: np.ndarray
+    radius: float
+    inner_rest: np.ndarray
+    inner_shapes: dict
+    iris: np.ndarray
+    pupil: np.ndarray
+    pupil_center: int
+    lm_edge: np.ndarray | None
+    lm_t: np.ndarray | None
+    loop: np.ndarray | None
+
+    @property
+    def forward(self) -> np.ndarray:
+        return self.basis[2]
+
+
+@dataclass
+class RenderAsset:
+    """Everything the sampler and the labeller need (see the module docstring)."""
+
+    name: str
+    usda: Path
+    rig_npz: Path
+    skin_rest: np.ndarray                 # (n, 3) float64
+    skin_faces_edge_mm: float             # median edge length of the skin mesh
+    lid_shapes: list                      # list of pipeline.rig.lids.BlendShape
+    rig_arrays: dict
+    eyes: dict                            # side -> EyeAsset
+    max_pitch_deg: float = lids.MAX_PITCH_DEG
+    displacement_amplitude_mm: float = 0.0
+    variants: dict = field(default_factory=dict)
+
+    def fingerprint(self) -> str:
+        """sha256 of the asset layer, rig.npz and the eyeball layer (for the config hash)."""
+        import hashlib
+
+        h = hashlib.sha256()
+        for p in [self.usda, self.rig_npz, *sorted(self.usda.parent.glob("textures/*"))]:
+            h.update(p.name.encode())
+            h.update(Path(p).read_bytes())
+        return h.hexdigest()
+
+
+def _find_asset(asset_dir: Path) -> Path:
+    if asset_dir.is_file() and asset_dir.suffix == ".usda":
+        return asset_dir
+    if not asset_dir.is_dir():
+        raise ScanError(asset_dir, "rigged asset folder not found")
+    cand = asset_dir / f"{asset_dir.name}.usda"
+    if cand.is_file():
+        return cand
+    found = sorted(asset_dir.glob("*.usda"))
+    if len(found) != 1:
+        raise ScanError(asset_dir, f"expected one <scan>.usda, found {len(found)}")
+    return found[0]
+
+
+def _rig_npz(rig_dir: Path) -> Path:
+    p = rig_dir if rig_dir.suffix == ".npz" else rig_dir / "rig.npz"
+    if not p.is_file():
+        raise ScanError(p, "rig.npz not found")
+    return p
+
+
+def _displacement_amplitude(usda: Path) -> float:
+    """99th percentile of |displacement| (mm) of textures/displacement.exr (0 if absent)."""
+    p = usda.parent / "textures" / "displacement.exr"
+    if not p.is_file():
+        return 0.0
+    from pipeline.bake.exr import read_exr
+
+    try:
+        d = read_exr(p)
+    except Exception as exc:  # noqa: BLE001 -- any decoder failure is a bad input
+        raise ScanError(p, f"cannot read displacement map ({exc})") from None
+    d = np.abs(d[np.isfinite(d)])
+    return float(np.percentile(d, 99)) if d.size else 0.0
+
+
+def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
+    """Read the render inputs of one scan.
+
+    Parameters
+    ----------
+    asset_dir : path   ``rigged_assets/<scan>/`` (or the .usda itself)
+    rig_dir : path     ``build/<scan>/rig/`` (or rig.npz itself)
+
+    Raises
+    ------
+    ScanError  when a file is missing or the asset lacks a part the render needs.
+    """
+    asset_dir, rig_dir = Path(asset_dir), Path(rig_dir)
+    usda = _find_asset(asset_dir)
+    npz = _rig_npz(rig_dir)
+    from pxr import Usd, UsdGeom, UsdSkel
+
+    stage = Usd.Stage.Open(str(usda))
+    if stage is None:
+        raise ScanError(usda, "USD stage could not be opened")
+    root = stage.GetDefaultPrim()
+    if not root:
+        raise ScanError(usda, "no default prim")
+    rp = root.GetPath().pathString
+    skin_prim = stage.GetPrimAtPath(rp + "/EyeRegion")
+    if not skin_prim or not skin_prim.IsA(UsdGeom.Mesh):
+        raise ScanError(usda, "no EyeRegion mesh")
+    skin = UsdGeom.Mesh(skin_prim)
+    V = np.asarray(skin.GetPointsAttr().Get(), np.float32).astype(np.float64)
+    idx = np.asarray(skin.GetFaceVertexIndicesAttr().Get(), np.int64)
+    cnt = np.asarray(skin.GetFaceVertexCountsAttr().Get(), np.int64)
+    starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    a = idx
+    b = idx.copy()
+    for s, c in zip(starts, cnt):          # next corner within each face (few thousand faces)
+        b[s:s + c] = np.roll(idx[s:s + c], -1)
+    edge_len = float(np.median(np.linalg.norm(V[a] - V[b], axis=1))) if len(a) else 0.0
+
+    skel = UsdSkel.Skeleton(stage.GetPrimAtPath(rp + "/Skel"))
+    if not skel:
+        raise ScanError(usda, "no Skel skeleton")
+    joints = [str(j) for j in skel.GetJointsAttr().Get()]
+    rest = [np.array(m, np.float64) for m in (skel.GetRestTransformsAttr().Get() or [])]
+
+    try:
+        with np.load(npz) as z:
+            arrays = {k: z[k] for k in z.files}
+    except Exception as exc:  # noqa: BLE001
+        raise ScanError(npz, f"cannot read ({exc})") from None
+    try:
+        lid_shapes = lids.shapes_from_arrays(arrays)
+    except KeyError as exc:
+        raise ScanError(npz, f"missing lid shape array {exc}") from None
+    for s in lid_shapes:
+        if len(s.point_indices) and int(np.max(s.point_indices)) >= len(V):
+            raise ScanError(npz, f"shape {s.name} indexes beyond the {len(V)} asset vertices")
+
+    eyes = {}
+    for side in SIDES:
+        jname = f"head/eye_{side}"
+        if jname not in joints or len(rest) != len(joints):
+            raise ScanError(usda, f"skeleton has no joint {jname} with a rest transform")
+        R = rest[joints.index(jname)]
+        inner_p = stage.GetPrimAtPath(f"{rp}/Eyes/eye_{side}/Inner")
+        if not inner_p:
+            raise ScanError(usda, f"no Eyes/eye_{side}/Inner mesh (eyeball reference unresolved?)")
+        inner_rest = np.asarray(UsdGeom.Mesh(inner_p).GetPointsAttr().Get(), np.float32).astype(np.float64)
+        g = inner_p.GetAttribute("primvars:skel:geomBindTransform").Get()
+        G = np.array(g, np.float64) if g is not None else R.copy()
+        shapes = {}
+        binding = UsdSkel.BindingAPI(inner_p)
+        names = [str(n) for n in (binding.GetBlendShapesAttr().Get() or [])]
+        for n, tgt in zip(names, binding.GetBlendShapeTargetsRel().GetTargets()):
+            bs = UsdSkel.BlendShape(stage.GetPrimAtPath(tgt))
+            off = np.asarray(bs.GetOffsetsAttr().Get(), np.float64)
+            pi = bs.GetPointIndicesAttr().Get()
+            pi = np.arange(len(off)) if pi is None else np.asarray(pi, np.int64)
+            shapes[n] = (pi, off)
+        lm = stage.GetPrimAtPath(f"{rp}/Landmarks/eye_{side}")
+        src = lm if lm else inner_p
+        iris = np.asarray(src.GetAttribute("eyerig:landmarks:iris").Get() or [], np.int64)
+        pupil = np.asarray(src.GetAttribute("eyerig:landmarks:pupil").Get() or [], np.int64)
+        if len(iris) != N_IRIS or len(pupil) != N_PUPIL:
+            raise ScanError(usda, f"eye_{side}: expected {N_IRIS} iris and {N_PUPIL} pupil landmark "
+                                  f"indices, found {len(iris)} and {len(pupil)}")
+        if max(iris.max(), pupil.max()) >= len(inner_rest):
+            raise ScanError(usda, f"eye_{side}: landmark index beyond the Inner mesh")
+        pre = f"landmarks.{side}."
+        if pre + "points" not in arrays:
+            raise ScanError(npz, f"no eyelid landmarks for the {side} eye ({pre}points)")
+        edge = arrays.get(pre + "edge")
+        t = arrays.get(pre + "t")
+        if edge is not None:
+            edge = np.asarray(edge, np.int64)
+            if edge.shape != (N_EYELID, 2) or edge.max() >= len(V):
+                raise ScanError(npz, f"{pre}edge must be (12, 2) skin vertex indices")
+        loop = arrays.get(f"loop_{side}")
+        if loop is not None:
+            loop = np.asarray(loop, np.int64)
+            if loop.ndim != 1 or len(loop) < 3 or loop.max() >= len(V):
+                raise ScanError(npz, f"loop_{side} must be >= 3 skin vertex indices")
+        basis = R[:3, :3] / np.linalg.norm(R[:3, :3], axis=1, keepdims=True)
+        meta_eye = ((root.GetCustomDataByKey("eyerig") or {}).get("eyes") or {}).get(side) or {}
+        radius = float(meta_eye.get("radius_mm", 12.0 * np.linalg.norm(G[0, :3])))
+        eyes[side] = EyeAsset(side=side, center=R[3, :3].copy(), basis=basis, bind=G,
+                              radius=radius, inner_rest=inner_rest,
+                              inner_shapes=shapes, iris=iris, pupil=pupil,
+                              pupil_center=int(np.argmax(inner_rest[:, 2])),
+                              lm_edge=edge, lm_t=None if t is None else np.asarray(t, np.float64),
+                              loop=loop)
+
+    meta = root.GetCustomDataByKey("eyerig") or {}
+    wr = meta.get("weight_rule") or {}
+    max_pitch = float(wr.get("max_pitch_deg", lids.MAX_PITCH_DEG))
+    vsets = {n: list(root.GetVariantSets().GetVariantSet(n).GetVariantNames())
+             for n in root.GetVariantSets().GetNames()}
+    name = str(meta.get("scan") or root.GetName())
+    return RenderAsset(name=name, usda=usda.resolve(), rig_npz=npz.resolve(), skin_rest=V,
+                       skin_faces_edge_mm=edge_len, lid_shapes=lid_shapes, rig_arrays=arrays,
+                       eyes=eyes, max_pitch_deg=max_pitch,
+                       displacement_amplitude_mm=_displacement_amplitude(usda), variants=vsets)
+
+
+# ------------------------------------------------------------------------------------ posing
+
+def quat_to_matrix(q) -> np.ndarray:
+    """(3, 3) rotation of a unit quaternion ``[w, x, y, z]``."""
+    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def posed_skin(asset: RenderAsset, lid_weights: dict, indices=None) -> np.ndarray:
+    """Skin points posed by the lid channel weights; only ``indices`` if given.
+
+    Returns
+    -------
+    (n, 3) or (len(indices), 3) float64, head mm.
+    """
+    if indices is None:
+        return lids.evaluate_shapes(asset.skin_rest, asset.lid_shapes, lid_weights)
+    uniq, inv = np.unique(np.asarray(indices, np.int64), return_inverse=True)
+    P = asset.skin_rest[uniq].copy()
+    for s in asset.lid_shapes:
+        w = lid_weights.get(s.name, 0.0)
+        if w == 0.0 or len(s.point_indices) == 0:
+            continue
+        _, offs = s.knots()
+        sub = lids.subshape_weights(s, w)
+        pi = np.asarray(s.point_indices, np.int64)
+        hit = np.flatnonzero(np.isin(pi, uniq))
+        if len(hit):
+            off = np.tensordot(sub, offs[1:, hit], axes=1)
+            P[np.searchsorted(uniq, pi[hit])] += off
+    return P[inv]
+
+
+def inner_points(eye: EyeAsset, blend: dict, rotation, indices) -> np.ndarray:
+    """Posed head-frame positions of Inner vertices ``indices``.
+
+    Blend shapes (weights clamped to [0, 1]) in model space, then the bind transform, then
+    the eye rotation ``rotation`` ((3, 3) head-frame matrix) about the eye centre.
+    """
+    idx = np.asarray(indices, np.int64)
+    P = eye.inner_rest[idx].copy()
+    for name, (pi, off) in eye.inner_shapes.items():
+        w = min(max(float(blend.get(name, 0.0)), 0.0), 1.0)
+        if w == 0.0:
+            continue
+        order = np.argsort(pi)
+        k = np.clip(np.searchsorted(pi[order], idx), 0, len(pi) - 1)
+        hit = pi[order][k] == idx                     # idx may repeat; pi are unique
+        P[hit] += w * off[order][k[hit]]
+    H = np.concatenate([P, np.ones((len(P), 1))], 1) @ eye.bind
+    rest = H[:, :3]
+    return eye.center + (rest - eye.center) @ np.asarray(rotation, np.float64).T
+
+
+def eyelid_points(asset: RenderAsset, side: str, lid_weights: dict) -> np.ndarray:
+    """(12, 3) posed eyelid landmarks of one eye (see the module docstring)."""
+    eye = asset.eyes[side]
+    if eye.lm_edge is not None and eye.lm_t is not None:
+        E = eye.lm_edge
+        P = posed_skin(asset, lid_weights, E.ravel()).reshape(N_EYELID, 2, 3)
+        t = eye.lm_t[:, None]
+        return (1.0 - t) * P[:, 0] + t * P[:, 1]
+    pre = f"landmarks.{side}."
+    pts = np.asarray(asset.rig_arrays[pre + "points"], np.float64)
+    shapes = lids.shapes_from_arrays(asset.rig_arrays, prefix=pre)
+    return lids.evaluate_shapes(pts, shapes, lid_weights)
+
+
+def posed_landmarks(asset: RenderAsset, side: str, lid_weights: dict, blend: dict, rotation) -> np.ndarray:
+    """(28, 3) head-frame landmarks of one eye: 12 eyelid, 8 iris, 8 pupil."""
+    eye = asset.eyes[side]
+    return np.concatenate([eyelid_points(asset, side, lid_weights),
+                           inner_points(eye, blend, rotation, eye.iris),
+                           inner_points(eye, blend, rotation, eye.pupil)])
+
+
+def posed_lid_polygon(asset: RenderAsset, side: str, lid_weights: dict) -> np.ndarray:
+    """(L, 3) the posed lid loop of one eye (the 12 eyelid landmarks without a stored loop)."""
+    eye = asset.eyes[side]
+    if eye.loop is None:
+        return eyelid_points(asset, side, lid_weights)
+    return posed_skin(asset, lid_weights, eye.loop)
+
+
+def pupil_center(asset: RenderAsset, side: str, blend: dict, rotation) -> np.ndarray:
+    """(3,) posed pupil centre (front pole of the Inner mesh), head mm."""
+    eye = asset.eyes[side]
+    return inner_points(eye, blend, rotation, [eye.pupil_center])[0]

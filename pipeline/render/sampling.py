@@ -1,0 +1,434 @@
+"""Sample specs: image ``i`` of a render is a pure function of ``(seed, i)``.
+
+Posing (SynthesEyes section 4.1), for one sample drawn with
+``numpy.random.default_rng([seed, i, attempt])``:
+
+1. **Eye** of the close-up: uniform over ``eyes`` (params).
+2. **Camera** on spherical coordinates around that eyeball's centre ``c``; the polar axis is
+   the eye's rest forward ``f``, so polar angle 0 (the pole) is the frontal view. The polar
+   angle is drawn uniformly over the spherical cap (``cos`` uniform) up to
+   ``camera_polar_max_deg``, the azimuth uniformly in [0, 360). The orthographic camera
+   looks at ``c`` (plus a small random in-plane shift ``center_jitter_mm``) from
+   ``c + camera_distance_mm * d``; image up = the eye's up ``e_y`` projected off ``d`` (no
+   roll), image right = up x d. Orthographic scale (the image width, mm) uniform in
+   ``ortho_scale_mm``.
+3. **Gaze**: eye contact (``d``, towards the orthographic camera) expressed as pitch/yaw in
+   the eye's rest frame (``e_x`` = towards head +X = subject's left, ``e_y`` up, ``f``), plus
+   offsets drawn from the grid ``k * gaze_step_deg``, ``|k * step| <= gaze_offset_max_deg``
+   for pitch and yaw independently, then clipped to ``|pitch| <= max_pitch_deg`` and
+   ``|yaw| <= max_yaw_deg`` (anatomical limits relative to the head).
+   The other eye looks the same way (target at infinity: parallel gaze), clipped to its own
+   limits.
+4. **Eye rotation**: Listing's law with the rest forward as primary position: the rotation
+   axis lies in Listing's plane (perpendicular to ``f``), i.e. the minimal rotation taking
+   ``f`` to the gaze ``g`` (axis ``f x g``, angle ``acos(f . g)``), applied about the eyeball
+   centre; no torsion. For a pure pitch this is the rotation about ``-e_x`` the lid rig assumes.
+5. **Eyelids**: channel weights from :func:`pipeline.rig.lids.lid_weights` of the mean lid
+   pitch of both eyes (:func:`pipeline.rig.lids.pitch_from_gaze`), the asset's rule.
+6. **Eyeball**: iris colour, sclera tint and veins uniform over the asset's variants; one
+   pupil value ``s`` uniform in [-1, 1] (``s > 0``: ``pupil_dilate = s``, else
+   ``pupil_constrict = -s``) and one iris-size value likewise (``iris_large`` / ``iris_small``).
+7. **Lighting**: one of the bundled HDRIs, rotation uniform in [0, 360) deg about head +Y,
+   strength uniform in ``strength``.
+8. **Rejection**: if the projected pupil centre is outside the projected eyelid polygon (the
+   posed lid loop of the imaged eye), the sample is redrawn with ``attempt + 1``; the number
+   of attempts is stored.
+
+**Skin detail** (:func:`choose_skin_detail`): with ``p = ortho_scale_mm / width`` (mm per
+pixel), ``a`` = the 99th percentile of the baked |displacement| and ``e`` = the median edge
+length of the low-poly skin: ``displacement`` when ``a >= p / 2`` (the relief moves
+silhouettes and occlusions by half a pixel or more: real geometry needed); else ``bump`` when
+``e > p`` (polygons span more than a pixel, so the map's shading detail is resolved); else
+``none`` (relief and polygons are both below a pixel).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.render import asset as ra
+from pipeline.rig import lids
+
+HDRIS = ("city.exr", "courtyard.exr", "forest.exr", "interior.exr", "night.exr", "studio.exr",
+         "sunrise.exr", "sunset.exr")
+IRIS_COLORS = ("amber", "blue", "brown", "grey")
+SCLERA_TINTS = ("pink", "white", "yellow")
+VEINS = ("bloodshot", "clear")
+
+PRESETS = {
+    # paper: ~40 deg of head-pose (viewpoint) variation, gaze up to 45 deg from eye contact in
+    # 10 deg steps
+    "generic": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 45.0, "gaze_step_deg": 10.0},
+    # paper's laptop setting: 10 deg pose, 20 deg gaze variation
+    "targeted": {"camera_polar_max_deg": 5.0, "gaze_offset_max_deg": 10.0, "gaze_step_deg": 5.0},
+}
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """The ``render:`` block of params.yaml (sampling and render settings)."""
+
+    preset: str = "generic"
+    n_images: int = 16
+    seed: int = 0
+    width: int = 120
+    height: int = 80
+    samples: int = 16
+    denoise: bool = True
+    eyes: tuple = ("left", "right")
+    camera_polar_max_deg: float = 20.0
+    gaze_offset_max_deg: float = 45.0
+    gaze_step_deg: float = 10.0
+    max_pitch_deg: float = 25.0
+    max_yaw_deg: float = 35.0
+    ortho_scale_mm: tuple = (30.0, 36.0)
+    center_jitter_mm: float = 1.0
+    camera_distance_mm: float = 200.0
+    strength: tuple = (0.6, 1.6)
+    hdris: tuple = HDRIS
+    max_attempts: int = 100
+    landmark_tolerance_mm: float = 0.01
+    presets: dict = field(default_factory=lambda: {k: dict(v) for k, v in PRESETS.items()})
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "RenderSettings":
+        """From a params block: the preset's values first, explicit keys override them.
+
+        Keys that are not settings (workers, scheduler, shard_size, ...) are ignored.
+        """
+        d = dict(d or {})
+        presets = {k: dict(v) for k, v in PRESETS.items()}
+        presets.update({k: dict(v) for k, v in (d.get("presets") or {}).items()})
+        name = str(d.get("preset", "generic"))
+        if name not in presets:
+            raise ValueError(f"unknown render preset {name!r}; known: {sorted(presets)}")
+        vals = dict(presets[name])
+        names = set(cls.__dataclass_fields__)
+        vals.update({k: v for k, v in d.items() if k in names and k != "presets"})
+        vals["presets"] = presets
+        vals["preset"] = name
+        for k in ("eyes", "ortho_scale_mm", "strength", "hdris"):
+            if k in vals:
+                vals[k] = tuple(vals[k])
+        s = cls(**{k: v for k, v in vals.items() if k in names})
+        s.validate()
+        return s
+
+    def validate(self) -> None:
+        if not (isinstance(self.n_images, int) and self.n_images >= 0):
+            raise ValueError(f"n_images must be a non-negative integer, got {self.n_images!r}")
+        if not (8 <= int(self.width) <= 8192 and 8 <= int(self.height) <= 8192):
+            raise ValueError(f"image size must be 8..8192 px, got {self.width} x {self.height}")
+        if int(self.width) < int(self.height):
+            raise ValueError("width must be >= height (orthographic scale = image width)")
+        if int(self.samples) < 1:
+            raise ValueError("samples must be >= 1")
+        if not set(self.eyes) <= set(ra.SIDES) or not self.eyes:
+            raise ValueError(f"eyes must be a non-empty subset of {ra.SIDES}")
+        lo, hi = self.ortho_scale_mm
+        if not (0 < lo <= hi):
+            raise ValueError(f"ortho_scale_mm must be 0 < lo <= hi, got {self.ortho_scale_mm}")
+        if not (0 <= self.camera_polar_max_deg < 80):
+            raise ValueError("camera_polar_max_deg must be in [0, 80)")
+        if not self.hdris or any(not str(h).endswith(".exr") for h in self.hdris):
+            raise ValueError("hdris must be a non-empty list of .exr names")
+        if self.gaze_step_deg <= 0 or self.gaze_offset_max_deg < 0:
+            raise ValueError("gaze_step_deg must be > 0 and gaze_offset_max_deg >= 0")
+
+    def hashed(self) -> dict:
+        """The settings that change images or labels (not n_images: sample i ignores it)."""
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("n_images", "presets")}
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+# ----------------------------------------------------------------------------- geometry helpers
+
+def rotation_between(a, b) -> np.ndarray:
+    """(3, 3) minimal rotation taking unit ``a`` to unit ``b`` (Listing's law from ``a``)."""
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    b = np.asarray(b, float) / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    s = float(np.linalg.norm(v))
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        raise ValueError("opposite directions: minimal rotation undefined")
+    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]]) / s
+    ang = math.atan2(s, c)
+    return np.eye(3) + math.sin(ang) * K + (1 - math.cos(ang)) * (K @ K)
+
+
+def matrix_to_quat(R) -> list[float]:
+    """Unit quaternion ``[w, x, y, z]`` (w >= 0) of a rotation matrix."""
+    R = np.asarray(R, float)
+    t = np.trace(R)
+    if t > 0:
+        s = math.sqrt(t + 1.0) * 2
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(R)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = math.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k]) * 2
+        q = [0.0] * 4
+        q[0] = (R[k, j] - R[j, k]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (R[j, i] + R[i, j]) / s
+        q[1 + k] = (R[k, i] + R[i, k]) / s
+    q = np.asarray(q)
+    q /= np.linalg.norm(q)
+    if q[0] < 0:
+        q = -q
+    return [float(x) for x in q]
+
+
+def eye_angles(g, basis) -> tuple[float, float]:
+    """(pitch, yaw) degrees of direction ``g`` in an eye frame (rows e_x, e_y, forward).
+
+    pitch = asin(g . e_y) (up positive), yaw = atan2(g . e_x, g . f) (toward e_x = head +X =
+    subject's left positive).
+    """
+    g = np.asarray(g, float) / np.linalg.norm(g)
+    x, y, z = basis @ g
+    return math.degrees(math.asin(max(-1.0, min(1.0, y)))), math.degrees(math.atan2(x, z))
+
+
+def direction_from_angles(pitch_deg: float, yaw_deg: float, basis) -> np.ndarray:
+    """Inverse of :func:`eye_angles`: (3,) unit head-frame direction."""
+    p, y = math.radians(pitch_deg), math.radians(yaw_deg)
+    return np.array([math.cos(p) * math.sin(y), math.sin(p), math.cos(p) * math.cos(y)]) @ basis
+
+
+def look_at(position, target, up) -> np.ndarray:
+    """(4, 4) world-to-camera (column vectors), camera looks down -Z, +Y up, +X right."""
+    position = np.asarray(position, float)
+    z = position - np.asarray(target, float)
+    z /= np.linalg.norm(z)
+    upv = np.asarray(up, float)
+    y = upv - np.dot(upv, z) * z
+    if np.linalg.norm(y) < 1e-9:
+        raise ValueError("up direction parallel to the view direction")
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    M = np.eye(4)
+    M[:3, :3] = np.stack([x, y, z])
+    M[:3, 3] = -M[:3, :3] @ position
+    return M
+
+
+def ortho_size(ortho_scale_mm: float, width: int, height: int) -> tuple[float, float]:
+    """(image width, image height) in mm of an orthographic camera (Blender sensor_fit AUTO)."""
+    w = float(ortho_scale_mm)
+    if width >= height:
+        return w, w * height / width
+    return w * width / height, w
+
+
+def projection_matrix(ortho_scale_mm: float, width: int, height: int) -> np.ndarray:
+    """(3, 4) camera mm -> homogeneous pixels: ``u = (x / w + 0.5) W``, ``v = (0.5 - y / h) H``."""
+    ow, oh = ortho_size(ortho_scale_mm, width, height)
+    return np.array([[width / ow, 0.0, 0.0, width / 2.0],
+                     [0.0, -height / oh, 0.0, height / 2.0],
+                     [0.0, 0.0, 0.0, 1.0]])
+
+
+def to_camera(points_head, world_to_camera) -> np.ndarray:
+    """(n, 3) camera-frame mm of head-frame points."""
+    P = np.asarray(points_head, float)
+    M = np.asarray(world_to_camera, float)
+    return P @ M[:3, :3].T + M[:3, 3]
+
+
+def project(points_cam, ortho_scale_mm: float, width: int, height: int) -> np.ndarray:
+    """(n, 2) pixel coordinates (origin top-left, pixel centres at +0.5) of camera-frame points."""
+    P = np.asarray(points_cam, float)
+    H = np.concatenate([P, np.ones((len(P), 1))], 1) @ projection_matrix(ortho_scale_mm, width, height).T
+    return H[:, :2] / H[:, 2:]
+
+
+def point_in_polygon(pt, poly) -> bool:
+    """Even-odd rule: is 2D point ``pt`` inside the closed polygon ``poly`` (n, 2)?"""
+    x, y = float(pt[0]), float(pt[1])
+    P = np.asarray(poly, float)
+    x0, y0 = P[:, 0], P[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    crosses = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xi = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return bool(np.count_nonzero(crosses & (x < xi)) % 2 == 1)
+
+
+def choose_skin_detail(mm_per_px: float, amplitude_mm: float, edge_mm: float) -> str:
+    """``displacement`` | ``bump`` | ``none`` from the pixel footprint (rule in the module doc)."""
+    if amplitude_mm > 0 and amplitude_mm >= 0.5 * mm_per_px:
+        return "displacement"
+    if amplitude_mm > 0 and edge_mm > mm_per_px:
+        return "bump"
+    return "none"
+
+
+def offset_grid(max_deg: float, step_deg: float) -> np.ndarray:
+    """Gaze offsets ``k * step`` with ``|k * step| <= max`` (always contains 0)."""
+    k = int(math.floor(max_deg / step_deg + 1e-9))
+    return np.arange(-k, k + 1) * float(step_deg)
+
+
+# ----------------------------------------------------------------------------- the sample
+
+@dataclass
+class Sample:
+    """One posed sample: the worker spec plus what the labels need."""
+
+    index: int
+    attempts: int
+    spec: dict
+    side: str
+    camera: dict            # world_to_camera (4,4), ortho_scale_mm, position_mm, polar/azimuth
+    gaze: dict              # per side: vector, pitch/yaw in eye frame, clipped flag, offsets
+    lid_pitch_deg: float
+    landmarks_head: np.ndarray   # (28, 3)
+    landmarks_cam: np.ndarray    # (28, 3)
+    landmarks_px: np.ndarray     # (28, 2)
+    pupil_center_px: np.ndarray  # (2,)
+    lid_polygon_px: np.ndarray   # (L, 2)
+
+
+def _draw(asset: ra.RenderAsset, s: RenderSettings, rng, overrides: dict | None = None) -> dict:
+    """Random choices of one attempt (``overrides`` pins any of them; for tests/extremes)."""
+    o = dict(overrides or {})
+    side = str(rng.choice(list(s.eyes)))
+    cmax = math.radians(s.camera_polar_max_deg)
+    cos_t = rng.uniform(math.cos(cmax), 1.0)
+    d = {
+        "side": side,
+        "polar_deg": math.degrees(math.acos(min(1.0, cos_t))),
+        "azimuth_deg": float(rng.uniform(0.0, 360.0)),
+        "ortho_scale_mm": float(rng.uniform(*s.ortho_scale_mm)),
+        "jitter": rng.uniform(-1.0, 1.0, size=2) * s.center_jitter_mm,
+        "gaze_offset_deg": [float(x) for x in rng.choice(offset_grid(s.gaze_offset_max_deg,
+                                                                      s.gaze_step_deg), size=2)],
+        "iris_color": str(rng.choice(list(asset.variants.get("irisColor") or IRIS_COLORS))),
+        "sclera_tint": str(rng.choice(list(asset.variants.get("scleraTint") or SCLERA_TINTS))),
+        "veins": str(rng.choice(list(asset.variants.get("veins") or VEINS))),
+        "pupil": float(rng.uniform(-1.0, 1.0)),
+        "iris": float(rng.uniform(-1.0, 1.0)),
+        "hdri": str(rng.choice(list(s.hdris))),
+        "hdri_rotation_deg": float(rng.uniform(0.0, 360.0)),
+        "strength": float(rng.uniform(*s.strength)),
+        "cycles_seed": int(rng.integers(0, 2**31 - 1)),
+    }
+    d.update(o)
+    return d
+
+
+def _blend(pupil: float, iris: float) -> dict:
+    return {"pupil_dilate": max(pupil, 0.0), "pupil_constrict": max(-pupil, 0.0),
+            "iris_large": max(iris, 0.0), "iris_small": max(-iris, 0.0)}
+
+
+def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: int, png: str,
+                overrides: dict | None = None) -> Sample:
+    """Pose one attempt of sample ``index`` (no rejection test; see :func:`make_sample`)."""
+    rng = np.random.default_rng([int(s.seed), int(index), int(attempt)])
+    d = _draw(asset, s, rng, overrides)
+    side = d["side"]
+    eye = asset.eyes[side]
+    B = eye.basis
+    th, ph = math.radians(d["polar_deg"]), math.radians(d["azimuth_deg"])
+    view = math.cos(th) * B[2] + math.sin(th) * (math.cos(ph) * B[0] + math.sin(ph) * B[1])
+    view /= np.linalg.norm(view)
+    pos0 = eye.center + s.camera_distance_mm * view
+    W2C = look_at(pos0, eye.center, B[1])
+    # in-plane shift of the framing (camera x/y axes)
+    shift = W2C[0, :3] * d["jitter"][0] + W2C[1, :3] * d["jitter"][1]
+    pos = pos0 + shift
+    W2C = look_at(pos, eye.center + shift, B[1])
+
+    # gaze: eye contact + offsets, clipped; the other eye parallel
+    p0, y0 = eye_angles(view, B)
+    dp, dy = d["gaze_offset_deg"]
+    gaze = {}
+    want = direction_from_angles(p0 + dp, y0 + dy, B) if "gaze_pitch_deg" not in d else None
+    rots = {}
+    for sd in ra.SIDES:
+        Bs = asset.eyes[sd].basis
+        if "gaze_pitch_deg" in d:          # pinned eye-frame angles (extremes)
+            pr, yr = float(d["gaze_pitch_deg"]), float(d["gaze_yaw_deg"])
+        else:
+            pr, yr = eye_angles(want, Bs)
+        pc = min(max(pr, -s.max_pitch_deg), s.max_pitch_deg)
+        yc = min(max(yr, -s.max_yaw_deg), s.max_yaw_deg)
+        g = direction_from_angles(pc, yc, Bs)
+        R = rotation_between(Bs[2], g)
+        rots[sd] = R
+        gaze[sd] = {"vector_head": g, "pitch_eye_deg": pc, "yaw_eye_deg": yc,
+                    "requested_pitch_eye_deg": pr, "requested_yaw_eye_deg": yr,
+                    "clipped": bool(abs(pc - pr) > 1e-9 or abs(yc - yr) > 1e-9),
+                    "lid_pitch_deg": lids.pitch_from_gaze(g, Bs[2]),
+                    "rotation_wxyz": matrix_to_quat(R)}
+    lid_pitch = float(np.mean([gaze[sd]["lid_pitch_deg"] for sd in ra.SIDES]))
+    lw = lids.lid_weights(lid_pitch, asset.max_pitch_deg)
+    blend = _blend(d["pupil"], d["iris"])
+
+    L_head = ra.posed_landmarks(asset, side, lw, blend, rots[side])
+    L_cam = to_camera(L_head, W2C)
+    L_px = project(L_cam, d["ortho_scale_mm"], s.width, s.height)
+    pc_cam = to_camera(ra.pupil_center(asset, side, blend, rots[side])[None], W2C)
+    pc_px = project(pc_cam, d["ortho_scale_mm"], s.width, s.height)[0]
+    poly_px = project(to_camera(ra.posed_lid_polygon(asset, side, lw), W2C),
+                      d["ortho_scale_mm"], s.width, s.height)
+    mm_per_px = ortho_size(d["ortho_scale_mm"], s.width, s.height)[0] / s.width
+    spec = {
+        "index": int(index), "png": str(png), "width": int(s.width), "height": int(s.height),
+        "samples": int(s.samples), "denoise": bool(s.denoise), "cycles_seed": d["cycles_seed"],
+        "eye": side,
+        "camera": {"world_to_camera": W2C.tolist(), "ortho_scale_mm": d["ortho_scale_mm"]},
+        "eye_rotation": {sd: gaze[sd]["rotation_wxyz"] for sd in ra.SIDES},
+        "lid_weights": {k: float(v) for k, v in lw.items()},
+        "eyeball": {"iris_color": d["iris_color"], "sclera_tint": d["sclera_tint"], "veins": d["veins"],
+                    "blend": blend},
+        "lighting": {"hdri": d["hdri"], "rotation_deg": d["hdri_rotation_deg"], "strength": d["strength"]},
+        "skin_detail": choose_skin_detail(mm_per_px, asset.displacement_amplitude_mm,
+                                          asset.skin_faces_edge_mm),
+        "landmarks_head_mm": L_head.tolist(),
+    }
+    camera = {"world_to_camera": W2C, "ortho_scale_mm": d["ortho_scale_mm"], "position_mm": pos,
+              "polar_deg": d["polar_deg"], "azimuth_deg": d["azimuth_deg"],
+              "distance_mm": float(s.camera_distance_mm), "jitter_mm": [float(x) for x in d["jitter"]],
+              "gaze_offset_deg": [dp, dy], "eye_contact_eye_deg": [p0, y0], "mm_per_px": mm_per_px}
+    return Sample(index=int(index), attempts=attempt + 1, spec=spec, side=side, camera=camera, gaze=gaze,
+                  lid_pitch_deg=lid_pitch, landmarks_head=L_head, landmarks_cam=L_cam, landmarks_px=L_px,
+                  pupil_center_px=pc_px, lid_polygon_px=poly_px)
+
+
+class RejectionError(ValueError):
+    """No attempt of a sample put the pupil inside the eyelid polygon."""
+
+
+def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overrides: dict | None = None,
+                reject: bool = True) -> Sample:
+    """Sample ``index``: the first attempt whose projected pupil centre is inside the lid polygon.
+
+    Raises
+    ------
+    RejectionError after ``max_attempts`` rejected attempts.
+    """
+    for attempt in range(int(s.max_attempts)):
+        smp = pose_sample(asset, s, index, attempt, str(png), overrides)
+        if not reject or point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px):
+            return smp
+    raise RejectionError(f"sample {index}: pupil outside the eyelid polygon in all "
+                         f"{s.max_attempts} attempts")
+
+
+def png_name(index: int) -> str:
+    return f"{int(index):06d}.png"
+
+
+def tmp_png(out_dir, index: int) -> Path:
+    """Where the worker writes image ``index`` (moved into place by the shard runner)."""
+    return Path(out_dir).resolve() / ".tmp" / png_name(index)

@@ -1,0 +1,263 @@
+"""Render shards through ``dask.distributed`` with one persistent Blender process per dask worker.
+
+* :class:`BlenderProcess` runs ``python -m pipeline.blender.render_worker ASSET RIG`` as a
+  subprocess (JSON spec lines on stdin, ``@@render@@``-prefixed reply lines on stdout, Blender's
+  chatter on stderr goes to a log file). It dies with its parent (``PR_SET_PDEATHSIG``) and
+  on stdin EOF.
+* :func:`render_shard` is the dask task: it takes the shard's ``(spec, label)`` pairs (one
+  HDRI per shard), keeps ONE Blender process per dask worker process in the module-level
+  cache :data:`_BLENDER` (so Blender starts once per worker, not per task), renders every
+  image whose label is not yet on disk, moves the PNG from ``.tmp/`` into place and writes
+  ``NNNNNN.json`` last (atomically): a file pair with its JSON is a finished image, so a
+  killed worker loses at most its in-flight image and a resumed run skips finished ones.
+* :func:`run_shards` submits the shards to a ``LocalCluster(n_workers, threads_per_worker=1)``
+  or, given a scheduler address, to that cluster (``Client(address)``) -- the same code path --
+  and shows a tqdm progress bar (images/s, ETA).
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from pipeline.errors import ScanError
+from pipeline.io.atomic import write_json
+
+REPLY_PREFIX = "@@render@@ "
+ROOT = Path(__file__).resolve().parents[2]
+_BLENDER: dict = {}
+
+
+class WorkerDied(RuntimeError):
+    """The Blender subprocess exited or stopped answering."""
+
+
+def _pdeathsig():                     # runs in the child before exec (Linux)
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+class BlenderProcess:
+    """One persistent ``pipeline.blender.render_worker`` subprocess."""
+
+    def __init__(self, asset, rig, threads: int = 0, tile_size: int | None = None,
+                 log_path=None, start_timeout_s: float = 600.0, python: str | None = None):
+        cmd = [python or sys.executable, "-m", "pipeline.blender.render_worker", str(asset), str(rig),
+               "--threads", str(int(threads))]
+        if tile_size:
+            cmd += ["--tile-size", str(int(tile_size))]
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+        self.log_path = Path(log_path) if log_path else None
+        self._log = open(self.log_path, "ab") if self.log_path else subprocess.DEVNULL
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log,
+                                     cwd=str(ROOT), env=env, preexec_fn=_pdeathsig)
+        self._buf = b""
+        t0 = time.perf_counter()
+        ready = self._reply(start_timeout_s)
+        self.startup_s = time.perf_counter() - t0
+        if not ready.get("ready"):
+            self.close()
+            raise WorkerDied(f"Blender worker could not load the asset: {ready.get('error')}")
+        self.ready = ready
+        self.rendered = 0
+
+    def _reply(self, timeout_s: float) -> dict:
+        deadline = time.monotonic() + timeout_s
+        fd = self.proc.stdout.fileno()
+        while True:
+            while b"\n" in self._buf:
+                line, self._buf = self._buf.split(b"\n", 1)
+                text = line.decode("utf-8", "replace")
+                if text.startswith(REPLY_PREFIX):
+                    return json.loads(text[len(REPLY_PREFIX):])
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.close()
+                raise WorkerDied(f"no reply from the Blender worker within {timeout_s:.0f} s")
+            r, _, _ = select.select([fd], [], [], min(left, 5.0))
+            if r:
+                chunk = os.read(fd, 65536)
+                if not chunk:
+                    code = self.proc.wait()
+                    raise WorkerDied(f"Blender worker exited (status {code}); log: {self.log_path}")
+                self._buf += chunk
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def render(self, spec: dict, timeout_s: float = 600.0) -> dict:
+        """Send one spec, wait for its reply."""
+        try:
+            self.proc.stdin.write((json.dumps(spec) + "\n").encode())
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError) as exc:
+            raise WorkerDied(f"Blender worker is gone ({exc})") from None
+        reply = self._reply(timeout_s)
+        self.rendered += 1
+        return reply
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                self.proc.stdin.write(b'{"quit": true}\n')
+                self.proc.stdin.close()
+                self.proc.wait(timeout=20)
+            except (OSError, subprocess.TimeoutExpired, ValueError):
+                self.proc.kill()
+                self.proc.wait()
+        if self._log is not subprocess.DEVNULL:
+            self._log.close()
+
+
+def _close_all() -> None:
+    while _BLENDER:
+        _, bp = _BLENDER.popitem()
+        bp.close()
+
+
+atexit.register(_close_all)
+
+
+def blender_stats() -> dict:
+    """pid, images rendered and start-up time of this process's Blender worker (for client.run)."""
+    return {str(k): {"pid": bp.proc.pid, "rendered": bp.rendered, "startup_s": bp.startup_s}
+            for k, bp in _BLENDER.items()}
+
+
+def close_blender() -> int:
+    """Close this process's Blender workers (for client.run at the end of a run)."""
+    n = len(_BLENDER)
+    _close_all()
+    return n
+
+
+def get_blender(asset, rig, opts: dict) -> BlenderProcess:
+    """The persistent Blender process of this (dask worker) process, started on first use."""
+    key = (str(asset), str(rig), json.dumps(opts, sort_keys=True))
+    bp = _BLENDER.get(key)
+    if bp is not None and not bp.alive():
+        _BLENDER.pop(key).close()
+        bp = None
+    if bp is None:
+        for k in list(_BLENDER):          # another asset: free the old Blender first
+            _BLENDER.pop(k).close()
+        log = Path(opts["log_dir"]) / f"blender-{os.getpid()}.log" if opts.get("log_dir") else None
+        bp = BlenderProcess(asset, rig, threads=int(opts.get("threads", 0)),
+                            tile_size=opts.get("tile_size"), log_path=log,
+                            start_timeout_s=float(opts.get("start_timeout_s", 600)))
+        _BLENDER[key] = bp
+    return bp
+
+
+def done(out_dir, index: int) -> bool:
+    """Is image ``index`` finished (its PNG and, written last, its JSON exist)?"""
+    out = Path(out_dir)
+    return (out / f"{index:06d}.json").is_file() and (out / f"{index:06d}.png").is_file()
+
+
+def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
+    """Dask task: render one shard. ``items`` = list of ``(spec, label)``; returns one result each.
+
+    A result is ``{"index", "ok", "render_s", "rss_mib", "landmark_check_mm", "error", "skipped"}``.
+    Images whose JSON exists are skipped (a retried task after a lost worker). A label is
+    written only when the worker's landmark check is within ``opts["tolerance_mm"]``.
+    """
+    out = Path(out_dir)
+    tol = float(opts.get("tolerance_mm", 0.01))
+    results = []
+    for spec, label in items:
+        i = int(spec["index"])
+        if done(out, i):
+            results.append({"index": i, "ok": True, "skipped": True})
+            continue
+        reply = None
+        for attempt in range(2):          # one restart if Blender died under us
+            try:
+                reply = get_blender(asset, rig, opts).render(spec, float(opts.get("image_timeout_s", 600)))
+                break
+            except WorkerDied as exc:
+                reply = {"index": i, "ok": False, "error": str(exc)}
+                _close_all()
+        res = {"index": i, "ok": bool(reply.get("ok")), "render_s": reply.get("render_s"),
+               "rss_mib": reply.get("rss_mib"), "landmark_check_mm": reply.get("landmark_check_mm"),
+               "error": reply.get("error"), "pid": os.getpid()}
+        if res["ok"]:
+            check = reply.get("landmark_check_mm")
+            if check is None or not check <= tol:
+                res.update(ok=False, error=f"landmark check {check} mm > {tol} mm: labels do not "
+                                           "match the rendered scene")
+            else:
+                label = dict(label)
+                label["landmark_check_mm"] = float(check)
+                label["render"] = dict(label["render"], render_s=reply.get("render_s"),
+                                       total_s=reply.get("total_s"))
+                os.replace(spec["png"], out / f"{i:06d}.png")
+                write_json(out / f"{i:06d}.json", label)
+        results.append(res)
+    return results
+
+
+def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0):
+    import logging
+
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            return Client(scheduler, timeout=f"{connect_timeout_s}s"), None
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ScanError(scheduler, f"cannot connect to the dask scheduler ({type(exc).__name__})") from None
+    cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                           dashboard_address=None, memory_limit=0, silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, scheduler: str | None = None,
+               progress: bool = True, connect_timeout_s: float = 10.0) -> dict:
+    """Render every shard (list of lists of ``(spec, label)``); returns per-image results + stats.
+
+    Returns
+    -------
+    dict  {"results": [...], "workers": n, "blender": {worker: stats}}
+    """
+    from dask.distributed import as_completed
+    from tqdm import tqdm
+
+    client, cluster = _client(workers, scheduler, connect_timeout_s)
+    results = []
+    try:
+        n_workers = len(client.scheduler_info().get("workers", {}))
+        total = sum(len(s) for s in shards)
+        futs = [client.submit(render_shard, s, str(asset), str(rig), str(out_dir), opts,
+                              pure=False, key=f"render-shard-{k}-{os.getpid()}")
+                for k, s in enumerate(shards)]
+        bar = tqdm(total=total, unit="img", desc="render", disable=not progress or total == 0,
+                   file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
+        failed = 0
+        for fut in as_completed(futs):
+            res = fut.result()
+            results.extend(res)
+            failed += sum(1 for r in res if not r.get("ok"))
+            bar.update(len(res))
+            if failed:
+                bar.set_postfix(failed=failed)
+        bar.close()
+        stats = client.run(blender_stats) if futs else {}
+        client.run(close_blender)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return {"results": results, "workers": n_workers, "blender": stats}

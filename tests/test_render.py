@@ -1,0 +1,357 @@
+"""Stage ``render``: sampling, labels, pupil-in-lid rule, resumable sharded rendering.
+
+The asset is built in a fixture from the small constructed scan of tests/test_usd.py (a flat
+skin grid with the eyeballs poking through it), with 16-vertex lid loops and eyelid landmark
+edges added to its rig.npz. Pure-Python parts are tested directly; Blender renders only a few
+tiny images (24 x 16 px, 1 sample).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from pipeline.render import asset as ra
+from pipeline.render import labels as lb
+from pipeline.render import sampling as sp
+from pipeline.rig import lids
+from pipeline.rig.landmarks import eyelid_landmarks
+from stages import usd as usd_stage
+from stages._common import run_stage
+from test_usd import EYES, argv, make_inputs
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
+        "progress": False, "connect_timeout_s": 3}
+
+
+def _ring(V, center, side):
+    """16 grid vertices on a square ring (10 mm) around the eye, medial first, upper lid first."""
+    gx, gy = np.round(center[0] / 5) * 5, np.round(center[1] / 5) * 5
+    d = np.maximum(np.abs(V[:, 0] - gx), np.abs(V[:, 1] - gy))
+    ring = np.flatnonzero(np.isclose(d, 10.0))
+    ang = np.arctan2(V[ring, 1] - gy, V[ring, 0] - gx)
+    if side == "left":          # medial = -X (angle pi), over the top to angle 0, then below
+        key = np.mod(np.pi - ang, 2 * np.pi)
+    else:                       # medial = +X (angle 0), over the top to angle pi
+        key = np.mod(ang, 2 * np.pi)
+    loop = ring[np.argsort(key)]
+    lat = int(np.flatnonzero(np.isclose(np.sort(key), np.pi))[0])
+    return loop, lat
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    root = tmp_path_factory.mktemp("render")
+    inp = make_inputs(root)
+    rig_npz = inp["dirs"]["rig"] / "rig.npz"
+    with np.load(rig_npz) as z:
+        arrays = {k: z[k] for k in z.files}
+    V = inp["V"]
+    for side, e in EYES.items():
+        loop, lat = _ring(V, e["center"], side)
+        frame = lids.EyeFrame(side=side, center=np.asarray(e["center"]), radius=e["radius"],
+                              forward=np.asarray(e["forward"]), loop=loop, lateral_index=lat)
+        lm = eyelid_landmarks(V, frame)
+        arrays[f"loop_{side}"] = loop
+        arrays[f"landmarks.{side}.edge"] = lm.edge
+        arrays[f"landmarks.{side}.t"] = lm.t
+        arrays[f"landmarks.{side}.points"] = lm.points
+    np.savez(rig_npz, **arrays)
+    params = root / "usd_params.yaml"
+    params.write_text("usd:\n  usdz: false\n  preview: false\n")
+    args = argv(inp)
+    args[args.index("--params") + 1] = str(params)
+    assert run_stage(usd_stage.main, args) == 0
+    asset = ra.load_render_asset(inp["out"], inp["dirs"]["rig"])
+    return {"root": root, "asset_dir": inp["out"], "rig_dir": inp["dirs"]["rig"], "asset": asset}
+
+
+def _settings(**kw):
+    return sp.RenderSettings.from_dict({**{k: v for k, v in TINY.items()
+                                           if k in sp.RenderSettings.__dataclass_fields__}, **kw})
+
+
+def _params(root: Path, name: str, **kw) -> Path:
+    import yaml
+
+    p = root / name
+    p.write_text(yaml.safe_dump({"render": {**TINY, **kw}}))
+    return p
+
+
+def _stage_cmd(tiny, out, params, *extra):
+    return [sys.executable, "-m", "stages.render", str(tiny["asset_dir"]), str(tiny["rig_dir"]), str(out),
+            "--metrics", str(out.parent / (out.name + ".metrics.json")), "--params", str(params),
+            "--no-progress", *extra]
+
+
+# ------------------------------------------------------------------------------- pure Python
+
+def test_asset_reader_matches_the_fixture(tiny):
+    a = tiny["asset"]
+    for side, e in EYES.items():
+        eye = a.eyes[side]
+        np.testing.assert_allclose(eye.center, e["center"], atol=1e-9)
+        np.testing.assert_allclose(eye.forward, np.asarray(e["forward"]) / np.linalg.norm(e["forward"]), atol=1e-9)
+        # at rest the eyelid landmarks are the stored rig points (mesh edges lerped, float32 mesh)
+        np.testing.assert_allclose(ra.eyelid_points(a, side, {}), a.rig_arrays[f"landmarks.{side}.points"],
+                                   atol=1e-5)
+        # posing a subset (with repeated vertices, as edges share them) = posing the whole mesh
+        E = eye.lm_edge.ravel()
+        for w in ({"lids_up": 0.4}, {"lids_down": 1.0}):
+            np.testing.assert_allclose(ra.posed_skin(a, w, E), ra.posed_skin(a, w)[E], atol=1e-12)
+        # the iris landmarks lie on a circle about the eye's forward axis, radius = model iris * scale
+        iris = ra.inner_points(eye, {}, np.eye(3), eye.iris)
+        rel = iris - eye.center
+        axial = rel @ eye.forward
+        assert np.ptp(axial) < 1e-4
+        rad = np.linalg.norm(rel - np.outer(axial, eye.forward), axis=1)
+        assert np.ptp(rad) < 1e-4 and rad.mean() == pytest.approx(5.9 * e["radius"] / 12.0, rel=1e-3)
+
+
+def test_projection_of_stored_3d_landmarks_reproduces_stored_2d(tiny):
+    s = _settings(n_images=8)
+    for i in range(8):
+        smp = sp.make_sample(tiny["asset"], s, i, "/tmp/x.png")
+        lab = json.loads(json.dumps(lb.make_label(smp, s, "tiny")))       # as stored on disk
+        assert lb.check_label(lab) < 0.01
+        # the composite head -> pixel matrix gives the same pixels from the head-frame landmarks
+        Hm = np.asarray(lab["camera"]["head_to_pixel"])
+        P = np.asarray(lab["landmarks"]["head_mm"])
+        uv = np.concatenate([P, np.ones((28, 1))], 1) @ Hm.T
+        np.testing.assert_allclose(uv[:, :2], lab["landmarks"]["px"], atol=0.01)
+        # and the camera frame is the head frame moved by the stored rigid transform
+        W = np.asarray(lab["camera"]["world_to_camera"])
+        np.testing.assert_allclose(W[:3, :3] @ W[:3, :3].T, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(P @ W[:3, :3].T + W[:3, 3], lab["landmarks"]["camera_mm"], atol=1e-9)
+
+
+def test_projection_convention_of_an_orthographic_camera():
+    # image 120 x 80, 30 mm wide: a point 7.5 mm right and 5 mm up of the axis
+    uv = sp.project([[7.5, 5.0, -100.0], [0.0, 0.0, -5.0]], 30.0, 120, 80)
+    np.testing.assert_allclose(uv, [[90.0, 20.0], [60.0, 40.0]])
+    M = sp.look_at([0, 0, 100.0], [0, 0, 0], [0, 1, 0])
+    np.testing.assert_allclose(sp.to_camera([[1.0, 2.0, 3.0]], M), [[1.0, 2.0, -97.0]])
+
+
+def test_pupil_in_lid_rule_constructed_cases(tiny):
+    square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
+    assert sp.point_in_polygon([5, 5], square) and not sp.point_in_polygon([15, 5], square)
+    notch = np.array([[0, 0], [10, 0], [10, 10], [5, 4], [0, 10]], float)      # concave (V notch on top)
+    assert sp.point_in_polygon([5, 2], notch) and not sp.point_in_polygon([5, 7], notch)
+    # a sample pinned so that the camera grazes the (flat) lid ring from the lateral side (70 deg)
+    # while the eye turns 35 deg laterally: the projected pupil centre leaves the foreshortened
+    # lid polygon, so every (pinned) attempt is rejected
+    a, s = tiny["asset"], _settings(max_attempts=3, camera_polar_max_deg=70.0)
+    bad = {"side": "left", "polar_deg": 70.0, "azimuth_deg": 0.0, "gaze_pitch_deg": 0.0,
+           "gaze_yaw_deg": 35.0, "jitter": np.zeros(2)}
+    smp = sp.make_sample(a, s, 0, "/tmp/x.png", overrides=bad, reject=False)
+    assert not sp.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
+    with pytest.raises(sp.RejectionError):
+        sp.make_sample(a, s, 0, "/tmp/x.png", overrides=bad)
+    good = dict(bad, polar_deg=0.0, gaze_yaw_deg=0.0)
+    smp = sp.make_sample(a, s, 0, "/tmp/x.png", overrides=good)
+    assert smp.attempts == 1 and sp.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
+
+
+def test_rejected_attempts_are_redrawn_and_counted(tiny):
+    # wide camera range on the tiny asset: some samples need more than one attempt
+    s = _settings(camera_polar_max_deg=70.0)
+    att = [sp.make_sample(tiny["asset"], s, i, "/tmp/x.png").attempts for i in range(40)]
+    assert max(att) > 1
+    for i, n in enumerate(att):
+        smp = sp.make_sample(tiny["asset"], s, i, "/tmp/x.png")
+        assert smp.attempts == n and sp.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
+        for k in range(n - 1):     # every earlier attempt was rejected
+            prev = sp.pose_sample(tiny["asset"], s, i, k, "/tmp/x.png")
+            assert not sp.point_in_polygon(prev.pupil_center_px, prev.lid_polygon_px)
+
+
+def test_same_seed_same_labels_other_seed_other_labels(tiny):
+    a = tiny["asset"]
+    dump = lambda s, i: json.dumps(lb.make_label(sp.make_sample(a, s, i, "/x.png"), s, "tiny"))  # noqa: E731
+    s0, s1 = _settings(seed=5), _settings(seed=6)
+    assert [dump(s0, i) for i in range(4)] == [dump(_settings(seed=5), i) for i in range(4)]
+    assert dump(s0, 2) != dump(s1, 2)
+    # sample i does not depend on how many images are rendered
+    assert dump(_settings(seed=5, n_images=3), 2) == dump(_settings(seed=5, n_images=500), 2)
+
+
+EXTREMES = [  # (pitch, yaw requested in the eye frame, polar, pupil) -> clipped to +-25 / +-35
+    {"gaze_pitch_deg": 40.0, "gaze_yaw_deg": 50.0, "polar_deg": 0.0, "pupil": 1.0, "iris": 1.0},
+    {"gaze_pitch_deg": -40.0, "gaze_yaw_deg": -50.0, "polar_deg": 0.0, "pupil": -1.0, "iris": -1.0},
+    {"gaze_pitch_deg": 25.0, "gaze_yaw_deg": -35.0, "polar_deg": 20.0, "azimuth_deg": 90.0, "pupil": -1.0},
+    {"gaze_pitch_deg": -25.0, "gaze_yaw_deg": 35.0, "polar_deg": 20.0, "azimuth_deg": 270.0, "pupil": 1.0},
+]
+
+
+def _extreme_sample(tiny, k, png="/tmp/x.png"):
+    s = _settings()
+    ov = dict(EXTREMES[k], side="left", jitter=np.zeros(2))
+    return s, sp.make_sample(tiny["asset"], s, 100 + k, png, overrides=ov, reject=False)
+
+
+def test_extremes_give_finite_clipped_labels(tiny):
+    radii = {}
+    for k, ex in enumerate(EXTREMES):
+        s, smp = _extreme_sample(tiny, k)
+        lab = lb.make_label(smp, s, "tiny")
+        flat = np.concatenate([np.ravel(lab["landmarks"][key]) for key in ("px", "camera_mm", "head_mm")])
+        assert np.all(np.isfinite(flat))
+        g = lab["gaze"]["eye_frame"]
+        assert abs(g["pitch_deg"]) == pytest.approx(min(abs(ex["gaze_pitch_deg"]), 25.0), abs=1e-9)
+        assert abs(g["yaw_deg"]) == pytest.approx(min(abs(ex["gaze_yaw_deg"]), 35.0), abs=1e-9)
+        assert lab["gaze"]["clipped"] == (abs(ex["gaze_pitch_deg"]) > 25)
+        for side in ("left", "right"):      # the other eye is clipped to its own limits too
+            assert abs(lab["eyes"][side]["pitch_eye_deg"]) <= 25 + 1e-9
+            assert abs(lab["eyes"][side]["yaw_eye_deg"]) <= 35 + 1e-9
+        # Listing's law: the eye rotation takes the rest forward to the gaze, axis perpendicular to it
+        eye = tiny["asset"].eyes["left"]
+        q = lab["eyes"]["left"]["rotation_wxyz"]
+        R = ra.quat_to_matrix(q)
+        np.testing.assert_allclose(R @ eye.forward, lab["gaze"]["vector_head"], atol=1e-12)
+        assert abs(np.dot(q[1:], eye.forward)) < 1e-12
+        w = lab["eyelids"]["weights"]
+        assert w == lids.lid_weights(lab["eyelids"]["pitch_deg"])
+        if ex["polar_deg"] == 0.0:           # camera at the pole = the eye's rest forward
+            np.testing.assert_allclose(lab["head_pose"]["camera_direction_head"], eye.forward, atol=1e-12)
+        radii[ex["pupil"]] = lab["eye_configuration"]["pupil_radius_mm"]
+    scale = EYES["left"]["radius"] / 12.0
+    assert radii[1.0] == pytest.approx(4.0 * scale, rel=1e-3)     # pupil_dilated_mm
+    assert radii[-1.0] == pytest.approx(1.0 * scale, rel=1e-3)    # pupil_constricted_mm
+
+
+def test_eye_contact_gaze_points_at_the_camera(tiny):
+    s = _settings(gaze_offset_max_deg=0.0)
+    for i in range(6):
+        lab = lb.make_label(sp.make_sample(tiny["asset"], s, i, "/x.png"), s, "tiny")
+        if not lab["gaze"]["clipped"]:
+            assert lab["gaze"]["camera"]["pitch_deg"] == pytest.approx(0.0, abs=1e-9)
+            assert lab["gaze"]["camera"]["yaw_deg"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_skin_detail_rule():
+    assert sp.choose_skin_detail(0.25, 0.2, 1.2) == "displacement"      # relief >= half a pixel
+    assert sp.choose_skin_detail(0.25, 0.08, 1.2) == "bump"             # polygons span > 1 px
+    assert sp.choose_skin_detail(2.0, 0.08, 1.2) == "none"              # everything sub-pixel
+    assert sp.choose_skin_detail(0.25, 0.0, 1.2) == "none"              # no map
+
+
+def test_settings_presets_and_validation():
+    assert sp.RenderSettings.from_dict({"preset": "targeted"}).camera_polar_max_deg == 5.0
+    assert sp.RenderSettings.from_dict({"preset": "targeted", "gaze_step_deg": 2}).gaze_step_deg == 2
+    np.testing.assert_array_equal(sp.offset_grid(45, 10), [-40, -30, -20, -10, 0, 10, 20, 30, 40])
+    for bad in ({"preset": "nope"}, {"width": 40, "height": 80}, {"eyes": ["middle"]}, {"samples": 0}):
+        with pytest.raises(ValueError):
+            sp.RenderSettings.from_dict(bad)
+
+
+def test_config_change_removes_stale_images(tmp_path):
+    from stages.render import prepare_out
+
+    out = tmp_path / "out"
+    out.mkdir()
+    for i in range(3):
+        (out / f"{i:06d}.png").write_bytes(b"x")
+        (out / f"{i:06d}.json").write_text("{}")
+    (out / "000003.png").write_bytes(b"half")               # unfinished: no JSON
+    (out / "config.json").write_text(json.dumps({"config_hash": "a"}))
+    prepare_out(out, "a", 2)                                  # same config, fewer images
+    assert sorted(p.name for p in out.glob("0*")) == ["000000.json", "000000.png", "000001.json", "000001.png"]
+    info = prepare_out(out, "b", 2)                           # another config: everything stale
+    assert info["stale_config"] and not list(out.glob("0*"))
+
+
+# ------------------------------------------------------------------------------- Blender
+
+@pytest.mark.blender
+def test_extreme_images_are_not_black_or_blank(tiny, tmp_path):
+    from pipeline.render.shard import BlenderProcess
+
+    bp = BlenderProcess(tiny["asset"].usda, tiny["asset"].rig_npz, threads=2)
+    try:
+        for k in range(len(EXTREMES)):
+            png = tmp_path / f"x{k}.png"
+            _, smp = _extreme_sample(tiny, k, str(png))
+            spec = dict(smp.spec, width=32, height=24, samples=1, denoise=False)
+            reply = bp.render(spec, timeout_s=300)
+            assert reply["ok"], reply
+            assert reply["landmark_check_mm"] < 0.01
+            a = np.asarray(Image.open(png).convert("RGB"), float)
+            assert a.shape == (24, 32, 3)
+            assert a.mean() > 10 and a.std() > 2, (k, a.mean(), a.std())
+    finally:
+        bp.close()
+    assert bp.proc.returncode == 0
+
+
+@pytest.mark.blender
+def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
+    out = tmp_path / "renders" / "tiny"
+    params = _params(tmp_path, "p.yaml", n_images=6)
+    proc = subprocess.Popen(_stage_cmd(tiny, out, params), cwd=ROOT, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    t0 = time.time()
+    while time.time() - t0 < 120 and len(list(out.glob("0*.json"))) < 2 and proc.poll() is None:
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.stderr.read().decode()
+    os.killpg(proc.pid, signal.SIGKILL)                       # the job and its dask/Blender children
+    proc.wait()
+    n_before = len(list(out.glob("0*.json")))
+    assert 2 <= n_before < 6 and not (out / "index.jsonl").exists()
+    r = subprocess.run(_stage_cmd(tiny, out, params), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    lines = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
+    assert [x["index"] for x in lines] == list(range(6))
+    assert sorted(p.name for p in out.glob("0*")) == sorted(f"{i:06d}.{e}" for i in range(6) for e in ("png", "json"))
+    m = json.loads((out.parent / "tiny.metrics.json").read_text())
+    assert m["skipped_done"] >= n_before and m["rendered"] == 6 - m["skipped_done"]
+    assert m["landmark_check_max_mm"] < 0.01
+    for x in lines:
+        lab = json.loads((out / x["json"]).read_text())
+        assert lab["index"] == x["index"] and lb.check_label(lab) < 0.01
+        a = np.asarray(Image.open(out / x["png"]).convert("RGB"), float)
+        assert a.shape == (16, 24, 3) and a.std() > 1
+    # the same seed gives the same labels as a fresh sampling (resume did not change them)
+    s = _settings(n_images=6)
+    fresh = lb.make_label(sp.make_sample(tiny["asset"], s, 3, "/x.png"), s, tiny["asset"].name)
+    stored = json.loads((out / "000003.json").read_text())
+    assert stored["landmarks"] == json.loads(json.dumps(fresh["landmarks"]))
+    sheet = Image.open(out / "contact_sheet.png")
+    assert sheet.size == tuple(m["contact_sheet_px"])
+    assert not (out / ".tmp").exists()
+    # nothing of the killed run is left running
+    left = subprocess.run(["pgrep", "-f", f"render_worker {tiny['asset'].usda}"], capture_output=True, text=True)
+    assert left.stdout.strip() == ""
+
+
+def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
+    params = _params(tmp_path, "p.yaml", n_images=2)
+    r = subprocess.run(_stage_cmd(tiny, tmp_path / "o1", params)[:3] + [str(tmp_path / "missing")]
+                       + _stage_cmd(tiny, tmp_path / "o1", params)[4:], cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    assert r.stderr.startswith("error: ") and "missing" in r.stderr and "not found" in r.stderr
+    r = subprocess.run(_stage_cmd(tiny, tmp_path / "o2", params, "--scheduler", "tcp://127.0.0.1:9"),
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    assert "tcp://127.0.0.1:9" in r.stderr and "scheduler" in r.stderr
+    bad = _params(tmp_path, "bad.yaml", n_images=2, preset="nope")
+    r = subprocess.run(_stage_cmd(tiny, tmp_path / "o3", bad), cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "preset" in r.stderr
+    rig = tmp_path / "rig"
+    rig.mkdir()
+    np.savez(rig / "rig.npz", junk=np.zeros(3))
+    with pytest.raises(Exception) as ei:
+        ra.load_render_asset(tiny["asset_dir"], rig)
+    assert "rig.npz" in str(ei.value)
