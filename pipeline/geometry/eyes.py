@@ -33,8 +33,8 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
-from pipeline.geometry.spherefit import (fit_sphere_algebraic, ransac_sphere, refine_sphere,
-                                         signed_distance)
+from pipeline.geometry.spherefit import (fit_sphere_algebraic, radius_sigma, ransac_sphere,
+                                         refine_sphere, signed_distance)
 
 SIDES = ("left", "right")
 
@@ -50,14 +50,18 @@ class EyeSettings:
     radius_prior_sigma_mm: float = 3.0
     inlier_tol_mm: float = 0.3
     inside_tol_mm: float = 1.5
+    inside_soft_tol_mm: float = 0.5
+    inside_soft_weight: float = 3.0
     cut_tol_mm: float = 0.8
     cornea_cap_deg: float = 35.0
     ransac_iterations: int = 1500
+    ransac_refine: int = 16
     min_inliers: int = 20
     crease_margin_mm: float = 0.5
     fit_iterations: int = 4
     min_crease_deg: float = 20.0
     shared_radius: bool = True
+    shared_radius_max_z: float = 3.0
     max_center_hint_distance_mm: float = 22.0
     texture_fallback: bool = True
     texture_min_contrast: float = 3.0
@@ -112,6 +116,7 @@ class EyeFit:
     crease_deg: float = 0.0
     capped: bool = False
     inliers: np.ndarray = field(default=None, repr=False)
+    radius_sigma: float = float("inf")
 
 
 def eye_basis(forward):
@@ -140,6 +145,12 @@ class _Mesh:
         if median_edge is None:
             median_edge = _median_edge(self.V, self.F)
         self.median_edge = float(median_edge)
+
+    def face_normals(self):
+        """(m, 3) unit face normals (computed once)."""
+        if getattr(self, "_fn", None) is None:
+            self._fn = meshtopo.face_normals(self.V, self.F)
+        return self._fn
 
     def neighbour_count(self, mask):
         """Per face: number of edge-neighbours inside ``mask``."""
@@ -445,17 +456,46 @@ def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fi
     if cornea_fixed is not None:
         c2, r2 = np.asarray(cornea_fixed["center"]), cornea_fixed["radius"]
         on_cornea = np.abs(np.linalg.norm(Ps - c2, axis=1) - r2) < 0.2
+        # draw sclera samples off the fitted cornea (in a hooded eye most of the opening is cornea)
+        off = np.linalg.norm(P[sample] - c2, axis=1) - r2 > 0.3
+        if off.sum() >= 4 * st.min_inliers // 5:
+            sample = sample[off]
     else:
         on_cornea = np.zeros(len(Ps), bool)
+    # oriented samples: faces near the hint (off the fitted cornea)
+    nfaces = np.flatnonzero(patch & (np.linalg.norm(mesh.centroids - hint, axis=1) < st.sample_radius_mm))
+    if cornea_fixed is not None:
+        nfaces = nfaces[np.linalg.norm(mesh.centroids[nfaces] - c2, axis=1) - r2 > 0.3]
 
-    def score(c, r):
-        # sclera inliers outside a cornea cap around centre->hint; nothing may lie inside
+    def _periph(c, r):
         w = Ps - c
         nw = np.linalg.norm(w, axis=1)
-        d = nw - r
         u = hint - c if cornea_fixed is None else c2 - c
-        periph = ((w @ u) < cos_cap * nw * np.linalg.norm(u)) & ~on_cornea
+        return nw - r, ((w @ u) < cos_cap * nw * np.linalg.norm(u)) & ~on_cornea
+
+    def prescore(c, r):
+        # sclera inliers outside a cornea cap around centre->hint; nothing may lie inside
+        d, periph = _periph(c, r)
         return float((periph & (np.abs(d) < tol)).sum() - 10.0 * (d < -st.inside_tol_mm).sum())
+
+    def score(c, r):
+        # ... and (after local refinement) little even slightly inside: a lid shell concentric
+        # with the eye, or a sphere through lid and sclera, has skin or eye surface inside it
+        d, _ = _periph(c, r)
+        return prescore(c, r) - st.inside_soft_weight * float((d < -st.inside_soft_tol_mm).sum())
+
+    def local_refine(c, r):
+        for _ in range(2):
+            d, periph = _periph(c, r)
+            sel = periph & (np.abs(d) < tol)
+            if sel.sum() < 8:
+                break
+            if fixed_radius is not None:
+                c, r = refine_sphere(Ps[sel], c, r, scale=0.1, fixed_radius=fixed_radius)
+            else:
+                c, r = refine_sphere(Ps[sel], c, r, scale=0.1, radius_prior=st.radius_prior_mm,
+                                     radius_sigma=st.radius_prior_sigma_mm / 0.1)
+        return c, r
 
     def accept(c, r):
         v = hint - c
@@ -468,7 +508,9 @@ def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fi
         return ok
 
     best = ransac_sphere(P, score, rng=rng, n_iter=st.ransac_iterations, sample_from=sample,
-                         r_range=tuple(st.radius_range_mm), accept=accept)
+                         r_range=tuple(st.radius_range_mm), accept=accept, refine=local_refine,
+                         prescore=prescore, n_refine=st.ransac_refine,
+                         normals=(mesh.centroids[nfaces], mesh.face_normals()[nfaces]))
     if best is None or best[2] < st.min_inliers:
         raise ScanError(source, f"{side} eye: no eyeball surface found near the hint "
                                 f"{np.round(hint, 2).tolist()}")
@@ -532,7 +574,8 @@ def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fi
     crease = _crease(mesh, region, np.where(np.isfinite(dd), dd, np.nan))
     return EyeFit(side=side, center=c, radius=float(r), forward=forward, residual_rms_mm=rms,
                   n_inliers=int(inl.sum()), method="geometry", region=region, cornea=cornea,
-                  crease_deg=crease, inliers=patch_v[inl])
+                  crease_deg=crease, inliers=patch_v[inl],
+                  radius_sigma=radius_sigma(P[inl], c, r) if fixed_radius is None else float("inf"))
 
 
 def _fit_texture(mesh: _Mesh, mesh_arrays, texture, hint, side, st: EyeSettings, source,
@@ -653,9 +696,17 @@ class RemovalResult:
     metrics: dict
 
 
+def _radii_agree(fits, st: EyeSettings):
+    """Whether the two eyes' radii are equal within ``shared_radius_max_z`` combined standard errors."""
+    sig = np.hypot(fits["left"].radius_sigma, fits["right"].radius_sigma)
+    return bool(np.isfinite(sig) and abs(fits["left"].radius - fits["right"].radius)
+                <= st.shared_radius_max_z * sig)
+
+
 def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None):
-    """Fit both eyes; with ``shared_radius`` refit both with their mean radius when both are
-    geometric fits (eyes of one head are the same size)."""
+    """Fit both eyes; with ``shared_radius`` refit both with their inverse-variance weighted mean
+    radius when both are geometric fits whose radii agree within ``shared_radius_max_z`` standard
+    errors (eyes of one head are usually the same size; a clear difference is kept)."""
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     median_edge = _median_edge(V, F)
@@ -669,8 +720,9 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
                   for k in ("UV", "FUV") if k in mesh_arrays}
     fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=sub_arrays,
                         texture=texture) for s in SIDES}
-    if st.shared_radius and all(fits[s].method == "geometry" for s in SIDES):
-        r = float(np.mean([fits[s].radius for s in SIDES]))
+    if st.shared_radius and all(fits[s].method == "geometry" for s in SIDES) and _radii_agree(fits, st):
+        w = np.array([1.0 / max(fits[s].radius_sigma, 1e-3) ** 2 for s in SIDES])
+        r = float(np.average([fits[s].radius for s in SIDES], weights=w))
         fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=sub_arrays,
                             texture=texture, fixed_radius=r, capped=fits[s].capped)
                 for s in SIDES}

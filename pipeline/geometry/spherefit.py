@@ -58,9 +58,64 @@ def sphere_through_4(P4):
     return c, float(np.linalg.norm(P4[0] - c))
 
 
+def sphere_from_normals(p1, n1, p2, n2):
+    """Sphere through two points whose unit normals point away from the centre (None if parallel).
+
+    The centre is the midpoint of the closest points of the lines ``p - t n``; the radius the
+    mean of the two distances ``t`` (both must be positive).
+
+    Returns
+    -------
+    (center (3,), radius) or None
+    """
+    w = p1 - p2
+    b = n1 @ n2
+    den = 1.0 - b * b
+    if den < 1e-4:
+        return None
+    d, e = n1 @ w, n2 @ w
+    t1 = (d - b * e) / den
+    t2 = (b * d - e) / den
+    if t1 <= 0 or t2 <= 0:
+        return None
+    c = 0.5 * ((p1 - t1 * n1) + (p2 - t2 * n2))
+    return c, float(0.5 * (np.linalg.norm(p1 - c) + np.linalg.norm(p2 - c)))
+
+
 def signed_distance(P, center, radius):
     """Signed distance of points to a sphere (positive outside), (n,) float64."""
     return np.linalg.norm(np.asarray(P, dtype=np.float64) - center, axis=1) - radius
+
+
+def radius_sigma(P, center, radius):
+    """Standard error of a sphere fit's radius (Gauss-Newton covariance, robust residual scale).
+
+    Parameters
+    ----------
+    P : (n, 3) float64
+        The points the sphere was fitted to (n >= 5).
+    center : (3,) float64
+    radius : float
+
+    Returns
+    -------
+    float
+        ``sqrt(cov[r, r])`` with ``cov = s^2 (J^T J)^-1`` and ``s`` = 1.4826 MAD of the residuals;
+        ``inf`` when the points do not determine the radius.
+    """
+    P = np.asarray(P, dtype=np.float64)
+    if len(P) < 5:
+        return float("inf")
+    w = P - center
+    nw = np.linalg.norm(w, axis=1)
+    d = nw - radius
+    J = np.column_stack([-w / np.maximum(nw, 1e-12)[:, None], -np.ones(len(P))])
+    s = max(1.4826 * float(np.median(np.abs(d - np.median(d)))), 1e-6)
+    try:
+        cov = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    return float(s * np.sqrt(max(cov[3, 3], 0.0)))
 
 
 def refine_sphere(P, center, radius, *, scale=0.1, radius_prior=None, radius_sigma=None,
@@ -118,7 +173,7 @@ def refine_sphere(P, center, radius, *, scale=0.1, radius_prior=None, radius_sig
 
 
 def ransac_sphere(P, score, *, rng, n_iter=1500, sample_from=None, r_range=(10.0, 18.0),
-                  accept=None):
+                  accept=None, refine=None, prescore=None, n_refine=8, normals=None):
     """RANSAC over 4-point spheres.
 
     Parameters
@@ -135,6 +190,18 @@ def ransac_sphere(P, score, *, rng, n_iter=1500, sample_from=None, r_range=(10.0
         Plausible radii; others are skipped.
     accept : callable, optional
         ``accept(center, radius) -> bool``: further plausibility test.
+    refine : callable, optional
+        ``refine(center, radius) -> (center, radius)``: local optimisation (LO-RANSAC). The
+        ``n_refine`` best samples by ``prescore`` (default ``score``) are refined and then
+        ranked by ``score``; a sample and its refinement both compete. With ``prescore`` the
+        ``n_refine`` best by ``score`` are refined too.
+    prescore : callable, optional
+        Score of the sampling phase when ``refine`` is given (e.g. a more lenient one).
+    n_refine : int
+    normals : ((k, 3), (k, 3)) float64, optional
+        Oriented points (e.g. face centroids) and their unit outward normals: ``2 n_iter``
+        further hypotheses from pairs of them (``sphere_from_normals``), far likelier to be
+        all-inlier than 4-point samples when inliers are few.
 
     Returns
     -------
@@ -145,11 +212,16 @@ def ransac_sphere(P, score, *, rng, n_iter=1500, sample_from=None, r_range=(10.0
     if len(idx) < 4:
         return None
     best = None
+    pre = score if (refine is None or prescore is None) else prescore
+    cands = []
     samples = rng.integers(0, len(idx), size=(n_iter, 4))
-    for s in samples:
-        if len(set(s.tolist())) < 4:
-            continue
-        sph = sphere_through_4(P[idx[s]])
+    hyps = [sphere_through_4(P[idx[s]]) if len(set(s.tolist())) == 4 else None for s in samples]
+    if normals is not None and len(normals[0]) >= 2:
+        Pn, N = (np.asarray(a, dtype=np.float64) for a in normals)
+        for a, b in rng.integers(0, len(Pn), size=(2 * n_iter, 2)):
+            if a != b:
+                hyps.append(sphere_from_normals(Pn[a], N[a], Pn[b], N[b]))
+    for sph in hyps:
         if sph is None:
             continue
         c, r = sph
@@ -157,7 +229,29 @@ def ransac_sphere(P, score, *, rng, n_iter=1500, sample_from=None, r_range=(10.0
             continue
         if accept is not None and not accept(c, r):
             continue
-        sc = score(c, r)
-        if best is None or sc > best[2]:
+        sc = pre(c, r)
+        if refine is not None:
+            cands.append((sc, score(c, r) if pre is not score else sc, c, r))
+        elif best is None or sc > best[2]:
             best = (c, r, sc)
+    if refine is None:
+        return best
+    order = np.argsort([-t[0] for t in cands], kind="stable")[:n_refine].tolist()
+    if pre is not score:  # the best by either score
+        order += [i for i in np.argsort([-t[1] for t in cands], kind="stable")[:n_refine].tolist()
+                  if i not in order]
+    for i in order:
+        _, _, c, r = cands[i]
+        opts = [(c, r)]
+        try:
+            c2, r2 = refine(c, r)
+            if (np.all(np.isfinite(c2)) and r_range[0] <= r2 <= r_range[1]
+                    and (accept is None or accept(c2, r2))):
+                opts.append((np.asarray(c2, dtype=np.float64), float(r2)))
+        except (ValueError, np.linalg.LinAlgError):
+            pass
+        for c_, r_ in opts:
+            sc = score(c_, r_)
+            if best is None or sc > best[2]:
+                best = (c_, r_, sc)
     return best
