@@ -1,0 +1,707 @@
+"""Persistent Blender worker: renders eye close-ups from sample specs (stage ``render``).
+
+    python -m pipeline.blender.render_worker ASSET.usda RIG.npz [--threads N] [--tile-size PX]
+
+Loads ``rigged_assets/<scan>/<scan>.usda`` once with Blender's USD importer, builds the
+Cycles scene and then reads one JSON sample spec per line on stdin (the spec is defined in the
+render design, see ``pipeline/render``); for each it poses the scene, renders it with CPU Cycles
+and writes the PNG to ``spec["png"]`` (temp name in the same folder + ``os.replace``). Replies go
+to stdout, one line each, prefixed with :data:`REPLY_PREFIX` so they can be told apart from
+Blender's own prints::
+
+    @@render@@ {"ready": true, "setup_s": 2.1, "rss_mib": 400.0}                 (once, after loading)
+    @@render@@ {"index": 17, "ok": true, "render_s": 0.21, "rss_mib": 612.0, "landmark_check_mm": 3e-6}
+    @@render@@ {"index": 17, "ok": false, "error": "..."}                          (and carries on)
+
+stdin EOF or ``{"quit": true}`` ends the worker.
+
+Scene (SynthesEyes paper, section 4):
+
+* Frames. Stage (head) space = mm, +Y up, +Z out of the face. The importer puts the mm -> m
+  scale and the Y-up -> Z-up rotation into the armature's world matrix ``H`` (head mm ->
+  Blender world m: head +X -> +X, head +Z -> -Y, head +Y -> +Z); every head-frame quantity
+  of the spec goes through ``H`` and every measurement comes back through ``H^-1``.
+* Camera: orthographic; ``world_to_camera`` (head mm -> camera mm, OpenGL axes, the camera
+  looks down -Z) is inverted and mapped through ``H``; ``ortho_scale`` = ``ortho_scale_mm``
+  / 1000 (horizontal extent, sensor fit AUTO with W >= H). The camera is pulled back
+  along its own +Z by :data:`CAMERA_PULLBACK_M`: an orthographic image does not depend on
+  the distance along the view axis, and this keeps clipping away from the face whatever
+  origin the spec gives.
+* Eyes: each eye bone gets the head-frame quaternion ``eye_rotation[side]`` conjugated into
+  the bone's rest frame (``R_b^-1 q R_b``), i.e. the eye rotates by ``q`` about its centre.
+  Pupil/iris blend weights drive the Inner mesh shape keys.
+* Lids: ``lid_weights`` channel weights are expanded with
+  :func:`pipeline.rig.lids.flat_shape_weights` onto the full and inbetween shape keys
+  (inbetweens added from RIG.npz, as in ``asset_preview``).
+* Skin: Principled BSDF, baked colour map, subsurface (Christensen-Burley, red-dominant
+  radius) plus a glossy specular lobe (roughness 0.45); detail from the baked displacement
+  map (signed mm along the normal): ``skin_detail`` = ``"displacement"`` (Cycles true
+  displacement of the mesh vertices + bump for the finer detail, method BOTH), ``"bump"``
+  (bump only) or ``"none"`` (map unplugged).
+* Eyeballs: :mod:`pipeline.blender.eyeball_materials` (refractive cornea n = 1.376); all
+  4 iris textures, 2 vein layers loaded once and switched per sample on the texture nodes,
+  the sclera tint on the tint-multiply node.
+* Eyelashes: one hair-curves object; upper ~90 and lower ~50 curled lashes rooted just
+  in front of each posed lid margin (the ``loop_<side>`` vertices of the evaluated skin
+  mesh), rebuilt every sample so they follow the lids (:func:`lash_curves`).
+* World: one of Blender's bundled studio-light HDRIs (or an absolute path), rotated about
+  head +Y (= Blender +Z) by ``rotation_deg`` (counter-clockwise seen from above) with
+  ``strength``; loaded only when it changes, with an orphan purge at each switch.
+* Landmark check: the 28 landmarks of ``eye`` are measured in the posed, evaluated
+  Blender scene -- eyelid landmark k = lerp of the evaluated skin vertices of
+  ``landmarks.<side>.edge[k]`` at ``t[k]``; iris/pupil = evaluated Inner-mesh vertices
+  ``eyerig:landmarks:iris|pupil`` of the eyeball asset -- brought back to head mm and
+  compared with ``landmarks_head_mm`` (max distance, mm).
+
+Render settings (see benchmarks/bench_render_quality.py for the measured trade-off): CPU
+Cycles, samples / denoise / seed from the spec, adaptive sampling, light paths limited to
+what the cornea needs (:data:`LIGHT_PATHS`), one tile for the whole image, persistent render
+data.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPLY_PREFIX = "@@render@@ "
+CAMERA_PULLBACK_M = 0.25
+SIDES = ("left", "right")
+IRIS_COLORS = ("amber", "blue", "brown", "grey")
+SCLERA_TINTS = {"white": (1.0, 1.0, 1.0), "pink": (1.0, 0.84, 0.82), "yellow": (1.0, 0.94, 0.74)}
+VEINS = ("bloodshot", "clear")
+EYE_BLENDS = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
+SKIN_DETAIL = ("displacement", "bump", "none")
+ADAPTIVE_THRESHOLD = 0.02
+WORLD_MAP_RESOLUTION = 256
+LIGHT_PATHS = {"max_bounces": 8, "diffuse_bounces": 1, "glossy_bounces": 2, "transmission_bounces": 6,
+               "transparent_max_bounces": 8, "volume_bounces": 0}
+# eyelashes (mm): count, max length, root / tip radius, curl angles (deg from the eye's forward
+# toward "away from the opening") at the root and at the tip
+LASHES = {"upper": {"count": 90, "length": 9.0, "root_angle": 25.0, "tip_angle": 80.0, "radius": 1.0},
+          "lower": {"count": 45, "length": 5.5, "root_angle": 35.0, "tip_angle": 70.0, "radius": 0.7}}
+LASH_ROOT_RADIUS_MM = 0.07
+LASH_TIP_RADIUS_MM = 0.02
+LASH_POINTS = 6
+LASH_VERTICAL_BIAS = 1.0
+LASH_OFFSET_MM = (0.5, 0.35)     # root: in front of the margin along forward, away from the opening
+
+
+def rss_mib() -> float:
+    """Resident set size of this process, MiB (Linux /proc; 0 if unavailable)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return round(int(line.split()[1]) / 1024.0, 1)
+    except OSError:
+        pass
+    return 0.0
+
+
+def _reply(obj: dict) -> None:
+    sys.stdout.write(REPLY_PREFIX + json.dumps(obj) + "\n")
+    sys.stdout.flush()
+
+
+# ----------------------------------------------------------------------------- pure numpy helpers
+
+def lash_curves(margin, lateral_index: int, forward, rng_table: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Eyelash polylines grown from a posed eyelid margin.
+
+    Parameters
+    ----------
+    margin : (L, 3) float64
+        Posed margin loop, head mm; starts at the medial canthus, runs over the upper lid to
+        ``lateral_index`` (lateral canthus) and back along the lower lid.
+    lateral_index : int
+    forward : (3,) float64
+        The eye's rest forward (unit, head frame).
+    rng_table : dict
+        ``{"upper"|"lower": (n, 4) float64}`` per-lash random numbers in [0, 1) (position
+        jitter, length, curl, sideways tilt): fixed per worker so lashes keep their identity.
+
+    Returns
+    -------
+    points : (N * LASH_POINTS, 3) float64
+        Polyline points, head mm, lash after lash (root first).
+    radius : (N * LASH_POINTS,) float64
+        Radius per point, mm (tapering root to tip).
+    """
+    P = np.asarray(margin, float)
+    f = np.asarray(forward, float)
+    f = f / np.linalg.norm(f)
+    centre = P.mean(0)
+    up = np.array([0.0, 1.0, 0.0]) - f[1] * f
+    up /= np.linalg.norm(up)
+    upper = P[:lateral_index + 1]
+    lower = np.concatenate([P[lateral_index:], P[:1]])
+    pts, rad = [], []
+    s = np.linspace(0.0, 1.0, LASH_POINTS)
+    for name, poly in (("upper", upper), ("lower", lower)):
+        cfg = LASHES[name]
+        rnd = rng_table[name]
+        n = len(rnd)
+        seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        # roots evenly spread over 8..92 % of the lid, jittered by up to half a spacing
+        u = 0.08 + 0.84 * (np.arange(n) + 0.5 + (rnd[:, 0] - 0.5)) / n
+        target = np.clip(u, 0.0, 1.0) * cum[-1]
+        k = np.clip(np.searchsorted(cum, target, side="right") - 1, 0, len(seg) - 1)
+        t = np.where(seg[k] > 0, (target - cum[k]) / np.maximum(seg[k], 1e-12), 0.0)
+        root = poly[k] + t[:, None] * (poly[k + 1] - poly[k])
+        tang = poly[k + 1] - poly[k]
+        tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-12)
+        # "away from the opening": radial from the opening centre, biased toward head up (upper
+        # lid) / down (lower lid) so lashes near the canthi still curl up / down, not sideways
+        away = root - centre
+        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-12)
+        away = away + LASH_VERTICAL_BIAS * (1.0 if name == "upper" else -1.0) * up
+        away -= (away @ f)[:, None] * f
+        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-12)
+        root = root + LASH_OFFSET_MM[0] * f + LASH_OFFSET_MM[1] * away
+        # longest in the middle of the lid, shorter toward the canthi (more so medially)
+        prof = np.sin(np.pi * np.clip(u, 0, 1)) * (0.75 + 0.25 * u)
+        length = cfg["length"] * (0.25 + 0.75 * prof) * (0.85 + 0.3 * rnd[:, 1])
+        a0 = np.radians(cfg["root_angle"] + 10.0 * (rnd[:, 2] - 0.5))
+        a1 = np.radians(cfg["tip_angle"] + 15.0 * (rnd[:, 2] - 0.5))
+        tilt = 0.25 * (rnd[:, 3] - 0.5)                # sideways spread along the lid
+        for i in range(n):
+            ang = a0[i] + (a1[i] - a0[i]) * s ** 1.5
+            d = np.cos(ang)[:, None] * f + np.sin(ang)[:, None] * away[i] + tilt[i] * tang[i]
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            step = length[i] / (LASH_POINTS - 1)
+            p = np.empty((LASH_POINTS, 3))
+            p[0] = root[i]
+            for j in range(1, LASH_POINTS):
+                p[j] = p[j - 1] + step * 0.5 * (d[j - 1] + d[j])
+            pts.append(p)
+            rad.append(cfg["radius"] * (LASH_ROOT_RADIUS_MM + (LASH_TIP_RADIUS_MM - LASH_ROOT_RADIUS_MM) * s))
+    return np.concatenate(pts), np.concatenate(rad)
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    """(w, x, y, z) -> (3, 3) rotation (normalised; raises on a zero quaternion)."""
+    q = np.asarray(q, float)
+    n = np.linalg.norm(q)
+    if q.shape != (4,) or not np.isfinite(n) or n < 1e-9:
+        raise ValueError(f"bad quaternion {q.tolist()}")
+    w, x, y, z = q / n
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def camera_to_head(world_to_camera) -> np.ndarray:
+    """(4, 4) camera -> head rigid transform from the spec's world_to_camera (orthonormalised)."""
+    M = np.asarray(world_to_camera, float)
+    if M.shape != (4, 4) or not np.all(np.isfinite(M)):
+        raise ValueError("camera.world_to_camera must be a finite 4x4 matrix")
+    R = M[:3, :3]
+    U, S, Vt = np.linalg.svd(R)
+    if np.abs(S - 1).max() > 1e-3 or np.linalg.det(R) <= 0:
+        raise ValueError("camera.world_to_camera is not a rigid transform (rotation + translation)")
+    R = U @ Vt
+    C = np.eye(4)
+    C[:3, :3] = R.T
+    C[:3, 3] = -R.T @ M[:3, 3]
+    return C
+
+
+def _eyeball_landmark_indices(asset: Path) -> dict:
+    """Inner-mesh landmark vertex indices from the eyeball asset the per-scan asset references."""
+    text = asset.read_text(errors="replace")
+    m = re.search(r"references\s*=\s*@([^@]*eyeball\.usda)@", text)
+    if m is None:
+        raise RuntimeError(f"{asset}: no reference to an eyeball.usda")
+    eb = (asset.parent / m.group(1)).resolve()
+    etext = eb.read_text(errors="replace")
+    out = {}
+    for k in ("iris", "pupil"):
+        mm = re.search(r"eyerig:landmarks:" + k + r"\s*=\s*\[([^\]]*)\]", etext)
+        if mm is None:
+            raise RuntimeError(f"{eb}: no eyerig:landmarks:{k}")
+        out[k] = np.array([int(v) for v in mm.group(1).split(",")], np.int64)
+    return out, eb
+
+
+# ----------------------------------------------------------------------------- Blender side
+
+class Worker:
+    """The loaded scene; :meth:`render` renders one spec."""
+
+    def __init__(self, asset: Path, rig_npz: Path, threads: int = 0, tile_size: int = 2048):
+        import bpy
+
+        from pipeline.blender.asset_preview import _find_image, add_inbetween_keys
+        from pipeline.blender.eyeball_materials import setup_eyeball_materials
+        from pipeline.blender.usd_roundtrip import import_usd
+        from pipeline.rig import lids
+
+        t0 = time.perf_counter()
+        self.bpy = bpy
+        self.lids = lids
+        asset, rig_npz = Path(asset), Path(rig_npz)
+        with np.load(rig_npz) as z:
+            self.rig = {k: z[k] for k in z.files}
+        self.shapes = lids.shapes_from_arrays(self.rig)
+        self.eb_landmarks, eb_path = _eyeball_landmark_indices(asset)
+        objs = import_usd(asset, unit_conversion=True)
+        scene = bpy.context.scene
+        self.scene = scene
+        self.skin = next((o for o in objs if o.name.split(".")[0] == "EyeRegion"), None)
+        self.arm = next((o for o in scene.objects if o.type == "ARMATURE"), None)
+        if self.skin is None or self.arm is None:
+            raise RuntimeError(f"{asset}: no EyeRegion mesh / skeleton imported")
+        n_v = len(self.skin.data.vertices)
+        for s in self.shapes:
+            if len(s.point_indices) and int(np.max(s.point_indices)) >= n_v:
+                raise RuntimeError(f"{rig_npz}: shape {s.name} indexes beyond the {n_v} asset vertices")
+        add_inbetween_keys(self.skin, self.shapes)
+        self.skin_keys = [kb for kb in self.skin.data.shape_keys.key_blocks
+                          if kb != self.skin.data.shape_keys.reference_key]
+        for o in scene.objects:        # landmark curves carry no shape keys in Blender: not rendered
+            if o.type not in ("MESH", "ARMATURE", "CAMERA", "EMPTY"):
+                o.hide_render = True
+                o.hide_viewport = True
+
+        # head mm -> Blender world
+        self.H = np.array(self.arm.matrix_world)
+        self.Hinv = np.linalg.inv(self.H)
+        self.h_scale = float(np.cbrt(np.linalg.det(self.H[:3, :3])))
+        self.H_rot = self.H[:3, :3] / self.h_scale
+
+        # eyes per side: bone, Outer, Inner
+        self.eyes = {}
+        for side in SIDES:
+            bone = f"eye_{side}"
+            mine = [o for o in objs if o is not self.skin and o.parent is not None and o.parent.name == bone]
+            inner = next((o for o in mine if o.data.shape_keys is not None
+                          and "Iris" in [sl.material.name.split(".")[0] for sl in o.material_slots
+                                         if sl.material]), None)
+            outer = next((o for o in mine if o is not inner), None)
+            pb = self.arm.pose.bones.get(bone)
+            if inner is None or outer is None or pb is None:
+                raise RuntimeError(f"{asset}: eye {side} (bone {bone}, Outer, Inner) not imported")
+            pb.rotation_mode = "QUATERNION"
+            Rb = np.array(pb.bone.matrix_local)[:3, :3]
+            Rb = Rb / np.cbrt(np.linalg.det(Rb))
+            n_in = len(inner.data.vertices)
+            for k, idx in self.eb_landmarks.items():
+                if idx.max() >= n_in:
+                    raise RuntimeError(f"{eb_path}: {k} landmark index beyond the {n_in} Inner vertices")
+            self.eyes[side] = {"bone": pb, "Rb": Rb, "inner": inner, "outer": outer,
+                               "keys": {kb.name: kb for kb in inner.data.shape_keys.key_blocks}}
+            for b in EYE_BLENDS:
+                if b not in self.eyes[side]["keys"]:
+                    raise RuntimeError(f"{asset}: Inner mesh of eye {side} has no shape key {b}")
+            # rest forward (head frame) = bone rest local +Z mapped to armature space
+            self.eyes[side]["forward"] = Rb[:, 2] / np.linalg.norm(Rb[:, 2])
+            self.eyes[side]["center"] = np.array(pb.bone.head_local)
+            loop = self.rig.get(f"loop_{side}")
+            edge = self.rig.get(f"landmarks.{side}.edge")
+            if loop is None or edge is None:
+                raise RuntimeError(f"{rig_npz}: loop_{side} / landmarks.{side}.edge missing")
+            lat = np.flatnonzero(np.asarray(loop) == int(edge[6, 0]))
+            if len(lat) != 1:
+                raise RuntimeError(f"{rig_npz}: lateral canthus of {side} not on loop_{side}")
+            self.eyes[side]["loop"] = np.asarray(loop, np.int64)
+            self.eyes[side]["lateral"] = int(lat[0])
+            self.eyes[side]["edge"] = np.asarray(edge, np.int64)
+            self.eyes[side]["t"] = np.asarray(self.rig[f"landmarks.{side}.t"], float)
+
+        # materials: skin
+        color = _find_image([self.skin], "Skin", "color")
+        disp = _find_image([self.skin], "Skin", "displacement")
+        self.skin_mats = []
+        for slot in self.skin.material_slots:
+            if slot.material is not None:
+                self.skin_mats.append(self._skin_material(slot.material, color, disp))
+        self.skin_detail = None
+        # materials: eyes (textures of all variants loaded once)
+        tex_dir = eb_path.parent / "textures"
+        self.iris_images = {c: self._load_image(tex_dir / f"iris_{c}.png") for c in IRIS_COLORS}
+        self.sclera_images = {v: self._load_image(tex_dir / f"sclera_{v}.png") for v in VEINS}
+        bump = self._load_image(tex_dir / "sclera_bump.png")
+        for side in SIDES:
+            e = self.eyes[side]
+            e["handles"] = setup_eyeball_materials([e["outer"], e["inner"]], self.iris_images["brown"],
+                                                   self.sclera_images["clear"], (1.0, 1.0, 1.0), bump)
+            if not {"iris_tex", "sclera_tex", "tint"} <= set(e["handles"]):
+                raise RuntimeError(f"{asset}: eye {side} lacks Iris/Sclera material slots")
+        self.eye_variant = {}
+
+        self._setup_render(threads, tile_size)
+        self._setup_lashes()
+        self.hdri = None
+        # root objects (armature, skin/eye parents, lashes) and their head-aligned world matrices;
+        # the environment rotation is applied by rotating these (see _set_hdri)
+        self.roots = {o: np.array(o.matrix_world) for o in scene.objects
+                      if o.parent is None and o is not self.cam}
+        self.Rw = np.eye(4)
+        self.Rw_inv = np.eye(4)
+        self.setup_s = time.perf_counter() - t0
+
+    # -- setup helpers
+    def _load_image(self, path: Path):
+        if not path.is_file():
+            raise RuntimeError(f"{path}: eyeball texture missing")
+        im = self.bpy.data.images.load(str(path), check_existing=True)
+        im.use_fake_user = True      # survives the orphan purges
+        return im
+
+    def _skin_material(self, mat, color_image, disp_image):
+        from pipeline.blender.eyeball_materials import _new_tree, _principled
+
+        nt, out = _new_tree(mat)
+        # subsurface scale is in world units (m): ~1.2 mm mean free path for red light
+        b = _principled(nt, **{"Roughness": 0.45, "Specular IOR Level": 0.5, "IOR": 1.4,
+                               "Subsurface Weight": 0.35, "Subsurface Scale": 0.0012,
+                               "Subsurface Radius": (1.0, 0.35, 0.2)})
+        try:
+            b.subsurface_method = "BURLEY"
+        except (AttributeError, TypeError):
+            pass
+        uv = nt.nodes.new("ShaderNodeUVMap")
+        uv.uv_map = "st"
+        if color_image is not None:
+            tex = nt.nodes.new("ShaderNodeTexImage")
+            tex.image = color_image
+            nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+            nt.links.new(tex.outputs["Color"], b.inputs["Base Color"])
+        else:
+            b.inputs["Base Color"].default_value = (0.75, 0.6, 0.55, 1.0)
+        d = None
+        if disp_image is not None:
+            disp_image.colorspace_settings.name = "Non-Color"
+            dtex = nt.nodes.new("ShaderNodeTexImage")
+            dtex.image = disp_image
+            dtex.interpolation = "Cubic"
+            nt.links.new(uv.outputs["UV"], dtex.inputs["Vector"])
+            d = nt.nodes.new("ShaderNodeDisplacement")
+            d.space = "OBJECT"                      # object units = stage mm = the map's units
+            d.inputs["Midlevel"].default_value = 0.0
+            d.inputs["Scale"].default_value = 1.0
+            nt.links.new(dtex.outputs["Color"], d.inputs["Height"])
+        nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
+        return {"mat": mat, "nt": nt, "disp": d, "out": out}
+
+    def _set_skin_detail(self, mode: str) -> None:
+        if mode == self.skin_detail:
+            return
+        for m in self.skin_mats:
+            nt, d, out = m["nt"], m["disp"], m["out"]
+            for link in list(out.inputs["Displacement"].links):
+                nt.links.remove(link)
+            if d is not None and mode != "none":
+                nt.links.new(d.outputs["Displacement"], out.inputs["Displacement"])
+                m["mat"].displacement_method = "BOTH" if mode == "displacement" else "BUMP"
+        self.skin_detail = mode
+
+    def _setup_render(self, threads: int, tile_size: int) -> None:
+        bpy = self.bpy
+        scene = self.scene
+        scene.render.engine = "CYCLES"
+        c = scene.cycles
+        c.device = "CPU"
+        c.use_adaptive_sampling = True
+        c.adaptive_threshold = ADAPTIVE_THRESHOLD
+        for k, v in LIGHT_PATHS.items():
+            setattr(c, k, v)
+        c.caustics_reflective = False
+        c.caustics_refractive = False
+        c.use_auto_tile = True
+        c.tile_size = int(tile_size)
+        try:
+            c.denoiser = "OPENIMAGEDENOISE"
+            c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+            c.denoising_prefilter = "FAST"
+            self.has_denoiser = True
+        except TypeError:
+            self.has_denoiser = False
+        scene.cycles_curves.shape = "RIBBONS"
+        scene.cycles_curves.subdivisions = 2
+        r = scene.render
+        r.resolution_percentage = 100
+        r.film_transparent = False
+        r.use_persistent_data = True
+        if threads > 0:
+            r.threads_mode = "FIXED"
+            r.threads = int(threads)
+        else:
+            r.threads_mode = "AUTO"
+        r.image_settings.file_format = "PNG"
+        r.image_settings.color_mode = "RGB"
+        r.image_settings.color_depth = "8"
+        scene.view_settings.view_transform = "Standard"
+        scene.view_settings.look = "None"
+        world = bpy.data.worlds.new("RenderWorld")
+        scene.world = world
+        world.use_nodes = True
+        world.cycles.sampling_method = "MANUAL"      # importance map built once per HDRI: keep it small
+        world.cycles.sample_map_resolution = WORLD_MAP_RESOLUTION
+        nt = world.node_tree
+        for n in list(nt.nodes):
+            nt.nodes.remove(n)
+        self.env = nt.nodes.new("ShaderNodeTexEnvironment")
+        self.background = nt.nodes.new("ShaderNodeBackground")
+        out = nt.nodes.new("ShaderNodeOutputWorld")
+        nt.links.new(self.env.outputs["Color"], self.background.inputs["Color"])
+        nt.links.new(self.background.outputs["Background"], out.inputs["Surface"])
+        cam_data = bpy.data.cameras.new("RenderCam")
+        cam_data.type = "ORTHO"
+        cam_data.sensor_fit = "AUTO"
+        cam_data.clip_start = 1e-3
+        cam_data.clip_end = CAMERA_PULLBACK_M + 1.0
+        cam_data.shift_x = cam_data.shift_y = 0.0
+        self.cam = bpy.data.objects.new("RenderCam", cam_data)
+        scene.collection.objects.link(self.cam)
+        scene.camera = self.cam
+
+    def _setup_lashes(self) -> None:
+        bpy = self.bpy
+        from pipeline.blender.eyeball_materials import _new_tree, _principled
+
+        rng = np.random.default_rng(12345)
+        self.lash_rng = {side: {k: rng.random((v["count"], 4)) for k, v in LASHES.items()} for side in SIDES}
+        n_curves = sum(v["count"] for v in LASHES.values())
+        mat = bpy.data.materials.new("Eyelash")
+        nt, out = _new_tree(mat)
+        b = _principled(nt, **{"Base Color": (0.012, 0.009, 0.007, 1.0), "Roughness": 0.35,
+                               "Specular IOR Level": 0.5, "Coat Weight": 0.0})
+        nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
+        self.lashes = {}
+        for side in SIDES:
+            curves = bpy.data.hair_curves.new(f"Lashes_{side}")
+            curves.add_curves([LASH_POINTS] * n_curves)
+            curves.materials.append(mat)
+            obj = bpy.data.objects.new(f"Lashes_{side}", curves)
+            self.scene.collection.objects.link(obj)
+            rad = curves.attributes.get("radius") or curves.attributes.new("radius", "FLOAT", "POINT")
+            self.lashes[side] = (obj, curves, rad)
+
+    # -- per sample
+    def _set_hdri(self, light: dict) -> None:
+        bpy = self.bpy
+        name = str(light["hdri"])
+        p = Path(name)
+        if not p.is_absolute():
+            if p.name != name or not name:
+                raise ValueError(f"lighting.hdri {name!r}: a bundled map name or an absolute path")
+            p = Path(bpy.utils.system_resource("DATAFILES")) / "studiolights" / "world" / name
+        if not p.is_file():
+            raise ValueError(f"lighting.hdri {name!r}: no such environment map")
+        if name != self.hdri:
+            old = self.env.image
+            self.env.image = bpy.data.images.load(str(p), check_existing=False)
+            if old is not None:
+                bpy.data.images.remove(old)
+            bpy.data.orphans_purge(do_local_ids=True, do_linked_ids=True, do_recursive=True)
+            self.hdri = name
+        rot = float(light.get("rotation_deg", 0.0))
+        strength = float(light.get("strength", 1.0))
+        if not (math.isfinite(rot) and math.isfinite(strength) and strength > 0):
+            raise ValueError("lighting.rotation_deg / strength must be finite, strength > 0")
+        # Any edit of the world shader makes Cycles rebuild the environment's importance map
+        # (seconds per image). Both are done without touching it, exactly:
+        # * rotating the map by +rot about head +Y (= Blender +Z) = rotating everything else
+        #   (all root objects and the camera) by -rot about Blender +Z;
+        # * the world is the only light, so its strength is a linear scale of the image =
+        #   exposure log2(strength) stops (applied before the view transform).
+        a = math.radians(rot)
+        ca, sa = math.cos(a), math.sin(a)
+        self.Rw = np.array([[ca, sa, 0, 0], [-sa, ca, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])   # Rz(-rot)
+        self.Rw_inv = self.Rw.T.copy()
+        self._apply_world_rotation()
+        self.scene.view_settings.exposure = math.log2(strength)
+
+    def _apply_world_rotation(self) -> None:
+        from mathutils import Matrix
+
+        for o, base in self.roots.items():
+            o.matrix_world = Matrix((self.Rw @ base).tolist())
+
+    def _set_eyes(self, spec: dict) -> None:
+        from mathutils import Matrix
+
+        rot = spec["eye_rotation"]
+        eb = spec["eyeball"]
+        if eb["iris_color"] not in IRIS_COLORS:
+            raise ValueError(f"eyeball.iris_color {eb['iris_color']!r} not in {IRIS_COLORS}")
+        if eb["sclera_tint"] not in SCLERA_TINTS:
+            raise ValueError(f"eyeball.sclera_tint {eb['sclera_tint']!r} not in {tuple(SCLERA_TINTS)}")
+        if eb["veins"] not in VEINS:
+            raise ValueError(f"eyeball.veins {eb['veins']!r} not in {VEINS}")
+        blend = eb.get("blend", {})
+        bad = set(blend) - set(EYE_BLENDS)
+        if bad:
+            raise ValueError(f"eyeball.blend: unknown shapes {sorted(bad)}")
+        for k, v in blend.items():
+            if not (0.0 <= float(v) <= 1.0):
+                raise ValueError(f"eyeball.blend.{k} = {v} outside [0, 1]")
+        for side in SIDES:
+            e = self.eyes[side]
+            q = quat_to_matrix(rot[side])
+            local = e["Rb"].T @ q @ e["Rb"]
+            e["bone"].rotation_quaternion = Matrix(local.tolist()).to_quaternion()
+            for k in EYE_BLENDS:
+                e["keys"][k].value = float(blend.get(k, 0.0))
+            variant = (eb["iris_color"], eb["sclera_tint"], eb["veins"])
+            if self.eye_variant.get(side) != variant:
+                h = e["handles"]
+                h["iris_tex"].image = self.iris_images[eb["iris_color"]]
+                h["sclera_tex"].image = self.sclera_images[eb["veins"]]
+                h["tint"].inputs[7].default_value = (*SCLERA_TINTS[eb["sclera_tint"]], 1.0)
+                self.eye_variant[side] = variant
+
+    def _set_lids(self, cw: dict) -> None:
+        for k in ("lids_up", "lids_down"):
+            v = float(cw.get(k, 0.0))
+            if not (0.0 <= v <= 1.0):
+                raise ValueError(f"lid_weights.{k} = {v} outside [0, 1]")
+        bad = set(cw) - {s.name for s in self.shapes}
+        if bad:
+            raise ValueError(f"lid_weights: unknown channels {sorted(bad)}")
+        flat = self.lids.flat_shape_weights(self.shapes, {k: float(v) for k, v in cw.items()})
+        for kb in self.skin_keys:
+            kb.value = flat.get(kb.name, 0.0)
+
+    def _set_camera(self, cam: dict, width: int, height: int) -> None:
+        from mathutils import Matrix
+
+        C = camera_to_head(cam["world_to_camera"])
+        scale = float(cam["ortho_scale_mm"])
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError("camera.ortho_scale_mm must be > 0")
+        R = self.H_rot @ C[:3, :3]
+        loc = self.H[:3, :3] @ C[:3, 3] + self.H[:3, 3] + R[:, 2] * CAMERA_PULLBACK_M
+        Mw = np.eye(4)
+        Mw[:3, :3] = R
+        Mw[:3, 3] = loc
+        self.cam_base = Mw
+        self.cam.matrix_world = Matrix((self.Rw @ Mw).tolist())
+        self.cam.data.ortho_scale = scale * self.h_scale if width >= height else scale * self.h_scale * height / width
+        self.scene.render.resolution_x, self.scene.render.resolution_y = int(width), int(height)
+
+    def _evaluated_head_mm(self, obj, dg) -> np.ndarray:
+        oe = obj.evaluated_get(dg)
+        em = oe.to_mesh()
+        P = np.empty(len(em.vertices) * 3)
+        em.vertices.foreach_get("co", P)
+        oe.to_mesh_clear()
+        M = self.Hinv @ self.Rw_inv @ np.array(oe.matrix_world)
+        return P.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+
+    def _lashes_and_landmarks(self, side: str, spec_lashes: bool) -> np.ndarray:
+        """Rebuild both eyes' lashes from the posed margins; return the 28 measured landmarks of ``side``."""
+        dg = self.bpy.context.evaluated_depsgraph_get()
+        S = self._evaluated_head_mm(self.skin, dg)
+        for sd in SIDES:
+            obj, curves, rad = self.lashes[sd]
+            obj.hide_render = not spec_lashes
+            if not spec_lashes:
+                continue
+            e = self.eyes[sd]
+            pts, r = lash_curves(S[e["loop"]], e["lateral"], e["forward"], self.lash_rng[sd])
+            W = pts @ self.H[:3, :3].T + self.H[:3, 3]
+            curves.position_data.foreach_set("vector", W.astype(np.float32).ravel())
+            rad.data.foreach_set("value", (r * self.h_scale).astype(np.float32))
+            curves.update_tag()
+        e = self.eyes[side]
+        lid = (1.0 - e["t"])[:, None] * S[e["edge"][:, 0]] + e["t"][:, None] * S[e["edge"][:, 1]]
+        inner = self._evaluated_head_mm(e["inner"], dg)
+        return np.concatenate([lid, inner[self.eb_landmarks["iris"]], inner[self.eb_landmarks["pupil"]]])
+
+    def render(self, spec: dict) -> dict:
+        bpy = self.bpy
+        t0 = time.perf_counter()
+        png = Path(spec["png"])
+        if not png.is_absolute() or png.suffix.lower() != ".png":
+            raise ValueError(f"png {str(png)!r}: an absolute .png path")
+        if not png.parent.is_dir():
+            raise ValueError(f"png {str(png)!r}: folder does not exist")
+        width, height = int(spec["width"]), int(spec["height"])
+        if not (1 <= width <= 8192 and 1 <= height <= 8192):
+            raise ValueError(f"image size {width}x{height} out of range")
+        samples = int(spec["samples"])
+        if not 1 <= samples <= 1 << 16:
+            raise ValueError(f"samples {samples} out of range")
+        side = spec["eye"]
+        if side not in SIDES:
+            raise ValueError(f"eye {side!r} not in {SIDES}")
+        detail = spec.get("skin_detail", "bump")
+        if detail not in SKIN_DETAIL:
+            raise ValueError(f"skin_detail {detail!r} not in {SKIN_DETAIL}")
+        lm_in = np.asarray(spec["landmarks_head_mm"], float)
+        if lm_in.shape != (28, 3) or not np.all(np.isfinite(lm_in)):
+            raise ValueError(f"landmarks_head_mm must be 28 x 3 finite numbers, got shape {lm_in.shape}")
+        self._set_hdri(spec["lighting"])
+        self._set_eyes(spec)
+        self._set_lids(spec["lid_weights"])
+        self._set_camera(spec["camera"], width, height)
+        self._set_skin_detail(detail)
+        c = self.scene.cycles
+        c.samples = samples
+        c.use_denoising = bool(spec.get("denoise", True)) and self.has_denoiser
+        c.seed = int(spec.get("cycles_seed", 0)) & 0x7FFFFFFF
+        c.adaptive_threshold = float(spec.get("adaptive_threshold", ADAPTIVE_THRESHOLD))
+        for k in LIGHT_PATHS:
+            if k in spec:
+                setattr(c, k, int(spec[k]))
+        self.bpy.context.view_layer.update()
+        measured = self._lashes_and_landmarks(side, bool(spec.get("lashes", True)))
+        check = float(np.linalg.norm(measured - lm_in, axis=1).max())
+        tmp = png.with_name(f".{png.stem}.tmp{os.getpid()}.png")
+        self.scene.render.filepath = str(tmp)
+        t1 = time.perf_counter()
+        bpy.ops.render.render(write_still=True)
+        t_render = time.perf_counter() - t1
+        if not tmp.is_file():
+            raise RuntimeError("Blender wrote no image")
+        os.replace(tmp, png)
+        return {"index": spec.get("index"), "ok": True, "render_s": round(t_render, 4),
+                "total_s": round(time.perf_counter() - t0, 4), "rss_mib": rss_mib(),
+                "landmark_check_mm": check, "landmarks_measured_head_mm": measured.round(6).tolist()}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("asset", type=Path)
+    ap.add_argument("rig", type=Path)
+    ap.add_argument("--threads", type=int, default=0, help="render threads (0 = all cores)")
+    ap.add_argument("--tile-size", type=int, default=2048, help="Cycles tile size, px")
+    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        w = Worker(args.asset, args.rig, args.threads, args.tile_size)
+    except Exception as exc:  # noqa: BLE001 -- any unloadable asset/rig: one line, exit 2
+        _reply({"ready": False, "error": f"{type(exc).__name__}: {exc}"})
+        return 2
+    _reply({"ready": True, "setup_s": round(w.setup_s, 3), "rss_mib": rss_mib()})
+    for line in sys.stdin:
+        line = line.strip()
+        if not line:
+            continue
+        index = None
+        try:
+            spec = json.loads(line)
+            if not isinstance(spec, dict):
+                raise ValueError("a spec must be a JSON object")
+            if spec.get("quit"):
+                break
+            index = spec.get("index")
+            _reply(w.render(spec))
+        except Exception as exc:  # noqa: BLE001 -- any bad spec: report it and carry on
+            _reply({"index": index, "ok": False, "error": f"{type(exc).__name__}: {exc}"})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
