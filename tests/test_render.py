@@ -9,7 +9,6 @@ tiny images (24 x 16 px, 1 sample).
 from __future__ import annotations
 
 import json
-import math
 import os
 import signal
 import subprocess

@@ -247,12 +247,22 @@ def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, schedu
                    file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
         failed = 0
         for fut in as_completed(futs):
-            res = fut.result()
+            try:
+                res = fut.result()
+            except Exception as exc:  # noqa: BLE001 -- a task that raised (Blender could not start, ...)
+                msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+                hint = (" (the dask scheduler and workers need the project importable: start them with "
+                        "PYTHONPATH=<repository root>)" if "serializ" in msg or isinstance(exc, ImportError)
+                        else "")
+                raise ScanError(asset, f"render task failed: {type(exc).__name__}: {msg}{hint}") from None
             results.extend(res)
             failed += sum(1 for r in res if not r.get("ok"))
             bar.update(len(res))
+            el = bar.format_dict.get("elapsed") or 0.0
+            post = {"img/s": f"{bar.n / el:.2f}" if el > 0 else "-"}
             if failed:
-                bar.set_postfix(failed=failed)
+                post["failed"] = failed
+            bar.set_postfix(post)
         bar.close()
         stats = client.run(blender_stats) if futs else {}
         client.run(close_blender)
