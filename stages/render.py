@@ -179,6 +179,7 @@ def main(argv) -> dict:
             "stale_config": prep["stale_config"], "removed_files": prep["removed_files"],
             "workers": run["workers"], "scheduler": scheduler or "LocalCluster",
             "threads_per_blender": threads, "shards": len(shards),
+            "blender_starts": int(sum(v.get("starts", 0) for v in run["blender"].values())),
             "sampling_s": round(t_sample, 3), "render_wall_s": round(t_render, 3),
             "s_per_image": round(t_render / len(res), 4) if res else None,
             "images_per_s": round(len(res) / t_render, 4) if res and t_render > 0 else None,

@@ -256,6 +256,19 @@ def test_settings_presets_and_validation():
             sp.RenderSettings.from_dict(bad)
 
 
+def test_fingerprint_covers_the_referenced_eyeball_and_its_textures(tiny):
+    a = tiny["asset"]
+    before = a.fingerprint()
+    bump = tiny["root"] / "rigged_assets" / "eyeball" / "textures" / "sclera_bump.png"
+    data = bump.read_bytes()
+    try:
+        bump.write_bytes(data + b"changed")
+        assert a.fingerprint() != before
+    finally:
+        bump.write_bytes(data)
+    assert a.fingerprint() == before
+
+
 def test_config_change_removes_stale_images(tmp_path):
     from stages.render import prepare_out
 
@@ -317,6 +330,7 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     m = json.loads((out.parent / "tiny.metrics.json").read_text())
     assert m["skipped_done"] >= n_before and m["rendered"] == 6 - m["skipped_done"]
     assert m["landmark_check_max_mm"] < 0.01
+    assert m["shards"] >= 2 and m["blender_starts"] == 1      # one Blender per dask worker, kept across tasks
     for x in lines:
         lab = json.loads((out / x["json"]).read_text())
         assert lab["index"] == x["index"] and lb.check_label(lab) < 0.01

@@ -90,13 +90,29 @@ class RenderAsset:
     variants: dict = field(default_factory=dict)
 
     def fingerprint(self) -> str:
-        """sha256 of the asset layer, rig.npz and the eyeball layer (for the config hash)."""
+        """sha256 of every file the render reads (for the config hash of a render folder).
+
+        The asset layer with all its USD dependencies (the referenced eyeball layer, every
+        texture and the files beside them, from ``UsdUtils.ComputeAllDependencies``), rig.npz,
+        and the source of the renderer (``pipeline/render/*.py``, ``pipeline/blender/*.py``):
+        a changed input or renderer invalidates the images of a resumable render folder.
+        """
         import hashlib
 
+        from pxr import UsdUtils
+
+        layers, assets, _ = UsdUtils.ComputeAllDependencies(str(self.usda))
+        files = {Path(layer.realPath) for layer in layers if layer.realPath}
+        files |= {Path(a) for a in assets}
+        files |= {q for a in assets for q in Path(a).parent.iterdir()}   # e.g. sclera_bump.png
+        files |= {self.usda, self.rig_npz}
+        pkg = Path(__file__).resolve().parents[1]
+        files |= set((pkg / "render").glob("*.py")) | set((pkg / "blender").glob("*.py"))
         h = hashlib.sha256()
-        for p in [self.usda, self.rig_npz, *sorted(self.usda.parent.glob("textures/*"))]:
-            h.update(p.name.encode())
-            h.update(Path(p).read_bytes())
+        for p in sorted(files):
+            if p.is_file():
+                h.update(p.name.encode())
+                h.update(p.read_bytes())
         return h.hexdigest()
 
 

@@ -33,6 +33,7 @@ from pipeline.io.atomic import write_json
 REPLY_PREFIX = "@@render@@ "
 ROOT = Path(__file__).resolve().parents[2]
 _BLENDER: dict = {}
+_STARTS = [0]                         # Blender processes started by this process (stats)
 
 
 class WorkerDied(RuntimeError):
@@ -131,9 +132,12 @@ atexit.register(_close_all)
 
 
 def blender_stats() -> dict:
-    """pid, images rendered and start-up time of this process's Blender worker (for client.run)."""
-    return {str(k): {"pid": bp.proc.pid, "rendered": bp.rendered, "startup_s": bp.startup_s}
-            for k, bp in _BLENDER.items()}
+    """Blender starts of this process and its live Blender's pid / images / start-up (for client.run)."""
+    out = {"starts": _STARTS[0], "alive": []}
+    for bp in _BLENDER.values():
+        out["alive"].append({"pid": bp.proc.pid, "rendered": bp.rendered, "startup_s": round(bp.startup_s, 3),
+                             "rss_mib_ready": bp.ready.get("rss_mib")})
+    return out
 
 
 def close_blender() -> int:
@@ -158,6 +162,7 @@ def get_blender(asset, rig, opts: dict) -> BlenderProcess:
                             tile_size=opts.get("tile_size"), log_path=log,
                             start_timeout_s=float(opts.get("start_timeout_s", 600)))
         _BLENDER[key] = bp
+        _STARTS[0] += 1
     return bp
 
 
