@@ -349,6 +349,21 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     assert left.stdout.strip() == ""
 
 
+@pytest.mark.blender
+def test_stage_on_an_existing_dask_cluster(tiny, tmp_path):
+    from dask.distributed import LocalCluster
+
+    out = tmp_path / "renders" / "tiny"
+    params = _params(tmp_path, "p.yaml", n_images=2)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cl:
+        r = subprocess.run(_stage_cmd(tiny, out, params, "--scheduler", cl.scheduler_address), cwd=ROOT,
+                           capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    m = json.loads((out.parent / "tiny.metrics.json").read_text())
+    assert m["scheduler"] == cl.scheduler_address and m["workers"] == 1 and m["rendered"] == 2
+    assert [json.loads(x)["index"] for x in (out / "index.jsonl").read_text().splitlines()] == [0, 1]
+
+
 def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     params = _params(tmp_path, "p.yaml", n_images=2)
     r = subprocess.run(_stage_cmd(tiny, tmp_path / "o1", params)[:3] + [str(tmp_path / "missing")]
