@@ -52,12 +52,14 @@ class EyeSettings:
     inside_tol_mm: float = 1.5
     inside_soft_tol_mm: float = 0.5
     inside_soft_weight: float = 3.0
+    inside_fit_margin_mm: float = 0.2
     cut_tol_mm: float = 0.8
     cornea_cap_deg: float = 35.0
     ransac_iterations: int = 1500
     ransac_refine: int = 16
     min_inliers: int = 20
     crease_margin_mm: float = 0.5
+    crease_margin_capped: bool = False
     fit_iterations: int = 4
     min_crease_deg: float = 20.0
     shared_radius: bool = True
@@ -66,6 +68,7 @@ class EyeSettings:
     texture_fallback: bool = True
     texture_min_contrast: float = 3.0
     max_fit_rms_mm: float = 0.6
+    margin_lift_mm: float = 0.6
     max_gaze_deg: float = 40.0
     cornea_min_inliers: int = 20
     cornea_min_fraction: float = 0.45
@@ -521,7 +524,8 @@ def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fi
     in_region = None  # (len(patch_v),) bool: interior vertices of the current removal region
     # away from the crease only when the whole opening is fitted (with a cornea cap too few
     # canthal sclera vertices would remain)
-    use_margin = st.crease_margin_mm >= 0 and (st.cornea_cap_deg <= 0 or cornea_fixed is not None)
+    use_margin = st.crease_margin_mm >= 0 and (st.cornea_cap_deg <= 0 or cornea_fixed is not None
+                                               or st.crease_margin_capped)
     for it in range(st.fit_iterations):
         w = P - c
         nw = np.linalg.norm(w, axis=1)
@@ -539,11 +543,15 @@ def _fit_geometry_once(mesh: _Mesh, hint, side, st: EyeSettings, source, rng, fi
             inl = in_region & (np.abs(d) < 3 * tol) & (ang > cap_deg)
         if inl.sum() < st.min_inliers:
             inl = (np.abs(d) < tol) & (dh < st.sample_radius_mm + 2.0)
+        # nothing of the eye region may lie inside the eyeball (beyond the noise)
+        Q = Ps if st.inside_fit_margin_mm >= 0 else None
         if fixed_radius is not None:
-            c, r = refine_sphere(P[inl], c, r, scale=0.1, fixed_radius=fixed_radius)
+            c, r = refine_sphere(P[inl], c, r, scale=0.1, fixed_radius=fixed_radius,
+                                 inside_points=Q, inside_margin=st.inside_fit_margin_mm)
         else:
             c, r = refine_sphere(P[inl], c, r, scale=0.1, radius_prior=st.radius_prior_mm,
-                                 radius_sigma=st.radius_prior_sigma_mm / 0.1)
+                                 radius_sigma=st.radius_prior_sigma_mm / 0.1,
+                                 inside_points=Q, inside_margin=st.inside_fit_margin_mm)
         dn = np.linalg.norm(P[inl] - c, axis=1) - r
         tol = float(np.clip(3.0 * 1.4826 * np.median(np.abs(dn)), 0.1, st.inlier_tol_mm))
         # region and forward direction with the current sphere
@@ -696,6 +704,111 @@ class RemovalResult:
     metrics: dict
 
 
+def _lift_off_points(V, F, loop_old, h, tau, reach, k=3):
+    """Where the surface lifts off the eye by ``tau``, nearest to each loop vertex.
+
+    The ``tau`` iso-line of the height field is sampled where it crosses the edges of the uncut
+    mesh near the loop (linear interpolation along each edge); each loop vertex gets the mean
+    of its ``k`` nearest crossing points within ``reach`` mm (itself when there are none).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+        The uncut mesh.
+    loop_old : (L,) int64
+        Loop vertices (ids of ``V``).
+    h : (n,) float64
+        Height of each vertex above the eye surface (NaN where unknown).
+    tau : float
+    reach : float
+    k : int
+
+    Returns
+    -------
+    (L, 3) float64
+    """
+    from scipy.spatial import cKDTree
+
+    ok = np.isfinite(h)
+    Fl = F[ok[F].all(axis=1)]
+    E = np.concatenate([Fl[:, [0, 1]], Fl[:, [1, 2]], Fl[:, [2, 0]]])
+    E = np.unique(np.sort(E, axis=1), axis=0)
+    ha, hb = h[E[:, 0]], h[E[:, 1]]
+    cross = (ha - tau) * (hb - tau) < 0
+    E, ha, hb = E[cross], ha[cross], hb[cross]
+    out = V[loop_old].copy()
+    if len(E) == 0:
+        return out
+    t = (tau - ha) / (hb - ha)
+    P = V[E[:, 0]] + t[:, None] * (V[E[:, 1]] - V[E[:, 0]])
+    kk = min(k, len(P))
+    dist, idx = cKDTree(P).query(out, k=kk)
+    dist, idx = dist.reshape(len(out), kk), idx.reshape(len(out), kk)
+    w = (dist <= reach).astype(np.float64)
+    n = w.sum(axis=1)
+    has = n > 0
+    out[has] = (P[idx[has]] * w[has, :, None]).sum(axis=1) / n[has, None]
+    return out
+
+
+def _project_to_eye(P, center, radius, cornea=None):
+    """Closest points on the surface of the two-sphere eye (sclera sphere or corneal sphere,
+    whichever is nearer), (n, 3)."""
+    def onto(c, r):
+        w = P - c
+        return c + r * w / np.maximum(np.linalg.norm(w, axis=1), 1e-12)[:, None]
+    out = onto(center, radius)
+    if cornea is not None:
+        ds = np.abs(signed_distance(P, center, radius))
+        dc = np.abs(signed_distance(P, cornea["center"], cornea["radius"]))
+        use = (dc < ds) & (signed_distance(P, center, radius) > 0)
+        out[use] = onto(np.asarray(cornea["center"]), cornea["radius"])[use]
+    return out
+
+
+def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5):
+    """Move the loop vertices of the cut mesh (in place) to where the uncut surface lifts off the
+    fitted eye surface by ``tau`` (``_lift_off_points``), the eyelid margin at a sub-edge
+    position; a move that would turn an incident face by more than ``acos(min_cos)`` or shrink
+    it below a tenth of its area is halved (three times, then dropped). Returns the mean move, mm.
+    """
+    loop_old = old_ids[loop]
+    L = V[loop_old]
+    reach = 2.0 * _median_edge(V2, F2[np.isin(F2, loop).any(axis=1)])
+    lo, hi = L.min(axis=0) - reach - 1.0, L.max(axis=0) + reach + 1.0
+    box = np.flatnonzero(((V >= lo) & (V <= hi)).all(axis=1))
+    h = np.full(len(V), np.nan)
+    h[box] = eye_surface_distance(V[box], fit.center, fit.radius, fit.cornea)
+    target = _lift_off_points(V, F, loop_old, h, tau, reach)
+    # onto the eye surface (the margin lies on the eyeball; the scan rounds the crease)
+    target = _project_to_eye(target, fit.center, fit.radius, fit.cornea)
+    start = V2[loop].copy()
+    faces = np.flatnonzero(np.isin(F2, loop).any(axis=1))
+    Fa = F2[faces]
+
+    def normals(X):
+        return np.cross(X[Fa[:, 1]] - X[Fa[:, 0]], X[Fa[:, 2]] - X[Fa[:, 0]])
+
+    N0 = normals(V2)
+    A0 = np.linalg.norm(N0, axis=1)
+    frac = np.ones(len(loop))
+    for _ in range(4):
+        V2[loop] = start + frac[:, None] * (target - start)
+        N1 = normals(V2)
+        A1 = np.linalg.norm(N1, axis=1)
+        bad = ((N0 * N1).sum(axis=1) < min_cos * A0 * A1) | (A1 < 0.1 * A0)
+        if not bad.any():
+            break
+        hit = np.isin(loop, Fa[bad])
+        frac[hit] *= 0.5
+    else:
+        V2[loop] = start
+        N1 = normals(V2)
+        frac[:] = 0.0
+    return float(np.linalg.norm(V2[loop] - start, axis=1).mean())
+
+
 def _radii_agree(fits, st: EyeSettings):
     """Whether the two eyes' radii are equal within ``shared_radius_max_z`` combined standard errors."""
     sig = np.hypot(fits["left"].radius_sigma, fits["right"].radius_sigma)
@@ -801,7 +914,8 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
     H2 = meshtopo.boundary_halfedges(F2n)
     n_loops_out = meshtopo.boundary_component_count(F2n, H2)
     # region border vertices (old ids) per eye -> loops touching them
-    eyes, metrics = {}, {}
+    eyes, metrics, moved = {}, {}, {}
+    old_ids = np.flatnonzero(used)
     for s in SIDES:
         fit = fits[s]
         border = np.zeros(len(V), bool)
@@ -815,7 +929,10 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         if len(mine) != 1:
             raise ScanError(source, f"{s} eye: the cut left {len(mine)} boundary loops at the eye "
                                     f"opening instead of one")
-        loop, lat = order_loop(mine[0], V2, fit.center, fit.forward, s)
+        loop = mine[0]
+        if st.margin_lift_mm > 0 and fit.method == "geometry":
+            moved[s] = _move_to_lift_off(V, F, V2, F2n, old_ids, loop, fit, st.margin_lift_mm)
+        loop, lat = order_loop(loop, V2, fit.center, fit.forward, s)
         eyes[s] = {
             "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
             "residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
@@ -830,7 +947,8 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
                       "n_inliers": fit.n_inliers, "method": fit.method,
                       "faces_removed": int(fit.region.sum()), "loop_length": len(loop),
                       "crease_deg": round(fit.crease_deg, 3),
-                      "cornea_fitted": fit.cornea is not None}
+                      "cornea_fitted": fit.cornea is not None,
+                      "loop_moved_mean_mm": round(moved.get(s, 0.0), 4)}
     if n_loops_out != loops_in + 2:
         raise ScanError(source, f"cutting the eyeballs gave {n_loops_out} boundary loops, expected "
                                 f"{loops_in} + 2")

@@ -119,7 +119,7 @@ def radius_sigma(P, center, radius):
 
 
 def refine_sphere(P, center, radius, *, scale=0.1, radius_prior=None, radius_sigma=None,
-                  fixed_radius=None, center_prior_sigma=None):
+                  fixed_radius=None, center_prior_sigma=None, inside_points=None, inside_margin=0.2):
     """Robust geometric sphere fit (soft-L1 loss), optionally with a Gaussian radius prior.
 
     Parameters
@@ -139,6 +139,11 @@ def refine_sphere(P, center, radius, *, scale=0.1, radius_prior=None, radius_sig
     center_prior_sigma : float, optional
         With ``fixed_radius``: adds ``(c - center) / center_prior_sigma`` (keeps an
         ill-posed fit to a small patch near its start).
+    inside_points : (k, 3) float64, optional
+        Points that must not lie inside the sphere: one-sided residuals
+        ``min(0, |q - c| - r + inside_margin) / scale`` (a surface that wraps the sphere, e.g.
+        the rest of the eye region around a fitted sclera patch).
+    inside_margin : float
 
     Returns
     -------
@@ -148,11 +153,18 @@ def refine_sphere(P, center, radius, *, scale=0.1, radius_prior=None, radius_sig
     from scipy.optimize import least_squares
 
     P = np.asarray(P, dtype=np.float64)
+    Q = None if inside_points is None else np.asarray(inside_points, dtype=np.float64)
+
+    def inside(x, r):
+        return np.minimum(np.linalg.norm(Q - x[:3], axis=1) - r + inside_margin, 0.0) / scale
+
     if fixed_radius is not None:
         c0 = np.asarray(center, float)
 
         def fun(x):
             d = (np.linalg.norm(P - x[:3], axis=1) - fixed_radius) / scale
+            if Q is not None:
+                d = np.append(d, inside(x, fixed_radius))
             if center_prior_sigma is not None:
                 d = np.append(d, (x[:3] - c0) / center_prior_sigma)
             return d
@@ -163,6 +175,8 @@ def refine_sphere(P, center, radius, *, scale=0.1, radius_prior=None, radius_sig
 
     def fun(x):
         d = (np.linalg.norm(P - x[:3], axis=1) - x[3]) / scale
+        if Q is not None:
+            d = np.append(d, inside(x, x[3]))
         if use_prior:
             d = np.append(d, (x[3] - radius_prior) / radius_sigma)
         return d
