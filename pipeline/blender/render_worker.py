@@ -82,6 +82,8 @@ EYE_BLENDS = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
 SKIN_DETAIL = ("displacement", "bump", "none")
 ADAPTIVE_THRESHOLD = 0.02
 WORLD_MAP_RESOLUTION = 256
+DENOISE_PREFILTER = "ACCURATE"   # OIDN albedo/normal prefilter: +0.7 dB at 16 spp for ~0.3 CPU-s
+BSDF_DISTRIBUTION = "GGX"        # single-scatter GGX on every Principled BSDF (multi-scatter: ~1.3x time)
 LIGHT_PATHS = {"max_bounces": 8, "diffuse_bounces": 1, "glossy_bounces": 2, "transmission_bounces": 6,
                "transparent_max_bounces": 8, "volume_bounces": 0}
 # eyelashes (mm): count, max length, root / tip radius, curl angles (deg from the eye's forward
@@ -341,6 +343,10 @@ class Worker:
 
         self._setup_render(threads, tile_size)
         self._setup_lashes()
+        for m in self.bpy.data.materials:
+            for n in (m.node_tree.nodes if m.node_tree else ()):
+                if n.type == "BSDF_PRINCIPLED":
+                    n.distribution = BSDF_DISTRIBUTION
         self.hdri = None
         # root objects (armature, skin/eye parents, lashes) and their head-aligned world matrices;
         # the environment rotation is applied by rotating these (see _set_hdri)
@@ -423,7 +429,7 @@ class Worker:
         try:
             c.denoiser = "OPENIMAGEDENOISE"
             c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
-            c.denoising_prefilter = "FAST"
+            c.denoising_prefilter = DENOISE_PREFILTER
             self.has_denoiser = True
         except TypeError:
             self.has_denoiser = False
@@ -652,10 +658,11 @@ class Worker:
         c.samples = samples
         c.use_denoising = bool(spec.get("denoise", True)) and self.has_denoiser
         c.seed = int(spec.get("cycles_seed", 0)) & 0x7FFFFFFF
+        c.use_adaptive_sampling = bool(spec.get("adaptive_sampling", True))
         c.adaptive_threshold = float(spec.get("adaptive_threshold", ADAPTIVE_THRESHOLD))
-        for k in LIGHT_PATHS:
-            if k in spec:
-                setattr(c, k, int(spec[k]))
+        for k, v in LIGHT_PATHS.items():
+            setattr(c, k, int(spec.get(k, v)))
+        c.denoising_prefilter = str(spec.get("denoise_prefilter", DENOISE_PREFILTER))
         self.bpy.context.view_layer.update()
         measured = self._lashes_and_landmarks(side, bool(spec.get("lashes", True)))
         check = float(np.linalg.norm(measured - lm_in, axis=1).max())
