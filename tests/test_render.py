@@ -377,6 +377,13 @@ def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     bad = _params(tmp_path, "bad.yaml", n_images=2, preset="nope")
     r = subprocess.run(_stage_cmd(tiny, tmp_path / "o3", bad), cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "preset" in r.stderr
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "broken.usda").write_text("#usda 1.0\ngarbage (((\n")
+    from pipeline.errors import ScanError
+
+    with pytest.raises(ScanError, match="could not be opened"):
+        ra.load_render_asset(broken, tiny["rig_dir"])
     rig = tmp_path / "rig"
     rig.mkdir()
     np.savez(rig / "rig.npz", junk=np.zeros(3))

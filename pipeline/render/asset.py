@@ -169,7 +169,11 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
     npz = _rig_npz(rig_dir)
     from pxr import Usd, UsdGeom, UsdSkel
 
-    stage = Usd.Stage.Open(str(usda))
+    try:
+        stage = Usd.Stage.Open(str(usda))
+    except Exception as exc:  # noqa: BLE001 -- pxr raises Tf.ErrorException on a broken layer
+        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise ScanError(usda, f"USD stage could not be opened ({msg.strip()})") from None
     if stage is None:
         raise ScanError(usda, "USD stage could not be opened")
     root = stage.GetDefaultPrim()
