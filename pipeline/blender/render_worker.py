@@ -10,10 +10,14 @@ to stdout, one line each, prefixed with :data:`REPLY_PREFIX` so they can be told
 Blender's own prints::
 
     @@render@@ {"ready": true, "setup_s": 2.1, "rss_mib": 400.0}                 (once, after loading)
-    @@render@@ {"index": 17, "ok": true, "render_s": 0.21, "rss_mib": 612.0, "landmark_check_mm": 3e-6}
+    @@render@@ {"index": 17, "ok": true, "render_s": 0.21, "total_s": 0.25, "render_cpu_s": 0.4,
+                "total_cpu_s": 0.45, "rss_mib": 612.0,
+                "landmark_check_mm": 3e-6, "landmarks_measured_head_mm": [[x, y, z] * 28]}
     @@render@@ {"index": 17, "ok": false, "error": "..."}                          (and carries on)
 
-stdin EOF or ``{"quit": true}`` ends the worker.
+``*_s`` = wall seconds of the render call / of the whole sample, ``*_cpu_s`` = CPU seconds of
+this process (all threads) over the same spans: robust to other processes on a shared
+machine. stdin EOF or ``{"quit": true}`` ends the worker.
 
 Scene (SynthesEyes paper, section 4):
 
@@ -37,16 +41,23 @@ Scene (SynthesEyes paper, section 4):
   radius) plus a glossy specular lobe (roughness 0.45); detail from the baked displacement
   map (signed mm along the normal): ``skin_detail`` = ``"displacement"`` (Cycles true
   displacement of the mesh vertices + bump for the finer detail, method BOTH), ``"bump"``
-  (bump only) or ``"none"`` (map unplugged).
+  (bump only) or ``"none"`` (map unplugged). The bake fades the map to 0 at the eyelid
+  margins, so true displacement does not move the landmarks.
 * Eyeballs: :mod:`pipeline.blender.eyeball_materials` (refractive cornea n = 1.376); all
   4 iris textures, 2 vein layers loaded once and switched per sample on the texture nodes,
   the sclera tint on the tint-multiply node.
-* Eyelashes: one hair-curves object; upper ~90 and lower ~50 curled lashes rooted just
-  in front of each posed lid margin (the ``loop_<side>`` vertices of the evaluated skin
-  mesh), rebuilt every sample so they follow the lids (:func:`lash_curves`).
-* World: one of Blender's bundled studio-light HDRIs (or an absolute path), rotated about
-  head +Y (= Blender +Z) by ``rotation_deg`` (counter-clockwise seen from above) with
-  ``strength``; loaded only when it changes, with an orphan purge at each switch.
+* Eyelashes: one hair-curves object per eye (:data:`LASHES`: 90 upper lashes up to 9 mm,
+  45 lower up to 5.5 mm, 0.14 mm thick at the root, tapering), rooted 0.5 mm in front of
+  the posed lid margin (the ``loop_<side>`` vertices of the evaluated skin mesh) and curling
+  away from the opening (up / down); rebuilt every sample so they follow the lids
+  (:func:`lash_curves`); dark glossy Principled BSDF, rendered as Cycles ribbons.
+* World: one of Blender's bundled studio-light HDRIs (or an absolute path), loaded only
+  when it changes, with an orphan purge at each switch (importance map 256 px). Any edit
+  of the world shader makes Cycles rebuild the map (~4 s per image here), so rotation and
+  strength never touch it: the map is rotated by ``rotation_deg`` about head +Y (= Blender
+  +Z, counter-clockwise seen from above) by rotating every root object and the camera by
+  ``-rotation_deg`` instead (the same picture), and ``strength`` is applied as exposure
+  ``log2(strength)`` stops (the world is the only light, so this is the same linear scale).
 * Landmark check: the 28 landmarks of ``eye`` are measured in the posed, evaluated
   Blender scene -- eyelid landmark k = lerp of the evaluated skin vertices of
   ``landmarks.<side>.edge[k]`` at ``t[k]``; iris/pupil = evaluated Inner-mesh vertices
@@ -54,9 +65,12 @@ Scene (SynthesEyes paper, section 4):
   compared with ``landmarks_head_mm`` (max distance, mm).
 
 Render settings (see benchmarks/bench_render_quality.py for the measured trade-off): CPU
-Cycles, samples / denoise / seed from the spec, adaptive sampling, light paths limited to
-what the cornea needs (:data:`LIGHT_PATHS`), one tile for the whole image, persistent render
-data.
+Cycles, samples / denoise / seed from the spec, OpenImageDenoise with albedo + normal passes
+and the ACCURATE prefilter, adaptive sampling (threshold 0.02), single-scatter GGX on every
+Principled BSDF, light paths limited to what the cornea needs (:data:`LIGHT_PATHS`), one
+tile for the whole image, persistent render data. Optional spec keys (tests/benchmarks):
+``lashes``, ``adaptive_sampling``, ``adaptive_threshold``, ``denoise_prefilter`` and the
+:data:`LIGHT_PATHS` names.
 """
 
 from __future__ import annotations
@@ -628,7 +642,7 @@ class Worker:
 
     def render(self, spec: dict) -> dict:
         bpy = self.bpy
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         png = Path(spec["png"])
         if not png.is_absolute() or png.suffix.lower() != ".png":
             raise ValueError(f"png {str(png)!r}: an absolute .png path")
@@ -668,14 +682,15 @@ class Worker:
         check = float(np.linalg.norm(measured - lm_in, axis=1).max())
         tmp = png.with_name(f".{png.stem}.tmp{os.getpid()}.png")
         self.scene.render.filepath = str(tmp)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         bpy.ops.render.render(write_still=True)
-        t_render = time.perf_counter() - t1
+        t_render, c_render = time.perf_counter() - t1, time.process_time() - c1
         if not tmp.is_file():
             raise RuntimeError("Blender wrote no image")
         os.replace(tmp, png)
         return {"index": spec.get("index"), "ok": True, "render_s": round(t_render, 4),
-                "total_s": round(time.perf_counter() - t0, 4), "rss_mib": rss_mib(),
+                "render_cpu_s": round(c_render, 4), "total_s": round(time.perf_counter() - t0, 4),
+                "total_cpu_s": round(time.process_time() - c0, 4), "rss_mib": rss_mib(),
                 "landmark_check_mm": check, "landmarks_measured_head_mm": measured.round(6).tolist()}
 
 
