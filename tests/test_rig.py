@@ -181,9 +181,13 @@ def test_falloff_support_and_smoothness(region):
         full[s.point_indices] = s.offsets
         moved = np.linalg.norm(full, axis=1) > 0
         D = np.min([rig.fields[e.side].distance for e in eyes], axis=0)
-        # nothing moves beyond the largest falloff radius; everything moved is within it
-        assert np.all(D[moved] < max(p.upper_falloff_mm, p.lower_falloff_mm))
-        assert not moved[D >= max(p.upper_falloff_mm, p.lower_falloff_mm)].any()
+        # nothing moves beyond the largest falloff radius (the params' radius, widened by at
+        # most max_support_scale where the skin would fold); everything moved is within it
+        support = max(rig.fields[e.side].support_mm for e in eyes)
+        assert max(p.upper_falloff_mm, p.lower_falloff_mm) <= support
+        assert support <= p.max_support_scale * max(p.upper_falloff_mm, p.lower_falloff_mm) + 1e-9
+        assert np.all(D[moved] < support)
+        assert not moved[D >= support].any()
         # the rim fades out: vertices near the end of the support barely move
         S = np.max([rig.fields[e.side].falloff for e in eyes], axis=0)
         rim = (S > 0) & (S < 0.01)
@@ -607,3 +611,24 @@ def test_margin_rides_the_corneal_bulge(radius):
         lids.eye_frames({e.side: {"center": e.center, "radius": e.radius,
                                   "forward": e.forward} for e in eyes},
                         {"V": V, "F": F, "loop_left": eyes[0].loop, "loop_right": eyes[1].loop})
+
+
+def test_support_widens_where_the_skin_would_fold():
+    """A large eye (skin far from the pitch axis), a strong upper-lid gain and a short falloff:
+    the skin above the rising lid would be squeezed past zero thickness (faces flip) with the
+    params' radius; the support is widened just enough that no face flips at any pitch."""
+    V, F, eyes = two_eye_region(radius=15.0, rise_mm=0.3, d_psi=3.0)
+    tight = lids.LidParams(gain_upper_up=1.0, upper_falloff_mm=7.0, max_support_scale=1.0)
+    res = lids.sweep_check(V, F, eyes, lids.build_lid_shapes(V, F, eyes, tight).shapes, PITCHES_1DEG)
+    assert res["flipped_faces"] > 0                          # the failure the widening prevents
+    p = lids.LidParams(gain_upper_up=1.0, upper_falloff_mm=7.0)
+    rig = lids.build_lid_shapes(V, F, eyes, p)
+    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    assert res["flipped_faces"] == 0
+    assert res["max_gap_mm"] <= 0.1 and res["max_penetration_mm"] <= 0.1
+    for f in rig.fields.values():
+        assert 8.0 < f.support_mm <= p.max_support_scale * 8.0 + 1e-9
+    # unchanged where nothing folds: the default region keeps the params' radius
+    V, F, eyes = two_eye_region()
+    fields = lids.build_lid_shapes(V, F, eyes).fields
+    assert all(f.support_mm == pytest.approx(12.0) for f in fields.values())

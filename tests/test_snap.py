@@ -142,3 +142,103 @@ def test_stage_bad_input_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "eyes.json" in err and "\n" not in err
     assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------- untangling, coarse openings
+
+def _grid(n=5, step=1.0):
+    x, y = np.meshgrid(np.arange(n) * step, np.arange(n) * step)
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], 1)
+    g = np.arange(n * n).reshape(n, n)
+    a, b, c, d = g[:-1, :-1].ravel(), g[:-1, 1:].ravel(), g[1:, 1:].ravel(), g[1:, :-1].ravel()
+    return V, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+
+
+@pytest.mark.parametrize("drag", [[1.6, 0.3, 0.0], [-1.3, -1.2, 0.4], [0.2, 2.5, -0.3]])
+def test_untangle_moves_free_vertices_back_into_their_kernel(drag):
+    V, F = _grid()
+    n0 = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    free = np.zeros(len(V), bool)
+    free[[12, 13, 7]] = True                          # centre and two neighbours may move
+    V1 = V.copy()
+    V1[12] += drag                                    # dragged across its one-ring: folded
+    assert sn.flipped_faces(V, V1, F) > 0
+    V2, moved = sn.untangle(V1, F, n0, free)
+    assert sn.flipped_faces(V, V2, F) == 0
+    assert set(moved.tolist()) <= {7, 12, 13}
+    assert np.array_equal(V2[~free], V1[~free])       # held vertices stay
+    assert np.allclose(V2[moved, 2], V1[moved, 2])    # tangential moves only (plane z = 0)
+
+
+def test_untangle_respects_keep_out_even_when_it_cannot_unfold():
+    V, F = _grid()
+    n0 = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    free = np.zeros(len(V), bool)
+    free[12] = True
+    V1 = V.copy()
+    V1[12] += [1.6, 0.0, 0.0]
+
+    def wall(x_min):                                  # keep x >= x_min (a plane surface)
+        def closest(P):
+            Q = P.copy()
+            Q[:, 0] = x_min
+            return Q, np.tile([1.0, 0, 0], (len(P), 1)), P[:, 0] - x_min
+        return closest
+
+    V2, moved = sn.untangle(V1, F, n0, free, keep_out=wall(3.2))   # beyond the whole kernel
+    # no feasible spot: the least-violating one on the allowed side, still folded
+    assert V2[12, 0] >= 3.2 - 1e-9 and sn.flipped_faces(V, V2, F) > 0
+    assert V2[12, 0] <= V1[12, 0] and np.array_equal(V2[~free], V1[~free])
+    V3, moved = sn.untangle(V1, F, n0, free, keep_out=wall(2.4))   # leaves room in the kernel
+    assert len(moved) == 1 and 2.4 - 1e-9 <= V3[12, 0] < 3.0
+    assert sn.flipped_faces(V, V3, F) == 0
+
+
+def test_snap_untangles_a_fan_of_slivers_at_the_margin():
+    """Loop vertices joined to the rest by thin fans (few interior vertices, as coarse scans
+    give): snapping used to fold them; the free corners are slid back into their kernels."""
+    V, F, loop = lid_ring(0.9, n_rings=4, theta1=60.0)
+    rng = np.random.default_rng(3)
+    # push the first inner ring right next to the loop (thin triangles along the margin)
+    ring1 = loop + 72
+    V[ring1] = V[loop] + 0.08 * (V[ring1] - V[loop]) + rng.normal(0, 0.01, (72, 3))
+    eye = _eye()
+    st = sn.SnapSettings(falloff_mm=0.3)               # ring 1 moves, ring 2 stays: shear
+    V2, info = sn.snap_loop(V, F, loop, eye, st)
+    assert np.abs(eye.signed_distance(V2[loop])).max() <= 0.05
+    assert eye.signed_distance(V2[info["moved"]]).min() >= -0.05
+    assert sn.flipped_faces(V, V2, F) == 0
+
+
+def test_midpoint_subdivision_keeps_the_surface():
+    from pipeline.geometry import retopo as rt
+
+    V, F, loop = lid_ring(0.3, n_rings=4)
+    V2, F2 = rt.subdivide_midpoint(V, F)
+    assert len(F2) == 4 * len(F) and np.array_equal(V2[: len(V)], V)
+    area = lambda V, F: np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum()
+    assert area(V2, F2) == pytest.approx(area(V, F), rel=1e-12)
+    assert sn.flipped_faces(V2, V2, F2) == 0 and meshtopo.is_edge_manifold(F2)
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n2 = np.cross(V2[F2[:, 1]] - V2[F2[:, 0]], V2[F2[:, 2]] - V2[F2[:, 0]])
+    assert (np.einsum("ij,ij->i", np.tile(n, (4, 1)), n2) > 0).all()     # same winding
+    assert sorted(len(b) for b in meshtopo.boundary_loops(F2)) == [144, 144]
+    # a coarse opening (11 vertices) is refined to >= 32; a fine one (40) is left alone
+    assert rt.refine_coarse_crop(V, F, 32, [11, 12])[2] == 2
+    assert rt.refine_coarse_crop(V, F, 32, [40, 41])[2] == 0
+
+
+def test_untangle_lifts_near_flipped_slivers_above_the_area_floor():
+    V, F = _grid()
+    n0 = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    free = np.zeros(len(V), bool)
+    free[12] = True
+    V1 = V.copy()
+    V1[12] += [0.97, 0.0, 0.0]                        # almost onto its right neighbours' edge
+    assert sn.flipped_faces(V, V1, F) == 0
+    need = 0.25 * np.linalg.norm(n0, axis=1)
+    V2, moved = sn.untangle(V1, F, n0, free, min_projected=need)
+    assert list(moved) == [12]
+    n2 = np.cross(V2[F[:, 1]] - V2[F[:, 0]], V2[F[:, 2]] - V2[F[:, 0]])
+    assert (n2[:, 2] > need).all()                     # every face above a quarter of its area
+    assert np.array_equal(sn.untangle(V1, F, n0, free)[0], V1)   # flips only: nothing to do

@@ -21,7 +21,11 @@ dense scan's eyelid loop (vertex 0 at the medial canthus, upper lid first, as
 the input contract orders them), and the interior relaxed (tangential
 Laplacian, reprojected onto the dense surface) so the triangles next to the
 loop stay well shaped. The loops' vertex indices are returned as
-``loop_left``/``loop_right``.
+``loop_left``/``loop_right``. A coarse scan whose eye openings have under a quarter of
+``loop_points`` vertices (``james``: 11) is midpoint-subdivided first (surface unchanged), so
+the loop is not reached by splitting each opening edge into a fan of slivers; edge flips never
+leave a loop vertex with a single triangle (an "ear" with three loop corners, inverted on the
+convex opening).
 """
 
 from __future__ import annotations
@@ -574,6 +578,9 @@ def _flip_slivers(V, F, ref_V, ref_F, min_angle_deg=10.0):
         return F
     R = _reference_face_normals(V, F, ref_V, ref_F)
     tm = _TriMesh(V, F)
+    on_border = np.zeros(len(V), dtype=bool)
+    for lp in mc.boundary_loops(F):
+        on_border[lp] = True
     key = {tuple(f): i for i, f in enumerate(F.tolist())}
     for f in bad[np.argsort(ang[bad].min(axis=1))]:
         fi = key.get(tuple(F[f].tolist()))
@@ -584,6 +591,12 @@ def _flip_slivers(V, F, ref_V, ref_F, min_angle_deg=10.0):
         a, c = face[(k + 1) % 3], face[(k + 2) % 3]
         twins = [g for g in tm.vf[a] & tm.vf[c] if g != fi]
         if len(twins) != 1:
+            continue
+        # a flip takes one face from a and from c: never leave a border vertex with a single
+        # face (an 'ear' whose three corners lie on an eyelid loop is degenerate or inverted
+        # on the convex opening and flips when snap moves the loop) or an interior vertex with
+        # fewer than three
+        if any(len(tm.vf[v]) <= (2 if on_border[v] else 3) for v in (a, c)):
             continue
         g = twins[0]
         old_min = min(ang[f].min(), mc.triangle_angles_deg(np.array(tm.V), np.array([tm.F[g]])).min())
@@ -693,6 +706,58 @@ def pair_triangles(V, F, keep_boundary_edges=(), max_angle_dev_deg=35.0, max_dih
 
 # ----------------------------------------------------------------------------- main entry
 
+def subdivide_midpoint(V, F):
+    """1-to-4 midpoint subdivision (the surface is unchanged: new vertices at edge midpoints).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+
+    Returns
+    -------
+    V2 : (n + e, 3) float64
+        ``V`` followed by one midpoint per unique edge.
+    F2 : (4 m, 3) int64
+        Same winding as ``F``.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    uniq, inv = np.unique(np.sort(E, axis=1), axis=0, return_inverse=True)
+    mid = len(V) + inv.reshape(3, len(F)).T                  # (m, 3): midpoints of edges 01, 12, 20
+    a, b, c = F[:, 0], F[:, 1], F[:, 2]
+    ab, bc, ca = mid[:, 0], mid[:, 1], mid[:, 2]
+    F2 = np.concatenate([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1),
+                         np.stack([ca, bc, c], 1), np.stack([ab, bc, ca], 1)])
+    return np.concatenate([V, 0.5 * (V[uniq[:, 0]] + V[uniq[:, 1]])]), F2
+
+
+def refine_coarse_crop(V, F, min_loop_vertices, eye_loop_lengths, max_levels=4):
+    """Midpoint-subdivide a crop whose eye openings have fewer than half ``min_loop_vertices``
+    boundary vertices, until each has at least ``min_loop_vertices``.
+
+    A coarse scan (a few hundred faces around the eyes, ~10 vertices per eyelid opening)
+    would otherwise reach ``loop_points`` only by splitting each opening edge several times,
+    leaving fans of sliver triangles from one interior vertex to a run of collinear loop
+    vertices, which fold as soon as the loop moves (snap, lid shapes). Subdividing first
+    gives the remesher interior vertices next to the loop; the surface is unchanged.
+
+    Returns
+    -------
+    V, F, levels : the refined mesh and the number of subdivisions applied (0 = unchanged).
+    """
+    levels = 0
+    n_loop = min(eye_loop_lengths) if len(eye_loop_lengths) else min_loop_vertices
+    if 2 * n_loop >= min_loop_vertices:
+        return V, F, 0
+    while levels < max_levels and n_loop < min_loop_vertices:
+        V, F = subdivide_midpoint(V, F)
+        n_loop *= 2
+        levels += 1
+    return V, F, levels
+
+
 def _decimate(V, F, target_faces):
     import fast_simplification
 
@@ -746,18 +811,26 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
 
     t1 = time.perf_counter()
     tri_target = s.target_polygons if s.method == "quadric" else int(round(s.target_polygons / 0.58))
+    # eye openings with under a quarter of the output loop's vertices (coarse scans) are
+    # subdivided first, so that opening edges are not split into fans of slivers at the loop
+    cbl = mc.boundary_loops(Fc)
+    eye_loop_lengths = []
+    for side, e in eyes.items():
+        li = set(int(inv[int(v)]) for v in e["loop_indices"] if int(v) in inv)
+        eye_loop_lengths += [len(b) for b in cbl if li & set(map(int, b))][:1]
+    Vr, Fr, refine_levels = refine_coarse_crop(Vc, Fc, (s.loop_points + 1) // 2, eye_loop_lengths)
     if s.method == "quadric":
         # the borders are locked during decimation and coarsened afterwards (each boundary vertex
         # collapsed removes one face): ask for that many more faces so the result lands on target
         area = 0.5 * np.linalg.norm(mc.face_normals(Vc, Fc, normalize=False), axis=1).sum()
         L = np.sqrt(4.0 * area / (np.sqrt(3.0) * tri_target))
-        cb = mc.boundary_loops(Fc)
+        cb = mc.boundary_loops(Fr)
         n_border = sum(len(b) for b in cb)
-        perim = sum(float(np.linalg.norm(Vc[b] - np.roll(Vc[b], -1, axis=0), axis=1).sum()) for b in cb)
+        perim = sum(float(np.linalg.norm(Vr[b] - np.roll(Vr[b], -1, axis=0), axis=1).sum()) for b in cb)
         extra = max(0, n_border - int(perim / L) - 2 * s.loop_points // 2)
-        Vl, Fl = _decimate(Vc, Fc, tri_target + extra)
+        Vl, Fl = _decimate(Vr, Fr, tri_target + extra)
     else:
-        Vp, Fp = _decimate(Vc, Fc, max(s.predecimate_faces, 4 * tri_target))
+        Vp, Fp = _decimate(Vr, Fr, max(s.predecimate_faces, 4 * tri_target))
         area = 0.5 * np.linalg.norm(mc.face_normals(Vp, Fp, normalize=False), axis=1).sum()
         L = np.sqrt(4.0 * area / (np.sqrt(3.0) * tri_target))
         Vl, Fl = _isotropic(Vp, Fp, L, s.isotropic_iterations)
@@ -823,6 +896,12 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         if count_flipped(Vn, Fn, Vc, Fc):   # still flipped: collapse their free vertex into a neighbour
             Vn, Fn, loops = _collapse_flipped(Vn, Fn, loops, fixed, Vc, Fc)
             fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
+    if count_flipped(Vn, Fn, Vc, Fc):       # last resort: slide free corners into their kernel
+        from pipeline.geometry.snap import untangle
+
+        free = np.ones(len(Vn), dtype=bool)
+        free[fixed] = False
+        Vn, _ = untangle(Vn, Fn, _reference_face_normals(Vn, Fn, Vc, Fc), free)
     Fs = _flip_slivers(Vn, Fn, Vc, Fc)
     if len(Fs) == len(Fn) and count_flipped(Vn, Fs, Vc, Fc) <= count_flipped(Vn, Fn, Vc, Fc):
         Fn = Fs
@@ -840,6 +919,7 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         "quads": int(np.count_nonzero(poly_counts == 4)) if poly_counts is not None else 0,
         "vertices": int(len(Vn)),
         "crop_faces": int(len(Fc)),
+        "crop_subdivisions": int(refine_levels),
         "timings_s": {k: round(v, 4) for k, v in timings.items()},
         "time_s": round(timings["total_s"], 4),
     })

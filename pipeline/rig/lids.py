@@ -19,7 +19,10 @@ the sealed eye-region mesh and the fitted eyeball spheres:
   ``lower_falloff_mm`` below) and ``S`` is the C2 "smootherstep" falloff
   (``S(0) = 1``, ``S(1) = 0``, first and second derivatives zero at both ends),
   so there is no visible step at the edge of the support and nothing moves
-  beyond it.
+  beyond it. Where the skin far from the pitch axis would be squeezed past zero
+  thickness by the rising upper (or dropping lower) lid, the radii are widened by
+  the smallest factor (up to ``max_support_scale``) that keeps every face of the
+  full poses above ``min_area_fraction`` of its rest area (no fold-over).
 
 Linear blend shapes move each point along the straight chord of its rotation
 arc, which would sink the margin into the eyeball (for 25 degrees on a 15 mm
@@ -136,6 +139,8 @@ class LidParams:
     min_opening_fraction: float = 0.2
     surface_falloff_mm: float = 4.0
     min_offset_mm: float = 1e-6
+    min_area_fraction: float = 0.25   # faces keep this share of their area in the full poses
+    max_support_scale: float = 2.0    # ... by widening the falloff radii up to this factor
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "LidParams":
@@ -357,6 +362,10 @@ class EyeField:
         ``S(D / R)`` in [0, 1].
     loop_u : (L,) float64
         Horizontal position of each margin vertex, 0 medial .. 1 lateral canthus.
+    support_mm : float
+        Largest falloff radius used (the skin support), mm: ``upper/lower_falloff_mm``, widened
+        (up to ``max_support_scale``) where the full poses would squeeze a face below
+        ``min_area_fraction`` of its rest area (skin folding over).
     """
 
     theta_up: np.ndarray
@@ -364,6 +373,7 @@ class EyeField:
     distance: np.ndarray
     falloff: np.ndarray
     loop_u: np.ndarray
+    support_mm: float = 0.0
 
 
 def _keep_lids_apart(W, B, u, upper, lower, gain_up, gain_dn, pmax, frac):
@@ -434,15 +444,37 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
     radius = np.where(upper, params.upper_falloff_mm,
                       np.where(lower, params.lower_falloff_mm,
                                0.5 * (params.upper_falloff_mm + params.lower_falloff_mm)))
-    r_max = float(max(params.upper_falloff_mm, params.lower_falloff_mm))
-    D = dijkstra(G, directed=False, indices=loop, min_only=True, limit=r_max * 1.0001)
-    region = np.isfinite(D)
-    ext = _harmonic_extension(G, region, loop, np.stack([gain_up, gain_dn, radius], axis=1))
-    R = np.where(region, np.maximum(ext[:, 2], 1e-6), 1.0)
-    S = np.where(region, smootherstep_falloff(np.where(region, D, 0.0) / R), 0.0)
+    # Skin turning by Theta * S(D / R) is compressed where the motion falls off fast along D
+    # (above the upper lid when it rises, below the lower lid when it drops): neighbours differ
+    # in arc displacement by about rho * Theta * |S'(D / R)| / R per mm (rho = distance from the
+    # pitch axis), and the skin folds over (faces flip) near 1. The falloff radii are scaled by
+    # the smallest factor (steps of 5 %, from 1) for which no face of the full poses keeps less
+    # than min_area_fraction of its area seen along its rest normal.
     pmax = math.radians(params.max_pitch_deg)
-    return EyeField(theta_up=pmax * ext[:, 0] * S, theta_down=-pmax * ext[:, 1] * S,
-                    distance=D, falloff=S, loop_u=u)
+    F = np.asarray(F, dtype=np.int64)
+    n0 = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    a0 = np.linalg.norm(n0, axis=1)
+    for scale in np.arange(1.0, params.max_support_scale + 1e-9, 0.05):
+        r_max = float(radius.max()) * scale
+        D = dijkstra(G, directed=False, indices=loop, min_only=True, limit=r_max * 1.0001)
+        region = np.isfinite(D)
+        ext = _harmonic_extension(G, region, loop, np.stack([gain_up, gain_dn, scale * radius], axis=1))
+        R = np.where(region, np.maximum(ext[:, 2], 1e-6), 1.0)
+        S = np.where(region, smootherstep_falloff(np.where(region, D, 0.0) / R), 0.0)
+        th_up, th_dn = pmax * ext[:, 0] * S, -pmax * ext[:, 1] * S
+        worst = np.inf
+        for th in (th_up, th_dn):
+            mv = np.flatnonzero(th != 0.0)
+            P = V.copy()
+            P[mv] = rotate_about_axis(V[mv], eye.center, eye.axis, th[mv])
+            fm = np.flatnonzero(region[F].any(axis=1) & (a0 > 1e-12))
+            n1 = np.cross(P[F[fm, 1]] - P[F[fm, 0]], P[F[fm, 2]] - P[F[fm, 0]])
+            if len(fm):
+                worst = min(worst, float(np.min(np.einsum("ij,ij->i", n1, n0[fm]) / a0[fm] ** 2)))
+        if worst >= params.min_area_fraction:
+            break
+    return EyeField(theta_up=th_up, theta_down=th_dn, distance=D, falloff=S, loop_u=u,
+                    support_mm=r_max)
 
 
 @dataclass

@@ -1,0 +1,237 @@
+"""Assets built by the real chain (stage functions, scan folder -> rigged USD asset).
+
+One module-scoped build per scan: the synthetic head (small density, always) and the real scans
+``ict_neutral`` and ``james`` (only with ``EYERIG_EXTRA_SCANS``). On each:
+
+* snap leaves no flipped face and the margin on the eyeball (stage metrics);
+* the rig's pitch sweep -25..25 deg keeps the margin within 0.1 mm of the eyeball and flips no face;
+* Blender's USD importer (pipeline/blender/usd_roundtrip.py, a subprocess) brings in the mesh with
+  its UVs, the two shape keys with the USD offsets (within 1e-4 mm), the armature with the eye
+  joints, both eyes (following their bones) and the textured materials.
+
+The chain runs with the project's params.yaml except for a few cost knobs (bake map size, a
+low-resolution eyeball, no previews, no usdz), written to a temporary params file.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import extra_scans_dir
+from stages._common import run_stage
+
+ROOT = Path(__file__).resolve().parents[1]
+POSE_DEG = 20.0
+SIDES = ("left", "right")
+
+
+def _params(root: Path) -> Path:
+    p = yaml.safe_load((ROOT / "params.yaml").read_text())
+    p["synthetic_head"].update(target_triangles=60000, texture_size=256)
+    p["bake"].update(resolution=256, metric_samples=5000, subdivision_levels=1)
+    p["retopo"].update(metric_samples=5000)
+    p["eyeball"].update(resolution="low", iris_texture_px=64, sclera_texture_px=[64, 32], preview=False)
+    p["usd"].update(usdz=False, preview=False)
+    out = root / "params.yaml"
+    out.write_text(yaml.safe_dump(p))
+    return out
+
+
+@pytest.fixture(scope="module")
+def chain_root(tmp_path_factory):
+    """Shared folder with the params file and the eyeball asset every chain references."""
+    from stages import eyeball
+
+    root = tmp_path_factory.mktemp("chain")
+    params = _params(root)
+    eb = root / "rigged_assets" / "eyeball"
+    assert run_stage(eyeball.main, [str(eb), "--metrics", str(root / "eyeball.json"),
+                                    "--params", str(params)]) == 0
+    return root, params, eb
+
+
+def build_chain(root: Path, params: Path, eyeball: Path, raw: Path, name: str) -> dict:
+    """ingest -> remove_eyeballs -> retopo -> bake -> snap -> rig -> usd for one scan folder."""
+    from stages import bake, ingest, remove_eyeballs, retopo, rig, snap, usd
+
+    b = root / "build" / name
+    out = root / "rigged_assets" / name
+
+    def run(stage, inputs, dest, *extra):
+        metrics = b / f"{stage.__name__.split('.')[-1]}.metrics.json"
+        argv = [str(p) for p in inputs] + [str(dest), *extra, "--metrics", str(metrics),
+                                           "--params", str(params)]
+        assert run_stage(stage.main, argv) == 0, f"{stage.__name__} failed on {name}"
+        return json.loads(metrics.read_text())
+
+    m = {"ingest": run(ingest, [raw], b / "ingest")}
+    m["remove_eyeballs"] = run(remove_eyeballs, [b / "ingest"], b / "remove_eyeballs")
+    m["retopo"] = run(retopo, [b / "remove_eyeballs"], b / "retopo")
+    m["bake"] = run(bake, [b / "retopo", b / "remove_eyeballs"], b / "bake")
+    m["snap"] = run(snap, [b / "bake", b / "remove_eyeballs", eyeball], b / "snap")
+    m["rig"] = run(rig, [b / "snap"], b / "rig", "--eyeball", str(eyeball))
+    m["usd"] = run(usd, [b / "snap", b / "bake", b / "rig", b / "ingest", eyeball], out)
+    return {"name": name, "build": b, "usda": out / f"{name}.usda", "metrics": m}
+
+
+def _roundtrip(usda: Path, out: Path, pose: dict | None = None):
+    cmd = [sys.executable, "-m", "pipeline.blender.usd_roundtrip", str(usda), str(out)]
+    if pose:
+        cmd.append(json.dumps(pose))
+    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    data = dict(np.load(out))
+    return data, json.loads(str(data["meta"]))
+
+
+def _build_and_import(chain_root, raw: Path, name: str) -> dict:
+    root, params, eb = chain_root
+    asset = build_chain(root, params, eb, raw, name)
+    # one import with the left eye bone turned (shape keys and basis do not depend on the pose;
+    # the right eye stays at rest)
+    asset["imported"] = _roundtrip(asset["usda"], root / f"{name}.npz",
+                                   {"eye_left": [1, 0, 0, POSE_DEG]})
+    return asset
+
+
+def _extra(name: str) -> Path:
+    base = extra_scans_dir()
+    if base is None:
+        pytest.skip("EYERIG_EXTRA_SCANS is not set")
+    if not (base / name).is_dir():
+        pytest.skip(f"{base / name} not found")
+    return base / name
+
+
+@pytest.fixture(scope="module")
+def synthetic(chain_root):
+    from stages import synthetic_head
+
+    root, params, _ = chain_root
+    raw = root / "raw_scans" / "synthetic_head"
+    assert run_stage(synthetic_head.main, [str(raw), "--metrics", str(root / "synthetic_head.json"),
+                                           "--params", str(params)]) == 0
+    return _build_and_import(chain_root, raw, "synthetic_head")
+
+
+@pytest.fixture(scope="module")
+def ict_neutral(chain_root):
+    return _build_and_import(chain_root, _extra("ict_neutral"), "ict_neutral")
+
+
+@pytest.fixture(scope="module")
+def james(chain_root):
+    return _build_and_import(chain_root, _extra("james"), "james")
+
+
+@pytest.fixture(params=["synthetic", "ict_neutral", "james"])
+def asset(request):
+    return request.getfixturevalue(request.param)
+
+
+# ------------------------------------------------------------------ geometry of the chain
+
+def test_snap_keeps_orientation_and_margin_on_eye(asset):
+    m = asset["metrics"]["snap"]
+    assert m["flipped_faces"] == 0, asset["name"]
+    assert m["edge_manifold"]
+    assert m["gap_max_mm"] <= 0.05 and m["inside_max_mm"] <= 0.05
+    for s in SIDES:
+        assert m[s]["moved_outside_falloff"] == 0
+
+
+def test_rig_sweep_bounds_and_no_flips(asset):
+    m = asset["metrics"]["rig"]
+    assert m["sweep_n_pitches"] >= 101                       # -25..25 deg every 0.5 deg
+    assert m["sweep_flipped_faces"] == 0, asset["name"]
+    assert m["sweep_max_gap_mm"] <= 0.1 and m["sweep_max_penetration_mm"] <= 0.1
+    assert m["sweep_min_opening_mm"] > 0                     # the lids never cross
+
+
+def test_retopo_loops_have_no_ears(asset):
+    """No eyelid-loop vertex with a single face: such an 'ear' has three loop corners and
+    is degenerate or inverted on the convex opening (it flips once the loop moves)."""
+    from pipeline.io.meshfile import load_mesh
+
+    mesh = load_mesh(asset["build"] / "retopo" / "mesh.npz")
+    count = np.bincount(mesh["F"].ravel(), minlength=len(mesh["V"]))
+    for s in SIDES:
+        assert count[mesh[f"loop_{s}"]].min() >= 2, s
+
+
+# ------------------------------------------------------------------ Blender round trip
+
+def _usd_to_blender(P_mm):
+    """Stage (Y up, mm) -> Blender world (Z up, metres)."""
+    P = np.asarray(P_mm, np.float64) * 0.001
+    return np.stack([P[..., 0], -P[..., 2], P[..., 1]], -1)
+
+
+def _eye_objects(meta, side):
+    return {n: o for n, o in meta["objects"].items() if o["parent"] == f"eye_{side}"}
+
+
+def test_blender_mesh_uvs_materials_and_shape_keys(asset):
+    from pipeline.io.meshfile import load_mesh
+    from pipeline.rig import lids
+
+    data, meta = asset["imported"]
+    snap = load_mesh(asset["build"] / "snap" / "mesh.npz")
+    o = meta["objects"]["EyeRegion"]
+    assert o["vertices"] == len(snap["V"])
+    assert o["uv_layers"] == ["st"]
+    assert o["materials"] == ["Skin"]
+    assert sorted(Path(p).name for p in o["images"]["Skin"]) == ["color.png", "displacement.exr"]
+    assert np.abs(data["EyeRegion.basis"] - snap["V"]).max() < 1e-4
+    assert o["shape_keys"] == [lids.SHAPE_UP, lids.SHAPE_DOWN]
+    shapes = lids.shapes_from_arrays(np.load(asset["build"] / "rig" / "rig.npz"))
+    for s in shapes:
+        off = data[f"EyeRegion.key.{s.name}"] - data["EyeRegion.basis"]
+        full = np.zeros_like(off)
+        full[s.point_indices] = s.offsets
+        assert np.abs(full).max() > 0.5, s.name                  # the lids really move
+        assert np.abs(off - full).max() < 1e-4, s.name           # mm
+    # the skin does not follow the eye bones
+    W = data["EyeRegion.world"]
+    assert np.abs(W - _usd_to_blender(snap["V"])).max() < 1e-6
+
+
+def test_blender_armature_and_eyes_follow_bones(asset):
+    from pipeline.rig.lids import eye_basis
+
+    rig = json.loads((asset["build"] / "rig" / "rig.json").read_text())
+    data, meta = asset["imported"]
+    arm_name, arm = next(iter(meta["armatures"].items()))
+    assert {"eye_left", "eye_right"} <= set(arm["bones"])
+    for side in SIDES:
+        e = rig["eyes"][side]
+        c_mm, scale = np.asarray(e["center"]), e["radius"] / 12.0   # 12 mm parametric eyeball
+        head = np.asarray(arm["heads"][arm["bones"].index(f"eye_{side}")])
+        assert np.abs(head - c_mm).max() < 1e-3                  # armature space = stage mm
+        eyes = _eye_objects(meta, side)
+        assert len(eyes) == 2                                     # Outer + Inner
+        assert any(p for o in eyes.values() for p in o["images"].values())   # textured
+        c = _usd_to_blender(c_mm)
+        outer = max(eyes, key=lambda n: data[f"{n}.basis"][:, 2].max())
+        for name, o in eyes.items():
+            assert o["modifiers"] == [["ARMATURE", arm_name]] and o["vertex_groups"] == [f"eye_{side}"]
+            W, local = data[f"{name}.world"], data[f"{name}.basis"]
+            # rigid: every point keeps its model distance from the centre, scaled to the fit
+            np.testing.assert_allclose(np.linalg.norm(W - c, axis=1),
+                                       0.001 * scale * np.linalg.norm(local, axis=1), atol=1e-6)
+        W, local = data[f"{outer}.world"], data[f"{outer}.basis"]
+        apex = W[np.argmax(local[:, 2])] - c                      # corneal apex direction
+        f = np.asarray(e["forward"], float)
+        a = np.radians(POSE_DEG if side == "left" else 0.0)     # bone turned about its pitch axis
+        errs = []
+        for sign in (1.0, -1.0):
+            g = _usd_to_blender(np.cos(a) * f + sign * np.sin(a) * eye_basis(f)[1]) * 1000
+            errs.append(np.degrees(np.arccos(np.clip(apex @ g / np.linalg.norm(apex), -1, 1))))
+        assert min(errs) < 0.05, (side, errs)
