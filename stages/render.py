@@ -121,7 +121,10 @@ def main(argv) -> dict:
         except sp.RejectionError as exc:
             raise ScanError(args.asset, str(exc)) from None
         attempts[i] = smp.attempts
-        items.append((smp.spec, lb.make_label(smp, settings, asset.name)))
+        label = lb.make_label(smp, settings, asset.name)
+        if asset.eyes[smp.side].eyeball_params:
+            label["_apparent_job"] = lb.apparent_job(smp, asset.eyes[smp.side], settings)
+        items.append((smp.spec, label))
     t_sample = time.perf_counter() - t0
 
     # shards: one HDRI each (the worker switches maps rarely), at most shard_size images

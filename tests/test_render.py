@@ -240,6 +240,31 @@ def test_eye_contact_gaze_points_at_the_camera(tiny):
             assert lab["gaze"]["camera"]["yaw_deg"] == pytest.approx(0.0, abs=1e-9)
 
 
+def test_refraction_through_the_cornea(tiny):
+    from pipeline.eyeball.geometry import EyeballParams
+    from pipeline.render import refraction as rf
+
+    a = tiny["asset"]
+    s = _settings()                                  # camera at the pole, eye at rest
+    smp = sp.make_sample(a, s, 0, "/x.png", overrides={"side": "left", "polar_deg": 0.0, "gaze_pitch_deg": 0.0,
+                                                       "gaze_yaw_deg": 0.0, "jitter": np.zeros(2), "pupil": 0.0,
+                                                       "iris": 0.0})
+    eye = a.eyes["left"]
+    A = eye.model_to_head(np.eye(3))
+    p = EyeballParams.from_dict(eye.eyeball_params)
+    W = smp.camera["world_to_camera"]
+    pts = np.concatenate([smp.landmarks_head[20:28], ra.pupil_center(a, "left", {}, np.eye(3))[None]])
+    straight = sp.to_camera(pts, W)[:, :2]
+    # no refraction (n = 1): the apparent position is the straight projection
+    np.testing.assert_allclose(rf.apparent_projection(pts, W, A, p, ior=1.0), straight, atol=1e-5)
+    # the cornea: the pupil centre on the optical axis stays put, the pupil ring looks larger
+    # (entrance pupil ~13 % larger than the real pupil for a human eye)
+    app = rf.apparent_projection(pts, W, A, p, ior=eye.cornea_ior)
+    np.testing.assert_allclose(app[8], straight[8], atol=1e-4)
+    mag = np.linalg.norm(app[:8] - app[8], axis=1) / np.linalg.norm(straight[:8] - straight[8], axis=1)
+    assert np.all((mag > 1.05) & (mag < 1.3)) and np.ptp(mag) < 1e-3
+
+
 def test_skin_detail_rule():
     assert sp.choose_skin_detail(0.25, 0.2, 1.2) == "displacement"      # relief >= half a pixel
     assert sp.choose_skin_detail(0.25, 0.08, 1.2) == "bump"             # polygons span > 1 px
@@ -340,10 +365,13 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     s = _settings(n_images=6)
     fresh = lb.make_label(sp.make_sample(tiny["asset"], s, 3, "/x.png"), s, tiny["asset"].name)
     stored = json.loads((out / "000003.json").read_text())
+    extra = {k: stored["landmarks"].pop(k) for k in ("apparent_px", "apparent_order")}
     assert stored["landmarks"] == json.loads(json.dumps(fresh["landmarks"]))
     sheet = Image.open(out / "contact_sheet.png")
     assert sheet.size == tuple(m["contact_sheet_px"])
     assert not (out / ".tmp").exists()
+    app = extra["apparent_px"]                               # iris/pupil seen through the cornea
+    assert len(app) == 16 and sum(q is not None for q in app) >= 8
     # nothing of the killed run is left running
     left = subprocess.run(["pgrep", "-f", f"render_worker {tiny['asset'].usda}"], capture_output=True, text=True)
     assert left.stdout.strip() == ""

@@ -52,6 +52,8 @@ class EyeAsset:
     pupil_center : int           Inner vertex at the pupil centre (front pole, vertex 0)
     lm_edge : (12, 2) int64 | None ; lm_t : (12,) float64 | None   eyelid landmark edges
     loop : (L,) int64 | None     lid loop (skin vertex indices)
+    eyeball_params : dict        the eyeball asset's geometry (customData eyerig.params, model mm)
+    cornea_ior : float
     """
 
     side: str
@@ -67,10 +69,20 @@ class EyeAsset:
     lm_edge: np.ndarray | None
     lm_t: np.ndarray | None
     loop: np.ndarray | None
+    eyeball_params: dict = field(default_factory=dict)
+    cornea_ior: float = 1.376
 
     @property
     def forward(self) -> np.ndarray:
         return self.basis[2]
+
+    def model_to_head(self, rotation) -> np.ndarray:
+        """(4, 4) column-vector affine: eyeball model space -> head frame for an eye rotation."""
+        R = np.asarray(rotation, np.float64)
+        A = np.eye(4)
+        A[:3, :3] = R @ self.bind[:3, :3].T
+        A[:3, 3] = R @ (self.bind[3, :3] - self.center) + self.center
+        return A
 
 
 @dataclass
@@ -258,6 +270,8 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
             if loop.ndim != 1 or len(loop) < 3 or loop.max() >= len(V):
                 raise ScanError(npz, f"loop_{side} must be >= 3 skin vertex indices")
         basis = R[:3, :3] / np.linalg.norm(R[:3, :3], axis=1, keepdims=True)
+        eb_meta = stage.GetPrimAtPath(f"{rp}/Eyes/eye_{side}").GetCustomDataByKey("eyerig") or {}
+        eb_params = {k: float(v) for k, v in dict(eb_meta.get("params") or {}).items()}
         meta_eye = ((root.GetCustomDataByKey("eyerig") or {}).get("eyes") or {}).get(side) or {}
         radius = float(meta_eye.get("radius_mm", 12.0 * np.linalg.norm(G[0, :3])))
         eyes[side] = EyeAsset(side=side, center=R[3, :3].copy(), basis=basis, bind=G,
@@ -265,7 +279,8 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
                               inner_shapes=shapes, iris=iris, pupil=pupil,
                               pupil_center=int(np.argmax(inner_rest[:, 2])),
                               lm_edge=edge, lm_t=None if t is None else np.asarray(t, np.float64),
-                              loop=loop)
+                              loop=loop, eyeball_params=eb_params,
+                              cornea_ior=float(eb_meta.get("cornea_ior", 1.376)))
 
     meta = root.GetCustomDataByKey("eyerig") or {}
     wr = meta.get("weight_rule") or {}

@@ -116,6 +116,24 @@ def make_label(smp: sp.Sample, settings: sp.RenderSettings, scan: str, reply: di
     return label
 
 
+APPARENT_ORDER = ("16 points: the iris (8) and pupil (8) landmarks, in the order of landmarks 12-27, where the "
+                  "camera sees them through the cornea (single refraction at the eyeball asset's analytic outer "
+                  "surface, n = cornea_ior; occlusion ignored; null = not seen through the cornea); "
+                  "pipeline/render/refraction.py")
+
+
+def apparent_job(smp: sp.Sample, eye, settings: sp.RenderSettings) -> dict:
+    """What :func:`pipeline.render.shard.apparent_landmarks` needs (computed while Blender renders)."""
+    from pipeline.render.asset import quat_to_matrix
+
+    R = quat_to_matrix(smp.spec["eye_rotation"][smp.side])
+    return {"points_head": smp.landmarks_head[12:28].tolist(),
+            "world_to_camera": np.asarray(smp.camera["world_to_camera"]).tolist(),
+            "model_to_head": eye.model_to_head(R).tolist(), "eyeball_params": dict(eye.eyeball_params),
+            "ior": eye.cornea_ior, "ortho_scale_mm": smp.camera["ortho_scale_mm"],
+            "width": settings.width, "height": settings.height, "order": APPARENT_ORDER}
+
+
 def check_label(label: dict) -> float:
     """Re-project the stored 3D camera landmarks with the stored camera; max pixel error."""
     P = np.asarray(label["camera"]["projection"], float)

@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json
 
@@ -98,16 +100,23 @@ class BlenderProcess:
     def alive(self) -> bool:
         return self.proc.poll() is None
 
-    def render(self, spec: dict, timeout_s: float = 600.0) -> dict:
-        """Send one spec, wait for its reply."""
+    def send(self, spec: dict) -> None:
+        """Send one spec (the reply is read with :meth:`receive`)."""
         try:
             self.proc.stdin.write((json.dumps(spec) + "\n").encode())
             self.proc.stdin.flush()
         except (BrokenPipeError, OSError) as exc:
             raise WorkerDied(f"Blender worker is gone ({exc})") from None
+
+    def receive(self, timeout_s: float = 600.0) -> dict:
         reply = self._reply(timeout_s)
         self.rendered += 1
         return reply
+
+    def render(self, spec: dict, timeout_s: float = 600.0) -> dict:
+        """Send one spec, wait for its reply."""
+        self.send(spec)
+        return self.receive(timeout_s)
 
     def close(self) -> None:
         if self.proc.poll() is None:
@@ -166,6 +175,19 @@ def get_blender(asset, rig, opts: dict) -> BlenderProcess:
     return bp
 
 
+def apparent_landmarks(job: dict) -> dict:
+    """Label fields of the iris/pupil landmarks as seen through the cornea (see labels.apparent_job)."""
+    from pipeline.eyeball.geometry import EyeballParams
+    from pipeline.render import refraction as rf
+    from pipeline.render import sampling as sp
+
+    xy = rf.apparent_projection(job["points_head"], job["world_to_camera"], job["model_to_head"],
+                                EyeballParams.from_dict(job["eyeball_params"]), job["ior"])
+    px = sp.project(np.c_[xy, np.zeros(len(xy))], job["ortho_scale_mm"], job["width"], job["height"])
+    px = [None if not np.all(np.isfinite(p)) else [float(p[0]), float(p[1])] for p in px]
+    return {"apparent_px": px, "apparent_order": job["order"]}
+
+
 def done(out_dir, index: int) -> bool:
     """Is image ``index`` finished (its PNG and, written last, its JSON exist)?"""
     out = Path(out_dir)
@@ -188,9 +210,16 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
             results.append({"index": i, "ok": True, "skipped": True})
             continue
         reply = None
+        label = dict(label)
+        job = label.pop("_apparent_job", None)
+        extra = None
         for attempt in range(2):          # one restart if Blender died under us
             try:
-                reply = get_blender(asset, rig, opts).render(spec, float(opts.get("image_timeout_s", 600)))
+                bp = get_blender(asset, rig, opts)
+                bp.send(spec)
+                if job is not None and extra is None:      # computed while Blender renders
+                    extra = apparent_landmarks(job)
+                reply = bp.receive(float(opts.get("image_timeout_s", 600)))
                 break
             except WorkerDied as exc:
                 reply = {"index": i, "ok": False, "error": str(exc)}
@@ -204,7 +233,8 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
                 res.update(ok=False, error=f"landmark check {check} mm > {tol} mm: labels do not "
                                            "match the rendered scene")
             else:
-                label = dict(label)
+                if extra is not None:
+                    label["landmarks"] = dict(label["landmarks"], **extra)
                 label["landmark_check_mm"] = float(check)
                 label["render"] = dict(label["render"], render_s=reply.get("render_s"),
                                        total_s=reply.get("total_s"))

@@ -2,7 +2,8 @@
 
 Each tile: the image upscaled ``scale`` times (nearest neighbour, so pixels stay honest),
 the eyelid polygon (12 landmarks, green, canthi larger), the iris (cyan) and pupil (yellow)
-landmarks, and the gaze direction in the camera frame as a red line from the pupil centre
+landmarks (straight projection, circles) and where they appear through the cornea (magenta
+dots, ``apparent_px``), and the gaze direction in the camera frame as a red line from the pupil centre
 (length proportional to the gaze's in-image component). Caption: index, eye, gaze
 pitch/yaw in the camera frame.
 """
@@ -32,6 +33,10 @@ def _tile(png: Path, label: dict, scale: int):
         col = (60, 230, 90) if k < 12 else (60, 220, 255) if k < 20 else (255, 230, 40)
         rr = 1.6 * r if k in (0, 6) else r
         d.ellipse([x - rr, y - rr, x + rr, y + rr], outline=col)
+    for q in label["landmarks"].get("apparent_px") or []:    # seen through the cornea
+        if q is not None:
+            x, y = q[0] * scale, q[1] * scale
+            d.ellipse([x - 1, y - 1, x + 1, y + 1], fill=(255, 60, 255))
     pc = np.asarray(label["landmarks"]["pupil_center_px"], float) * scale
     g = np.asarray(label["gaze"]["vector_camera"], float)
     L = 0.35 * h * scale
