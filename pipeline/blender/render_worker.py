@@ -254,7 +254,8 @@ def _eyeball_landmark_indices(asset: Path) -> dict:
 class Worker:
     """The loaded scene; :meth:`render` renders one spec."""
 
-    def __init__(self, asset: Path, rig_npz: Path, threads: int = 0, tile_size: int = 2048):
+    def __init__(self, asset: Path, rig_npz: Path, threads: int = 0, tile_size: int = 2048,
+                 thin_sclera_coat: bool = True):
         import bpy
 
         from pipeline.blender.asset_preview import _find_image, add_inbetween_keys
@@ -353,6 +354,10 @@ class Worker:
                                                    self.sclera_images["clear"], (1.0, 1.0, 1.0), bump)
             if not {"iris_tex", "sclera_tex", "tint"} <= set(e["handles"]):
                 raise RuntimeError(f"{asset}: eye {side} lacks Iris/Sclera material slots")
+        if thin_sclera_coat:
+            for m in {sl.material for e in self.eyes.values() for sl in e["outer"].material_slots
+                      if sl.material is not None and sl.material.name.split(".")[0] == "ScleraCoat"}:
+                self._thin_coat(m)
         self.eye_variant = {}
 
         self._setup_render(threads, tile_size)
@@ -413,6 +418,47 @@ class Worker:
             nt.links.new(dtex.outputs["Color"], d.inputs["Height"])
         nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
         return {"mat": mat, "nt": nt, "disp": d, "out": out}
+
+    @staticmethod
+    def _thin_coat(mat) -> None:
+        """Sclera tear film as a thin clear coat: Fresnel mix of a sharp glossy reflection and
+        straight transmission (no refraction), keeping the bump of the asset's coat.
+
+        The asset's coat is a refracting glass shell 0.5 mm above the sclera that joins the
+        cornea: at oblique views rays refracted into that shell are piped along it into the
+        cornea and smear a dark/doubled iris over the sclera. A real sclera has no such
+        layer (the tear film is microns thick), so it is rendered as a thin coat; shadow rays
+        pass it (as in eyeball_materials).
+        """
+        from pipeline.blender.eyeball_materials import CORNEA_IOR
+
+        nt = mat.node_tree
+        out = next(n for n in nt.nodes if n.type == "OUTPUT_MATERIAL" and n.is_active_output)
+        bump = next((n for n in nt.nodes if n.type == "BUMP"), None)
+        keep = {out, bump} | {n for n in nt.nodes if n.type in ("TEX_IMAGE", "UVMAP")}
+        for n in list(nt.nodes):
+            if n not in keep:
+                nt.nodes.remove(n)
+        gloss = nt.nodes.new("ShaderNodeBsdfGlossy")
+        gloss.distribution = "GGX"
+        gloss.inputs["Roughness"].default_value = 0.03
+        clear = nt.nodes.new("ShaderNodeBsdfTransparent")
+        fres = nt.nodes.new("ShaderNodeFresnel")
+        fres.inputs["IOR"].default_value = CORNEA_IOR
+        coat = nt.nodes.new("ShaderNodeMixShader")
+        nt.links.new(fres.outputs["Fac"], coat.inputs["Fac"])
+        nt.links.new(clear.outputs["BSDF"], coat.inputs[1])
+        nt.links.new(gloss.outputs["BSDF"], coat.inputs[2])
+        if bump is not None:
+            nt.links.new(bump.outputs["Normal"], gloss.inputs["Normal"])
+            nt.links.new(bump.outputs["Normal"], fres.inputs["Normal"])
+        lp = nt.nodes.new("ShaderNodeLightPath")
+        shadow = nt.nodes.new("ShaderNodeBsdfTransparent")
+        mix = nt.nodes.new("ShaderNodeMixShader")
+        nt.links.new(lp.outputs["Is Shadow Ray"], mix.inputs["Fac"])
+        nt.links.new(coat.outputs["Shader"], mix.inputs[1])
+        nt.links.new(shadow.outputs["BSDF"], mix.inputs[2])
+        nt.links.new(mix.outputs["Shader"], out.inputs["Surface"])
 
     def _set_skin_detail(self, mode: str) -> None:
         if mode == self.skin_detail:
@@ -700,9 +746,11 @@ def main(argv=None) -> int:
     ap.add_argument("rig", type=Path)
     ap.add_argument("--threads", type=int, default=0, help="render threads (0 = all cores)")
     ap.add_argument("--tile-size", type=int, default=2048, help="Cycles tile size, px")
+    ap.add_argument("--refractive-sclera-coat", action="store_true",
+                    help="keep the asset's refracting sclera coat shell (default: thin clear coat)")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        w = Worker(args.asset, args.rig, args.threads, args.tile_size)
+        w = Worker(args.asset, args.rig, args.threads, args.tile_size, not args.refractive_sclera_coat)
     except Exception as exc:  # noqa: BLE001 -- any unloadable asset/rig: one line, exit 2
         _reply({"ready": False, "error": f"{type(exc).__name__}: {exc}"})
         return 2
