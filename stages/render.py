@@ -175,6 +175,7 @@ def main(argv) -> dict:
     wall = time.perf_counter() - t0
     rs = [r["render_s"] for r in res if r.get("render_s") is not None]
     rss = [r["rss_mib"] for r in res if r.get("rss_mib") is not None]
+    cpu = [r["total_cpu_s"] for r in res if r.get("total_cpu_s") is not None]
     checks = [lab.get("landmark_check_mm") or 0.0 for lab in labels.values()]
     all_attempts = [lab["seed"]["attempts"] for lab in labels.values()]
     return {"_path": args.metrics or default_metrics_path(out),
@@ -187,6 +188,7 @@ def main(argv) -> dict:
             "s_per_image": round(t_render / len(res), 4) if res else None,
             "images_per_s": round(len(res) / t_render, 4) if res and t_render > 0 else None,
             "render_s_median": round(float(np.median(rs)), 4) if rs else None,
+            "blender_cpu_s_per_image_median": (round(float(np.median(cpu)), 4) if cpu else None),
             "worker_rss_max_mib": max(rss) if rss else None,
             "landmark_check_max_mm": float(max(checks)) if checks else None,
             "rejections": int(sum(a - 1 for a in all_attempts)),

@@ -225,6 +225,7 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
                 reply = {"index": i, "ok": False, "error": str(exc)}
                 _close_all()
         res = {"index": i, "ok": bool(reply.get("ok")), "render_s": reply.get("render_s"),
+               "total_cpu_s": reply.get("total_cpu_s"),
                "rss_mib": reply.get("rss_mib"), "landmark_check_mm": reply.get("landmark_check_mm"),
                "error": reply.get("error"), "pid": os.getpid()}
         if res["ok"]:
@@ -236,8 +237,9 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
                 if extra is not None:
                     label["landmarks"] = dict(label["landmarks"], **extra)
                 label["landmark_check_mm"] = float(check)
-                label["render"] = dict(label["render"], render_s=reply.get("render_s"),
-                                       total_s=reply.get("total_s"))
+                label["render"] = dict(label["render"], **{k: reply[k] for k in
+                                                          ("render_s", "total_s", "render_cpu_s", "total_cpu_s")
+                                                          if k in reply})
                 os.replace(spec["png"], out / f"{i:06d}.png")
                 write_json(out / f"{i:06d}.json", label)
         results.append(res)
