@@ -901,7 +901,13 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
 
         free = np.ones(len(Vn), dtype=bool)
         free[fixed] = False
-        Vn, _ = untangle(Vn, Fn, _reference_face_normals(Vn, Fn, Vc, Fc), free)
+        R = _reference_face_normals(Vn, Fn, Vc, Fc)
+        nf = mc.face_normals(Vn, Fn, normalize=False)
+        bad_v = np.unique(Fn[np.einsum("ij,ij->i", nf, R) <= 0])
+        # the faces around them keep a quarter of the typical face area (no new slivers)
+        near = np.isin(Fn, bad_v).any(axis=1)
+        floor = np.where(near, 0.25 * float(np.median(np.linalg.norm(nf, axis=1))), 0.0)
+        Vn, _ = untangle(Vn, Fn, R, free, min_projected=floor)
     Fs = _flip_slivers(Vn, Fn, Vc, Fc)
     if len(Fs) == len(Fn) and count_flipped(Vn, Fs, Vc, Fc) <= count_flipped(Vn, Fn, Vc, Fc):
         Fn = Fs
