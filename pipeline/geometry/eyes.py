@@ -56,7 +56,7 @@ class EyeSettings:
     cut_tol_mm: float = 0.8
     cornea_cap_deg: float = 35.0
     ransac_iterations: int = 1500
-    ransac_refine: int = 16
+    ransac_refine: int = 6
     min_inliers: int = 20
     crease_margin_mm: float = 0.5
     crease_margin_capped: bool = False
