@@ -4,14 +4,20 @@ Method (per eye, see ``find_eye``):
 
 1. Local patch: faces within ``patch_radius_mm`` of the hint, connected to the face
    nearest the hint.
-2. Sclera sphere: RANSAC over 4-point spheres drawn from vertices near the hint,
-   radius in ``radius_range_mm``, centre behind the hint; the score counts vertices
-   within ``inlier_tol_mm`` of the sphere and penalises vertices inside it (nothing
-   of the head lies inside the eyeball). The corneal bulge, the flattened cornea
-   footprint of scanners that see the iris, lids and lashes are all outliers.
+2. Sclera sphere: LO-RANSAC over 4-point spheres drawn from vertices near the hint and
+   2-point spheres from pairs of oriented faces (likely all-inlier even when only a few
+   canthal sclera vertices show, as in hooded eyes), radius in ``radius_range_mm``, centre
+   behind the hint; the score counts vertices within ``inlier_tol_mm`` of the sphere and
+   penalises vertices inside it (nothing of the head lies inside the eyeball; beyond
+   ``inside_soft_tol_mm`` this also rejects a lid shell concentric with the eye). The best
+   ``ransac_refine`` samples are refined locally before the final ranking. The corneal
+   bulge, the flattened cornea footprint of scanners that see the iris, lids and lashes
+   are all outliers.
 3. Refinement: robust geometric fit (soft-L1) on the inliers outside a cornea cap
-   of ``cornea_cap_deg`` around the forward axis, with a weak radius prior, iterated;
-   optionally both eyes share one radius (``fit_eye_pair``).
+   of ``cornea_cap_deg`` around the forward axis, with a weak radius prior and one-sided
+   residuals keeping the eye region outside the sphere (``inside_fit_margin_mm``),
+   iterated; both eyes share one radius only when their radii agree within
+   ``shared_radius_max_z`` standard errors (``fit_eye_pair``).
 4. Two-sphere model: a corneal sphere is fitted to the remaining bulge if there is
    one; forward = centre -> corneal centre, else the normal of the cornea footprint,
    else centre -> opening centroid.
@@ -20,7 +26,11 @@ Method (per eye, see ``find_eye``):
    filled, notches/spikes/bow-ties cleaned so that its border is one simple loop.
    An open eye has a crease there (lid skin rises steeply off the eyeball); no crease
    means the eye is closed and is refused.
-6. Scans too coarse to show the eyeball geometrically (``james``) use the colour
+6. Eyelid loop: where the cut border lies on the eyeball, each loop vertex moves to where
+   the uncut surface lifts off the fitted eye by ``margin_lift_mm``, projected onto the eye
+   (the margin between the last eyeball vertex and the first lid vertex); flip-guarded.
+   Loop vertices already lifted off (a crease filled by the reconstruction) keep the cut.
+7. Scans too coarse to show the eyeball geometrically (``james``) use the colour
    texture instead: faces near the hint whose colour differs from the surrounding
    skin form the opening; the sphere is fitted to that region with the radius prior.
 """
