@@ -86,12 +86,11 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.eyeball.textures import IRIS_COLORS, SCLERA_TINTS, VEINS  # the asset's variants (no bpy)
+
 REPLY_PREFIX = "@@render@@ "
 CAMERA_PULLBACK_M = 0.25
 SIDES = ("left", "right")
-IRIS_COLORS = ("amber", "blue", "brown", "grey")
-SCLERA_TINTS = {"white": (1.0, 1.0, 1.0), "pink": (1.0, 0.84, 0.82), "yellow": (1.0, 0.94, 0.74)}
-VEINS = ("bloodshot", "clear")
 EYE_BLENDS = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
 SKIN_DETAIL = ("displacement", "bump", "none")
 ADAPTIVE_THRESHOLD = 0.02
