@@ -355,7 +355,7 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     m = json.loads((out.parent / "tiny.metrics.json").read_text())
     assert m["skipped_done"] >= n_before and m["rendered"] == 6 - m["skipped_done"]
     assert m["landmark_check_max_mm"] < 0.01
-    assert m["shards"] >= 2 and m["blender_starts"] == 1      # one Blender per dask worker, kept across tasks
+    assert m["shards"] >= 1 and m["blender_starts"] == 1
     for x in lines:
         lab = json.loads((out / x["json"]).read_text())
         assert lab["index"] == x["index"] and lb.check_label(lab) < 0.01
@@ -382,14 +382,15 @@ def test_stage_on_an_existing_dask_cluster(tiny, tmp_path):
     from dask.distributed import LocalCluster
 
     out = tmp_path / "renders" / "tiny"
-    params = _params(tmp_path, "p.yaml", n_images=2)
+    params = _params(tmp_path, "p.yaml", n_images=3, shard_size=1)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cl:
         r = subprocess.run(_stage_cmd(tiny, out, params, "--scheduler", cl.scheduler_address), cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     m = json.loads((out.parent / "tiny.metrics.json").read_text())
-    assert m["scheduler"] == cl.scheduler_address and m["workers"] == 1 and m["rendered"] == 2
-    assert [json.loads(x)["index"] for x in (out / "index.jsonl").read_text().splitlines()] == [0, 1]
+    assert m["scheduler"] == cl.scheduler_address and m["workers"] == 1 and m["rendered"] == 3
+    assert m["shards"] == 3 and m["blender_starts"] == 1      # one Blender per dask worker, kept across tasks
+    assert [json.loads(x)["index"] for x in (out / "index.jsonl").read_text().splitlines()] == [0, 1, 2]
 
 
 def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
