@@ -77,7 +77,7 @@ class RenderSettings:
     seed: int = 0
     width: int = 120
     height: int = 80
-    samples: int = 16
+    samples: int = 12
     denoise: bool = True
     eyes: tuple = ("left", "right")
     camera_polar_max_deg: float = 20.0
