@@ -34,6 +34,18 @@ RUN_KEYS = {"workers", "scheduler", "shard_size", "threads", "tile_size", "sheet
             "progress", "connect_timeout_s"}
 
 
+# Cycles given one thread still keeps a second one busy (about a quarter of an image's CPU
+# time wasted), so two Blenders sharing two cores are slower than one Blender using both:
+# 0.53 s/image with 2 workers x 1 thread against 0.43 s/image with 1 worker x 2 threads on
+# 2 cores (benchmarks/bench_render.py, scaling); two threads per Blender is the floor.
+MIN_THREADS = 2
+
+
+def auto_workers(cores: int) -> int:
+    """Local Blender workers for ``cores`` CPU cores: one per :data:`MIN_THREADS` cores."""
+    return max(1, int(cores) // MIN_THREADS)
+
+
 def config_hash(settings, fingerprint: str) -> str:
     blob = json.dumps({"settings": settings.hashed(), "asset": fingerprint}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
@@ -101,9 +113,10 @@ def main(argv) -> dict:
         settings = sp.RenderSettings.from_dict(params)
     except (ValueError, TypeError) as exc:
         raise ScanError(Path(args.params), f"render: {exc}") from None
-    workers = int(args.workers or params.get("workers") or 1)
-    if workers < 1:
-        raise ScanError(Path(args.params), "render: workers must be >= 1")
+    workers = args.workers if args.workers is not None else int(params.get("workers") or 0)
+    if workers < 0:
+        raise ScanError(Path(args.params), "render: workers must be >= 0 (0 = auto)")
+    workers = workers or auto_workers(os.cpu_count() or 1)
     scheduler = args.scheduler or params.get("scheduler") or None
     asset = ra.load_render_asset(args.asset, args.rig)
     out = args.out

@@ -406,6 +406,10 @@ def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     bad = _params(tmp_path, "bad.yaml", n_images=2, preset="nope")
     r = subprocess.run(_stage_cmd(tiny, tmp_path / "o3", bad), cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "preset" in r.stderr
+    neg = _params(tmp_path, "neg.yaml", n_images=2, workers=-1)
+    r = subprocess.run(_stage_cmd(tiny, tmp_path / "o4", neg), cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "workers must be >= 0" in r.stderr
+    assert not (tmp_path / "o4").exists()
     broken = tmp_path / "broken"
     broken.mkdir()
     (broken / "broken.usda").write_text("#usda 1.0\ngarbage (((\n")
@@ -419,3 +423,9 @@ def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     with pytest.raises(Exception) as ei:
         ra.load_render_asset(tiny["asset_dir"], rig)
     assert "rig.npz" in str(ei.value)
+
+
+def test_auto_workers_give_each_blender_two_cores():
+    from stages.render import auto_workers
+
+    assert [auto_workers(c) for c in (1, 2, 3, 4, 16)] == [1, 1, 1, 2, 8]
