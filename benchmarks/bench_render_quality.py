@@ -147,6 +147,21 @@ def choose_default(rows: list[dict], key: str = "cpu_s") -> dict:
             "psnr_bar_db": bar, "chosen_by": key}
 
 
+def write_csvs(rows: list[dict], out: Path) -> None:
+    """``out.csv`` (every row) plus ``out_raw.csv`` / ``out_denoised.csv``: one time-vs-PSNR
+    curve each for ``dvc plots`` (a plot draws one line per file)."""
+    cols = ["samples", "denoise", "time_s", "psnr_db", "ssim", "cpu_s"]
+    for path, keep in ((out.with_suffix(".csv"), lambda r: True),
+                       (out.with_name(out.name + "_raw.csv"), lambda r: not r["denoise"]),
+                       (out.with_name(out.name + "_denoised.csv"), lambda r: r["denoise"])):
+        with open(path, "w", newline="") as fh:
+            wr = csv.writer(fh)
+            wr.writerow(cols)
+            for r in rows:
+                if keep(r):
+                    wr.writerow([r["samples"], int(r["denoise"]), r["time_s"], r["psnr_db"], r["ssim"], r["cpu_s"]])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--asset", type=Path, default=ROOT / "rigged_assets/synthetic_head/synthetic_head.usda")
@@ -218,11 +233,7 @@ def main(argv=None) -> int:
               "rows": rows, "chosen_default": best}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
-    with open(args.out.with_suffix(".csv"), "w", newline="") as fh:
-        wr = csv.writer(fh)
-        wr.writerow(["samples", "denoise", "time_s", "psnr_db", "ssim", "cpu_s"])
-        for r in rows:
-            wr.writerow([r["samples"], int(r["denoise"]), r["time_s"], r["psnr_db"], r["ssim"], r["cpu_s"]])
+    write_csvs(rows, args.out)
     print(f"default: {best['samples']} spp, denoise={best['denoise']}: {best['time_s']:.3f} s/img "
           f"(CPU {best['cpu_s']:.3f} s), "
           f"PSNR {best['psnr_db']:.2f} dB >= {best['psnr_bar_db']:.2f} dB (150 spp, no denoiser)")
