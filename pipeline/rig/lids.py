@@ -137,7 +137,7 @@ class LidParams:
     max_chord_sag_mm: float = 0.03
     max_segments: int = 12
     min_opening_fraction: float = 0.2
-    surface_falloff_mm: float = 4.0
+    surface_follow_mm: float = 2.0    # skin this far off the eyeball no longer follows the cornea
     min_offset_mm: float = 1e-6
     min_area_fraction: float = 0.25   # faces keep this share of their area in the full poses
     max_support_scale: float = 2.0    # ... by widening the falloff radii up to this factor
@@ -618,8 +618,9 @@ class LidRig:
     n_segments : int
         Stored poses per direction (inbetweens = n_segments - 1).
     predicted_sag_mm : float
-        Largest drift of the margin from its rest surface offset at the mid-points between
-        stored poses (where piecewise-linear interpolation deviates most), mm.
+        Largest drift of the margin from its rest surface offset, or sinking of moved skin
+        below ``min(rest clearance, 0)``, at the mid-points between stored poses (where
+        piecewise-linear interpolation deviates most), mm.
     """
 
     shapes: list
@@ -651,46 +652,105 @@ def pose_points(P, eyes, angles_by_side: dict, scale: float = 1.0) -> np.ndarray
     return out
 
 
-class _SurfaceFollow:
-    """Radial correction that keeps the margin on a non-spherical eyeball (corneal bulge).
+def follow_surface(P, eye: EyeFrame, pitch_deg: float, rest_clearance,
+                   follow_mm: float) -> np.ndarray:
+    """Push posed points radially so skin lying on a non-spherical eyeball does not sink into it.
 
-    A rotation about the centre keeps a margin vertex on a sphere, but the parametric
-    eye's cornea (pipeline.eyeball) bulges out of it and turns with the eye. For each
-    pitch the margin's radial offset from the surface at rest is restored:
-    ``delta = R_surface(pitched eye, rotated point) - R_surface(rest)``, extended over
-    the skin harmonically and faded out by the C2 falloff over ``surface_falloff_mm``.
-    Eyes without a ``profile`` (spheres) need no correction.
+    A rotation about the eye centre keeps every point at its distance from the centre, so
+    on the eyeball *sphere* the lid rotation alone keeps each point's clearance. The
+    parametric eye's cornea (pipeline.eyeball) bulges out of the sphere by up to
+    ``b = R_surface(gaze) - radius`` and turns with the eye by the full pitch, while the
+    skin turns by less (lid gain < 1, geodesic falloff): the bulge slides under the skin,
+    and skin near the lid margin -- or lower-lid skin several mm away when looking down --
+    would end up inside the eye. Each point therefore gets back the share
+
+        ``w = S(|c0| / H)``,  ``H = max(follow_mm, 1.25 b)``
+
+    of the clearance it lost, ``dr = w (c0 - c1)`` along its ray from the centre, where
+    ``c0`` is its rest clearance, ``c1`` its clearance from the pitched surface after the
+    rotation and ``S`` the C2 smootherstep falloff. Points on the eye (``c0 = 0``, the
+    margin included) keep their rest clearance exactly, points ``H`` or more off (or inside)
+    it are left alone. Because ``c1 >= c0 - b`` and ``x / (1 - S(x)) >= 0.835`` on [0, 1],
+    ``H >= 1.2 b`` guarantees ``c0 + dr >= 0`` for every ``c0 >= 0``. ``w`` and ``dr`` are
+    smooth functions of position, so the push has no step or kink (unlike a projection
+    onto the surface, which would crease the skin where contact starts).
+
+    Parameters
+    ----------
+    P : (n, 3) float64
+        Posed points (rest points rotated by the lid angle field), mm.
+    eye : EyeFrame
+        The eye, with its ``profile``; a sphere (``profile`` None) needs no push.
+    pitch_deg : float
+        Eyeball pitch of the pose, degrees.
+    rest_clearance : (n,) float64
+        ``eye.surface_distance(V, 0.0)`` of the rest points, mm.
+    follow_mm : float
+        Rest clearance at which the push has faded out (floor of ``H``), mm.
+
+    Returns
+    -------
+    (n, 3) float64
+        The pushed points (a copy).
     """
+    P = np.array(P, dtype=np.float64, copy=True)
+    if eye.profile is None:
+        return P
+    c0 = np.asarray(rest_clearance, dtype=np.float64)
+    bulge = float(eye.surface_radius(eye.center[None] + eye.forward[None], 0.0)[0]) - eye.radius
+    H = max(float(follow_mm), 1.25 * max(bulge, 0.0), 1e-9)
+    w = smootherstep_falloff(np.abs(c0) / H)
+    idx = np.flatnonzero(w > 0.0)
+    if len(idx) == 0:
+        return P
+    dr = w[idx] * (c0[idx] - eye.surface_distance(P[idx], pitch_deg))
+    ray = P[idx] - eye.center
+    P[idx] += ray / np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12) * dr[:, None]
+    return P
 
-    def __init__(self, V, G, eyes, fields, params: LidParams):
+
+class _SurfaceFollow:
+    """Keeps the margin and the skin on a non-spherical eyeball (see :func:`follow_surface`)."""
+
+    def __init__(self, V, eyes, params: LidParams):
         self.eyes = [e for e in eyes if e.profile is not None]
         self.eyes_all = list(eyes)
-        self.ops = {}
-        rf = float(params.surface_falloff_mm)
-        for e in self.eyes:
-            D = fields[e.side].distance
-            region = np.isfinite(D) & (D <= rf)
-            fall = np.where(region, smootherstep_falloff(np.where(region, D, 0.0) / rf), 0.0)
-            self.ops[e.side] = (G, region, fall, e.surface_radius(V[e.loop], 0.0))
+        self.follow_mm = float(params.surface_follow_mm)
+        self.rest = {e.side: e.surface_distance(V, 0.0) for e in self.eyes}
 
-    def correction(self, V_rot, eye: EyeFrame, pitch_deg: float) -> np.ndarray:
-        """(n,) radial offsets for the rotated points of one eye at an eyeball pitch."""
-        G, region, fall, r0 = self.ops[eye.side]
-        delta = eye.surface_radius(V_rot[eye.loop], pitch_deg) - r0
-        ext = _harmonic_extension(G, region, eye.loop, delta[:, None])[:, 0]
-        return ext * fall
+    def apply(self, P, eye: EyeFrame, pitch_deg: float) -> np.ndarray:
+        """Posed points ``P`` pushed off the pitched eyeball surface of one eye."""
+        return follow_surface(P, eye, pitch_deg, self.rest[eye.side], self.follow_mm)
 
     def interpolation_error(self, V, shapes, n_seg, max_pitch) -> float:
-        """Largest margin drift from its rest surface offset at the mid-points between poses."""
+        """Largest interpolation error at the mid-points between stored poses, mm.
+
+        The larger of the margin's drift from its rest surface offset and the depth by which
+        moved skin near the eye sinks below ``min(rest clearance, 0)`` (skin lying on the
+        eye sees the same chord sag as the margin; stored poses keep it out by
+        :func:`follow_surface`).
+        """
         all_eyes = self.eyes_all
+        moved = np.zeros(len(V), bool)
+        for s in shapes:
+            moved[s.point_indices] = True
+        for e in all_eyes:
+            moved[e.loop] = False
+        near = {}
+        for e in all_eyes:
+            sel = np.flatnonzero(moved & (np.linalg.norm(V - e.center, axis=1) < 2.0 * e.radius))
+            near[e.side] = (sel, np.minimum(e.surface_distance(V[sel], 0.0), 0.0),
+                            e.surface_distance(V[e.loop], 0.0))
         worst = 0.0
         for j in range(n_seg):
             for sign in (1.0, -1.0):
                 p = sign * max_pitch * (j + 0.5) / n_seg
                 P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch))
                 for e in all_eyes:
-                    d0 = e.surface_distance(V[e.loop], 0.0)
+                    sel, floor, d0 = near[e.side]
                     worst = max(worst, float(np.abs(e.surface_distance(P[e.loop], p) - d0).max()))
+                    if len(sel):
+                        worst = max(worst, float(np.max(floor - e.surface_distance(P[sel], p))))
         return worst
 
 
@@ -701,10 +761,7 @@ def _lid_shape(V, eyes, fields, follow: _SurfaceFollow, name, key, n_seg, params
         frac = j / n_seg
         P = pose_points(V, eyes, {e.side: getattr(fields[e.side], key) for e in eyes}, frac)
         for e in follow.eyes:
-            dr = follow.correction(P, e, sign * params.max_pitch_deg * frac)
-            moving = np.flatnonzero(dr != 0.0)
-            w = P[moving] - e.center
-            P[moving] += w / np.linalg.norm(w, axis=1, keepdims=True) * dr[moving, None]
+            P = follow.apply(P, e, sign * params.max_pitch_deg * frac)
         poses.append(P - V)
     poses = np.stack(poses)
     moved = np.flatnonzero(np.max(np.linalg.norm(poses, axis=2), axis=0) > params.min_offset_mm)
@@ -740,7 +797,7 @@ def build_lid_shapes(V, F, eyes, params: LidParams | None = None) -> LidRig:
         for th in (f.theta_up, f.theta_down):
             n_seg = max(n_seg, n_segments_for_sag(d_axis, th, params.max_chord_sag_mm,
                                                   params.max_segments))
-    follow = _SurfaceFollow(V, G, eyes, fields, params)
+    follow = _SurfaceFollow(V, eyes, params)
     while True:
         shapes = [_lid_shape(V, eyes, fields, follow, name, key, n_seg, params)
                   for name, key in ((SHAPE_UP, "theta_up"), (SHAPE_DOWN, "theta_down"))]
