@@ -4,7 +4,8 @@ One module-scoped build per scan: the synthetic head (small density, always) and
 ``ict_neutral`` and ``james`` (only with ``EYERIG_EXTRA_SCANS``). On each:
 
 * snap leaves no flipped face and the margin on the eyeball (stage metrics);
-* the rig's pitch sweep -25..25 deg keeps the margin within 0.1 mm of the eyeball and flips no face;
+* the rig's pitch sweep -25..25 deg keeps the margin within 0.1 mm of the eyeball, keeps the moved
+  skin out of it (within the 0.03 mm chord tolerance) and flips no face;
 * Blender's USD importer (pipeline/blender/usd_roundtrip.py, a subprocess) brings in the mesh with
   its UVs, the two shape keys with the USD offsets (within 1e-4 mm), the armature with the eye
   joints, both eyes (following their bones) and the textured materials.
@@ -153,6 +154,8 @@ def test_rig_sweep_bounds_and_no_flips(asset):
     assert m["sweep_flipped_faces"] == 0, asset["name"]
     assert m["sweep_max_gap_mm"] <= 0.1 and m["sweep_max_penetration_mm"] <= 0.1
     assert m["sweep_min_opening_mm"] > 0                     # the lids never cross
+    # no moved skin vertex sinks into the turning eyeball deeper than the margin's chord tolerance
+    assert m["sweep_min_skin_clearance_mm"] >= -0.03, asset["name"]
 
 
 def test_retopo_loops_have_no_ears(asset):

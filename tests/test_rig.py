@@ -296,6 +296,7 @@ def test_stage_writes_rig_that_reopens(tmp_path, region):
     m = json.loads(metrics.read_text())
     assert m["sweep_max_gap_mm"] <= 0.1 and m["sweep_max_penetration_mm"] <= 0.1
     assert m["sweep_flipped_faces"] == 0 and m["sweep_min_opening_mm"] > 0
+    assert m["sweep_min_skin_clearance_mm"] >= -lids.LidParams().max_chord_sag_mm
     assert m["sweep_n_pitches"] == 101 and "wall_time_s" in m
     doc = json.loads((out / "rig.json").read_text())
     assert doc["weight_rule"]["max_pitch_deg"] == 25.0
@@ -457,6 +458,10 @@ def test_ict_head_sweep(extra_scan):
     res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
     assert res["max_gap_mm"] <= 0.1 and res["max_penetration_mm"] <= 0.1
     assert res["flipped_faces"] == 0 and res["min_opening_mm"] > 0.5
+    # the raw ICT skin lies up to 0.36 mm inside the fitted sphere at rest (only the margin is
+    # snapped here); posing must not sink it deeper than the margin's chord tolerance
+    assert res["min_skin_clearance_mm"] >= (min(res["rest_min_skin_clearance_mm"], 0.0)
+                                            - lids.LidParams().max_chord_sag_mm)
     # same direction as ICT's eyeLookUp/eyeLookDown on the upper-lid margin
     for e in eyes:
         up_ax = e.basis()[1]
@@ -595,6 +600,7 @@ def test_margin_rides_the_corneal_bulge(radius):
     assert res["rest_max_abs_mm"] < 1e-6
     assert res["max_gap_mm"] <= 0.1 and res["max_penetration_mm"] <= 0.1
     assert res["flipped_faces"] == 0 and res["min_opening_mm"] > 0
+    assert res["min_skin_clearance_mm"] >= -lids.LidParams().max_chord_sag_mm
     # the sphere-only rig would let the cornea cut through the lids
     sphere_eyes = [lids.EyeFrame(e.side, e.center, e.radius, e.forward, e.loop, e.lateral_index)
                    for e in eyes]
@@ -611,6 +617,51 @@ def test_margin_rides_the_corneal_bulge(radius):
         lids.eye_frames({e.side: {"center": e.center, "radius": e.radius,
                                   "forward": e.forward} for e in eyes},
                         {"V": V, "F": F, "loop_left": eyes[0].loop, "loop_right": eyes[1].loop})
+
+
+def test_skin_on_the_eye_rides_the_turning_cornea():
+    """Thin lid skin (0.3 mm over the eye) near a margin on the cornea: the corneal bulge turns
+    with the eye by the full pitch, the skin by less, so the bulge slides under the skin. The
+    rig pushes the skin out by the clearance it would lose (pipeline.rig.lids.follow_surface):
+    no skin vertex sinks into the eye at any pitch (the margin-only correction sank it by
+    0.016 mm here and flipped 2 faces; 0.46 mm on the james scan)."""
+    geometry = pytest.importorskip("pipeline.eyeball.geometry")
+    V, F, eyes = two_eye_region(radius=15.4, profile=geometry.EyeballParams(), upper_deg=12.0,
+                                lower_deg=10.0, half_width_deg=40.0, rise_mm=0.3)
+    rig = lids.build_lid_shapes(V, F, eyes)
+    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    assert res["rest_min_skin_clearance_mm"] == pytest.approx(0.3)
+    assert res["min_skin_clearance_mm"] > 0.2
+    assert res["flipped_faces"] == 0 and res["min_opening_mm"] > 0
+    assert res["max_gap_mm"] <= 0.1 and res["max_penetration_mm"] <= 0.1
+
+
+def test_follow_surface_restores_clearance_and_fades_out():
+    geometry = pytest.importorskip("pipeline.eyeball.geometry")
+    profile = geometry.EyeballParams()
+    eye = lids.EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4,
+                        profile)
+    bulge = float(eye.surface_radius(np.array([[0.0, 0, 1]]))[0]) - 12.0    # 1.5 mm
+    H = max(2.0, 1.25 * bulge)
+    # points over the lower cornea edge, at rest clearances 0 .. beyond H
+    c0 = np.array([0.0, 0.05, 0.3, 1.0, 1.5, H, H + 1.0])
+    d = np.array([0.0, -np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])
+    V = (eye.surface_radius(d[None])[0] + c0)[:, None] * d
+    rest = eye.surface_distance(V, 0.0)
+    np.testing.assert_allclose(rest, c0, atol=1e-9)
+    # the eye looks down 25 deg, the skin stays put: the cornea slides under it
+    sunk = eye.surface_distance(V, -25.0)
+    assert sunk.min() < -0.4
+    P = lids.follow_surface(V, eye, -25.0, rest, 2.0)
+    after = eye.surface_distance(P, -25.0)
+    assert after[0] == pytest.approx(0.0, abs=1e-9)          # on the eye: kept on it exactly
+    assert (after >= -1e-9).all()                             # nothing ends up inside
+    np.testing.assert_allclose(P[-2:], V[-2:], atol=1e-12)    # H or more off: untouched
+    # moved only along the rays from the centre
+    np.testing.assert_allclose(np.cross(P, V), 0.0, atol=1e-9)
+    # a sphere needs no push
+    sphere = lids.EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4)
+    np.testing.assert_array_equal(lids.follow_surface(V, sphere, -25.0, rest, 2.0), V)
 
 
 def test_support_widens_where_the_skin_would_fold():
