@@ -200,3 +200,74 @@ def test_loop_outside_crop_is_refused(patch):
     V, F, eyes = patch
     with pytest.raises(ValueError, match="margins"):
         retopologize(V, F, eyes, RetopoSettings(margin_above_mm=1.0))
+
+
+def ring_structure(r, side):
+    """Vertex rings around an eye loop, walked over the result's quads: ring 0 is the loop,
+    ring k + 1 the far edges of the quads on ring k's edges not used by ring k - 1's quads."""
+    pc, pi = r.poly_counts, r.poly_indices
+    starts = np.concatenate([[0], np.cumsum(pc)[:-1]])
+    quads = np.stack([pi[s:s + 4] for s in starts[pc == 4]]) if np.any(pc == 4) else np.zeros((0, 4), int)
+    by_edge = {}
+    for q, quad in enumerate(quads):
+        for k in range(4):
+            by_edge.setdefault(frozenset((int(quad[k]), int(quad[(k + 1) % 4]))), []).append(q)
+    rings, used = [list(map(int, r.loops[side]))], set()
+    while True:
+        ring = rings[-1]
+        n = len(ring)
+        qs = [[q for q in by_edge.get(frozenset((ring[i], ring[(i + 1) % n])), []) if q not in used]
+              for i in range(n)]
+        if not all(len(x) == 1 for x in qs):
+            return rings, len(used)
+        nxt = []
+        for i in range(n):
+            quad = list(map(int, quads[qs[i][0]]))
+            # the quad's corner next to ring[i] that is not on the ring
+            k = quad.index(ring[i])
+            far = [quad[(k + 1) % 4], quad[(k - 1) % 4]]
+            nxt.append(next(v for v in far if v not in ring))
+        used.update(x[0] for x in qs)
+        rings.append(nxt)
+
+
+@pytest.mark.parametrize("method,kw", [
+    ("quadric", dict(target_polygons=1500, loop_points=32)),
+    ("isotropic", dict(target_polygons=1200, loop_points=40, predecimate_faces=8000)),
+])
+def test_eye_rings(patch, method, kw):
+    V, F, eyes = patch
+    r = retopologize(V, F, eyes, RetopoSettings(method=method, eye_rings=3, **kw))
+    n = kw["loop_points"]
+    check_result(r, V, eyes, n)                      # loop contract, manifold, no flips, distances
+    pc = r.poly_counts
+    assert pc.sum() == len(r.poly_indices) and len(r.F) == np.sum(pc - 2)
+    for side, e in eyes.items():
+        assert r.metrics["eye_rings"][side]["quads"] == 3 * n
+        rings, nq = ring_structure(r, side)
+        assert len(rings) >= 4 and nq >= 3 * n       # loop + 3 rings, n quads between each pair
+        curve = V[e["loop_indices"]]
+        d = [np.mean(_project_to_polyline(r.V[np.asarray(g)], curve)[2]) for g in rings[:4]]
+        for k, g in enumerate(rings[:4]):
+            assert len(g) == n and len(set(g)) == n
+        assert d[0] < 1e-6 and d[1] < d[2] < d[3]    # concentric: each ring further out
+        # even spacing: ring k about k spacings out
+        h = r.metrics["eye_rings"][side]["spacing_mm"]
+        assert np.allclose(np.diff(d), h, rtol=0.35)
+    if method == "isotropic":
+        assert abs(len(pc) - 1200) < 400
+    else:
+        assert abs(r.metrics["polygons"] - 1500) < 300
+
+
+def test_eye_rings_off_is_the_plain_result(patch):
+    V, F, eyes = patch
+    kw = dict(target_polygons=1500, loop_points=32)
+    a = retopologize(V, F, eyes, RetopoSettings(eye_rings=0, **kw))
+    b = retopologize(V, F, eyes, RetopoSettings(eye_rings=2, **kw))
+    assert a.poly_counts is None and a.metrics["eye_rings"] == {} and a.metrics["quads"] == 0
+    assert b.metrics["quads"] == 2 * 2 * 32
+    for side in a.loops:
+        assert np.allclose(a.V[a.loops[side]], b.V[b.loops[side]])   # same loop, same order
+    with pytest.raises(ValueError, match="eye_rings"):
+        RetopoSettings.from_params({"eye_rings": -1})
