@@ -728,7 +728,9 @@ def _band_faces(V, F, loop, radius, locked):
     mask, or None when no such band exists (it would touch a ``locked`` vertex).
     """
     from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components, dijkstra
+    from scipy.sparse.csgraph import dijkstra
+
+    from pipeline.geometry.meshtopo import face_adjacency, face_components
 
     n, m = len(V), len(F)
     e = mc.edges_of(F)
@@ -737,44 +739,30 @@ def _band_faces(V, F, loop, radius, locked):
     G = G.maximum(G.T)
     d = dijkstra(G, indices=np.asarray(loop), min_only=True, limit=2.0 * radius)
     band = (d[F] < radius).any(axis=1)
-    # face adjacency over shared edges (the pocket fill and the component count use it)
-    he = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    fid = np.tile(np.arange(m), 3)
-    key = np.sort(he, axis=1)
-    order = np.lexsort((key[:, 1], key[:, 0]))
-    ks, fs = key[order], fid[order]
-    same = (ks[1:] == ks[:-1]).all(axis=1)
-    fa, fb = fs[:-1][same], fs[1:][same]
+    pairs, pair_edges = face_adjacency(F, n)
     for _ in range(50):
         rest = ~band
         # pockets: rest components other than the largest join the band
-        keep = rest[fa] & rest[fb]
-        A = coo_matrix((np.ones(keep.sum()), (fa[keep], fb[keep])), shape=(m, m))
-        nc, lab = connected_components(A, directed=False)
-        lab = np.where(rest, lab, -1)
-        sizes = np.bincount(lab[rest], minlength=nc)
+        lab = face_components(m, pairs, rest)
+        sizes = np.bincount(lab[rest], minlength=m)
         band |= rest & (lab != int(np.argmax(sizes)))
         # the band/rest interface must be a simple loop: grow over pinch vertices
-        inter = band[fa] != band[fb]
-        ie = key[order][:-1][same][inter]
-        cnt = np.bincount(ie.ravel(), minlength=n)
+        inter = band[pairs[:, 0]] != band[pairs[:, 1]]
+        cnt = np.bincount(pair_edges[inter].ravel(), minlength=n)
         pinch = np.flatnonzero(cnt > 2)
         if len(pinch) == 0:
             break
         band |= np.isin(F, pinch).any(axis=1)
     else:
         return None
-    if np.isin(F[band], locked).any() if len(locked) else False:
+    if len(locked) and np.isin(F[band], locked).any():
         return None
     # annulus: one component, Euler characteristic 0, two border loops (the eye loop + B)
     Fb = F[band]
-    keep = band[fa] & band[fb]
-    A = coo_matrix((np.ones(keep.sum()), (fa[keep], fb[keep])), shape=(m, m))
-    nc, lab = connected_components(A, directed=False)
-    if len(np.unique(lab[band])) != 1:
+    if len(np.unique(face_components(m, pairs, band)[band])) != 1:
         return None
     nv = len(np.unique(Fb))
-    ne = len(np.unique(np.sort(np.concatenate([Fb[:, [0, 1]], Fb[:, [1, 2]], Fb[:, [2, 0]]]), axis=1), axis=0))
+    ne = len(np.unique(np.sort(mc.edges_of(Fb), axis=1), axis=0))
     if nv - ne + len(Fb) != 0:
         return None
     try:
@@ -863,11 +851,12 @@ def add_eye_rings(V, F, loops, ref_V, ref_F, rings=3, spacing=0.0, relax_iterati
     """Concentric rings of quads around each eyelid loop.
 
     The faces within a band of ``(rings + 1) * spacing`` (edge-graph distance) around the loop
-    are replaced by ``rings`` rings of ``N = len(loop)`` vertices (ring k vertex i between loop
-    vertex i and its matched point on the band's outer border B, projected onto the reference
-    surface and relaxed), ``N`` quads between consecutive rings (the loop is ring 0) and a loft
-    of triangles from the outermost ring to B. An eye whose band cannot be made an annulus, or
-    whose rings come out flipped against the reference, keeps its old faces.
+    are replaced by ``rings`` rings of ``N = len(loop)`` vertices (ring k marched out from the
+    loop in ``k`` steps of ``spacing`` over the reference surface, :func:`_march_rings`), ``N``
+    quads between consecutive rings (the loop is ring 0) and a loft of triangles from the
+    outermost ring to the band's outer border B (:func:`_zip_strip`). An eye whose band cannot
+    be made an annulus, or whose rings come out folded, flipped or with an obtuse loft sliver,
+    is retried with fewer rings and keeps its old faces at none.
 
     Parameters
     ----------
