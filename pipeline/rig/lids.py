@@ -709,6 +709,18 @@ def follow_surface(P, eye: EyeFrame, pitch_deg: float, rest_clearance,
     return P
 
 
+def near_eye_skin(V, shapes, eyes) -> dict:
+    """Moved skin near each eye: ``side -> (k,) int64`` indices of the vertices some shape
+    moves, excluding every eyelid margin, within two eyeball radii of that eye's centre."""
+    moved = np.zeros(len(V), bool)
+    for s in shapes:
+        moved[s.point_indices] = True
+    for e in eyes:
+        moved[e.loop] = False
+    return {e.side: np.flatnonzero(moved & (np.linalg.norm(V - e.center, axis=1) < 2.0 * e.radius))
+            for e in eyes}
+
+
 class _SurfaceFollow:
     """Keeps the margin and the skin on a non-spherical eyeball (see :func:`follow_surface`)."""
 
@@ -731,14 +743,10 @@ class _SurfaceFollow:
         :func:`follow_surface`).
         """
         all_eyes = self.eyes_all
-        moved = np.zeros(len(V), bool)
-        for s in shapes:
-            moved[s.point_indices] = True
-        for e in all_eyes:
-            moved[e.loop] = False
+        skin = near_eye_skin(V, shapes, all_eyes)
         near = {}
         for e in all_eyes:
-            sel = np.flatnonzero(moved & (np.linalg.norm(V - e.center, axis=1) < 2.0 * e.radius))
+            sel = skin[e.side]
             near[e.side] = (sel, np.minimum(e.surface_distance(V[sel], 0.0), 0.0),
                             e.surface_distance(V[e.loop], 0.0))
         worst = 0.0
@@ -919,18 +927,15 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
     moved = np.zeros(len(V), bool)
     for s in shapes:
         moved[s.point_indices] = True
-    margin = np.zeros(len(V), bool)
-    for e in eyes:
-        margin[e.loop] = True
     check_faces = ok & moved[F].any(axis=1)
     res = {"max_gap_mm": 0.0, "max_penetration_mm": 0.0, "flipped_faces": 0,
            "min_opening_mm": math.inf, "min_skin_clearance_mm": math.inf,
            "rest_min_skin_clearance_mm": math.inf, "max_skin_sink_mm": 0.0,
            "worst_pitch_deg": 0.0, "n_pitches": 0}
-    skin = moved & ~margin
+    skin = near_eye_skin(V, shapes, eyes)
     near_skin = {}
     for e in eyes:
-        sel = np.flatnonzero(skin & (np.linalg.norm(V - e.center, axis=1) < 2.0 * e.radius))
+        sel = skin[e.side]
         near_skin[e.side] = (sel, e.surface_distance(V[sel], 0.0))
         if len(sel):
             res["rest_min_skin_clearance_mm"] = min(res["rest_min_skin_clearance_mm"],
