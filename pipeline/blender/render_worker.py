@@ -69,7 +69,7 @@ Cycles, samples / denoise / seed from the spec, OpenImageDenoise with albedo + n
 and the ACCURATE prefilter, adaptive sampling (threshold 0.02), single-scatter GGX on every
 Principled BSDF, light paths limited to what the cornea needs (:data:`LIGHT_PATHS`), one
 tile for the whole image, persistent render data. Optional spec keys (tests/benchmarks):
-``lashes``, ``adaptive_sampling``, ``adaptive_threshold``, ``denoise_prefilter``, ``denoise_quality`` and the
+``lashes``, ``adaptive_sampling``, ``adaptive_threshold``, ``denoise_prefilter`` and the
 :data:`LIGHT_PATHS` names.
 """
 
@@ -96,8 +96,6 @@ SKIN_DETAIL = ("displacement", "bump", "none")
 ADAPTIVE_THRESHOLD = 0.02
 WORLD_MAP_RESOLUTION = 256
 DENOISE_PREFILTER = "ACCURATE"   # OIDN albedo/normal prefilter: +0.7 dB at 16 spp for ~0.3 CPU-s
-DENOISE_QUALITY = "HIGH"         # OIDN network size (HIGH / BALANCED / FAST)
-SAMPLING_PATTERN = "TABULATED_SOBOL"
 BSDF_DISTRIBUTION = "GGX"        # single-scatter GGX on every Principled BSDF (multi-scatter: ~1.3x time)
 LIGHT_PATHS = {"max_bounces": 8, "diffuse_bounces": 1, "glossy_bounces": 2, "transmission_bounces": 6,
                "transparent_max_bounces": 8, "volume_bounces": 0}
@@ -724,8 +722,6 @@ class Worker:
         for k, v in LIGHT_PATHS.items():
             setattr(c, k, int(spec.get(k, v)))
         c.denoising_prefilter = str(spec.get("denoise_prefilter", DENOISE_PREFILTER))
-        c.denoising_quality = str(spec.get("denoise_quality", DENOISE_QUALITY))
-        c.sampling_pattern = str(spec.get("sampling_pattern", SAMPLING_PATTERN))
         self.bpy.context.view_layer.update()
         measured = self._lashes_and_landmarks(side, bool(spec.get("lashes", True)))
         check = float(np.linalg.norm(measured - lm_in, axis=1).max())
