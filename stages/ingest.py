@@ -5,35 +5,69 @@
 Writes ``OUT_DIR/mesh.npz`` (V, F[, UV, FUV][, VC]), ``OUT_DIR/texture.png`` when the
 scan has a texture, and ``OUT_DIR/scan.json``, all at once through ``atomic_dir``:
 a rejected scan exits 2 with one line on stderr and leaves no output folder.
+
+Run as a program, the stage bounds its own address space (``ingest.max_memory_mb``,
+``RLIMIT_AS``), so a hostile file that slips past the header checks ends in a
+MemoryError, which (like an OverflowError) becomes one line and exit 2. numpy's
+RuntimeWarnings are silenced: a bad value is reported by the check that refuses it.
 """
 
 from __future__ import annotations
 
+import functools
+import resource
+import warnings
 from pathlib import Path
 
+import numpy as np
+
+from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_dir, write_json
 from pipeline.io.load import IngestSettings, ingest_scan
 from pipeline.io.meshfile import save_mesh
+from pipeline.io.scan import one_line
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
 
 
-def main(argv) -> dict:
+def bound_memory(max_mb: float) -> None:
+    """Lower this process's address-space limit (soft ``RLIMIT_AS``) to ``max_mb`` MiB; 0 leaves it."""
+    if not max_mb or max_mb <= 0:
+        return
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    want = int(max_mb * 2**20)
+    if hard != resource.RLIM_INFINITY:
+        want = min(want, hard)
+    if soft == resource.RLIM_INFINITY or want < soft:
+        resource.setrlimit(resource.RLIMIT_AS, (want, hard))
+
+
+def main(argv, bound: bool = False) -> dict:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("scan_dir", help="raw_scans/<name>: scan.yaml + mesh [+ texture]")
     parser.add_argument("out_dir", help="build/<name>/ingest")
     args = parser.parse_args(argv)
     settings = IngestSettings.from_params(load_params("ingest", args.params))
-    result = ingest_scan(args.scan_dir, settings)
+    if bound:
+        bound_memory(settings.max_memory_mb)
     out = Path(args.out_dir)
-    with atomic_dir(out) as tmp:
-        save_mesh(tmp / "mesh.npz", **result.mesh)
-        if result.texture_png_bytes is not None:
-            (tmp / "texture.png").write_bytes(result.texture_png_bytes)
-        elif result.texture is not None:
-            result.texture.save(tmp / "texture.png", format="PNG", compress_level=3)
-        write_json(tmp / "scan.json", result.scan)
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            result = ingest_scan(args.scan_dir, settings)
+            with atomic_dir(out) as tmp:
+                save_mesh(tmp / "mesh.npz", **result.mesh)
+                if result.texture_png_bytes is not None:
+                    (tmp / "texture.png").write_bytes(result.texture_png_bytes)
+                elif result.texture is not None:
+                    result.texture.save(tmp / "texture.png", format="PNG", compress_level=3)
+                write_json(tmp / "scan.json", result.scan)
+    except MemoryError:
+        raise ScanError(args.scan_dir, f"ran out of memory (ingest is bounded to {settings.max_memory_mb:g} MiB, "
+                                       "ingest.max_memory_mb); a file in the folder is over the limits") from None
+    except OverflowError as exc:
+        raise ScanError(args.scan_dir, f"a number in the scan is too large ({one_line(exc)[:80]})") from None
     return {"_path": args.metrics or default_metrics_path(out), **result.metrics}
 
 
 if __name__ == "__main__":
-    stage_exit(main)
+    stage_exit(functools.partial(main, bound=True))

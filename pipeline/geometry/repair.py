@@ -34,7 +34,8 @@ class RepairSettings:
     eye_radius_mm : float
         ... unless it comes within this distance of an eye hint; this is also the eye-region radius.
     max_eye_region_removed_fraction : float
-        Refuse when repairs remove more than this share of the faces within ``eye_radius_mm`` of a hint.
+        Refuse when repairs remove more than this share of the faces within ``eye_radius_mm`` of a hint
+        (zero-area faces are not counted: removing them changes no surface).
     """
 
     merge_tolerance_mm: float = 1e-4
@@ -61,7 +62,8 @@ class RepairResult:
         What was removed: merged_vertices, degenerate_faces, duplicate_faces, debris_components,
         debris_faces, unreferenced_vertices, small_components_kept_near_eyes.
     eye_region : dict
-        Per eye: faces with a vertex within the radius and how many repairs removed.
+        Per eye: faces with a vertex within the radius and how many repairs removed (zero-area
+        faces apart: ``degenerate_removed``; they cover no surface and do not count as damage).
     """
 
     V: np.ndarray
@@ -291,13 +293,16 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
     debris = np.zeros(m0, dtype=bool)
     debris[idx] = debris_comp[labels]
     alive &= ~debris
-    # eye-region accounting (faces of the input, by centroid)
-    removed = ~alive
+    # eye-region accounting (faces of the input with a vertex near the hint). Zero-area faces
+    # cover no surface, so removing them damages nothing: they count neither as faces nor as lost.
+    removed = ~alive & ~degenerate
     eye_region = {}
     for side, h in hints.items():
-        inside = _faces_near(V, F, h, settings.eye_radius_mm)
+        near_hint = _faces_near(V, F, h, settings.eye_radius_mm)
+        inside = near_hint & ~degenerate
         total, lost = int(inside.sum()), int((inside & removed).sum())
-        eye_region[side] = {"faces": total, "removed": lost}
+        eye_region[side] = {"faces": total, "removed": lost,
+                            "degenerate_removed": int((near_hint & degenerate).sum())}
         if total and lost > settings.max_eye_region_removed_fraction * total:
             raise ScanError(path, f"repairs would remove {lost} of the {total} faces ({100.0 * lost / total:.1f}%) "
                                   f"within {settings.eye_radius_mm:g} mm of the {side} eye hint, over the limit of "

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.io.scan import TEXTURE_SUFFIXES, one_line, safe_path
+from pipeline.io.scan import TEXTURE_SUFFIXES, one_line, safe_path, short_repr
 
 
 @dataclass(frozen=True)
@@ -767,7 +767,7 @@ def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         if len(head) < 84:
             raise ScanError(path, "not an STL file (too short for a binary STL header)")
         n = struct.unpack("<I", head[80:84])[0]
-        _check_counts(path, 3 * n, n, limits)
+        _check_counts(path, 0, n, limits)       # vertices (3 per triangle) are checked once merged
         if 84 + 50 * n != size:
             raise ScanError(path, f"binary STL header says {n} triangles ({84 + 50 * n} bytes) but the file "
                                   f"has {size} bytes (truncated or not an STL)")
@@ -781,7 +781,7 @@ def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     F = np.asarray(kw.get("faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
     if len(F) == 0:
         raise ScanError(path, "no triangles found")
-    _check_counts(path, len(V), len(F), limits)
+    _check_counts(path, 0, len(F), limits)
     return LoadedMesh(V=V, F=F, files_read=[path])
 
 
@@ -821,7 +821,8 @@ def _glb_check_images(path: Path, doc: dict, limits: Limits) -> None:
                                   f"{limits.max_texture_pixels} (ingest.max_texture_pixels); not decoded")
 
 
-def _glb_json(path: Path, size: int) -> dict:
+def _glb_json(path: Path, size: int):
+    """The GLB's JSON document and the byte length of its BIN chunk (0 when absent), chunk sizes checked."""
     with open(path, "rb") as fh:
         header = fh.read(20)
         if len(header) < 20 or header[:4] != b"glTF":
@@ -831,10 +832,153 @@ def _glb_json(path: Path, size: int) -> dict:
             raise ScanError(path, f"GLB version {version} is not supported (need 2)")
         if length != size or chunk_type != 0x4E4F534A or chunk_len > size - 20:
             raise ScanError(path, "GLB header is inconsistent with the file (truncated or corrupt)")
-        try:
-            return json.loads(fh.read(chunk_len).decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-            raise ScanError(path, f"GLB JSON chunk is invalid: {one_line(exc)[:100]}") from None
+        text = fh.read(chunk_len)
+        bin_len = 0
+        rest = size - 20 - chunk_len
+        if rest:
+            head = fh.read(8)
+            if len(head) < 8:
+                raise ScanError(path, "GLB has a partial chunk after its JSON (truncated or corrupt)")
+            bin_len, bin_type = struct.unpack("<II", head)
+            if bin_type != 0x004E4942 or bin_len > rest - 8:
+                raise ScanError(path, f"GLB binary chunk claims {bin_len} bytes but {rest - 8} follow "
+                                      "(truncated or corrupt)")
+    try:
+        doc = json.loads(text.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise ScanError(path, f"GLB JSON chunk is invalid: {one_line(exc)[:100]}") from None
+    if not isinstance(doc, dict):
+        raise ScanError(path, "GLB JSON chunk is not an object")
+    return doc, bin_len
+
+
+_GLTF_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_GLTF_TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+def _glb_list(path: Path, doc: dict, key: str) -> list:
+    items = doc.get(key, [])
+    if items is None:
+        return []
+    if not isinstance(items, list) or not all(isinstance(i, dict) for i in items):
+        raise ScanError(path, f"GLB {key} must be a list of objects")
+    return items
+
+
+def _glb_int(path: Path, item: dict, key: str, what: str, default=None, lo: int = 0, hi: int = 2**53) -> int:
+    value = item.get(key, default)
+    if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+        raise ScanError(path, f"GLB {what} has an invalid {key} {short_repr(value)}")
+    return value
+
+
+def _glb_check_doc(path: Path, doc: dict, bin_len: int, limits: Limits) -> None:
+    """Check a GLB document against the file's real byte sizes and the limits before anything is decoded.
+
+    Refused: buffers with URIs (data: or external), buffer views outside the binary chunk,
+    accessors without a buffer view or reading past it (a header claiming 1e9 vertices in a
+    small file), sparse accessors, node hierarchies that are not trees, and meshes whose
+    vertices / faces, counted over every node instance, are over the limits.
+    """
+    for kind in ("buffers", "images"):
+        for i, item in enumerate(_glb_list(path, doc, kind)):
+            uri = item.get("uri")
+            if uri is not None:
+                what = "a data: URI" if isinstance(uri, str) and uri[:5].lower() == "data:" else "an external URI"
+                raise ScanError(path, f"GLB {kind[:-1]} {i} refers to {what}; only self-contained GLB is supported")
+    buffers = _glb_list(path, doc, "buffers")
+    if len(buffers) > 1:
+        raise ScanError(path, f"GLB has {len(buffers)} buffers; a self-contained GLB has one (its binary chunk)")
+    buf_len = _glb_int(path, buffers[0], "byteLength", "buffer 0", 0) if buffers else 0
+    if buf_len > bin_len:
+        raise ScanError(path, f"GLB buffer 0 claims {buf_len} bytes but the binary chunk has {bin_len}")
+    views = _glb_list(path, doc, "bufferViews")
+    for i, v in enumerate(views):
+        what = f"bufferView {i}"
+        _glb_int(path, v, "buffer", what, None, 0, len(buffers) - 1)
+        off = _glb_int(path, v, "byteOffset", what, 0)
+        n = _glb_int(path, v, "byteLength", what)
+        if "byteStride" in v:
+            _glb_int(path, v, "byteStride", what, None, 1, 252)
+        if off + n > buf_len:
+            raise ScanError(path, f"GLB {what} reads bytes {off}..{off + n} but the buffer has {buf_len}")
+    accessors = _glb_list(path, doc, "accessors")
+    total = 0
+    for i, a in enumerate(accessors):
+        what = f"accessor {i}"
+        count = _glb_int(path, a, "count", what, None, 0)
+        if "sparse" in a:
+            raise ScanError(path, f"GLB {what} is sparse; sparse accessors are not supported")
+        if a.get("bufferView") is None:
+            raise ScanError(path, f"GLB {what} has no bufferView (count {count}); every accessor must "
+                                  "read stored data")
+        view = views[_glb_int(path, a, "bufferView", what, None, 0, len(views) - 1)]
+        csize = _GLTF_COMPONENT_BYTES.get(a.get("componentType"))
+        ncomp = _GLTF_TYPE_SIZES.get(a.get("type"))
+        if csize is None or ncomp is None:
+            raise ScanError(path, f"GLB {what} has an invalid componentType/type "
+                                  f"{short_repr(a.get('componentType'))}/{short_repr(a.get('type'))}")
+        elem = csize * ncomp
+        stride = view.get("byteStride") or elem
+        off = _glb_int(path, a, "byteOffset", what, 0)
+        need = off + stride * (count - 1) + elem if count else 0
+        if need > view["byteLength"]:
+            raise ScanError(path, f"GLB {what} claims {count} elements ({need} bytes) but its bufferView has "
+                                  f"{view['byteLength']} bytes")
+        total += count * elem
+    if total > 4 * bin_len + (1 << 20):
+        raise ScanError(path, f"GLB accessors read {total} bytes from a {bin_len}-byte binary chunk "
+                              "(overlapping accessors)")
+    meshes = _glb_list(path, doc, "meshes")
+    counts = []
+    for i, m in enumerate(meshes):
+        prims = m.get("primitives", [])
+        if not isinstance(prims, list) or not all(isinstance(p, dict) for p in prims):
+            raise ScanError(path, f"GLB mesh {i} primitives must be a list of objects")
+        nv = nf = 0
+        for p in prims:
+            attrs = p.get("attributes", {})
+            if not isinstance(attrs, dict) or "POSITION" not in attrs:
+                continue
+            for name, idx in list(attrs.items()) + ([("indices", p["indices"])] if "indices" in p else []):
+                if not isinstance(idx, int) or isinstance(idx, bool) or not 0 <= idx < len(accessors):
+                    raise ScanError(path, f"GLB mesh {i} {name} refers to accessor {short_repr(idx)}, "
+                                          f"which does not exist")
+            n_pos = accessors[attrs["POSITION"]]["count"]
+            nv += n_pos
+            corners = accessors[p["indices"]]["count"] if "indices" in p else n_pos
+            nf += max(corners - 2, 0) if p.get("mode") in (5, 6) else corners // 3   # strips / fans
+        counts.append((nv, nf))
+    nodes = _glb_list(path, doc, "nodes")
+    parent = [-1] * len(nodes)
+    for i, node in enumerate(nodes):
+        children = node.get("children", [])
+        if not isinstance(children, list):
+            raise ScanError(path, f"GLB node {i} children must be a list")
+        for c in children:
+            if not isinstance(c, int) or isinstance(c, bool) or not 0 <= c < len(nodes):
+                raise ScanError(path, f"GLB node {i} has a child {short_repr(c)} that does not exist")
+            if parent[c] != -1 or c == i:
+                raise ScanError(path, f"GLB node {c} has more than one parent; the node hierarchy must be a tree")
+            parent[c] = i
+        if "mesh" in node:
+            _glb_int(path, node, "mesh", f"node {i}", None, 0, len(meshes) - 1)
+    for i in range(len(nodes)):                      # a cycle has no root: walk up at most len(nodes) steps
+        j, steps = i, 0
+        while parent[j] != -1:
+            j, steps = parent[j], steps + 1
+            if steps > len(nodes):
+                raise ScanError(path, f"GLB node {i} is in a cycle; the node hierarchy must be a tree")
+    mesh_nodes = [node["mesh"] for node in nodes if "mesh" in node]
+    instanced = (sum(counts[m][0] for m in mesh_nodes), sum(counts[m][1] for m in mesh_nodes))
+    loaded = (sum(c[0] for c in counts), sum(c[1] for c in counts))
+    nv, nf = max(instanced[0], loaded[0]), max(instanced[1], loaded[1])
+    how = (f" once {len(mesh_nodes)} node instances of {len(set(mesh_nodes))} meshes are expanded"
+           if len(mesh_nodes) > len(set(mesh_nodes)) else "")
+    if nv > limits.max_vertices:
+        raise ScanError(path, f"{nv} vertices{how}, over the limit of {limits.max_vertices} (ingest.max_vertices)")
+    if nf > limits.max_faces:
+        raise ScanError(path, f"{nf} faces{how}, over the limit of {limits.max_faces} (ingest.max_faces)")
 
 
 def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
@@ -847,12 +991,8 @@ def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
 
     path = Path(path)
     size = check_file_size(path, limits)
-    doc = _glb_json(path, size)
-    for kind in ("buffers", "images"):
-        for item in doc.get(kind, []) or []:
-            if isinstance(item, dict) and "uri" in item:
-                raise ScanError(path, f"GLB {kind[:-1]} refers to an external URI (file or data: URI); "
-                                      "only self-contained GLB is supported")
+    doc, bin_len = _glb_json(path, size)
+    _glb_check_doc(path, doc, bin_len, limits)
     n_img = len(doc.get("images", []) or [])
     _glb_check_images(path, doc, limits)
     try:
@@ -1022,6 +1162,9 @@ class IngestSettings:
     flip_inward_winding : bool
         Flip all faces when the faces around the eyes point backward (inward winding);
         when False such a scan is refused.
+    max_memory_mb : float
+        Address-space bound (``RLIMIT_AS``) the ingest stage sets on itself, MiB; 0 for none.
+        The header checks refuse over-limit files long before this; it is the backstop.
     """
 
     max_file_mb: float = 1024.0
@@ -1040,6 +1183,7 @@ class IngestSettings:
     eye_radius_mm: float = 20.0
     max_eye_region_removed_fraction: float = 0.05
     flip_inward_winding: bool = True
+    max_memory_mb: float = 4096.0
 
     @classmethod
     def from_params(cls, params: dict) -> "IngestSettings":
@@ -1126,10 +1270,21 @@ def ingest_scan(folder, settings: IngestSettings = IngestSettings()) -> IngestRe
     pipeline.errors.ScanError
         For any bad input, naming the file and the problem.
     """
-    from pipeline.geometry import frame, repair
     from pipeline.io.scan import read_sidecar
 
     spec = read_sidecar(folder, settings.max_yaml_bytes)
+    try:
+        return _ingest(folder, spec, settings)
+    except MemoryError:
+        raise ScanError(spec.mesh, "ran out of memory reading the scan (over the ingest memory bound, "
+                                   "ingest.max_memory_mb): the file is over the limits or malformed") from None
+    except OverflowError as exc:
+        raise ScanError(spec.mesh, f"a number is too large ({one_line(exc)[:80]})") from None
+
+
+def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
+    from pipeline.geometry import frame, repair
+
     limits = settings.limits
     loaded = load_mesh_file(spec.mesh, spec.folder, limits)
     files = [spec.sidecar, *loaded.files_read]
@@ -1144,6 +1299,9 @@ def ingest_scan(folder, settings: IngestSettings = IngestSettings()) -> IngestRe
     fixed = repair.repair_mesh(V, loaded.F, hints, settings.repair, path=mesh_file)
     del V
     V, F = fixed.V, fixed.F
+    if len(V) > limits.max_vertices:             # an STL soup's vertices are only counted once merged
+        raise ScanError(mesh_file, f"{len(V)} vertices after merging duplicates, over the limit of "
+                                   f"{limits.max_vertices} (ingest.max_vertices)")
     # texture coordinates and colours follow the kept faces / vertices
     UV = FUV = None
     if loaded.UV is not None:

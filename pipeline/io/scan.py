@@ -16,16 +16,22 @@ that is not exactly what the scan folder contract (DESIGN.md) describes:
 Unknown top-level keys are tolerated (and listed in :attr:`ScanSpec.unknown_keys`
 so a stage can report them) unless they look like a misspelling of a known key
 (``textrue:``), which is refused: a silently ignored typo would drop the texture.
+
+The YAML is read with :class:`SidecarLoader`, a ``yaml.SafeLoader`` that refuses
+duplicate mapping keys (a silent "last one wins" hides mistakes) and reads YAML 1.2
+floats such as ``3.45e1`` as numbers (YAML 1.1 needs a dot: ``3.45e+1``).
 """
 
 from __future__ import annotations
 
 import difflib
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
+import yaml
 
 from pipeline.errors import ScanError
 
@@ -38,6 +44,42 @@ EYE_SIDES = ("left", "right")
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
 TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".tga", ".webp")
 DEFAULT_MAX_YAML_BYTES = 65536
+_URI = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]+:")
+# YAML 1.2 core-schema floats ("3.45e1", "1e3", ".5"), which YAML 1.1 (PyYAML's default) reads as text
+_FLOAT_12 = re.compile(r"""^[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?$
+                           |^[-+]?\.(?:inf|Inf|INF)$|^\.(?:nan|NaN|NAN)$""", re.X)
+
+
+class DuplicateKeyError(yaml.YAMLError):
+    """A YAML mapping repeats a key."""
+
+    def __init__(self, key, mark):
+        self.key, self.mark = key, mark
+        line = f" (line {mark.line + 1})" if mark is not None else ""
+        super().__init__(f"duplicate key {key!r}{line}")
+
+
+class SidecarLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses duplicate mapping keys and reads YAML 1.2 floats."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue                   # "<<: *base" merges; explicit keys may override it
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    new = key not in seen
+                except TypeError:          # unhashable key: the base class reports it
+                    break
+                if not new:
+                    raise DuplicateKeyError(key, key_node.start_mark)
+                seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+SidecarLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
 
 
 @dataclass(frozen=True)
@@ -96,6 +138,11 @@ def short_repr(value) -> str:
     return one_line(r.repr(value))[:80]
 
 
+def control_characters(text: str) -> list:
+    """Control characters in ``text`` other than newline and tab (C0, DEL, C1), in order."""
+    return [ch for ch in text if (ord(ch) < 32 and ch not in "\n\t") or 127 <= ord(ch) < 160]
+
+
 def safe_path(folder, value, sidecar, key: str, suffixes=None) -> Path:
     """Resolve a relative path from an untrusted file and check it stays inside ``folder``.
 
@@ -122,6 +169,9 @@ def safe_path(folder, value, sidecar, key: str, suffixes=None) -> Path:
     value = value.strip()
     if any(ord(ch) < 32 or ord(ch) == 127 for ch in value):
         raise ScanError(sidecar, f"{key} path {value!r} contains control characters")
+    if _URI.match(value):
+        scheme = value.split(":", 1)[0]
+        raise ScanError(sidecar, f"{key} is a {scheme}: URI, not a file; give a path relative to the scan folder")
     posix, win = PurePosixPath(value), PureWindowsPath(value)
     if posix.is_absolute() or win.is_absolute() or win.drive or value.startswith(("/", "\\", "~")):
         raise ScanError(sidecar, f"{key} path {value!r} is absolute; give a path relative to the scan folder")
@@ -215,6 +265,10 @@ def parse_sidecar(data, folder, sidecar) -> ScanSpec:
     licence = data["licence"]
     if not isinstance(licence, str) or not licence.strip():
         raise ScanError(sidecar, f"licence must be a non-empty string, got {_type_name(licence)}")
+    bad = control_characters(licence)
+    if bad:
+        raise ScanError(sidecar, f"licence contains a control character (U+{ord(bad[0]):04X}); "
+                                 "only printable text, newlines and tabs are allowed")
     eyes = data["eyes"]
     if not isinstance(eyes, dict):
         raise ScanError(sidecar, f"eyes must be a mapping with left and right, got {_type_name(eyes)}")
@@ -229,7 +283,7 @@ def parse_sidecar(data, folder, sidecar) -> ScanSpec:
 
 
 def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSpec:
-    """Read and validate ``<folder>/scan.yaml`` (``yaml.safe_load`` only, size-capped).
+    """Read and validate ``<folder>/scan.yaml`` (safe loading only, size-capped, duplicate keys refused).
 
     Parameters
     ----------
@@ -242,8 +296,6 @@ def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSp
     -------
     ScanSpec
     """
-    import yaml
-
     folder = Path(folder)
     if not folder.is_dir():
         raise ScanError(folder, "scan folder does not exist or is not a folder")
@@ -264,7 +316,9 @@ def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSp
     except UnicodeDecodeError as exc:
         raise ScanError(sidecar, f"is not UTF-8 text ({one_line(exc)})") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=SidecarLoader)  # noqa: S506 - a SafeLoader subclass
+    except DuplicateKeyError as exc:
+        raise ScanError(sidecar, f"{exc}: each key may appear once") from None
     except yaml.YAMLError as exc:
         raise ScanError(sidecar, f"YAML error: {one_line(exc)[:200]}") from None
     except RecursionError:
