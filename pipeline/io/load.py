@@ -174,10 +174,30 @@ def _parse_obj_faces(face_rows: list, path: Path, line_no: np.ndarray):
                 raise ValueError("mixed face formats")
             vidx = np.array([p[0] for p in pieces], dtype=np.int64)
             tidx = np.array([p[1] for p in pieces], dtype=np.int64) if has_vt else None
-    except ValueError:
-        raise ScanError(path, "faces: cannot parse vertex indices (mixed or malformed 'f' lines; "
-                              f"first face is line {line_no[0] + 1})") from None
+    except (ValueError, OverflowError):
+        raise _bad_face_line(split, path, line_no, n_fields) from None
     return vidx, tidx, counts
+
+
+def _bad_face_line(split: list, path: Path, line_no: np.ndarray, n_fields: int) -> ScanError:
+    """The error for the first face row whose indices do not parse or do not fit in int64."""
+    for row, tokens in enumerate(split):
+        for tok in tokens:
+            fields = tok.split("/")
+            if len(fields) != n_fields:
+                return ScanError(path, f"line {line_no[row] + 1}: face corner {one_line(tok)[:40]!r} does not match "
+                                       f"the first face's format ({n_fields} '/'-separated fields)")
+            for j, x in enumerate(fields[:2]):
+                if j == 1 and x == "":                   # "a//c": no texture coordinate
+                    continue
+                try:
+                    value = int(x)
+                except ValueError:
+                    return ScanError(path, f"line {line_no[row] + 1}: cannot parse face index {one_line(x)[:40]!r}")
+                if abs(value) >= 2**62:
+                    return ScanError(path, f"line {line_no[row] + 1}: face index {one_line(x)[:40]} is out of "
+                                           "range (too large)")
+    return ScanError(path, f"faces: cannot parse vertex indices (first face is line {line_no[0] + 1})")
 
 
 def _resolve_obj_index(idx: np.ndarray, count_before: np.ndarray, total: int, path: Path,
@@ -196,9 +216,10 @@ def _resolve_obj_index(idx: np.ndarray, count_before: np.ndarray, total: int, pa
 def _parse_mtl(mtl_path: Path, folder: Path, obj_path: Path, limits: Limits) -> dict:
     """MTL -> {material name: resolved map_Kd path or None}."""
     check_file_size(mtl_path, limits)
-    text = mtl_path.read_bytes().decode("utf-8", errors="replace")
+    with open(mtl_path, "rb") as fh:
+        text = _read_content(fh)[0].decode("utf-8", errors="replace")   # blank and comment lines dropped
     maps, current = {}, None
-    for raw in text.splitlines():
+    for raw in text.split("\n"):
         line = raw.strip()
         if line.startswith("newmtl"):
             current = line[6:].strip()
@@ -212,9 +233,13 @@ def _parse_mtl(mtl_path: Path, folder: Path, obj_path: Path, limits: Limits) -> 
     return maps
 
 
-def _obj_slow(raw: bytes, path: Path, limits: Limits):
-    """Line-by-line OBJ parser: any layout (negative indices, mixed polygons), errors name the line."""
-    lines = raw.decode("utf-8", errors="replace").splitlines()
+def _obj_slow(raw: bytes, path: Path, limits: Limits, line_no=None):
+    """Line-by-line OBJ parser: any layout (negative indices, mixed polygons), errors name the line.
+
+    ``line_no`` : (lines,) int64, optional
+        The file's (0-based) line number of each line of ``raw`` (when blank and comment lines were dropped).
+    """
+    lines = raw.decode("utf-8", errors="replace").split("\n")
     v_rows, v_ln, vt_rows, vt_ln, f_rows, f_ln = [], [], [], [], [], []
     mtllibs, usemtl = [], set()
     for i, line in enumerate(lines):
@@ -238,6 +263,8 @@ def _obj_slow(raw: bytes, path: Path, limits: Limits):
             usemtl.add(line[6:].strip())
     del lines
     v_ln, vt_ln, f_ln = (np.array(a, dtype=np.int64) for a in (v_ln, vt_ln, f_ln))
+    if line_no is not None:
+        v_ln, vt_ln, f_ln = line_no[v_ln], line_no[vt_ln], line_no[f_ln]
     _check_counts(path, len(v_rows), len(f_rows), limits)
     if not v_rows or not f_rows:
         raise ScanError(path, f"no mesh found ({len(v_rows)} vertices, {len(f_rows)} faces)")
@@ -337,14 +364,15 @@ def _obj_line_blocks(raw: bytes):
         text = b"\n".join(raw[starts[i]:ends[j]] for i, j in zip(r0, r1))
         return text, len(idx)
 
+    get.count = lambda kind: int(np.count_nonzero(masks[kind]))
     return get
 
 
-def _obj_fast(raw: bytes, path: Path, limits: Limits):
+def _obj_fast(raw: bytes, path: Path, limits: Limits, get=None):
     """Numpy OBJ parser for the regular case (one polygon size, one face format, positive
     indices in range, no trailing comments). Returns None for anything else (the slow parser
-    then handles it and names the offending line)."""
-    get = _obj_line_blocks(raw)
+    then handles it and names the offending line). ``get``: :func:`_obj_line_blocks` of ``raw``."""
+    get = _obj_line_blocks(raw) if get is None else get
     vb, fb, tb = get("v"), get("f"), get("vt")
     if vb is None or fb is None or tb is None:
         return None
@@ -415,6 +443,62 @@ def _obj_fast(raw: bytes, path: Path, limits: Limits):
     return V, VC, UV, F, FUV, (n_f if k > 3 else 0), mtllibs, usemtl
 
 
+def _content_lines(block: bytes, first_line: int, parts: list, numbers: list, comment: int | None) -> int:
+    """Append the lines of ``block`` (whole lines, ending in a newline) that are neither blank nor
+    comments (first non-blank byte ``comment``) to ``parts``, and their file line numbers (0-based)
+    to ``numbers``. Returns the number of lines in ``block``. Vectorised: no Python object per line."""
+    b = np.frombuffer(block, dtype=np.uint8)
+    ends = np.flatnonzero(b == 10)
+    starts = np.empty_like(ends)
+    starts[0], starts[1:] = 0, ends[:-1] + 1
+    content = np.flatnonzero((b != 32) & (b != 9) & (b != 13) & (b != 10))
+    k = np.searchsorted(content, starts)
+    first = content[np.minimum(k, len(content) - 1)] if len(content) else starts
+    keep = (k < len(content)) & (first < ends)
+    if comment is not None:
+        keep &= b[np.minimum(first, len(b) - 1)] != comment
+    if keep.all():
+        parts.append(block)
+    elif keep.any():
+        parts.append(b[np.repeat(keep, ends - starts + 1)].tobytes())
+    numbers.append(first_line + np.flatnonzero(keep))
+    return len(ends)
+
+
+def _read_content(fh, max_lines: int | None = None, comment: bytes | None = b"#", chunk: int = 1 << 20):
+    """The lines that carry data from ``fh``'s position on (blank and comment lines dropped, read in
+    chunks), stopping once ``max_lines`` are found.
+
+    Returns ``(text, line_no)``: the kept lines, each ending in a newline, and the 0-based line number
+    (counted from the starting position) of each. Memory follows the data, not the file: a file
+    padded with gigabytes of blank lines costs the size of its data.
+    """
+    parts, numbers, pending = [], [], []
+    line, found = 0, 0
+    code = comment[0] if comment else None
+    while max_lines is None or found < max_lines:
+        block = fh.read(chunk)
+        if not block:
+            if pending:
+                line += _content_lines(b"".join(pending) + b"\n", line, parts, numbers, code)
+            break
+        cut = block.rfind(b"\n")
+        if cut < 0:                                   # a line longer than the chunk
+            pending.append(block)
+            continue
+        whole = b"".join(pending + [block[:cut + 1]]) if pending else block[:cut + 1]
+        pending = [block[cut + 1:]] if cut + 1 < len(block) else []
+        line += _content_lines(whole, line, parts, numbers, code)
+        found += len(numbers[-1])
+    text = b"".join(parts)
+    del parts
+    line_no = np.concatenate(numbers) if numbers else np.zeros(0, np.int64)
+    if max_lines is not None and len(line_no) > max_lines:
+        ends = np.flatnonzero(np.frombuffer(text, dtype=np.uint8) == 10)
+        text, line_no = text[:ends[max_lines - 1] + 1], line_no[:max_lines]
+    return text, line_no
+
+
 def load_obj(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     """Load a Wavefront OBJ (+ MTL ``map_Kd``) keeping per-corner UVs.
 
@@ -432,12 +516,17 @@ def load_obj(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     """
     path, folder = Path(path), Path(folder)
     check_file_size(path, limits)
-    raw = path.read_bytes()
-    if b"\x00" in raw[:65536]:
-        raise ScanError(path, "not a text OBJ file (binary bytes found)")
-    parsed = _obj_fast(raw, path, limits)
+    with open(path, "rb") as fh:
+        if b"\x00" in fh.read(65536):
+            raise ScanError(path, "not a text OBJ file (binary bytes found)")
+        fh.seek(0)
+        raw, line_no = _read_content(fh)
+    get = _obj_line_blocks(raw)
+    _check_counts(path, get.count("v"), get.count("f"), limits)    # before any line is parsed
+    parsed = _obj_fast(raw, path, limits, get)
+    del get
     if parsed is None:
-        parsed = _obj_slow(raw, path, limits)
+        parsed = _obj_slow(raw, path, limits, line_no)
     del raw
     V, VC, UV, F, FUV, n_poly, mtllibs, usemtl = parsed
     files = [path]
@@ -551,28 +640,34 @@ def _ply_header(head: bytes, path: Path):
     return fmt, elements, image, nl + 1
 
 
-def _ply_ascii(fh, elements: dict, data_start: int, path: Path) -> None:
+def _ply_ascii(fh, elements: dict, data_start: int, header_lines: int, path: Path) -> None:
     """Read ASCII PLY data into ``elements[name]["data"]`` (dict of arrays; lists as (m, k) arrays
-    or lists of arrays). Uniform elements are parsed in one numpy call; others row by row."""
+    or lists of arrays). Uniform elements are parsed in one numpy call; others row by row.
+
+    Only the rows the header announces are read, blank lines skipped, so memory follows the data
+    (not trailing padding); errors name the file's line.
+    """
     fh.seek(data_start)
-    lines = fh.read().split(b"\n")
+    n_rows = sum(el["length"] for el in elements.values())
+    raw, line_no = _read_content(fh, max_lines=n_rows, comment=None)
+    ends = np.flatnonzero(np.frombuffer(raw, dtype=np.uint8) == 10)
     row = 0
     for name, el in elements.items():
         n, props = el["length"], el["props"]
-        block = lines[row:row + n]
-        if len(block) < n:
-            raise ScanError(path, f"PLY has {len(block)} {name} rows but its header says {n} (truncated file)")
+        if row + n > len(ends):
+            raise ScanError(path, f"PLY has {max(len(ends) - row, 0)} {name} rows but its header says {n} "
+                                  "(truncated file)")
         first_line = row
         row += n
         if n == 0:
             el["data"] = {p: np.zeros(0) for p, _ in props}
             continue
-        text = b"\n".join(block)
+        text = raw[(ends[first_line - 1] + 1 if first_line else 0):ends[row - 1]]
         n_tok = _tokens_per_row(text, n)
         lists = [i for i, (_, dt) in enumerate(props) if isinstance(dt, tuple)]
         width = len(props)
         if lists:
-            first = block[0].split()
+            first = (text[:text.find(b"\n")] if b"\n" in text else text).split()
             try:
                 k = int(first[lists[0]]) if len(first) > lists[0] else -1
             except ValueError:
@@ -604,9 +699,9 @@ def _ply_ascii(fh, elements: dict, data_start: int, path: Path) -> None:
             if vals is not None:
                 el["data"] = data
                 continue
-        # row by row: any layout; errors name the line (1-based, counted after the header)
+        # row by row: any layout; errors name the file's line
         cols = {p: [] for p, _ in props}
-        for i, line in enumerate(block):
+        for i, line in enumerate(text.split(b"\n")):
             tok = line.split()
             j = 0
             try:
@@ -622,7 +717,8 @@ def _ply_ascii(fh, elements: dict, data_start: int, path: Path) -> None:
                         cols[pname].append(float(tok[j]))
                         j += 1
             except (IndexError, ValueError):
-                raise ScanError(path, f"PLY data row {first_line + i + 1} ({name} {i}) cannot be parsed: "
+                raise ScanError(path, f"line {header_lines + line_no[first_line + i] + 1}: PLY data row "
+                                      f"({name} {i}) cannot be parsed: "
                                       f"{one_line(line.decode('ascii', 'replace'))[:60]!r}") from None
         el["data"] = {p: (v if isinstance(dt, tuple) else np.array(v, dtype=np.dtype(dt)))
                       for (p, dt), v in zip(props, cols.values())}
@@ -709,7 +805,7 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         n_f = int(elements.get("face", {}).get("length", 0))
         _check_counts(path, n_v, n_f, limits)
         if fmt == "ascii":
-            _ply_ascii(fh, elements, data_start, path)
+            _ply_ascii(fh, elements, data_start, head[:data_start].count(b"\n"), path)
         else:
             fh.seek(data_start)
             _ply_binary(fh, elements, "<" if fmt == "binary_little_endian" else ">", size - data_start, path)
