@@ -99,6 +99,11 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
     sweep = lids.sweep_check(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg,
                              corneas=_model_corneas(eyes))
     t_sweep = time.perf_counter() - t0
+    if sweep["flipped_faces"]:
+        # a face that turns over while the eye moves is a visible fold in every render
+        raise ScanError(mesh_path, f"the eyelid sweep over pitch +-{lp.max_pitch_deg:g} deg flips "
+                                   f"{sweep['flipped_faces']} faces (a fold in the lids); "
+                                   f"the eye fit or the eyelid loop is wrong")
 
     # margin motion at the extremes (mean vertical displacement per lid, mm)
     motion = {}

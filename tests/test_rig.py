@@ -683,3 +683,18 @@ def test_support_widens_where_the_skin_would_fold():
     V, F, eyes = two_eye_region()
     fields = lids.build_lid_shapes(V, F, eyes).fields
     assert all(f.support_mm == pytest.approx(12.0) for f in fields.values())
+
+
+def test_stage_refuses_a_rig_whose_sweep_flips_faces(tmp_path, capsys):
+    """The folding rig of test_support_widens_where_the_skin_would_fold (support not allowed to
+    widen): the stage exits 2 with one line instead of writing an asset that folds."""
+    V, F, eyes = two_eye_region(radius=15.0, rise_mm=0.3, d_psi=3.0)
+    snap, out = tmp_path / "snap", tmp_path / "rig"
+    _write_snap(snap, V, F, eyes)
+    params = tmp_path / "params.yaml"
+    params.write_text("rig: {gain_upper_up: 1.0, upper_falloff_mm: 7.0, max_support_scale: 1.0}\n")
+    capsys.readouterr()
+    assert run_stage(rig_stage.main, [str(snap), str(out), "--params", str(params)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "flips" in err[0] and "mesh.npz" in err[0]
+    assert not out.exists()
