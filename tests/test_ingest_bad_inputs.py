@@ -2,7 +2,7 @@
 and no output folder (not even a temporary sibling) left behind.
 
 Every case builds its own bad folder in tmp_path from the good synthetic head of
-``test_ingest.py``. Most run in-process (``run_stage``); a few as subprocesses.
+``conftest.py``. Most run in-process (``run_stage``); a few as subprocesses.
 """
 
 from __future__ import annotations
@@ -18,27 +18,8 @@ import numpy as np
 import pytest
 import yaml
 
-from test_ingest import ROOT, head_mesh, ingest, make_scan, write_obj, write_ply, write_sidecar
-
-
-def _edit_yaml(folder, **changes):
-    path = Path(folder, "scan.yaml")
-    data = yaml.safe_load(path.read_text())
-    for k, v in changes.items():
-        if v is None:
-            data.pop(k, None)
-        else:
-            data[k] = v
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-
-
-def _png_header_only(path, width, height):
-    """A PNG whose IHDR claims width x height, with a tiny (wrong) IDAT: a decompression-bomb header."""
-    def chunk(kind, data):
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    Path(path).write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 16))
-                           + chunk(b"IEND", b""))
+from conftest import (ROOT, edit_yaml, head_mesh, ingest, make_scan, png_header_only, sphere_uv, write_obj, write_ply,
+                      write_png, write_sidecar)
 
 
 # Each case: build(folder, tmp_path) -> optional params dict; expected file name; expected problem text.
@@ -65,55 +46,55 @@ def c_yaml_huge(f, t):
 
 
 def c_wrong_type_mesh(f, t):
-    _edit_yaml(f, mesh=42)
+    edit_yaml(f, mesh=42)
 
 
 def c_wrong_type_hint(f, t):
-    _edit_yaml(f, eyes={"left": {"hint": ["a", 1, 2]}, "right": {"hint": [1, 2, 3]}})
+    edit_yaml(f, eyes={"left": {"hint": ["a", 1, 2]}, "right": {"hint": [1, 2, 3]}})
 
 
 def c_unknown_units(f, t):
-    _edit_yaml(f, units="inch")
+    edit_yaml(f, units="inch")
 
 
 def c_parallel_axes(f, t):
-    _edit_yaml(f, up_axis="+Y", forward_axis="-Y")
+    edit_yaml(f, up_axis="+Y", forward_axis="-Y")
 
 
 def c_bad_axis(f, t):
-    _edit_yaml(f, up_axis="up")
+    edit_yaml(f, up_axis="up")
 
 
 def c_licence_missing(f, t):
-    _edit_yaml(f, licence=None)
+    edit_yaml(f, licence=None)
 
 
 def c_typo_key(f, t):
-    _edit_yaml(f, textrue="skin.png")
+    edit_yaml(f, textrue="skin.png")
 
 
 def c_mesh_dotdot(f, t):
     (t / "outside.ply").write_bytes((f / "scan.ply").read_bytes())
-    _edit_yaml(f, mesh="../outside.ply")
+    edit_yaml(f, mesh="../outside.ply")
 
 
 def c_mesh_absolute(f, t):
-    _edit_yaml(f, mesh=str((f / "scan.ply").resolve()))
+    edit_yaml(f, mesh=str((f / "scan.ply").resolve()))
 
 
 def c_mesh_symlink_escape(f, t):
     (t / "elsewhere.ply").write_bytes((f / "scan.ply").read_bytes())
     os.symlink(t / "elsewhere.ply", f / "link.ply")
-    _edit_yaml(f, mesh="link.ply")
+    edit_yaml(f, mesh="link.ply")
 
 
 def c_mesh_missing(f, t):
-    _edit_yaml(f, mesh="nothere.ply")
+    edit_yaml(f, mesh="nothere.ply")
 
 
 def c_mesh_unsupported_type(f, t):
     (f / "scan.fbx").write_bytes(b"Kaydara FBX Binary")
-    _edit_yaml(f, mesh="scan.fbx")
+    edit_yaml(f, mesh="scan.fbx")
 
 
 def c_garbage_ply(f, t):
@@ -122,12 +103,12 @@ def c_garbage_ply(f, t):
 
 def c_garbage_glb(f, t):
     (f / "scan.glb").write_bytes(np.random.default_rng(1).bytes(5000))
-    _edit_yaml(f, mesh="scan.glb")
+    edit_yaml(f, mesh="scan.glb")
 
 
 def c_garbage_obj(f, t):
     (f / "scan.obj").write_text("this is not\nan obj file at all\n")
-    _edit_yaml(f, mesh="scan.obj")
+    edit_yaml(f, mesh="scan.obj")
 
 
 def c_truncated_ply(f, t):
@@ -150,7 +131,7 @@ def c_face_index_out_of_range(f, t):
 def c_obj_index_out_of_range(f, t):
     V, F, _ = head_mesh()
     write_obj(f / "scan.obj", V, F, extra_lines=[f"f 1 2 {len(V) + 7}"])
-    _edit_yaml(f, mesh="scan.obj")
+    edit_yaml(f, mesh="scan.obj")
 
 
 def c_empty_mesh(f, t):
@@ -195,26 +176,23 @@ def c_hints_swapped(f, t):
 
 def c_texture_bomb(f, t):
     V, F, hints = head_mesh(3)
-    from test_ingest import sphere_uv
     write_ply(f / "scan.ply", V, F, uv=sphere_uv(V))
-    _png_header_only(f / "bomb.png", 100000, 100000)
+    png_header_only(f / "bomb.png", 100000, 100000)
     write_sidecar(f, hints, texture="bomb.png")
 
 
 def c_texture_without_uv(f, t):
-    from test_ingest import write_png
     write_png(f / "skin.png")
-    _edit_yaml(f, texture="skin.png")
+    edit_yaml(f, texture="skin.png")
 
 
 def c_mtl_texture_escape(f, t):
-    from test_ingest import write_png
     V, F, hints = head_mesh(3)
     UV = np.zeros((len(V), 2))
     write_obj(f / "scan.obj", V, F, UV=UV, FUV=F, mtl="scan.mtl")
     write_png(t / "secret.png")
     (f / "scan.mtl").write_text("newmtl skin\nmap_Kd ../secret.png\n")
-    _edit_yaml(f, mesh="scan.obj")
+    edit_yaml(f, mesh="scan.obj")
 
 
 def c_file_over_limit(f, t):
@@ -249,7 +227,6 @@ def _glb_from_trimesh(f, image_size=(16, 8)):
     import trimesh
     from PIL import Image
 
-    from test_ingest import sphere_uv
     V, F, hints = head_mesh(3)
     tm = trimesh.Trimesh(V, F, process=False)
     tm.visual = trimesh.visual.TextureVisuals(uv=sphere_uv(V), image=Image.new("RGB", image_size, (1, 2, 3)))
@@ -276,11 +253,11 @@ def c_glb_external_uri(f, t):
     js += b" " * (-len(js) % 4)
     glb = struct.pack("<III", 0x46546C67, 2, 12 + 8 + len(js)) + struct.pack("<II", len(js), 0x4E4F534A) + js
     (f / "scan.glb").write_bytes(glb)
-    _edit_yaml(f, mesh="scan.glb")
+    edit_yaml(f, mesh="scan.glb")
 
 
 def c_mesh_control_chars(f, t):
-    _edit_yaml(f, mesh="scan\nply.ply")
+    edit_yaml(f, mesh="scan\nply.ply")
 
 
 def c_sidecar_symlink_escape(f, t):
@@ -290,7 +267,6 @@ def c_sidecar_symlink_escape(f, t):
 
 
 def c_texture_truncated(f, t):
-    from test_ingest import sphere_uv
     from PIL import Image
     V, F, hints = head_mesh(3)
     write_ply(f / "scan.ply", V, F, uv=sphere_uv(V))
@@ -302,7 +278,6 @@ def c_texture_truncated(f, t):
 
 
 def c_obj_two_textures(f, t):
-    from test_ingest import write_png
     V, F, hints = head_mesh(3)
     lines = ["mtllib scan.mtl"] + [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()] + ["vt 0 0"]
     half = len(F) // 2
