@@ -30,9 +30,21 @@ from stages._common import default_metrics_path, load_params, stage_exit, stage_
 
 
 def bound_memory(max_mb: float) -> None:
-    """Lower this process's address-space limit (soft ``RLIMIT_AS``) to ``max_mb`` MiB; 0 leaves it."""
+    """Lower this process's address-space limit (soft ``RLIMIT_AS``) to ``max_mb`` MiB; 0 leaves it.
+
+    The modules ingest imports lazily are imported first: mapping a shared library under the
+    bound could fail with an ImportError instead of a MemoryError.
+    """
     if not max_mb or max_mb <= 0:
         return
+    import scipy.sparse.csgraph  # noqa: F401
+    import trimesh  # noqa: F401
+    from PIL import Image
+
+    import pipeline.geometry.frame  # noqa: F401
+    import pipeline.geometry.repair  # noqa: F401
+
+    Image.init()
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
     want = int(max_mb * 2**20)
     if hard != resource.RLIM_INFINITY:

@@ -465,7 +465,7 @@ def _content_lines(block: bytes, first_line: int, parts: list, numbers: list, co
     return len(ends)
 
 
-def _read_content(fh, max_lines: int | None = None, comment: bytes | None = b"#", chunk: int = 1 << 20):
+def _read_content(fh, max_lines: int | None = None, comment: bytes | None = b"#", chunk: int = 1 << 18):
     """The lines that carry data from ``fh``'s position on (blank and comment lines dropped, read in
     chunks), stopping once ``max_lines`` are found.
 
@@ -640,6 +640,23 @@ def _ply_header(head: bytes, path: Path):
     return fmt, elements, image, nl + 1
 
 
+def _fits(values: np.ndarray, dtype: str) -> bool:
+    """Whether float ``values`` are whole numbers within the range of an integer PLY ``dtype`` (floats: True)."""
+    dt = np.dtype(dtype)
+    if dt.kind not in "iu":
+        return True
+    info = np.iinfo(dt)
+    return bool(np.all((values >= info.min) & (values <= info.max) & (values == np.round(values))))
+
+
+def _ply_number(token: bytes, dtype: str):
+    """One ASCII PLY value as ``dtype`` would hold it; ValueError when an integer does not fit."""
+    value = float(token)
+    if not _fits(np.array([value]), dtype):
+        raise ValueError(f"{token!r} is not a {dtype} integer")
+    return value
+
+
 def _ply_ascii(fh, elements: dict, data_start: int, header_lines: int, path: Path) -> None:
     """Read ASCII PLY data into ``elements[name]["data"]`` (dict of arrays; lists as (m, k) arrays
     or lists of arrays). Uniform elements are parsed in one numpy call; others row by row.
@@ -688,12 +705,15 @@ def _ply_ascii(fh, elements: dict, data_start: int, header_lines: int, path: Pat
             data, col = {}, 0
             for pname, dt in props:
                 if isinstance(dt, tuple):
-                    if np.any(vals[:, col] != k):
+                    if np.any(vals[:, col] != k) or not _fits(vals[:, col + 1:col + 1 + k], dt[1]):
                         vals = None
                         break
                     data[pname] = vals[:, col + 1:col + 1 + k].astype(np.dtype(dt[1]))
                     col += 1 + k
                 else:
+                    if not _fits(vals[:, col], dt):
+                        vals = None
+                        break
                     data[pname] = vals[:, col].astype(np.dtype(dt))
                     col += 1
             if vals is not None:
@@ -708,13 +728,13 @@ def _ply_ascii(fh, elements: dict, data_start: int, header_lines: int, path: Pat
                 for pname, dt in props:
                     if isinstance(dt, tuple):
                         cnt = int(tok[j])
-                        cols[pname].append(np.array([float(x) for x in tok[j + 1:j + 1 + cnt]],
+                        cols[pname].append(np.array([_ply_number(x, dt[1]) for x in tok[j + 1:j + 1 + cnt]],
                                                     dtype=np.dtype(dt[1])))
                         if len(cols[pname][-1]) != cnt:
                             raise IndexError
                         j += 1 + cnt
                     else:
-                        cols[pname].append(float(tok[j]))
+                        cols[pname].append(_ply_number(tok[j], dt))
                         j += 1
             except (IndexError, ValueError):
                 raise ScanError(path, f"line {header_lines + line_no[first_line + i] + 1}: PLY data row "
@@ -852,8 +872,6 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
 
 def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     """Load an ASCII or binary STL (a triangle soup; duplicates are merged by the repair step)."""
-    from trimesh.exchange import stl as tstl
-
     path = Path(path)
     size = check_file_size(path, limits)
     with open(path, "rb") as fh:
@@ -867,6 +885,8 @@ def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         if 84 + 50 * n != size:
             raise ScanError(path, f"binary STL header says {n} triangles ({84 + 50 * n} bytes) but the file "
                                   f"has {size} bytes (truncated or not an STL)")
+    from trimesh.exchange import stl as tstl
+
     try:
         with open(path, "rb") as fh, warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -1054,7 +1074,7 @@ def _glb_check_doc(path: Path, doc: dict, bin_len: int, limits: Limits) -> None:
         for c in children:
             if not isinstance(c, int) or isinstance(c, bool) or not 0 <= c < len(nodes):
                 raise ScanError(path, f"GLB node {i} has a child {short_repr(c)} that does not exist")
-            if parent[c] != -1 or c == i:
+            if parent[c] != -1:
                 raise ScanError(path, f"GLB node {c} has more than one parent; the node hierarchy must be a tree")
             parent[c] = i
         if "mesh" in node:
@@ -1069,7 +1089,8 @@ def _glb_check_doc(path: Path, doc: dict, bin_len: int, limits: Limits) -> None:
     instanced = (sum(counts[m][0] for m in mesh_nodes), sum(counts[m][1] for m in mesh_nodes))
     loaded = (sum(c[0] for c in counts), sum(c[1] for c in counts))
     nv, nf = max(instanced[0], loaded[0]), max(instanced[1], loaded[1])
-    how = (f" once {len(mesh_nodes)} node instances of {len(set(mesh_nodes))} meshes are expanded"
+    n_used = len(set(mesh_nodes))
+    how = (f" once {len(mesh_nodes)} node instances of {n_used} mesh{'es' if n_used > 1 else ''} are expanded"
            if len(mesh_nodes) > len(set(mesh_nodes)) else "")
     if nv > limits.max_vertices:
         raise ScanError(path, f"{nv} vertices{how}, over the limit of {limits.max_vertices} (ingest.max_vertices)")
@@ -1082,13 +1103,13 @@ def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
 
     External URIs (buffers or images outside the file) are refused: they could point
     anywhere. Embedded images are returned still encoded (checked later by :func:`load_texture`).
+    Everything trimesh would allocate is checked first (:func:`_glb_check_doc`).
     """
-    import trimesh
-
     path = Path(path)
     size = check_file_size(path, limits)
     doc, bin_len = _glb_json(path, size)
     _glb_check_doc(path, doc, bin_len, limits)
+    import trimesh
     n_img = len(doc.get("images", []) or [])
     _glb_check_images(path, doc, limits)
     try:
