@@ -112,6 +112,20 @@ def _skin_material(stage, path, color_tex: str | None, disp_tex: str | None):
     return mat
 
 
+def _nul_free(value, key: str = "eyerig") -> None:
+    """Refuse (ValueError) a NUL character in any string of ``value``: USD would cut the string there."""
+    if isinstance(value, str):
+        if "\0" in value:
+            raise ValueError(f"metadata {key} contains a NUL character (USD would cut the text there)")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _nul_free(k, key)
+            _nul_free(v, f"{key}.{k}")
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            _nul_free(v, key)
+
+
 def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves: dict, eyes: dict,
                      eyeball_ref: str, color_tex: str | None = "./textures/color.png",
                      disp_tex: str | None = "./textures/displacement.exr",
@@ -250,6 +264,7 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
         vs.SetVariantSelection(vsel[vs_name] or names[0])
 
     if metadata:
+        _nul_free(metadata)
         root.SetCustomDataByKey("eyerig", metadata)
     stage.GetRootLayer().Save()
     return path
