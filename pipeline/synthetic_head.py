@@ -36,14 +36,39 @@ import dataclasses
 import io
 import json
 from pathlib import Path
+from typing import ClassVar, Literal
 
 import numpy as np
 
-__all__ = ["SyntheticHead", "make_synthetic_head", "write_scan_folder", "grid_shape",
+from pipeline.settings import SettingError, Settings, setting
+
+__all__ = ["SyntheticHead", "SyntheticHeadSettings", "make_synthetic_head", "write_scan_folder", "grid_shape",
            "LICENCE", "EYE_SHAPES"]
 
 LICENCE = "CC0-1.0 (procedural, eyerig)"
 EYE_SHAPES = {"round": 0.0, "hooded": 1.0}
+
+
+@dataclasses.dataclass(frozen=True)
+class SyntheticHeadSettings(Settings):
+    """The ``synthetic_head:`` block of params.yaml (the arguments of :func:`make_synthetic_head`)."""
+
+    block: ClassVar[str] = "synthetic_head"
+
+    seed: int = setting(7, ge=0, le=2**32 - 1)                   # drives every shape detail
+    target_triangles: int = setting(350_000, ge=200, le=5_000_000)  # ~0.7 mm vertex spacing at 350k
+    eye_shape: Literal["round", "hooded"] | float = "round"      # or a hoodedness in [0, 1]
+    eye_spacing_mm: float = setting(63.0, ge=40, le=90)          # interpupillary distance
+    noise_mm: float = setting(0.02, ge=0, le=1)                  # scanner noise along normals (0 = off)
+    texture_size: int = setting(2048, ge=16, le=8192)            # colour texture side (px)
+
+    def validate(self) -> None:
+        if isinstance(self.eye_shape, float) and not 0.0 <= self.eye_shape <= 1.0:
+            raise SettingError("eye_shape", f"must be round, hooded or a number in [0, 1] (got {self.eye_shape:g})")
+
+    def kwargs(self) -> dict:
+        """Keyword arguments of :func:`make_synthetic_head`."""
+        return {k: getattr(self, k) for k in self.keys()}
 
 # base curve (superellipse in x-z) and domain
 _A_MM = 75.0          # half width of the head at the base curve

@@ -23,14 +23,67 @@ from pipeline.io.atomic import write_json
 EXIT_BAD_INPUT = 2
 
 
-def load_params(stage: str, path="params.yaml") -> dict:
-    """The ``stage:`` block of ``params.yaml`` (empty when the file or block is absent)."""
+def read_params_file(path="params.yaml") -> dict:
+    """The whole params file as a mapping (empty when absent); ScanError when it is not one."""
     p = Path(path)
     if not p.exists():
         return {}
-    with open(p, encoding="utf-8") as fh:
-        data = yaml.safe_load(fh) or {}
-    return dict(data.get(stage) or {})
+    try:
+        with open(p, encoding="utf-8") as fh:
+            data = yaml.safe_load(fh)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ScanError(p, f"cannot be read as YAML ({type(exc).__name__})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ScanError(p, "must be a mapping of blocks (scans:, ingest:, ...)")
+    return data
+
+
+def load_params(stage: str, path="params.yaml") -> dict:
+    """The ``stage:`` block of ``params.yaml`` (empty when the file or block is absent)."""
+    block = read_params_file(path).get(stage)
+    if block is None:
+        return {}
+    if not isinstance(block, dict):
+        raise ScanError(path, f"{stage} must be a mapping of settings")
+    return dict(block)
+
+
+def load_settings(cls, path="params.yaml", block: str | None = None):
+    """The ``cls.block`` block of ``path`` read into the settings dataclass ``cls``
+    (a :class:`pipeline.settings.Settings`); a bad key or value is a one-line ScanError."""
+    block = cls.block if block is None else block
+    return cls.from_params(load_params(block, path), source=os.fspath(path), block=block)
+
+
+def check_path_words(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Defence in depth for scan names: every path given as a positional argument (or
+    ``--metrics``) consists of safe names only (pipeline.settings.check_scan_name), so a scan
+    name with shell syntax or ``..`` is refused even when the stage runs without DVC."""
+    from pipeline.settings import SAFE_NAME
+
+    dests = [a.dest for a in parser._actions if not a.option_strings] + ["metrics"]
+    for dest in dests:
+        v = getattr(args, dest, None)
+        if v is None or not isinstance(v, (str, os.PathLike)):
+            continue
+        text = os.fspath(v)
+        parts = [p for p in text.split("/") if p]
+        bad = [p for p in parts if p in (".", "..") or not SAFE_NAME.fullmatch(p)]
+        if not parts or bad:
+            what = repr(bad[0]) if bad else "an empty path"
+            raise ScanError(text, f"{what} is not a safe path component (scan names: letters, digits, "
+                                  "'.', '_' or '-', not starting with '.'; no '..')")
+
+
+class StageArgumentParser(argparse.ArgumentParser):
+    """``argparse`` with :func:`check_path_words` applied to the parsed paths."""
+
+    def parse_args(self, args=None, namespace=None):  # noqa: D102
+        ns = super().parse_args(args, namespace)
+        check_path_words(self, ns)
+        return ns
 
 
 def peak_memory_mib() -> float:
@@ -52,7 +105,7 @@ def default_metrics_path(out_dir) -> Path:
 
 def stage_parser(description: str) -> argparse.ArgumentParser:
     """An argument parser with the ``--metrics PATH`` option every stage takes."""
-    parser = argparse.ArgumentParser(description=description)
+    parser = StageArgumentParser(description=description)
     parser.add_argument("--metrics", default=None,
                         help="where to write metrics JSON (default: OUT_DIR.metrics.json)")
     parser.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")

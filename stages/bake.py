@@ -22,7 +22,7 @@ from pipeline.bake.uv import unwrap
 from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_dir, write_json
 from pipeline.io.meshfile import load_mesh, save_mesh
-from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
 def _load(path: Path, need) -> dict:
@@ -77,7 +77,7 @@ def main(argv) -> dict:
     parser.add_argument("dense_dir", help="build/<scan>/remove_eyeballs")
     parser.add_argument("out_dir", help="build/<scan>/bake")
     args = parser.parse_args(argv)
-    settings = BakeSettings.from_params(load_params("bake", args.params))
+    settings = load_settings(BakeSettings, args.params)
     low = _load(Path(args.retopo_dir) / "mesh.npz", ("V", "F", "loop_left", "loop_right"))
     # the xatlas unwrap (holds the GIL) runs in a forked child while the scan and texture load
     uv_job = _fork_call(unwrap, low["V"], low["F"], settings.resolution, settings.uv_padding_texels)

@@ -19,25 +19,28 @@ from pathlib import Path
 from PIL import Image
 
 from pipeline.eyeball import geometry as geo
-from pipeline.errors import ScanError
 from pipeline.eyeball import textures as tex
 from pipeline.io.atomic import atomic_dir
-from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
-def build_asset(folder: Path, params: dict) -> dict:
-    """Write eyeball.usda + textures into ``folder``; returns metrics (no preview)."""
+def build_asset(folder: Path, settings: geo.EyeballSettings) -> dict:
+    """Write eyeball.usda + textures into ``folder``; returns metrics (no preview).
+
+    ``settings``: the ``eyeball:`` block (EyeballSettings or its raw mapping)."""
+    if not isinstance(settings, geo.EyeballSettings):
+        settings = geo.EyeballSettings.from_params(settings)
     from pipeline.usd.eyeball import write_eyeball_usd
     from pipeline.usd.validate import validate_stage_report
 
     t0 = time.perf_counter()
-    p = geo.EyeballParams.from_dict(params.get("geometry"))
-    eye = geo.build_eyeball(p, params.get("resolution", "high"))
+    p = settings.geometry
+    eye = geo.build_eyeball(p, settings.resolution)
     t_geo = time.perf_counter() - t0
     t1 = time.perf_counter()
     (folder / "textures").mkdir(parents=True, exist_ok=True)
-    images = tex.texture_set(int(params.get("texture_seed", 0)), int(params.get("iris_texture_px", 512)),
-                             tuple(params.get("sclera_texture_px", [1024, 512])), p, eye.resolution)
+    images = tex.texture_set(settings.texture_seed, settings.iris_texture_px, settings.sclera_texture_px,
+                             p, eye.resolution)
     for name, img in images.items():
         Image.fromarray(img).save(folder / "textures" / name, optimize=False, compress_level=3)
     t_tex = time.perf_counter() - t1
@@ -58,11 +61,11 @@ def build_asset(folder: Path, params: dict) -> dict:
             "max_dihedral_elsewhere_deg": round(max(seam["cornea_max_deg"], seam["sclera_max_deg"]), 3)}
 
 
-def render_preview(folder: Path, params: dict, timings: Path) -> None:
+def render_preview(folder: Path, settings: geo.EyeballSettings, timings: Path) -> None:
     """Run the Blender preview worker (subprocess) on the asset in ``folder``."""
     cmd = [sys.executable, "-m", "pipeline.blender.eyeball_preview", str(folder / "eyeball.usda"),
-           str(folder / "preview.png"), "--size", str(int(params.get("preview_px", 160))),
-           "--samples", str(int(params.get("preview_samples", 16))), "--json", str(timings)]
+           str(folder / "preview.png"), "--size", str(settings.preview_px),
+           "--samples", str(settings.preview_samples), "--json", str(timings)]
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
     if res.returncode != 0:
         raise RuntimeError("preview render failed:\n" + res.stdout[-2000:] + res.stderr[-2000:])
@@ -75,19 +78,14 @@ def main(argv) -> dict:
     ap = stage_parser(__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="output folder (rigged_assets/eyeball)")
     args = ap.parse_args(argv)
-    params = load_params("eyeball", args.params)
-    try:  # settings are checked before anything is written
-        geo.EyeballParams.from_dict(params.get("geometry"))
-        geo.Resolution.from_value(params.get("resolution", "high"))
-    except (ValueError, TypeError) as exc:
-        raise ScanError(args.params, f"eyeball: {exc}") from None
+    settings = load_settings(geo.EyeballSettings, args.params)   # checked before anything is written
     with atomic_dir(args.out) as tmp:
-        metrics = build_asset(tmp, params)
-        if params.get("preview", True):
+        metrics = build_asset(tmp, settings)
+        if settings.preview:
             with tempfile.TemporaryDirectory() as td:
                 tj = Path(td) / "preview.json"
                 t = time.perf_counter()
-                render_preview(tmp, params, tj)
+                render_preview(tmp, settings, tj)
                 metrics["preview"] = json.loads(tj.read_text())
                 metrics["preview"]["wall_s"] = round(time.perf_counter() - t, 3)
     return {"_path": args.metrics or default_metrics_path(args.out), **metrics}

@@ -19,7 +19,7 @@ from pipeline.errors import ScanError
 from pipeline.geometry.retopo import RetopoSettings, retopologize
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.meshfile import load_mesh, save_mesh
-from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
 def load_eyes(path: Path, n_vertices: int) -> dict:
@@ -51,7 +51,7 @@ def main(argv) -> dict:
     parser.add_argument("in_dir", help="build/<scan>/remove_eyeballs")
     parser.add_argument("out_dir", help="build/<scan>/retopo")
     args = parser.parse_args(argv)
-    settings = RetopoSettings.from_params(load_params("retopo", args.params))
+    settings = load_settings(RetopoSettings, args.params)
     in_dir = Path(args.in_dir)
     mesh_path = in_dir / "mesh.npz"
     try:

@@ -22,7 +22,7 @@ from pipeline.io.meshfile import read_stage_mesh
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.rig import textures as tex
-from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
 def _read_inputs(snap: Path):
@@ -52,15 +52,17 @@ def _model_corneas(eyes):
     return out
 
 
-def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
+def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
               eyes_path="eyes.json", profile=None):
     """Everything the stage computes: (arrays for rig.npz, rig.json dict, metrics dict).
 
+    ``params``: a :class:`pipeline.rig.lids.RigSettings` or its raw ``rig:`` mapping.
     ``profile``: EyeballParams of the parametric eye the margin was snapped to (None = sphere).
     """
-    lp = lids.LidParams.from_dict(params)
+    st = params if isinstance(params, lids.RigSettings) else lids.RigSettings.from_params(params)
+    lp = st.lid_params()
     eyes = lids.eye_frames(eyes_json, mesh, eyes_source=str(eyes_path), mesh_source=str(mesh_path),
-                           max_rest_gap_mm=float(params.get("max_rest_gap_mm", 0.5)),
+                           max_rest_gap_mm=st.max_rest_gap_mm,
                            profile=profile)
     V = np.asarray(mesh["V"], np.float64)
     F = np.asarray(mesh["F"], np.int64)
@@ -92,7 +94,7 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
         }
         lm_doc[e.side] = {"eyelid_loop_position": lm.loop_position, "eyelid_edges": lm.edge}
 
-    step = float(params.get("sweep_step_deg", 0.5))
+    step = st.sweep_step_deg
     pitches = np.unique(np.concatenate([np.arange(-lp.max_pitch_deg, lp.max_pitch_deg + 1e-9, step),
                                         [-lp.max_pitch_deg, 0.0, lp.max_pitch_deg]]))
     t0 = time.perf_counter()
@@ -135,7 +137,7 @@ def build_rig(mesh: dict, eyes_json: dict, params: dict, mesh_path="mesh.npz",
             "mask": "lids_down.texture_mask (n,) per-vertex weight in [0, 1] (rig.npz)",
             "rule": "texture_down = mix(texture, gaussian_blur(texture, sigma_mm), "
                     "w_lids_down * mask), for the colour and the displacement map",
-            "sigma_mm": float(params.get("down_smoothing_sigma_mm", 0.75)),
+            "sigma_mm": st.down_smoothing_sigma_mm,
             "functions": "pipeline.rig.textures.rasterize_vertex_scalar, texels_per_mm, "
                          "smoothed_variant",
         },
@@ -175,7 +177,7 @@ def main(argv) -> dict:
                         help="rigged_assets/eyeball: follow its outer surface (sphere + cornea), "
                              "as snap does; without it the margin follows the fitted sphere")
     args = parser.parse_args(argv)
-    params = load_params("rig", args.params)
+    params = load_settings(lids.RigSettings, args.params)
     mesh, eyes, mesh_path, eyes_path = _read_inputs(args.snap)
     profile = None
     if args.eyeball is not None:

@@ -23,7 +23,7 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry import snap as sn
 from pipeline.io.atomic import atomic_dir, write_json
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
-from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 SIDES = ("left", "right")
 
@@ -115,7 +115,7 @@ def main(argv) -> dict:
     parser.add_argument("eyeball", type=Path, help="rigged_assets/eyeball (eyeball.usda)")
     parser.add_argument("out", type=Path, help="build/<scan>/snap")
     args = parser.parse_args(argv)
-    st = sn.SnapSettings.from_params(load_params("snap", args.params))
+    st = load_settings(sn.SnapSettings, args.params)
     mesh_path = args.bake / "mesh.npz"
     mesh = read_stage_mesh(mesh_path)
     doc, eyes = _eyes(args.remove_eyeballs / "eyes.json")

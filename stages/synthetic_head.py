@@ -14,11 +14,8 @@ import time
 from pathlib import Path
 
 from pipeline.io.atomic import atomic_dir
-from pipeline.synthetic_head import make_synthetic_head, write_scan_folder
-from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
-
-DEFAULTS = {"seed": 7, "target_triangles": 350_000, "eye_shape": "round", "eye_spacing_mm": 63.0,
-            "noise_mm": 0.0, "texture_size": 2048}
+from pipeline.synthetic_head import SyntheticHeadSettings, make_synthetic_head, write_scan_folder
+from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
 def main(argv) -> dict:
@@ -26,14 +23,9 @@ def main(argv) -> dict:
     parser.add_argument("out_dir", help="scan folder to write (replaced atomically)")
     args = parser.parse_args(argv)
     out = Path(args.out_dir)
-    params = {**DEFAULTS, **load_params("synthetic_head", args.params)}
-    unknown = sorted(set(params) - set(DEFAULTS))
-    if unknown:
-        raise SystemExit(f"error: {args.params}: unknown synthetic_head params {unknown}")
+    settings = load_settings(SyntheticHeadSettings, args.params)
     t0 = time.perf_counter()
-    head = make_synthetic_head(seed=int(params["seed"]), target_triangles=int(params["target_triangles"]),
-                               eye_shape=params["eye_shape"], eye_spacing_mm=float(params["eye_spacing_mm"]),
-                               noise_mm=float(params["noise_mm"]), texture_size=int(params["texture_size"]))
+    head = make_synthetic_head(**settings.kwargs())
     t1 = time.perf_counter()
     with atomic_dir(out) as tmp:
         write_scan_folder(head, tmp)
@@ -43,8 +35,8 @@ def main(argv) -> dict:
         "_path": args.metrics or default_metrics_path(out),
         "n_vertices": int(len(head.V)),
         "n_faces": int(len(head.F)),
-        "target_triangles": int(params["target_triangles"]),
-        "texture_size": int(params["texture_size"]),
+        "target_triangles": settings.target_triangles,
+        "texture_size": settings.texture_size,
         "generate_s": round(t1 - t0, 4),
         "write_s": round(t2 - t1, 4),
         "skin_detail_amplitude_mm": gt["skin_detail_amplitude_mm"],

@@ -32,7 +32,7 @@ from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.meshfile import read_stage_mesh
 from pipeline.rig import lids
-from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+from stages._common import default_metrics_path, load_params, load_settings, stage_exit, stage_parser
 
 PARAM_BLOCKS = ("ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "eyeball", "usd")
 
@@ -98,14 +98,11 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
 def _all_params(path) -> dict:
     out = {}
     for b in PARAM_BLOCKS:
-        try:
-            out[b] = load_params(b, path)
-        except Exception:  # block absent
-            continue
+        out[b] = load_params(b, path)       # {} when the block is absent
     return out
 
 
-def build(inp: dict, out_dir: Path, name: str, params: dict, all_params: dict, package: bool = True) -> dict:
+def build(inp: dict, out_dir: Path, name: str, all_params: dict, package: bool = True) -> dict:
     """Write the asset into ``out_dir`` (an empty folder beside rigged_assets/eyeball); returns metrics."""
     from pipeline.usd.asset import DISPLACEMENT_DOC, check_package, package_usdz, write_scan_asset
     from pipeline.usd.validate import validate_stage
@@ -183,16 +180,18 @@ def main(argv) -> dict:
     for a in ("snap", "bake", "rig", "ingest", "eyeball", "out"):
         parser.add_argument(a, type=Path)
     args = parser.parse_args(argv)
-    params = load_params("usd", args.params)
+    from pipeline.usd.asset import UsdSettings
+
+    settings = load_settings(UsdSettings, args.params)
     inp = read_inputs(args.snap, args.bake, args.rig, args.ingest, args.eyeball)
     name = args.out.name
     with atomic_dir(args.out) as tmp:
-        metrics = build(inp, Path(tmp), name, params, _all_params(args.params),
-                        package=bool(params.get("usdz", True)))
-        if params.get("preview", False):
+        metrics = build(inp, Path(tmp), name, _all_params(args.params),
+                        package=settings.usdz)
+        if settings.preview:
             metrics.update(render_preview(Path(tmp) / f"{name}.usda", args.rig / "rig.npz",
-                                          Path(tmp) / "preview.png", int(params.get("preview_px", 240)),
-                                          int(params.get("preview_samples", 8))))
+                                          Path(tmp) / "preview.png", settings.preview_px,
+                                          settings.preview_samples))
     return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
 
 

@@ -21,37 +21,30 @@ smoothing offset.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from pipeline.bake.raycast import DenseScene, cast_both_ways
 from pipeline.bake.uv import dilate_many, rasterize, sample_bilinear, unwrap
 from pipeline.geometry import mesh_checks as mc
+from pipeline.settings import Settings, setting
 
 
 @dataclass
-class BakeSettings:
-    """Bake knobs (the ``bake:`` block of params.yaml)."""
+class BakeSettings(Settings):
+    """Bake knobs (the ``bake:`` block of params.yaml); defaults here, checked by pipeline.settings."""
 
-    resolution: int = 2048
-    uv_padding_texels: int = 8        # gap between UV charts
-    padding_texels: int = 6           # dilation past island borders
-    max_distance_mm: float = 4.0      # ray length each way
-    falloff_mm: float = 2.0           # displacement fades to 0 over this distance from the eyelid loops
-    subdivision_levels: int = 2       # evaluation: midpoint subdivision levels (x4 faces each)
-    metric_samples: int = 100000
+    block: ClassVar[str] = "bake"
 
-    @classmethod
-    def from_params(cls, params: dict) -> "BakeSettings":
-        names = {f.name for f in fields(cls)}
-        unknown = set(params) - names
-        if unknown:
-            raise ValueError(f"unknown bake params: {sorted(unknown)}")
-        s = cls(**params)
-        if not (16 <= s.resolution <= 16384):
-            raise ValueError("bake resolution must be between 16 and 16384")
-        return s
+    resolution: int = setting(2048, ge=16, le=16384)            # map side, texels
+    uv_padding_texels: int = setting(8, ge=0, le=256)           # gap between UV charts
+    padding_texels: int = setting(6, ge=0, le=256)              # dilation past island borders
+    max_distance_mm: float = setting(4.0, gt=0, le=100)         # ray length each way
+    falloff_mm: float = setting(2.0, ge=0, le=100)              # displacement fades to 0 over this distance from the eyelid loops
+    subdivision_levels: int = setting(2, ge=0, le=4)            # evaluation: midpoint subdivision levels (x4 faces each)
+    metric_samples: int = setting(100000, ge=100, le=10_000_000)
 
 
 @dataclass

@@ -35,8 +35,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar, Literal
 
 import numpy as np
+
+from pipeline.settings import SettingError, Settings, setting
 
 SHAPE_NAMES = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
 N_LANDMARKS = 8
@@ -47,43 +50,36 @@ WEIGHT_RULE = ("finite weights are clamped to [0, 1]; NaN/inf or unknown shape n
 
 
 @dataclass(frozen=True)
-class EyeballParams:
-    """Anatomical settings of the eyeball (mm)."""
+class EyeballParams(Settings):
+    """Anatomical settings of the eyeball (mm): ``eyeball.geometry`` in params.yaml."""
 
-    r1: float = 12.0                   # eyeball sphere
-    r2: float = 8.0                    # corneal sphere
-    apex: float = 13.5                 # corneal apex distance from the eyeball centre
-    seam_blend_mm: float = 1.0         # width of the smooth maximum at the seam
-    gap: float = 0.5                   # cornea thickness: inner part lies this far inside
-    iris_radius: float = 5.9           # visible iris diameter 11.8 mm
-    pupil_radius: float = 2.0          # rest pupil
-    pupil_dilated_mm: float = 4.0
-    pupil_constricted_mm: float = 1.0
-    iris_scale_delta: float = 0.10     # iris_large / iris_small = x(1 +- delta)
+    r1: float = setting(12.0, gt=0)                   # eyeball sphere
+    r2: float = setting(8.0, gt=0)                    # corneal sphere
+    apex: float = setting(13.5, gt=0)                 # corneal apex distance from the eyeball centre
+    seam_blend_mm: float = setting(1.0, ge=0)         # width of the smooth maximum at the seam
+    gap: float = setting(0.5, gt=0)                   # cornea thickness: inner part lies this far inside
+    iris_radius: float = setting(5.9, gt=0)           # visible iris diameter 11.8 mm
+    pupil_radius: float = setting(2.0, gt=0)          # rest pupil
+    pupil_dilated_mm: float = setting(4.0, gt=0)
+    pupil_constricted_mm: float = setting(1.0, gt=0)
+    iris_scale_delta: float = setting(0.10, gt=0, lt=0.5)     # iris_large / iris_small = x(1 +- delta)
 
-    def __post_init__(self):
-        for name in ("r1", "r2", "apex", "gap", "iris_radius", "pupil_radius",
-                     "pupil_dilated_mm", "pupil_constricted_mm"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"EyeballParams.{name} must be a positive number, got {v!r}")
+    def validate(self) -> None:
         if not self.r1 < self.apex < self.r1 + self.r2:
-            raise ValueError(f"apex {self.apex} must lie between r1={self.r1} and r1+r2")
+            raise SettingError("apex", f"{self.apex:g} must lie between r1={self.r1:g} and r1+r2")
         if self.apex - self.r2 <= 0:
-            raise ValueError("corneal sphere centre must lie in front of the eyeball centre")
-        if not 0 <= self.seam_blend_mm < self.apex - self.r1:
-            raise ValueError("seam_blend_mm must be >= 0 and smaller than apex - r1")
-        if not 0 < self.iris_scale_delta < 0.5:
-            raise ValueError("iris_scale_delta must be in (0, 0.5)")
+            raise SettingError("r2", "corneal sphere centre must lie in front of the eyeball centre")
+        if not self.seam_blend_mm < self.apex - self.r1:
+            raise SettingError("seam_blend_mm", "must be smaller than apex - r1")
         r_in = self.r1 - self.gap
         big = self.iris_radius * (1 + self.iris_scale_delta)
         small = self.iris_radius * (1 - self.iris_scale_delta)
         if big >= r_in * 0.95:
-            raise ValueError("iris too large for the inner sphere")
+            raise SettingError("iris_radius", "too large for the inner sphere")
         if max(self.pupil_radius, self.pupil_dilated_mm) >= small:
-            raise ValueError("pupil (rest/dilated) must stay smaller than the small iris")
+            raise SettingError("pupil_dilated_mm", "pupil (rest/dilated) must stay smaller than the small iris")
         if self.pupil_constricted_mm >= self.pupil_radius:
-            raise ValueError("pupil_constricted_mm must be smaller than pupil_radius")
+            raise SettingError("pupil_constricted_mm", "must be smaller than pupil_radius")
 
     @property
     def cornea_center_z(self) -> float:
@@ -96,33 +92,28 @@ class EyeballParams:
     @classmethod
     def from_dict(cls, d: dict | None) -> "EyeballParams":
         d = dict(d or {})
-        unknown = set(d) - set(cls.__dataclass_fields__)
+        unknown = set(d) - set(cls.keys())
         if unknown:
             raise ValueError(f"unknown eyeball geometry setting(s) {sorted(unknown)}")
-        return cls(**{k: float(v) for k, v in d.items()})
+        return cls(**d)
 
 
 @dataclass(frozen=True)
-class Resolution:
+class Resolution(Settings):
     """Tessellation: vertices around the limbus and ring counts per zone.
 
     ``n_around`` must be a multiple of 8 (landmarks sit on ring vertices).
     """
 
-    n_around: int = 64
-    cornea_rings: int = 16     # outer: apex .. limbus
-    sclera_rings: int = 32     # outer and inner: limbus .. back pole
-    iris_rings: int = 8        # inner: pupil boundary .. iris boundary
-    pupil_rings: int = 3       # inner: centre .. pupil boundary
+    n_around: int = setting(64, ge=8, le=1024)
+    cornea_rings: int = setting(16, ge=1, le=512)     # outer: apex .. limbus
+    sclera_rings: int = setting(32, ge=2, le=512)     # outer and inner: limbus .. back pole
+    iris_rings: int = setting(8, ge=1, le=512)        # inner: pupil boundary .. iris boundary
+    pupil_rings: int = setting(3, ge=1, le=512)       # inner: centre .. pupil boundary
 
-    def __post_init__(self):
-        if self.n_around < 8 or self.n_around % 8:
-            raise ValueError(f"n_around must be a multiple of 8 and >= 8, got {self.n_around}")
-        for name in ("cornea_rings", "sclera_rings", "iris_rings", "pupil_rings"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"Resolution.{name} must be >= 1")
-        if self.sclera_rings < 2:
-            raise ValueError("Resolution.sclera_rings must be >= 2")
+    def validate(self) -> None:
+        if self.n_around % 8:
+            raise SettingError("n_around", f"must be a multiple of 8 and >= 8, got {self.n_around}")
 
     @classmethod
     def preset(cls, name: str) -> "Resolution":
@@ -138,7 +129,23 @@ class Resolution:
             return value
         if isinstance(value, str):
             return cls.preset(value)
-        return cls(**{k: int(v) for k, v in dict(value).items()})
+        return cls(**dict(value))
+
+
+@dataclass(frozen=True)
+class EyeballSettings(Settings):
+    """The ``eyeball:`` block of params.yaml (the shared parametric eyeball asset)."""
+
+    block: ClassVar[str] = "eyeball"
+
+    resolution: Literal["low", "medium", "high", "full"] | Resolution = "high"
+    geometry: EyeballParams = setting(default_factory=EyeballParams)
+    texture_seed: int = setting(0, ge=0, le=2**32 - 1)
+    iris_texture_px: int = setting(512, ge=16, le=4096)
+    sclera_texture_px: tuple[int, int] = setting((1024, 512), ge=16, le=8192)
+    preview: bool = True                                   # Cycles contact sheet preview.png
+    preview_px: int = setting(160, ge=16, le=2048)         # tile size
+    preview_samples: int = setting(16, ge=1, le=4096)      # + OpenImageDenoise
 
 
 RESOLUTION_PRESETS = {

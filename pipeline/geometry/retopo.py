@@ -40,48 +40,37 @@ fails (ict_neutral's left eye), so it stays off by default.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
+from typing import ClassVar, Literal
 
 import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
+from pipeline.settings import Settings, setting
 
 METHODS = ("quadric", "isotropic")
 
 
 @dataclass
-class RetopoSettings:
-    """Retopology knobs (the ``retopo:`` block of params.yaml)."""
+class RetopoSettings(Settings):
+    """Retopology knobs (the ``retopo:`` block of params.yaml); defaults here, checked by pipeline.settings."""
 
-    method: str = "quadric"
-    target_polygons: int = 9000
-    margin_lateral_mm: float = 22.0   # beyond each eye centre, away from the nose (x)
-    margin_above_mm: float = 28.0     # above the eye centres (brow)
-    margin_below_mm: float = 24.0     # below the eye centres (upper cheek)
-    margin_back_mm: float = 12.0      # behind the eye centres (z); keeps the front surface only
-    loop_points: int = 64             # vertices per eyelid loop in the output
-    predecimate_faces: int = 120000   # isotropic route: pre-decimate the crop to this many faces
-    isotropic_iterations: int = 6
-    quad_max_angle_dev_deg: float = 50.0
-    relax_iterations: int = 4
-    eye_rings: int = 0                # rings of quads around each eyelid loop (0 = off)
-    ring_spacing_mm: float = 0.0      # between rings; <= 0: the loop's mean edge length
-    metric_samples: int = 50000
+    block: ClassVar[str] = "retopo"
 
-    @classmethod
-    def from_params(cls, params: dict) -> "RetopoSettings":
-        names = {f.name for f in fields(cls)}
-        unknown = set(params) - names
-        if unknown:
-            raise ValueError(f"unknown retopo params: {sorted(unknown)}")
-        s = cls(**params)
-        if s.method not in METHODS:
-            raise ValueError(f"retopo method must be one of {METHODS}, got {s.method!r}")
-        if s.target_polygons < 100 or s.loop_points < 8:
-            raise ValueError("target_polygons must be >= 100 and loop_points >= 8")
-        if s.eye_rings < 0:
-            raise ValueError("eye_rings must be >= 0")
-        return s
+    method: Literal["quadric", "isotropic"] = "quadric"
+    target_polygons: int = setting(9000, ge=100, le=2_000_000)
+    margin_lateral_mm: float = setting(22.0, gt=0, le=200)   # beyond each eye centre, away from the nose (x)
+    margin_above_mm: float = setting(28.0, gt=0, le=200)     # above the eye centres (brow)
+    margin_below_mm: float = setting(24.0, gt=0, le=200)     # below the eye centres (upper cheek)
+    margin_back_mm: float = setting(12.0, gt=0, le=200)      # behind the eye centres (z); keeps the front surface only
+    loop_points: int = setting(64, ge=8, le=4096)            # vertices per eyelid loop in the output
+    predecimate_faces: int = setting(120000, ge=1000, le=20_000_000)  # isotropic route: pre-decimate the crop to this many faces
+    isotropic_iterations: int = setting(6, ge=0, le=100)
+    quad_max_angle_dev_deg: float = setting(50.0, ge=0, le=90)
+    relax_iterations: int = setting(4, ge=0, le=1000)
+    eye_rings: int = setting(0, ge=0, le=20)                 # rings of quads around each eyelid loop (0 = off)
+    ring_spacing_mm: float = setting(0.0, ge=0, le=20)       # between rings; 0: the loop's mean edge length
+    metric_samples: int = setting(50000, ge=100, le=10_000_000)
 
 
 @dataclass

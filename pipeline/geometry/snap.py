@@ -20,34 +20,30 @@ their orientation (:func:`untangle`, small linear programs), staying outside the
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from pipeline.geometry import meshtopo
+from pipeline.settings import Settings, setting
 
 
 @dataclass
-class SnapSettings:
-    """Settings (``snap:`` block of params.yaml)."""
+class SnapSettings(Settings):
+    """Settings (``snap:`` block of params.yaml); defaults here, checked by pipeline.settings."""
 
-    falloff_mm: float = 4.0
-    max_move_mm: float = 6.0
-    ray_samples: int = 49
-    clearance_mm: float = 0.0
-    max_pitch_deg: float = 25.0
-    max_yaw_deg: float = 35.0
-    graze_ratio: float = 2.0
-    max_relax_iterations: int = 200
-    graze_slack_mm: float = 0.25
-    min_area_fraction: float = 0.25   # falloff-zone faces keep this share of their rest area
+    block: ClassVar[str] = "snap"
 
-    @classmethod
-    def from_params(cls, params: dict) -> "SnapSettings":
-        s = cls()
-        for k, v in (params or {}).items():
-            if hasattr(s, k):
-                setattr(s, k, type(getattr(s, k))(v))
-        return s
+    falloff_mm: float = setting(4.0, ge=0, le=100)        # margin displacement fades to 0 over this edge-graph distance
+    max_move_mm: float = setting(6.0, gt=0, le=100)       # search range along the normal
+    ray_samples: int = setting(49, ge=2, le=10000)        # samples of the normal line before bisection
+    clearance_mm: float = setting(0.0, ge=-5, le=5)       # extra offset off the eyeball surface
+    max_pitch_deg: float = setting(25.0, ge=0, le=90)     # rotation range of the margin report
+    max_yaw_deg: float = setting(35.0, ge=0, le=90)
+    graze_ratio: float = setting(2.0, gt=0, le=1000)
+    max_relax_iterations: int = setting(200, ge=0, le=100000)
+    graze_slack_mm: float = setting(0.25, ge=0, le=100)
+    min_area_fraction: float = setting(0.25, ge=0, le=1)  # falloff-zone faces keep this share of their rest area
 
 
 @dataclass

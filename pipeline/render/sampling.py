@@ -45,13 +45,15 @@ silhouettes and occlusions by half a pixel or more: real geometry needed); else 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import ClassVar, Literal
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.render import asset as ra
 from pipeline.rig import lids
+from pipeline.settings import SettingError, Settings, setting
 
 HDRIS = ("city.exr", "courtyard.exr", "forest.exr", "interior.exr", "night.exr", "studio.exr",
          "sunrise.exr", "sunset.exr")
@@ -69,79 +71,96 @@ PRESETS = {
 
 
 @dataclass(frozen=True)
-class RenderSettings:
-    """The ``render:`` block of params.yaml (sampling and render settings)."""
+class RenderPreset(Settings):
+    """One entry of ``render.presets``: pose and gaze ranges filled in by ``render.preset``."""
+
+    camera_polar_max_deg: float = setting(20.0, ge=0, lt=80)
+    gaze_offset_max_deg: float = setting(45.0, ge=0, le=90)
+    gaze_step_deg: float = setting(10.0, gt=0, le=90)
+
+
+#: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
+RUN_KEYS = ("workers", "scheduler", "shard_size", "threads", "tile_size", "sheet_images", "image_timeout_s",
+            "progress", "connect_timeout_s")
+#: Image files are named NNNNNN.png: at most a million images per scan.
+MAX_IMAGES = 1_000_000
+
+
+@dataclass(frozen=True)
+class RenderSettings(Settings):
+    """The ``render:`` block of params.yaml (sampling, render and run settings).
+
+    ``preset`` fills ``camera_polar_max_deg``, ``gaze_offset_max_deg`` and ``gaze_step_deg``
+    from ``presets`` (built-in :data:`PRESETS`, entries replaced by the block's own); explicit
+    keys override the preset.
+    """
+
+    block: ClassVar[str] = "render"
 
     preset: str = "generic"
-    n_images: int = 16
-    seed: int = 0
-    width: int = 120
-    height: int = 80
-    samples: int = 12
+    n_images: int = setting(16, ge=0, le=MAX_IMAGES)     # sample i = f(seed, i)
+    seed: int = setting(0, ge=0, le=2**63 - 1)
+    width: int = setting(120, ge=8, le=8192)
+    height: int = setting(80, ge=8, le=8192)
+    samples: int = setting(12, ge=1, le=65536)          # Cycles samples per pixel
     denoise: bool = True
-    eyes: tuple = ("left", "right")
-    camera_polar_max_deg: float = 20.0
-    gaze_offset_max_deg: float = 45.0
-    gaze_step_deg: float = 10.0
-    max_pitch_deg: float = 25.0
-    max_yaw_deg: float = 35.0
-    ortho_scale_mm: tuple = (30.0, 36.0)
-    center_jitter_mm: float = 1.0
-    camera_distance_mm: float = 200.0
-    strength: tuple = (0.6, 1.6)
-    hdris: tuple = HDRIS
-    max_attempts: int = 100
-    landmark_tolerance_mm: float = 0.01
-    presets: dict = field(default_factory=lambda: {k: dict(v) for k, v in PRESETS.items()})
+    eyes: tuple[Literal["left", "right"], ...] = setting(("left", "right"), min_len=1, max_len=2)
+    camera_polar_max_deg: float = setting(20.0, ge=0, lt=80)
+    gaze_offset_max_deg: float = setting(45.0, ge=0, le=90)
+    gaze_step_deg: float = setting(10.0, gt=0, le=90)
+    max_pitch_deg: float = setting(25.0, ge=0, le=90)
+    max_yaw_deg: float = setting(35.0, ge=0, le=90)
+    ortho_scale_mm: tuple[float, float] = setting((30.0, 36.0), gt=0, le=1000, ordered=True)
+    center_jitter_mm: float = setting(1.0, ge=0, le=100)
+    camera_distance_mm: float = setting(200.0, gt=0, le=100_000)
+    strength: tuple[float, float] = setting((0.6, 1.6), ge=0, le=1000, ordered=True)
+    hdris: tuple[str, ...] = setting(HDRIS, min_len=1, max_len=1000)
+    max_attempts: int = setting(100, ge=1, le=100_000)
+    landmark_tolerance_mm: float = setting(0.01, gt=0, le=10)
+    presets: dict[str, RenderPreset] = setting(
+        default_factory=lambda: {k: RenderPreset(**v) for k, v in PRESETS.items()})
+    # how to run (RUN_KEYS: not part of the config hash)
+    workers: int = setting(0, ge=0, le=1024)            # LocalCluster worker processes (0 = auto)
+    scheduler: str | None = None                        # dask scheduler address instead of a LocalCluster
+    shard_size: int = setting(8, ge=1, le=100_000)      # images per dask task
+    threads: int = setting(0, ge=0, le=1024)            # Cycles threads per Blender (0 = cores / workers)
+    tile_size: int | None = setting(None, ge=8, le=8192)
+    sheet_images: int = setting(16, ge=0, le=1024)      # tiles on contact_sheet.png
+    image_timeout_s: float = setting(600.0, gt=0, le=86_400)
+    progress: bool = True
+    connect_timeout_s: float = setting(10.0, gt=0, le=3600)
+
+    @classmethod
+    def prepare(cls, params: dict) -> dict:
+        """Fill the preset's values (explicit keys win); ``presets`` entries replace built-in ones."""
+        presets = {k: dict(v) for k, v in PRESETS.items()}
+        own = params.get("presets")
+        if own is not None and not isinstance(own, dict):
+            raise SettingError("presets", "must be a mapping of preset name -> settings")
+        presets.update(own or {})
+        name = params.get("preset", "generic")
+        if not isinstance(name, str) or name not in presets:
+            raise SettingError("preset", f"must be one of {', '.join(sorted(map(str, presets)))} (got {name!r})")
+        chosen = RenderPreset._build(presets[name], prefix=f"presets.{name}")   # its own key in errors
+        fill = {k: getattr(chosen, k) for k in RenderPreset.keys() if k in presets[name]}
+        return {**fill, **params, "presets": presets}
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "RenderSettings":
-        """From a params block: the preset's values first, explicit keys override them.
-
-        Keys that are not settings (workers, scheduler, shard_size, ...) are ignored.
-        """
-        d = dict(d or {})
-        presets = {k: dict(v) for k, v in PRESETS.items()}
-        presets.update({k: dict(v) for k, v in (d.get("presets") or {}).items()})
-        name = str(d.get("preset", "generic"))
-        if name not in presets:
-            raise ValueError(f"unknown render preset {name!r}; known: {sorted(presets)}")
-        vals = dict(presets[name])
-        names = set(cls.__dataclass_fields__)
-        vals.update({k: v for k, v in d.items() if k in names and k != "presets"})
-        vals["presets"] = presets
-        vals["preset"] = name
-        for k in ("eyes", "ortho_scale_mm", "strength", "hdris"):
-            if k in vals:
-                vals[k] = tuple(vals[k])
-        s = cls(**{k: v for k, v in vals.items() if k in names})
-        s.validate()
-        return s
+        """Same as :meth:`from_params` (kept for callers of the old name)."""
+        return cls.from_params(d)
 
     def validate(self) -> None:
-        if not (isinstance(self.n_images, int) and self.n_images >= 0):
-            raise ValueError(f"n_images must be a non-negative integer, got {self.n_images!r}")
-        if not (8 <= int(self.width) <= 8192 and 8 <= int(self.height) <= 8192):
-            raise ValueError(f"image size must be 8..8192 px, got {self.width} x {self.height}")
-        if int(self.width) < int(self.height):
-            raise ValueError("width must be >= height (orthographic scale = image width)")
-        if int(self.samples) < 1:
-            raise ValueError("samples must be >= 1")
-        if not set(self.eyes) <= set(ra.SIDES) or not self.eyes:
-            raise ValueError(f"eyes must be a non-empty subset of {ra.SIDES}")
-        lo, hi = self.ortho_scale_mm
-        if not (0 < lo <= hi):
-            raise ValueError(f"ortho_scale_mm must be 0 < lo <= hi, got {self.ortho_scale_mm}")
-        if not (0 <= self.camera_polar_max_deg < 80):
-            raise ValueError("camera_polar_max_deg must be in [0, 80)")
-        if not self.hdris or any(not str(h).endswith(".exr") for h in self.hdris):
-            raise ValueError("hdris must be a non-empty list of .exr names")
-        if self.gaze_step_deg <= 0 or self.gaze_offset_max_deg < 0:
-            raise ValueError("gaze_step_deg must be > 0 and gaze_offset_max_deg >= 0")
+        if self.width < self.height:
+            raise SettingError("width", f"must be >= height (orthographic scale = image width; got "
+                                        f"{self.width} x {self.height})")
+        if any(not h.endswith(".exr") for h in self.hdris):
+            raise SettingError("hdris", "must be a list of .exr names")
 
     def hashed(self) -> dict:
-        """The settings that change images or labels (not n_images: sample i ignores it)."""
-        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("n_images", "presets")}
+        """The settings that change images or labels (not n_images: sample i ignores it; not how to run)."""
+        skip = {"n_images", "presets", *RUN_KEYS}
+        d = {k: getattr(self, k) for k in self.keys() if k not in skip}
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
 

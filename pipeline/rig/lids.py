@@ -43,8 +43,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
+
+from pipeline.settings import Settings, setting
 
 SHAPE_UP = "lids_up"
 SHAPE_DOWN = "lids_down"
@@ -119,35 +122,50 @@ def lid_weights(pitch_deg: float, max_pitch_deg: float = MAX_PITCH_DEG) -> dict[
 
 
 @dataclass(frozen=True)
-class LidParams:
-    """Settings of the lid shapes (the ``rig:`` block of params.yaml).
+class LidParams(Settings):
+    """Settings of the lid shapes (the ``rig:`` block of params.yaml, see :class:`RigSettings`).
 
     Gains are lid rotation / eyeball rotation at the middle of each lid.
     """
 
-    max_pitch_deg: float = MAX_PITCH_DEG
-    gain_upper_up: float = 0.8
-    gain_upper_down: float = 0.9
-    gain_lower_up: float = 0.3
-    gain_lower_down: float = 0.4
-    canthus_width: float = 0.35
-    canthus_exponent: float = 1.0
-    upper_falloff_mm: float = 12.0
-    lower_falloff_mm: float = 8.0
-    max_chord_sag_mm: float = 0.03
-    max_segments: int = 12
-    min_opening_fraction: float = 0.2
-    surface_follow_mm: float = 2.0    # skin this far off the eyeball no longer follows the cornea
-    min_offset_mm: float = 1e-6
-    min_area_fraction: float = 0.25   # faces keep this share of their area in the full poses
-    max_support_scale: float = 2.0    # ... by widening the falloff radii up to this factor
+    max_pitch_deg: float = setting(MAX_PITCH_DEG, gt=0, le=90)
+    gain_upper_up: float = setting(0.8, ge=0, le=2)
+    gain_upper_down: float = setting(0.9, ge=0, le=2)
+    gain_lower_up: float = setting(0.3, ge=0, le=2)
+    gain_lower_down: float = setting(0.4, ge=0, le=2)
+    canthus_width: float = setting(0.35, ge=0, le=0.5)
+    canthus_exponent: float = setting(1.0, gt=0, le=10)
+    upper_falloff_mm: float = setting(12.0, gt=0, le=100)
+    lower_falloff_mm: float = setting(8.0, gt=0, le=100)
+    max_chord_sag_mm: float = setting(0.03, gt=0, le=10)
+    max_segments: int = setting(12, ge=1, le=100)
+    min_opening_fraction: float = setting(0.2, le=1)   # negative: the guard is off
+    surface_follow_mm: float = setting(2.0, ge=0, le=50)   # skin this far off the eyeball no longer follows the cornea
+    min_offset_mm: float = setting(1e-6, ge=0, le=1)
+    min_area_fraction: float = setting(0.25, ge=0, le=1)   # faces keep this share of their area in the full poses
+    max_support_scale: float = setting(2.0, ge=1, le=10)   # ... by widening the falloff radii up to this factor
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "LidParams":
         """Build from a params dict, ignoring keys that are not lid settings."""
         d = dict(d or {})
-        names = {f for f in cls.__dataclass_fields__}
-        return cls(**{k: v for k, v in d.items() if k in names})
+        names = set(LidParams.keys())
+        return LidParams(**{k: v for k, v in d.items() if k in names})
+
+    def lid_params(self) -> "LidParams":
+        """Only the lid-shape settings (what rig.json records)."""
+        return LidParams(**{k: getattr(self, k) for k in LidParams.keys()})
+
+
+@dataclass(frozen=True)
+class RigSettings(LidParams):
+    """The whole ``rig:`` block: the lid-shape settings plus the stage's checks and outputs."""
+
+    block: ClassVar[str] = "rig"
+
+    max_rest_gap_mm: float = setting(0.5, gt=0, le=10)    # refuse a margin farther than this from its eyeball sphere
+    sweep_step_deg: float = setting(0.5, ge=0.05, le=25)   # pitch step of the sweep written to the metrics
+    down_smoothing_sigma_mm: float = setting(0.75, ge=0, le=20)  # blur of the down-looking texture variant
 
 
 @dataclass

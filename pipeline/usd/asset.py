@@ -30,11 +30,26 @@ radius and forward direction, and rotating the joint rotates the eye about its c
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from pipeline.rig import lids
+from pipeline.settings import Settings, setting
+
+
+@dataclass(frozen=True)
+class UsdSettings(Settings):
+    """The ``usd:`` block of params.yaml (the per-scan asset)."""
+
+    block: ClassVar[str] = "usd"
+
+    usdz: bool = True                                   # also write <scan>.usdz (self-contained)
+    preview: bool = False                               # Cycles contact sheet preview.png
+    preview_px: int = setting(240, ge=16, le=2048)      # tile height (tiles are 2:1, both eyes)
+    preview_samples: int = setting(8, ge=1, le=4096)    # + OpenImageDenoise
 
 SIDES = ("left", "right")
 JOINTS = ("head", "head/eye_left", "head/eye_right")
