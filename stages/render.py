@@ -21,18 +21,15 @@ import json
 import os
 import shutil
 import time
+from array import array
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.io.atomic import write_json, write_text
+from pipeline.io.atomic import atomic_file, write_json
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
-
-RUN_KEYS = {"workers", "scheduler", "shard_size", "threads", "tile_size", "sheet_images", "image_timeout_s",
-            "progress", "connect_timeout_s"}
-
 
 # Cycles given one thread still keeps a second one busy (about a quarter of an image's CPU
 # time wasted), so two Blenders sharing two cores are slower than one Blender using both:
@@ -85,6 +82,94 @@ def prepare_out(out: Path, chash: str, n_images: int) -> dict:
     return {"stale_config": bool(stale and old is not None), "removed_files": removed}
 
 
+def _pending_shards(asset, settings, out: Path, pending, window: int, stats: dict, source):
+    """Shards of ``(spec, label)`` pairs, sampled lazily ``window`` images at a time (memory stays
+    flat for any n_images): within a window, one HDRI per shard, at most ``shard_size`` images."""
+    from pipeline.render import labels as lb
+    from pipeline.render import sampling as sp
+
+    it = iter(pending)
+    while True:
+        chunk = [i for _, i in zip(range(window), it)]
+        if not chunk:
+            return
+        t0 = time.perf_counter()
+        by_hdri: dict = {}
+        for i in chunk:
+            try:
+                smp = sp.make_sample(asset, settings, i, sp.tmp_png(out, i))
+            except sp.RejectionError as exc:
+                raise ScanError(source, str(exc)) from None
+            label = lb.make_label(smp, settings, asset.name)
+            if asset.eyes[smp.side].eyeball_params:
+                label["_apparent_job"] = lb.apparent_job(smp, asset.eyes[smp.side], settings)
+            by_hdri.setdefault(smp.spec["lighting"]["hdri"], []).append((smp.spec, label))
+        stats["sampling_s"] += time.perf_counter() - t0
+        k = settings.shard_size
+        for _, grp in sorted(by_hdri.items()):
+            for j in range(0, len(grp), k):
+                stats["shards"] += 1
+                yield grp[j:j + k]
+
+
+class _Results:
+    """Per-image results of the run, aggregated as they come (no list of every image)."""
+
+    def __init__(self):
+        self.n = 0
+        self.failed = 0
+        self.first_failure = None
+        self.render_s = array("d")
+        self.cpu_s = array("d")
+        self.rss_max = None
+
+    def __call__(self, r: dict) -> None:
+        if r.get("skipped"):
+            return
+        self.n += 1
+        if not r.get("ok"):
+            self.failed += 1
+            self.first_failure = self.first_failure or r
+        if r.get("render_s") is not None:
+            self.render_s.append(r["render_s"])
+        if r.get("total_cpu_s") is not None:
+            self.cpu_s.append(r["total_cpu_s"])
+        if r.get("rss_mib") is not None:
+            self.rss_max = max(self.rss_max or 0.0, r["rss_mib"])
+
+
+def _index_and_sheet(out: Path, n: int, n_sheet: int) -> dict:
+    """index.jsonl (streamed), the contact sheet, and label statistics, reading each label once."""
+    from pipeline.render import shard as sh
+    from pipeline.render.sheet import contact_sheet
+
+    sheet, checks, attempts = [], [], Counter()
+    skin, hdri = Counter(), Counter()
+    check_max, rejections, attempts_max = None, 0, 0
+    with atomic_file(out / "index.jsonl") as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        for i in range(n):
+            if not sh.done(out, i):
+                raise ScanError(out, f"image {i} missing after the run")
+            lab = json.loads((out / f"{i:06d}.json").read_text())
+            fh.write(json.dumps({"index": i, "png": f"{i:06d}.png", "json": f"{i:06d}.json",
+                                 "eye": lab["gaze"]["eye"], "gaze_camera_deg": [lab["gaze"]["camera"]["pitch_deg"],
+                                                                                 lab["gaze"]["camera"]["yaw_deg"]],
+                                 "landmark_check_mm": lab.get("landmark_check_mm")}) + "\n")
+            c = float(lab.get("landmark_check_mm") or 0.0)
+            check_max = c if check_max is None else max(check_max, c)
+            a = int(lab["seed"]["attempts"])
+            rejections += a - 1
+            attempts_max = max(attempts_max, a)
+            skin[lab["render"]["skin_detail"]] += 1
+            hdri[lab["lighting"]["hdri"]] += 1
+            if i < n_sheet:
+                sheet.append((out / f"{i:06d}.png", lab))
+    sheet_px = contact_sheet(sheet, out / "contact_sheet.png") if sheet else None
+    return {"landmark_check_max_mm": check_max, "rejections": rejections, "attempts_max": attempts_max,
+            "skin_detail": dict(skin), "hdri": dict(hdri),
+            "contact_sheet_px": list(sheet_px) if sheet_px else None}
+
+
 def main(argv) -> dict:
     ap = stage_parser(__doc__.splitlines()[0])
     ap.add_argument("asset", type=Path, help="rigged_assets/<scan> (holds <scan>.usda)")
@@ -97,27 +182,17 @@ def main(argv) -> dict:
     args = ap.parse_args(argv)
 
     from pipeline.render import asset as ra
-    from pipeline.render import labels as lb
     from pipeline.render import sampling as sp
     from pipeline.render import shard as sh
-    from pipeline.render.sheet import contact_sheet
 
     t0 = time.perf_counter()
     params = load_params("render", args.params)
-    if args.n_images is not None:
-        params["n_images"] = args.n_images
-    unknown = sorted(set(params) - set(sp.RenderSettings.__dataclass_fields__) - RUN_KEYS)
-    if unknown:
-        raise ScanError(Path(args.params), f"render: unknown key(s) {unknown}")
-    try:
-        settings = sp.RenderSettings.from_dict(params)
-    except (ValueError, TypeError) as exc:
-        raise ScanError(Path(args.params), f"render: {exc}") from None
-    workers = args.workers if args.workers is not None else int(params.get("workers") or 0)
-    if workers < 0:
-        raise ScanError(Path(args.params), "render: workers must be >= 0 (0 = auto)")
-    workers = workers or auto_workers(os.cpu_count() or 1)
-    scheduler = args.scheduler or params.get("scheduler") or None
+    for key, value in (("n_images", args.n_images), ("workers", args.workers)):
+        if value is not None:
+            params[key] = value
+    settings = sp.RenderSettings.from_params(params, source=args.params)
+    workers = settings.workers or auto_workers(os.cpu_count() or 1)
+    scheduler = args.scheduler or settings.scheduler or None
     asset = ra.load_render_asset(args.asset, args.rig)
     out = args.out
     chash = config_hash(settings, asset.fingerprint())
@@ -126,89 +201,50 @@ def main(argv) -> dict:
                                      "asset": str(asset.usda), "settings": settings.hashed()})
 
     n = settings.n_images
-    pending = [i for i in range(n) if not sh.done(out, i)]
-    items, attempts = [], {}
-    for i in pending:
-        try:
-            smp = sp.make_sample(asset, settings, i, sp.tmp_png(out, i))
-        except sp.RejectionError as exc:
-            raise ScanError(args.asset, str(exc)) from None
-        attempts[i] = smp.attempts
-        label = lb.make_label(smp, settings, asset.name)
-        if asset.eyes[smp.side].eyeball_params:
-            label["_apparent_job"] = lb.apparent_job(smp, asset.eyes[smp.side], settings)
-        items.append((smp.spec, label))
-    t_sample = time.perf_counter() - t0
-
-    # shards: one HDRI each (the worker switches maps rarely), at most shard_size images
-    shard_size = max(1, int(params.get("shard_size", 8)))
-    by_hdri: dict = {}
-    for spec, lab in items:
-        by_hdri.setdefault(spec["lighting"]["hdri"], []).append((spec, lab))
-    shards = [grp[k:k + shard_size] for _, grp in sorted(by_hdri.items())
-              for k in range(0, len(grp), shard_size)]
-    threads = int(params.get("threads", 0) or 0)
+    n_pending = sum(1 for i in range(n) if not sh.done(out, i))
+    pending = (i for i in range(n) if not sh.done(out, i))
+    stats = {"sampling_s": 0.0, "shards": 0}
+    # sampled a window at a time, a few shards per HDRI each
+    window = max(64, settings.shard_size * len(settings.hdris) * 4)
+    shards = _pending_shards(asset, settings, out, pending, window, stats, args.asset)
+    threads = settings.threads
     if not threads and not scheduler:
         threads = max(1, (os.cpu_count() or 1) // workers)
-    opts = {"threads": threads, "tile_size": params.get("tile_size"),
+    opts = {"threads": threads, "tile_size": settings.tile_size,
             "tolerance_mm": settings.landmark_tolerance_mm, "log_dir": str((out / ".tmp").resolve()),
-            "image_timeout_s": float(params.get("image_timeout_s", 600))}
+            "image_timeout_s": settings.image_timeout_s}
     t1 = time.perf_counter()
-    run = {"results": [], "workers": 0, "blender": {}}
-    if shards:
+    res = _Results()
+    run = {"workers": 0, "blender": {}}
+    if n_pending:
         run = sh.run_shards(shards, asset.usda, asset.rig_npz, out.resolve(), opts, workers=workers,
-                            scheduler=scheduler, progress=not args.no_progress and params.get("progress", True),
-                            connect_timeout_s=float(params.get("connect_timeout_s", 10)))
-    t_render = time.perf_counter() - t1
-    res = [r for r in run["results"] if not r.get("skipped")]
-    failed = [r for r in res if not r.get("ok")]
-    if failed:
-        raise ScanError(out, f"{len(failed)} of {len(res)} images failed; first: image "
-                             f"{failed[0]['index']}: {failed[0].get('error')}")
+                            scheduler=scheduler, progress=not args.no_progress and settings.progress,
+                            connect_timeout_s=settings.connect_timeout_s, total=n_pending, on_result=res)
+    t_render = time.perf_counter() - t1 - stats["sampling_s"]
+    if res.failed:
+        f = res.first_failure
+        raise ScanError(out, f"{res.failed} of {res.n} images failed; first: image "
+                             f"{f['index']}: {f.get('error')}")
 
-    # index, contact sheet
-    lines, labels = [], {}
-    for i in range(n):
-        if not sh.done(out, i):
-            raise ScanError(out, f"image {i} missing after the run")
-        lab = json.loads((out / f"{i:06d}.json").read_text())
-        labels[i] = lab
-        lines.append(json.dumps({"index": i, "png": f"{i:06d}.png", "json": f"{i:06d}.json",
-                                 "eye": lab["gaze"]["eye"], "gaze_camera_deg": [lab["gaze"]["camera"]["pitch_deg"],
-                                                                                 lab["gaze"]["camera"]["yaw_deg"]],
-                                 "landmark_check_mm": lab.get("landmark_check_mm")}))
-    write_text(out / "index.jsonl", "".join(x + "\n" for x in lines))
-    n_sheet = min(n, int(params.get("sheet_images", 16)))
-    sheet_px = None
-    if n_sheet:
-        sheet_px = contact_sheet([(out / f"{i:06d}.png", labels[i]) for i in range(n_sheet)],
-                                 out / "contact_sheet.png")
+    summary = _index_and_sheet(out, n, min(n, settings.sheet_images))
     shutil.rmtree(out / ".tmp", ignore_errors=True)
 
     wall = time.perf_counter() - t0
-    rs = [r["render_s"] for r in res if r.get("render_s") is not None]
-    rss = [r["rss_mib"] for r in res if r.get("rss_mib") is not None]
-    cpu = [r["total_cpu_s"] for r in res if r.get("total_cpu_s") is not None]
-    checks = [lab.get("landmark_check_mm") or 0.0 for lab in labels.values()]
-    all_attempts = [lab["seed"]["attempts"] for lab in labels.values()]
+    rs, cpu = np.asarray(res.render_s), np.asarray(res.cpu_s)
     return {"_path": args.metrics or default_metrics_path(out),
-            "n_images": n, "rendered": len(res), "skipped_done": n - len(res),
+            "n_images": n, "rendered": res.n, "skipped_done": n - res.n,
             "stale_config": prep["stale_config"], "removed_files": prep["removed_files"],
             "workers": run["workers"], "scheduler": scheduler or "LocalCluster",
-            "threads_per_blender": threads, "shards": len(shards),
+            "threads_per_blender": threads, "shards": stats["shards"],
             "blender_starts": int(sum(v.get("starts", 0) for v in run["blender"].values())),
-            "sampling_s": round(t_sample, 3), "render_wall_s": round(t_render, 3),
-            "s_per_image": round(t_render / len(res), 4) if res else None,
-            "images_per_s": round(len(res) / t_render, 4) if res and t_render > 0 else None,
-            "render_s_median": round(float(np.median(rs)), 4) if rs else None,
-            "blender_cpu_s_per_image_median": (round(float(np.median(cpu)), 4) if cpu else None),
-            "worker_rss_max_mib": max(rss) if rss else None,
-            "landmark_check_max_mm": float(max(checks)) if checks else None,
-            "rejections": int(sum(a - 1 for a in all_attempts)),
-            "attempts_max": int(max(all_attempts)) if all_attempts else 0,
-            "skin_detail": dict(Counter(lab["render"]["skin_detail"] for lab in labels.values())),
-            "hdri": dict(Counter(lab["lighting"]["hdri"] for lab in labels.values())),
-            "contact_sheet_px": list(sheet_px) if sheet_px else None,
+            "sampling_s": round(stats["sampling_s"], 3), "render_wall_s": round(t_render, 3),
+            "s_per_image": round(t_render / res.n, 4) if res.n else None,
+            "images_per_s": round(res.n / t_render, 4) if res.n and t_render > 0 else None,
+            "render_s_median": round(float(np.median(rs)), 4) if rs.size else None,
+            "blender_cpu_s_per_image_median": round(float(np.median(cpu)), 4) if cpu.size else None,
+            "worker_rss_max_mib": res.rss_max,
+            "landmark_check_max_mm": summary.pop("landmark_check_max_mm"),
+            **summary,
             "samples": settings.samples, "size": [settings.width, settings.height],
             "preset": settings.preset, "seed": settings.seed, "stage_wall_s": round(wall, 3)}
 

@@ -425,6 +425,30 @@ def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     assert "rig.npz" in str(ei.value)
 
 
+def test_sampling_streams_for_any_n_images(tiny, tmp_path, monkeypatch):
+    """A million images: the stage samples one window of images before the first shard goes
+    out, never all of them (memory stays flat); a billion is refused with one line."""
+    from stages import render as render_stage
+
+    s = _settings(n_images=1_000_000)
+    calls = []
+    real = sp.make_sample
+    monkeypatch.setattr(sp, "make_sample", lambda *a, **k: calls.append(a[2]) or real(*a, **k))
+    stats = {"sampling_s": 0.0, "shards": 0}
+    shards = render_stage._pending_shards(tiny["asset"], s, tmp_path, iter(range(s.n_images)), 16, stats,
+                                          tiny["asset_dir"])
+    first = next(shards)
+    assert calls == list(range(16)) and 1 <= len(first) <= s.shard_size
+    assert len({spec["lighting"]["hdri"] for spec, _ in first}) == 1
+    rest = [next(shards) for _ in range(3)]
+    assert len(calls) <= 32 and all(len(x) <= s.shard_size for x in rest)
+    huge = _params(tmp_path, "huge.yaml", n_images="1e9")
+    r = subprocess.run(_stage_cmd(tiny, tmp_path / "o5", huge), cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    assert "render.n_images must be <= 1000000 (got 1000000000)" in r.stderr
+    assert not (tmp_path / "o5").exists()
+
+
 def test_auto_workers_give_each_blender_two_cores():
     from stages.render import auto_workers
 

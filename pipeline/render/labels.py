@@ -34,6 +34,10 @@ def _ring_radius(P) -> float:
     return float(np.mean(np.linalg.norm(P - P.mean(0), axis=1)))
 
 
+#: Worker reply fields that measure time, not the image: kept out of the labels.
+TIMING_KEYS = ("render_s", "total_s", "render_cpu_s", "total_cpu_s")
+
+
 def make_label(smp: sp.Sample, settings: sp.RenderSettings, scan: str, reply: dict | None = None) -> dict:
     """The label dict of one image (``reply`` = the worker's reply, adds the render facts)."""
     spec = smp.spec
@@ -109,9 +113,8 @@ def make_label(smp: sp.Sample, settings: sp.RenderSettings, scan: str, reply: di
     }
     if reply is not None:
         label["landmark_check_mm"] = reply.get("landmark_check_mm")
-        label["render"]["render_s"] = reply.get("render_s")
-        for k, v in reply.items():
-            if k not in ("index", "ok", "render_s", "rss_mib", "landmark_check_mm", "error"):
+        for k, v in reply.items():      # timings stay out of labels (identical inputs, identical bytes)
+            if k not in ("index", "ok", "rss_mib", "landmark_check_mm", "error") and k not in TIMING_KEYS:
                 label["render"].setdefault(k, v)
     return label
 

@@ -237,9 +237,8 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
                 if extra is not None:
                     label["landmarks"] = dict(label["landmarks"], **extra)
                 label["landmark_check_mm"] = float(check)
-                label["render"] = dict(label["render"], **{k: reply[k] for k in
-                                                          ("render_s", "total_s", "render_cpu_s", "total_cpu_s")
-                                                          if k in reply})
+                # timings (render_s, cpu seconds, rss) go to the stage metrics, never into the
+                # label: the same sample must give the same bytes
                 os.replace(spec["png"], out / f"{i:06d}.png")
                 write_json(out / f"{i:06d}.json", label)
         results.append(res)
@@ -262,28 +261,50 @@ def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0
 
 
 def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, scheduler: str | None = None,
-               progress: bool = True, connect_timeout_s: float = 10.0) -> dict:
-    """Render every shard (list of lists of ``(spec, label)``); returns per-image results + stats.
+               progress: bool = True, connect_timeout_s: float = 10.0, total: int | None = None,
+               on_result=None, max_in_flight: int | None = None) -> dict:
+    """Render every shard (an iterable of lists of ``(spec, label)``, consumed lazily: at most
+    ``max_in_flight`` shards, default 2 per worker + 2, are sampled and submitted ahead).
+
+    ``on_result(result)`` is called for each image's result as it arrives; without it the
+    results are collected in the returned ``"results"`` list.
 
     Returns
     -------
-    dict  {"results": [...], "workers": n, "blender": {worker: stats}}
+    dict  {"results": [...] (empty with on_result), "workers": n, "blender": {worker: stats}}
     """
     from dask.distributed import as_completed
     from tqdm import tqdm
 
-    client, cluster = _client(workers, scheduler, connect_timeout_s)
     results = []
+    if on_result is None:
+        on_result = results.append
+    shards = iter(shards)
+    first = next(shards, None)
+    if first is None:
+        return {"results": results, "workers": 0, "blender": {}}
+    client, cluster = _client(workers, scheduler, connect_timeout_s)
     try:
         n_workers = len(client.scheduler_info().get("workers", {}))
-        total = sum(len(s) for s in shards)
-        futs = [client.submit(render_shard, s, str(asset), str(rig), str(out_dir), opts,
-                              pure=False, key=f"render-shard-{k}-{os.getpid()}")
-                for k, s in enumerate(shards)]
+        limit = max_in_flight or 2 * max(1, n_workers or int(workers)) + 2
         bar = tqdm(total=total, unit="img", desc="render", disable=not progress or total == 0,
                    file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
+        ac = as_completed()
+        count = [0]
+
+        def submit(shard):
+            ac.add(client.submit(render_shard, shard, str(asset), str(rig), str(out_dir), opts,
+                                 pure=False, key=f"render-shard-{count[0]}-{os.getpid()}"))
+            count[0] += 1
+
+        submit(first)
+        for _ in range(limit - 1):
+            nxt = next(shards, None)
+            if nxt is None:
+                break
+            submit(nxt)
         failed = 0
-        for fut in as_completed(futs):
+        for fut in ac:
             try:
                 res = fut.result()
             except Exception as exc:  # noqa: BLE001 -- a task that raised (Blender could not start, ...)
@@ -292,7 +313,9 @@ def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, schedu
                         "PYTHONPATH=<repository root>)" if "serializ" in msg or isinstance(exc, ImportError)
                         else "")
                 raise ScanError(asset, f"render task failed: {type(exc).__name__}: {msg}{hint}") from None
-            results.extend(res)
+            fut.release()
+            for r in res:
+                on_result(r)
             failed += sum(1 for r in res if not r.get("ok"))
             bar.update(len(res))
             el = bar.format_dict.get("elapsed") or 0.0
@@ -300,8 +323,11 @@ def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, schedu
             if failed:
                 post["failed"] = failed
             bar.set_postfix(post)
+            nxt = next(shards, None)          # keep the pipeline full: one out, one in
+            if nxt is not None:
+                submit(nxt)
         bar.close()
-        stats = client.run(blender_stats) if futs else {}
+        stats = client.run(blender_stats)
         client.run(close_blender)
     finally:
         client.close()
