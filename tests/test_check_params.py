@@ -1,0 +1,129 @@
+"""Stage ``check_params``: scan names are data, never shell syntax; every block is checked first."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from pipeline.errors import ScanError
+from pipeline.settings import check_scan_name
+from stages import check_params as cp
+from stages._common import run_stage
+
+ROOT = Path(__file__).resolve().parents[1]
+EVIL = "scan$(touch${IFS}PWNED)"
+
+
+@pytest.mark.parametrize("name", ["synthetic_head", "ict_neutral", "james-2", "A.b_c", "x"])
+def test_safe_names_pass(name):
+    assert check_scan_name(name) == name
+
+
+@pytest.mark.parametrize("name", [EVIL, "../../x", "..", ".", ".hidden", "", "a b", "a/b", "a;b", "a'b",
+                                  'a"b', "a`id`", "a\nb", "name\n", "é", "x" * 129, 12, None])
+def test_unsafe_names_refused_naming_params_yaml(name):
+    with pytest.raises(ScanError) as exc:
+        check_scan_name(name)
+    assert str(exc.value).startswith("params.yaml: scans: ") and "not a safe scan name" in str(exc.value)
+
+
+def _params(tmp_path, **changes) -> Path:
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data.update(changes)
+    p = tmp_path / "params.yaml"
+    p.write_text(yaml.safe_dump(data, sort_keys=False))
+    return p
+
+
+def test_the_repository_params_pass(tmp_path, capsys):
+    out = tmp_path / "check_params.ok"
+    assert run_stage(cp.main, [str(ROOT / "params.yaml"), str(out)]) == 0
+    assert out.read_text() == cp.OK_TEXT
+
+
+@pytest.mark.parametrize("scans, message", [
+    (["synthetic_head", EVIL], f"params.yaml: scans: {EVIL!r} is not a safe scan name"),
+    (["../../x"], "params.yaml: scans: '../../x' is not a safe scan name"),
+    (["a", "a"], "params.yaml: scans: 'a' is listed twice"),
+    ("synthetic_head", "params.yaml: scans must be a list"),
+])
+def test_bad_scans_refused_one_line_exit_2(tmp_path, capsys, scans, message):
+    p = _params(tmp_path, scans=scans)
+    out = tmp_path / "check_params.ok"
+    assert run_stage(cp.main, [str(p), str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("block, key, value, message", [
+    ("bake", "max_distance_mm", -4, "bake.max_distance_mm must be > 0 (got -4)"),
+    ("render", "n_images", "1e9", "render.n_images must be <= 1000000"),
+    ("snap", "falloff_mm", float("nan"), "snap.falloff_mm must be a finite number"),
+    ("rig", "max_segment", 3, "rig.max_segment is an unknown key"),
+    ("ingest", "max_vertex", 3, "max_vertex"),
+])
+def test_bad_settings_refused_before_any_stage(tmp_path, capsys, block, key, value, message):
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data[block][key] = value
+    p = tmp_path / "params.yaml"
+    p.write_text(yaml.safe_dump(data, sort_keys=False))
+    assert run_stage(cp.main, [str(p), str(tmp_path / "ok")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.startswith(f"error: {p}: ") and err.count("\n") == 1
+
+
+def test_unknown_block_refused(tmp_path, capsys):
+    p = _params(tmp_path, retopology={"target_polygons": 10})
+    assert run_stage(cp.main, [str(p), str(tmp_path / "ok")]) == 2
+    assert "'retopology' is not a block of this pipeline" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("stage", ["ingest", "retopo", "bake", "snap", "rig", "usd", "render"])
+def test_stages_refuse_unsafe_path_words(tmp_path, capsys, monkeypatch, stage):
+    """Defence in depth: a stage run by hand (or by DVC without check_params) refuses the name."""
+    import importlib
+
+    mod = importlib.import_module(f"stages.{stage}")
+    n_pos = {"ingest": 2, "retopo": 2, "bake": 3, "snap": 4, "rig": 2, "usd": 6, "render": 3}[stage]
+    argv = [str(tmp_path / "ok")] * (n_pos - 1) + [f"build/{EVIL}/{stage}"]
+    monkeypatch.chdir(tmp_path)
+    assert run_stage(mod.main, argv) == 2
+    err = capsys.readouterr().err
+    assert f"{EVIL!r} is not a safe path component" in err and err.count("\n") == 1
+    assert not (tmp_path / "build").exists() and not (tmp_path / "PWNED").exists()
+    with pytest.raises(ScanError, match="'..' is not a safe path component"):
+        mod.main([str(tmp_path / "ok")] * (n_pos - 1) + ["build/../../x"])
+
+
+def test_dvc_repro_with_a_malicious_scan_runs_nothing(tmp_path):
+    """``dvc repro`` in a copy of the pipeline with ``scan$(touch${IFS}PWNED)`` listed: check_params
+    refuses it first (every stage depends on it), so nothing runs and no PWNED appears."""
+    dvc = Path(sys.executable).with_name("dvc")
+    if not dvc.is_file():
+        pytest.fail(f"dvc not installed next to {sys.executable}")
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    for name in ("dvc.yaml", "pyproject.toml"):
+        shutil.copy(ROOT / name, repo / name)
+    for d in ("stages", "pipeline"):
+        shutil.copytree(ROOT / d, repo / d, ignore=shutil.ignore_patterns("__pycache__"))
+    data = yaml.safe_load((ROOT / "params.yaml").read_text())
+    data["scans"] = ["synthetic_head", EVIL]
+    (repo / "params.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    (repo / "raw_scans" / EVIL).mkdir(parents=True)
+    env = {**os.environ, "PATH": f"{dvc.parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+    subprocess.run([str(dvc), "init", "--no-scm", "-q"], cwd=repo, check=True, env=env)
+    res = subprocess.run([str(dvc), "repro"], cwd=repo, env=env, capture_output=True, text=True, timeout=300)
+    text = res.stdout + res.stderr
+    assert res.returncode != 0
+    assert f"params.yaml: scans: {EVIL!r} is not a safe scan name" in text
+    assert "Running stage 'synthetic_head'" not in text and "Running stage 'ingest" not in text
+    assert not list(tmp_path.rglob("PWNED")) and not (repo / "build" / "check_params.ok").exists()
+    assert not (repo / "raw_scans" / "synthetic_head").exists()
