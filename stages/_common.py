@@ -116,12 +116,17 @@ def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
     """Run a stage ``main(argv) -> metrics`` with the house error handling.
 
     ``main`` returns its metrics dict and the path to write them to under the key
-    ``"_path"``; wall time and peak memory are added here.
+    ``"_path"``; wall time and peak memory are added here. ``main`` runs with its own scratch
+    folder as ``TMPDIR`` (pipeline.io.scratch.stage_scratch), removed when it returns.
     """
+    from pipeline.io.scratch import stage_scratch
+
     argv = sys.argv[1:] if argv is None else argv
     t0 = time.perf_counter()
+    stage = str(getattr(getattr(main, "func", main), "__module__", "stage")).rsplit(".", 1)[-1]
     try:
-        metrics = main(argv)
+        with stage_scratch(stage):      # its own TMPDIR (Blender, Dask), removed at exit
+            metrics = main(argv)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

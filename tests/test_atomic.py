@@ -84,3 +84,99 @@ def test_mesh_container_round_trip_casts_dtypes(tmp_path):
     np.testing.assert_array_equal(m["loop_left"], [0, 1])
     with pytest.raises(ValueError):
         save_mesh(tmp_path / "x.npz", V=V)
+
+
+# ---------------------------------------------------------------------------- stale temporaries, scratch, children
+
+DEAD_PID = 2**22 + 12345          # above Linux's pid_max: never a live process
+
+
+def test_stale_tmp_siblings_of_dead_processes_are_removed(tmp_path):
+    out = tmp_path / "out"
+    dead = tmp_path / f".out.tmp-{DEAD_PID}-abc"
+    legacy = tmp_path / ".out.tmp-x1y2"
+    live = tmp_path / f".out.tmp-{os.getpid()}-zzz"      # another writer, still running
+    other = tmp_path / f".other.tmp-{DEAD_PID}-abc"       # another output's: not ours to touch
+    for d in (dead, legacy, live, other):
+        d.mkdir()
+        (d / "half.bin").write_bytes(b"x" * 100)
+    with atomic_dir(out) as tmp:
+        assert tmp.name.startswith(f".out.tmp-{os.getpid()}-")
+        (tmp / "a.txt").write_text("whole")
+    assert _siblings(tmp_path) == sorted([live.name, other.name, "out"])
+    (tmp_path / f".m.json.tmp-{DEAD_PID}-q.json").write_text("{")
+    write_json(tmp_path / "m.json", {"a": 1})
+    assert not (tmp_path / f".m.json.tmp-{DEAD_PID}-q.json").exists()
+
+
+def test_atomic_writes_fsync_file_and_folder_before_and_after_rename(tmp_path, monkeypatch):
+    import pipeline.io.atomic as at
+
+    synced, renamed = [], []
+    real_fsync, real_replace = os.fsync, os.replace
+    monkeypatch.setattr(at.os, "fsync", lambda fd: (synced.append(os.readlink(f"/proc/self/fd/{fd}")),
+                                                     real_fsync(fd))[1])
+    monkeypatch.setattr(at.os, "replace", lambda a, b: (renamed.append((str(a), len(synced))),
+                                                         real_replace(a, b))[1])
+    write_json(tmp_path / "m.json", {"a": 1})
+    final_rename = [r for r in renamed if r[0].endswith(".json") and ".tmp-" in r[0]][-1]
+    assert any(".m.json.tmp-" in s for s in synced[:final_rename[1]])     # the data, before the rename
+    assert synced[-1] == str(tmp_path)                                     # the folder, after it
+    synced.clear()
+    with atomic_dir(tmp_path / "d") as tmp:
+        (tmp / "f.bin").write_bytes(b"1")
+    assert any(s.endswith("/f.bin") for s in synced) and synced[-1] == str(tmp_path)
+
+
+def test_stage_scratch_is_tmpdir_of_the_stage_and_removed(tmp_path, monkeypatch):
+    import subprocess
+    import sys
+    import tempfile
+
+    from pipeline.io.scratch import stage_scratch
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    stale = tmp_path / f"eyerig-render-{DEAD_PID}-abc123"
+    stale.mkdir()
+    (stale / "dask-scratch-space").mkdir()
+    with stage_scratch("render") as folder:
+        assert not stale.exists()
+        assert folder.parent == tmp_path and folder.name.startswith(f"eyerig-render-{os.getpid()}-")
+        assert tempfile.gettempdir() == str(folder) and os.environ["TMPDIR"] == str(folder)
+        child = subprocess.run([sys.executable, "-c", "import tempfile; print(tempfile.gettempdir())"],
+                               capture_output=True, text=True, check=True)
+        assert child.stdout.strip() == str(folder)                  # children scratch there too
+        (folder / "blender_xyz").mkdir()
+    assert not folder.exists() and os.environ["TMPDIR"] == str(tmp_path)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_children_die_with_their_parent(tmp_path):
+    """A child started with die_with_parent (Blender previews, render workers) gets SIGTERM when
+    the process that started it is killed with SIGKILL."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    code = ("import subprocess, sys; from pipeline.io.scratch import die_with_parent; "
+            "p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'], "
+            "preexec_fn=die_with_parent); print(p.pid, flush=True); time.sleep(60)")
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                              cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    child = int(parent.stdout.readline())
+    os.kill(parent.pid, signal.SIGKILL)
+    parent.wait()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            with open(f"/proc/{child}/stat") as fh:
+                if fh.read().split(") ")[1][0] == "Z":     # reaped by init soon; gone already
+                    break
+        except FileNotFoundError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(child, signal.SIGKILL)
+        pytest.fail("the child outlived its killed parent")

@@ -1,9 +1,12 @@
 """Atomic writes: every file or folder a stage produces appears whole or not at all.
 
 Everything is written to a temporary sibling (same folder, so the final
-``os.replace`` is a rename on one filesystem) and renamed into place. A killed
-stage leaves at most a ``*.tmp-*`` sibling, which git and DVC ignore, and never
-a half-written output; other scans' outputs are never touched.
+``os.replace`` is a rename on one filesystem), flushed to disk (``fsync`` of every
+file, then of the folder after the rename) and renamed into place. A killed
+stage leaves at most a ``.<name>.tmp-<pid>-*`` sibling, which git and DVC ignore,
+and never a half-written output; other scans' outputs are never touched. The
+next write of the same output removes such siblings once their process
+``<pid>`` is gone (:func:`remove_stale_siblings`).
 """
 
 from __future__ import annotations
@@ -25,9 +28,63 @@ def _umask() -> int:
     return mask
 
 
+def _tmp_prefix(path: Path) -> str:
+    return f".{path.name}.tmp-"
+
+
+def remove_stale_siblings(path) -> list[Path]:
+    """Remove temporary siblings of ``path`` (``.<name>.tmp-<pid>-*``) whose process is gone.
+
+    Siblings of live processes (another run writing the same output) are kept; a sibling
+    without a pid (older naming) is stale by definition. Returns the removed paths.
+    """
+    from pipeline.io.scratch import pid_alive
+
+    path = Path(path)
+    prefix = _tmp_prefix(path)
+    removed = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    for e in entries:
+        if not e.name.startswith(prefix):
+            continue
+        head = e.name[len(prefix):].split("-", 1)[0]
+        if head.isdigit() and pid_alive(int(head)):
+            continue
+        _remove(Path(e.path))
+        removed.append(Path(e.path))
+    return removed
+
+
+def _fsync_path(path: Path, directory: bool = False) -> None:
+    fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_tree(root: Path) -> None:
+    """fsync every file and folder under ``root`` (so a rename publishes only durable data)."""
+    if root.is_symlink():
+        return
+    if root.is_file():
+        _fsync_path(root)
+        return
+    for dirpath, _dirs, files in os.walk(root):
+        for f in files:
+            p = Path(dirpath, f)
+            if not p.is_symlink() and p.is_file():
+                _fsync_path(p)
+        _fsync_path(Path(dirpath), directory=True)
+
+
 def _tmp_sibling(path: Path, directory: bool) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    prefix = f".{path.name}.tmp-"
+    remove_stale_siblings(path)
+    prefix = f"{_tmp_prefix(path)}{os.getpid()}-"
     # mkdtemp/mkstemp create 0700/0600; outputs are shared data, so honour the umask
     # like an ordinary open() would.
     if directory:
@@ -64,6 +121,7 @@ def atomic_dir(path) -> Iterator[Path]:
     tmp = _tmp_sibling(path, directory=True)
     try:
         yield tmp
+        _fsync_tree(tmp)
         if path.exists() or path.is_symlink():
             old = _tmp_sibling(path, directory=True)
             old.rmdir()
@@ -72,6 +130,7 @@ def atomic_dir(path) -> Iterator[Path]:
             _remove(old)
         else:
             os.replace(tmp, path)
+        _fsync_path(path.parent, directory=True)
     except BaseException:
         _remove(tmp)
         raise
@@ -93,7 +152,9 @@ def atomic_file(path) -> Iterator[Path]:
     os.replace(tmp, tmp_with_suffix)
     try:
         yield tmp_with_suffix
+        _fsync_path(tmp_with_suffix)
         os.replace(tmp_with_suffix, path)
+        _fsync_path(path.parent, directory=True)
     except BaseException:
         _remove(tmp_with_suffix)
         raise
