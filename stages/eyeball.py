@@ -11,7 +11,6 @@ worker subprocess. Settings: the ``eyeball:`` block of params.yaml.
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -21,6 +20,8 @@ from PIL import Image
 from pipeline.eyeball import geometry as geo
 from pipeline.eyeball import textures as tex
 from pipeline.io.atomic import atomic_dir
+from pipeline.io.png import strip_png_metadata
+from pipeline.io.scratch import run_child
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
@@ -66,7 +67,7 @@ def render_preview(folder: Path, settings: geo.EyeballSettings, timings: Path) -
     cmd = [sys.executable, "-m", "pipeline.blender.eyeball_preview", str(folder / "eyeball.usda"),
            str(folder / "preview.png"), "--size", str(settings.preview_px),
            "--samples", str(settings.preview_samples), "--json", str(timings)]
-    res = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+    res = run_child(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
     if res.returncode != 0:
         raise RuntimeError("preview render failed:\n" + res.stdout[-2000:] + res.stderr[-2000:])
 
@@ -86,6 +87,7 @@ def main(argv) -> dict:
                 tj = Path(td) / "preview.json"
                 t = time.perf_counter()
                 render_preview(tmp, settings, tj)
+                strip_png_metadata(tmp / "preview.png")     # Blender's time/text chunks: same pixels, same bytes
                 metrics["preview"] = json.loads(tj.read_text())
                 metrics["preview"]["wall_s"] = round(time.perf_counter() - t, 3)
     return {"_path": args.metrics or default_metrics_path(args.out), **metrics}

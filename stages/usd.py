@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -31,6 +30,8 @@ import pipeline
 from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.meshfile import read_stage_mesh
+from pipeline.io.png import strip_png_metadata
+from pipeline.io.scratch import run_child
 from pipeline.rig import lids
 from stages._common import default_metrics_path, load_params, load_settings, stage_exit, stage_parser
 
@@ -164,9 +165,10 @@ def render_preview(usda: Path, rig_npz: Path, out_png: Path, size: int, samples:
         cmd = [sys.executable, "-m", "pipeline.blender.asset_preview", str(usda), str(rig_npz),
                str(out_png), "--size", str(int(size)), "--samples", str(int(samples)),
                "--json", str(info_path)]
-        res = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+        res = run_child(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
         if res.returncode != 0 or not out_png.is_file():
             raise RuntimeError("asset preview render failed:\n" + res.stdout[-2000:] + res.stderr[-2000:])
+        strip_png_metadata(out_png)          # Blender's time/text chunks: same pixels, same bytes
         info = json.loads(info_path.read_text(encoding="utf-8"))
     return {"preview_s": round(time.perf_counter() - t0, 3),
             "preview_render_s": info.get("render_s_total"),

@@ -21,7 +21,6 @@ import atexit
 import json
 import os
 import select
-import signal
 import subprocess
 import sys
 import time
@@ -31,6 +30,8 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json
+from pipeline.io.png import strip_png_metadata
+from pipeline.io.scratch import die_with_parent
 
 REPLY_PREFIX = "@@render@@ "
 ROOT = Path(__file__).resolve().parents[2]
@@ -40,15 +41,6 @@ _STARTS = [0]                         # Blender processes started by this proces
 
 class WorkerDied(RuntimeError):
     """The Blender subprocess exited or stopped answering."""
-
-
-def _pdeathsig():                     # runs in the child before exec (Linux)
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
 
 
 class BlenderProcess:
@@ -65,7 +57,7 @@ class BlenderProcess:
         self.log_path = Path(log_path) if log_path else None
         self._log = open(self.log_path, "ab") if self.log_path else subprocess.DEVNULL
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log,
-                                     cwd=str(ROOT), env=env, preexec_fn=_pdeathsig)
+                                     cwd=str(ROOT), env=env, preexec_fn=die_with_parent)
         self._buf = b""
         t0 = time.perf_counter()
         ready = self._reply(start_timeout_s)
@@ -239,6 +231,7 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
                 label["landmark_check_mm"] = float(check)
                 # timings (render_s, cpu seconds, rss) go to the stage metrics, never into the
                 # label: the same sample must give the same bytes
+                strip_png_metadata(spec["png"])        # Blender's Date/Time/RenderTime text chunks
                 os.replace(spec["png"], out / f"{i:06d}.png")
                 write_json(out / f"{i:06d}.json", label)
         results.append(res)

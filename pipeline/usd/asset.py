@@ -332,7 +332,43 @@ def package_usdz(usda, usdz, folder_name: str | None = None) -> list[str]:
                 arc = rel.as_posix()
             zw.AddFile(str(f), arc)
             members.append(arc)
+    fix_zip_times(usdz)
     return members
+
+
+#: DOS date/time stamped on every usdz member: 1980-01-01 00:00:00, the format's epoch.
+ZIP_DOS_DATE, ZIP_DOS_TIME = (0 << 9) | (1 << 5) | 1, 0
+
+
+def fix_zip_times(path) -> int:
+    """Set every member's modification time in the zip at ``path`` to 1980-01-01 00:00 (in the
+    local headers and the central directory), in place, so the same files always give the same
+    archive bytes (Sdf.ZipFileWriter stamps each member with its file's mtime). Sizes, offsets
+    and the usdz 64-byte data alignment are unchanged. Returns the number of members."""
+    import struct
+    import zipfile
+
+    with open(path, "r+b") as fh:
+        with zipfile.ZipFile(fh) as zf:
+            infos = zf.infolist()
+            start_dir = zf.start_dir
+        for info in infos:
+            fh.seek(info.header_offset)
+            if fh.read(4) != b"PK\x03\x04":
+                raise ValueError(f"{path}: bad local header for {info.filename}")
+            fh.seek(info.header_offset + 10)
+            fh.write(struct.pack("<HH", ZIP_DOS_TIME, ZIP_DOS_DATE))
+        pos = start_dir
+        for _ in infos:
+            fh.seek(pos)
+            head = fh.read(46)
+            if head[:4] != b"PK\x01\x02":
+                raise ValueError(f"{path}: bad central directory entry")
+            n, m, k = struct.unpack("<HHH", head[28:34])
+            fh.seek(pos + 12)
+            fh.write(struct.pack("<HH", ZIP_DOS_TIME, ZIP_DOS_DATE))
+            pos += 46 + n + m + k
+    return len(infos)
 
 
 def check_package(usdz) -> list[str]:
