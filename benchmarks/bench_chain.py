@@ -23,18 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.geometry.mesh_checks import closed_polyline_distance
+
 ROOT = Path(__file__).resolve().parents[1]
 STAGES = ("ingest", "remove_eyeballs", "retopo", "bake", "snap")
-
-
-def _polyline_distance(P, M):
-    M2 = np.roll(M, -1, axis=0)
-    best = np.full(len(P), np.inf)
-    for a, b in zip(M, M2):
-        ab = b - a
-        t = np.clip(((P - a) @ ab) / (ab @ ab), 0, 1)
-        best = np.minimum(best, np.linalg.norm(P - (a + t[:, None] * ab), axis=1))
-    return best
 
 
 def _run(cmd):
@@ -113,7 +105,7 @@ def main():
         accuracy[s] = {
             "center_error_mm": float(np.linalg.norm(np.array(e["center"]) - g["eyeball_sphere"]["center_mm"])),
             "radius_error_mm": float(e["radius"] - g["eyeball_sphere"]["radius_mm"]),
-            "loop_to_margin_mean_mm": float(_polyline_distance(
+            "loop_to_margin_mean_mm": float(closed_polyline_distance(
                 np.array(e["loop_points"]), np.array(g["eyelid_margin"]["points_mm"])).mean()),
         }
     result = {

@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from benchmarks.bench_remove_eyeballs import _polyline_distance, eye_errors
+from benchmarks.bench_remove_eyeballs import eye_errors
+from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.geometry.eyes import SIDES, EyeSettings, remove_eyeballs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -133,7 +134,7 @@ def shift_curve(loop, center, radius, M, shifts):
         k /= np.linalg.norm(k, axis=1)[:, None]
         a = s / radius
         un = u * np.cos(a) + np.cross(k, u) * np.sin(a) + k * (k * u).sum(axis=1)[:, None] * (1 - np.cos(a))
-        out.append(float(_polyline_distance(center + radius * un, M).mean()))
+        out.append(float(closed_polyline_distance(center + radius * un, M).mean()))
     return np.array(out)
 
 

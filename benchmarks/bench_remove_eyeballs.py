@@ -23,22 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.geometry.eyes import EyeSettings, remove_eyeballs
 from pipeline.synthetic_head import make_synthetic_head
 
 BOUND_MM = 0.5
 SETTINGS = EyeSettings()
 RESULTS = Path(__file__).resolve().parent / "results"
-
-
-def _polyline_distance(P, M):
-    M2 = np.roll(M, -1, axis=0)
-    best = np.full(len(P), np.inf)
-    for a, b in zip(M, M2):
-        ab = b - a
-        t = np.clip(((P - a) @ ab) / (ab @ ab), 0, 1)
-        best = np.minimum(best, np.linalg.norm(P - (a + t[:, None] * ab), axis=1))
-    return best
 
 
 def eye_errors(e, g, spheres=("eyeball_sphere",)):
@@ -53,7 +44,7 @@ def eye_errors(e, g, spheres=("eyeball_sphere",)):
     return {
         "center_error_mm": cerr,
         "radius_error_mm": rerr,
-        "loop_to_margin_mean_mm": float(_polyline_distance(
+        "loop_to_margin_mean_mm": float(closed_polyline_distance(
             np.array(e["loop_points"]), np.array(g["eyelid_margin"]["points_mm"])).mean()),
         "forward_error_deg": float(np.degrees(np.arccos(np.clip(
             np.dot(e["forward"], g["gaze_direction"]), -1, 1)))),

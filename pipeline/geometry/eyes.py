@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.geometry import meshtopo
+from pipeline.geometry import eye_checks, meshtopo
 from pipeline.geometry.spherefit import (fit_sphere_algebraic, radius_sigma, ransac_sphere,
                                          refine_sphere, signed_distance)
 
@@ -865,6 +865,20 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
     return mesh, fits
 
 
+def _refuse_unsure(eyes: dict, source):
+    """One line naming every failed self-check (``eye_checks``): an eye placed wrongly would
+    otherwise pass silently into every later stage."""
+    bad = [(s, k) for s in SIDES for k in eye_checks.failed(eyes[s]["checks"])]
+    if not bad:
+        return
+    pair = [k for s, k in bad if k == "radii_agree"][:1]
+    per_eye = [f"{s} eye: " + eye_checks.describe(k, eyes[s]["checks"][k]) for s, k in bad
+               if k != "radii_agree"]
+    both = [eye_checks.describe(k, eyes["left"]["checks"][k]) for k in pair]
+    raise ScanError(source, "not sure of the eyeball placement: " + "; ".join(per_eye + both)
+                    + " (see the remove_eyeballs self-checks in the README)")
+
+
 def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = None, *,
                     source="mesh", texture=None) -> RemovalResult:
     """Fit both eyes and cut the scanned eyeball surface out of the head mesh.
@@ -931,7 +945,8 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
     H2 = meshtopo.boundary_halfedges(F2n)
     n_loops_out = meshtopo.boundary_component_count(F2n, H2)
     # region border vertices (old ids) per eye -> loops touching them
-    eyes, metrics, moved = {}, {}, {}
+    eyes, metrics, moved, checks = {}, {}, {}, {}
+    lim = eye_checks.CheckLimits(radius_range_mm=tuple(st.radius_range_mm))
     old_ids = np.flatnonzero(used)
     for s in SIDES:
         fit = fits[s]
@@ -952,10 +967,14 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
                                          np.cos(np.radians(st.margin_max_turn_deg)),
                                          st.margin_on_eye_mm)
         loop, lat = order_loop(loop, V2, fit.center, fit.forward, s)
+        checks[s] = eye_checks.check_eye(V, F, fit.center, fit.radius, fit.forward, V2[loop], lim,
+                                         fit.residual_rms_mm)
         eyes[s] = {
             "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
             "residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
             "method": fit.method,
+            "placement": "surface" if fit.method == "geometry" else fit.method,
+            "checks": checks[s],
             "cornea": None if fit.cornea is None else {
                 "center": np.asarray(fit.cornea["center"]).tolist(),
                 "radius": fit.cornea["radius"], "n_inliers": fit.cornea["n_inliers"]},
@@ -968,6 +987,13 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
                       "crease_deg": round(fit.crease_deg, 3),
                       "cornea_fitted": fit.cornea is not None,
                       "loop_moved_mean_mm": round(moved.get(s, 0.0), 4)}
+    pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
+    for s in SIDES:
+        eyes[s]["checks"].update(pair)
+        metrics[s]["placement"] = eyes[s]["placement"]
+        metrics[s]["checks_failed"] = eye_checks.failed(eyes[s]["checks"])
+        metrics[s].update({f"check_{k}": c["value"] for k, c in eyes[s]["checks"].items()})
+    _refuse_unsure(eyes, source)
     if n_loops_out != loops_in + 2:
         raise ScanError(source, f"cutting the eyeballs gave {n_loops_out} boundary loops, expected "
                                 f"{loops_in} + 2")

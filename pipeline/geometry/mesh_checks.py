@@ -44,6 +44,29 @@ def vertex_normals(V, F):
     return vn / np.where(ln > 0, ln, 1.0)
 
 
+def closed_polyline_distance(P, M):
+    """Distance from each point to a closed polyline.
+
+    Parameters
+    ----------
+    P : (n, 3) float64
+    M : (k, 3) float64
+        Polyline vertices; the last joins the first.
+
+    Returns
+    -------
+    (n,) float64
+    """
+    P = np.asarray(P, dtype=np.float64)
+    A = np.asarray(M, dtype=np.float64)
+    AB = np.roll(A, -1, axis=0) - A
+    best = np.full(len(P), np.inf)
+    for a, ab in zip(A, AB):
+        t = np.clip(((P - a) @ ab) / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(P - (a + t[:, None] * ab), axis=1))
+    return best
+
+
 def triangle_angles_deg(V, F):
     """(m, 3) interior angles in degrees at each corner."""
     V = np.asarray(V, dtype=np.float64)

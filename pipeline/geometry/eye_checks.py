@@ -1,0 +1,147 @@
+"""Self-checks of a fitted eye: facts every correct eyeball placement satisfies.
+
+A sphere fitted to a scanned eye can be wrong with a low residual: a smaller sphere hugging the
+sclera and the corneal bulge, or a larger one through lid skin draped over a down-looking or
+squinting eye, both fit their inliers within noise. What they cannot do is satisfy the anatomy
+around them, so each fit is checked against it (``check_eye``, ``check_pair``):
+
+- ``inside``: nothing of the head lies inside the eyeball. Surface within ``radius_mm`` of the
+  opening that lies deeper than the noise inside the sclera sphere means the
+  sphere is too large or too far forward (within ``cone_depth_mm`` inside the corneal cone,
+  where a scanner that sees the iris through the cornea leaves a recessed disc).
+- ``radius_in_range``: the radius lies in the anatomical range.
+- ``opening_fits``: the opening loop (a chord of the eyeball at its widest) is not wider than
+  the eyeball's diameter.
+- ``loop_on_sphere``: the eyelid loop lies on the eyeball (the margin is where lid meets eye).
+- ``radii_agree`` (pair): the two eyes of one head have radii within ``max_radius_diff_mm``.
+
+Each check returns its measured value and whether it passed, so the stage can record them in
+``eyes.json`` and the metrics and refuse (or fall back) with one line naming the failed check.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CheckLimits:
+    """Thresholds of the eye self-checks (all mm unless stated)."""
+
+    radius_mm: float = 16.0          # surface considered around the opening centroid
+    inside_noise_mm: float = 0.3     # depth inside the sclera sphere tolerated (at least 4 x fit rms)
+    max_inside_area_mm2: float = 2.0
+    cornea_cone_deg: float = 35.0    # around the forward axis a recessed iris disc may lie inside ...
+    cone_depth_mm: float = 2.0       # ... up to this deep
+    radius_range_mm: tuple = (10.0, 18.0)
+    max_width_ratio: float = 1.0     # opening width / eyeball diameter
+    max_loop_off_mm: float = 1.0     # 90th percentile of |loop - sphere|
+    max_radius_diff_mm: float = 2.0  # between the two eyes of one head (axial lengths rarely
+                                     # differ by 2 mm; the procedural head draws up to 1.7 mm)
+
+
+def vertex_areas(V, F):
+    """(n,) float64: a third of the area of the faces around each vertex, mm²."""
+    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    a = np.zeros(len(V))
+    np.add.at(a, F.ravel(), np.repeat(A / 3.0, 3))
+    return a
+
+
+def inside_area(V, F, center, radius, forward, around, lim: CheckLimits, rms=0.0):
+    """Area (mm²) of surface near ``around`` lying deeper than the noise inside the sphere.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    center : (3,) float64
+    radius : float
+    forward : (3,) float64 unit
+    around : (3,) float64
+        Centre of the neighbourhood checked (the opening centroid).
+    lim : CheckLimits
+    rms : float
+        Residual RMS of the fit; the tolerated depth is at least four times it.
+
+    Returns
+    -------
+    float
+    """
+    near = np.linalg.norm(V - around, axis=1) < lim.radius_mm
+    if not near.any():
+        return 0.0
+    a = vertex_areas(V, F)[near]
+    w = V[near] - center
+    nw = np.linalg.norm(w, axis=1)
+    d = nw - radius
+    in_cone = (w @ forward) > np.cos(np.radians(lim.cornea_cone_deg)) * nw
+    tol = np.where(in_cone, lim.cone_depth_mm, max(lim.inside_noise_mm, 4.0 * float(rms)))
+    return float(a[d < -tol].sum())
+
+
+def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=0.0) -> dict:
+    """The per-eye checks: ``{name: {"value": float, "limit": ..., "ok": bool}}``.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+        The scan around the eye (before the eyeball is cut out).
+    center : (3,) float64
+    radius : float
+    forward : (3,) float64
+    loop_points : (L, 3) float64
+        The eyelid-opening loop.
+    lim : CheckLimits
+    rms : float
+        Residual RMS of the sphere fit.
+    """
+    center = np.asarray(center, float)
+    forward = np.asarray(forward, float)
+    L = np.asarray(loop_points, float)
+    width = float(np.max(np.linalg.norm(L[:, None] - L[None], axis=2))) if len(L) > 1 else 0.0
+    off = np.abs(np.linalg.norm(L - center, axis=1) - radius)
+    ins = inside_area(V, F, center, radius, forward, L.mean(axis=0), lim, rms)
+    lo, hi = lim.radius_range_mm
+    return {
+        "inside": {"value": round(ins, 3), "limit": lim.max_inside_area_mm2,
+                   "ok": ins <= lim.max_inside_area_mm2},
+        "radius_in_range": {"value": round(float(radius), 4), "limit": [lo, hi],
+                            "ok": bool(lo <= radius <= hi)},
+        "opening_fits": {"value": round(width / (2 * radius), 4), "limit": lim.max_width_ratio,
+                         "ok": width <= lim.max_width_ratio * 2 * radius},
+        "loop_on_sphere": {"value": round(float(np.percentile(off, 90)), 4),
+                           "limit": lim.max_loop_off_mm,
+                           "ok": float(np.percentile(off, 90)) <= lim.max_loop_off_mm},
+    }
+
+
+def check_pair(radii: dict, lim: CheckLimits) -> dict:
+    """``radii_agree``: the two eyes' radii differ by at most ``max_radius_diff_mm``."""
+    diff = abs(float(radii["left"]) - float(radii["right"]))
+    return {"radii_agree": {"value": round(diff, 4), "limit": lim.max_radius_diff_mm,
+                            "ok": diff <= lim.max_radius_diff_mm}}
+
+
+def failed(checks: dict) -> list:
+    """Names of the failed checks, in order."""
+    return [k for k, c in checks.items() if not c["ok"]]
+
+
+def describe(name: str, check: dict) -> str:
+    """One phrase for a failed check (used in the stage's one-line refusal)."""
+    v, lim = check["value"], check["limit"]
+    if name == "inside":
+        return f"{v:.1f} mm² of the head lies inside the fitted eyeball (limit {lim} mm²)"
+    if name == "radius_in_range":
+        return f"radius {v:.2f} mm outside {lim[0]:g}-{lim[1]:g} mm"
+    if name == "opening_fits":
+        return f"the opening is {v:.2f} x the eyeball's diameter"
+    if name == "loop_on_sphere":
+        return f"the eyelid loop lies {v:.2f} mm off the eyeball (90th percentile, limit {lim} mm)"
+    if name == "radii_agree":
+        return f"the two eyes' radii differ by {v:.2f} mm (limit {lim} mm)"
+    return name
