@@ -453,3 +453,24 @@ def test_auto_workers_give_each_blender_two_cores():
     from stages.render import auto_workers
 
     assert [auto_workers(c) for c in (1, 2, 3, 4, 16)] == [1, 1, 1, 2, 8]
+
+
+@pytest.mark.blender
+def test_same_inputs_give_byte_identical_renders(tiny, tmp_path):
+    """Two runs of the stage into two folders: every image, label, the index and the contact sheet
+    have the same bytes (no time/text chunks in the PNGs, no timings in the labels)."""
+    from pipeline.io.png import DROPPED, png_chunks
+
+    params = _params(tmp_path, "p.yaml", n_images=2, sheet_images=2)
+    outs = [tmp_path / f"run{k}" / "tiny" for k in (1, 2)]
+    for out in outs:
+        r = subprocess.run(_stage_cmd(tiny, out, params), cwd=ROOT, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+    files = [{p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} for out in outs]
+    assert sorted(files[0]) == sorted(files[1]) and "000001.png" in files[0] and "index.jsonl" in files[0]
+    assert [k for k in files[0] if files[0][k] != files[1][k]] == []
+    for name, data in files[0].items():
+        if name.endswith(".png"):
+            assert not {kind for kind, _, _ in png_chunks(data)} & DROPPED, name
+    label = json.loads(files[0]["000000.json"])
+    assert not {"render_s", "total_s", "render_cpu_s", "total_cpu_s"} & set(label["render"])
