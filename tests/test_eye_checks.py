@@ -1,0 +1,93 @@
+"""eye_checks: the anatomical self-checks of a fitted eye, on exact geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.geometry import eye_checks
+from pipeline.geometry.eye_checks import CheckLimits, check_eye, check_pair, failed, inside_area
+
+
+def _sphere_patch(center, radius, max_deg, n=40):
+    """A spherical cap (triangulated) of half-angle ``max_deg`` around +Z."""
+    th = np.radians(np.linspace(0.0, max_deg, n))
+    ph = np.linspace(0.0, 2 * np.pi, 2 * n, endpoint=False)
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    V = center + radius * np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1)
+    V = V.reshape(-1, 3)
+    idx = np.arange(n * 2 * n).reshape(n, 2 * n)
+    a, b = idx[:-1], np.roll(idx, -1, axis=1)[:-1]
+    c, d = np.roll(idx, -1, axis=1)[1:], idx[1:]
+    F = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return V, F
+
+
+def _loop(center, radius, deg=55.0, k=48):
+    t = np.linspace(0, 2 * np.pi, k, endpoint=False)
+    th = np.radians(deg)
+    return center + radius * np.column_stack([np.sin(th) * np.cos(t), 0.4 * np.sin(th) * np.sin(t),
+                                              np.sqrt(1 - (np.sin(th) * np.cos(t)) ** 2
+                                                      - (0.4 * np.sin(th) * np.sin(t)) ** 2)])
+
+
+C, R, FWD = np.zeros(3), 12.0, np.array([0.0, 0.0, 1.0])
+
+
+def test_the_true_sphere_passes_every_check():
+    V, F = _sphere_patch(C, R + 0.1, 70.0)        # scanned surface just outside the eye
+    ch = check_eye(V, F, C, R, FWD, _loop(C, R), CheckLimits())
+    assert failed(ch) == []
+    assert ch["inside"]["value"] == 0.0
+    assert ch["loop_on_sphere"]["value"] == pytest.approx(0.0, abs=1e-9)
+    assert 0.5 < ch["opening_fits"]["value"] < 1.0
+
+
+def test_a_sphere_too_large_has_the_head_inside():
+    """The fitted sphere is 1.5 mm too large: the whole cap lies 1.5 mm inside, far beyond the
+    noise; the inside area is the cap's area outside the corneal cone."""
+    V, F = _sphere_patch(C, R, 60.0, n=60)
+    lim = CheckLimits()
+    area = inside_area(V, F, C, R + 1.5, FWD, V.mean(axis=0), lim)
+    cap = lambda deg: 2 * np.pi * R ** 2 * (1 - np.cos(np.radians(deg)))  # noqa: E731
+    assert area == pytest.approx(cap(60.0) - cap(lim.cornea_cone_deg), rel=0.05)
+    ch = check_eye(V, F, C, R + 1.5, FWD, _loop(C, R), lim)
+    assert "inside" in failed(ch) and "loop_on_sphere" in failed(ch)
+
+
+def test_a_recessed_iris_disc_inside_the_cone_is_tolerated():
+    V, F = _sphere_patch(C, R, 30.0)
+    V = V.copy()
+    V[:, 2] = np.minimum(V[:, 2], R - 1.2)            # a flat disc 1.2 mm under the apex
+    assert inside_area(V, F, C, R, FWD, np.array([0, 0, R]), CheckLimits()) == 0.0
+    V[:, 2] = np.minimum(V[:, 2], R - 2.5)            # deeper than any iris: counted
+    assert inside_area(V, F, C, R, FWD, np.array([0, 0, R]), CheckLimits()) > 1.0
+
+
+def test_noise_sets_the_tolerated_depth():
+    V, F = _sphere_patch(C, R - 0.4, 60.0)
+    lim = CheckLimits()
+    assert inside_area(V, F, C, R, FWD, V.mean(axis=0), lim, rms=0.0) > 10.0
+    assert inside_area(V, F, C, R, FWD, V.mean(axis=0), lim, rms=0.12) == 0.0   # 4 x 0.12 > 0.4
+
+
+@pytest.mark.parametrize("radius,ok", [(9.0, False), (10.0, True), (18.0, True), (18.5, False)])
+def test_radius_range(radius, ok):
+    V, F = _sphere_patch(C, radius, 60.0)
+    ch = check_eye(V, F, C, radius, FWD, _loop(C, radius), CheckLimits())
+    assert ch["radius_in_range"]["ok"] is ok
+
+
+def test_an_opening_wider_than_the_eye_fails():
+    L = _loop(C, R, deg=55.0) * np.array([1.6, 1.0, 1.0])
+    V, F = _sphere_patch(C, R, 60.0)
+    ch = check_eye(V, F, C, R, FWD, L, CheckLimits())
+    assert not ch["opening_fits"]["ok"]
+
+
+def test_pair_agreement_and_the_one_line_description():
+    ch = check_pair({"left": 12.0, "right": 14.5}, CheckLimits())
+    assert failed(ch) == ["radii_agree"]
+    assert eye_checks.describe("radii_agree", ch["radii_agree"]) == \
+        "the two eyes' radii differ by 2.50 mm (limit 2.0 mm)"
+    assert failed(check_pair({"left": 12.0, "right": 13.9}, CheckLimits())) == []
