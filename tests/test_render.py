@@ -172,9 +172,11 @@ def test_rejected_attempts_are_redrawn_and_counted(tiny):
     for i, n in enumerate(att):
         smp = sp.make_sample(tiny["asset"], s, i, "/tmp/x.png")
         assert smp.attempts == n and sp.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
+        # the rule holds on the 12 eyelid landmarks of the label itself
+        assert sp.point_in_polygon(smp.pupil_center_px, smp.landmarks_px[:12])
         for k in range(n - 1):     # every earlier attempt was rejected
             prev = sp.pose_sample(tiny["asset"], s, i, k, "/tmp/x.png")
-            assert not sp.point_in_polygon(prev.pupil_center_px, prev.lid_polygon_px)
+            assert not sp.pupil_in_lids(prev)
 
 
 def test_same_seed_same_labels_other_seed_other_labels(tiny):

@@ -31,7 +31,8 @@ Posing (SynthesEyes section 4.1), for one sample drawn with
 7. **Lighting**: one of the bundled HDRIs, rotation uniform in [0, 360) deg about head +Y,
    strength uniform in ``strength``.
 8. **Rejection**: if the projected pupil centre is outside the projected eyelid polygon (the
-   posed lid loop of the imaged eye), the sample is redrawn with ``attempt + 1``; the number
+   posed lid loop of the imaged eye) or outside the polygon of the label's 12 eyelid
+   landmarks (:func:`pupil_in_lids`), the sample is redrawn with ``attempt + 1``; the number
    of attempts is stored.
 
 **Skin detail** (:func:`choose_skin_detail`): with ``p = ortho_scale_mm / width`` (mm per
@@ -52,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.render import asset as ra
+from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.settings import SettingError, Settings, setting
 
@@ -424,6 +426,14 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
                   pupil_center_px=pc_px, lid_polygon_px=poly_px)
 
 
+def pupil_in_lids(smp: Sample) -> bool:
+    """The rejection rule: the projected pupil centre lies inside the posed lid opening and
+    inside the polygon of the 12 eyelid landmarks that the label carries (a user who checks the
+    rule on the label finds that it holds)."""
+    return (point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
+            and point_in_polygon(smp.pupil_center_px, smp.landmarks_px[:lmk.N_EYELID]))
+
+
 class RejectionError(ValueError):
     """No attempt of a sample put the pupil inside the eyelid polygon."""
 
@@ -438,7 +448,7 @@ def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overr
     """
     for attempt in range(int(s.max_attempts)):
         smp = pose_sample(asset, s, index, attempt, str(png), overrides)
-        if not reject or point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px):
+        if not reject or pupil_in_lids(smp):
             return smp
     raise RejectionError(f"sample {index}: pupil outside the eyelid polygon in all "
                          f"{s.max_attempts} attempts")
