@@ -147,3 +147,22 @@ def test_missing_texture(good):
     # UsdValidation's dependency check also sees files of variants that are not selected
     st.GetDefaultPrim().GetVariantSets().GetVariantSet("irisColor").SetVariantSelection("blue")
     assert any("iris_brown.png" in e for e in validate_stage(st))
+
+
+def test_a_blend_shape_that_folds_the_mesh_is_an_error(good):
+    """The rig's geometry check on what the asset stores: an offset that pushes one vertex of
+    the pupil through its neighbours turns faces over at full weight."""
+    from pxr import UsdGeom, UsdSkel
+
+    st = _open(good)
+    assert validate_stage(st) == []
+    bs = UsdSkel.BlendShape(st.GetPrimAtPath("/Eyeball/Inner/pupil_dilate"))
+    idx = np.asarray(bs.GetPointIndicesAttr().Get())
+    off = np.array(bs.GetOffsetsAttr().Get(), np.float64)
+    P = np.asarray(UsdGeom.Mesh(st.GetPrimAtPath("/Eyeball/Inner")).GetPointsAttr().Get(), np.float64)
+    c = P.mean(axis=0)
+    k = int(np.argmax(np.linalg.norm(P[idx] - c, axis=1)))      # push one vertex through the middle
+    off[k] = 2.0 * (c - P[idx[k]])
+    bs.GetOffsetsAttr().Set(off.astype(np.float32))
+    errs = validate_stage(st)
+    assert any("pupil_dilate" in e and "flips" in e for e in errs), errs

@@ -101,8 +101,38 @@ def _mesh_checks(mesh, errors):
     return n
 
 
+def _polygon_normals(P, counts, idx):
+    """(nfaces, 3) area-weighted normals of polygons (fan sums; exact for planar polygons)."""
+    counts = np.asarray(counts, np.int64)
+    idx = np.asarray(idx, np.int64)
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    face = np.repeat(np.arange(len(counts)), np.maximum(counts - 2, 0))
+    k = np.concatenate([np.arange(1, c - 1) for c in counts]) if len(counts) else np.zeros(0, np.int64)
+    a, b, c = idx[start[face]], idx[start[face] + k], idx[start[face] + k + 1]
+    N = np.zeros((len(counts), 3))
+    np.add.at(N, face, np.cross(P[b] - P[a], P[c] - P[a]))
+    return N
+
+
+def _posed_flips(P, counts, idx, point_indices, offsets_list):
+    """Largest number of faces whose normal turns by more than 90 degrees when the shape is
+    applied at each given offsets array (full weight and every inbetween)."""
+    N0 = _polygon_normals(P, counts, idx)
+    ok = np.linalg.norm(N0, axis=1) > 1e-20
+    worst = 0
+    for O in offsets_list:
+        Q = P.copy()
+        if point_indices is None:
+            Q += O
+        else:
+            Q[point_indices] += O
+        N1 = _polygon_normals(Q, counts, idx)
+        worst = max(worst, int(np.count_nonzero(np.einsum("ij,ij->i", N0[ok], N1[ok]) <= 0)))
+    return worst
+
+
 def _blend_shape_checks(stage, mesh, n_points, errors):
-    from pxr import UsdSkel
+    from pxr import UsdGeom, UsdSkel
 
     prim = mesh.GetPrim()
     if not prim.HasAPI(UsdSkel.BindingAPI):
@@ -149,6 +179,26 @@ def _blend_shape_checks(stage, mesh, n_points, errors):
             w = ib.GetWeight()
             if w is None or not math.isfinite(w):
                 errors.append(f"{t}: inbetween {ib.GetAttr().GetName()} weight is not finite")
+        # the rig's geometry check, on what the asset actually stores: no face turns over
+        # at full weight or at any inbetween (a fold shows in every render of that pose)
+        pts = mesh.GetPointsAttr().Get()
+        counts, fidx = mesh.GetFaceVertexCountsAttr().Get(), mesh.GetFaceVertexIndicesAttr().Get()
+        if (pts is None or counts is None or fidx is None or len(O) != expect
+                or not np.all(np.isfinite(O))):
+            continue
+        P = np.asarray(pts, np.float64).reshape(-1, 3)
+        pidx = (np.asarray(ind, np.int64) if ind is not None and len(ind) else None)
+        ca = np.asarray(counts, np.int64)
+        if ((pidx is not None and (pidx.min() < 0 or pidx.max() >= len(P)))
+                or not UsdGeom.Mesh.ValidateTopology(fidx, counts, len(P))[0]
+                or (len(ca) and ca.min() < 3) or not np.all(np.isfinite(P))):
+            continue   # reported by the topology/point checks
+        offs = [O] + [np.asarray(ib.GetOffsets(), np.float64).reshape(-1, 3)
+                      for ib in bs.GetInbetweens()
+                      if ib.GetOffsets() is not None and len(ib.GetOffsets()) == expect]
+        flips = _posed_flips(P, counts, fidx, pidx, offs)
+        if flips:
+            errors.append(f"{t}: posing the shape flips {flips} face(s)")
 
 
 def _material_checks(stage, errors):
