@@ -104,14 +104,27 @@ def merge_vertices(V, F, tolerance: float):
     return V[keep], rank[inverse.reshape(-1)][F], keep
 
 
+_BLOCK = 1 << 20      # faces per block in per-face computations (bounds their temporaries)
+
+
+def _blockwise(fn, F, dtype=np.float64) -> np.ndarray:
+    """``fn(F_block) -> (b,)`` applied to blocks of faces, shape (m,): temporaries stay block-sized."""
+    out = np.empty(len(F), dtype=dtype)
+    for i in range(0, len(F), _BLOCK):
+        out[i:i + _BLOCK] = fn(F[i:i + _BLOCK])
+    return out
+
+
 def face_areas(V, F) -> np.ndarray:
     """Triangle areas, shape (m,)."""
-    a = V[F[:, 0]]
-    ab, ac = V[F[:, 1]] - a, V[F[:, 2]] - a
-    cx = ab[:, 1] * ac[:, 2] - ab[:, 2] * ac[:, 1]
-    cy = ab[:, 2] * ac[:, 0] - ab[:, 0] * ac[:, 2]
-    cz = ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0]
-    return 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
+    def areas(Fb):
+        a = V[Fb[:, 0]]
+        ab, ac = V[Fb[:, 1]] - a, V[Fb[:, 2]] - a
+        cx = ab[:, 1] * ac[:, 2] - ab[:, 2] * ac[:, 1]
+        cy = ab[:, 2] * ac[:, 0] - ab[:, 0] * ac[:, 2]
+        cz = ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0]
+        return 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
+    return _blockwise(areas, F)
 
 
 def _unique_rows(q):
@@ -206,9 +219,11 @@ def closest_point_on_triangles(A, B, C, p) -> np.ndarray:
 
 def face_longest_edges(V, F) -> np.ndarray:
     """Longest edge of each triangle, shape (m,)."""
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    sq = [np.einsum("ij,ij->i", x, x) for x in (a - b, b - c, c - a)]
-    return np.sqrt(np.maximum(np.maximum(sq[0], sq[1]), sq[2]))
+    def longest(Fb):
+        a, b, c = V[Fb[:, 0]], V[Fb[:, 1]], V[Fb[:, 2]]
+        sq = [np.einsum("ij,ij->i", x, x) for x in (a - b, b - c, c - a)]
+        return np.sqrt(np.maximum(np.maximum(sq[0], sq[1]), sq[2]))
+    return _blockwise(longest, F)
 
 
 def point_surface_distance(V, F, p, longest_edges=None) -> float:
@@ -341,15 +356,22 @@ def edge_stats(F, n_vertices: int) -> dict:
         (used by more than two), ``inconsistent_winding`` (two faces traversing the edge in the
         same direction: their normals disagree).
     """
-    u = F.ravel()
-    v = F[:, [1, 2, 0]].ravel()
-    key = np.minimum(u, v) * np.int64(n_vertices) + np.maximum(u, v)
-    sign = np.where(u < v, 1, -1).astype(np.int64)
-    order = np.argsort(key)
-    key, sign = key[order], sign[order]
-    starts = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
+    # one sorted int64 per directed edge: (undirected edge key) * 2 + (traversed low -> high)
+    u = np.ascontiguousarray(F, dtype=np.int64).ravel()
+    v = F[:, [1, 2, 0]].astype(np.int64).ravel()
+    key = np.minimum(u, v)
+    key *= np.int64(n_vertices)
+    key += np.maximum(u, v)
+    key <<= 1
+    key |= u < v
+    del v
+    key.sort()
+    edge = key >> 1
+    starts = np.flatnonzero(np.concatenate([[True], edge[1:] != edge[:-1]]))
+    del edge
     counts = np.diff(np.concatenate([starts, [len(key)]]))
-    sums = np.add.reduceat(sign, starts)
+    key &= 1
+    sums = 2 * np.add.reduceat(key, starts) - counts          # (+1 per low->high, -1 per high->low)
     return {"edges": int(len(starts)), "boundary": int(np.count_nonzero(counts == 1)),
             "non_manifold": int(np.count_nonzero(counts > 2)),
             "inconsistent_winding": int(np.count_nonzero((counts == 2) & (sums != 0)))}

@@ -309,14 +309,28 @@ def _obj_slow(raw: bytes, path: Path, limits: Limits, line_no=None):
     return V, VC, UV, F, FUV, int(np.count_nonzero(counts > 3)), mtllibs, usemtl
 
 
-def _tokens_per_row(text: bytes, n_rows: int) -> np.ndarray:
-    """Whitespace-separated token count of each newline-separated row of ``text``, shape (n_rows,)."""
-    b = np.frombuffer(text, dtype=np.uint8)
-    ws = (b == 32) | (b == 9) | (b == 10) | (b == 13)
-    start = ~ws
-    start[1:] &= ws[:-1]
-    row = np.searchsorted(np.flatnonzero(b == 10), np.flatnonzero(start))
-    return np.bincount(row, minlength=n_rows)
+def _tokens_per_row(text: bytes, n_rows: int, block: int = 1 << 23) -> np.ndarray:
+    """Whitespace-separated token count of each newline-separated row of ``text``, shape (n_rows,).
+
+    Counted in blocks of whole rows (about ``block`` bytes), so the temporaries stay small."""
+    counts = np.zeros(n_rows, dtype=np.int64)
+    pos, row, size = 0, 0, len(text)
+    while pos < size:
+        end = min(pos + block, size)
+        if end < size:
+            cut = text.rfind(b"\n", pos, end)
+            end = cut + 1 if cut >= pos else (text.find(b"\n", end) + 1 or size)
+        b = np.frombuffer(text, dtype=np.uint8, count=end - pos, offset=pos)
+        ws = (b == 32) | (b == 9) | (b == 10) | (b == 13)
+        start = ~ws                                  # a block starts a row: no token continues into it
+        start[1:] &= ws[:-1]
+        nl = np.flatnonzero(b == 10)
+        per_row = np.bincount(np.searchsorted(nl, np.flatnonzero(start)))   # rows of this block
+        hi = min(row + len(per_row), n_rows)
+        counts[row:hi] += per_row[:hi - row]
+        row += len(nl)
+        pos = end
+    return counts
 
 
 def _floats_fast(text: bytes, n_rows: int, min_cols: int):
@@ -345,26 +359,36 @@ def _obj_line_blocks(raw: bytes):
     """
     b = np.frombuffer(raw, dtype=np.uint8)
     nl = np.flatnonzero(b == 10)
-    starts = np.concatenate([[0], nl + 1])
-    ends = np.concatenate([nl, [len(b)]])
-    bp = np.concatenate([b, np.zeros(3, np.uint8)])
-    c0, c1, c2 = bp[starts], bp[starts + 1], bp[starts + 2]
+    starts = np.empty(len(nl) + 1, dtype=np.int64)
+    starts[0], starts[1:] = 0, nl + 1
+    top = len(b) - 1
+
+    def at(offset):                                  # the byte at line start + offset (a newline past the end)
+        if top < 0:
+            return np.full(len(starts), 10, dtype=np.uint8)
+        return b[np.minimum(starts + offset, top)]
+
+    c0, c1, c2 = at(0), at(1), at(2)
     ws1, ws2 = (c1 == 32) | (c1 == 9), (c2 == 32) | (c2 == 9)
     masks = {"v": (c0 == 118) & ws1, "vt": (c0 == 118) & (c1 == 116) & ws2, "f": (c0 == 102) & ws1,
              "mtllib": c0 == 109, "usemtl": c0 == 117}
+    del c0, c1, c2, ws1, ws2
+    runs, counts = {}, {}                            # byte ranges of each kind's runs of consecutive lines
+    for kind, mask in masks.items():
+        idx = np.flatnonzero(mask)
+        counts[kind] = len(idx)
+        brk = np.flatnonzero(np.diff(idx) != 1)
+        r0, r1 = (idx[np.r_[0, brk + 1]], idx[np.r_[brk, len(idx) - 1]]) if len(idx) else ([], [])
+        runs[kind] = None if len(r0) > 10000 else \
+            [(int(starts[i]), int(nl[j]) if j < len(nl) else len(raw)) for i, j in zip(r0, r1)]
+    del masks, starts, nl, b                         # the line tables are the size of the file
 
     def get(kind):
-        idx = np.flatnonzero(masks[kind])
-        if len(idx) == 0:
-            return b"", 0
-        brk = np.flatnonzero(np.diff(idx) != 1)
-        r0, r1 = idx[np.r_[0, brk + 1]], idx[np.r_[brk, len(idx) - 1]]
-        if len(r0) > 10000:
+        if runs[kind] is None:
             return None
-        text = b"\n".join(raw[starts[i]:ends[j]] for i, j in zip(r0, r1))
-        return text, len(idx)
+        return b"\n".join(raw[i:j] for i, j in runs[kind]), counts[kind]
 
-    get.count = lambda kind: int(np.count_nonzero(masks[kind]))
+    get.count = counts.__getitem__
     return get
 
 
@@ -373,17 +397,21 @@ def _obj_fast(raw: bytes, path: Path, limits: Limits, get=None):
     indices in range, no trailing comments). Returns None for anything else (the slow parser
     then handles it and names the offending line). ``get``: :func:`_obj_line_blocks` of ``raw``."""
     get = _obj_line_blocks(raw) if get is None else get
-    vb, fb, tb = get("v"), get("f"), get("vt")
-    if vb is None or fb is None or tb is None:
-        return None
-    (vtext, n_v), (ftext, n_f), (ttext, n_t) = vb, fb, tb
+    n_v, n_f, n_t = get.count("v"), get.count("f"), get.count("vt")
     _check_counts(path, n_v, n_f, limits)
     if not n_v or not n_f:
         return None
-    vdata = _floats_fast(vtext.replace(b"v", b" "), n_v, 3)
-    del vtext
+    block = get("v")                                 # one kind at a time: each is a copy of its lines
+    if block is None:
+        return None
+    vdata = _floats_fast(block[0].replace(b"v", b" "), n_v, 3)
+    block = None
     if vdata is None:
         return None
+    block = get("f")
+    if block is None:
+        return None
+    ftext, block = block[0], None
     f_rows = [ftext[:ftext.find(b"\n") if b"\n" in ftext else len(ftext)].replace(b"f", b" ", 1)]
     text = ftext.replace(b"f", b" ")
     del ftext
@@ -417,7 +445,10 @@ def _obj_fast(raw: bytes, path: Path, limits: Limits, get=None):
         return None
     UV = tidx = None
     if has_vt:
-        UV = _floats_fast(ttext.replace(b"vt", b"  "), n_t, 2)
+        block = get("vt")
+        if block is None:
+            return None
+        UV, block = _floats_fast(block[0].replace(b"vt", b"  "), n_t, 2), None
         if UV is None:
             return None
         UV = UV[:, :2]
@@ -443,7 +474,7 @@ def _obj_fast(raw: bytes, path: Path, limits: Limits, get=None):
     return V, VC, UV, F, FUV, (n_f if k > 3 else 0), mtllibs, usemtl
 
 
-def _content_lines(block: bytes, first_line: int, parts: list, numbers: list, comment: int | None) -> int:
+def _content_lines(block: bytes, first_line: int, parts: bytearray, numbers: list, comment: int | None) -> int:
     """Append the lines of ``block`` (whole lines, ending in a newline) that are neither blank nor
     comments (first non-blank byte ``comment``) to ``parts``, and their file line numbers (0-based)
     to ``numbers``. Returns the number of lines in ``block``. Vectorised: no Python object per line."""
@@ -458,9 +489,9 @@ def _content_lines(block: bytes, first_line: int, parts: list, numbers: list, co
     if comment is not None:
         keep &= b[np.minimum(first, len(b) - 1)] != comment
     if keep.all():
-        parts.append(block)
+        parts += block
     elif keep.any():
-        parts.append(b[np.repeat(keep, ends - starts + 1)].tobytes())
+        parts += b[np.repeat(keep, ends - starts + 1)].tobytes()
     numbers.append(first_line + np.flatnonzero(keep))
     return len(ends)
 
@@ -473,7 +504,7 @@ def _read_content(fh, max_lines: int | None = None, comment: bytes | None = b"#"
     (counted from the starting position) of each. Memory follows the data, not the file: a file
     padded with gigabytes of blank lines costs the size of its data.
     """
-    parts, numbers, pending = [], [], []
+    parts, numbers, pending = bytearray(), [], []
     line, found = 0, 0
     code = comment[0] if comment else None
     while max_lines is None or found < max_lines:
@@ -490,7 +521,7 @@ def _read_content(fh, max_lines: int | None = None, comment: bytes | None = b"#"
         pending = [block[cut + 1:]] if cut + 1 < len(block) else []
         line += _content_lines(whole, line, parts, numbers, code)
         found += len(numbers[-1])
-    text = b"".join(parts)
+    text = bytes(parts)                              # numpy's text parsers take read-only bytes
     del parts
     line_no = np.concatenate(numbers) if numbers else np.zeros(0, np.int64)
     if max_lines is not None and len(line_no) > max_lines:
@@ -1415,6 +1446,7 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
     separation = frame.check_eye_layout(hints["left"], hints["right"], spec.sidecar, settings.eye_separation_mm)
     fixed = repair.repair_mesh(V, loaded.F, hints, settings.repair, path=mesh_file)
     del V
+    loaded.F = None                              # the repaired F replaces it (memory at the limits)
     V, F = fixed.V, fixed.F
     if len(V) > limits.max_vertices:             # an STL soup's vertices are only counted once merged
         raise ScanError(mesh_file, f"{len(V)} vertices after merging duplicates, over the limit of "
@@ -1427,6 +1459,8 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
         used[FUV_all.ravel()] = True
         remap = np.cumsum(used) - 1
         UV, FUV = loaded.UV[used], remap[FUV_all].astype(np.int64)
+        loaded.UV = loaded.FUV = None
+        del FUV_all, used, remap
     VC = loaded.VC[fixed.vertex_index] if loaded.VC is not None else None
     hint_dist = {}
     edges = repair.face_longest_edges(V, F)
