@@ -72,7 +72,8 @@ def main(argv, bound: bool = False) -> dict:
                     (tmp / "texture.png").write_bytes(result.texture_png_bytes)
                 elif result.texture is not None:
                     result.texture.save(tmp / "texture.png", format="PNG", compress_level=3)
-                write_json(tmp / "scan.json", result.scan)
+                # later stages name the scan folder, not build/, when the scan is at fault
+                write_json(tmp / "scan.json", {**result.scan, "folder": str(args.scan_dir)})
     except MemoryError:
         raise ScanError(args.scan_dir, f"ran out of memory (ingest is bounded to {settings.max_memory_mb:g} MiB, "
                                        "ingest.max_memory_mb); a file in the folder is over the limits") from None

@@ -3,10 +3,12 @@
     python -m stages.remove_eyeballs build/<scan>/ingest build/<scan>/remove_eyeballs \
         --metrics build/<scan>/remove_eyeballs.metrics.json
 
-Reads ``ingest/mesh.npz``, ``ingest/scan.json`` (eye hints) and ``ingest/texture.png`` when
-present; writes ``mesh.npz`` (head with the two eye openings, UV/FUV/VC carried), ``eyes.json``
-(per eye: center, radius, forward, residual_rms_mm, n_inliers, loop_indices, loop_points,
-lateral_canthus_index) and copies ``texture.png``. See pipeline/geometry/eyes.py.
+Reads ``ingest/mesh.npz``, ``ingest/scan.json`` (eye hints; its ``folder`` is the scan folder
+a refusal names) and ``ingest/texture.png`` when present; writes ``mesh.npz`` (head with the two
+eye openings, UV/FUV/VC carried), ``eyes.json`` (per eye: center, radius, forward,
+residual_rms_mm, n_inliers, placement, checks, loop_indices, loop_points,
+lateral_canthus_index) and copies ``texture.png``. See pipeline/geometry/eyes.py and
+eye_checks.py.
 """
 
 from __future__ import annotations
@@ -38,13 +40,14 @@ def _read(ingest: Path):
         raise ScanError(scan_path, f"has no valid eye hints ({type(exc).__name__})") from None
     if not all(np.isfinite(h).all() for h in hints.values()):
         raise ScanError(scan_path, "eye hints are not finite")
+    folder = scan.get("folder") if isinstance(scan.get("folder"), str) else None
     texture = None
     tex_path = ingest / "texture.png"
     if tex_path.is_file():
         from PIL import Image
         with Image.open(tex_path) as im:
             texture = np.asarray(im.convert("RGB"))
-    return mesh, hints, texture, mesh_path, tex_path
+    return mesh, hints, texture, folder or str(mesh_path), tex_path
 
 
 def main(argv) -> dict:
@@ -53,8 +56,8 @@ def main(argv) -> dict:
     parser.add_argument("out", type=Path, help="build/<scan>/remove_eyeballs")
     args = parser.parse_args(argv)
     st = EyeSettings.from_params(load_params("remove_eyeballs", args.params))
-    mesh, hints, texture, mesh_path, tex_path = _read(args.ingest)
-    res = remove_eyeballs(mesh, hints, st, source=str(mesh_path), texture=texture)
+    mesh, hints, texture, source, tex_path = _read(args.ingest)
+    res = remove_eyeballs(mesh, hints, st, source=source, texture=texture)
     with atomic_dir(args.out) as tmp:
         save_mesh(tmp / "mesh.npz", **res.mesh)
         write_json(tmp / "eyes.json", res.eyes)

@@ -36,6 +36,7 @@ def test_good_ply_ingests(tmp_path):
     np.testing.assert_allclose(mesh["V"], V.astype(np.float32), atol=1e-9)  # PLY stored float32
     scan = json.loads((out / "scan.json").read_text())
     assert scan["name"] == "head" and scan["texture"] is None and scan["licence"] == "CC0 test data"
+    assert scan["folder"] == str(tmp_path / "head")      # what later stages name on a refusal
     assert len(scan["source_sha256"]) == 64
     np.testing.assert_allclose(scan["eyes"]["left"]["hint"], hints["left"])
     assert (scan["units_in"], scan["up_axis_in"], scan["forward_axis_in"]) == ("mm", "+Y", "+Z")

@@ -180,6 +180,25 @@ def test_stage_writes_outputs(tmp_path):
         assert np.allclose(m["V"][eyes[s]["loop_indices"]], eyes[s]["loop_points"])
 
 
+def test_stage_names_the_scan_folder_when_the_eyes_are_closed(tmp_path, capsys):
+    """The refusal names the scan folder ingest recorded, not build/<scan>/ingest/mesh.npz."""
+    from stages._common import run_stage
+    from stages.remove_eyeballs import main
+
+    mesh, hints, _ = make_head(0.7, closed=True)
+    ing = tmp_path / "ingest"
+    ing.mkdir()
+    save_mesh(ing / "mesh.npz", **{k: v for k, v in mesh.items() if k in ("V", "F")})
+    (ing / "scan.json").write_text(json.dumps(
+        {"name": "sleepy", "folder": "raw_scans/sleepy",
+         "eyes": {s: {"hint": h.tolist()} for s, h in hints.items()}}))
+    capsys.readouterr()
+    assert run_stage(main, [str(ing), str(tmp_path / "out"), "--params", "none.yaml"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: raw_scans/sleepy: ") and "closed" in err[0]
+    assert not (tmp_path / "out").exists()
+
+
 def test_stage_missing_input_is_one_line(tmp_path):
     from stages._common import run_stage
     from stages.remove_eyeballs import main
