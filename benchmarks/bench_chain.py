@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.geometry.mesh_checks import closed_polyline_distance
+from stages._common import read_stage_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGES = ("ingest", "remove_eyeballs", "retopo", "bake", "snap")
@@ -97,7 +98,7 @@ def main():
         runs.append(times)
         print(f"run {rep + 1}: " + "  ".join(f"{k} {v:.2f}" for k, v in times.items()), flush=True)
 
-    metrics = {st: json.loads((b / f"{st}.metrics.json").read_text()) for st in STAGES}
+    metrics = {st: read_stage_metrics(b / f"{st}.metrics.json") for st in STAGES}   # + timings
     eyes = json.loads((b / "remove_eyeballs" / "eyes.json").read_text())
     accuracy = {}
     for s in ("left", "right"):

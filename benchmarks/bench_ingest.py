@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from stages._common import read_stage_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 RADII = np.array([75.0, 100.0, 90.0])
@@ -131,7 +132,7 @@ def run_once(scan: Path, out: Path):
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
         raise SystemExit(f"ingest failed ({proc.returncode}): {err}")
-    return wall, usage.ru_maxrss / 1024.0, json.loads(metrics.read_text())
+    return wall, usage.ru_maxrss / 1024.0, read_stage_metrics(metrics)   # metrics + timings
 
 
 def main(argv=None):

@@ -42,6 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline.io.atomic import write_json  # noqa: E402
+from stages._common import read_stage_metrics  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -61,7 +62,7 @@ def _stage(scan: str, out: Path, params: Path, n: int, workers: int | None = Non
     cpu = (ru1.ru_utime + ru1.ru_stime) - (ru0.ru_utime + ru0.ru_stime)
     if r.returncode != 0:
         raise SystemExit(f"stage failed:\n{r.stderr[-3000:]}")
-    m = json.loads(metrics.read_text())
+    m = read_stage_metrics(metrics)   # metrics + timings
     return {"wall_s": round(wall, 3), "images": n, "s_per_image": round(wall / n, 4),
             "images_per_s": round(n / wall, 4), "workers": m["workers"],
             "threads_per_blender": m["threads_per_blender"], "render_s_median": m["render_s_median"],

@@ -31,6 +31,8 @@ sys.path.insert(0, str(ROOT))
 
 def prepare_input(triangles: int, seed: int = 7) -> tuple[Path, dict]:
     """Synthetic head -> ingest -> remove_eyeballs (cached); returns the folder and stage wall times."""
+    from stages._common import read_stage_metrics
+
     cache = Path(tempfile.gettempdir()) / f"eyerig_bench_head_{triangles}_{seed}"
     times = {}
     if not (cache / "remove_eyeballs" / "mesh.npz").exists():
@@ -47,7 +49,7 @@ def prepare_input(triangles: int, seed: int = 7) -> tuple[Path, dict]:
     for stage in ("ingest", "remove_eyeballs"):
         p = cache / f"{stage}.metrics.json"
         if p.exists():
-            times.setdefault(stage, json.loads(p.read_text()).get("wall_time_s"))
+            times.setdefault(stage, read_stage_metrics(p).get("wall_time_s"))
     return cache / "remove_eyeballs", times
 
 

@@ -93,6 +93,58 @@ def peak_memory_mib() -> float:
     return max(own, children) / 1024.0
 
 
+def is_timing_key(key) -> bool:
+    """A metrics key that measures the run (seconds, MiB): a ``s`` or ``mib`` word in its name
+    (``wall_time_s``, ``render_s_median``, ``images_per_s``, ``peak_memory_mib``)."""
+    return bool({"s", "mib"} & set(str(key).split("_")))
+
+
+def split_timings(metrics: dict) -> tuple[dict, dict]:
+    """``(results, timings)``: ``metrics`` without and with only its timing keys (nested dicts
+    split alike; a timing key's whole value goes to the timings)."""
+    results, timings = {}, {}
+    for k, v in metrics.items():
+        if is_timing_key(k):
+            timings[k] = v
+        elif isinstance(v, dict):
+            r, t = split_timings(v)
+            if r or not t:
+                results[k] = r
+            if t:
+                timings[k] = t
+        else:
+            results[k] = v
+    return results, timings
+
+
+def timings_path(metrics_path) -> Path:
+    """``build/<scan>/<stage>.timings.json`` beside ``build/<scan>/<stage>.metrics.json``.
+
+    Not a DVC output: wall times change on every run, and DVC records the hash of every
+    metrics output in dvc.lock, so they would make ``dvc repro --force`` change dvc.lock.
+    ``dvc metrics show -R build`` (or naming the file) shows them.
+    """
+    p = Path(metrics_path)
+    if p.name.endswith(".metrics.json"):
+        return p.with_name(p.name[: -len(".metrics.json")] + ".timings.json")
+    return p.with_name(p.stem + ".timings.json")
+
+
+def read_stage_metrics(metrics_path) -> dict:
+    """A stage's metrics file merged with its timings file (when present), as one dict."""
+    def merge(a: dict, b: dict) -> dict:
+        out = dict(a)
+        for k, v in b.items():
+            out[k] = merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+        return out
+
+    import json
+
+    m = json.loads(Path(metrics_path).read_text(encoding="utf-8"))
+    t = timings_path(metrics_path)
+    return merge(m, json.loads(t.read_text(encoding="utf-8"))) if t.is_file() else m
+
+
 def default_metrics_path(out_dir) -> Path:
     """``build/<scan>/<stage>.metrics.json`` beside the stage's output folder.
 
@@ -116,7 +168,10 @@ def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
     """Run a stage ``main(argv) -> metrics`` with the house error handling.
 
     ``main`` returns its metrics dict and the path to write them to under the key
-    ``"_path"``; wall time and peak memory are added here. ``main`` runs with its own scratch
+    ``"_path"``. What the run measured rather than what it made (every key with an ``_s``
+    or ``_mib`` word, anything under ``"_run"``, and the wall time and peak memory added
+    here) goes to the timings file beside (:func:`split_timings`, :func:`timings_path`), so
+    the metrics file, a DVC output, has the same bytes for the same inputs. ``main`` runs with its own scratch
     folder as ``TMPDIR`` (pipeline.io.scratch.stage_scratch), removed when it returns.
     """
     from pipeline.io.scratch import stage_scratch
@@ -135,9 +190,12 @@ def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
         return 130
     if metrics is not None:
         path = metrics.pop("_path")
-        metrics["wall_time_s"] = round(time.perf_counter() - t0, 4)
-        metrics["peak_memory_mib"] = round(peak_memory_mib(), 1)
-        write_json(path, metrics)
+        run = metrics.pop("_run", {})
+        results, timings = split_timings(metrics)
+        timings = {**run, **timings, "wall_time_s": round(time.perf_counter() - t0, 4),
+                   "peak_memory_mib": round(peak_memory_mib(), 1)}
+        write_json(path, results)
+        write_json(timings_path(path), timings)
     return 0
 
 

@@ -232,11 +232,12 @@ def main(argv) -> dict:
     wall = time.perf_counter() - t0
     rs, cpu = np.asarray(res.render_s), np.asarray(res.cpu_s)
     return {"_path": args.metrics or default_metrics_path(out),
-            "n_images": n, "rendered": res.n, "skipped_done": n - res.n,
-            "stale_config": prep["stale_config"], "removed_files": prep["removed_files"],
-            "workers": run["workers"], "scheduler": scheduler or "LocalCluster",
-            "threads_per_blender": threads, "shards": stats["shards"],
-            "blender_starts": int(sum(v.get("starts", 0) for v in run["blender"].values())),
+            "n_images": n,
+            "_run": {"rendered": res.n, "skipped_done": n - res.n,     # this run, not the renders
+                     "stale_config": prep["stale_config"], "removed_files": prep["removed_files"],
+                     "workers": run["workers"], "scheduler": scheduler or "LocalCluster",
+                     "threads_per_blender": threads, "shards": stats["shards"],
+                     "blender_starts": int(sum(v.get("starts", 0) for v in run["blender"].values()))},
             "sampling_s": round(stats["sampling_s"], 3), "render_wall_s": round(t_render, 3),
             "s_per_image": round(t_render / res.n, 4) if res.n else None,
             "images_per_s": round(res.n / t_render, 4) if res.n and t_render > 0 else None,

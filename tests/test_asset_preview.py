@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import pytest
@@ -10,7 +9,7 @@ from PIL import Image
 
 from pipeline.blender.asset_preview import LABEL_H, PAD, TILE_ASPECT, sheet_size
 from stages import usd as usd_stage
-from stages._common import run_stage
+from stages._common import read_stage_metrics, run_stage
 from test_usd import argv, make_inputs
 
 pytestmark = pytest.mark.blender
@@ -26,7 +25,7 @@ def previewed(tmp_path_factory):
     args = argv(inp)
     args[args.index("--params") + 1] = str(params)
     assert run_stage(usd_stage.main, args) == 0
-    return inp, json.loads(inp["metrics"].read_text())
+    return inp, read_stage_metrics(inp["metrics"])
 
 
 def _tiles(img):
@@ -72,4 +71,4 @@ def test_no_preview_by_default(tmp_path):
     inp = make_inputs(tmp_path)
     assert run_stage(usd_stage.main, argv(inp)) == 0
     assert not (inp["out"] / "preview.png").exists()
-    assert "preview_s" not in json.loads(inp["metrics"].read_text())
+    assert "preview_s" not in read_stage_metrics(inp["metrics"])

@@ -10,6 +10,7 @@ import pytest
 
 from pipeline.eyeball import geometry as geo
 from pipeline.eyeball import textures as tex
+from stages._common import read_stage_metrics
 
 P = geo.EyeballParams()
 
@@ -323,7 +324,7 @@ def test_stage_cli_builds_asset_without_preview(tmp_path):
     res = subprocess.run([sys.executable, "-m", "stages.eyeball", str(out), "--params", str(params),
                           "--metrics", str(tmp_path / "m.json")], cwd=root, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
-    m = json.loads((tmp_path / "m.json").read_text())
+    m = read_stage_metrics(tmp_path / "m.json")
     assert m["validation_errors"] == 0 and m["outer_vertices"] == 338
     assert (out / "eyeball.usda").is_file() and len(list((out / "textures").glob("*.png"))) == 8
     assert not any(p.name.startswith(".eyeball.tmp") for p in out.parent.iterdir())

@@ -26,7 +26,7 @@ from pipeline.render import sampling as sp
 from pipeline.rig import lids
 from pipeline.rig.landmarks import eyelid_landmarks
 from stages import usd as usd_stage
-from stages._common import run_stage
+from stages._common import read_stage_metrics, run_stage
 from test_usd import EYES, argv, make_inputs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -354,7 +354,7 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     lines = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
     assert [x["index"] for x in lines] == list(range(6))
     assert sorted(p.name for p in out.glob("0*")) == sorted(f"{i:06d}.{e}" for i in range(6) for e in ("png", "json"))
-    m = json.loads((out.parent / "tiny.metrics.json").read_text())
+    m = read_stage_metrics(out.parent / "tiny.metrics.json")
     assert m["skipped_done"] >= n_before and m["rendered"] == 6 - m["skipped_done"]
     assert m["landmark_check_max_mm"] < 0.01
     assert m["shards"] >= 1 and m["blender_starts"] == 1
@@ -389,7 +389,7 @@ def test_stage_on_an_existing_dask_cluster(tiny, tmp_path):
         r = subprocess.run(_stage_cmd(tiny, out, params, "--scheduler", cl.scheduler_address), cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
-    m = json.loads((out.parent / "tiny.metrics.json").read_text())
+    m = read_stage_metrics(out.parent / "tiny.metrics.json")
     assert m["scheduler"] == cl.scheduler_address and m["workers"] == 1 and m["rendered"] == 3
     assert m["shards"] == 3 and m["blender_starts"] == 1      # one Blender per dask worker, kept across tasks
     assert [json.loads(x)["index"] for x in (out / "index.jsonl").read_text().splitlines()] == [0, 1, 2]

@@ -13,6 +13,7 @@ from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.retopo import (RetopoSettings, _project_to_polyline, clean_mesh,
                                       count_flipped, retopologize)
 from pipeline.io.meshfile import load_mesh, save_mesh
+from stages._common import read_stage_metrics
 
 EYE_CENTRES = {"left": np.array([32.0, 36.0, 70.0]), "right": np.array([-32.0, 36.0, 70.0])}
 
@@ -165,7 +166,7 @@ def test_stage_cli(tmp_path, patch):
     assert r.returncode == 0, r.stderr
     m = load_mesh(tmp_path / "retopo" / "mesh.npz")
     assert len(m["loop_left"]) == 24 and len(m["loop_right"]) == 24
-    metrics = json.loads((tmp_path / "m.json").read_text())
+    metrics = read_stage_metrics(tmp_path / "m.json")
     assert metrics["mesh"]["manifold"] and "wall_time_s" in metrics
 
 

@@ -13,7 +13,7 @@ from pipeline.io.meshfile import save_mesh
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from stages import rig as rig_stage
-from stages._common import run_stage
+from stages._common import read_stage_metrics, run_stage
 
 PITCHES_1DEG = np.arange(-25.0, 25.0 + 1e-9, 1.0)
 
@@ -293,7 +293,7 @@ def test_stage_writes_rig_that_reopens(tmp_path, region):
     metrics = tmp_path / "rig.metrics.json"
     assert run_stage(rig_stage.main, [str(snap), str(out), "--metrics", str(metrics),
                                       "--params", str(tmp_path / "none.yaml")]) == 0
-    m = json.loads(metrics.read_text())
+    m = read_stage_metrics(metrics)
     assert m["sweep_max_gap_mm"] <= 0.1 and m["sweep_max_penetration_mm"] <= 0.1
     assert m["sweep_flipped_faces"] == 0 and m["sweep_min_opening_mm"] > 0
     assert m["sweep_min_skin_clearance_mm"] >= -lids.LidParams().max_chord_sag_mm

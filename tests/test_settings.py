@@ -129,3 +129,29 @@ def test_stage_answers_a_bad_param_with_one_line(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr == f"error: {params}: bake.max_distance_mm must be > 0 (got -4)\n"
     assert not (tmp_path / "out").exists()
+
+
+def test_timings_go_beside_the_metrics_not_into_them(tmp_path):
+    """What a run measured (seconds, MiB, run facts) goes to <stage>.timings.json; the metrics
+    file (a DVC output hashed in dvc.lock) keeps only what the inputs determine."""
+    import json
+
+    from stages._common import read_stage_metrics, run_stage, split_timings, timings_path
+
+    res, tim = split_timings({"n": 3, "write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0,
+                              "timings_s": {"a_s": 1}, "preview": {"size": 8, "wall_s": 3.0},
+                              "peak_memory_mib": 5, "mesh": {"manifold": True}})
+    assert res == {"n": 3, "preview": {"size": 8}, "mesh": {"manifold": True}}
+    assert tim == {"write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0, "timings_s": {"a_s": 1},
+                   "preview": {"wall_s": 3.0}, "peak_memory_mib": 5}
+    path = tmp_path / "build" / "x" / "stage.metrics.json"
+    assert timings_path(path) == tmp_path / "build" / "x" / "stage.timings.json"
+
+    def main(argv):
+        return {"_path": path, "accuracy_mm": 0.5, "fit_s": 1.25, "_run": {"skipped_done": 2}}
+
+    assert run_stage(main, []) == 0
+    assert json.loads(path.read_text()) == {"accuracy_mm": 0.5}
+    t = json.loads(timings_path(path).read_text())
+    assert t["fit_s"] == 1.25 and t["skipped_done"] == 2 and t["wall_time_s"] >= 0 and t["peak_memory_mib"] > 0
+    assert read_stage_metrics(path)["fit_s"] == 1.25
