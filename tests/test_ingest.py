@@ -21,7 +21,10 @@ from pipeline.io.meshfile import load_mesh
 
 
 def read_metrics(out):
-    return json.loads(Path(out).with_suffix(".metrics.json").read_text())
+    """The stage's metrics merged with its timings file (wall time, peak memory)."""
+    from stages._common import read_stage_metrics
+
+    return read_stage_metrics(Path(out).with_suffix(".metrics.json"))
 
 
 # ---------------------------------------------------------------------------- tests

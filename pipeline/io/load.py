@@ -901,6 +901,17 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
 
 # ---------------------------------------------------------------------------- STL
 
+def _count_word(path: Path, word: bytes, chunk: int = 1 << 22) -> int:
+    """Occurrences of ``word`` in a file, read in chunks (no copy of the file is kept)."""
+    n, tail = 0, b""
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            buf = tail + block
+            n += buf.count(word)
+            tail = buf[-(len(word) - 1):]            # too short to hold the word again: no double count
+    return n
+
+
 def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     """Load an ASCII or binary STL (a triangle soup; duplicates are merged by the repair step)."""
     path = Path(path)
@@ -916,6 +927,8 @@ def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         if 84 + 50 * n != size:
             raise ScanError(path, f"binary STL header says {n} triangles ({84 + 50 * n} bytes) but the file "
                                   f"has {size} bytes (truncated or not an STL)")
+    else:                                        # no header count: count the corners before parsing
+        _check_counts(path, 0, _count_word(path, b"vertex") // 3, limits)
     from trimesh.exchange import stl as tstl
 
     try:
@@ -1424,8 +1437,8 @@ def ingest_scan(folder, settings: IngestSettings = IngestSettings()) -> IngestRe
     try:
         return _ingest(folder, spec, settings)
     except MemoryError:
-        raise ScanError(spec.mesh, "ran out of memory reading the scan (over the ingest memory bound, "
-                                   "ingest.max_memory_mb): the file is over the limits or malformed") from None
+        raise ScanError(spec.mesh, "ran out of memory ingesting this mesh (the stage's address-space bound, "
+                                   "ingest.max_memory_mb): a malformed file, or limits too high for the bound") from None
     except OverflowError as exc:
         raise ScanError(spec.mesh, f"a number is too large ({one_line(exc)[:80]})") from None
 
