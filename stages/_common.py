@@ -178,7 +178,11 @@ def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
 
     argv = sys.argv[1:] if argv is None else argv
     t0 = time.perf_counter()
-    stage = str(getattr(getattr(main, "func", main), "__module__", "stage")).rsplit(".", 1)[-1]
+    module = str(getattr(getattr(main, "func", main), "__module__", "stage"))
+    if module == "__main__":          # python -m stages.<stage>
+        spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+        module = spec.name if spec is not None else "stage"
+    stage = module.rsplit(".", 1)[-1]
     try:
         with stage_scratch(stage):      # its own TMPDIR (Blender, Dask), removed at exit
             metrics = main(argv)
