@@ -51,6 +51,7 @@ class UsdSettings(Settings):
     preview_px: int = setting(240, ge=16, le=2048)      # tile height (tiles are 2:1, both eyes)
     preview_samples: int = setting(8, ge=1, le=4096)    # + OpenImageDenoise
 
+
 SIDES = ("left", "right")
 JOINTS = ("head", "head/eye_left", "head/eye_right")
 DISPLACEMENT_DOC = ("textures/displacement.exr: float32, signed distance in mm (= stage units) along "
