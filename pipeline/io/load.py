@@ -1153,9 +1153,9 @@ def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     size = check_file_size(path, limits)
     doc, bin_len = _glb_json(path, size)
     _glb_check_doc(path, doc, bin_len, limits)
-    import trimesh
     n_img = len(doc.get("images", []) or [])
     _glb_check_images(path, doc, limits)
+    import trimesh
     try:
         from PIL import Image
         with warnings.catch_warnings():
