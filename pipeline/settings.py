@@ -278,6 +278,17 @@ class Settings:
 
     block: ClassVar[str] = ""
 
+    def __init_subclass__(cls, **kwargs):
+        """A subclass's own ``__post_init__`` runs after the checks, never instead of them."""
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("__post_init__")
+        if own is not None and not getattr(own, "_after_checks", False):
+            def __post_init__(self, _own=own):
+                Settings.__post_init__(self)
+                _own(self)
+            __post_init__._after_checks = True
+            cls.__post_init__ = __post_init__
+
     def __post_init__(self):
         hints = _hints(type(self))
         for f in dataclasses.fields(self):

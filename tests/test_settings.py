@@ -155,3 +155,21 @@ def test_timings_go_beside_the_metrics_not_into_them(tmp_path):
     t = json.loads(timings_path(path).read_text())
     assert t["fit_s"] == 1.25 and t["skipped_done"] == 2 and t["wall_time_s"] >= 0 and t["peak_memory_mib"] > 0
     assert read_stage_metrics(path)["fit_s"] == 1.25
+
+
+def test_a_subclass_post_init_runs_after_the_checks_not_instead():
+    seen = []
+
+    @dataclass(frozen=True)
+    class Legacy(Settings):
+        block: ClassVar[str] = "legacy"
+        r: tuple[float, float] = setting((10.0, 18.0), gt=0, ordered=True)
+        flag: bool = True
+
+        def __post_init__(self):
+            seen.append(self.r)
+
+    assert Legacy.from_params({"r": [1, 2]}).r == (1.0, 2.0) and seen == [(1.0, 2.0)]
+    with pytest.raises(SettingsError, match=r"params.yaml: legacy.r must be in increasing order"):
+        Legacy.from_params({"r": [2, 1]})
+    assert len(seen) == 1
