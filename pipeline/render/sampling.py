@@ -72,13 +72,16 @@ PRESETS = {
 }
 
 
+_GENERIC = PRESETS["generic"]
+
+
 @dataclass(frozen=True)
 class RenderPreset(Settings):
     """One entry of ``render.presets``: pose and gaze ranges filled in by ``render.preset``."""
 
-    camera_polar_max_deg: float = setting(20.0, ge=0, lt=80)
-    gaze_offset_max_deg: float = setting(45.0, ge=0, le=90)
-    gaze_step_deg: float = setting(10.0, gt=0, le=90)
+    camera_polar_max_deg: float = setting(_GENERIC["camera_polar_max_deg"], ge=0, lt=80)
+    gaze_offset_max_deg: float = setting(_GENERIC["gaze_offset_max_deg"], ge=0, le=90)
+    gaze_step_deg: float = setting(_GENERIC["gaze_step_deg"], gt=0, le=90)
 
 
 #: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
@@ -107,9 +110,9 @@ class RenderSettings(Settings):
     samples: int = setting(12, ge=1, le=65536)          # Cycles samples per pixel
     denoise: bool = True
     eyes: tuple[Literal["left", "right"], ...] = setting(("left", "right"), min_len=1, max_len=2)
-    camera_polar_max_deg: float = setting(20.0, ge=0, lt=80)
-    gaze_offset_max_deg: float = setting(45.0, ge=0, le=90)
-    gaze_step_deg: float = setting(10.0, gt=0, le=90)
+    camera_polar_max_deg: float = setting(_GENERIC["camera_polar_max_deg"], ge=0, lt=80)   # the preset's
+    gaze_offset_max_deg: float = setting(_GENERIC["gaze_offset_max_deg"], ge=0, le=90)
+    gaze_step_deg: float = setting(_GENERIC["gaze_step_deg"], gt=0, le=90)
     max_pitch_deg: float = setting(25.0, ge=0, le=90)
     max_yaw_deg: float = setting(35.0, ge=0, le=90)
     ortho_scale_mm: tuple[float, float] = setting((30.0, 36.0), gt=0, le=1000, ordered=True)
