@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.geometry.eye_checks import convex_fill
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -293,16 +294,6 @@ def run_chain(folder: Path, build: Path, eyeball: Path, params: Path, stop_after
 
 
 # ----------------------------------------------------------------------------- evaluation
-def _convex_fill(loop, center, forward):
-    """Area of the loop projected on the plane across ``forward`` / area of its convex hull."""
-    from scipy.spatial import ConvexHull
-    from pipeline.geometry.eyes import eye_basis
-    B = eye_basis(forward)
-    Q = (np.asarray(loop) - center) @ B[:2].T
-    a = 0.5 * abs(np.sum(Q[:, 0] * np.roll(Q[:, 1], -1) - np.roll(Q[:, 0], -1) * Q[:, 1]))
-    return float(a / ConvexHull(Q).volume)
-
-
 def _remnant(folder: Path, build: Path, eyes: dict):
     """Per side: area (mm²) of kept faces whose vertices the scan labels as that eyeball, outside
     a 1 mm band along the opening loop."""
@@ -359,7 +350,7 @@ def evaluate(case, folder: Path, build: Path, chain: dict) -> dict:
             "checks": e.get("checks"),
             "loop_to_margin_mean_mm": round(float(closed_polyline_distance(
                 loop, np.array(g["eyelid_margin"]["points_mm"])).mean()), 4),
-            "convex_fill": round(_convex_fill(loop, c, np.array(e["forward"])), 4),
+            "convex_fill": round(convex_fill(loop, c, np.array(e["forward"])), 4),
             "remnant_mm2": round(rem.get(s, float("nan")), 3),
         }
     rig_m = build / "rig.metrics.json"

@@ -85,9 +85,36 @@ def test_an_opening_wider_than_the_eye_fails():
     assert not ch["opening_fits"]["ok"]
 
 
+def test_a_notched_opening_is_not_convex():
+    """An almond loop fills its hull; the same loop with a tongue pushed into it from the upper
+    lid (scanned eyeball left on the lid) does not."""
+    L = _loop(C, R)
+    ch = check_eye(*_sphere_patch(C, R, 60.0), C, R, FWD, L, CheckLimits())
+    assert ch["opening_convex"]["value"] > 0.97 and ch["opening_convex"]["ok"]
+    t = np.linspace(0, 2 * np.pi, len(L), endpoint=False)
+    tongue = np.exp(-((t - np.pi / 2) / 0.35) ** 2)          # around the top of the loop
+    N = L.copy()
+    N[:, 1] -= 1.6 * tongue * (L[:, 1] - C[1])               # pulled down to below the centre
+    N = C + R * (N - C) / np.linalg.norm(N - C, axis=1)[:, None]
+    ch = check_eye(*_sphere_patch(C, R, 60.0), C, R, FWD, N, CheckLimits())
+    assert not ch["opening_convex"]["ok"] and ch["opening_convex"]["value"] < 0.85
+
+
 def test_pair_agreement_and_the_one_line_description():
     ch = check_pair({"left": 12.0, "right": 14.5}, CheckLimits())
     assert failed(ch) == ["radii_agree"]
     assert eye_checks.describe("radii_agree", ch["radii_agree"]) == \
         "the two eyes' radii differ by 2.50 mm (limit 2.0 mm)"
     assert failed(check_pair({"left": 12.0, "right": 13.9}, CheckLimits())) == []
+
+
+def test_limits_follow_the_scan_resolution():
+    """Fine scans keep the base limits; a coarse one (4 mm edges, like the james scan) gets a
+    loop and depth tolerance of a fraction of its edge and an area limit of two faces."""
+    fine, base = eye_checks.limits_for(0.8), CheckLimits()
+    assert (fine.inside_noise_mm, fine.max_inside_area_mm2, fine.max_loop_off_mm) == \
+        (base.inside_noise_mm, base.max_inside_area_mm2, base.max_loop_off_mm)
+    coarse = eye_checks.limits_for(4.0, (11.0, 17.0))
+    assert coarse.max_loop_off_mm == 2.0 and coarse.inside_noise_mm == 1.0
+    assert coarse.max_inside_area_mm2 == pytest.approx(2 * 0.433 * 16.0)
+    assert coarse.radius_range_mm == (11.0, 17.0)

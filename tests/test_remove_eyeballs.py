@@ -122,6 +122,25 @@ def test_different_eye_sizes_are_kept():
         assert np.linalg.norm(np.array(res.eyes[s]["center"]) - gt[s]["center"]) <= 0.5
 
 
+def test_an_unmeasured_pupil_hole_is_part_of_the_opening():
+    """Scanners lose the dark pupil: a 3 mm hole in the middle of each opening. The eye is fitted
+    as before and the hole goes with the cut (one loop per eye, no extra boundary left)."""
+    mesh, hints, gt = make_head(0.5, seed=2, noise=0.02)
+    V, F = mesh["V"], mesh["F"]
+    front = {s: gt[s]["center"] + np.array([0.0, 0.0, R_EYE]) for s in ("left", "right")}
+    c = V[F].mean(axis=1)
+    hole = np.zeros(len(F), bool)
+    for p in front.values():
+        hole |= np.linalg.norm(c - p, axis=1) < 1.5
+    holed = {"V": V, "F": F[~hole], "UV": mesh["UV"], "FUV": mesh["FUV"][~hole]}
+    assert meshtopo.boundary_component_count(holed["F"]) == 3        # outer border + 2 holes
+    res = remove_eyeballs(holed, hints, EyeSettings())
+    assert res.metrics["boundary_loops_out"] == 3                   # outer border + 2 openings
+    for s in ("left", "right"):
+        assert np.linalg.norm(np.array(res.eyes[s]["center"]) - gt[s]["center"]) <= 0.5
+        assert abs(res.eyes[s]["radius"] - gt[s]["radius"]) <= 0.5
+
+
 def test_eyes_of_unequal_size_beyond_anatomy_are_refused():
     """12 and 14.5 mm eyes in one head: the fits may be right, but no head has them; the stage
     says it is not sure (naming the check) instead of passing a guess on."""
@@ -137,8 +156,8 @@ def test_eyes_json_records_placement_and_checks():
     for s in ("left", "right"):
         e = res.eyes[s]
         assert e["placement"] == "surface"
-        assert set(e["checks"]) == {"inside", "radius_in_range", "opening_fits", "loop_on_sphere",
-                                    "radii_agree"}
+        assert set(e["checks"]) == {"inside", "radius_in_range", "opening_fits", "opening_convex",
+                                    "loop_on_sphere", "radii_agree"}
         assert all(c["ok"] for c in e["checks"].values())
         assert res.metrics[s]["checks_failed"] == [] and res.metrics[s]["placement"] == "surface"
         assert e["checks"]["loop_on_sphere"]["value"] <= EyeSettings().cut_tol_mm

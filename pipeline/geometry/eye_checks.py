@@ -13,6 +13,8 @@ around them, so each fit is checked against it (``check_eye``, ``check_pair``):
 - ``opening_fits``: the opening loop (a chord of the eyeball at its widest) is not wider than
   the eyeball's diameter.
 - ``loop_on_sphere``: the eyelid loop lies on the eyeball (the margin is where lid meets eye).
+- ``opening_convex``: the loop, seen along the gaze, fills ``min_convex_fill`` of its convex
+  hull (eyelid margins are convex; a notch or a tongue of scanned eyeball left on a lid is not).
 - ``radii_agree`` (pair): the two eyes of one head have radii within ``max_radius_diff_mm``.
 
 Each check returns its measured value and whether it passed, so the stage can record them in
@@ -38,8 +40,27 @@ class CheckLimits:
     radius_range_mm: tuple = (10.0, 18.0)
     max_width_ratio: float = 1.0     # opening width / eyeball diameter
     max_loop_off_mm: float = 1.0     # 90th percentile of |loop - sphere|
+    min_convex_fill: float = 0.9     # loop area / convex hull area, seen along the gaze, less a
+    edge_mm: float = 0.0             # strip a tenth of the scan's edge wide along the loop
     max_radius_diff_mm: float = 2.0  # between the two eyes of one head (axial lengths rarely
                                      # differ by 2 mm; the procedural head draws up to 1.7 mm)
+
+
+def limits_for(median_edge_mm: float, radius_range_mm=(10.0, 18.0)) -> CheckLimits:
+    """The limits for a scan of this resolution: a vertex of a coarse mesh may sit a quarter
+    edge off the surface it samples, a loop vertex half an edge off the margin, and two faces
+    of area is the smallest patch a coarse mesh can show."""
+    base = CheckLimits()
+    e = max(float(median_edge_mm), 0.0)
+    return CheckLimits(radius_mm=base.radius_mm,
+                       inside_noise_mm=max(base.inside_noise_mm, 0.25 * e),
+                       max_inside_area_mm2=max(base.max_inside_area_mm2, 2 * 0.433 * e * e),
+                       cornea_cone_deg=base.cornea_cone_deg, cone_depth_mm=base.cone_depth_mm,
+                       radius_range_mm=tuple(radius_range_mm),
+                       max_width_ratio=base.max_width_ratio,
+                       max_loop_off_mm=max(base.max_loop_off_mm, 0.5 * e),
+                       min_convex_fill=base.min_convex_fill, edge_mm=e,
+                       max_radius_diff_mm=base.max_radius_diff_mm)
 
 
 def vertex_areas(V, F):
@@ -82,6 +103,30 @@ def inside_area(V, F, center, radius, forward, around, lim: CheckLimits, rms=0.0
     return float(a[d < -tol].sum())
 
 
+def convex_fill(loop_points, center, forward, strip_mm=0.0):
+    """Area of the loop projected on the plane across ``forward`` over its convex hull's area.
+
+    With ``strip_mm`` also returns the fill a loop may lose to a strip that wide along it
+    (a loop made of coarse edges zigzags by a fraction of an edge): ``(fill, allowance)``.
+    """
+    from scipy.spatial import ConvexHull
+    from scipy.spatial import QhullError
+
+    from pipeline.geometry.frame import eye_basis
+
+    Q = (np.asarray(loop_points, float) - center) @ eye_basis(forward)[:2].T
+    area = 0.5 * abs(float(np.sum(Q[:, 0] * np.roll(Q[:, 1], -1) - np.roll(Q[:, 0], -1) * Q[:, 1])))
+    try:
+        hull = ConvexHull(Q).volume
+    except QhullError:          # a degenerate (flat) loop
+        hull = 0.0
+    fill = float(area / hull) if hull > 0 else 0.0
+    if not strip_mm:
+        return fill
+    perimeter = float(np.linalg.norm(np.roll(Q, -1, axis=0) - Q, axis=1).sum())
+    return fill, (strip_mm * perimeter / hull if hull > 0 else 0.0)
+
+
 def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=0.0) -> dict:
     """The per-eye checks: ``{name: {"value": float, "limit": ..., "ok": bool}}``.
 
@@ -105,16 +150,21 @@ def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=
     width = float(np.max(np.linalg.norm(L[:, None] - L[None], axis=2))) if len(L) > 1 else 0.0
     off = np.abs(np.linalg.norm(L - center, axis=1) - radius)
     ins = inside_area(V, F, center, radius, forward, L.mean(axis=0), lim, rms)
+    fill, allow = convex_fill(L, center, forward, max(0.1 * lim.edge_mm, 1e-9)) \
+        if len(L) >= 3 else (0.0, 0.0)
+    min_fill = lim.min_convex_fill - allow
     lo, hi = lim.radius_range_mm
     return {
-        "inside": {"value": round(ins, 3), "limit": lim.max_inside_area_mm2,
+        "inside": {"value": round(ins, 3), "limit": round(lim.max_inside_area_mm2, 3),
                    "ok": ins <= lim.max_inside_area_mm2},
         "radius_in_range": {"value": round(float(radius), 4), "limit": [lo, hi],
                             "ok": bool(lo <= radius <= hi)},
         "opening_fits": {"value": round(width / (2 * radius), 4), "limit": lim.max_width_ratio,
                          "ok": width <= lim.max_width_ratio * 2 * radius},
+        "opening_convex": {"value": round(fill, 4), "limit": round(min_fill, 4),
+                           "ok": fill >= min_fill},
         "loop_on_sphere": {"value": round(float(np.percentile(off, 90)), 4),
-                           "limit": lim.max_loop_off_mm,
+                           "limit": round(lim.max_loop_off_mm, 3),
                            "ok": float(np.percentile(off, 90)) <= lim.max_loop_off_mm},
     }
 
@@ -140,6 +190,9 @@ def describe(name: str, check: dict) -> str:
         return f"radius {v:.2f} mm outside {lim[0]:g}-{lim[1]:g} mm"
     if name == "opening_fits":
         return f"the opening is {v:.2f} x the eyeball's diameter"
+    if name == "opening_convex":
+        return (f"the eyelid loop fills {100 * v:.0f} % of its convex hull (limit "
+                f"{100 * lim:.0f} %: a notch, or scanned eyeball left on a lid)")
     if name == "loop_on_sphere":
         return f"the eyelid loop lies {v:.2f} mm off the eyeball (90th percentile, limit {lim} mm)"
     if name == "radii_agree":

@@ -43,6 +43,7 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry import eye_checks, meshtopo
+from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import (fit_sphere_algebraic, radius_sigma, ransac_sphere,
                                          refine_sphere, signed_distance)
 
@@ -82,6 +83,7 @@ class EyeSettings:
     margin_max_turn_deg: float = 60.0
     margin_on_eye_mm: float = 0.3
     max_gaze_deg: float = 40.0
+    max_hole_perimeter_mm: float = 60.0   # holes near the hints (an unmeasured pupil) are closed for the fit
     cornea_min_inliers: int = 20
     cornea_min_fraction: float = 0.45
     seed: int = 0
@@ -132,16 +134,6 @@ class EyeFit:
     capped: bool = False
     inliers: np.ndarray = field(default=None, repr=False)
     radius_sigma: float = float("inf")
-
-
-def eye_basis(forward):
-    """(3, 3) rows e_x (horizontal, toward head +X), e_y (up), e_z (= forward)."""
-    f = np.asarray(forward, dtype=np.float64)
-    f = f / np.linalg.norm(f)
-    ex = np.cross([0.0, 1.0, 0.0], f)
-    ex /= np.linalg.norm(ex)
-    ey = np.cross(f, ex)
-    return np.stack([ex, ey, f])
 
 
 def _unit(v):
@@ -665,10 +657,11 @@ def find_eye(mesh: _Mesh, hint, side, st: EyeSettings, *, source="mesh", mesh_ar
                                         f"vertices on the fitted sphere)")
             fit = None
         elif fit.crease_deg < st.min_crease_deg or fit.residual_rms_mm > st.max_fit_rms_mm:
-            geo_err = ScanError(source, f"{side} eye looks closed: no eyeball surface in the eye "
-                                        f"opening near {np.round(hint, 2).tolist()} (no lid crease around "
-                                        f"the fitted eyeball surface: fold {fit.crease_deg:.0f} deg "
-                                        f"< {st.min_crease_deg:g} deg)")
+            geo_err = ScanError(source, f"{side} eye looks closed or covered by the lids: no "
+                                        f"eyeball surface with a lid crease around it near "
+                                        f"{np.round(hint, 2).tolist()} (fold {fit.crease_deg:.0f} deg "
+                                        f"< {st.min_crease_deg:g} deg, residual "
+                                        f"{fit.residual_rms_mm:.2f} mm)")
             fit = None
     except ScanError as exc:
         geo_err = exc
@@ -833,6 +826,118 @@ def _radii_agree(fits, st: EyeSettings):
                 <= st.shared_radius_max_z * sig)
 
 
+def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
+    """Close the mesh's holes near ``centres`` with a fan around each hole's centroid.
+
+    Scanners often leave the dark pupil and iris unmeasured: a hole in the eye opening. The eye fit
+    and the cut run on the closed surface; :func:`fit_eye_pair` then gives each hole to the
+    opening or to the skin.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    centres : list of (3,) float64
+    near_mm : float
+        A hole is closed when one of its vertices lies this close to a centre ...
+    max_perimeter_mm : float
+        ... and its perimeter is at most this.
+
+    Returns
+    -------
+    V2 : (n + k, 3) float64
+        ``V`` and one centroid vertex per closed hole.
+    F2 : (m + f, 3) int64
+        ``F`` and the fan faces (appended, so face ``i < m`` is still face ``i`` of ``F``).
+    holes : list of (L,) int64
+        The closed holes' loops (vertex ids), in the order of their centroid vertices.
+    hole_of_face : (m + f,) int64
+        -1 for the faces of ``F``, else the hole index.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    C = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    H = meshtopo.boundary_halfedges(F)
+    loops = []
+    if len(H):
+        # each connected piece of the boundary near a centre that is one simple loop
+        bv, Hc = np.unique(H, return_inverse=True)
+        Hc = Hc.reshape(-1, 2)
+        g = coo_matrix((np.ones(len(Hc)), (Hc[:, 0], Hc[:, 1])), shape=(len(bv), len(bv)))
+        _, comp = connected_components(g, directed=False)
+        near = np.linalg.norm(V[bv][:, None, :] - C[None], axis=2).min(axis=1) <= near_mm
+        for k in np.unique(comp[near]):
+            try:
+                loops += meshtopo.boundary_loops(F, only=bv[comp == k], H=H)
+            except ValueError:      # a bow-tie boundary: left as it is
+                pass
+    newV, newF, holes, owner = [], [], [], []
+    for loop in loops:
+        P = V[loop]
+        per = float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum())
+        if per > max_perimeter_mm or len(loop) < 3:
+            continue
+        if np.linalg.norm(P[:, None, :] - C[None], axis=2).min() > near_mm:
+            continue
+        k = len(holes)
+        c = len(V) + k
+        # the boundary half-edge a -> b belongs to a face; the fill face runs b -> a
+        newF.append(np.column_stack([np.roll(loop, -1), loop, np.full(len(loop), c)]))
+        newV.append(P.mean(axis=0))
+        holes.append(np.asarray(loop, dtype=np.int64))
+        owner.append(np.full(len(loop), k))
+    if not holes:
+        return V, F, [], np.full(len(F), -1, dtype=np.int64)
+    V2 = np.concatenate([V, np.asarray(newV)])
+    F2 = np.concatenate([F, *newF]).astype(np.int64)
+    return V2, F2, holes, np.concatenate([np.full(len(F), -1), *owner]).astype(np.int64)
+
+
+def _opening_holes(region, F, holes, hole_of_face, n_faces, min_share=0.3):
+    """The fitted region on the original faces. A hole whose fill or rim the region reaches
+    (``min_share`` of its rim vertices, or half its fill) is part of the opening: the faces
+    around it join the region, so the cut border passes around it (a scanner loses the crease
+    where lid meets eye as easily as the pupil). A hole the region only grazes is kept off it."""
+    out = region[:n_faces].copy()
+    Fo = F[:n_faces]
+    inside = np.zeros(int(F.max()) + 1, bool)
+    inside[Fo[out].ravel()] = True
+    for k, loop in enumerate(holes):
+        rim = np.isin(Fo, loop).any(axis=1)
+        if region[hole_of_face == k].mean() >= 0.5 or inside[loop].mean() >= min_share:
+            out |= rim
+        else:
+            out &= ~rim
+    return out
+
+
+def _holes_inside(F, remove):
+    """Number of the mesh's boundary loops whose every edge belongs to a removed face (holes in
+    the eye openings, which the cut absorbs)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    H = meshtopo.boundary_halfedges(F)
+    if len(H) == 0:
+        return 0
+    # the face of each boundary half-edge a -> b
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    fid = np.tile(np.arange(len(F)), 3)
+    n = int(F.max()) + 1
+    key = E[:, 0] * n + E[:, 1]
+    order = np.argsort(key)
+    hf = fid[order[np.searchsorted(key[order], H[:, 0] * n + H[:, 1])]]
+    bv, Hc = np.unique(H, return_inverse=True)
+    Hc = Hc.reshape(-1, 2)
+    g = coo_matrix((np.ones(len(Hc)), (Hc[:, 0], Hc[:, 1])), shape=(len(bv), len(bv)))
+    _, comp = connected_components(g, directed=False)
+    ecomp = comp[Hc[:, 0]]
+    kept = np.zeros(comp.max() + 1, bool)
+    np.logical_or.at(kept, ecomp, ~remove[hf])
+    return int((~kept).sum())
+
+
 def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None):
     """Fit both eyes; with ``shared_radius`` refit both with their inverse-variance weighted mean
     radius when both are geometric fits whose radii agree within ``shared_radius_max_z`` standard
@@ -844,10 +949,18 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
     # (region borders, crease neighbourhoods): fit on that sub-mesh, which keeps the full mesh's
     # face/vertex order (same random samples, same results) and map regions back.
     reach = st.patch_radius_mm + 5.0 + 6.0 * median_edge + max(2.0, 1.5 * median_edge)
-    Vs, Fs, faces, verts = _local_mesh(V, F, [np.asarray(hints[s], float) for s in SIDES], reach)
+    centres = [np.asarray(hints[s], float) for s in SIDES]
+    Vs, Fs, faces, verts = _local_mesh(V, F, centres, reach)
+    n_local = len(Fs)
+    Vs, Fs, holes, hole_of_face = fill_holes_near(Vs, Fs, centres, st.sample_radius_mm,
+                                                  st.max_hole_perimeter_mm)
     mesh = _Mesh(Vs, Fs, median_edge=median_edge)
     sub_arrays = {k: (np.asarray(mesh_arrays[k])[faces] if k == "FUV" else mesh_arrays[k])
                   for k in ("UV", "FUV") if k in mesh_arrays}
+    if holes and "FUV" in sub_arrays:   # fan faces take the texture corners of a rim face
+        rim = np.array([np.flatnonzero(np.isin(Fs[:n_local], loop).any(axis=1))[0] for loop in holes])
+        sub_arrays["FUV"] = np.concatenate([sub_arrays["FUV"],
+                                            sub_arrays["FUV"][rim[hole_of_face[n_local:]]]])
     fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=sub_arrays,
                         texture=texture) for s in SIDES}
     if st.shared_radius and all(fits[s].method == "geometry" for s in SIDES) and _radii_agree(fits, st):
@@ -858,10 +971,11 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
                 for s in SIDES}
     for fit in fits.values():       # back to full-mesh ids
         region = np.zeros(len(F), bool)
-        region[faces[fit.region]] = True
+        region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
         fit.region = region
         if fit.inliers is not None:
-            fit.inliers = verts[np.asarray(fit.inliers, dtype=np.int64)]
+            inl = np.asarray(fit.inliers, dtype=np.int64)
+            fit.inliers = verts[inl[inl < len(verts)]]
     return mesh, fits
 
 
@@ -910,6 +1024,7 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         raise ScanError(source, "the two eye regions overlap (hints too close or wrong)")
     loops_in = meshtopo.boundary_component_count(F)
     remove = fits["left"].region | fits["right"].region
+    absorbed = _holes_inside(F, remove)
     keepF = ~remove
     F2 = F[keepF]
     used = np.zeros(len(V), bool)
@@ -946,7 +1061,7 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
     n_loops_out = meshtopo.boundary_component_count(F2n, H2)
     # region border vertices (old ids) per eye -> loops touching them
     eyes, metrics, moved, checks = {}, {}, {}, {}
-    lim = eye_checks.CheckLimits(radius_range_mm=tuple(st.radius_range_mm))
+    lim = eye_checks.limits_for(mesh.median_edge, st.radius_range_mm)
     old_ids = np.flatnonzero(used)
     for s in SIDES:
         fit = fits[s]
@@ -966,7 +1081,11 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
             moved[s] = _move_to_lift_off(V, F, V2, F2n, old_ids, loop, fit, st.margin_lift_mm,
                                          np.cos(np.radians(st.margin_max_turn_deg)),
                                          st.margin_on_eye_mm)
-        loop, lat = order_loop(loop, V2, fit.center, fit.forward, s)
+        try:
+            loop, lat = order_loop(loop, V2, fit.center, fit.forward, s)
+        except ValueError:      # eye_basis: a gaze straight up or down has no pitch axis
+            raise ScanError(source, f"{s} eye: the fitted gaze {np.round(fit.forward, 3).tolist()} "
+                                    f"is vertical; not an eye") from None
         checks[s] = eye_checks.check_eye(V, F, fit.center, fit.radius, fit.forward, V2[loop], lim,
                                          fit.residual_rms_mm)
         eyes[s] = {
@@ -994,12 +1113,12 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         metrics[s]["checks_failed"] = eye_checks.failed(eyes[s]["checks"])
         metrics[s].update({f"check_{k}": c["value"] for k, c in eyes[s]["checks"].items()})
     _refuse_unsure(eyes, source)
-    if n_loops_out != loops_in + 2:
+    if n_loops_out != loops_in - absorbed + 2:
         raise ScanError(source, f"cutting the eyeballs gave {n_loops_out} boundary loops, expected "
-                                f"{loops_in} + 2")
+                                f"{loops_in} - {absorbed} holes in the openings + 2")
     metrics.update({"vertices_in": nV, "faces_in": nF, "vertices_out": int(len(V2)),
                     "faces_out": int(len(F2n)), "vertices_removed": int(nV - len(V2)),
                     "faces_removed": int(remove.sum()), "boundary_loops_in": loops_in,
-                    "boundary_loops_out": n_loops_out,
+                    "boundary_loops_out": n_loops_out, "holes_in_openings": absorbed,
                     "edge_manifold_out": meshtopo.is_edge_manifold(F2n)})
     return RemovalResult(mesh=out, eyes=eyes, fits=fits, metrics=metrics)

@@ -47,6 +47,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from pipeline.geometry.frame import eye_basis  # noqa: F401 (also lids.eye_basis)
 from pipeline.settings import Settings, setting
 
 SHAPE_UP = "lids_up"
@@ -231,25 +232,6 @@ class EyeFrame:
         """(n,) radial distance of points outside (+) / inside (-) the pitched eyeball surface."""
         P = np.asarray(P, float)
         return np.linalg.norm(P - self.center, axis=1) - self.surface_radius(P, pitch_deg)
-
-
-def eye_basis(forward) -> np.ndarray:
-    """Orthonormal eye frame from a forward direction and head +Y.
-
-    Returns
-    -------
-    (3, 3) float64
-        Rows ``e_x = normalize(Y x f)`` (toward head +X), ``e_y = f x e_x`` (up), ``e_z = f``.
-    """
-    f = np.asarray(forward, dtype=np.float64)
-    f = f / np.linalg.norm(f)
-    ex = np.cross([0.0, 1.0, 0.0], f)
-    n = np.linalg.norm(ex)
-    if n < 1e-6:
-        raise ValueError("forward direction is vertical; pitch axis undefined")
-    ex /= n
-    ey = np.cross(f, ex)
-    return np.stack([ex, ey, f])
 
 
 def find_lateral_canthus(points, center, forward, side: str) -> int:
