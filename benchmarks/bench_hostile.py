@@ -186,6 +186,19 @@ def c_glb_deep_json(f, t):
     write_sidecar(f, hints, mesh="scan.glb")
 
 
+def c_glb_json_over_limit(f, t):
+    _glb_case(f, lambda doc, blob: None, pad_to=2 << 20)
+    return {"max_json_mb": 1}
+
+
+def c_obj_one_endless_line(f, t):
+    V, F, hints = head_mesh(3)
+    write_obj(f / "scan.obj", V, F)
+    with open(f / "scan.obj", "ab") as fh:
+        fh.write(b"v" + b" 1" * (4 << 20))      # 8 MiB without a newline: one "vertex" of 4M numbers
+    write_sidecar(f, hints, mesh="scan.obj")
+
+
 def c_glb_image_header_bomb(f, t):
     png_header_only(t / "bomb.png", 100_000, 100_000)
     png = (t / "bomb.png").read_bytes()
@@ -249,6 +262,23 @@ def c_ply_header_1e9_vertices(f, t):
     (f / "scan.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\n"
                                  b"property float x\nproperty float y\nproperty float z\nelement face 1\n"
                                  b"property list uchar int vertex_indices\nend_header\n" + b"\0" * 90_000)
+
+
+def _ply_binary_faces(f, counts: list) -> None:
+    """A binary PLY of 3 vertices whose faces are ``int`` lists with the given claimed lengths (each with 3 indices)."""
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            f"property float z\nelement face {len(counts)}\nproperty list int int vertex_indices\nend_header\n")
+    body = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
+    body += b"".join(struct.pack("<4i", k, 0, 1, 2) for k in counts)
+    (f / "scan.ply").write_bytes(head.encode() + body)
+
+
+def c_ply_binary_list_2e31(f, t):
+    _ply_binary_faces(f, [2**31 - 1, 3])
+
+
+def c_ply_binary_list_negative(f, t):
+    _ply_binary_faces(f, [3, -5])
 
 
 def c_stl_header_over_limit(f, t):
@@ -393,6 +423,8 @@ CASES = [
     Case(c_glb_node_cycle, "scan.glb", "is in a cycle"),
     Case(c_glb_node_two_parents, "scan.glb", "has more than one parent"),
     Case(c_glb_deep_json, "scan.glb", "JSON chunk is invalid"),
+    Case(c_glb_json_over_limit, "scan.glb", "GLB JSON chunk is 1.98 MiB, over the limit of 1 MiB (ingest.max_json_mb)"),
+    Case(c_obj_one_endless_line, "scan.obj", "line 1923 is longer than 1048576 bytes"),
     Case(c_glb_image_header_bomb, "scan.glb", "image 0 header claims 100000x100000"),
     Case(c_obj_overflow_index, "scan.obj", f"line 7683: face index {HUGE} is out of range"),
     Case(c_obj_overflow_uv_index, "scan.obj", f"line 2565: face index {HUGE} is out of range"),
@@ -401,6 +433,8 @@ CASES = [
     Case(c_obj_huge_coordinates, "scan.obj", "not a plausible head"),
     Case(c_ply_ascii_overflow_index, "scan.ply", f"line 652: PLY data row (face 0) cannot be parsed: '3 {HUGE} "),
     Case(c_ply_header_1e9_vertices, "scan.ply", "1000000000 vertices, over the limit"),
+    Case(c_ply_binary_list_2e31, "scan.ply", "PLY data is shorter than its header says (element 'face'"),
+    Case(c_ply_binary_list_negative, "scan.ply", "PLY face 1 has a list of negative length -5"),
     Case(c_stl_header_over_limit, "scan.stl", "20000000 faces, over the limit of 10000000"),
     Case(c_stl_ascii_over_limit, "scan.stl", "5120 faces, over the limit of 1000"),
     Case(c_stl_header_lies, "scan.stl", "header says 1000000 triangles"),

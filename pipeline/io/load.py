@@ -33,6 +33,9 @@ from pipeline.errors import ScanError
 from pipeline.io.scan import TEXTURE_SUFFIXES, one_line, safe_path, short_repr
 
 
+MAX_LINE_BYTES = 1 << 20          # longest line of a text mesh or material file
+
+
 @dataclass(frozen=True)
 class Limits:
     """Resource limits for untrusted inputs.
@@ -45,12 +48,15 @@ class Limits:
         Largest vertex / (triangulated) face count accepted.
     max_texture_pixels : int
         Largest texture (width * height), checked from the header before decoding.
+    max_json_bytes : int
+        Largest GLB JSON chunk (decoded JSON takes many times its size).
     """
 
     max_file_bytes: int = 1 << 30
     max_vertices: int = 5_000_000
     max_faces: int = 10_000_000
     max_texture_pixels: int = 8192 * 8192
+    max_json_bytes: int = 64 << 20
 
 
 @dataclass
@@ -217,7 +223,7 @@ def _parse_mtl(mtl_path: Path, folder: Path, obj_path: Path, limits: Limits) -> 
     """MTL -> {material name: resolved map_Kd path or None}."""
     check_file_size(mtl_path, limits)
     with open(mtl_path, "rb") as fh:
-        text = _read_content(fh)[0].decode("utf-8", errors="replace")   # blank and comment lines dropped
+        text = _read_content(fh, mtl_path)[0].decode("utf-8", errors="replace")   # blank/comment lines dropped
     maps, current = {}, None
     for raw in text.split("\n"):
         line = raw.strip()
@@ -496,13 +502,15 @@ def _content_lines(block: bytes, first_line: int, parts: bytearray, numbers: lis
     return len(ends)
 
 
-def _read_content(fh, max_lines: int | None = None, comment: bytes | None = b"#", chunk: int = 1 << 18):
+def _read_content(fh, path: Path, max_lines: int | None = None, comment: bytes | None = b"#",
+                  chunk: int = 1 << 18, max_line: int = MAX_LINE_BYTES):
     """The lines that carry data from ``fh``'s position on (blank and comment lines dropped, read in
     chunks), stopping once ``max_lines`` are found.
 
     Returns ``(text, line_no)``: the kept lines, each ending in a newline, and the 0-based line number
     (counted from the starting position) of each. Memory follows the data, not the file: a file
-    padded with gigabytes of blank lines costs the size of its data.
+    padded with gigabytes of blank lines costs the size of its data. A line longer than ``max_line``
+    bytes is refused (naming ``path``).
     """
     parts, numbers, pending = bytearray(), [], []
     line, found = 0, 0
@@ -516,6 +524,8 @@ def _read_content(fh, max_lines: int | None = None, comment: bytes | None = b"#"
         cut = block.rfind(b"\n")
         if cut < 0:                                   # a line longer than the chunk
             pending.append(block)
+            if len(pending) * chunk > max_line:
+                raise ScanError(path, f"line {line + 1} is longer than {max_line} bytes (not a text mesh file?)")
             continue
         whole = b"".join(pending + [block[:cut + 1]]) if pending else block[:cut + 1]
         pending = [block[cut + 1:]] if cut + 1 < len(block) else []
@@ -551,7 +561,7 @@ def load_obj(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         if b"\x00" in fh.read(65536):
             raise ScanError(path, "not a text OBJ file (binary bytes found)")
         fh.seek(0)
-        raw, line_no = _read_content(fh)
+        raw, line_no = _read_content(fh, path)
     get = _obj_line_blocks(raw)
     _check_counts(path, get.count("v"), get.count("f"), limits)    # before any line is parsed
     parsed = _obj_fast(raw, path, limits, get)
@@ -697,7 +707,7 @@ def _ply_ascii(fh, elements: dict, data_start: int, header_lines: int, path: Pat
     """
     fh.seek(data_start)
     n_rows = sum(el["length"] for el in elements.values())
-    raw, line_no = _read_content(fh, max_lines=n_rows, comment=None)
+    raw, line_no = _read_content(fh, path, max_lines=n_rows, comment=None)
     ends = np.flatnonzero(np.frombuffer(raw, dtype=np.uint8) == 10)
     row = 0
     for name, el in elements.items():
@@ -785,7 +795,7 @@ def _ply_binary(fh, elements: dict, endian: str, n_bytes: int, path: Path) -> No
     pos = 0
     for name, el in elements.items():
         n, props = el["length"], el["props"]
-        fields, row_probe = [], pos
+        fields, row_probe, fits = [], pos, True
         for pname, dt in props:
             if isinstance(dt, tuple):
                 cdt = np.dtype(endian + dt[0])
@@ -793,6 +803,8 @@ def _ply_binary(fh, elements: dict, endian: str, n_bytes: int, path: Path) -> No
                     k = 0
                 else:
                     k = int(np.frombuffer(buf, cdt, 1, row_probe)[0]) if n else 0
+                if k < 0 or row_probe + cdt.itemsize + k * np.dtype(dt[1]).itemsize > len(buf):
+                    k, fits = 0, False                   # a first row past the end: the row reader says so
                 fields.append((pname + "__n", endian + dt[0]))
                 fields.append((pname, endian + dt[1], (k,)))
                 row_probe += cdt.itemsize + k * np.dtype(dt[1]).itemsize
@@ -801,7 +813,7 @@ def _ply_binary(fh, elements: dict, endian: str, n_bytes: int, path: Path) -> No
                 row_probe += np.dtype(dt).itemsize
         dtype = np.dtype(fields)
         need = n * dtype.itemsize
-        ok = pos + need <= len(buf)
+        ok = fits and pos + need <= len(buf)
         if ok:
             arr = np.frombuffer(buf, dtype, n, pos)
             ok = all(np.all(arr[p + "__n"] == dtype[p].shape[0]) for p, dt in props if isinstance(dt, tuple))
@@ -825,6 +837,8 @@ def _ply_binary_rows(buf, pos, n, props, endian, path, name):
                 if isinstance(dt, tuple):
                     cdt, idt = np.dtype(endian + dt[0]), np.dtype(endian + dt[1])
                     k = int(np.frombuffer(buf, cdt, 1, pos)[0])
+                    if k < 0:
+                        raise ScanError(path, f"PLY {name} {len(cols[p])} has a list of negative length {k}")
                     pos += cdt.itemsize
                     cols[p].append(np.frombuffer(buf, idt, k, pos))
                     pos += k * idt.itemsize
@@ -981,7 +995,7 @@ def _glb_check_images(path: Path, doc: dict, limits: Limits) -> None:
                                   f"{limits.max_texture_pixels} (ingest.max_texture_pixels); not decoded")
 
 
-def _glb_json(path: Path, size: int):
+def _glb_json(path: Path, size: int, max_json_bytes: int = Limits.max_json_bytes):
     """The GLB's JSON document and the byte length of its BIN chunk (0 when absent), chunk sizes checked."""
     with open(path, "rb") as fh:
         header = fh.read(20)
@@ -992,6 +1006,9 @@ def _glb_json(path: Path, size: int):
             raise ScanError(path, f"GLB version {version} is not supported (need 2)")
         if length != size or chunk_type != 0x4E4F534A or chunk_len > size - 20:
             raise ScanError(path, "GLB header is inconsistent with the file (truncated or corrupt)")
+        if chunk_len > max_json_bytes:
+            raise ScanError(path, f"GLB JSON chunk is {chunk_len / 2**20:.3g} MiB, over the limit of "
+                                  f"{max_json_bytes / 2**20:.3g} MiB (ingest.max_json_mb)")
         text = fh.read(chunk_len)
         bin_len = 0
         rest = size - 20 - chunk_len
@@ -1151,7 +1168,7 @@ def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     """
     path = Path(path)
     size = check_file_size(path, limits)
-    doc, bin_len = _glb_json(path, size)
+    doc, bin_len = _glb_json(path, size, limits.max_json_bytes)
     _glb_check_doc(path, doc, bin_len, limits)
     n_img = len(doc.get("images", []) or [])
     _glb_check_images(path, doc, limits)
@@ -1323,6 +1340,8 @@ class IngestSettings:
     flip_inward_winding : bool
         Flip all faces when the faces around the eyes point backward (inward winding);
         when False such a scan is refused.
+    max_json_mb : float
+        Largest GLB JSON chunk, MiB.
     max_memory_mb : float
         Address-space bound (``RLIMIT_AS``) the ingest stage sets on itself, MiB; 0 for none.
         The header checks refuse over-limit files long before this; it is the backstop.
@@ -1344,6 +1363,7 @@ class IngestSettings:
     eye_radius_mm: float = 20.0
     max_eye_region_removed_fraction: float = 0.05
     flip_inward_winding: bool = True
+    max_json_mb: float = 64.0
     max_memory_mb: float = 4096.0
 
     @classmethod
@@ -1361,7 +1381,8 @@ class IngestSettings:
     @property
     def limits(self) -> Limits:
         return Limits(max_file_bytes=int(self.max_file_mb * 2**20), max_vertices=int(self.max_vertices),
-                      max_faces=int(self.max_faces), max_texture_pixels=int(self.max_texture_pixels))
+                      max_faces=int(self.max_faces), max_texture_pixels=int(self.max_texture_pixels),
+                      max_json_bytes=int(self.max_json_mb * 2**20))
 
     @property
     def repair(self):
