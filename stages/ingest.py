@@ -26,7 +26,7 @@ from pipeline.io.atomic import atomic_dir, write_json
 from pipeline.io.load import IngestSettings, ingest_scan
 from pipeline.io.meshfile import save_mesh
 from pipeline.io.scan import one_line
-from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
 def bound_memory(max_mb: float) -> None:
@@ -59,7 +59,7 @@ def main(argv, bound: bool = False) -> dict:
     parser.add_argument("scan_dir", help="raw_scans/<name>: scan.yaml + mesh [+ texture]")
     parser.add_argument("out_dir", help="build/<name>/ingest")
     args = parser.parse_args(argv)
-    settings = IngestSettings.from_params(load_params("ingest", args.params))
+    settings = load_settings(IngestSettings, args.params)
     if bound:
         bound_memory(settings.max_memory_mb)
     out = Path(args.out_dir)

@@ -149,3 +149,22 @@ def test_repair_ignores_zero_area_faces_in_eye_damage_but_not_real_faces():
     assert len(r.F) == len(F) and r.eye_region["left"]["removed"] == 0
     with pytest.raises(ScanError, match="the eye region is damaged"):
         repair_mesh(V, np.vstack([F, near[: len(near) // 10]]), hints, RepairSettings())   # duplicates
+
+
+@pytest.mark.parametrize("params,problem", [
+    ({"max_memory_mb": float("nan")}, "ingest.max_memory_mb must be a finite number"),
+    ({"max_faces": -1}, "ingest.max_faces must be >= 1 (got -1)"),
+    ({"head_size_mm": [900, 40]}, "ingest.head_size_mm must be in increasing order"),
+    ({"max_json_mb": 0}, "ingest.max_json_mb must be > 0"),
+    ({"max_vertice": 10}, "ingest.max_vertice is an unknown key"),
+])
+def test_bad_ingest_params_one_line(tmp_path, capsys, params, problem):
+    from conftest import ingest
+
+    make_scan(tmp_path / "scan")
+    path = tmp_path / "p.yaml"
+    path.write_text(yaml.safe_dump({"ingest": params}))
+    assert ingest(tmp_path / "scan", tmp_path / "out", path) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "p.yaml" in err and problem in err, err
+    assert not (tmp_path / "out").exists()

@@ -26,11 +26,13 @@ import struct
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.io.scan import TEXTURE_SUFFIXES, one_line, safe_path, short_repr
+from pipeline.settings import Settings, setting
 
 
 MAX_LINE_BYTES = 1 << 20          # longest line of a text mesh or material file
@@ -1319,8 +1321,9 @@ def load_texture(source, limits: Limits = Limits(), name=None):
 # ---------------------------------------------------------------------------- the whole ingest
 
 @dataclass(frozen=True)
-class IngestSettings:
-    """Every limit and threshold of the ingest stage (the ``ingest:`` block of params.yaml).
+class IngestSettings(Settings):
+    """Every limit and threshold of the ingest stage (the ``ingest:`` block of params.yaml);
+    defaults here, values checked by :mod:`pipeline.settings` (type, range, finite, no unknown keys).
 
     Attributes
     ----------
@@ -1347,36 +1350,26 @@ class IngestSettings:
         The header checks refuse over-limit files long before this; it is the backstop.
     """
 
-    max_file_mb: float = 1024.0
-    max_yaml_bytes: int = 65536
-    max_vertices: int = 5_000_000
-    max_faces: int = 10_000_000
-    max_texture_pixels: int = 8192 * 8192
-    head_size_mm: tuple = (40.0, 1000.0)
-    eye_separation_mm: tuple = (30.0, 120.0)
-    float32_tolerance_mm: float = 0.01
-    max_hint_distance_mm: float = 15.0
-    merge_tolerance_mm: float = 1e-4
-    degenerate_area_mm2: float = 1e-10
-    max_degenerate_fraction: float = 0.1
-    debris_max_fraction: float = 0.01
-    eye_radius_mm: float = 20.0
-    max_eye_region_removed_fraction: float = 0.05
+    block: ClassVar[str] = "ingest"
+
+    max_file_mb: float = setting(1024.0, gt=0)
+    max_yaml_bytes: int = setting(65536, ge=1)
+    max_vertices: int = setting(5_000_000, ge=3)
+    max_faces: int = setting(10_000_000, ge=1)
+    max_texture_pixels: int = setting(8192 * 8192, ge=1)
+    head_size_mm: tuple[float, float] = setting((40.0, 1000.0), gt=0, ordered=True)
+    eye_separation_mm: tuple[float, float] = setting((30.0, 120.0), gt=0, ordered=True)
+    float32_tolerance_mm: float = setting(0.01, gt=0)
+    max_hint_distance_mm: float = setting(15.0, gt=0)
+    merge_tolerance_mm: float = setting(1e-4, ge=0)
+    degenerate_area_mm2: float = setting(1e-10, ge=0)
+    max_degenerate_fraction: float = setting(0.1, ge=0, le=1)
+    debris_max_fraction: float = setting(0.01, ge=0, le=1)
+    eye_radius_mm: float = setting(20.0, gt=0)
+    max_eye_region_removed_fraction: float = setting(0.05, ge=0, le=1)
     flip_inward_winding: bool = True
-    max_json_mb: float = 64.0
-    max_memory_mb: float = 4096.0
-
-    @classmethod
-    def from_params(cls, params: dict) -> "IngestSettings":
-        """Build from a params dict; unknown keys are a configuration bug (ValueError)."""
-        import dataclasses
-
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(params) - names)
-        if unknown:
-            raise ValueError(f"unknown ingest params: {', '.join(unknown)}")
-        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
-        return cls(**kw)
+    max_json_mb: float = setting(64.0, gt=0)
+    max_memory_mb: float = setting(4096.0, ge=0)
 
     @property
     def limits(self) -> Limits:
