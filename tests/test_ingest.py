@@ -355,8 +355,13 @@ def _obj_variants():
         f"f {a + 1}/{a + 1}/1 {b + 1}/{b + 1}/1 {c + 1}/{c + 1}/1" for a, b, c in F], True
     quads = [f"f {a + 1} {b + 1} {c + 1} {c + 1}" for a, b, c in F]
     yield "quads", v + quads, True
-    yield "mixed", v + quads[:5] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F[5:]], False
-    yield "negative", v + [f"f {a - len(V)} {b - len(V)} {c - len(V)}" for a, b, c in F], False
+    yield "mixed", v + quads[:5] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F[5:]], True
+    yield "mixed v/vt pentagons", v + vt + [f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1} {a + 1}/1 {b + 1}/2"
+                                            for a, b, c in F[:7]] + [f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}"
+                                                                     for a, b, c in F[7:]], True
+    yield "negative", v + [f"f {a - len(V)} {b - len(V)} {c - len(V)}" for a, b, c in F], True
+    yield "negative interleaved", v[:10] + ["f -1 -2 -3"] + v[10:] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F], False
+    yield "index 0", v + ["f 0 1 2"] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F], False
     yield "trailing comment", v + [f"f {a + 1} {b + 1} {c + 1} # x" for a, b, c in F], False
 
 
@@ -366,10 +371,10 @@ def test_obj_fast_parser_agrees_with_line_parser(name, lines, fast):
 
     raw = ("\n".join(lines) + "\n").encode()
     got = _obj_fast(raw, Path("x.obj"), Limits())
-    ref = _obj_slow(raw, Path("x.obj"), Limits())
     assert (got is not None) == fast
     if got is None:
         return
+    ref = _obj_slow(raw, Path("x.obj"), Limits())
     for a, b in zip(got, ref):
         if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
             np.testing.assert_array_equal(a, b)

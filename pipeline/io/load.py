@@ -397,13 +397,16 @@ def _obj_line_blocks(raw: bytes):
         return b"\n".join(raw[i:j] for i, j in runs[kind]), counts[kind]
 
     get.count = counts.__getitem__
+    # every line of kind a comes before the first line of kind b (relative indices need no line order)
+    get.precedes = lambda a, b: not runs[a] or not runs[b] or runs[a][-1][1] < runs[b][0][0]
     return get
 
 
 def _obj_fast(raw: bytes, path: Path, limits: Limits, get=None):
-    """Numpy OBJ parser for the regular case (one polygon size, one face format, positive
-    indices in range, no trailing comments). Returns None for anything else (the slow parser
-    then handles it and names the offending line). ``get``: :func:`_obj_line_blocks` of ``raw``."""
+    """Numpy OBJ parser for the usual case (one face format, indices in range, relative indices only
+    where every vertex precedes every face, no trailing comments; polygons of any and mixed sizes).
+    Returns None for anything else (the slow parser then handles it and names the offending line).
+    ``get``: :func:`_obj_line_blocks` of ``raw``."""
     get = _obj_line_blocks(raw) if get is None else get
     n_v, n_f, n_t = get.count("v"), get.count("f"), get.count("vt")
     _check_counts(path, n_v, n_f, limits)
@@ -420,36 +423,41 @@ def _obj_fast(raw: bytes, path: Path, limits: Limits, get=None):
     if block is None:
         return None
     ftext, block = block[0], None
-    f_rows = [ftext[:ftext.find(b"\n") if b"\n" in ftext else len(ftext)].replace(b"f", b" ", 1)]
+    first = ftext[:ftext.find(b"\n") if b"\n" in ftext else len(ftext)].replace(b"f", b" ", 1).split()
     text = ftext.replace(b"f", b" ")
     del ftext
-    first = f_rows[0].split()
-    k = len(first)
-    tok = first[0]
+    tok = first[0] if first else b""
     n_fields = tok.count(b"/") + 1
     has_vt = n_fields >= 2 and tok.split(b"/")[1] != b""
-    if np.any(_tokens_per_row(text, n_f) != k):
-        return None                                   # mixed polygon sizes
+    counts = _tokens_per_row(text, n_f)
+    if counts.min() < 3 or b"#" in text:
+        return None                                   # short faces or trailing comments: the slow parser
+    n_tok, slashes = int(counts.sum()), text.count(b"/")
     if n_fields == 3 and not has_vt:
+        if text.count(b"//") != n_tok or slashes != 2 * n_tok:
+            return None                               # mixed face formats
         text = text.replace(b"//", b" ")
         per = 2
     else:
+        if slashes != (n_fields - 1) * n_tok:
+            return None
         text = text.replace(b"/", b" ")
         per = n_fields
-    if b"-" in text or b"." in text:
-        return None                                   # negative (relative) or malformed indices
+    if b"." in text:
+        return None                                   # malformed indices
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
             idx = np.fromstring(text, dtype=np.int64, sep=" ")
         except ValueError:
             return None
-    if idx.size != n_f * k * per or k < 3:
-        return None                                   # mixed face formats or malformed
-    idx = idx.reshape(n_f, k, per) - 1
+    del text
+    if idx.size != n_tok * per:
+        return None
+    idx = idx.reshape(n_tok, per)
     V = vdata[:, :3]
-    vidx = idx[:, :, 0]
-    if vidx.min() < 0 or vidx.max() >= len(V):
+    vidx = _obj_fast_index(idx[:, 0], len(V), get.precedes("v", "f"))
+    if vidx is None:
         return None
     UV = tidx = None
     if has_vt:
@@ -457,12 +465,13 @@ def _obj_fast(raw: bytes, path: Path, limits: Limits, get=None):
         if block is None:
             return None
         UV, block = _floats_fast(block[0].replace(b"vt", b"  "), n_t, 2), None
-        if UV is None:
+        if UV is None or len(UV) == 0:
             return None
         UV = UV[:, :2]
-        tidx = idx[:, :, 1]
-        if len(UV) == 0 or tidx.min() < 0 or tidx.max() >= len(UV):
+        tidx = _obj_fast_index(idx[:, 1], len(UV), get.precedes("vt", "f"))
+        if tidx is None:
             return None
+    del idx
     VC = None
     if vdata.shape[1] >= 6 and np.all(np.isfinite(vdata[:, 3:6])):
         rgb = vdata[:, 3:6]
@@ -477,9 +486,37 @@ def _obj_fast(raw: bytes, path: Path, limits: Limits, get=None):
             if line.startswith(kind):
                 name = line[len(kind):].strip()
                 (mtllibs.append(name) if kind == "mtllib" else usemtl.add(name))
-    F = fan_triangulate(vidx)
-    FUV = fan_triangulate(tidx) if tidx is not None else None
-    return V, VC, UV, F, FUV, (n_f if k > 3 else 0), mtllibs, usemtl
+    F = _fan_by_counts(vidx, counts)
+    FUV = _fan_by_counts(tidx, counts) if tidx is not None else None
+    return V, VC, UV, F, FUV, int(np.count_nonzero(counts > 3)), mtllibs, usemtl
+
+
+def _obj_fast_index(col: np.ndarray, total: int, all_before: bool):
+    """OBJ indices (1-based, or negative = relative to the elements read so far) -> 0-based, or None
+    when out of range or when a relative index needs the line order (the slow parser then reports it)."""
+    neg = col < 0
+    if neg.any():
+        if not all_before:
+            return None
+        col = np.where(neg, col + total, col - 1)
+    else:
+        col = col - 1
+    if len(col) and (col.min() < 0 or col.max() >= total):
+        return None
+    return col
+
+
+def _fan_by_counts(flat: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Polygons given as consecutive corners (``counts[i]`` corners each) -> fan triangles, file order."""
+    if counts.min() == counts.max():
+        return fan_triangulate(flat.reshape(len(counts), int(counts[0])))
+    ntri = counts - 2
+    poly = np.repeat(np.arange(len(counts)), ntri)
+    first = np.cumsum(counts) - counts                   # first corner of each polygon
+    j = np.arange(len(poly)) - np.repeat(np.cumsum(ntri) - ntri, ntri) + 1
+    base = first[poly]
+    del poly
+    return np.stack([flat[base], flat[base + j], flat[base + j + 1]], axis=1)
 
 
 def _content_lines(block: bytes, first_line: int, parts: bytearray, numbers: list, comment: int | None) -> int:
