@@ -462,11 +462,11 @@ def a_obj_blank_padded(f, t):
     padded_obj(f, b"\n" * (20 << 20))
 
 
-def a_obj_mixed_polygons_relative_indices(f, t):
-    """Quads among triangles and negative (relative) indices: the vectorised reader, not the line-by-line one."""
+def a_obj_mixed_polygons_relative_indices_comments(f, t):
+    """Quads among triangles, negative (relative) indices, trailing comments: all in the vectorised reader."""
     V, F, hints = head_mesh()
     n = len(V)
-    faces = [f"f {a - n} {b - n} {c - n} {c - n}" for a, b, c in F[:500]]      # quads with a zero-area half
+    faces = [f"f {a - n} {b - n} {c - n} {c - n} # quad" for a, b, c in F[:500]]   # a zero-area half each
     faces += [f"f {a - n} {b - n} {c - n}" for a, b, c in F[500:]]
     (f / "scan.obj").write_text("\n".join([f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()] + faces) + "\n")
     write_sidecar(f, hints, mesh="scan.obj")
@@ -516,7 +516,7 @@ def a_licence_newlines_tabs(f, t):
     edit_yaml(f, licence="CC-BY 4.0\n\tattribution: eyerig tests")
 
 
-ACCEPTED = [a_obj_blank_padded, a_obj_mixed_polygons_relative_indices, a_ply_ascii_blank_padded, a_yaml12_float_hint, a_zero_area_faces_near_eyes,
+ACCEPTED = [a_obj_blank_padded, a_obj_mixed_polygons_relative_indices_comments, a_ply_ascii_blank_padded, a_yaml12_float_hint, a_zero_area_faces_near_eyes,
             a_stl_soup_over_vertex_limit, a_stl_ascii, a_licence_newlines_tabs]
 
 

@@ -362,7 +362,7 @@ def _obj_variants():
     yield "negative", v + [f"f {a - len(V)} {b - len(V)} {c - len(V)}" for a, b, c in F], True
     yield "negative interleaved", v[:10] + ["f -1 -2 -3"] + v[10:] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F], False
     yield "index 0", v + ["f 0 1 2"] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F], False
-    yield "trailing comment", v + [f"f {a + 1} {b + 1} {c + 1} # x" for a, b, c in F], False
+    yield "trailing comment", v + [f"f {a + 1} {b + 1} {c + 1} # x" for a, b, c in F], False  # load_obj cuts them first
 
 
 @pytest.mark.parametrize("name,lines,fast", list(_obj_variants()), ids=[v[0] for v in _obj_variants()])

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 import struct
 import warnings
 from dataclasses import dataclass, field
@@ -601,6 +602,8 @@ def load_obj(path, folder, limits: Limits = Limits()) -> LoadedMesh:
             raise ScanError(path, "not a text OBJ file (binary bytes found)")
         fh.seek(0)
         raw, line_no = _read_content(fh, path)
+    if b"#" in raw:                                  # trailing comments ("f 1 2 3 # x"): cut, lines kept
+        raw = re.sub(rb"#[^\n]*", b"", raw)
     get = _obj_line_blocks(raw)
     _check_counts(path, get.count("v"), get.count("f"), limits)    # before any line is parsed
     parsed = _obj_fast(raw, path, limits, get)
