@@ -472,6 +472,17 @@ def a_obj_mixed_polygons_relative_indices_comments(f, t):
     write_sidecar(f, hints, mesh="scan.obj")
 
 
+def a_ply_binary_mixed_polygons(f, t):
+    """Binary PLY with quads among triangles (lists of varying length)."""
+    V, F, hints = head_mesh()
+    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(V)}\nproperty float x\nproperty float y\n"
+            f"property float z\nelement face {len(F)}\nproperty list uchar int vertex_indices\nend_header\n")
+    quads = b"".join(struct.pack("<B4i", 4, a, b, c, c) for a, b, c in F[:500].tolist())
+    tris = np.zeros(len(F) - 500, dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    tris["n"], tris["i"] = 3, F[500:]
+    (f / "scan.ply").write_bytes(head.encode() + V.astype("<f4").tobytes() + quads + tris.tobytes())
+
+
 def a_ply_ascii_blank_padded(f, t):
     V, F, hints = head_mesh()
     write_ply(f / "scan.ply", V, F, binary=False)
@@ -516,7 +527,8 @@ def a_licence_newlines_tabs(f, t):
     edit_yaml(f, licence="CC-BY 4.0\n\tattribution: eyerig tests")
 
 
-ACCEPTED = [a_obj_blank_padded, a_obj_mixed_polygons_relative_indices_comments, a_ply_ascii_blank_padded, a_yaml12_float_hint, a_zero_area_faces_near_eyes,
+ACCEPTED = [a_obj_blank_padded, a_obj_mixed_polygons_relative_indices_comments, a_ply_binary_mixed_polygons,
+            a_ply_ascii_blank_padded, a_yaml12_float_hint, a_zero_area_faces_near_eyes,
             a_stl_soup_over_vertex_limit, a_stl_ascii, a_licence_newlines_tabs]
 
 

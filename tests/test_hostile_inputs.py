@@ -73,7 +73,7 @@ def test_hostile_looking_but_valid_folder_ingests(tmp_path, build):
         np.testing.assert_allclose(scan["eyes"]["left"]["hint"], hints["left"], rtol=1e-12)
     elif name == "a_stl_soup_over_vertex_limit":
         assert metrics["vertices_in"] == 3 * len(F) and len(mesh["V"]) == len(V)
-    elif name == "a_obj_mixed_polygons_relative_indices_comments":
+    elif name in ("a_obj_mixed_polygons_relative_indices_comments", "a_ply_binary_mixed_polygons"):
         assert metrics["polygons_triangulated"] == 500 and metrics["repairs"]["degenerate_faces"] == 500
         assert len(mesh["F"]) == len(F)
     elif name == "a_licence_newlines_tabs":

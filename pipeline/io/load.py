@@ -660,12 +660,30 @@ def _list_property(data, names):
     return None
 
 
+@dataclass
+class _Ragged:
+    """Lists of varying length: ``flat`` values, ``counts`` per row."""
+
+    flat: np.ndarray
+    counts: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.counts)
+
+
 def _polys_to_tris(polys, path: Path, what: str):
-    """(m, k) array or ragged list of polygons -> (t, 3) int64 triangles, #polygons split."""
+    """(m, k) array, :class:`_Ragged` or ragged list of polygons -> (t, 3) int64 triangles, #polygons split."""
     if isinstance(polys, np.ndarray) and polys.dtype != object and polys.ndim == 2:
         if polys.shape[1] < 3:
             raise ScanError(path, f"{what} with fewer than 3 corners")
         return fan_triangulate(polys), (len(polys) if polys.shape[1] > 3 else 0)
+    if isinstance(polys, _Ragged):
+        if len(polys) and polys.counts.min() < 3:
+            raise ScanError(path, f"{what} with fewer than 3 corners")
+        if not len(polys):
+            return np.zeros((0, 3), np.int64), 0
+        return (_fan_by_counts(polys.flat.astype(np.int64), polys.counts),
+                int(np.count_nonzero(polys.counts > 3)))
     rows = [np.asarray(p, dtype=np.int64).reshape(-1) for p in polys]
     counts = np.array([len(r) for r in rows], dtype=np.int64)
     if np.any(counts < 3):
@@ -871,26 +889,53 @@ def _ply_binary(fh, elements: dict, endian: str, n_bytes: int, path: Path) -> No
 
 
 def _ply_binary_rows(buf, pos, n, props, endian, path, name):
-    """Row-by-row binary PLY element reader (lists of varying length)."""
-    cols = {p: [] for p, _ in props}
+    """Binary PLY element with lists of varying length (e.g. triangles and quads).
+
+    One Python loop walks the rows to find where each value sits (no object per row); the
+    values are then gathered with numpy. Lists come back as :class:`_Ragged`.
+    """
+    from array import array
+
+    steps = []                                   # per property: (name, count struct or None, item dtype)
+    for p, dt in props:
+        if isinstance(dt, tuple):
+            steps.append((p, struct.Struct(endian + np.dtype(dt[0]).char), np.dtype(endian + dt[1])))
+        else:
+            steps.append((p, None, np.dtype(endian + dt)))
+    offsets = {p: array("q") for p, _, _ in steps}
+    counts = {p: array("q") for p, c, _ in steps if c is not None}
     try:
-        for _ in range(n):
-            for p, dt in props:
-                if isinstance(dt, tuple):
-                    cdt, idt = np.dtype(endian + dt[0]), np.dtype(endian + dt[1])
-                    k = int(np.frombuffer(buf, cdt, 1, pos)[0])
-                    if k < 0:
-                        raise ScanError(path, f"PLY {name} {len(cols[p])} has a list of negative length {k}")
-                    pos += cdt.itemsize
-                    cols[p].append(np.frombuffer(buf, idt, k, pos))
-                    pos += k * idt.itemsize
-                else:
-                    d = np.dtype(endian + dt)
-                    cols[p].append(np.frombuffer(buf, d, 1, pos)[0])
-                    pos += d.itemsize
-    except ValueError:
-        raise ScanError(path, f"PLY data is shorter than its header says (element {name!r}: truncated file)") from None
-    return {p: (v if isinstance(dt, tuple) else np.array(v)) for (p, dt), v in zip(props, cols.values())}, pos
+        for row in range(n):
+            for p, cstruct, idt in steps:
+                if cstruct is None:
+                    offsets[p].append(pos)
+                    pos += idt.itemsize
+                    continue
+                k = cstruct.unpack_from(buf, pos)[0]
+                if k < 0:
+                    raise ScanError(path, f"PLY {name} {row} has a list of negative length {k}")
+                pos += cstruct.size
+                offsets[p].append(pos)
+                counts[p].append(k)
+                pos += k * idt.itemsize
+    except struct.error:
+        pos = len(buf) + 1
+    if pos > len(buf):
+        raise ScanError(path, f"PLY data is shorter than its header says (element {name!r}: truncated file)")
+    b = np.frombuffer(buf, dtype=np.uint8)
+    out = {}
+    for p, cstruct, idt in steps:
+        starts = np.frombuffer(offsets[p], dtype=np.int64)
+        if cstruct is not None:                  # item start of every list element, rows in order
+            cnt = np.frombuffer(counts[p], dtype=np.int64)
+            first = np.cumsum(cnt) - cnt
+            starts = np.repeat(starts, cnt) + (np.arange(int(cnt.sum())) - np.repeat(first, cnt)) * idt.itemsize
+        raw = np.empty((len(starts), idt.itemsize), dtype=np.uint8)
+        for t in range(idt.itemsize):
+            raw[:, t] = b[starts + t]
+        values = raw.view(idt).reshape(-1)
+        out[p] = values if cstruct is None else _Ragged(values, np.frombuffer(counts[p], dtype=np.int64))
+    return out, pos
 
 
 def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
@@ -929,7 +974,7 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     UV = FUV = None
     texcoord = _list_property(fdata, ("texcoord",))
     if texcoord is not None:
-        tc = np.asarray(texcoord, dtype=np.float64) if not isinstance(texcoord, list) else None
+        tc = np.asarray(texcoord, dtype=np.float64) if isinstance(texcoord, np.ndarray) else None
         if tc is None or tc.ndim != 2 or tc.shape[1] != 6 or n_poly or tc.shape[0] != len(F):
             raise ScanError(path, "per-face 'texcoord' lists are supported for triangle faces only")
         UV = tc.reshape(-1, 2)
