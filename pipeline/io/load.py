@@ -758,6 +758,38 @@ def _ply_number(token: bytes, dtype: str):
     return value
 
 
+def _ply_ascii_one_list(text: bytes, n_tok: np.ndarray, props: list):
+    """ASCII PLY rows with one list property of varying length (triangles and quads), parsed in one
+    numpy call; None when the rows do not fit that layout or their types (the row reader then names the line)."""
+    lists = [i for i, (_, dt) in enumerate(props) if isinstance(dt, tuple)]
+    if len(lists) != 1:
+        return None
+    li = lists[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            vals = np.fromstring(text, dtype=np.float64, sep=" ")
+        except ValueError:
+            return None
+    if vals.size != n_tok.sum():
+        return None
+    row0 = np.cumsum(n_tok) - n_tok
+    k = n_tok - len(props)                       # items of each row's list
+    if np.any(k < 0) or np.any(vals[row0 + li] != k) or not _fits(vals[row0 + li], props[li][1][0]):
+        return None
+    data = {}
+    for j, (pname, dt) in enumerate(props):
+        if j == li:
+            at = np.repeat(row0 + li + 1, k) + np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k)
+            flat, dt = vals[at], dt[1]
+        else:
+            flat = vals[row0 + j + (k if j > li else 0)]
+        if not _fits(flat, dt):
+            return None
+        data[pname] = _Ragged(flat.astype(np.dtype(dt)), k) if j == li else flat.astype(np.dtype(dt))
+    return data
+
+
 def _ply_ascii(fh, elements: dict, data_start: int, header_lines: int, path: Path) -> None:
     """Read ASCII PLY data into ``elements[name]["data"]`` (dict of arrays; lists as (m, k) arrays
     or lists of arrays). Uniform elements are parsed in one numpy call; others row by row.
@@ -820,6 +852,10 @@ def _ply_ascii(fh, elements: dict, data_start: int, header_lines: int, path: Pat
             if vals is not None:
                 el["data"] = data
                 continue
+        data = _ply_ascii_one_list(text, n_tok, props)
+        if data is not None:
+            el["data"] = data
+            continue
         # row by row: any layout; errors name the file's line
         cols = {p: [] for p, _ in props}
         for i, line in enumerate(text.split(b"\n")):
