@@ -318,6 +318,17 @@ def _obj_slow(raw: bytes, path: Path, limits: Limits, line_no=None):
     return V, VC, UV, F, FUV, int(np.count_nonzero(counts > 3)), mtllibs, usemtl
 
 
+def _numbers(text: bytes, dtype=np.float64):
+    """Whitespace-separated numbers of ``text`` in one C-level parse, or None when numpy cannot parse them
+    (it then stops early: callers also compare the count)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            return np.fromstring(text, dtype=dtype, sep=" ")
+        except ValueError:
+            return None
+
+
 def _tokens_per_row(text: bytes, n_rows: int, block: int = 1 << 23) -> np.ndarray:
     """Whitespace-separated token count of each newline-separated row of ``text``, shape (n_rows,).
 
@@ -349,12 +360,9 @@ def _floats_fast(text: bytes, n_rows: int, min_cols: int):
     cols = len(text[:text.find(b"\n") if b"\n" in text else len(text)].split())
     if cols < min_cols:
         return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            vals = np.fromstring(text, dtype=np.float64, sep=" ")
-        except ValueError:
-            return None
+    vals = _numbers(text, np.float64)
+    if vals is None:
+        return None
     if vals.size != n_rows * cols or np.any(_tokens_per_row(text, n_rows) != cols):
         return None
     return vals.reshape(n_rows, cols)
@@ -446,12 +454,9 @@ def _obj_fast(raw: bytes, path: Path, limits: Limits, get=None):
         per = n_fields
     if b"." in text:
         return None                                   # malformed indices
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            idx = np.fromstring(text, dtype=np.int64, sep=" ")
-        except ValueError:
-            return None
+    idx = _numbers(text, np.int64)
+    if idx is None:
+        return None
     del text
     if idx.size != n_tok * per:
         return None
@@ -765,12 +770,9 @@ def _ply_ascii_one_list(text: bytes, n_tok: np.ndarray, props: list):
     if len(lists) != 1:
         return None
     li = lists[0]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            vals = np.fromstring(text, dtype=np.float64, sep=" ")
-        except ValueError:
-            return None
+    vals = _numbers(text, np.float64)
+    if vals is None:
+        return None
     if vals.size != n_tok.sum():
         return None
     row0 = np.cumsum(n_tok) - n_tok
@@ -825,12 +827,7 @@ def _ply_ascii(fh, elements: dict, data_start: int, header_lines: int, path: Pat
             width = len(props) + len(lists) * k if k >= 0 else -1
         vals = None
         if width > 0 and np.all(n_tok == width):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                try:
-                    vals = np.fromstring(text, dtype=np.float64, sep=" ")
-                except ValueError:
-                    vals = None
+            vals = _numbers(text, np.float64)
             if vals is not None and vals.size != n * width:
                 vals = None
         if vals is not None:
