@@ -100,6 +100,24 @@ def test_a_notched_opening_is_not_convex():
     assert not ch["opening_convex"]["ok"] and ch["opening_convex"]["value"] < 0.85
 
 
+@pytest.mark.parametrize("centre_height,ok", [(0.0, False), (0.1, False), (-0.3, False),
+                                               (0.7, True), (1.5, True), (-1.2, True)])
+def test_the_cornea_must_stand_off_the_sphere(centre_height, ok):
+    """The eye surface within 12 deg of the gaze stands this far off the sclera sphere (a corneal
+    bulge, the iris seen through a flattened cornea, or a recessed iris); its sides lie on it.
+    Flush means the sphere took the cornea in."""
+    V, F = _sphere_patch(C, R, 60.0, n=60)
+    ang = np.degrees(np.arccos(np.clip(V[:, 2] / R, -1, 1)))
+    V = C + (R + np.where(ang < 12.0, centre_height, 0.0))[:, None] * V / R
+    ch = check_eye(V, F, C, R, FWD, _loop(C, R), CheckLimits(), eye_points=V)
+    assert ch["cornea_shows"]["ok"] is ok
+    assert ch["cornea_shows"]["value"] == pytest.approx(centre_height, abs=1e-6)
+    too_few = V[ang > 30.0]                                  # no centre left: nothing to say
+    assert check_eye(V, F, C, R, FWD, _loop(C, R), CheckLimits(),
+                     eye_points=too_few)["cornea_shows"] == {"value": None, "limit": [-0.4, 0.15],
+                                                             "ok": True}
+
+
 def test_pair_agreement_and_the_one_line_description():
     ch = check_pair({"left": 12.0, "right": 14.5}, CheckLimits())
     assert failed(ch) == ["radii_agree"]

@@ -10,12 +10,12 @@ import pytest
 from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.geometry.eyes import EyeSettings, eye_basis, remove_eyeballs
+from pipeline.geometry.eyes import EyeSettings, eye_basis, eye_surface_distance, remove_eyeballs
 from pipeline.io.meshfile import load_mesh, save_mesh
 
 R_EYE = 12.0
 CX = 30.0
-A, B = 10.0, 4.5  # almond half-width / half-height
+A, B = 12.0, 4.5  # almond half-width / half-height
 
 
 def _grid(nx, ny, x0, x1, y0, y1):
@@ -34,8 +34,9 @@ def _almond_s(x, y):
     return np.maximum(np.abs(x) / A - 1, np.abs(y) / h - 1)
 
 
-def make_head(step=0.5, closed=False, seed=0, noise=0.0, radii=(R_EYE, R_EYE)):
-    """Height-field 'face' (+Z forward) with two fused r=12 eyeballs in almond openings.
+def make_head(step=0.5, closed=False, seed=0, noise=0.0, radii=(R_EYE, R_EYE), cornea=True):
+    """Height-field 'face' (+Z forward) with two fused r=12 eyeballs in almond openings, each
+    with a corneal bulge (the paper's eye scaled to the radius: cornea 8/12 r, apex 13.5/12 r).
 
     Returns mesh arrays, hints and ground truth (centres, radius, margin polylines).
     """
@@ -47,6 +48,9 @@ def make_head(step=0.5, closed=False, seed=0, noise=0.0, radii=(R_EYE, R_EYE)):
         x = X - cx
         rho2 = x ** 2 + Y ** 2
         zs = np.sqrt(np.clip(R ** 2 - rho2, 0, None))
+        if cornea:
+            rc, apex = R * 8.0 / 12.0, R * 13.5 / 12.0
+            zs = np.maximum(zs, apex - rc + np.sqrt(np.clip(rc ** 2 - rho2, 0, None)))
         s = _almond_s(x, Y)
         if closed:  # smooth lid bump over the eye: no crease anywhere
             Z = np.maximum(Z, 4.0 + 10.5 * np.exp(-rho2 / (2 * 9.0 ** 2)))
@@ -57,7 +61,10 @@ def make_head(step=0.5, closed=False, seed=0, noise=0.0, radii=(R_EYE, R_EYE)):
         t = np.linspace(0, 2 * np.pi, 200, endpoint=False)
         mx = A * np.cos(t)
         my = B * (1 - np.cos(t) ** 2) * np.sign(np.sin(t))
-        M = np.column_stack([mx + cx, my, np.sqrt(R ** 2 - mx ** 2 - my ** 2)])
+        mz = np.sqrt(R ** 2 - mx ** 2 - my ** 2)
+        if cornea:      # the margin runs over the cornea where the cornea fills the opening
+            mz = np.maximum(mz, apex - rc + np.sqrt(np.clip(rc ** 2 - mx ** 2 - my ** 2, 0, None)))
+        M = np.column_stack([mx + cx, my, mz])
         gt[side] = {"center": np.array([cx, 0.0, 0.0]), "radius": R, "margin": M}
     V = np.column_stack([X, Y, Z])
     if noise:
@@ -106,8 +113,10 @@ def test_ground_truth_and_topology(step, seed, noise):
         li = e["lateral_canthus_index"]
         assert L[1:li, 1].mean() > L[li + 1:, 1].mean()
         assert np.dot(e["forward"], [0, 0, 1]) > 0.9
-        # moved loop points lie on the fitted eyeball, within an edge or two of where they were
-        d = np.linalg.norm(L - e["center"], axis=1) - e["radius"]
+        # moved loop points lie on the fitted eyeball (sclera or cornea), within an edge or two
+        # of where they were
+        d = eye_surface_distance(L, np.array(e["center"]), e["radius"], e["cornea"] and {
+            "center": np.array(e["cornea"]["center"]), "radius": e["cornea"]["radius"]})
         # (a vertex whose move would fold a face, or with no lift-off nearby, stays on the cut)
         assert np.median(np.abs(d)) < 0.05 and np.abs(d).max() <= EyeSettings().cut_tol_mm + 0.1
         assert res.metrics[s]["loop_moved_mean_mm"] < 2 * step
@@ -127,11 +136,10 @@ def test_an_unmeasured_pupil_hole_is_part_of_the_opening():
     as before and the hole goes with the cut (one loop per eye, no extra boundary left)."""
     mesh, hints, gt = make_head(0.5, seed=2, noise=0.02)
     V, F = mesh["V"], mesh["F"]
-    front = {s: gt[s]["center"] + np.array([0.0, 0.0, R_EYE]) for s in ("left", "right")}
     c = V[F].mean(axis=1)
     hole = np.zeros(len(F), bool)
-    for p in front.values():
-        hole |= np.linalg.norm(c - p, axis=1) < 1.5
+    for s in ("left", "right"):
+        hole |= np.linalg.norm(c[:, :2] - gt[s]["center"][:2], axis=1) < 1.5
     holed = {"V": V, "F": F[~hole], "UV": mesh["UV"], "FUV": mesh["FUV"][~hole]}
     assert meshtopo.boundary_component_count(holed["F"]) == 3        # outer border + 2 holes
     res = remove_eyeballs(holed, hints, EyeSettings())
@@ -157,7 +165,7 @@ def test_eyes_json_records_placement_and_checks():
         e = res.eyes[s]
         assert e["placement"] == "surface"
         assert set(e["checks"]) == {"inside", "radius_in_range", "opening_fits", "opening_convex",
-                                    "loop_on_sphere", "radii_agree"}
+                                    "loop_on_sphere", "cornea_shows", "radii_agree"}
         assert all(c["ok"] for c in e["checks"].values())
         assert res.metrics[s]["checks_failed"] == [] and res.metrics[s]["placement"] == "surface"
         assert e["checks"]["loop_on_sphere"]["value"] <= EyeSettings().cut_tol_mm

@@ -12,9 +12,15 @@ around them, so each fit is checked against it (``check_eye``, ``check_pair``):
 - ``radius_in_range``: the radius lies in the anatomical range.
 - ``opening_fits``: the opening loop (a chord of the eyeball at its widest) is not wider than
   the eyeball's diameter.
-- ``loop_on_sphere``: the eyelid loop lies on the eyeball (the margin is where lid meets eye).
+- ``loop_on_sphere``: the eyelid loop lies on the eyeball, sclera or fitted cornea (the margin
+  is where lid meets eye).
 - ``opening_convex``: the loop, seen along the gaze, fills ``min_convex_fill`` of its convex
   hull (eyelid margins are convex; a notch or a tongue of scanned eyeball left on a lid is not).
+- ``cornea_shows``: every eye has a cornea, so the scanned eye surface around the gaze axis
+  stands off the sclera sphere: above it where the scanner saw the corneal bulge (or, as in
+  ICT-FaceKit scans, the iris through a flattened cornea), below it where it saw a recessed iris.
+  A sphere that runs flush through the middle of the opening and its sides has swallowed the
+  cornea: it is too small and too far forward, with a low residual.
 - ``radii_agree`` (pair): the two eyes of one head have radii within ``max_radius_diff_mm``.
 
 Each check returns its measured value and whether it passed, so the stage can record them in
@@ -23,7 +29,7 @@ Each check returns its measured value and whether it passed, so the stage can re
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,6 +48,9 @@ class CheckLimits:
     max_loop_off_mm: float = 1.0     # 90th percentile of |loop - sphere|
     min_convex_fill: float = 0.9     # loop area / convex hull area, seen along the gaze, less a
     edge_mm: float = 0.0             # strip a tenth of the scan's edge wide along the loop
+    flush_band_mm: tuple = (-0.4, 0.15)  # centre minus sides of the eye surface: "no cornea"
+    cornea_cone_check_deg: tuple = (12.0, 30.0)  # centre: within the first; sides: beyond the second
+    min_points: int = 8              # per part, else the cornea check has too little to say
     max_radius_diff_mm: float = 2.0  # between the two eyes of one head (axial lengths rarely
                                      # differ by 2 mm; the procedural head draws up to 1.7 mm)
 
@@ -52,15 +61,10 @@ def limits_for(median_edge_mm: float, radius_range_mm=(10.0, 18.0)) -> CheckLimi
     of area is the smallest patch a coarse mesh can show."""
     base = CheckLimits()
     e = max(float(median_edge_mm), 0.0)
-    return CheckLimits(radius_mm=base.radius_mm,
-                       inside_noise_mm=max(base.inside_noise_mm, 0.25 * e),
-                       max_inside_area_mm2=max(base.max_inside_area_mm2, 2 * 0.433 * e * e),
-                       cornea_cone_deg=base.cornea_cone_deg, cone_depth_mm=base.cone_depth_mm,
-                       radius_range_mm=tuple(radius_range_mm),
-                       max_width_ratio=base.max_width_ratio,
-                       max_loop_off_mm=max(base.max_loop_off_mm, 0.5 * e),
-                       min_convex_fill=base.min_convex_fill, edge_mm=e,
-                       max_radius_diff_mm=base.max_radius_diff_mm)
+    return replace(base, inside_noise_mm=max(base.inside_noise_mm, 0.25 * e),
+                   max_inside_area_mm2=max(base.max_inside_area_mm2, 2 * 0.433 * e * e),
+                   radius_range_mm=tuple(radius_range_mm),
+                   max_loop_off_mm=max(base.max_loop_off_mm, 0.5 * e), edge_mm=e)
 
 
 def vertex_areas(V, F):
@@ -127,7 +131,23 @@ def convex_fill(loop_points, center, forward, strip_mm=0.0):
     return fill, (strip_mm * perimeter / hull if hull > 0 else 0.0)
 
 
-def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=0.0) -> dict:
+def cornea_standoff(eye_points, center, radius, forward, lim: CheckLimits):
+    """Median height of the eye surface over the sphere near the gaze axis minus that on its
+    sides, mm (None when either part has fewer than ``min_points`` points)."""
+    P = np.asarray(eye_points, float)
+    w = P - center
+    nw = np.linalg.norm(w, axis=1)
+    d = nw - radius
+    ang = np.degrees(np.arccos(np.clip((w @ forward) / np.maximum(nw, 1e-12), -1.0, 1.0)))
+    inner, outer = lim.cornea_cone_check_deg
+    mid, side = d[ang < inner], d[ang > outer]
+    if len(mid) < lim.min_points or len(side) < lim.min_points:
+        return None
+    return float(np.median(mid) - np.median(side))
+
+
+def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=0.0,
+              eye_points=None, cornea=None) -> dict:
     """The per-eye checks: ``{name: {"value": float, "limit": ..., "ok": bool}}``.
 
     Parameters
@@ -143,18 +163,28 @@ def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=
     lim : CheckLimits
     rms : float
         Residual RMS of the sphere fit.
+    eye_points : (k, 3) float64, optional
+        The scanned eye surface (the removed region) for ``cornea_shows``; None skips it (an eye
+        placed from colour on a coarse scan).
+    cornea : dict, optional
+        ``{"center": (3,), "radius": r}`` of a fitted corneal sphere: the loop may lie on it
+        (a lid margin resting on the cornea).
     """
     center = np.asarray(center, float)
     forward = np.asarray(forward, float)
     L = np.asarray(loop_points, float)
     width = float(np.max(np.linalg.norm(L[:, None] - L[None], axis=2))) if len(L) > 1 else 0.0
-    off = np.abs(np.linalg.norm(L - center, axis=1) - radius)
+    off = np.linalg.norm(L - center, axis=1) - radius
+    if cornea is not None:
+        off = np.minimum(off, np.linalg.norm(L - np.asarray(cornea["center"], float), axis=1)
+                         - float(cornea["radius"]))
+    off = np.abs(off)
     ins = inside_area(V, F, center, radius, forward, L.mean(axis=0), lim, rms)
     fill, allow = convex_fill(L, center, forward, max(0.1 * lim.edge_mm, 1e-9)) \
         if len(L) >= 3 else (0.0, 0.0)
     min_fill = lim.min_convex_fill - allow
     lo, hi = lim.radius_range_mm
-    return {
+    out = {
         "inside": {"value": round(ins, 3), "limit": round(lim.max_inside_area_mm2, 3),
                    "ok": ins <= lim.max_inside_area_mm2},
         "radius_in_range": {"value": round(float(radius), 4), "limit": [lo, hi],
@@ -167,6 +197,12 @@ def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=
                            "limit": round(lim.max_loop_off_mm, 3),
                            "ok": float(np.percentile(off, 90)) <= lim.max_loop_off_mm},
     }
+    if eye_points is not None:
+        st = cornea_standoff(eye_points, center, radius, forward, lim)
+        lo, hi = lim.flush_band_mm
+        out["cornea_shows"] = {"value": None if st is None else round(st, 4), "limit": [lo, hi],
+                               "ok": st is None or not lo < st < hi}
+    return out
 
 
 def check_pair(radii: dict, lim: CheckLimits) -> dict:
@@ -193,6 +229,10 @@ def describe(name: str, check: dict) -> str:
     if name == "opening_convex":
         return (f"the eyelid loop fills {100 * v:.0f} % of its convex hull (limit "
                 f"{100 * lim:.0f} %: a notch, or scanned eyeball left on a lid)")
+    if name == "cornea_shows":
+        return (f"the eye surface runs flush with the fitted sphere across the opening (centre "
+                f"{v:+.2f} mm against its sides): the sphere has taken in the cornea and sits too "
+                f"far forward")
     if name == "loop_on_sphere":
         return f"the eyelid loop lies {v:.2f} mm off the eyeball (90th percentile, limit {lim} mm)"
     if name == "radii_agree":

@@ -1086,8 +1086,10 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         except ValueError:      # eye_basis: a gaze straight up or down has no pitch axis
             raise ScanError(source, f"{s} eye: the fitted gaze {np.round(fit.forward, 3).tolist()} "
                                     f"is vertical; not an eye") from None
-        checks[s] = eye_checks.check_eye(V, F, fit.center, fit.radius, fit.forward, V2[loop], lim,
-                                         fit.residual_rms_mm)
+        checks[s] = eye_checks.check_eye(
+            V, F, fit.center, fit.radius, fit.forward, V2[loop], lim, fit.residual_rms_mm,
+            eye_points=V[np.unique(F[fit.region])] if fit.method == "geometry" else None,
+            cornea=fit.cornea)
         eyes[s] = {
             "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
             "residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
