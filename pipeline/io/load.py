@@ -2,9 +2,18 @@
 
 Every loader returns a :class:`LoadedMesh` in the file's own units and axes and
 raises :class:`pipeline.errors.ScanError` (naming the file and the problem) for
-anything it cannot read. Sizes are checked before data is read: element counts
-in PLY/STL headers, file size, and image pixel counts from the image header
-before decoding (decompression bombs).
+anything it cannot read. Limits are checked before memory is spent: file size;
+element counts in PLY/STL headers (the STL triangle count; its soup vertices are
+limited once merged); ``v``/``f`` line counts of an OBJ before any line is parsed;
+a GLB's JSON size, and every buffer view, accessor (count x type against the bytes
+it reads), node hierarchy (a tree) and the vertices/faces of every node instance
+(:func:`_glb_check_doc`) before trimesh decodes anything; image pixel counts from
+the image header before decoding (decompression bombs).
+
+Text readers keep memory proportional to the data, not the file: OBJ, ASCII PLY and
+MTL are read in chunks with blank (and OBJ/MTL comment) lines dropped without a
+Python object per line, lines over :data:`MAX_LINE_BYTES` are refused, and ASCII
+PLY stops at the rows its header announces.
 
 UVs are kept per corner (``UV`` + ``FUV``): OBJ seams keep their exact layout
 (one ``UV`` row per ``vt`` line, the vertex positions are not split, unlike
@@ -12,9 +21,9 @@ trimesh's OBJ loader which duplicates seam vertices). PLY per-vertex ``s,t`` /
 ``u,v`` / ``texture_u,texture_v`` become ``UV`` with ``FUV = F``; PLY per-face
 ``texcoord`` lists become one ``UV`` row per corner.
 
-Readers: OBJ and PLY (ASCII and binary) are parsed here with numpy (a
-vectorised fast path for regular files, a row-by-row fallback for the rest that
-names the offending line); STL and GLB go through trimesh after header checks.
+Readers: OBJ and PLY (ASCII and binary) are parsed here with numpy (vectorised,
+polygons of mixed sizes included, with a row-by-row fallback for the rest that
+names the offending line); STL and GLB go through trimesh after the checks above.
 """
 
 from __future__ import annotations
