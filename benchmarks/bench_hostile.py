@@ -23,6 +23,7 @@ import json
 import os
 import platform
 import shutil
+import signal
 import struct
 import subprocess
 import sys
@@ -575,9 +576,10 @@ os.write(fd, json.dumps([os.waitstatus_to_exitcode(status), ru.ru_maxrss, ru.ru_
 """
 
 
-def run_ingest(folder, out, params=None, cap_mib: float = 1536, cpu_s: int = 60) -> Run:
-    """``python -m stages.ingest folder out`` under an address-space cap (and a CPU-time cap against hangs),
-    with its wall time, CPU time and its own peak RSS."""
+def run_ingest(folder, out, params=None, cap_mib: float = 1536, cpu_s: int = 60, wall_s: float = 120) -> Run:
+    """``python -m stages.ingest folder out`` under an address-space cap, a CPU-time cap and a wall-time
+    limit (a stage blocked on a FIFO uses no CPU; it is killed and reported with exit -9 and stderr
+    ``timeout``), with its wall time, CPU time and its own peak RSS."""
     r, w = os.pipe()
     cmd = [sys.executable, "-c", _WRAPPER, str(w), str(int(cap_mib * 2**20)), str(cpu_s),
            "-m", "stages.ingest", str(folder), str(out)]
@@ -587,10 +589,15 @@ def run_ingest(folder, out, params=None, cap_mib: float = 1536, cpu_s: int = 60)
         t0 = time.perf_counter()
         with os.fdopen(r, "rb") as report:
             proc = subprocess.Popen(cmd, cwd=ROOT, stdout=so, stderr=err, stdin=subprocess.DEVNULL,
-                                    pass_fds=(w,))
+                                    pass_fds=(w,), start_new_session=True)
             os.close(w)
+            try:
+                proc.wait(timeout=wall_s)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+                return Run(-9, "timeout", "", time.perf_counter() - t0, float("nan"), float("nan"))
             code, maxrss_kib, cpu = json.loads(report.read() or b"[null, 0, 0]")
-        proc.wait()
         wall = time.perf_counter() - t0
         err.seek(0)
         so.seek(0)
