@@ -315,12 +315,24 @@ def c_yaml_duplicate_key(f, t):
     (f / "scan.yaml").write_text(text + "units: cm\n")
 
 
-def c_yaml_duplicate_nested_key(f, t):
+def sidecar_eyes(f, fmt=repr, keys=("left", "right"), left=None) -> None:
+    """Rewrite scan.yaml's eyes as flow mappings ``<key>: {hint: [...]}``, numbers written by ``fmt``;
+    ``left`` replaces the left hint's text."""
     _, _, hints = head_mesh()
     text = (f / "scan.yaml").read_text().split("eyes:")[0]
-    h = {k: ", ".join(repr(float(x)) for x in v) for k, v in hints.items()}
-    (f / "scan.yaml").write_text(text + f"eyes:\n  left: {{hint: [{h['left']}]}}\n  left: {{hint: [{h['right']}]}}\n"
-                                        "licence: CC0\n")
+    h = {k: ", ".join(fmt(float(x)) for x in v) for k, v in hints.items()}
+    if left is not None:
+        h["left"] = left
+    lines = [f"  {key}: {{hint: [{h[side]}]}}" for key, side in zip(keys, ("left", "right"))]
+    (f / "scan.yaml").write_text(text + "eyes:\n" + "\n".join(lines) + "\nlicence: CC0\n")
+
+
+def c_yaml_duplicate_nested_key(f, t):
+    sidecar_eyes(f, keys=("left", "left"))
+
+
+def c_yaml_hint_huge_integer(f, t):
+    sidecar_eyes(f, left="1" + "0" * 400 + ", 35.0, 80.0")
 
 
 def c_licence_nul(f, t):
@@ -441,6 +453,7 @@ CASES = [
     Case(c_stl_header_lies, "scan.stl", "header says 1000000 triangles"),
     Case(c_yaml_duplicate_key, "scan.yaml", "duplicate key 'units'"),
     Case(c_yaml_duplicate_nested_key, "scan.yaml", "duplicate key 'left'"),
+    Case(c_yaml_hint_huge_integer, "scan.yaml", "eyes.left.hint [10000000"),
     Case(c_licence_nul, "scan.yaml", "licence contains a control character (U+0000)"),
     Case(c_licence_escape, "scan.yaml", "licence contains a control character (U+001B)"),
     Case(c_mesh_symlinked_folder, "scan.yaml", "resolves outside the scan folder"),
@@ -492,11 +505,7 @@ def a_ply_ascii_blank_padded(f, t):
 
 
 def a_yaml12_float_hint(f, t):
-    _, _, hints = head_mesh()
-    text = (f / "scan.yaml").read_text().split("eyes:")[0]
-    h = {k: ", ".join(f"{float(x) / 10:.17g}e1" for x in v) for k, v in hints.items()}
-    (f / "scan.yaml").write_text(text + f"eyes:\n  left: {{hint: [{h['left']}]}}\n  right: {{hint: [{h['right']}]}}\n"
-                                        "licence: CC0\n")
+    sidecar_eyes(f, fmt=lambda x: f"{x / 10:.17g}e1")          # 3.45e1: YAML 1.1 reads text
 
 
 def a_zero_area_faces_near_eyes(f, t):

@@ -212,7 +212,11 @@ def _hint(eyes, side: str, sidecar: Path) -> np.ndarray:
     hint = entry["hint"]
     if not isinstance(hint, (list, tuple)) or len(hint) != 3 or not all(_is_number(x) for x in hint):
         raise ScanError(sidecar, f"eyes.{side}.hint must be three numbers [x, y, z], got {short_repr(hint)}")
-    if not all(math.isfinite(float(x)) for x in hint):
+    try:
+        finite = all(math.isfinite(float(x)) for x in hint)
+    except OverflowError:                        # an integer too large for a float
+        finite = False
+    if not finite:
         raise ScanError(sidecar, f"eyes.{side}.hint {short_repr(hint)} is not finite")
     return np.array(hint, dtype=np.float64)
 
