@@ -17,7 +17,8 @@ affordable; nothing eye-related is changed). Per eye it reports
 against the truth: centre and radius error, ``placement`` and whether the stage flagged the eye,
 the opening loop's convex fill and distance to the true margin, and the scanned eyeball surface
 left on the head outside a 1 mm band along the loop (``remnant_mm2``). Writes
-``benchmarks/results/unseen_scans.json`` and ``unseen_scans.csv`` (a DVC plot).
+``benchmarks/results/unseen_scans.json`` and ``unseen_scans.csv`` (per family, a DVC plot);
+``--markdown`` rewrites both from the JSON and prints the README table.
 """
 
 from __future__ import annotations
@@ -388,44 +389,92 @@ def verdict(row) -> list:
     return bad
 
 
+def outcome(row) -> str:
+    """``asset``, ``closed`` (refused as closed), ``unsure`` (a self-check refused it) or
+    ``failed`` (any other refusal: no eyeball found, cut topology, a later stage)."""
+    if not row["failed_stage"]:
+        return "asset"
+    msg = row["stages"][row["failed_stage"]]["message"]
+    if "closed" in msg:
+        return "closed"
+    if "not sure" in msg:
+        return "unsure"
+    return "failed"
+
+
+def _err(e):
+    return max(e["center_error_mm"], abs(e["radius_error_mm"]))
+
+
 def summary(rows) -> dict:
-    ideal = [r[s] for r in rows if r["ideal"] and r["family"] not in ("filled",) for s in SIDES if s in r]
+    ideal = [r[s] for r in rows if r["ideal"] and r["family"] != "filled" for s in SIDES if s in r]
     filled = [r[s] for r in rows if r["family"] == "filled" for s in SIDES if s in r]
-    err = lambda e: max(e["center_error_mm"], abs(e["radius_error_mm"]))  # noqa: E731
-    n_asset = sum(1 for r in rows if r["expect"] == "asset")
+    built = [r[s] for r in rows if outcome(r) == "asset" for s in SIDES if s in r]
+    wanted = [r for r in rows if r["expect"] == "asset"]
     return {
         "cases": len(rows),
         "cases_meeting_bounds": sum(1 for r in rows if not r["problems"]),
-        "assets_built": sum(1 for r in rows if r["expect"] == "asset" and not r["failed_stage"]),
-        "assets_expected": n_asset,
-        "ideal_eyes": len(ideal),
-        "ideal_within_0_5mm_fraction": round(float(np.mean([err(e) <= PLACE_MM for e in ideal])), 4) if ideal else None,
-        "ideal_max_error_mm": round(max(map(err, ideal)), 4) if ideal else None,
-        "filled_max_error_mm": round(max(map(err, filled)), 4) if filled else None,
-        "min_convex_fill": round(min(e["convex_fill"] for e in ideal + filled), 4) if ideal else None,
-        "max_remnant_mm2": round(max(e["remnant_mm2"] for e in ideal + filled), 3) if ideal else None,
+        "assets_built": sum(1 for r in wanted if outcome(r) == "asset"),
+        "assets_expected": len(wanted),
+        "refused": {k: sum(1 for r in wanted if outcome(r) == k) for k in ("closed", "unsure", "failed")},
+        "closed_refused_as_closed": sum(1 for r in rows if r["expect"] == "closed" and outcome(r) == "closed"),
+        "closed_expected": sum(1 for r in rows if r["expect"] == "closed"),
+        "silent_eyes_over_1mm": sum(1 for r in rows if r["ideal"] for s in SIDES
+                                    if s in r and _err(r[s]) > PLACE_MAX_MM and not r[s]["flagged"]),
+        "ideal_eyes_placed": len(ideal),
+        "ideal_within_0_5mm_fraction": round(float(np.mean([_err(e) <= PLACE_MM for e in ideal])), 4) if ideal else None,
+        "ideal_max_error_mm": round(max(map(_err, ideal)), 4) if ideal else None,
+        "filled_max_error_mm": round(max(map(_err, filled)), 4) if filled else None,
+        "min_convex_fill": round(min(e["convex_fill"] for e in built), 4) if built else None,
+        "max_remnant_mm2": round(max(e["remnant_mm2"] for e in built), 3) if built else None,
     }
 
 
-def markdown(rows) -> str:
+def family_rows(rows) -> list:
+    """One row per family: outcomes and the placement error of the eyes that got an asset."""
     fams = sorted({r["family"] for r in rows}, key=lambda f: [c["family"] for c in CASES].index(f))
-    out = ["| family | cases | built / refused as expected | centre err median / max (mm) | "
-           "radius err max (mm) | lids placement | min fill | max remnant (mm²) | problems |",
-           "|---|---|---|---|---|---|---|---|---|"]
+    out = []
     for f in fams:
         rs = [r for r in rows if r["family"] == f]
-        eyes = [r[s] for r in rs for s in SIDES if s in r]
-        ok = sum(1 for r in rs if not r["problems"])
-        if eyes:
-            ce = [e["center_error_mm"] for e in eyes]
-            cols = (f"{np.median(ce):.2f} / {max(ce):.2f}", f"{max(abs(e['radius_error_mm']) for e in eyes):.2f}",
-                    f"{sum(e['placement'] == 'lids' for e in eyes)} / {len(eyes)}",
-                    f"{min(e['convex_fill'] for e in eyes):.3f}", f"{max(e['remnant_mm2'] for e in eyes):.2f}")
-        else:
-            cols = ("–",) * 5
-        probs = "; ".join(f"{r['case']}: {', '.join(r['problems'])}" for r in rs if r["problems"]) or "none"
-        out.append(f"| {f} | {len(rs)} | {ok} / {len(rs)} | " + " | ".join(cols) + f" | {probs} |")
+        eyes = [r[s] for r in rs if outcome(r) == "asset" for s in SIDES if s in r]
+        out.append({
+            "family": f, "cases": len(rs),
+            "expected": "refused as closed" if rs[0]["expect"] == "closed" else "asset",
+            **{k: sum(1 for r in rs if outcome(r) == k) for k in ("asset", "closed", "unsure", "failed")},
+            "silent_eyes_over_1mm": sum(1 for r in rs for s in SIDES if s in r and r["ideal"]
+                                        and _err(r[s]) > PLACE_MAX_MM and not r[s]["flagged"]),
+            "median_error_mm": round(float(np.median([_err(e) for e in eyes])), 3) if eyes else None,
+            "max_error_mm": round(max(_err(e) for e in eyes), 3) if eyes else None,
+            "min_convex_fill": round(min(e["convex_fill"] for e in eyes), 3) if eyes else None,
+            "max_remnant_mm2": round(max(e["remnant_mm2"] for e in eyes), 2) if eyes else None,
+        })
+    return out
+
+
+def markdown(rows) -> str:
+    out = ["| family | cases | expected | asset | refused: closed / unsure / other | eyes > 1 mm off, "
+           "unflagged | placement error median / max (mm) | min loop fill | max remnant (mm²) |",
+           "|---|---|---|---|---|---|---|---|---|"]
+    fmt = lambda v, f="{:.2f}": "–" if v is None else f.format(v)  # noqa: E731
+    for fr in family_rows(rows):
+        out.append(f"| {fr['family']} | {fr['cases']} | {fr['expected']} | {fr['asset']} | "
+                   f"{fr['closed']} / {fr['unsure']} / {fr['failed']} | {fr['silent_eyes_over_1mm']} | "
+                   f"{fmt(fr['median_error_mm'])} / {fmt(fr['max_error_mm'])} | "
+                   f"{fmt(fr['min_convex_fill'], '{:.3f}')} | {fmt(fr['max_remnant_mm2'])} |")
     return "\n".join(out)
+
+
+def write_results(rows, name):
+    """``<name>.json`` (summary, per-family and per-case rows) and ``<name>.csv`` (per family,
+    the DVC plot) under benchmarks/results."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    result = {"summary": summary(rows), "families": family_rows(rows), "rows": rows}
+    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=1))
+    with open(RESULTS / f"{name}.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(result["families"][0]))
+        w.writeheader()
+        w.writerows(result["families"])
+    return result
 
 
 def main():
@@ -440,8 +489,9 @@ def main():
     ap.add_argument("--out", default="unseen_scans")
     args = ap.parse_args()
     if args.markdown:
-        data = json.loads((RESULTS / f"{args.out}.json").read_text())
-        print(markdown(data["rows"]))
+        rows = json.loads((RESULTS / f"{args.out}.json").read_text())["rows"]
+        write_results(rows, args.out)
+        print(markdown(rows))
         return
     work = Path(args.work)
     cases = [c for c in CASES if not args.only or c["name"] in args.only or c["family"] in args.only]
@@ -477,19 +527,7 @@ def main():
         fail = f" [{row['failed_stage']}: {chain[row['failed_stage']]['message'][:120]}]" if row["failed_stage"] else ""
         print(f"{c['name']:<24} {eyes}{fail}  {'OK' if not row['problems'] else 'BAD: ' + ', '.join(row['problems'])}",
               flush=True)
-    result = {"summary": summary(rows), "rows": rows}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{args.out}.json").write_text(json.dumps(result, indent=1))
-    with open(RESULTS / f"{args.out}.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["eye", "case", "family", "center_error_mm", "radius_error_mm", "placement",
-                    "convex_fill", "remnant_mm2"])
-        for r in rows:
-            for s in SIDES:
-                if s in r:
-                    e = r[s]
-                    w.writerow([f"{r['case']}/{s}", r["case"], r["family"], e["center_error_mm"],
-                                e["radius_error_mm"], e["placement"], e["convex_fill"], e["remnant_mm2"]])
+    result = write_results(rows, args.out)
     print(json.dumps(result["summary"], indent=1))
     print(markdown(rows))
 
