@@ -56,8 +56,9 @@ def glb_bytes(doc: dict, blob: bytes = b"") -> bytes:
     return struct.pack("<III", 0x46546C67, 2, 12 + len(out)) + out
 
 
-def head_glb_doc(subdivisions: int = 3):
-    """A valid one-mesh GLB document of the test head (float32 positions, uint32 indices) and its blob."""
+def head_glb_doc(subdivisions: int = 3, uv: bool = False):
+    """A valid one-mesh GLB document of the test head (float32 positions, uint32 indices, with ``uv``
+    float32 TEXCOORD_0 as accessor 2) and its blob."""
     V, F, hints = head_mesh(subdivisions)
     pos = V.astype("<f4").tobytes()
     idx = F.astype("<u4").tobytes()
@@ -73,12 +74,20 @@ def head_glb_doc(subdivisions: int = 3):
                        "min": V.min(axis=0).tolist(), "max": V.max(axis=0).tolist()},
                       {"bufferView": 1, "componentType": 5125, "count": F.size, "type": "SCALAR"}],
     }
-    return doc, pos + idx, hints
+    blob = pos + idx
+    if uv:
+        tex = sphere_uv(V).astype("<f4").tobytes()
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(tex)})
+        doc["accessors"].append({"bufferView": 2, "componentType": 5126, "count": len(V), "type": "VEC2"})
+        doc["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = 2
+        blob += tex
+        doc["buffers"][0]["byteLength"] = len(blob)
+    return doc, blob, hints
 
 
-def _glb_case(f, edit, pad_to: int = 0):
+def _glb_case(f, edit, pad_to: int = 0, uv: bool = False):
     """Write ``scan.glb`` from the head document after ``edit(doc, blob) -> blob`` and point scan.yaml at it."""
-    doc, blob, hints = head_glb_doc()
+    doc, blob, hints = head_glb_doc(uv=uv)
     blob = edit(doc, blob) or blob
     data = glb_bytes(doc, blob)
     if pad_to > len(data):                       # pad the JSON chunk with spaces to reach a file size
@@ -153,6 +162,21 @@ def _instanced(n_nodes):
         _glb_case(f, edit)
     build.__name__ = f"c_glb_instanced_{n_nodes}_nodes"
     return build
+
+
+def c_glb_textured_no_uv_rows(f, t):
+    write_png(t / "tiny.png", (8, 8))
+    png = (t / "tiny.png").read_bytes()
+
+    def edit(doc, blob):                           # a textured mesh whose TEXCOORD_0 has no rows
+        doc["accessors"][2]["count"] = 0
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(png)})
+        doc["images"], doc["textures"] = [{"bufferView": 3, "mimeType": "image/png"}], [{"source": 0}]
+        doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+        doc["meshes"][0]["primitives"][0]["material"] = 0
+        doc["buffers"][0]["byteLength"] = len(blob) + len(png)
+        return blob + png
+    _glb_case(f, edit, uv=True)
 
 
 def c_glb_many_meshes(f, t):
@@ -432,6 +456,7 @@ CASES = [
     Case(c_glb_external_image, "scan.glb", "image 0 refers to an external URI"),
     Case(_instanced(10_000), "scan.glb", "6420000 vertices once 10000 node instances of 1 mesh are expanded"),
     Case(_instanced(30_000), "scan.glb", "19260000 vertices once 30000 node instances"),
+    Case(c_glb_textured_no_uv_rows, "scan.glb", "texture coordinate indices out of range"),
     Case(c_glb_many_meshes, "scan.glb", "12840000 vertices, over the limit of 5000000"),
     Case(c_glb_node_cycle, "scan.glb", "is in a cycle"),
     Case(c_glb_node_two_parents, "scan.glb", "has more than one parent"),

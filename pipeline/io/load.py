@@ -1219,8 +1219,9 @@ def _glb_check_doc(path: Path, doc: dict, bin_len: int, limits: Limits) -> None:
             raise ScanError(path, f"GLB {what} has no bufferView (count {count}); every accessor must "
                                   "read stored data")
         view = views[_glb_int(path, a, "bufferView", what, None, 0, len(views) - 1)]
-        csize = _GLTF_COMPONENT_BYTES.get(a.get("componentType"))
-        ncomp = _GLTF_TYPE_SIZES.get(a.get("type"))
+        ctype, atype = a.get("componentType"), a.get("type")
+        csize = _GLTF_COMPONENT_BYTES.get(ctype) if isinstance(ctype, int) and not isinstance(ctype, bool) else None
+        ncomp = _GLTF_TYPE_SIZES.get(atype) if isinstance(atype, str) else None
         if csize is None or ncomp is None:
             raise ScanError(path, f"GLB {what} has an invalid componentType/type "
                                   f"{short_repr(a.get('componentType'))}/{short_repr(a.get('type'))}")
@@ -1288,6 +1289,30 @@ def _glb_check_doc(path: Path, doc: dict, bin_len: int, limits: Limits) -> None:
         raise ScanError(path, f"{nf} faces{how}, over the limit of {limits.max_faces} (ingest.max_faces)")
 
 
+def _glb_parts(scene, trimesh):
+    """Per mesh of a loaded GLB scene (node transforms applied): vertices, faces (offset into one
+    vertex list), UVs or None, vertex colours or None; and the base colour images found."""
+    meshes = [g for g in scene.dump(concatenate=False) if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+    Vs, Fs, UVs, VCs, images = [], [], [], [], []
+    offset = 0
+    for g in meshes:
+        Vs.append(np.asarray(g.vertices, dtype=np.float64))
+        Fs.append(np.asarray(g.faces, dtype=np.int64) + offset)
+        offset += len(g.vertices)
+        vis = g.visual
+        uv = getattr(vis, "uv", None) if getattr(vis, "kind", None) == "texture" else None
+        UVs.append(None if uv is None else np.asarray(uv, dtype=np.float64))
+        if getattr(vis, "kind", None) == "vertex":
+            VCs.append(np.asarray(vis.vertex_colors)[:, :3].astype(np.uint8))
+        else:
+            VCs.append(None)
+        mat = getattr(vis, "material", None)
+        img = getattr(mat, "baseColorTexture", None) or getattr(mat, "image", None)
+        if img is not None:
+            images.append(img)
+    return Vs, Fs, UVs, VCs, images
+
+
 def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     """Load a self-contained binary glTF (GLB): all meshes with their node transforms, one texture.
 
@@ -1312,26 +1337,16 @@ def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         raise
     except Exception as exc:  # noqa: BLE001
         raise ScanError(path, f"cannot read GLB: {one_line(exc)[:120]}") from None
-    meshes = [g for g in scene.dump(concatenate=False) if isinstance(g, trimesh.Trimesh) and len(g.faces)]
-    if not meshes:
+    try:            # trimesh builds these from the untrusted document: anything odd is the file's fault
+        Vs, Fs, UVs, VCs, images = _glb_parts(scene, trimesh)
+    except ScanError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        raise ScanError(path, f"cannot read GLB: {type(exc).__name__}: {one_line(exc)[:100]}") from None
+    if not Vs:
         raise ScanError(path, "no triangle mesh found in the GLB")
-    Vs, Fs, UVs, VCs, images = [], [], [], [], []
-    offset = 0
-    for g in meshes:
-        Vs.append(np.asarray(g.vertices, dtype=np.float64))
-        Fs.append(np.asarray(g.faces, dtype=np.int64) + offset)
-        offset += len(g.vertices)
-        vis = g.visual
-        uv = getattr(vis, "uv", None) if getattr(vis, "kind", None) == "texture" else None
-        UVs.append(None if uv is None else np.asarray(uv, dtype=np.float64))
-        if getattr(vis, "kind", None) == "vertex":
-            VCs.append(np.asarray(vis.vertex_colors)[:, :3].astype(np.uint8))
-        else:
-            VCs.append(None)
-        mat = getattr(vis, "material", None)
-        img = getattr(mat, "baseColorTexture", None) or getattr(mat, "image", None)
-        if img is not None:
-            images.append(img)
+    if not all(isinstance(i, Image.Image) for i in images):
+        raise ScanError(path, "GLB material's base colour texture is not a readable image")
     V, F = np.concatenate(Vs), np.concatenate(Fs)
     _check_counts(path, len(V), len(F), limits)
     UV = FUV = None
@@ -1374,7 +1389,8 @@ def load_mesh_file(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     if mesh.UV is not None:
         if not np.isfinite(mesh.UV).all():
             raise ScanError(path, "texture coordinates contain NaN or inf")
-        if mesh.FUV.shape != mesh.F.shape or (len(mesh.UV) and (mesh.FUV.min() < 0 or mesh.FUV.max() >= len(mesh.UV))):
+        if mesh.FUV.shape != mesh.F.shape or (mesh.FUV.size and (
+                len(mesh.UV) == 0 or mesh.FUV.min() < 0 or mesh.FUV.max() >= len(mesh.UV))):
             raise ScanError(path, "texture coordinate indices out of range")
     return mesh
 
