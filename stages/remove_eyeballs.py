@@ -23,7 +23,7 @@ from pipeline.errors import ScanError
 from pipeline.geometry.eyes import EyeSettings, remove_eyeballs
 from pipeline.io.atomic import atomic_dir, write_json
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
-from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
+from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
 def _read(ingest: Path):
@@ -55,7 +55,7 @@ def main(argv) -> dict:
     parser.add_argument("ingest", type=Path, help="build/<scan>/ingest")
     parser.add_argument("out", type=Path, help="build/<scan>/remove_eyeballs")
     args = parser.parse_args(argv)
-    st = EyeSettings.from_params(load_params("remove_eyeballs", args.params))
+    st = load_settings(EyeSettings, args.params)
     mesh, hints, texture, source, tex_path = _read(args.ingest)
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture)
     with atomic_dir(args.out) as tmp:

@@ -226,6 +226,24 @@ def test_stage_names_the_scan_folder_when_the_eyes_are_closed(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("text,message", [
+    ("cut_tol_mm: .nan", "remove_eyeballs.cut_tol_mm must be a finite number"),
+    ("cut_tol: 0.5", "remove_eyeballs.cut_tol is an unknown key"),
+    ("radius_range_mm: [18, 10]", "remove_eyeballs.radius_range_mm"),
+    ("ransac_iterations: 0", "remove_eyeballs.ransac_iterations must be >= 1"),
+])
+def test_stage_refuses_bad_settings_in_one_line(tmp_path, capsys, text, message):
+    from stages._common import run_stage
+    from stages.remove_eyeballs import main
+
+    params = tmp_path / "p.yaml"
+    params.write_text(f"remove_eyeballs:\n  {text}\n")
+    capsys.readouterr()
+    assert run_stage(main, [str(tmp_path / "in"), str(tmp_path / "out"), "--params", str(params)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {params}: {message}"), err
+
+
 def test_stage_missing_input_is_one_line(tmp_path):
     from stages._common import run_stage
     from stages.remove_eyeballs import main

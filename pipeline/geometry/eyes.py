@@ -38,6 +38,7 @@ Method (per eye, see ``find_eye``):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -46,56 +47,51 @@ from pipeline.geometry import eye_checks, meshtopo
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import (fit_sphere_algebraic, radius_sigma, ransac_sphere,
                                          refine_sphere, signed_distance)
+from pipeline.settings import Settings, setting
 
 SIDES = ("left", "right")
 
 
 @dataclass
-class EyeSettings:
-    """Parameters of eye finding and removal (``remove_eyeballs:`` block of params.yaml)."""
+class EyeSettings(Settings):
+    """Parameters of eye finding and removal (``remove_eyeballs:`` block of params.yaml); the
+    defaults are here, values are checked by pipeline.settings."""
 
-    patch_radius_mm: float = 22.0
-    sample_radius_mm: float = 13.0
-    radius_range_mm: tuple = (10.0, 18.0)
-    radius_prior_mm: float = 12.0
-    radius_prior_sigma_mm: float = 3.0
-    inlier_tol_mm: float = 0.3
-    inside_tol_mm: float = 1.5
-    inside_soft_tol_mm: float = 0.5
-    inside_soft_weight: float = 3.0
-    inside_fit_margin_mm: float = 0.2
-    cut_tol_mm: float = 0.8
-    cornea_cap_deg: float = 35.0
-    ransac_iterations: int = 1500
-    ransac_refine: int = 6
-    min_inliers: int = 20
-    crease_margin_mm: float = 0.5
+    block: ClassVar[str] = "remove_eyeballs"
+
+    patch_radius_mm: float = setting(22.0, gt=0, le=100)       # surface considered around a hint
+    sample_radius_mm: float = setting(13.0, gt=0, le=100)      # RANSAC samples within this of the hint
+    radius_range_mm: tuple[float, float] = setting((10.0, 18.0), gt=0, le=100, ordered=True)
+    radius_prior_mm: float = setting(12.0, gt=0, le=100)
+    radius_prior_sigma_mm: float = setting(3.0, gt=0, le=100)
+    inlier_tol_mm: float = setting(0.3, gt=0, le=10)
+    inside_tol_mm: float = setting(1.5, ge=0, le=20)
+    inside_soft_tol_mm: float = setting(0.5, ge=0, le=20)
+    inside_soft_weight: float = setting(3.0, ge=0, le=1000)
+    inside_fit_margin_mm: float = setting(0.2, ge=-1, le=20)   # < 0: no inside constraint
+    cut_tol_mm: float = setting(0.8, gt=0, le=20)
+    cornea_cap_deg: float = setting(35.0, ge=0, lt=90)
+    ransac_iterations: int = setting(1500, ge=1, le=1_000_000)
+    ransac_refine: int = setting(6, ge=0, le=1000)
+    min_inliers: int = setting(20, ge=4, le=1_000_000)
+    crease_margin_mm: float = setting(0.5, ge=-1, le=20)
     crease_margin_capped: bool = False
-    fit_iterations: int = 4
-    min_crease_deg: float = 20.0
+    fit_iterations: int = setting(4, ge=1, le=100)
+    min_crease_deg: float = setting(20.0, ge=0, le=180)        # lid fold at the cut border; below = closed
     shared_radius: bool = True
-    shared_radius_max_z: float = 3.0
-    max_center_hint_distance_mm: float = 22.0
+    shared_radius_max_z: float = setting(3.0, ge=0, le=1000)
+    max_center_hint_distance_mm: float = setting(22.0, gt=0, le=100)
     texture_fallback: bool = True
-    texture_min_contrast: float = 3.0
-    max_fit_rms_mm: float = 0.6
-    margin_lift_mm: float = 0.6
-    margin_max_turn_deg: float = 60.0
-    margin_on_eye_mm: float = 0.3
-    max_gaze_deg: float = 40.0
-    max_hole_perimeter_mm: float = 60.0   # holes near the hints (an unmeasured pupil) are closed for the fit
-    cornea_min_inliers: int = 20
-    cornea_min_fraction: float = 0.45
-    seed: int = 0
-
-    @classmethod
-    def from_params(cls, params: dict) -> "EyeSettings":
-        s = cls()
-        for k, v in (params or {}).items():
-            if hasattr(s, k):
-                setattr(s, k, tuple(v) if isinstance(v, list) else type(getattr(s, k))(v)
-                        if not isinstance(getattr(s, k), tuple) else tuple(v))
-        return s
+    texture_min_contrast: float = setting(3.0, gt=0, le=1000)
+    max_fit_rms_mm: float = setting(0.6, gt=0, le=20)
+    margin_lift_mm: float = setting(0.6, ge=0, le=20)          # 0 = loop left on the cut
+    margin_max_turn_deg: float = setting(60.0, gt=0, le=180)
+    margin_on_eye_mm: float = setting(0.3, ge=0, le=20)
+    max_gaze_deg: float = setting(40.0, gt=0, le=90)
+    max_hole_perimeter_mm: float = setting(60.0, ge=0, le=1000)  # holes near the hints (an unmeasured pupil) closed for the fit
+    cornea_min_inliers: int = setting(20, ge=4, le=1_000_000)
+    cornea_min_fraction: float = setting(0.45, gt=0, le=1)
+    seed: int = setting(0, ge=0)
 
 
 @dataclass
