@@ -359,6 +359,11 @@ def c_yaml_hint_huge_integer(f, t):
     sidecar_eyes(f, left="1" + "0" * 400 + ", 35.0, 80.0")
 
 
+def c_yaml_bad_explicit_tag(f, t):
+    text = (f / "scan.yaml").read_text()
+    (f / "scan.yaml").write_text(text.replace("units: mm", "units: !!int mm"))
+
+
 def c_licence_nul(f, t):
     edit_yaml(f, licence="CC-BY 4.0\0 all rights reserved")
 
@@ -479,6 +484,7 @@ CASES = [
     Case(c_yaml_duplicate_key, "scan.yaml", "duplicate key 'units'"),
     Case(c_yaml_duplicate_nested_key, "scan.yaml", "duplicate key 'left'"),
     Case(c_yaml_hint_huge_integer, "scan.yaml", "eyes.left.hint [10000000"),
+    Case(c_yaml_bad_explicit_tag, "scan.yaml", "YAML error: a tagged value cannot be read (invalid literal for int()"),
     Case(c_licence_nul, "scan.yaml", "licence contains a control character (U+0000)"),
     Case(c_licence_escape, "scan.yaml", "licence contains a control character (U+001B)"),
     Case(c_mesh_symlinked_folder, "scan.yaml", "resolves outside the scan folder"),

@@ -327,5 +327,7 @@ def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSp
         raise ScanError(sidecar, f"YAML error: {one_line(exc)[:200]}") from None
     except RecursionError:
         raise ScanError(sidecar, "YAML error: nesting too deep") from None
+    except (ValueError, TypeError, OverflowError) as exc:   # a bad explicit tag value ("!!int mm", "!!binary x")
+        raise ScanError(sidecar, f"YAML error: a tagged value cannot be read ({one_line(exc)[:120]})") from None
     return parse_sidecar(data, folder, sidecar)
 
