@@ -30,7 +30,7 @@ BLOCKS = {
     "synthetic_head": "pipeline.synthetic_head:SyntheticHeadSettings",
     "eyeball": "pipeline.eyeball.geometry:EyeballSettings",
     "ingest": "pipeline.io.load:IngestSettings",
-    "remove_eyeballs": "pipeline.geometry.eyes:EyeSettings",
+    "remove_eyeballs": "pipeline.geometry.remove_eyeballs:EyeSettings",
     "retopo": "pipeline.geometry.retopo:RetopoSettings",
     "bake": "pipeline.bake.bake:BakeSettings",
     "snap": "pipeline.geometry.snap:SnapSettings",

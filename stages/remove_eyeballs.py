@@ -7,8 +7,8 @@ Reads ``ingest/mesh.npz``, ``ingest/scan.json`` (eye hints; its ``folder`` is th
 a refusal names) and ``ingest/texture.png`` when present; writes ``mesh.npz`` (head with the two
 eye openings, UV/FUV/VC carried), ``eyes.json`` (per eye: center, radius, forward,
 residual_rms_mm, n_inliers, placement, checks, loop_indices, loop_points,
-lateral_canthus_index) and copies ``texture.png``. See pipeline/geometry/eyes.py and
-eye_checks.py.
+lateral_canthus_index) and copies ``texture.png``. See pipeline/geometry/remove_eyeballs.py,
+eye_fit.py and eye_checks.py.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.geometry.eyes import EyeSettings, remove_eyeballs
+from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
 from pipeline.io.atomic import atomic_dir, write_json
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser

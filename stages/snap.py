@@ -121,7 +121,7 @@ def main(argv) -> dict:
     doc, eyes = _eyes(args.remove_eyeballs / "eyes.json")
     params = read_eyeball_params(args.eyeball)
     out, reports, metrics = snap_mesh(mesh, eyes, params, st, source=str(mesh_path))
-    from pipeline.geometry.eyes import eye_basis
+    from pipeline.geometry.frame import eye_basis
 
     for s in SIDES:  # loop fields now refer to the snapped mesh
         loop = np.asarray(out[f"loop_{s}"], np.int64)

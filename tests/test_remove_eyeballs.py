@@ -9,8 +9,10 @@ import pytest
 
 from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
+from pipeline.geometry.eye_fit import eye_surface_distance
+from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.geometry.eyes import EyeSettings, eye_basis, eye_surface_distance, remove_eyeballs
+from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
 from pipeline.io.meshfile import load_mesh, save_mesh
 
 R_EYE = 12.0

@@ -1,0 +1,522 @@
+"""Stage ``remove_eyeballs``: fit both scanned eyeballs, check them, cut them out of the head.
+
+Per eye the sphere, corneal bulge and removal region come from ``pipeline.geometry.eye_fit``
+(``find_eye``); this module runs both eyes on a local sub-mesh (``fit_eye_pair``: holes near
+the eyes closed for the fit and given to the opening, radius shared when both fits agree),
+cuts the regions out leaving one simple loop per opening, moves each loop vertex to where the
+uncut surface lifts off the fitted eye by ``margin_lift_mm`` (projected onto the eye, the
+margin between the last eyeball vertex and the first lid vertex; flip-guarded; loop vertices
+on a reconstruction-filled crease keep the cut), orders each loop from the medial canthus over
+the upper lid, and runs the self-checks of ``pipeline.geometry.eye_checks``: a failed check
+refuses the scan with one line instead of passing a wrong eyeball on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.geometry import eye_checks, meshtopo
+from pipeline.geometry.eye_fit import (EyeMesh, eye_surface_distance, find_eye, local_mesh,
+                                       median_edge_length)
+from pipeline.geometry.frame import eye_basis
+from pipeline.geometry.spherefit import signed_distance
+from pipeline.settings import Settings, setting
+
+SIDES = ("left", "right")
+
+
+@dataclass
+class EyeSettings(Settings):
+    """Parameters of eye finding and removal (``remove_eyeballs:`` block of params.yaml); the
+    defaults are here, values are checked by pipeline.settings."""
+
+    block: ClassVar[str] = "remove_eyeballs"
+
+    patch_radius_mm: float = setting(22.0, gt=0, le=100)       # surface considered around a hint
+    sample_radius_mm: float = setting(13.0, gt=0, le=100)      # RANSAC samples within this of the hint
+    radius_range_mm: tuple[float, float] = setting((10.0, 18.0), gt=0, le=100, ordered=True)
+    radius_prior_mm: float = setting(12.0, gt=0, le=100)
+    radius_prior_sigma_mm: float = setting(3.0, gt=0, le=100)
+    inlier_tol_mm: float = setting(0.3, gt=0, le=10)
+    inside_tol_mm: float = setting(1.5, ge=0, le=20)
+    inside_soft_tol_mm: float = setting(0.5, ge=0, le=20)
+    inside_soft_weight: float = setting(3.0, ge=0, le=1000)
+    inside_fit_margin_mm: float = setting(0.2, ge=-1, le=20)   # < 0: no inside constraint
+    cut_tol_mm: float = setting(0.8, gt=0, le=20)
+    cornea_cap_deg: float = setting(35.0, ge=0, lt=90)
+    ransac_iterations: int = setting(1500, ge=1, le=1_000_000)
+    ransac_refine: int = setting(6, ge=0, le=1000)
+    min_inliers: int = setting(20, ge=4, le=1_000_000)
+    crease_margin_mm: float = setting(0.5, ge=-1, le=20)
+    crease_margin_capped: bool = False
+    fit_iterations: int = setting(4, ge=1, le=100)
+    min_crease_deg: float = setting(20.0, ge=0, le=180)        # lid fold at the cut border; below = closed
+    shared_radius: bool = True
+    shared_radius_max_z: float = setting(3.0, ge=0, le=1000)
+    max_center_hint_distance_mm: float = setting(22.0, gt=0, le=100)
+    texture_fallback: bool = True
+    texture_min_contrast: float = setting(3.0, gt=0, le=1000)
+    max_fit_rms_mm: float = setting(0.6, gt=0, le=20)
+    margin_lift_mm: float = setting(0.6, ge=0, le=20)          # 0 = loop left on the cut
+    margin_max_turn_deg: float = setting(60.0, gt=0, le=180)
+    margin_on_eye_mm: float = setting(0.3, ge=0, le=20)
+    max_gaze_deg: float = setting(40.0, gt=0, le=90)
+    max_hole_perimeter_mm: float = setting(60.0, ge=0, le=1000)  # holes near the hints (an unmeasured pupil) closed for the fit
+    cornea_min_inliers: int = setting(20, ge=4, le=1_000_000)
+    cornea_min_fraction: float = setting(0.45, gt=0, le=1)
+    seed: int = setting(0, ge=0)
+
+
+def order_loop(loop, V, center, forward, side):
+    """Rotate/reverse a closed loop: start at the medial canthus, upper lid first.
+
+    Returns
+    -------
+    loop : (L,) int64
+    lateral_index : int
+        Position of the lateral canthus in the returned loop.
+    """
+    B = eye_basis(forward)
+    Q = (V[loop] - center) @ B.T
+    sign = 1.0 if side == "left" else -1.0
+    x = Q[:, 0] * sign  # positive = lateral
+    m = int(np.argmin(x))
+    loop = np.roll(loop, -m)
+    Q = np.roll(Q, -m, axis=0)
+    x = np.roll(x, -m)
+    lat = int(np.argmax(x))
+    y_first = Q[1:lat, 1].mean() if lat > 1 else Q[1, 1]
+    y_second = Q[lat + 1:, 1].mean() if lat + 1 < len(loop) else Q[-1, 1]
+    if y_first < y_second:
+        loop = np.concatenate([loop[:1], loop[1:][::-1]])
+        lat = len(loop) - lat
+    return loop, int(lat)
+
+
+@dataclass
+class RemovalResult:
+    mesh: dict
+    eyes: dict
+    fits: dict
+    metrics: dict
+
+
+def _lift_off_points(V, F, loop_old, h, tau, reach, k=3):
+    """Where the surface lifts off the eye by ``tau``, nearest to each loop vertex.
+
+    The ``tau`` iso-line of the height field is sampled where it crosses the edges of the uncut
+    mesh near the loop (linear interpolation along each edge); each loop vertex gets the mean
+    of its ``k`` nearest crossing points within ``reach`` mm (itself when there are none).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+        The uncut mesh.
+    loop_old : (L,) int64
+        Loop vertices (ids of ``V``).
+    h : (n,) float64
+        Height of each vertex above the eye surface (NaN where unknown).
+    tau : float
+    reach : float
+    k : int
+
+    Returns
+    -------
+    (L, 3) float64
+    """
+    from scipy.spatial import cKDTree
+
+    ok = np.isfinite(h)
+    Fl = F[ok[F].all(axis=1)]
+    E = np.concatenate([Fl[:, [0, 1]], Fl[:, [1, 2]], Fl[:, [2, 0]]])
+    E = np.unique(np.sort(E, axis=1), axis=0)
+    ha, hb = h[E[:, 0]], h[E[:, 1]]
+    cross = (ha - tau) * (hb - tau) < 0
+    E, ha, hb = E[cross], ha[cross], hb[cross]
+    out = V[loop_old].copy()
+    if len(E) == 0:
+        return out
+    t = (tau - ha) / (hb - ha)
+    P = V[E[:, 0]] + t[:, None] * (V[E[:, 1]] - V[E[:, 0]])
+    kk = min(k, len(P))
+    dist, idx = cKDTree(P).query(out, k=kk)
+    dist, idx = dist.reshape(len(out), kk), idx.reshape(len(out), kk)
+    w = (dist <= reach).astype(np.float64)
+    n = w.sum(axis=1)
+    has = n > 0
+    out[has] = (P[idx[has]] * w[has, :, None]).sum(axis=1) / n[has, None]
+    return out
+
+
+def _project_to_eye(P, center, radius, cornea=None):
+    """Closest points on the surface of the two-sphere eye (sclera sphere or corneal sphere,
+    whichever is nearer), (n, 3)."""
+    def onto(c, r):
+        w = P - c
+        return c + r * w / np.maximum(np.linalg.norm(w, axis=1), 1e-12)[:, None]
+    out = onto(center, radius)
+    if cornea is not None:
+        ds = np.abs(signed_distance(P, center, radius))
+        dc = np.abs(signed_distance(P, cornea["center"], cornea["radius"]))
+        use = (dc < ds) & (signed_distance(P, center, radius) > 0)
+        out[use] = onto(np.asarray(cornea["center"]), cornea["radius"])[use]
+    return out
+
+
+def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5, on_eye=0.3):
+    """Move the loop vertices of the cut mesh (in place) to where the uncut surface lifts off the
+    fitted eye surface by ``tau`` (``_lift_off_points``), the eyelid margin at a sub-edge
+    position; a move that would turn an incident face by more than ``acos(min_cos)`` or shrink
+    it below a tenth of its area is halved (three times, then dropped). Returns the mean move, mm.
+    """
+    loop_old = old_ids[loop]
+    L = V[loop_old]
+    reach = 2.0 * median_edge_length(V2, F2[np.isin(F2, loop).any(axis=1)])
+    lo, hi = L.min(axis=0) - reach - 1.0, L.max(axis=0) + reach + 1.0
+    box = np.flatnonzero(((V >= lo) & (V <= hi)).all(axis=1))
+    h = np.full(len(V), np.nan)
+    h[box] = eye_surface_distance(V[box], fit.center, fit.radius, fit.cornea)
+    target = _lift_off_points(V, F, loop_old, h, tau, reach)
+    # onto the eye surface (the margin lies on the eyeball; the scan rounds the crease)
+    # only where the cut reached the eyeball (the loop vertex lies within on_eye of it, so the
+    # margin is between it and the first lid vertex); a loop vertex already lifted off lies on a
+    # reconstruction-filled crease whose margin is hidden under the surface, and dropping the
+    # loop there would fold the lid rim
+    on = np.abs(h[loop_old]) <= on_eye
+    target = np.where(on[:, None], _project_to_eye(target, fit.center, fit.radius, fit.cornea), L)
+    start = V2[loop].copy()
+    faces = np.flatnonzero(np.isin(F2, loop).any(axis=1))
+    Fa = F2[faces]
+
+    def normals(X):
+        return np.cross(X[Fa[:, 1]] - X[Fa[:, 0]], X[Fa[:, 2]] - X[Fa[:, 0]])
+
+    N0 = normals(V2)
+    A0 = np.linalg.norm(N0, axis=1)
+    frac = np.ones(len(loop))
+    for _ in range(4):
+        V2[loop] = start + frac[:, None] * (target - start)
+        N1 = normals(V2)
+        A1 = np.linalg.norm(N1, axis=1)
+        bad = ((N0 * N1).sum(axis=1) < min_cos * A0 * A1) | (A1 < 0.1 * A0)
+        if not bad.any():
+            break
+        hit = np.isin(loop, Fa[bad])
+        frac[hit] *= 0.5
+    else:
+        V2[loop] = start
+        N1 = normals(V2)
+        frac[:] = 0.0
+    return float(np.linalg.norm(V2[loop] - start, axis=1).mean())
+
+
+def _radii_agree(fits, st: EyeSettings):
+    """Whether the two eyes' radii are equal within ``shared_radius_max_z`` combined standard errors."""
+    sig = np.hypot(fits["left"].radius_sigma, fits["right"].radius_sigma)
+    return bool(np.isfinite(sig) and abs(fits["left"].radius - fits["right"].radius)
+                <= st.shared_radius_max_z * sig)
+
+
+def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
+    """Close the mesh's holes near ``centres`` with a fan around each hole's centroid.
+
+    Scanners often leave the dark pupil and iris unmeasured: a hole in the eye opening. The eye fit
+    and the cut run on the closed surface; :func:`fit_eye_pair` then gives each hole to the
+    opening or to the skin.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    centres : list of (3,) float64
+    near_mm : float
+        A hole is closed when one of its vertices lies this close to a centre ...
+    max_perimeter_mm : float
+        ... and its perimeter is at most this.
+
+    Returns
+    -------
+    V2 : (n + k, 3) float64
+        ``V`` and one centroid vertex per closed hole.
+    F2 : (m + f, 3) int64
+        ``F`` and the fan faces (appended, so face ``i < m`` is still face ``i`` of ``F``).
+    holes : list of (L,) int64
+        The closed holes' loops (vertex ids), in the order of their centroid vertices.
+    hole_of_face : (m + f,) int64
+        -1 for the faces of ``F``, else the hole index.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    C = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    H = meshtopo.boundary_halfedges(F)
+    loops = []
+    if len(H):
+        # each connected piece of the boundary near a centre that is one simple loop
+        bv, Hc = np.unique(H, return_inverse=True)
+        Hc = Hc.reshape(-1, 2)
+        g = coo_matrix((np.ones(len(Hc)), (Hc[:, 0], Hc[:, 1])), shape=(len(bv), len(bv)))
+        _, comp = connected_components(g, directed=False)
+        near = np.linalg.norm(V[bv][:, None, :] - C[None], axis=2).min(axis=1) <= near_mm
+        for k in np.unique(comp[near]):
+            try:
+                loops += meshtopo.boundary_loops(F, only=bv[comp == k], H=H)
+            except ValueError:      # a bow-tie boundary: left as it is
+                pass
+    newV, newF, holes, owner = [], [], [], []
+    for loop in loops:
+        P = V[loop]
+        per = float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum())
+        if per > max_perimeter_mm or len(loop) < 3:
+            continue
+        if np.linalg.norm(P[:, None, :] - C[None], axis=2).min() > near_mm:
+            continue
+        k = len(holes)
+        c = len(V) + k
+        # the boundary half-edge a -> b belongs to a face; the fill face runs b -> a
+        newF.append(np.column_stack([np.roll(loop, -1), loop, np.full(len(loop), c)]))
+        newV.append(P.mean(axis=0))
+        holes.append(np.asarray(loop, dtype=np.int64))
+        owner.append(np.full(len(loop), k))
+    if not holes:
+        return V, F, [], np.full(len(F), -1, dtype=np.int64)
+    V2 = np.concatenate([V, np.asarray(newV)])
+    F2 = np.concatenate([F, *newF]).astype(np.int64)
+    return V2, F2, holes, np.concatenate([np.full(len(F), -1), *owner]).astype(np.int64)
+
+
+def _opening_holes(region, F, holes, hole_of_face, n_faces, min_share=0.3):
+    """The fitted region on the original faces. A hole whose fill or rim the region reaches
+    (``min_share`` of its rim vertices, or half its fill) is part of the opening: the faces
+    around it join the region, so the cut border passes around it (a scanner loses the crease
+    where lid meets eye as easily as the pupil). A hole the region only grazes is kept off it."""
+    out = region[:n_faces].copy()
+    Fo = F[:n_faces]
+    inside = np.zeros(int(F.max()) + 1, bool)
+    inside[Fo[out].ravel()] = True
+    for k, loop in enumerate(holes):
+        rim = np.isin(Fo, loop).any(axis=1)
+        if region[hole_of_face == k].mean() >= 0.5 or inside[loop].mean() >= min_share:
+            out |= rim
+        else:
+            out &= ~rim
+    return out
+
+
+def _holes_inside(F, remove):
+    """Number of the mesh's boundary loops whose every edge belongs to a removed face (holes in
+    the eye openings, which the cut absorbs)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    H = meshtopo.boundary_halfedges(F)
+    if len(H) == 0:
+        return 0
+    # the face of each boundary half-edge a -> b
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    fid = np.tile(np.arange(len(F)), 3)
+    n = int(F.max()) + 1
+    key = E[:, 0] * n + E[:, 1]
+    order = np.argsort(key)
+    hf = fid[order[np.searchsorted(key[order], H[:, 0] * n + H[:, 1])]]
+    bv, Hc = np.unique(H, return_inverse=True)
+    Hc = Hc.reshape(-1, 2)
+    g = coo_matrix((np.ones(len(Hc)), (Hc[:, 0], Hc[:, 1])), shape=(len(bv), len(bv)))
+    _, comp = connected_components(g, directed=False)
+    ecomp = comp[Hc[:, 0]]
+    kept = np.zeros(comp.max() + 1, bool)
+    np.logical_or.at(kept, ecomp, ~remove[hf])
+    return int((~kept).sum())
+
+
+def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None):
+    """Fit both eyes; with ``shared_radius`` refit both with their inverse-variance weighted mean
+    radius when both are geometric fits whose radii agree within ``shared_radius_max_z`` standard
+    errors (eyes of one head are usually the same size; a clear difference is kept)."""
+    V = np.asarray(mesh_arrays["V"], dtype=np.float64)
+    F = np.asarray(mesh_arrays["F"], dtype=np.int64)
+    median_edge = median_edge_length(V, F)
+    # Everything a fit reads lies within patch_radius_mm of its hint, plus a few edge rings
+    # (region borders, crease neighbourhoods): fit on that sub-mesh, which keeps the full mesh's
+    # face/vertex order (same random samples, same results) and map regions back.
+    reach = st.patch_radius_mm + 5.0 + 6.0 * median_edge + max(2.0, 1.5 * median_edge)
+    centres = [np.asarray(hints[s], float) for s in SIDES]
+    Vs, Fs, faces, verts = local_mesh(V, F, centres, reach)
+    n_local = len(Fs)
+    Vs, Fs, holes, hole_of_face = fill_holes_near(Vs, Fs, centres, st.sample_radius_mm,
+                                                  st.max_hole_perimeter_mm)
+    mesh = EyeMesh(Vs, Fs, median_edge=median_edge)
+    sub_arrays = {k: (np.asarray(mesh_arrays[k])[faces] if k == "FUV" else mesh_arrays[k])
+                  for k in ("UV", "FUV") if k in mesh_arrays}
+    if holes and "FUV" in sub_arrays:   # fan faces take the texture corners of a rim face
+        rim = np.array([np.flatnonzero(np.isin(Fs[:n_local], loop).any(axis=1))[0] for loop in holes])
+        sub_arrays["FUV"] = np.concatenate([sub_arrays["FUV"],
+                                            sub_arrays["FUV"][rim[hole_of_face[n_local:]]]])
+    fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=sub_arrays,
+                        texture=texture) for s in SIDES}
+    if st.shared_radius and all(fits[s].method == "geometry" for s in SIDES) and _radii_agree(fits, st):
+        w = np.array([1.0 / max(fits[s].radius_sigma, 1e-3) ** 2 for s in SIDES])
+        r = float(np.average([fits[s].radius for s in SIDES], weights=w))
+        fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=sub_arrays,
+                            texture=texture, fixed_radius=r, capped=fits[s].capped)
+                for s in SIDES}
+    for fit in fits.values():       # back to full-mesh ids
+        region = np.zeros(len(F), bool)
+        region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
+        fit.region = region
+        if fit.inliers is not None:
+            inl = np.asarray(fit.inliers, dtype=np.int64)
+            fit.inliers = verts[inl[inl < len(verts)]]
+    return mesh, fits
+
+
+def _refuse_unsure(eyes: dict, source):
+    """One line naming every failed self-check (``eye_checks``): an eye placed wrongly would
+    otherwise pass silently into every later stage."""
+    bad = [(s, k) for s in SIDES for k in eye_checks.failed(eyes[s]["checks"])]
+    if not bad:
+        return
+    pair = [k for s, k in bad if k == "radii_agree"][:1]
+    per_eye = [f"{s} eye: " + eye_checks.describe(k, eyes[s]["checks"][k]) for s, k in bad
+               if k != "radii_agree"]
+    both = [eye_checks.describe(k, eyes["left"]["checks"][k]) for k in pair]
+    raise ScanError(source, "not sure of the eyeball placement: " + "; ".join(per_eye + both)
+                    + " (see the remove_eyeballs self-checks in the README)")
+
+
+def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = None, *,
+                    source="mesh", texture=None) -> RemovalResult:
+    """Fit both eyes and cut the scanned eyeball surface out of the head mesh.
+
+    Parameters
+    ----------
+    mesh_arrays : dict
+        ``V`` (n,3) float64 mm head frame, ``F`` (m,3) int64, optional ``UV``/``FUV``/``VC``
+        and other per-face/per-vertex arrays (carried through).
+    hints : dict
+        ``{"left": (3,), "right": (3,)}`` eye hints, head frame mm.
+    st : EyeSettings
+    source : str
+        File named in error messages.
+    texture : (h, w, 3) uint8, optional
+        Colour texture (used when geometry alone cannot find the eye).
+
+    Returns
+    -------
+    RemovalResult
+        ``mesh`` (arrays with the eyeball faces removed and vertices re-indexed),
+        ``eyes`` (eyes.json content), ``fits`` (EyeFit per side), ``metrics``.
+    """
+    st = st or EyeSettings()
+    V = np.asarray(mesh_arrays["V"], dtype=np.float64)
+    F = np.asarray(mesh_arrays["F"], dtype=np.int64)
+    mesh, fits = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture)
+    if (fits["left"].region & fits["right"].region).any():
+        raise ScanError(source, "the two eye regions overlap (hints too close or wrong)")
+    loops_in = meshtopo.boundary_component_count(F)
+    remove = fits["left"].region | fits["right"].region
+    absorbed = _holes_inside(F, remove)
+    keepF = ~remove
+    F2 = F[keepF]
+    used = np.zeros(len(V), bool)
+    used[F2.ravel()] = True
+    remap = -np.ones(len(V), dtype=np.int64)
+    remap[used] = np.arange(used.sum())
+    out = {}
+    nV, nF = len(V), len(F)
+    for k, a in mesh_arrays.items():
+        a = np.asarray(a)
+        if k == "F":
+            out[k] = remap[F2]
+        elif k == "V":
+            out[k] = V[used]
+        elif k == "FUV":
+            out[k] = a[keepF]
+        elif k in ("poly_counts", "poly_indices"):
+            continue  # polygons are not kept through a cut of the triangulation
+        elif a.ndim >= 1 and a.shape[0] == nV and k not in ("UV",):
+            out[k] = a[used]
+        elif a.ndim >= 1 and a.shape[0] == nF and k not in ("UV",):
+            out[k] = a[keepF]
+        else:
+            out[k] = a
+    if "UV" in out and "FUV" in out:
+        usedt = np.zeros(len(out["UV"]), bool)
+        usedt[out["FUV"].ravel()] = True
+        rt = -np.ones(len(out["UV"]), dtype=np.int64)
+        rt[usedt] = np.arange(usedt.sum())
+        out["UV"] = out["UV"][usedt]
+        out["FUV"] = rt[out["FUV"]]
+    V2, F2n = out["V"], out["F"]
+    H2 = meshtopo.boundary_halfedges(F2n)
+    n_loops_out = meshtopo.boundary_component_count(F2n, H2)
+    # region border vertices (old ids) per eye -> loops touching them
+    eyes, metrics, moved, checks = {}, {}, {}, {}
+    lim = eye_checks.limits_for(mesh.median_edge, st.radius_range_mm)
+    old_ids = np.flatnonzero(used)
+    for s in SIDES:
+        fit = fits[s]
+        border = np.zeros(len(V), bool)
+        border[F[fit.region].ravel()] = True
+        border &= used
+        ids_new = set(remap[border].tolist())
+        try:
+            mine = meshtopo.boundary_loops(F2n, only=np.fromiter(ids_new, dtype=np.int64), H=H2)
+        except ValueError as exc:
+            raise ScanError(source, f"{s} eye: the cut left a non-simple boundary ({exc})") from None
+        if len(mine) != 1:
+            raise ScanError(source, f"{s} eye: the cut left {len(mine)} boundary loops at the eye "
+                                    f"opening instead of one")
+        loop = mine[0]
+        if st.margin_lift_mm > 0 and fit.method == "geometry":
+            moved[s] = _move_to_lift_off(V, F, V2, F2n, old_ids, loop, fit, st.margin_lift_mm,
+                                         np.cos(np.radians(st.margin_max_turn_deg)),
+                                         st.margin_on_eye_mm)
+        try:
+            loop, lat = order_loop(loop, V2, fit.center, fit.forward, s)
+        except ValueError:      # eye_basis: a gaze straight up or down has no pitch axis
+            raise ScanError(source, f"{s} eye: the fitted gaze {np.round(fit.forward, 3).tolist()} "
+                                    f"is vertical; not an eye") from None
+        checks[s] = eye_checks.check_eye(
+            V, F, fit.center, fit.radius, fit.forward, V2[loop], lim, fit.residual_rms_mm,
+            eye_points=V[np.unique(F[fit.region])] if fit.method == "geometry" else None,
+            cornea=fit.cornea)
+        eyes[s] = {
+            "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
+            "residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
+            "method": fit.method,
+            "placement": "surface" if fit.method == "geometry" else fit.method,
+            "checks": checks[s],
+            "cornea": None if fit.cornea is None else {
+                "center": np.asarray(fit.cornea["center"]).tolist(),
+                "radius": fit.cornea["radius"], "n_inliers": fit.cornea["n_inliers"]},
+            "loop_indices": loop.tolist(), "loop_points": V2[loop].tolist(),
+            "lateral_canthus_index": lat,
+        }
+        metrics[s] = {"radius_mm": round(fit.radius, 4), "residual_rms_mm": round(fit.residual_rms_mm, 4),
+                      "n_inliers": fit.n_inliers, "method": fit.method,
+                      "faces_removed": int(fit.region.sum()), "loop_length": len(loop),
+                      "crease_deg": round(fit.crease_deg, 3),
+                      "cornea_fitted": fit.cornea is not None,
+                      "loop_moved_mean_mm": round(moved.get(s, 0.0), 4)}
+    pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
+    for s in SIDES:
+        eyes[s]["checks"].update(pair)
+        metrics[s]["placement"] = eyes[s]["placement"]
+        metrics[s]["checks_failed"] = eye_checks.failed(eyes[s]["checks"])
+        metrics[s].update({f"check_{k}": c["value"] for k, c in eyes[s]["checks"].items()})
+    _refuse_unsure(eyes, source)
+    if n_loops_out != loops_in - absorbed + 2:
+        raise ScanError(source, f"cutting the eyeballs gave {n_loops_out} boundary loops, expected "
+                                f"{loops_in} - {absorbed} holes in the openings + 2")
+    metrics.update({"vertices_in": nV, "faces_in": nF, "vertices_out": int(len(V2)),
+                    "faces_out": int(len(F2n)), "vertices_removed": int(nV - len(V2)),
+                    "faces_removed": int(remove.sum()), "boundary_loops_in": loops_in,
+                    "boundary_loops_out": n_loops_out, "holes_in_openings": absorbed,
+                    "edge_manifold_out": meshtopo.is_edge_manifold(F2n)})
+    return RemovalResult(mesh=out, eyes=eyes, fits=fits, metrics=metrics)
