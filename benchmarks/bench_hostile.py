@@ -423,6 +423,26 @@ def c_mtl_data_uri(f, t):
     write_sidecar(f, hints, mesh="scan.obj")
 
 
+def c_mtl_name_too_long(f, t):
+    V, F, hints = head_mesh(3)
+    write_obj(f / "scan.obj", V, F, UV=sphere_uv(V), FUV=F, mtl="scan.mtl")
+    (f / "scan.mtl").write_text("newmtl skin\nmap_Kd " + "a" * 5000 + ".png\n")
+    write_sidecar(f, hints, mesh="scan.obj")
+
+
+def c_tiff_samples_per_pixel(f, t):
+    """A TIFF claiming 40 samples per pixel: PIL logs an error before refusing it; only our line shows."""
+    from PIL import Image
+
+    V, F, hints = head_mesh(3)
+    write_ply(f / "scan.ply", V, F, uv=sphere_uv(V))
+    Image.new("RGB", (8, 8)).save(f / "skin.tif", compression=None)
+    data = (f / "skin.tif").read_bytes()
+    entry = struct.pack("<HHIH", 277, 3, 1, 3)              # SamplesPerPixel = 3 (SHORT)
+    (f / "skin.tif").write_bytes(data.replace(entry, struct.pack("<HHIH", 277, 3, 1, 40), 1))
+    write_sidecar(f, hints, texture="skin.tif")
+
+
 def c_mtl_texture_header_bomb(f, t):
     V, F, hints = head_mesh(3)
     write_obj(f / "scan.obj", V, F, UV=sphere_uv(V), FUV=F, mtl="scan.mtl")
@@ -495,6 +515,8 @@ CASES = [
     Case(c_texture_fifo, "skin.png", "texture is not a regular file"),
     Case(c_mtllib_fifo, "scan.mtl", "mtllib is not a regular file"),
     Case(c_mtl_data_uri, "scan.mtl", "map_Kd is a data: URI"),
+    Case(c_mtl_name_too_long, "scan.mtl", "cannot be used: File name too long"),
+    Case(c_tiff_samples_per_pixel, "skin.tif", "texture cannot be opened"),
     Case(c_mtl_texture_header_bomb, "bomb.png", "texture is over the limit of 67108864 pixels"),
     Case(c_texture_data_uri, "scan.yaml", "texture is a data: URI"),
 ]

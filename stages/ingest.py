@@ -9,12 +9,14 @@ a rejected scan exits 2 with one line on stderr and leaves no output folder.
 Run as a program, the stage bounds its own address space (``ingest.max_memory_mb``,
 ``RLIMIT_AS``), so a hostile file that slips past the header checks ends in a
 MemoryError, which (like an OverflowError) becomes one line and exit 2. numpy's
-RuntimeWarnings are silenced: a bad value is reported by the check that refuses it.
+RuntimeWarnings and PIL's / trimesh's log records are silenced: a bad value is reported
+by the check that refuses it.
 """
 
 from __future__ import annotations
 
 import functools
+import logging
 import resource
 import warnings
 from pathlib import Path
@@ -54,12 +56,21 @@ def bound_memory(max_mb: float) -> None:
         resource.setrlimit(resource.RLIMIT_AS, (want, hard))
 
 
+def quiet_library_logs() -> None:
+    """Keep PIL's and trimesh's log records (e.g. a hostile TIFF's "More samples per pixel than can be
+    decoded") off stderr: the refusal that follows is the one line. Without a handler anywhere on a
+    logger's chain, Python prints warnings and errors to stderr."""
+    for name in ("PIL", "trimesh"):
+        logging.getLogger(name).addHandler(logging.NullHandler())
+
+
 def main(argv, bound: bool = False) -> dict:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("scan_dir", help="raw_scans/<name>: scan.yaml + mesh [+ texture]")
     parser.add_argument("out_dir", help="build/<name>/ingest")
     args = parser.parse_args(argv)
     settings = load_settings(IngestSettings, args.params)
+    quiet_library_logs()
     if bound:
         bound_memory(settings.max_memory_mb)
     out = Path(args.out_dir)

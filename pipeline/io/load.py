@@ -1442,8 +1442,9 @@ def load_texture(source, limits: Limits = Limits(), name=None):
             raise ScanError(label, f"texture is over the limit of {limits.max_texture_pixels} pixels "
                                    f"(ingest.max_texture_pixels), possible decompression bomb; not decoded "
                                    f"({one_line(exc)[:80]})") from None
-        except UnidentifiedImageError as exc:
-            raise ScanError(label, f"texture cannot be opened: {one_line(exc)[:140]}") from None
+        except UnidentifiedImageError:
+            raise ScanError(label, "texture cannot be opened: not an image format PIL can read, or a "
+                                   "corrupt header") from None
         except Exception as exc:  # noqa: BLE001
             raise ScanError(label, f"texture cannot be opened: {one_line(exc)[:140]}") from None
         w, h = img.size

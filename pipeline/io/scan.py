@@ -185,9 +185,13 @@ def safe_path(folder, value, sidecar, key: str, suffixes=None) -> Path:
         raise ScanError(sidecar, f"{key} path {value!r} cannot be resolved: {one_line(exc)}") from None
     if resolved != folder and folder not in resolved.parents:
         raise ScanError(sidecar, f"{key} path {value!r} resolves outside the scan folder (symlink?)")
-    if not resolved.exists():
+    try:
+        exists, regular = resolved.exists(), resolved.is_file()
+    except OSError as exc:                       # e.g. a name too long for the file system
+        raise ScanError(sidecar, f"{key} path {value[:60]!r} cannot be used: {one_line(exc.strerror)}") from None
+    if not exists:
         raise ScanError(candidate, f"{key} file does not exist (named in {Path(sidecar).name})")
-    if not resolved.is_file():
+    if not regular:
         raise ScanError(candidate, f"{key} is not a regular file")
     if suffixes is not None and resolved.suffix.lower() not in suffixes:
         raise ScanError(candidate, f"{key} has unsupported file type {resolved.suffix or '(none)'!r}; "
