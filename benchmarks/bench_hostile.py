@@ -11,9 +11,9 @@ stderr line, the wall time and the child's own peak RSS (``os.wait4`` rusage).
 Targets (issue 12): an over-limit input is refused within 2 s and 500 MiB; an input
 within the limits ingests within 2.5 GiB. ``tests/test_hostile_inputs.py`` runs the
 same cases and asserts the messages and bounds. ``--at-limits`` adds the largest scan
-the default limits accept (the ``bench_ingest`` head at 2,500,002 vertices and 9,996,000
-triangles, binary PLY with a 1024^2 texture and the same as OBJ + MTL, about 1 GB on
-disk, cached in the temp folder), run under the stage's own bound only.
+the default limits accept (the ``bench_ingest`` head at 4,998,002 vertices and 9,996,000
+triangles: binary PLY with a 1024^2 texture, the same as OBJ + MTL, and as GLB with UVs;
+about 1.2 GB on disk, cached in the temp folder), run under the stage's own bound only.
 """
 
 from __future__ import annotations
@@ -668,13 +668,39 @@ def run_ingest(folder, out, params=None, cap_mib: float = 1536, cpu_s: int = 60,
                    wall, cpu, maxrss_kib / 1024.0)
 
 
+def glb_scan(folder: Path, rows: int, cols: int) -> Path:
+    """The bench_ingest lat/long head as a one-mesh GLB (float32 positions and UVs, uint32 indices); cached."""
+    from benchmarks.bench_ingest import latlong_head
+
+    if (folder / "scan.yaml").exists():
+        return folder
+    folder.mkdir(parents=True, exist_ok=True)
+    V, F, UV, hints = latlong_head(rows, cols)
+    parts = [V.astype("<f4").tobytes(), F.astype("<u4").tobytes(), UV.astype("<f4").tobytes()]
+    offsets = np.cumsum([0] + [len(p) for p in parts])
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 2}, "indices": 1}]}],
+           "buffers": [{"byteLength": int(offsets[-1])}],
+           "bufferViews": [{"buffer": 0, "byteOffset": int(o), "byteLength": len(p)} for o, p in zip(offsets, parts)],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": len(V), "type": "VEC3",
+                          "min": V.min(axis=0).tolist(), "max": V.max(axis=0).tolist()},
+                         {"bufferView": 1, "componentType": 5125, "count": F.size, "type": "SCALAR"},
+                         {"bufferView": 2, "componentType": 5126, "count": len(V), "type": "VEC2"}]}
+    (folder / "scan.glb").write_bytes(glb_bytes(doc, b"".join(parts)))
+    write_sidecar(folder, hints, mesh="scan.glb")
+    return folder
+
+
 def at_limits(fmt: str) -> dict:
     """Ingest the largest head the default limits accept (cached bench_ingest folders); one result row."""
     from benchmarks.bench_ingest import build_obj_scan, build_scan
 
     rows_, cols = 2500, 2000                     # 2 * 2000 * 2499 = 9,996,000 triangles
     work = Path(tempfile.gettempdir()) / "eyerig_bench_ingest"
-    folder = build_scan(work / f"head_{rows_}x{cols}", rows_, cols)
+    if fmt == "glb":
+        folder = glb_scan(work / f"head_{rows_}x{cols}_glb", rows_, cols)
+    else:
+        folder = build_scan(work / f"head_{rows_}x{cols}", rows_, cols)
     if fmt == "obj":
         folder = build_obj_scan(work / f"head_{rows_}x{cols}_obj", folder, rows_, cols)
     size = sum(p.stat().st_size for p in folder.iterdir())
@@ -692,12 +718,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "hostile.json"))
     ap.add_argument("--cap-mib", type=float, default=1536, help="address-space cap of each ingest child")
-    ap.add_argument("--at-limits", action="store_true", help="also ingest a 10M-triangle PLY and OBJ")
+    ap.add_argument("--at-limits", action="store_true", help="also ingest a 10M-triangle PLY, OBJ and GLB")
     args = ap.parse_args(argv)
     rows = []
     todo = [(c.name, c.build, "refused") for c in CASES] + [(a.__name__[2:], a, "accepted") for a in ACCEPTED]
     if args.at_limits:
-        rows += [at_limits(fmt) for fmt in ("ply", "obj")]
+        rows += [at_limits(fmt) for fmt in ("ply", "obj", "glb")]
     for name, build, expect in todo:
         with tempfile.TemporaryDirectory(prefix="hostile-") as tmp:
             tmp = Path(tmp)

@@ -1026,7 +1026,7 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
             cu, cv = _column(vdata, u), _column(vdata, v)
             if cu is not None and cv is not None:
                 UV = np.column_stack([cu, cv]).astype(np.float64)
-                FUV = F.copy()
+                FUV = F                          # shared: neither is changed in place
                 break
     VC = None
     rgb = [_column(vdata, c) for c in ("red", "green", "blue")]
@@ -1297,7 +1297,8 @@ def _glb_parts(scene, trimesh):
     offset = 0
     for g in meshes:
         Vs.append(np.asarray(g.vertices, dtype=np.float64))
-        Fs.append(np.asarray(g.faces, dtype=np.int64) + offset)
+        faces = np.asarray(g.faces, dtype=np.int64)
+        Fs.append(faces + offset if offset else faces)
         offset += len(g.vertices)
         vis = g.visual
         uv = getattr(vis, "uv", None) if getattr(vis, "kind", None) == "texture" else None
@@ -1347,12 +1348,18 @@ def load_glb(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         raise ScanError(path, "no triangle mesh found in the GLB")
     if not all(isinstance(i, Image.Image) for i in images):
         raise ScanError(path, "GLB material's base colour texture is not a readable image")
-    V, F = np.concatenate(Vs), np.concatenate(Fs)
+    del scene
+
+    def joined(parts):                           # one mesh (the usual case) without a copy
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    V, F = joined(Vs), joined(Fs)
+    del Vs, Fs
     _check_counts(path, len(V), len(F), limits)
     UV = FUV = None
     if all(u is not None for u in UVs):
-        UV, FUV = np.concatenate(UVs), F.copy()
-    VC = np.concatenate(VCs) if all(c is not None for c in VCs) else None
+        UV, FUV = joined(UVs), F                 # shared: neither is changed in place
+    VC = joined(VCs) if all(c is not None for c in VCs) else None
     texture_bytes = None
     if images:
         if len({id(i) for i in images}) > 1 and n_img > 1:
