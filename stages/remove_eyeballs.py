@@ -21,7 +21,8 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
-from pipeline.io.atomic import atomic_dir, write_json
+from pipeline.io.atomic import atomic_dir
+from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
@@ -60,7 +61,7 @@ def main(argv) -> dict:
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture)
     with atomic_dir(args.out) as tmp:
         save_mesh(tmp / "mesh.npz", **res.mesh)
-        write_json(tmp / "eyes.json", res.eyes)
+        write_eyes(tmp / "eyes.json", res.eyes)
         if texture is not None:
             shutil.copyfile(tex_path, tmp / "texture.png")
     return {"_path": args.metrics or default_metrics_path(args.out), **res.metrics}

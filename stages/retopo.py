@@ -10,7 +10,6 @@ lateral canthus in each loop, when eyes.json gives lateral_canthus_index]) atomi
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -18,32 +17,22 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.geometry.retopo import RetopoSettings, retopologize
 from pipeline.io.atomic import atomic_dir
+from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
 def load_eyes(path: Path, n_vertices: int) -> dict:
-    """eyes.json -> {side: {"center", "loop_indices"}}, validated against the mesh size."""
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise ScanError(path, f"cannot read eyes.json ({exc})") from None
-    eyes = {}
-    for side in ("left", "right"):
-        e = data.get(side) if isinstance(data, dict) else None
-        if not isinstance(e, dict) or "center" not in e or "loop_indices" not in e:
-            raise ScanError(path, f"missing eye '{side}' with center and loop_indices")
-        li = np.asarray(e["loop_indices"], dtype=np.int64)
-        c = np.asarray(e["center"], dtype=np.float64)
-        if li.ndim != 1 or len(li) < 8 or c.shape != (3,) or not np.isfinite(c).all():
-            raise ScanError(path, f"eye '{side}': need a 3-vector center and at least 8 loop_indices")
-        if li.min() < 0 or li.max() >= n_vertices:
-            raise ScanError(path, f"eye '{side}': loop_indices outside the mesh's {n_vertices} vertices")
-        eyes[side] = {"center": c, "loop_indices": li}
-        lat = e.get("lateral_canthus_index")
-        if isinstance(lat, int) and 0 < lat < len(li):
-            eyes[side]["lateral_canthus_index"] = lat
-    return eyes
+    """eyes.json -> {side: {"center", "loop_indices", "lateral_canthus_index"}}, validated
+    against the mesh size."""
+    out = {}
+    for side, e in read_eyes(path, n_vertices).items():
+        if e.loop_indices is None:
+            raise ScanError(path, f"{side} eye: no loop_indices (write it with remove_eyeballs)")
+        out[side] = {"center": e.center, "loop_indices": e.loop_indices}
+        if e.lateral_canthus_index is not None:
+            out[side]["lateral_canthus_index"] = e.lateral_canthus_index
+    return out
 
 
 def main(argv) -> dict:

@@ -15,6 +15,7 @@ from PIL import Image
 from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_error, subdivide_displaced
 from pipeline.bake.exr import preview_16bit, read_exr, write_exr
 from pipeline.bake.uv import dilate, rasterize, sample_bilinear, unwrap
+from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -174,9 +175,10 @@ def test_stage_cli(tmp_path):
     dense = tmp_path / "remove_eyeballs"
     dense.mkdir()
     save_mesh(dense / "mesh.npz", V=V, F=F, VC=np.full((len(V), 3), 180, np.uint8))
-    (dense / "eyes.json").write_text(json.dumps({k: {"center": e["center"].tolist(),
-                                                     "loop_indices": e["loop_indices"].tolist()}
-                                                 for k, e in eyes.items()}))
+    write_eyes(dense / "eyes.json", {k: {"center": e["center"].tolist(), "radius": 12.0,
+                                         "forward": [0.0, 0.0, 1.0],
+                                         "loop_indices": e["loop_indices"].tolist()}
+                                     for k, e in eyes.items()})
     params = tmp_path / "params.yaml"
     params.write_text("retopo:\n  target_polygons: 1500\n  loop_points: 32\nbake:\n  resolution: 512\n"
                       "  metric_samples: 20000\n")

@@ -12,6 +12,7 @@ import pytest
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.retopo import (RetopoSettings, _project_to_polyline, clean_mesh,
                                       count_flipped, retopologize)
+from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 from stages._common import read_stage_metrics
 
@@ -146,9 +147,10 @@ def test_settings_validation():
 def write_input(folder, V, F, eyes):
     folder.mkdir(parents=True)
     save_mesh(folder / "mesh.npz", V=V, F=F)
-    (folder / "eyes.json").write_text(json.dumps({k: {"center": e["center"].tolist(), "radius": 12.0,
-                                                       "loop_indices": e["loop_indices"].tolist()}
-                                                   for k, e in eyes.items()}))
+    write_eyes(folder / "eyes.json", {k: {"center": e["center"].tolist(), "radius": 12.0,
+                                          "forward": [0.0, 0.0, 1.0],
+                                          "loop_indices": e["loop_indices"].tolist()}
+                                      for k, e in eyes.items()})
 
 
 def run_stage(*args):

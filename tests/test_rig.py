@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from pipeline.errors import ScanError
+from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import save_mesh
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
+from pipeline.rig.build import build_rig
 from stages import rig as rig_stage
 from stages._common import read_stage_metrics, run_stage
 
@@ -283,7 +285,7 @@ def _write_snap(folder, V, F, eyes, drop=(), eyes_override=None, **extra):
     if eyes_override:
         for side, d in eyes_override.items():
             doc[side].update(d)
-    (folder / "eyes.json").write_text(json.dumps(doc))
+    write_eyes(folder / "eyes.json", doc)
 
 
 def test_stage_writes_rig_that_reopens(tmp_path, region):
@@ -338,7 +340,7 @@ def test_stage_reads_lateral_index_from_eyes_json(tmp_path):
     # start the right loop elsewhere: a rotated loop must be honoured via the given index
     _write_snap(tmp_path / "snap", V, F, eyes,
                 eyes_override={"left": {"lateral_index": eyes[0].lateral_index}})
-    arrays, doc, m = rig_stage.build_rig(
+    arrays, doc, m = build_rig(
         dict(np.load(tmp_path / "snap" / "mesh.npz")),
         json.loads((tmp_path / "snap" / "eyes.json").read_text()), {"sweep_step_deg": 5.0})
     assert doc["eyes"]["left"]["lateral_index"] == eyes[0].lateral_index
@@ -512,7 +514,7 @@ def test_uv_rasterisation_and_texel_density():
 
 def test_stage_stores_down_mask(region):
     V, F, eyes, _ = region
-    arrays, doc, _ = rig_stage.build_rig({"V": V, "F": F, "loop_left": eyes[0].loop,
+    arrays, doc, _ = build_rig({"V": V, "F": F, "loop_left": eyes[0].loop,
                                           "loop_right": eyes[1].loop},
                                          {e.side: {"center": e.center, "radius": e.radius,
                                                    "forward": e.forward} for e in eyes},

@@ -10,6 +10,7 @@ import pytest
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import meshtopo
 from pipeline.geometry import snap as sn
+from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 
 CENTER = np.array([31.0, 2.0, 70.0])
@@ -103,11 +104,11 @@ def _write_inputs(tmp_path):
     eyes = {"left": {"center": CENTER.tolist(), "radius": R, "forward": [0, 0, 1], "residual_rms_mm": 0.1},
             "right": {"center": (CENTER * mirror).tolist(), "radius": R, "forward": [0, 0, 1],
                       "residual_rms_mm": 0.1}}
-    (rem / "eyes.json").write_text(json.dumps(eyes))
+    write_eyes(rem / "eyes.json", eyes)
     eb = tmp_path / "eyeball"
     eb.mkdir()
     (eb / "eyeball.usda").write_text(
-        '#usda 1.0\ndef Xform "E" (\n customData = {\n dictionary eyerig = {\n'
+        '#usda 1.0\n(\n defaultPrim = "E"\n)\ndef Xform "E" (\n customData = {\n dictionary eyerig = {\n'
         ' dictionary params = {\n double apex = 13.5\n double r1 = 12\n double r2 = 8\n'
         ' double seam_blend_mm = 1\n }\n }\n }\n)\n{\n}\n')
     return bake, rem, eb

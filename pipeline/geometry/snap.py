@@ -27,6 +27,8 @@ import numpy as np
 from pipeline.geometry import meshtopo
 from pipeline.settings import Settings, setting
 
+SIDES = ("left", "right")
+
 
 @dataclass
 class SnapSettings(Settings):
@@ -412,3 +414,65 @@ def margin_report(V, loop, eye: PlacedEye, st: SnapSettings, n_steps=5):
     return {"gap_max_mm": float(np.abs(d).max()), "inside_max_mm": float(max(0.0, -d.min())),
             "edge_midpoint_min_mm": float(dm.min()),
             "rotated_gap_max_mm": gmax, "rotated_inside_max_mm": imax, "meets_cornea": cornea}
+
+
+
+def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz"):
+    """Snap both eyes' loops of a mesh (the snap stage's work).
+
+    Parameters
+    ----------
+    mesh : dict
+        ``V`` (n, 3), ``F`` (m, 3), ``loop_left``, ``loop_right`` (ordered vertex ids) and any
+        other arrays (carried).
+    eyes : dict
+        ``side -> (center (3,), radius, forward (3,))``.
+    params : EyeballParams
+        The parametric eye placed in each fit.
+    st : SnapSettings
+    source : str
+        Named in errors.
+
+    Returns
+    -------
+    (mesh arrays with V snapped, per-eye margin reports, metrics)
+    """
+    from pipeline.errors import ScanError
+
+    V = np.asarray(mesh["V"], float)
+    F = np.asarray(mesh["F"], np.int64)
+    V2 = V.copy()
+    G = _edge_graph(V, F)
+    metrics, reports = {}, {}
+    for s in SIDES:
+        key = f"loop_{s}"
+        if key not in mesh:
+            raise ScanError(source, f"missing array {key}")
+        loop = np.asarray(mesh[key], np.int64)
+        if loop.ndim != 1 or len(loop) < 3 or loop.min() < 0 or loop.max() >= len(V):
+            raise ScanError(source, f"{key} is not a list of >= 3 vertex indices")
+        c, r, f = eyes[s]
+        eye = PlacedEye(c, r, f, params)
+        Vs, info = snap_loop(V2, F, loop, eye, st, graph=G)
+        far = info["falloff_distance"] > st.falloff_mm
+        moved_far = int((np.linalg.norm(Vs - V2, axis=1)[far] > 0).sum())
+        V2 = Vs
+        rep = margin_report(V2, loop, eye, st)
+        d_zone = eye.signed_distance(V2[info["moved"]])
+        reports[s] = rep
+        metrics[s] = {"loop_length": int(len(loop)), "moved_vertices": int(len(info["moved"])),
+                      "grazing_fallbacks": info["grazing"], "pushed_out": info["pushed_out"],
+                      "relax_iterations": info["relax_iterations"],
+                      "moved_outside_falloff": moved_far,
+                      "zone_inside_max_mm": float(max(0.0, -d_zone.min())),
+                      "max_move_mm": float(np.linalg.norm(V2[info["moved"]] - V[info["moved"]],
+                                                          axis=1).max()),
+                      **rep}
+    out = dict(mesh)
+    out["V"] = V2
+    metrics["flipped_faces"] = flipped_faces(V, V2, F)
+    metrics["edge_manifold"] = meshtopo.is_edge_manifold(F)
+    metrics["gap_max_mm"] = max(metrics[s]["gap_max_mm"] for s in SIDES)
+    metrics["inside_max_mm"] = max(max(metrics[s]["inside_max_mm"], metrics[s]["zone_inside_max_mm"])
+                                   for s in SIDES)
+    return out, reports, metrics

@@ -142,3 +142,35 @@ def write_eyeball_usd(eye: geo.Eyeball, path, defaults: dict | None = None) -> P
     })
     stage.GetRootLayer().Save()
     return path
+
+
+def read_eyeball_params(folder) -> "geo.EyeballParams":
+    """The anatomical parameters the eyeball asset in ``folder`` was built with, read from the
+    ``customData["eyerig"]["params"]`` of ``eyeball.usda``'s default prim.
+
+    Raises
+    ------
+    pipeline.errors.ScanError
+        The asset is missing, unreadable, or carries no (valid) parameters.
+    """
+    from pxr import Tf, Usd
+
+    from pipeline.errors import ScanError
+
+    usda = Path(folder) / "eyeball.usda"
+    if not usda.is_file():
+        raise ScanError(usda, "not found (run the eyeball stage first)")
+    try:
+        stage = Usd.Stage.Open(str(usda), Usd.Stage.LoadNone)
+    except Tf.ErrorException:
+        raise ScanError(usda, "cannot be opened as USD") from None
+    prim = stage.GetDefaultPrim() if stage else None
+    data = prim.GetCustomDataByKey("eyerig") if prim else None
+    params = data.get("params") if isinstance(data, dict) else None
+    if not isinstance(params, dict):
+        raise ScanError(usda, "has no eyerig params in its default prim's customData")
+    keep = {k: float(v) for k, v in params.items() if k in geo.EyeballParams.__dataclass_fields__}
+    try:
+        return geo.EyeballParams.from_dict(keep)
+    except ValueError as exc:
+        raise ScanError(usda, f"eyerig params: {exc}") from None

@@ -1,0 +1,149 @@
+"""``eyes.json``: the eye fits that remove_eyeballs writes and snap carries on, one reader/writer.
+
+Written by ``remove_eyeballs`` (and re-written by ``snap`` with the loop on the snapped mesh),
+read by ``retopo``, ``snap`` and ``rig``. Layout (mm, head frame)::
+
+    {"schema": 1,
+     "left":  {"center": [x, y, z], "radius": r, "forward": [x, y, z] (unit),
+               "loop_indices": [...], "loop_points": [[x, y, z], ...],
+               "lateral_canthus_index": i, "placement": "surface" | "texture",
+               "checks": {...}, "residual_rms_mm": ..., "cornea": null | {...}, ...},
+     "right": {...}}
+
+Every reader validates (the schema, both eyes, finite centre, radius in (0, 100) mm, a non-zero
+forward and, where present, a loop of at least 8 distinct vertex indices inside the mesh with
+the lateral canthus inside it) and refuses anything else with one line naming the file; keys it
+does not know are carried unchanged. The loop is optional: stages after retopo carry their loops
+in mesh.npz (``loop_left``/``loop_right``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.io.atomic import write_json
+
+SCHEMA = 1
+SIDES = ("left", "right")
+
+
+@dataclass
+class EyeRecord:
+    """One eye of ``eyes.json``.
+
+    Attributes
+    ----------
+    side : str
+    center : (3,) float64
+    radius : float
+    forward : (3,) float64, unit
+    loop_indices : (L,) int64 or None
+        The eyelid-opening loop, medial canthus first, upper lid first.
+    lateral_canthus_index : int or None
+        Position of the lateral canthus in the loop.
+    doc : dict
+        The whole entry as stored (other keys: placement, checks, residuals, cornea, ...).
+    """
+
+    side: str
+    center: np.ndarray
+    radius: float
+    forward: np.ndarray
+    loop_indices: np.ndarray | None
+    lateral_canthus_index: int | None
+    doc: dict = field(repr=False)
+
+
+def lateral_canthus_index(points, center, forward, side: str) -> int:
+    """Position of the lateral canthus in a loop: the point farthest toward the eye's lateral
+    side (head +X for the left eye, -X for the right) in the eye frame of ``forward``.
+
+    Parameters
+    ----------
+    points : (L, 3) float64
+        The loop's points.
+    center : (3,) float64
+    forward : (3,) float64
+    side : str
+    """
+    from pipeline.geometry.frame import eye_basis
+
+    x = (np.asarray(points, float) - center) @ eye_basis(forward)[0]
+    return int(np.argmax(x if side == "left" else -x))
+
+
+def _record(side: str, e, path, n_vertices):
+    if not isinstance(e, dict):
+        raise ScanError(path, f"has no '{side}' eye")
+    try:
+        c = np.asarray(e["center"], dtype=np.float64).reshape(3)
+        r = float(e["radius"])
+        f = np.asarray(e["forward"], dtype=np.float64).reshape(3)
+    except KeyError as exc:
+        raise ScanError(path, f"{side} eye: no {exc.args[0]}") from None
+    except (TypeError, ValueError):
+        raise ScanError(path, f"{side} eye: center, radius and forward must be numbers "
+                              f"(3, 1 and 3 of them)") from None
+    if not (np.isfinite(c).all() and np.isfinite(f).all() and np.isfinite(r)):
+        raise ScanError(path, f"{side} eye: non-finite centre, radius or forward")
+    if not 0.0 < r < 100.0:
+        raise ScanError(path, f"{side} eye: radius {r:g} mm is not in (0, 100)")
+    n = float(np.linalg.norm(f))
+    if n < 1e-9:
+        raise ScanError(path, f"{side} eye: forward is the zero vector")
+    loop, lat = e.get("loop_indices"), e.get("lateral_canthus_index")
+    if loop is not None:
+        loop = np.asarray(loop)
+        if loop.ndim != 1 or len(loop) < 8 or loop.dtype.kind not in "iu":
+            raise ScanError(path, f"{side} eye: loop_indices must be at least 8 vertex indices")
+        loop = loop.astype(np.int64)
+        if len(np.unique(loop)) != len(loop):
+            raise ScanError(path, f"{side} eye: loop_indices repeat a vertex (the loop is not simple)")
+        if loop.min() < 0 or (n_vertices is not None and loop.max() >= n_vertices):
+            raise ScanError(path, f"{side} eye: loop_indices outside the mesh's {n_vertices} vertices")
+        if lat is not None and (not isinstance(lat, int) or isinstance(lat, bool)
+                                or not 0 < lat < len(loop)):
+            raise ScanError(path, f"{side} eye: lateral_canthus_index must be a position inside "
+                                  f"the loop")
+    else:
+        lat = None
+    return EyeRecord(side, c, r, f / n, loop, lat, e)
+
+
+def read_eyes(path, n_vertices: int | None = None) -> dict[str, EyeRecord]:
+    """Both eyes of an ``eyes.json``, validated (against ``n_vertices`` when given).
+
+    Raises
+    ------
+    ScanError
+        One line naming ``path``: missing, not JSON, another schema, or a bad entry.
+    """
+    import json
+
+    path = Path(path)
+    if not path.is_file():
+        raise ScanError(path, "not found")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ScanError(path, f"is not valid JSON ({exc.__class__.__name__})") from None
+    if not isinstance(doc, dict):
+        raise ScanError(path, "is not an eyes.json (not a mapping)")
+    if doc.get("schema") != SCHEMA:
+        raise ScanError(path, f"has schema {doc.get('schema')!r}, this eyerig reads schema {SCHEMA} "
+                              f"(rebuild it with the remove_eyeballs stage)")
+    return {s: _record(s, doc.get(s), path, n_vertices) for s in SIDES}
+
+
+def write_eyes(path, eyes: dict) -> None:
+    """Write ``{"left": entry, "right": entry}`` (entries as :func:`read_eyes` accepts them, or
+    :class:`EyeRecord`) with the schema number, atomically."""
+    out = {"schema": SCHEMA}
+    for s in SIDES:
+        e = eyes[s]
+        out[s] = e.doc if isinstance(e, EyeRecord) else e
+    write_json(path, out)

@@ -1,0 +1,145 @@
+"""The rig stage's work: eyelid blend shapes, landmark curves and the pitch sweep for one scan.
+
+``build_rig`` takes the snapped mesh and its eyes.json entries and returns the arrays of
+``rig.npz``, the ``rig.json`` document and the metrics; the method is in ``lids`` (shapes,
+sweep) and ``landmarks``. A sweep that flips a face refuses the scan.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.eyeball.geometry import EyeballParams
+from pipeline.rig import landmarks as lmk
+from pipeline.rig import lids
+from pipeline.rig import textures as tex
+
+
+def _model_corneas(eyes):
+    """Cornea sphere of the parametric eyeball placed in each fitted eye (for a metric)."""
+    p = EyeballParams()
+    out = {}
+    for e in eyes:
+        s = e.radius / p.r1
+        out[e.side] = (e.center + e.forward * (p.apex - p.r2) * s, p.r2 * s)
+    return out
+
+
+def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
+              eyes_path="eyes.json", profile=None):
+    """Everything the rig stage computes: (arrays for rig.npz, rig.json dict, metrics dict).
+
+    ``params``: a :class:`pipeline.rig.lids.RigSettings` or its raw ``rig:`` mapping.
+    ``profile``: EyeballParams of the parametric eye the margin was snapped to (None = sphere).
+    """
+    st = params if isinstance(params, lids.RigSettings) else lids.RigSettings.from_params(params)
+    lp = st.lid_params()
+    eyes = lids.eye_frames(eyes_json, mesh, eyes_source=str(eyes_path), mesh_source=str(mesh_path),
+                           max_rest_gap_mm=st.max_rest_gap_mm,
+                           profile=profile)
+    V = np.asarray(mesh["V"], np.float64)
+    F = np.asarray(mesh["F"], np.int64)
+    t0 = time.perf_counter()
+    rig = lids.build_lid_shapes(V, F, eyes, lp)
+    t_build = time.perf_counter() - t0
+
+    arrays = lids.shapes_to_arrays(rig.shapes)
+    down = rig.shape(lids.SHAPE_DOWN)
+    arrays["lids_down.texture_mask"] = tex.motion_mask(len(V), down.point_indices, down.offsets)
+    eyes_doc, lm_doc = {}, {}
+    for e in eyes:
+        lm = lmk.eyelid_landmarks(V, e)
+        lshapes = lmk.landmark_shapes(lm, e, rig)
+        pre = f"landmarks.{e.side}."
+        arrays[pre + "points"] = lm.points
+        arrays[pre + "edge"] = lm.edge
+        arrays[pre + "t"] = lm.t
+        arrays.update(lids.shapes_to_arrays(lshapes, prefix=pre))
+        arrays[f"loop_{e.side}"] = e.loop
+        eyes_doc[e.side] = {
+            "surface": "sphere" if e.profile is None else
+                       {"parametric_eye": {k: getattr(e.profile, k) for k in ("r1", "r2", "apex",
+                                                                              "seam_blend_mm")}},
+            "joint": f"eye_{e.side}",
+            "center": e.center, "radius": e.radius, "forward": e.forward,
+            "pitch_axis": e.axis,
+            "lateral_index": e.lateral_index, "loop_length": len(e.loop),
+        }
+        lm_doc[e.side] = {"eyelid_loop_position": lm.loop_position, "eyelid_edges": lm.edge}
+
+    step = st.sweep_step_deg
+    pitches = np.unique(np.concatenate([np.arange(-lp.max_pitch_deg, lp.max_pitch_deg + 1e-9, step),
+                                        [-lp.max_pitch_deg, 0.0, lp.max_pitch_deg]]))
+    t0 = time.perf_counter()
+    sweep = lids.sweep_check(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg,
+                             corneas=_model_corneas(eyes))
+    t_sweep = time.perf_counter() - t0
+    if sweep["flipped_faces"]:
+        # a face that turns over while the eye moves is a visible fold in every render
+        raise ScanError(mesh_path, f"the eyelid sweep over pitch +-{lp.max_pitch_deg:g} deg flips "
+                                   f"{sweep['flipped_faces']} faces (a fold in the lids); "
+                                   f"the eye fit or the eyelid loop is wrong")
+
+    # margin motion at the extremes (mean vertical displacement per lid, mm)
+    motion = {}
+    for name in (lids.SHAPE_UP, lids.SHAPE_DOWN):
+        P = lids.evaluate_shapes(V, rig.shapes, {name: 1.0})
+        for e in eyes:
+            dy = (P[e.loop] - V[e.loop]) @ e.basis()[1]
+            li = e.lateral_index
+            motion[f"{name}_{e.side}_upper_mean_dy_mm"] = float(dy[1:li].mean())
+            motion[f"{name}_{e.side}_lower_mean_dy_mm"] = float(dy[li + 1:].mean())
+
+    doc = {
+        "weight_rule": lids.weight_rule(lp.max_pitch_deg),
+        "shapes": [{"name": s.name, "n_points": int(len(s.point_indices)),
+                    "inbetweens": [{"name": n, "weight": float(w)} for n, w in
+                                   zip(s.inbetween_names(), s.inbetween_weights)],
+                    "max_offset_mm": float(np.linalg.norm(s.offsets, axis=1).max(initial=0.0))}
+                   for s in rig.shapes],
+        "n_segments": rig.n_segments,
+        "eyes": eyes_doc,
+        "landmarks": {
+            "per_eye": lmk.N_PER_EYE,
+            "eyelid": {"count": lmk.N_EYELID, "order": lmk.EYELID_ORDER,
+                       "curve": "closed curve through the 12 points, in order; carries the same "
+                                "shapes and inbetweens as the mesh", **lm_doc},
+            **lmk.eyeball_landmark_doc(),
+        },
+        "smoothed_down_variant": {
+            "mask": "lids_down.texture_mask (n,) per-vertex weight in [0, 1] (rig.npz)",
+            "rule": "texture_down = mix(texture, gaussian_blur(texture, sigma_mm), "
+                    "w_lids_down * mask), for the colour and the displacement map",
+            "sigma_mm": st.down_smoothing_sigma_mm,
+            "functions": "pipeline.rig.textures.rasterize_vertex_scalar, texels_per_mm, "
+                         "smoothed_variant",
+        },
+        "params": {k: getattr(lp, k) for k in lp.__dataclass_fields__},
+        "npz_layout": {
+            "shape_names": "(s,) str: lids_up, lids_down",
+            "<shape>.point_indices": "(k,) int64 mesh vertex indices",
+            "<shape>.offsets": "(k,3) float64 mm at weight 1",
+            "<shape>.inbetween_weights": "(j,) float64 in (0,1)",
+            "<shape>.inbetween_offsets": "(j,k,3) float64 mm, same point_indices",
+            "landmarks.<side>.points": "(12,3) float64 rest eyelid landmarks",
+            "landmarks.<side>.edge": "(12,2) int64 margin edge of each landmark",
+            "landmarks.<side>.t": "(12,) float64 position on the edge",
+            "landmarks.<side>.shape_names / .<shape>.*": "landmark-curve shapes, same layout, "
+                                                          "point_indices 0..11",
+            "loop_<side>": "(L,) int64 eyelid margin loop (medial canthus first, upper lid first)",
+            "lids_down.texture_mask": "(n,) float64 per-vertex mask of the smoothed down variant",
+        },
+    }
+    metrics = {
+        "n_vertices": int(len(V)), "n_faces": int(len(F)),
+        "n_segments": rig.n_segments, "interpolation_error_mm": rig.predicted_sag_mm,
+        **{f"{s.name}_n_points": int(len(s.point_indices)) for s in rig.shapes},
+        "sweep_step_deg": step,
+        **{f"sweep_{k}": v for k, v in sweep.items()},
+        **motion,
+        "build_s": round(t_build, 4), "sweep_s": round(t_sweep, 4),
+    }
+    return arrays, doc, metrics
