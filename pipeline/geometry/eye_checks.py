@@ -98,7 +98,8 @@ def inside_area(V, F, center, radius, forward, around, lim: CheckLimits, rms=0.0
     near = np.linalg.norm(V - around, axis=1) < lim.radius_mm
     if not near.any():
         return 0.0
-    a = vertex_areas(V, F)[near]
+    Fn = F[near[F].any(axis=1)]          # the faces around the neighbourhood give its areas
+    a = vertex_areas(V, Fn)[near]
     w = V[near] - center
     nw = np.linalg.norm(w, axis=1)
     d = nw - radius
@@ -113,8 +114,7 @@ def convex_fill(loop_points, center, forward, strip_mm=0.0):
     With ``strip_mm`` also returns the fill a loop may lose to a strip that wide along it
     (a loop made of coarse edges zigzags by a fraction of an edge): ``(fill, allowance)``.
     """
-    from scipy.spatial import ConvexHull
-    from scipy.spatial import QhullError
+    from scipy.spatial import ConvexHull, QhullError
 
     from pipeline.geometry.frame import eye_basis
 
