@@ -171,3 +171,21 @@ def test_bad_ingest_params_one_line(tmp_path, capsys, params, problem):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "p.yaml" in err and problem in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_ascii_stl_reader_matches_trimesh(tmp_path):
+    """The chunked ASCII STL reader gives trimesh's corners; a layout it does not know goes to trimesh."""
+    import trimesh
+    from trimesh.exchange.stl import load_stl as trimesh_stl
+
+    from pipeline.io.load import _stl_ascii_corners
+
+    V, F, _ = head_mesh(3)
+    text = trimesh.Trimesh(V, F, process=False).export(file_type="stl_ascii")
+    (tmp_path / "a.stl").write_text(text)
+    with open(tmp_path / "a.stl", "rb") as fh:
+        ref = np.asarray(trimesh_stl(fh)["vertices"]).reshape(-1, 3)
+    got = _stl_ascii_corners(tmp_path / "a.stl", chunk=4096)       # many chunks
+    np.testing.assert_array_equal(got, ref)
+    (tmp_path / "b.stl").write_text(text.upper())
+    assert _stl_ascii_corners(tmp_path / "b.stl") is None

@@ -1055,6 +1055,42 @@ def _count_word(path: Path, word: bytes, chunk: int = 1 << 22) -> int:
     return n
 
 
+_STL_WORDS = (b"endfacet", b"facet", b"normal", b"outer", b"endloop", b"loop", b"vertex")   # longest first
+
+
+def _stl_ascii_corners(path: Path, chunk: int = 1 << 24):
+    """The corners (3 per facet, float64 (3n, 3)) of a plain ASCII STL, read in chunks of whole facets
+    with the keywords blanked and one numpy parse per chunk (memory: the corners, not the text).
+    None when the file does not have the plain one-solid lower-case layout (trimesh then reads it)."""
+    parts, pending = [], b""
+    with open(path, "rb") as fh:
+        fh.readline(1 << 16)                     # "solid <name>"
+        while True:
+            block = fh.read(chunk)
+            data = pending + block
+            if not block:
+                rest = data.strip()
+                if rest and not rest.startswith(b"endsolid"):
+                    return None
+                break
+            cut = data.rfind(b"endfacet")
+            if cut < 0:
+                if len(data) > chunk:            # no facet end in a whole chunk: not the plain layout
+                    return None
+                pending = data
+                continue
+            cut += len(b"endfacet")
+            body, pending = data[:cut], data[cut:]
+            n = body.count(b"endfacet")
+            for word in _STL_WORDS:
+                body = body.replace(word, b" ")
+            vals = _numbers(body)
+            if vals is None or vals.size != 12 * n:
+                return None
+            parts.append(vals.reshape(n, 12)[:, 3:])             # drop the facet normals
+    return np.concatenate(parts).reshape(-1, 3) if parts else np.zeros((0, 3))
+
+
 def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     """Load an ASCII or binary STL (a triangle soup; duplicates are merged by the repair step)."""
     path = Path(path)
@@ -1072,6 +1108,11 @@ def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
                                   f"has {size} bytes (truncated or not an STL)")
     else:                                        # no header count: count the corners before parsing
         _check_counts(path, 0, _count_word(path, b"vertex") // 3, limits)
+        V = _stl_ascii_corners(path)
+        if V is not None:
+            if len(V) == 0:
+                raise ScanError(path, "no triangles found")
+            return LoadedMesh(V=V, F=np.arange(len(V), dtype=np.int64).reshape(-1, 3), files_read=[path])
     from trimesh.exchange import stl as tstl
 
     try:
