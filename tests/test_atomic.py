@@ -3,6 +3,7 @@
 import json
 import os
 import stat
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -180,3 +181,22 @@ def test_children_die_with_their_parent(tmp_path):
     else:
         os.kill(child, signal.SIGKILL)
         pytest.fail("the child outlived its killed parent")
+
+
+def test_run_stage_gives_each_stage_its_own_scratch_and_removes_it(tmp_path, monkeypatch):
+    import tempfile
+
+    from stages._common import run_stage
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    seen = []
+
+    def main(argv):
+        seen.append(Path(tempfile.gettempdir()))
+        (seen[0] / "blender_scratch").mkdir()
+        return None
+
+    assert run_stage(main, []) == 0
+    assert seen[0].parent == tmp_path and seen[0].name.startswith(f"eyerig-test_atomic-{os.getpid()}-")
+    assert not seen[0].exists() and list(tmp_path.iterdir()) == []
