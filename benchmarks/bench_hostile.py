@@ -12,8 +12,8 @@ Targets (issue 12): an over-limit input is refused within 2 s and 500 MiB; an in
 within the limits ingests within 2.5 GiB. ``tests/test_hostile_inputs.py`` runs the
 same cases and asserts the messages and bounds. ``--at-limits`` adds the largest scan
 the default limits accept (the ``bench_ingest`` head at 4,998,002 vertices and 9,996,000
-triangles: binary PLY with a 1024^2 texture, the same as OBJ + MTL, and as GLB with UVs;
-about 1.2 GB on disk, cached in the temp folder), run under the stage's own bound only.
+triangles: binary PLY with a 1024^2 texture, the same as OBJ + MTL, as GLB with UVs and as
+binary STL; about 1.7 GB on disk, cached in the temp folder), run under the stage's own bound only.
 """
 
 from __future__ import annotations
@@ -691,14 +691,31 @@ def glb_scan(folder: Path, rows: int, cols: int) -> Path:
     return folder
 
 
+def stl_scan(folder: Path, rows: int, cols: int) -> Path:
+    """The bench_ingest lat/long head as a binary STL (a triangle soup); cached."""
+    from benchmarks.bench_ingest import latlong_head
+
+    if (folder / "scan.yaml").exists():
+        return folder
+    folder.mkdir(parents=True, exist_ok=True)
+    V, F, _, hints = latlong_head(rows, cols)
+    records = np.zeros(len(F), dtype=[("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+    records["corners"] = V[F]
+    with open(folder / "scan.stl", "wb") as fh:
+        fh.write(b"\0" * 80 + struct.pack("<I", len(F)))
+        fh.write(records.tobytes())
+    write_sidecar(folder, hints, mesh="scan.stl")
+    return folder
+
+
 def at_limits(fmt: str) -> dict:
     """Ingest the largest head the default limits accept (cached bench_ingest folders); one result row."""
     from benchmarks.bench_ingest import build_obj_scan, build_scan
 
     rows_, cols = 2500, 2000                     # 2 * 2000 * 2499 = 9,996,000 triangles
     work = Path(tempfile.gettempdir()) / "eyerig_bench_ingest"
-    if fmt == "glb":
-        folder = glb_scan(work / f"head_{rows_}x{cols}_glb", rows_, cols)
+    if fmt in ("glb", "stl"):
+        folder = (glb_scan if fmt == "glb" else stl_scan)(work / f"head_{rows_}x{cols}_{fmt}", rows_, cols)
     else:
         folder = build_scan(work / f"head_{rows_}x{cols}", rows_, cols)
     if fmt == "obj":
@@ -718,12 +735,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "hostile.json"))
     ap.add_argument("--cap-mib", type=float, default=1536, help="address-space cap of each ingest child")
-    ap.add_argument("--at-limits", action="store_true", help="also ingest a 10M-triangle PLY, OBJ and GLB")
+    ap.add_argument("--at-limits", action="store_true", help="also ingest a 10M-triangle PLY, OBJ, GLB and STL")
     args = ap.parse_args(argv)
     rows = []
     todo = [(c.name, c.build, "refused") for c in CASES] + [(a.__name__[2:], a, "accepted") for a in ACCEPTED]
     if args.at_limits:
-        rows += [at_limits(fmt) for fmt in ("ply", "obj", "glb")]
+        rows += [at_limits(fmt) for fmt in ("ply", "obj", "glb", "stl")]
     for name, build, expect in todo:
         with tempfile.TemporaryDirectory(prefix="hostile-") as tmp:
             tmp = Path(tmp)

@@ -107,7 +107,7 @@ def test_stl_triangle_count_checked_from_header_not_soup_vertices(tmp_path):
         fh.write(b"\0" * 80 + struct.pack("<I", n))
         fh.truncate(84 + 50 * n)
     mesh = load_stl(path, tmp_path, Limits())
-    assert len(mesh.F) == n and len(mesh.V) == 3 * n
+    assert len(mesh.F) == n and len(mesh.V) == 1 and mesh.merged_vertices == 3 * n - 1   # all corners at 0
 
 
 def test_memory_error_in_ingest_is_one_line(tmp_path):

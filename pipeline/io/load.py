@@ -93,6 +93,8 @@ class LoadedMesh:
         Every file read (mesh, MTL), for the source hash.
     polygons_triangulated : int
         Faces with more than three corners that were fan-triangulated.
+    merged_vertices : int
+        Bit-identical vertices the loader already merged (an STL soup), counted with the repairs.
     """
 
     V: np.ndarray
@@ -104,6 +106,7 @@ class LoadedMesh:
     texture_bytes: bytes | None = None
     files_read: list = field(default_factory=list)
     polygons_triangulated: int = 0
+    merged_vertices: int = 0
 
 
 def check_file_size(path, limits: Limits) -> int:
@@ -1055,6 +1058,37 @@ def _count_word(path: Path, word: bytes, chunk: int = 1 << 22) -> int:
     return n
 
 
+_STL_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+
+
+def _stl_mesh(path: Path, corners: np.ndarray) -> LoadedMesh:
+    """A triangle soup's corners (3 per facet) -> LoadedMesh with bit-identical corners merged.
+
+    Merging here keeps the soup's three copies of every vertex from being converted and
+    repaired (10M triangles: 30M corners); the repair step merges the rest within its tolerance.
+    """
+    if len(corners) == 0:
+        raise ScanError(path, "no triangles found")
+    bits = corners.view(np.uint32 if corners.dtype.itemsize == 4 else np.uint64)
+    key = bits[:, 0].astype(np.int64) * np.int64(73856093)
+    key ^= bits[:, 1].astype(np.int64) * np.int64(19349663)
+    key ^= bits[:, 2].astype(np.int64) * np.int64(83492791)
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    del key
+    inverse = inverse.reshape(-1)
+    same = all(np.array_equal(bits[first[inverse[i:i + (1 << 20)]]], bits[i:i + (1 << 20)])
+               for i in range(0, len(bits), 1 << 20))
+    if not same:                                 # a hash collision: leave the merging to the repair step
+        return LoadedMesh(V=corners.astype(np.float64), F=np.arange(len(corners)).reshape(-1, 3),
+                          files_read=[path])
+    order = np.argsort(first, kind="stable")     # keep the order of first appearance
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    V = corners[first[order]].astype(np.float64)
+    return LoadedMesh(V=V, F=rank[inverse].reshape(-1, 3), files_read=[path],
+                      merged_vertices=len(corners) - len(V))
+
+
 _STL_WORDS = (b"endfacet", b"facet", b"normal", b"outer", b"endloop", b"loop", b"vertex")   # longest first
 
 
@@ -1106,13 +1140,13 @@ def load_stl(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         if 84 + 50 * n != size:
             raise ScanError(path, f"binary STL header says {n} triangles ({84 + 50 * n} bytes) but the file "
                                   f"has {size} bytes (truncated or not an STL)")
+        records = np.fromfile(path, dtype=_STL_RECORD, count=n, offset=84)
+        return _stl_mesh(path, records["corners"].reshape(-1, 3))
     else:                                        # no header count: count the corners before parsing
         _check_counts(path, 0, _count_word(path, b"vertex") // 3, limits)
-        V = _stl_ascii_corners(path)
-        if V is not None:
-            if len(V) == 0:
-                raise ScanError(path, "no triangles found")
-            return LoadedMesh(V=V, F=np.arange(len(V), dtype=np.int64).reshape(-1, 3), files_read=[path])
+        corners = _stl_ascii_corners(path)
+        if corners is not None:
+            return _stl_mesh(path, corners)
     from trimesh.exchange import stl as tstl
 
     try:
@@ -1655,7 +1689,7 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
     limits = settings.limits
     loaded = load_mesh_file(spec.mesh, spec.folder, limits)
     files = [spec.sidecar, *loaded.files_read]
-    n_in, m_in = len(loaded.V), len(loaded.F)
+    n_in, m_in = len(loaded.V) + loaded.merged_vertices, len(loaded.F)
     mesh_file = spec.mesh
     V = frame.to_head_frame(loaded.V, spec.units, spec.up_axis, spec.forward_axis)
     loaded.V = None
@@ -1664,6 +1698,7 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
     frame.check_head_size(V, spec.units, mesh_file, settings.head_size_mm)
     separation = frame.check_eye_layout(hints["left"], hints["right"], spec.sidecar, settings.eye_separation_mm)
     fixed = repair.repair_mesh(V, loaded.F, hints, settings.repair, path=mesh_file)
+    fixed.counts["merged_vertices"] += loaded.merged_vertices
     del V
     loaded.F = None                              # the repaired F replaces it (memory at the limits)
     V, F = fixed.V, fixed.F
