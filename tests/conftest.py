@@ -3,13 +3,19 @@
 Real scans live outside the project (``../shared/scans``); tests that need them
 read the folder from ``EYERIG_EXTRA_SCANS`` and skip cleanly when it is unset.
 
-The scan-folder builders below (a head-sized ellipsoid with two eye bumps, written
-as PLY / OBJ with a ``scan.yaml``) are shared by the ingest tests: import them with
-``from conftest import make_scan, ...``.
+Builders shared by several test files live here; import them with
+``from conftest import make_scan, ...``:
+
+* scan folders (a head-sized ellipsoid with two eye bumps, written as PLY / OBJ with a
+  ``scan.yaml``): ingest, frame and hostile-input tests;
+* ``face_patch``: a bumpy height-field face with two eyelid openings (retopo, bake);
+* ``make_inputs`` / ``usd_argv``: the usd stage's inputs for a tiny fake scan (usd, render,
+  Blender import and asset-preview tests).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import struct
 import zlib
@@ -23,8 +29,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def extra_scans_dir() -> Path | None:
+    # absolute: the stages refuse '..' in a path (scan names never climb out of raw_scans/),
+    # and the README's command gives ../shared/scans
     value = os.environ.get("EYERIG_EXTRA_SCANS")
-    return Path(value) if value else None
+    return Path(value).resolve() if value else None
 
 
 @pytest.fixture
@@ -202,3 +210,129 @@ def png_header_only(path, width, height):
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
     Path(path).write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 16))
                            + chunk(b"IEND", b""))
+
+
+# ---------------------------------------------------------------------------- face patch (retopo, bake)
+
+EYE_CENTRES = {"left": np.array([32.0, 36.0, 70.0]), "right": np.array([-32.0, 36.0, 70.0])}
+
+
+def height(x, y):
+    return 80.0 + 2.0 * np.sin(x / 7.0) * np.cos(y / 9.0) + 0.3 * np.sin(x / 1.3 + y / 1.7)
+
+
+def face_patch(step=0.8, hole_a=12.0, hole_b=5.0):
+    """A bumpy height-field 'face' (z up to the viewer) with two elliptical eye openings.
+
+    Returns V, F (CCW seen from +z) and eyes = {side: {center, loop_indices}} with each
+    loop ordered from the medial canthus over the upper lid (contract of remove_eyeballs).
+    """
+    from pipeline.geometry import mesh_checks as mc
+
+    xs = np.arange(-60.0, 60.0 + 1e-9, step)
+    ys = np.arange(0.0, 72.0 + 1e-9, step)
+    X, Y = np.meshgrid(xs, ys)
+    V = np.stack([X.ravel(), Y.ravel(), height(X, Y).ravel()], axis=1)
+    nx = len(xs)
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(len(ys) - 1))
+    a = (j * nx + i).ravel()
+    b, c, d = a + 1, a + nx + 1, a + nx
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    cen = V[F].mean(axis=1)
+    keep = np.ones(len(F), dtype=bool)
+    for c0 in EYE_CENTRES.values():
+        keep &= ((cen[:, 0] - c0[0]) / hole_a) ** 2 + ((cen[:, 1] - (c0[1] - 3)) / hole_b) ** 2 > 1.0
+    F = F[keep]
+    used = np.unique(F)
+    remap = -np.ones(len(V), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    V, F = V[used], remap[F]
+    eyes = {}
+    for side, c0 in EYE_CENTRES.items():
+        loop = min(mc.boundary_loops(F), key=lambda l: np.linalg.norm(V[l].mean(0)[:2] - c0[:2]))
+        P = V[loop]
+        loop = np.roll(loop, -int(np.argmin(np.abs(P[:, 0]))))
+        if V[loop[len(loop) // 4], 1] < V[loop, 1].mean():
+            loop = np.roll(loop[::-1], 1)
+        eyes[side] = {"center": c0, "loop_indices": loop}
+    return V, F, eyes
+
+
+# ---------------------------------------------------------------------------- usd-stage inputs (usd, render, Blender)
+
+EYES = {"left": {"center": [32.0, 0.5, 76.0], "radius": 12.5,
+                 "forward": list(np.array([0.08, 0.05, 1.0]) / np.linalg.norm([0.08, 0.05, 1.0]))},
+        "right": {"center": [-31.0, -0.4, 76.5], "radius": 12.5, "forward": [0.0, 0.0, 1.0]}}
+R1 = 12.0   # parametric eyeball radius
+
+
+def _shape(name, idx, off, sag):
+    from pipeline.rig.lids import BlendShape
+
+    w = np.array([1 / 3, 2 / 3])
+    ib = np.stack([wi * off + sag * np.sin(np.pi * wi) for wi in w])
+    return BlendShape(name=name, point_indices=np.asarray(idx, np.int64), offsets=off,
+                      inbetween_weights=w, inbetween_offsets=ib)
+
+
+def make_inputs(root: Path, n_x: int = 23, n_y: int = 11) -> dict:
+    """build/<scan>/{snap,bake,rig,ingest} + rigged_assets/eyeball for a tiny fake scan under ``root``."""
+    from PIL import Image
+
+    from pipeline.bake.exr import write_exr
+    from pipeline.eyeball import geometry as geo
+    from pipeline.eyeball import textures as etex
+    from pipeline.io.meshfile import save_mesh
+    from pipeline.rig import lids
+    from pipeline.usd.eyeball import write_eyeball_usd
+
+    b = root / "build" / "tiny"
+    dirs = {k: b / k for k in ("snap", "bake", "rig", "ingest")}
+    for d in dirs.values():
+        d.mkdir(parents=True)
+    eb = root / "rigged_assets" / "eyeball"
+    (eb / "textures").mkdir(parents=True)
+    for name, img in etex.texture_set(0, 32, (32, 16)).items():
+        Image.fromarray(img).save(eb / "textures" / name)
+    write_eyeball_usd(geo.build_eyeball(resolution="low"), eb / "eyeball.usda")
+
+    x, y = np.meshgrid(np.linspace(-55, 55, n_x), np.linspace(-25, 25, n_y))
+    V = np.stack([x.ravel(), y.ravel(), 86.0 + 0.01 * x.ravel() ** 2 * 0], 1)
+    g = np.arange(n_x * n_y).reshape(n_y, n_x)
+    a, bq, c, d = g[:-1, :-1].ravel(), g[:-1, 1:].ravel(), g[1:, 1:].ravel(), g[1:, :-1].ravel()
+    F = np.concatenate([np.stack([a, bq, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+    UV = (V[:, :2] - V[:, :2].min(0)) / np.ptp(V[:, :2], 0)
+    save_mesh(dirs["snap"] / "mesh.npz", V=V, F=F, UV=UV, FUV=F.copy())
+
+    near = np.flatnonzero(np.abs(V[:, 1]) < 12)
+    fall = np.exp(-(V[near, 1] / 6) ** 2)[:, None]
+    shapes = [_shape(lids.SHAPE_UP, near, fall * [0, 1.5, 0.2], fall * [0, 0, -0.15]),
+              _shape(lids.SHAPE_DOWN, near, fall * [0, -1.2, 0.1], fall * [0, 0, -0.1])]
+    arrays = lids.shapes_to_arrays(shapes)
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    for side, e in EYES.items():
+        c = np.asarray(e["center"])
+        pts = c + np.stack([-np.cos(t) * 12 * np.sign(c[0]), 5 * np.sin(t), np.full(12, 10.0)], 1)
+        lup = [_shape(lids.SHAPE_UP, np.arange(12), np.tile([0, 1.0, 0], (12, 1)), np.zeros((12, 3))),
+               _shape(lids.SHAPE_DOWN, np.arange(12), np.tile([0, -1.0, 0], (12, 1)), np.zeros((12, 3)))]
+        arrays[f"landmarks.{side}.points"] = pts
+        arrays.update(lids.shapes_to_arrays(lup, prefix=f"landmarks.{side}."))
+    np.savez(dirs["rig"] / "rig.npz", **arrays)
+    rig_json = {"weight_rule": lids.weight_rule(25.0),
+                "eyes": {s: dict(e, joint=f"eye_{s}", surface={"parametric_eye": {"r1": R1}})
+                         for s, e in EYES.items()}}
+    (dirs["rig"] / "rig.json").write_text(json.dumps(rig_json))
+    (dirs["ingest"] / "scan.json").write_text(json.dumps(
+        {"name": "tiny", "source_sha256": "ab" * 32, "licence": "CC0-1.0 (test)"}))
+    Image.fromarray(np.full((16, 16, 3), 180, np.uint8)).save(dirs["bake"] / "color.png")
+    write_exr(dirs["bake"] / "displacement.exr", np.linspace(-0.2, 0.2, 256).reshape(16, 16))
+    (dirs["bake"] / "bake.json").write_text("{}")
+    return {"dirs": dirs, "eyeball": eb, "out": root / "rigged_assets" / "tiny", "V": V, "F": F,
+            "shapes": shapes, "arrays": arrays, "metrics": b / "usd.metrics.json"}
+
+
+def usd_argv(inp, out=None):
+    """The usd stage's command line for ``make_inputs``' folders (no params file: the defaults)."""
+    d = inp["dirs"]
+    return [str(d["snap"]), str(d["bake"]), str(d["rig"]), str(d["ingest"]), str(inp["eyeball"]),
+            str(out or inp["out"]), "--metrics", str(inp["metrics"]), "--params", "/nonexistent.yaml"]
