@@ -183,11 +183,25 @@ def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
         spec = getattr(sys.modules.get("__main__"), "__spec__", None)
         module = spec.name if spec is not None else "stage"
     stage = module.rsplit(".", 1)[-1]
+    # a stage that starts clears what killed runs left: temporary siblings of its paths whose
+    # writer is gone (only those: a live run's are kept)
+    from pipeline.io.atomic import remove_stale_siblings
+
+    for word in argv:
+        if word and not word.startswith("-"):
+            remove_stale_siblings(Path(word))
     try:
         with stage_scratch(stage):      # its own TMPDIR (Blender, Dask), removed at exit
             metrics = main(argv)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MemoryError:
+        print(f"error: {stage}: ran out of memory (peak {peak_memory_mib():.0f} MiB); the input is "
+              f"too large for this machine or over the limits", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OverflowError as exc:
+        print(f"error: {stage}: a number overflowed ({str(exc)[:100]})", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)

@@ -18,7 +18,7 @@ def _siblings(folder):
 
 def test_atomic_dir_failure_leaves_nothing(tmp_path):
     out = tmp_path / "out"
-    with pytest.raises(RuntimeError):
+    with pytest.raises(RuntimeError, match="^killed$"):
         with atomic_dir(out) as tmp:
             (tmp / "half.bin").write_bytes(b"x")
             raise RuntimeError("killed")
@@ -29,10 +29,10 @@ def test_atomic_dir_failure_keeps_previous_output(tmp_path):
     out = tmp_path / "out"
     with atomic_dir(out) as tmp:
         (tmp / "a.txt").write_text("old")
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="^half written$"):
         with atomic_dir(out) as tmp:
             (tmp / "a.txt").write_text("new, half")
-            raise ValueError
+            raise ValueError("half written")
     assert (out / "a.txt").read_text() == "old"
     assert _siblings(tmp_path) == ["out"]
 
@@ -61,7 +61,7 @@ def test_outputs_honour_umask(tmp_path):
 
 def test_atomic_file_keeps_suffix_and_cleans_up(tmp_path):
     target = tmp_path / "mesh.npz"
-    with pytest.raises(OSError):
+    with pytest.raises(OSError, match="^disk full$"):
         with atomic_file(target) as tmp:
             assert tmp.name.endswith(".npz")
             raise OSError("disk full")
@@ -69,7 +69,7 @@ def test_atomic_file_keeps_suffix_and_cleans_up(tmp_path):
 
 
 def test_write_json_refuses_nan_and_converts_numpy(tmp_path):
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="not JSON compliant: nan"):
         write_json(tmp_path / "bad.json", {"x": float("nan")})
     assert not (tmp_path / "bad.json").exists()
     write_json(tmp_path / "ok.json", {"v": np.arange(3), "s": np.float64(1.5)})
@@ -83,7 +83,7 @@ def test_mesh_container_round_trip_casts_dtypes(tmp_path):
     m = load_mesh(tmp_path / "m.npz")
     assert m["V"].dtype == np.float64 and m["F"].dtype == np.int64
     np.testing.assert_array_equal(m["loop_left"], [0, 1])
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="save_mesh needs at least V and F"):
         save_mesh(tmp_path / "x.npz", V=V)
 
 
@@ -200,3 +200,26 @@ def test_run_stage_gives_each_stage_its_own_scratch_and_removes_it(tmp_path, mon
     assert run_stage(main, []) == 0
     assert seen[0].parent == tmp_path and seen[0].name.startswith(f"eyerig-test_atomic-{os.getpid()}-")
     assert not seen[0].exists() and list(tmp_path.iterdir()) == []
+
+
+def test_a_starting_stage_clears_stale_siblings_of_its_paths(tmp_path, capsys):
+    """A killed run left a temporary output folder (its pid is gone): the next run of the stage
+    removes it when it starts, even if it then fails before writing anything; a live
+    process's temporary is kept."""
+    import os
+
+    from stages._common import run_stage
+
+    out = tmp_path / "out"
+    dead = tmp_path / ".out.tmp-999999999-abc"        # no such pid
+    live = tmp_path / f".out.tmp-{os.getpid()}-def"
+    dead.mkdir()
+    live.mkdir()
+
+    def main(argv):
+        raise MemoryError
+
+    assert run_stage(main, [str(out)]) == 2
+    assert not dead.exists() and live.exists()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "ran out of memory" in err[0]
