@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from PIL import Image
 
+from conftest import make_inputs, usd_argv
 from pipeline.blender.asset_preview import LABEL_H, PAD, TILE_ASPECT, sheet_size
 from stages import usd as usd_stage
 from stages._common import read_stage_metrics, run_stage
-from test_usd import argv, make_inputs
 
 pytestmark = pytest.mark.blender
 SIZE = 32
@@ -22,7 +21,7 @@ def previewed(tmp_path_factory):
     inp = make_inputs(root)
     params = root / "params.yaml"
     params.write_text(f"usd:\n  usdz: false\n  preview: true\n  preview_px: {SIZE}\n  preview_samples: 2\n")
-    args = argv(inp)
+    args = usd_argv(inp)
     args[args.index("--params") + 1] = str(params)
     assert run_stage(usd_stage.main, args) == 0
     return inp, read_stage_metrics(inp["metrics"])
@@ -69,6 +68,6 @@ def test_pose_changes_the_picture_and_lids_match_the_rig(previewed):
 
 def test_no_preview_by_default(tmp_path):
     inp = make_inputs(tmp_path)
-    assert run_stage(usd_stage.main, argv(inp)) == 0
+    assert run_stage(usd_stage.main, usd_argv(inp)) == 0
     assert not (inp["out"] / "preview.png").exists()
     assert "preview_s" not in read_stage_metrics(inp["metrics"])

@@ -12,6 +12,7 @@ import pytest
 import trimesh
 from PIL import Image
 
+from conftest import face_patch
 from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_error, subdivide_displaced
 from pipeline.bake.exr import preview_16bit, read_exr, write_exr
 from pipeline.bake.uv import dilate, rasterize, sample_bilinear, unwrap
@@ -168,9 +169,6 @@ def test_sample_bilinear_pixel_centres():
 
 
 def test_stage_cli(tmp_path):
-    sys.path.insert(0, str(ROOT / "tests"))
-    from test_retopo import face_patch
-
     V, F, eyes = face_patch()
     dense = tmp_path / "remove_eyeballs"
     dense.mkdir()

@@ -10,10 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.rig import lids
+from conftest import EYES, R1, make_inputs, usd_argv
 from stages import usd as usd_stage
 from stages._common import run_stage
-from test_usd import EYES, R1, argv, make_inputs
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.blender
@@ -30,7 +29,7 @@ def _usd_to_blender(P_mm):
 def imported(tmp_path_factory):
     root = tmp_path_factory.mktemp("bl_asset")
     inp = make_inputs(root)
-    assert run_stage(usd_stage.main, argv(inp)) == 0
+    assert run_stage(usd_stage.main, usd_argv(inp)) == 0
     usda = inp["out"] / "tiny.usda"
     res = {}
     for key, pose in (("rest", None), ("posed", {"eye_left": [1, 0, 0, POSE_DEG]})):

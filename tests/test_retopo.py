@@ -9,53 +9,13 @@ import sys
 import numpy as np
 import pytest
 
+from conftest import face_patch
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.retopo import (RetopoSettings, _project_to_polyline, clean_mesh,
                                       count_flipped, retopologize)
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 from stages._common import read_stage_metrics
-
-EYE_CENTRES = {"left": np.array([32.0, 36.0, 70.0]), "right": np.array([-32.0, 36.0, 70.0])}
-
-
-def height(x, y):
-    return 80.0 + 2.0 * np.sin(x / 7.0) * np.cos(y / 9.0) + 0.3 * np.sin(x / 1.3 + y / 1.7)
-
-
-def face_patch(step=0.8, hole_a=12.0, hole_b=5.0):
-    """A bumpy height-field 'face' (z up to the viewer) with two elliptical eye openings.
-
-    Returns V, F (CCW seen from +z) and eyes = {side: {center, loop_indices}} with each
-    loop ordered from the medial canthus over the upper lid (contract of remove_eyeballs).
-    """
-    xs = np.arange(-60.0, 60.0 + 1e-9, step)
-    ys = np.arange(0.0, 72.0 + 1e-9, step)
-    X, Y = np.meshgrid(xs, ys)
-    V = np.stack([X.ravel(), Y.ravel(), height(X, Y).ravel()], axis=1)
-    nx = len(xs)
-    i, j = np.meshgrid(np.arange(nx - 1), np.arange(len(ys) - 1))
-    a = (j * nx + i).ravel()
-    b, c, d = a + 1, a + nx + 1, a + nx
-    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    cen = V[F].mean(axis=1)
-    keep = np.ones(len(F), dtype=bool)
-    for c0 in EYE_CENTRES.values():
-        keep &= ((cen[:, 0] - c0[0]) / hole_a) ** 2 + ((cen[:, 1] - (c0[1] - 3)) / hole_b) ** 2 > 1.0
-    F = F[keep]
-    used = np.unique(F)
-    remap = -np.ones(len(V), dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    V, F = V[used], remap[F]
-    eyes = {}
-    for side, c0 in EYE_CENTRES.items():
-        loop = min(mc.boundary_loops(F), key=lambda l: np.linalg.norm(V[l].mean(0)[:2] - c0[:2]))
-        P = V[loop]
-        loop = np.roll(loop, -int(np.argmin(np.abs(P[:, 0]))))
-        if V[loop[len(loop) // 4], 1] < V[loop, 1].mean():
-            loop = np.roll(loop[::-1], 1)
-        eyes[side] = {"center": c0, "loop_indices": loop}
-    return V, F, eyes
 
 
 @pytest.fixture(scope="module")

@@ -4,95 +4,21 @@ from __future__ import annotations
 
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import EYES, R1, make_inputs, usd_argv
 from pipeline.rig import lids
-from pipeline.rig.lids import BlendShape
 from stages import usd as usd_stage
 from stages._common import run_stage
-
-EYES = {"left": {"center": [32.0, 0.5, 76.0], "radius": 12.5,
-                 "forward": list(np.array([0.08, 0.05, 1.0]) / np.linalg.norm([0.08, 0.05, 1.0]))},
-        "right": {"center": [-31.0, -0.4, 76.5], "radius": 12.5, "forward": [0.0, 0.0, 1.0]}}
-R1 = 12.0   # parametric eyeball radius
-
-
-def _shape(name, idx, off, sag):
-    w = np.array([1 / 3, 2 / 3])
-    ib = np.stack([wi * off + sag * np.sin(np.pi * wi) for wi in w])
-    return BlendShape(name=name, point_indices=np.asarray(idx, np.int64), offsets=off,
-                      inbetween_weights=w, inbetween_offsets=ib)
-
-
-def make_inputs(root: Path, n_x: int = 23, n_y: int = 11) -> dict:
-    """build/<scan>/{snap,bake,rig,ingest} + rigged_assets/eyeball for a tiny fake scan under ``root``."""
-    from PIL import Image
-
-    from pipeline.bake.exr import write_exr
-    from pipeline.eyeball import geometry as geo
-    from pipeline.eyeball import textures as etex
-    from pipeline.io.meshfile import save_mesh
-    from pipeline.usd.eyeball import write_eyeball_usd
-
-    b = root / "build" / "tiny"
-    dirs = {k: b / k for k in ("snap", "bake", "rig", "ingest")}
-    for d in dirs.values():
-        d.mkdir(parents=True)
-    eb = root / "rigged_assets" / "eyeball"
-    (eb / "textures").mkdir(parents=True)
-    for name, img in etex.texture_set(0, 32, (32, 16)).items():
-        Image.fromarray(img).save(eb / "textures" / name)
-    write_eyeball_usd(geo.build_eyeball(resolution="low"), eb / "eyeball.usda")
-
-    x, y = np.meshgrid(np.linspace(-55, 55, n_x), np.linspace(-25, 25, n_y))
-    V = np.stack([x.ravel(), y.ravel(), 86.0 + 0.01 * x.ravel() ** 2 * 0], 1)
-    g = np.arange(n_x * n_y).reshape(n_y, n_x)
-    a, bq, c, d = g[:-1, :-1].ravel(), g[:-1, 1:].ravel(), g[1:, 1:].ravel(), g[1:, :-1].ravel()
-    F = np.concatenate([np.stack([a, bq, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
-    UV = (V[:, :2] - V[:, :2].min(0)) / np.ptp(V[:, :2], 0)
-    save_mesh(dirs["snap"] / "mesh.npz", V=V, F=F, UV=UV, FUV=F.copy())
-
-    near = np.flatnonzero(np.abs(V[:, 1]) < 12)
-    fall = np.exp(-(V[near, 1] / 6) ** 2)[:, None]
-    shapes = [_shape(lids.SHAPE_UP, near, fall * [0, 1.5, 0.2], fall * [0, 0, -0.15]),
-              _shape(lids.SHAPE_DOWN, near, fall * [0, -1.2, 0.1], fall * [0, 0, -0.1])]
-    arrays = lids.shapes_to_arrays(shapes)
-    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
-    for side, e in EYES.items():
-        c = np.asarray(e["center"])
-        pts = c + np.stack([-np.cos(t) * 12 * np.sign(c[0]), 5 * np.sin(t), np.full(12, 10.0)], 1)
-        lup = [_shape(lids.SHAPE_UP, np.arange(12), np.tile([0, 1.0, 0], (12, 1)), np.zeros((12, 3))),
-               _shape(lids.SHAPE_DOWN, np.arange(12), np.tile([0, -1.0, 0], (12, 1)), np.zeros((12, 3)))]
-        arrays[f"landmarks.{side}.points"] = pts
-        arrays.update(lids.shapes_to_arrays(lup, prefix=f"landmarks.{side}."))
-    np.savez(dirs["rig"] / "rig.npz", **arrays)
-    rig_json = {"weight_rule": lids.weight_rule(25.0),
-                "eyes": {s: dict(e, joint=f"eye_{s}", surface={"parametric_eye": {"r1": R1}})
-                         for s, e in EYES.items()}}
-    (dirs["rig"] / "rig.json").write_text(json.dumps(rig_json))
-    (dirs["ingest"] / "scan.json").write_text(json.dumps(
-        {"name": "tiny", "source_sha256": "ab" * 32, "licence": "CC0-1.0 (test)"}))
-    Image.fromarray(np.full((16, 16, 3), 180, np.uint8)).save(dirs["bake"] / "color.png")
-    write_exr(dirs["bake"] / "displacement.exr", np.linspace(-0.2, 0.2, 256).reshape(16, 16))
-    (dirs["bake"] / "bake.json").write_text("{}")
-    return {"dirs": dirs, "eyeball": eb, "out": root / "rigged_assets" / "tiny", "V": V, "F": F,
-            "shapes": shapes, "arrays": arrays, "metrics": b / "usd.metrics.json"}
-
-
-def argv(inp, out=None):
-    d = inp["dirs"]
-    return [str(d["snap"]), str(d["bake"]), str(d["rig"]), str(d["ingest"]), str(inp["eyeball"]),
-            str(out or inp["out"]), "--metrics", str(inp["metrics"]), "--params", "/nonexistent.yaml"]
 
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     root = tmp_path_factory.mktemp("usd")
     inp = make_inputs(root)
-    assert run_stage(usd_stage.main, argv(inp)) == 0
+    assert run_stage(usd_stage.main, usd_argv(inp)) == 0
     return inp
 
 
@@ -243,7 +169,7 @@ def test_usdz_self_contained_and_folder_movable(built, tmp_path):
 
 
 def _fail(inp, capsys):
-    rc = run_stage(usd_stage.main, argv(inp))
+    rc = run_stage(usd_stage.main, usd_argv(inp))
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and err.startswith("error: ")
     assert not inp["out"].exists()
@@ -318,7 +244,7 @@ def test_same_inputs_give_byte_identical_asset(built):
     out = built["out"]
     first = _tree_bytes(out)
     time.sleep(1.1)
-    assert run_stage(usd_stage.main, argv(built)) == 0
+    assert run_stage(usd_stage.main, usd_argv(built)) == 0
     second = _tree_bytes(out)
     assert sorted(first) == sorted(second) and "tiny.usdz" in first
     assert [k for k in first if first[k] != second[k]] == []
