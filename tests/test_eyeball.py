@@ -182,9 +182,9 @@ def test_bad_parameters_refused():
         geo.Resolution.preset("ultra")
     with pytest.raises(ValueError, match="apex"):
         geo.EyeballParams(apex=11.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="pupil_dilated_mm .* must stay smaller than the small iris"):
         geo.EyeballParams(pupil_dilated_mm=6.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"r1 must be a finite number \(got nan\)"):
         geo.EyeballParams(r1=float("nan"))
     with pytest.raises(ValueError, match="unknown eyeball geometry"):
         geo.EyeballParams.from_dict({"radius": 12})
@@ -237,9 +237,9 @@ def test_sclera_textures():
     redness = lambda im: (im[..., 0] - im[..., 1]).mean()  # noqa: E731
     assert redness(bs) > redness(cl) + 0.01
     assert cl.mean() > 0.8
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="unknown veins layer 'green'"):
         tex.sclera_texture("green")
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="unknown iris colour 'violet'"):
         tex.iris_texture("violet")
 
 

@@ -1,7 +1,6 @@
 """Stage ingest: good inputs in every format, repairs, real scans.
 
-The scan-folder builders (a head-sized ellipsoid with two eye bumps) live in
-``conftest.py``; they are re-exported here for ``test_frame.py``.
+The scan-folder builders (a head-sized ellipsoid with two eye bumps) live in ``conftest.py``.
 """
 
 from __future__ import annotations
@@ -15,8 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import (ROOT, head_mesh, ingest, make_scan, sphere_uv, write_obj,  # noqa: F401 - re-exported
-                      write_ply, write_png, write_sidecar)
+from conftest import (ROOT, head_mesh, ingest, make_scan, sphere_uv, write_obj, write_ply, write_png,
+                      write_sidecar)
 from pipeline.io.meshfile import load_mesh
 
 
@@ -428,10 +427,9 @@ def test_ply_texturefile_comment(tmp_path):
 
 
 def test_synthetic_head_generator_output(tmp_path):
-    """The teammate's generator (pipeline/synthetic_head.py) writes a folder ingest accepts as is."""
-    synthetic = pytest.importorskip("pipeline.synthetic_head")
-    if not all(hasattr(synthetic, f) for f in ("make_synthetic_head", "write_scan_folder")):
-        pytest.skip("synthetic head generator API not available")
+    """The generator (pipeline/synthetic_head.py) writes a folder ingest accepts as is."""
+    from pipeline import synthetic_head as synthetic
+
     head = synthetic.make_synthetic_head(seed=3, target_triangles=20000, texture_size=128)
     folder = tmp_path / "synthetic_head"
     folder.mkdir()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import ScanError
+from pipeline.eyeball.geometry import EyeballParams
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import save_mesh
 from pipeline.rig import landmarks as lmk
@@ -91,9 +92,9 @@ def test_weight_rule_extremes_and_clamping():
         w = lids.lid_weights(p)
         assert 0.0 <= w["lids_up"] <= 1.0 and 0.0 <= w["lids_down"] <= 1.0
         assert w["lids_up"] * w["lids_down"] == 0.0
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="pitch must be finite, got nan"):
         lids.lid_weights(float("nan"))
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="max_pitch_deg must be positive, got 0.0"):
         lids.lid_weights(10.0, max_pitch_deg=0.0)
 
 
@@ -427,7 +428,7 @@ def test_degenerate_triangles_do_not_break_the_rig():
     rig = lids.build_lid_shapes(V, F2, eyes)
     res = lids.sweep_check(V, F2, eyes, rig.shapes, [-25.0, -10.0, 0.0, 10.0, 25.0])
     assert res["flipped_faces"] == 0 and res["max_penetration_mm"] <= 0.1
-    with pytest.raises(ScanError):
+    with pytest.raises(ScanError, match="left eye needs center, radius and forward"):
         lids.eye_frames({"left": {}, "right": {}}, {"V": V, "F": F})
 
 
@@ -590,8 +591,7 @@ def test_pitch_from_gaze_matches_eye_rotation():
 
 @pytest.mark.parametrize("radius", [12.0, 15.4])
 def test_margin_rides_the_corneal_bulge(radius):
-    geometry = pytest.importorskip("pipeline.eyeball.geometry")
-    profile = geometry.EyeballParams()
+    profile = EyeballParams()
     V, F, eyes = two_eye_region(radius=radius, profile=profile, upper_deg=12.0, lower_deg=10.0,
                                 half_width_deg=40.0)
     # the margin really lies on the cornea somewhere (off the sphere by > 0.5 mm)
@@ -627,8 +627,7 @@ def test_skin_on_the_eye_rides_the_turning_cornea():
     rig pushes the skin out by the clearance it would lose (pipeline.rig.lids.follow_surface):
     no skin vertex sinks into the eye at any pitch (the margin-only correction sank it by
     0.016 mm here and flipped 2 faces; 0.46 mm on the james scan)."""
-    geometry = pytest.importorskip("pipeline.eyeball.geometry")
-    V, F, eyes = two_eye_region(radius=15.4, profile=geometry.EyeballParams(), upper_deg=12.0,
+    V, F, eyes = two_eye_region(radius=15.4, profile=EyeballParams(), upper_deg=12.0,
                                 lower_deg=10.0, half_width_deg=40.0, rise_mm=0.3)
     rig = lids.build_lid_shapes(V, F, eyes)
     res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
@@ -639,8 +638,7 @@ def test_skin_on_the_eye_rides_the_turning_cornea():
 
 
 def test_follow_surface_restores_clearance_and_fades_out():
-    geometry = pytest.importorskip("pipeline.eyeball.geometry")
-    profile = geometry.EyeballParams()
+    profile = EyeballParams()
     eye = lids.EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4,
                         profile)
     bulge = float(eye.surface_radius(np.array([[0.0, 0, 1]]))[0]) - 12.0    # 1.5 mm
