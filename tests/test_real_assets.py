@@ -8,7 +8,8 @@ One module-scoped build per scan: the synthetic head (small density, always) and
   skin out of it (within the 0.03 mm chord tolerance) and flips no face;
 * Blender's USD importer (pipeline/blender/usd_roundtrip.py, a subprocess) brings in the mesh with
   its UVs, the two shape keys with the USD offsets (within 1e-4 mm), the armature with the eye
-  joints, both eyes (following their bones) and the textured materials.
+  joints, both eyes (following their bones) and the textured materials (marked ``blender``: the
+  import runs once per asset, only when one of those tests runs).
 
 The chain runs with the project's params.yaml except for a few cost knobs (bake map size, a
 low-resolution eyeball, no previews, no usdz), written to a temporary params file.
@@ -92,14 +93,9 @@ def _roundtrip(usda: Path, out: Path, pose: dict | None = None):
     return data, json.loads(str(data["meta"]))
 
 
-def _build_and_import(chain_root, raw: Path, name: str) -> dict:
+def _build(chain_root, raw: Path, name: str) -> dict:
     root, params, eb = chain_root
-    asset = build_chain(root, params, eb, raw, name)
-    # one import with the left eye bone turned (shape keys and basis do not depend on the pose;
-    # the right eye stays at rest)
-    asset["imported"] = _roundtrip(asset["usda"], root / f"{name}.npz",
-                                   {"eye_left": [1, 0, 0, POSE_DEG]})
-    return asset
+    return build_chain(root, params, eb, raw, name)
 
 
 def _extra(name: str) -> Path:
@@ -119,22 +115,41 @@ def synthetic(chain_root):
     raw = root / "raw_scans" / "synthetic_head"
     assert run_stage(synthetic_head.main, [str(raw), "--metrics", str(root / "synthetic_head.json"),
                                            "--params", str(params)]) == 0
-    return _build_and_import(chain_root, raw, "synthetic_head")
+    return _build(chain_root, raw, "synthetic_head")
 
 
 @pytest.fixture(scope="module")
 def ict_neutral(chain_root):
-    return _build_and_import(chain_root, _extra("ict_neutral"), "ict_neutral")
+    return _build(chain_root, _extra("ict_neutral"), "ict_neutral")
 
 
 @pytest.fixture(scope="module")
 def james(chain_root):
-    return _build_and_import(chain_root, _extra("james"), "james")
+    return _build(chain_root, _extra("james"), "james")
 
 
 @pytest.fixture(params=["synthetic", "ict_neutral", "james"])
 def asset(request):
     return request.getfixturevalue(request.param)
+
+
+@pytest.fixture(scope="module")
+def blender_import(chain_root):
+    """``blender_import(asset)`` -> (arrays, meta) of the asset imported into Blender, once per asset.
+
+    One import with the left eye bone turned (shape keys and basis do not depend on the pose; the
+    right eye stays at rest).
+    """
+    root = chain_root[0]
+    done = {}
+
+    def get(asset: dict):
+        name = asset["name"]
+        if name not in done:
+            done[name] = _roundtrip(asset["usda"], root / f"{name}.npz", {"eye_left": [1, 0, 0, POSE_DEG]})
+        return done[name]
+
+    return get
 
 
 # ------------------------------------------------------------------ geometry of the chain
@@ -181,11 +196,12 @@ def _eye_objects(meta, side):
     return {n: o for n, o in meta["objects"].items() if o["parent"] == f"eye_{side}"}
 
 
-def test_blender_mesh_uvs_materials_and_shape_keys(asset):
+@pytest.mark.blender
+def test_blender_mesh_uvs_materials_and_shape_keys(asset, blender_import):
     from pipeline.io.meshfile import load_mesh
     from pipeline.rig import lids
 
-    data, meta = asset["imported"]
+    data, meta = blender_import(asset)
     snap = load_mesh(asset["build"] / "snap" / "mesh.npz")
     o = meta["objects"]["EyeRegion"]
     assert o["vertices"] == len(snap["V"])
@@ -206,11 +222,12 @@ def test_blender_mesh_uvs_materials_and_shape_keys(asset):
     assert np.abs(W - _usd_to_blender(snap["V"])).max() < 1e-6
 
 
-def test_blender_armature_and_eyes_follow_bones(asset):
+@pytest.mark.blender
+def test_blender_armature_and_eyes_follow_bones(asset, blender_import):
     from pipeline.rig.lids import eye_basis
 
     rig = json.loads((asset["build"] / "rig" / "rig.json").read_text())
-    data, meta = asset["imported"]
+    data, meta = blender_import(asset)
     arm_name, arm = next(iter(meta["armatures"].items()))
     assert {"eye_left", "eye_right"} <= set(arm["bones"])
     for side in SIDES:
