@@ -1,6 +1,6 @@
 """Cost of the rigged asset's Cycles contact sheet (usd stage, ``preview: true``; target ~60 s on 2 cores).
 
-    .venv/bin/python benchmarks/bench_asset_preview.py [ASSET.usda [RIG.npz]] [--runs 3]
+    .venv/bin/python -m benchmarks.bench_asset_preview [ASSET.usda [RIG.npz]] [--runs 3]
 
 Defaults: rigged_assets/synthetic_head/synthetic_head.usda and build/synthetic_head/rig/rig.npz
 (from `dvc repro usd@synthetic_head`). Runs the Blender worker exactly as the stage does (fresh
@@ -22,11 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from pipeline.io.atomic import write_json
+from stages._common import load_params
 
-from pipeline.io.atomic import write_json  # noqa: E402
-from stages._common import load_params  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> int:

@@ -1,6 +1,6 @@
 """Benchmark bake: time vs reconstruction error for map resolutions 256..4096.
 
-    .venv/bin/python benchmarks/bench_bake.py [--triangles 1400000] [--runs 3]
+    .venv/bin/python -m benchmarks.bench_bake [--triangles 1400000] [--runs 3]
         [--resolutions 256 512 1024 2048 4096] [--input DIR]
 
 Input: the synthetic head's remove_eyeballs folder prepared by
@@ -18,12 +18,10 @@ import argparse
 import csv
 import json
 import statistics
-import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 
 def main(argv=None):

@@ -1,6 +1,6 @@
 """Benchmark the ingest stage on a 1.4M-triangle binary PLY (target: <= 5 s wall, <= 2 GiB peak).
 
-    .venv/bin/python benchmarks/bench_ingest.py [--runs 5] [--rows 701 --cols 1000] [--formats ply obj] [--scan DIR]
+    .venv/bin/python -m benchmarks.bench_ingest [--runs 5] [--rows 701 --cols 1000] [--formats ply obj] [--scan DIR]
 
 Builds (once, cached under a temp folder) a head-sized ellipsoid with two eye
 bumps tessellated as a latitude/longitude grid of 2*C*(R-1) triangles
@@ -152,7 +152,7 @@ def main(argv=None):
     result = {
         "what": "python -m stages.ingest as a subprocess; ply = binary PLY (float32 xyz + s,t UVs) + 1024^2 "
                 "PNG texture named in scan.yaml; obj = same head as OBJ (f v/vt) + MTL map_Kd",
-        "command": ".venv/bin/python benchmarks/bench_ingest.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "command": ".venv/bin/python -m benchmarks.bench_ingest " + " ".join(argv if argv is not None else sys.argv[1:]),
         "targets": {"format": "ply", "wall_s": 5.0, "peak_rss_mib": 2048},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
     }

@@ -1,6 +1,6 @@
 """Render stage speed, worker memory and scaling (issue 6 targets).
 
-    .venv/bin/python benchmarks/bench_render.py [--scan synthetic_head] [--images 200] [--runs 1]
+    .venv/bin/python -m benchmarks.bench_render [--scan synthetic_head] [--images 200] [--runs 1]
         [--memory 500] [--scaling 24] [--skip stage,memory,scaling]
 
 Needs rigged_assets/<scan> and build/<scan>/rig (``dvc repro usd@<scan>``). Three measurements:
@@ -38,11 +38,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from pipeline.io.atomic import write_json
+from stages._common import read_stage_metrics
 
-from pipeline.io.atomic import write_json  # noqa: E402
-from stages._common import read_stage_metrics  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 RESULTS = ROOT / "benchmarks" / "results"
 

@@ -1,6 +1,6 @@
 """Benchmark retopo: time vs error for each method and polygon count, plus the stage chain at 1.4M faces.
 
-    .venv/bin/python benchmarks/bench_retopo.py [--triangles 1400000] [--runs 3]
+    .venv/bin/python -m benchmarks.bench_retopo [--triangles 1400000] [--runs 3]
         [--methods quadric isotropic] [--targets 2000 4500 9000 18000] [--input DIR]
 
 Input: the synthetic head (``pipeline.synthetic_head``, seed 7, ``--triangles``
@@ -26,7 +26,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 
 def prepare_input(triangles: int, seed: int = 7) -> tuple[Path, dict]:

@@ -1,6 +1,6 @@
 """Rig trade-off: chord-sag target -> stored poses (inbetweens), accuracy, size and time.
 
-    EYERIG_EXTRA_SCANS=/work/shared/scans .venv/bin/python benchmarks/bench_rig.py
+    EYERIG_EXTRA_SCANS=/work/shared/scans .venv/bin/python -m benchmarks.bench_rig
 
 On the ICT-FaceKit eye region (r = 15.4 mm eyes, margins projected onto the eyeball
 spheres, as snap does) for each ``max_chord_sag_mm``: number of stored poses per
@@ -11,21 +11,18 @@ the size of the shape data (float32 offsets, as in USD) and the build time
 
 from __future__ import annotations
 
+import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.compare_ict_lids import load_ict
+from pipeline.io.atomic import write_json
+from pipeline.rig import lids
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-from compare_ict_lids import load_ict  # noqa: E402
-
-from pipeline.io.atomic import write_json  # noqa: E402
-from pipeline.rig import lids  # noqa: E402
 
 
 def ict_eyes(V, remap, gt):
@@ -42,8 +39,9 @@ def ict_eyes(V, remap, gt):
     return eyes
 
 
-def main() -> int:
-    scans = Path(os.environ.get("EYERIG_EXTRA_SCANS", "/work/shared/scans"))
+def main(argv=None) -> int:
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)
+    scans = Path(os.environ.get("EYERIG_EXTRA_SCANS", ROOT.parent / "shared" / "scans"))
     V, F, remap, gt, _ = load_ict(scans)
     eyes = ict_eyes(V, remap, gt)
     pitches = np.arange(-25.0, 25.0 + 1e-9, 0.1)

@@ -1,6 +1,6 @@
 """Synthetic head generation speed vs density (median of repeated runs).
 
-    .venv/bin/python benchmarks/bench_synthetic_head.py [--repeats 3]
+    .venv/bin/python -m benchmarks.bench_synthetic_head [--repeats 3]
 
 Times ``make_synthetic_head`` (surface, ground-truth margin tracing and the
 texture) at 100k, 350k and 1.4M triangles with a 1024 px texture, plus the
@@ -16,16 +16,14 @@ import argparse
 import os
 import platform
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from pipeline.io.atomic import write_json
+from pipeline.synthetic_head import make_synthetic_head, write_scan_folder
 
-from pipeline.io.atomic import write_json  # noqa: E402
-from pipeline.synthetic_head import make_synthetic_head, write_scan_folder  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 TARGET_S = 10.0
 

@@ -1,6 +1,6 @@
 """rig + usd time for one eye region (target: at most 3 s together for ~9k polygons).
 
-    .venv/bin/python benchmarks/bench_usd.py [BUILD_DIR [EYEBALL_DIR]]
+    .venv/bin/python -m benchmarks.bench_usd [BUILD_DIR [EYEBALL_DIR]]
 
 BUILD_DIR defaults to build/synthetic_head (needs snap/, bake/, ingest/ from `dvc repro
 snap@synthetic_head`), EYEBALL_DIR to rigged_assets/eyeball. Runs the two stage commands
@@ -12,6 +12,7 @@ benchmarks/results/usd.json and prints a summary.
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 import subprocess
@@ -23,10 +24,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from pipeline.io.atomic import write_json
 
-from pipeline.io.atomic import write_json  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 RUNS = 5
 
@@ -41,9 +41,12 @@ def _run(cmd):
 
 
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    build = Path(argv[0]) if argv else ROOT / "build" / "synthetic_head"
-    eyeball = Path(argv[1]) if len(argv) > 1 else ROOT / "rigged_assets" / "eyeball"
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("build", nargs="?", type=Path, default=ROOT / "build" / "synthetic_head", metavar="BUILD_DIR")
+    ap.add_argument("eyeball", nargs="?", type=Path, default=ROOT / "rigged_assets" / "eyeball",
+                    metavar="EYEBALL_DIR")
+    args = ap.parse_args(argv)
+    build, eyeball = args.build, args.eyeball
     py = sys.executable
     rows = []
     with tempfile.TemporaryDirectory() as td:

@@ -1,6 +1,6 @@
 """Compare our automatic eyelid shapes with ICT-FaceKit's eyeLookUp/eyeLookDown on the ICT head.
 
-    EYERIG_EXTRA_SCANS=/work/shared/scans .venv/bin/python benchmarks/compare_ict_lids.py
+    EYERIG_EXTRA_SCANS=/work/shared/scans .venv/bin/python -m benchmarks.compare_ict_lids
 
 Builds our lid rig on the neutral ICT-FaceKit skin (face + head_neck parts, mm),
 with the eyeball spheres and eyelid-margin loops of ``ict_neutral/ground_truth.json``
@@ -14,19 +14,18 @@ Writes benchmarks/results/ict_lids.json and prints a summary.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from pipeline.io.atomic import write_json
+from pipeline.rig import lids
 
-from pipeline.io.atomic import write_json  # noqa: E402
-from pipeline.rig import lids  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 SIDES = {"left": "L", "right": "R"}
 
@@ -185,8 +184,9 @@ def draw_figure(path, Vs, F, eyes, deltas, params):
     img.save(path)
 
 
-def main() -> int:
-    scans = Path(os.environ.get("EYERIG_EXTRA_SCANS", "/work/shared/scans"))
+def main(argv=None) -> int:
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)
+    scans = Path(os.environ.get("EYERIG_EXTRA_SCANS", ROOT.parent / "shared" / "scans"))
     V, F, remap, gt, deltas = load_ict(scans)
     eyes = []
     Vs = V.copy()

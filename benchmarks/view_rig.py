@@ -1,6 +1,6 @@
 """Front view of a rigged eye region at pitch +25 / 0 / -25 deg (visual check of the lid shapes).
 
-    .venv/bin/python benchmarks/view_rig.py build/<scan>/snap build/<scan>/rig out.png [--side left]
+    .venv/bin/python -m benchmarks.view_rig build/<scan>/snap build/<scan>/rig out.png [--side left]
 
 Flat-shaded painter's-algorithm render with PIL (no Blender): the skin around one
 eye posed with the stored blend shapes and the pitch-to-weight rule, the eyeball
@@ -11,16 +11,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from pipeline.io.meshfile import load_mesh
+from pipeline.rig import lids
 
-from pipeline.io.meshfile import load_mesh  # noqa: E402
-from pipeline.rig import lids  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def panel(P, F, loop, eye: dict, pitch: float, size=400):

@@ -8,7 +8,7 @@ vertex normals), which is enough at ~1 px per vertex and needs no renderer.
 
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -50,8 +50,10 @@ def _upscale(img, size):
 
 
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    out = Path(argv[0]) if argv else Path("benchmarks/results/synthetic_head.png")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", nargs="?", type=Path, default=Path("benchmarks/results/synthetic_head.png"),
+                    metavar="OUT.png")
+    out = ap.parse_args(argv).out
     tiles = []
     for shape in ("round", "hooded"):
         head = make_synthetic_head(seed=7, target_triangles=1_400_000, eye_shape=shape, texture_size=1024)

@@ -1,0 +1,193 @@
+"""Run every benchmark, one after another, and report what ran, what was skipped and how long each took.
+
+    .venv/bin/python -m benchmarks.run_all [--only NAME ...] [--skip NAME ...] [--full] [--dry-run] [--list]
+
+``make bench`` runs this. Each benchmark runs as ``python -m benchmarks.<name>`` in the project
+root, in the order of :data:`BENCHMARKS` (generator, then the stages in DAG order, the whole
+chain, the unseen scans, then what needs a ``dvc repro`` output, rendering last), and writes its
+own ``benchmarks/results/<name>.json`` as usual. By default each gets modest arguments: the
+problem sizes the README publishes, with one run or repeat instead of 3-5 (the medians are
+noisier, the accuracy figures are the same); ``--full`` uses each benchmark's own defaults.
+
+A benchmark whose inputs are missing is skipped with one printed line saying what it needs:
+
+* the extra scans (``EYERIG_EXTRA_SCANS``, else ``../shared/scans``), passed on to the child in
+  ``EYERIG_EXTRA_SCANS``;
+* scanify (``../shared/tools/scanify/scanify.py``) for the unseen scans;
+* the synthetic head's build products (``make run``, i.e. ``dvc repro``) for usd, the asset
+  preview, the renders and the rig view.
+
+A failing benchmark does not stop the others. At the end a table lists every benchmark with
+``ok``, ``FAILED (exit N)`` or ``skipped`` and its wall time; the same goes to
+``benchmarks/out/run_all.json`` (git-ignored). Exit status 1 when one failed, else 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+SYNTH_BUILD = ROOT / "build" / "synthetic_head"
+SYNTH_ASSET = ROOT / "rigged_assets" / "synthetic_head" / "synthetic_head.usda"
+EYEBALL = ROOT / "rigged_assets" / "eyeball" / "eyeball.usda"
+UNSEEN_WORK = ROOT / "benchmarks" / "out" / "unseen"
+REPORT = ROOT / "benchmarks" / "out" / "run_all.json"
+NOT_BENCHMARKS = {"__init__", "run_all"}
+
+
+@dataclass(frozen=True)
+class Benchmark:
+    """One ``python -m benchmarks.<name>`` run.
+
+    ``args`` are always passed (``{scans}``, ``{scanify}`` are filled in); ``modest`` only without
+    ``--full``; ``needs`` names the inputs checked in :func:`missing` just before it runs.
+    """
+
+    name: str
+    args: tuple[str, ...] = ()
+    modest: tuple[str, ...] = ()
+    needs: tuple[str, ...] = ()
+
+
+BENCHMARKS = (
+    Benchmark("bench_synthetic_head", modest=("--repeats", "1")),
+    Benchmark("view_synthetic_head"),
+    Benchmark("bench_ingest", modest=("--runs", "1")),
+    Benchmark("bench_hostile"),
+    Benchmark("bench_eyeball", modest=("--repeats", "1")),
+    Benchmark("bench_remove_eyeballs", modest=("--repeats", "1")),
+    Benchmark("bench_eyelid_margin", args=("--scans", "{scans}"), needs=("scans",)),
+    Benchmark("bench_retopo", modest=("--runs", "1")),
+    Benchmark("bench_bake", modest=("--runs", "1")),
+    Benchmark("compare_ict_lids", needs=("scans",)),
+    Benchmark("bench_rig", needs=("scans",)),
+    Benchmark("bench_chain", modest=("--repeats", "1")),
+    Benchmark("bench_unseen_scans", args=("--scanify", "{scanify}", "--ict", "{scans}/ict_facekit"),
+              needs=("scans", "scanify")),
+    Benchmark("view_eye_sections", needs=("unseen_work",)),
+    Benchmark("bench_usd", needs=("synthetic_build",)),
+    Benchmark("view_rig", args=(str(SYNTH_BUILD / "snap"), str(SYNTH_BUILD / "rig"),
+                                str(ROOT / "benchmarks" / "out" / "view_rig_synthetic_head.png")),
+              needs=("synthetic_build",)),
+    Benchmark("bench_asset_preview", modest=("--runs", "1"), needs=("synthetic_asset",)),
+    Benchmark("bench_render", needs=("synthetic_asset",)),
+    Benchmark("bench_render_quality", modest=("--repeats", "1"), needs=("synthetic_asset",)),
+)
+
+
+def scans_dir() -> Path | None:
+    """The extra scans: ``EYERIG_EXTRA_SCANS`` when set, else ``../shared/scans``; None when absent."""
+    value = os.environ.get("EYERIG_EXTRA_SCANS")
+    path = Path(value) if value else SHARED / "scans"
+    return path if path.is_dir() else None
+
+
+def missing(need: str) -> str | None:
+    """Why the input ``need`` is not there (one phrase), or None when it is."""
+    if need == "scans":
+        if scans_dir() is None:
+            where = os.environ.get("EYERIG_EXTRA_SCANS") or f"{SHARED / 'scans'} (EYERIG_EXTRA_SCANS unset)"
+            return f"needs the extra scans: {where} not found"
+        return None
+    if need == "scanify":
+        path = SHARED / "tools" / "scanify" / "scanify.py"
+        return None if path.is_file() else f"needs scanify: {path} not found"
+    if need == "unseen_work":
+        return None if UNSEEN_WORK.is_dir() else f"needs {UNSEEN_WORK} (run bench_unseen_scans first)"
+    if need == "synthetic_build":
+        parts = [SYNTH_BUILD / d for d in ("ingest", "bake", "snap", "rig")] + [EYEBALL]
+        gone = [p for p in parts if not p.exists()]
+        return f"needs {gone[0].relative_to(ROOT)} (run `make run` first)" if gone else None
+    if need == "synthetic_asset":
+        gone = [p for p in (SYNTH_ASSET, SYNTH_BUILD / "rig" / "rig.npz") if not p.exists()]
+        return f"needs {gone[0].relative_to(ROOT)} (run `make run` first)" if gone else None
+    raise ValueError(f"unknown requirement {need!r}")
+
+
+def command(b: Benchmark, full: bool) -> list[str]:
+    scans = scans_dir()
+    fill = {"scans": str(scans) if scans else "", "scanify": str(SHARED / "tools" / "scanify" / "scanify.py")}
+    args = [a.format(**fill) for a in b.args] + ([] if full else list(b.modest))
+    return [sys.executable, "-m", f"benchmarks.{b.name}", *args]
+
+
+def unlisted() -> list[str]:
+    """Modules in benchmarks/ that :data:`BENCHMARKS` does not run (keeps the list complete)."""
+    names = {b.name for b in BENCHMARKS} | NOT_BENCHMARKS
+    return sorted(p.stem for p in (ROOT / "benchmarks").glob("*.py") if p.stem not in names)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    names = [b.name for b in BENCHMARKS]
+    ap.add_argument("--only", nargs="+", choices=names, metavar="NAME", help="run only these (in the usual order)")
+    ap.add_argument("--skip", nargs="+", choices=names, metavar="NAME", default=[], help="leave these out")
+    ap.add_argument("--full", action="store_true", help="each benchmark's own default arguments (slower)")
+    ap.add_argument("--dry-run", action="store_true", help="print the commands and the skips; run nothing")
+    ap.add_argument("--list", action="store_true", help="print the benchmarks in order and exit")
+    args = ap.parse_args(argv)
+
+    extra = unlisted()
+    if extra:
+        print(f"run_all: benchmarks/ has modules that BENCHMARKS does not list: {', '.join(extra)}",
+              file=sys.stderr)
+        return 2
+    if args.list:
+        for b in BENCHMARKS:
+            print(b.name)
+        return 0
+
+    env = dict(os.environ)
+    if scans_dir() is not None:
+        env["EYERIG_EXTRA_SCANS"] = str(scans_dir())
+    rows = []
+    t_all = time.perf_counter()
+    for b in BENCHMARKS:
+        if (args.only and b.name not in args.only) or b.name in args.skip:
+            continue
+        why = next((w for w in map(missing, b.needs) if w), None)
+        if why:
+            print(f"--- skip {b.name}: {why}", flush=True)
+            rows.append({"name": b.name, "status": "skipped", "reason": why, "wall_s": 0.0})
+            continue
+        cmd = command(b, args.full)
+        shown = " ".join(["python", *cmd[1:]])
+        if args.dry_run:
+            print(f"--- would run: {shown}", flush=True)
+            rows.append({"name": b.name, "status": "dry-run", "command": shown, "wall_s": 0.0})
+            continue
+        print(f"--- run {b.name}: {shown}", flush=True)
+        t = time.perf_counter()
+        rc = subprocess.run(cmd, cwd=ROOT, env=env).returncode
+        wall = round(time.perf_counter() - t, 1)
+        status = "ok" if rc == 0 else f"FAILED (exit {rc})"
+        print(f"--- {b.name}: {status} in {wall:.1f} s", flush=True)
+        rows.append({"name": b.name, "status": status, "command": shown, "wall_s": wall})
+
+    total = round(time.perf_counter() - t_all, 1)
+    width = max((len(r["name"]) for r in rows), default=10)
+    print()
+    print("benchmark".ljust(width + 2) + "status".ljust(20) + "   wall")
+    for r in rows:
+        detail = r.get("reason", "")
+        print(f"{r['name']:<{width + 2}}{r['status']:<20}{r['wall_s']:>7.1f} s  {detail}".rstrip())
+    ran = [r for r in rows if r["status"] == "ok" or r["status"].startswith("FAILED")]
+    failed = [r for r in ran if r["status"] != "ok"]
+    skipped = [r for r in rows if r["status"] == "skipped"]
+    print(f"ran {len(ran)} ({len(failed)} failed), skipped {len(skipped)}, total {total:.1f} s")
+    if not args.dry_run:
+        REPORT.parent.mkdir(parents=True, exist_ok=True)
+        REPORT.write_text(json.dumps({"full": args.full, "total_s": total, "benchmarks": rows}, indent=1) + "\n")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
