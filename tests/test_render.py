@@ -404,7 +404,8 @@ def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
                        + _stage_cmd(tiny, tmp_path / "o1", params)[4:], cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1
     assert r.stderr.startswith("error: ") and "missing" in r.stderr and "not found" in r.stderr
-    r = subprocess.run(_stage_cmd(tiny, tmp_path / "o2", params, "--scheduler", "tcp://127.0.0.1:9"),
+    quick = _params(tmp_path, "quick.yaml", n_images=2, connect_timeout_s=0.5)   # port 9 refuses at once
+    r = subprocess.run(_stage_cmd(tiny, tmp_path / "o2", quick, "--scheduler", "tcp://127.0.0.1:9"),
                        cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and r.stderr.count("\n") == 1
     assert "tcp://127.0.0.1:9" in r.stderr and "scheduler" in r.stderr
