@@ -14,20 +14,13 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from pipeline.geometry.meshtopo import vertex_normals
 from pipeline.synthetic_head import make_synthetic_head
-
-
-def _vertex_normals(V, F):
-    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    N = np.zeros_like(V)
-    for k in range(3):
-        np.add.at(N, F[:, k], fn)
-    return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
 
 
 def splat(head, center, half, res):
     """(res, res, 3) uint8 orthographic front view of ``head`` around ``center`` (x, y) mm."""
-    V, N = head.V, _vertex_normals(head.V, head.F)
+    V, N = head.V, vertex_normals(head.V, head.F)
     light = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
     shade = np.clip(N @ light, 0, 1) * 0.85 + 0.15
     tex = head.texture

@@ -10,6 +10,7 @@ import pytest
 
 from pipeline.errors import ScanError
 from pipeline.eyeball.geometry import EyeballParams
+from pipeline.geometry import meshtopo
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import save_mesh
 from pipeline.rig import landmarks as lmk
@@ -53,7 +54,7 @@ def eye_patch(center, radius=12.0, side="left", n_loop=48, n_rings=10, half_widt
             cc, dd = a + L, b + L
             F += [[a, cc, b], [b, cc, dd]]
     F = np.array(F, np.int64)
-    n = lids.face_normals(V, F)
+    n = meshtopo.face_normals(V, F)
     if np.mean(np.einsum("ij,ij->i", n, V[F].mean(1) - c)) < 0:
         F = F[:, [0, 2, 1]]
     return V, F, np.arange(L, dtype=np.int64), L // 2

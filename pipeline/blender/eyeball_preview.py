@@ -21,7 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
-IRIS_COLORS = ("amber", "blue", "brown", "grey")
+from pipeline.eyeball.textures import IRIS_COLORS
+
 COLUMNS = (("front", "pupil_constrict"), ("front", "pupil_dilate"),
            ("three-quarter", "pupil_constrict"), ("three-quarter", "pupil_dilate"))
 

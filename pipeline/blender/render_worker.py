@@ -87,6 +87,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.eyeball.textures import IRIS_COLORS, SCLERA_TINTS, VEINS  # the asset's variants (no bpy)
+from pipeline.geometry.frame import quat_to_matrix
 
 REPLY_PREFIX = "@@render@@ "
 CAMERA_PULLBACK_M = 0.25
@@ -201,18 +202,6 @@ def lash_curves(margin, lateral_index: int, forward, rng_table: dict) -> tuple[n
             pts.append(p)
             rad.append(cfg["radius"] * (LASH_ROOT_RADIUS_MM + (LASH_TIP_RADIUS_MM - LASH_ROOT_RADIUS_MM) * s))
     return np.concatenate(pts), np.concatenate(rad)
-
-
-def quat_to_matrix(q) -> np.ndarray:
-    """(w, x, y, z) -> (3, 3) rotation (normalised; raises on a zero quaternion)."""
-    q = np.asarray(q, float)
-    n = np.linalg.norm(q)
-    if q.shape != (4,) or not np.isfinite(n) or n < 1e-9:
-        raise ValueError(f"bad quaternion {q.tolist()}")
-    w, x, y, z = q / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def camera_to_head(world_to_camera) -> np.ndarray:

@@ -39,6 +39,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from pipeline.geometry.meshtopo import face_normals
 from pipeline.settings import SettingError, Settings, setting
 
 SHAPE_NAMES = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
@@ -675,16 +676,10 @@ def mesh_edges_manifold(F) -> tuple[bool, int]:
     return bad == 0, bad
 
 
-def face_normals(V, F) -> np.ndarray:
-    """Unnormalised face normals (m, 3) (area-weighted x2)."""
-    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-
-
 def dihedral_angles(V, F):
     """Angles (deg) between normals of faces sharing each interior edge, plus the edge keys."""
     F = np.asarray(F, np.int64)
     N = face_normals(V, F)
-    N /= np.linalg.norm(N, axis=1, keepdims=True)
     e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     fid = np.tile(np.arange(len(F)), 3)
     key = np.sort(e, 1)

@@ -176,3 +176,21 @@ def eye_basis(forward) -> np.ndarray:
     ex /= n
     ey = np.cross(f, ex)
     return np.stack([ex, ey, f])
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    """(3, 3) rotation of a quaternion ``(w, x, y, z)`` (normalised first).
+
+    Raises
+    ------
+    ValueError
+        Not 4 finite numbers, or the zero quaternion.
+    """
+    q = np.asarray(q, float)
+    n = np.linalg.norm(q) if q.shape == (4,) else float("nan")
+    if not np.isfinite(n) or n < 1e-9:
+        raise ValueError(f"bad quaternion {q.tolist()}")
+    w, x, y, z = q / n
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.geometry.meshtopo import face_normals, vertex_normals  # noqa: F401 (mc.*)
+
 
 def edges_of(F):
     """Directed half-edges of triangles.
@@ -20,28 +22,6 @@ def edges_of(F):
     """
     F = np.asarray(F, dtype=np.int64)
     return np.stack([F, np.roll(F, -1, axis=1)], axis=-1).reshape(-1, 2)
-
-
-def face_normals(V, F, normalize=True):
-    """(m, 3) face normals (area-weighted when ``normalize`` is False)."""
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    if normalize:
-        ln = np.linalg.norm(n, axis=1, keepdims=True)
-        n = n / np.where(ln > 0, ln, 1.0)
-    return n
-
-
-def vertex_normals(V, F):
-    """(n, 3) unit area-weighted vertex normals (zero for unreferenced vertices)."""
-    V = np.asarray(V, dtype=np.float64)
-    fn = face_normals(V, F, normalize=False)
-    vn = np.zeros_like(V)
-    for k in range(3):
-        np.add.at(vn, F[:, k], fn)
-    ln = np.linalg.norm(vn, axis=1, keepdims=True)
-    return vn / np.where(ln > 0, ln, 1.0)
 
 
 def closed_polyline_distance(P, M):

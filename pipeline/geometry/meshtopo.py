@@ -141,15 +141,22 @@ def is_edge_manifold(F) -> bool:
     return not bool((und[2:] == und[:-2]).any())   # sorted: 3 equal keys = an edge with > 2 faces
 
 
-def face_normals(V, F):
-    """Unit face normals (m, 3) (zero for degenerate faces)."""
+def face_normals(V, F, normalize=True):
+    """(m, 3) face normals: unit (zero for degenerate faces), or with ``normalize=False`` the
+    plain cross products (length twice the face area)."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
     N = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    if not normalize:
+        return N
     L = np.linalg.norm(N, axis=1, keepdims=True)
     return np.divide(N, L, out=np.zeros_like(N), where=L > 0)
 
 
 def vertex_normals(V, F):
-    """Area-weighted unit vertex normals (n, 3)."""
+    """Area-weighted unit vertex normals (n, 3) (zero for unreferenced vertices)."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
     N = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     VN = np.zeros_like(V, dtype=np.float64)
     for k in range(3):

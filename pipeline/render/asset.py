@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.geometry.frame import quat_to_matrix  # noqa: F401 (ra.quat_to_matrix)
 from pipeline.rig import lids
 
 SIDES = ("left", "right")
@@ -295,14 +296,6 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
 
 
 # ------------------------------------------------------------------------------------ posing
-
-def quat_to_matrix(q) -> np.ndarray:
-    """(3, 3) rotation of a unit quaternion ``[w, x, y, z]``."""
-    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
 
 def posed_skin(asset: RenderAsset, lid_weights: dict, indices=None) -> np.ndarray:
     """Skin points posed by the lid channel weights; only ``indices`` if given.

@@ -127,7 +127,7 @@ APPARENT_ORDER = ("16 points: the iris (8) and pupil (8) landmarks, in the order
 
 def apparent_job(smp: sp.Sample, eye, settings: sp.RenderSettings) -> dict:
     """What :func:`pipeline.render.shard.apparent_landmarks` needs (computed while Blender renders)."""
-    from pipeline.render.asset import quat_to_matrix
+    from pipeline.geometry.frame import quat_to_matrix
 
     R = quat_to_matrix(smp.spec["eye_rotation"][smp.side])
     return {"points_head": smp.landmarks_head[12:28].tolist(),

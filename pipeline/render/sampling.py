@@ -52,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.eyeball.textures import IRIS_COLORS
 from pipeline.render import asset as ra
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
@@ -59,7 +60,6 @@ from pipeline.settings import SettingError, Settings, setting
 
 HDRIS = ("city.exr", "courtyard.exr", "forest.exr", "interior.exr", "night.exr", "studio.exr",
          "sunrise.exr", "sunset.exr")
-IRIS_COLORS = ("amber", "blue", "brown", "grey")
 SCLERA_TINTS = ("pink", "white", "yellow")
 VEINS = ("bloodshot", "clear")
 

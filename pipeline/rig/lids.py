@@ -47,6 +47,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis  # noqa: F401 (also lids.eye_basis)
 from pipeline.settings import Settings, setting
 
@@ -819,13 +820,6 @@ def build_lid_shapes(V, F, eyes, params: LidParams | None = None) -> LidRig:
 # ----------------------------------------------------------------------------------------------
 # checks
 
-def face_normals(V, F) -> np.ndarray:
-    """(m, 3) unnormalised face normals (twice the area)."""
-    V = np.asarray(V, float)
-    F = np.asarray(F, np.int64)
-    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-
-
 def lid_opening(P, eye: EyeFrame, n_lines: int = 64, margin_frac: float = 0.02) -> np.ndarray:
     """Vertical opening along vertical lines: lowest upper-lid minus highest lower-lid height.
 
@@ -922,7 +916,7 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
     """
     V = np.asarray(V, float)
     F = np.asarray(F, np.int64)
-    n0 = face_normals(V, F)
+    n0 = meshtopo.face_normals(V, F, normalize=False)
     ok = np.linalg.norm(n0, axis=1) > 1e-12
     moved = np.zeros(len(V), bool)
     for s in shapes:
@@ -967,7 +961,7 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
                 res["min_skin_clearance_mm"] = min(res["min_skin_clearance_mm"], float(ds.min()))
                 res["max_skin_sink_mm"] = max(res["max_skin_sink_mm"],
                                               float(np.max(rest_clear - ds)))
-        n1 = face_normals(P, F)
+        n1 = meshtopo.face_normals(P, F, normalize=False)
         flipped = int(np.count_nonzero(np.einsum("ij,ij->i", n0[check_faces], n1[check_faces]) <= 0))
         res["flipped_faces"] = max(res["flipped_faces"], flipped)
         res["n_pitches"] += 1

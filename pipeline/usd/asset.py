@@ -36,6 +36,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from pipeline.geometry import meshtopo
 from pipeline.rig import lids
 from pipeline.settings import Settings, setting
 
@@ -59,27 +60,12 @@ DISPLACEMENT_DOC = ("textures/displacement.exr: float32, signed distance in mm (
                     "displacement input connected with scale 1, bias 0")
 
 
-def vertex_normals(V, F) -> np.ndarray:
-    """Area-weighted unit vertex normals.
-
-    Parameters
-    ----------
-    V : (n, 3) float64 ; F : (m, 3) int64
-
-    Returns
-    -------
-    (n, 3) float64 (zero-area-only vertices get +Z)
-    """
-    V = np.asarray(V, np.float64)
-    F = np.asarray(F, np.int64)
-    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    N = np.zeros_like(V)
-    for k in range(3):
-        N += np.stack([np.bincount(F[:, k], fn[:, j], len(V)) for j in range(3)], 1)
-    L = np.linalg.norm(N, axis=1)
-    N[L == 0] = (0.0, 0.0, 1.0)
-    L[L == 0] = 1.0
-    return N / L[:, None]
+def _usd_normals(V, F) -> np.ndarray:
+    """Unit area-weighted vertex normals (meshtopo.vertex_normals), +Z where a vertex has no
+    area around it (USD viewers want a direction everywhere)."""
+    N = meshtopo.vertex_normals(V, F)
+    N[np.linalg.norm(N, axis=1) == 0] = (0.0, 0.0, 1.0)
+    return N
 
 
 def eye_frame_matrix(center, forward, scale: float = 1.0) -> np.ndarray:
@@ -214,7 +200,7 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     F = np.asarray(F, np.int64)
     mesh = su.write_mesh(stage, rp + "/EyeRegion", V, np.full(len(F), 3, np.int32), F.ravel(),
                          UV=UV, uv_indices=None if FUV is None else np.asarray(FUV).ravel())
-    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(vertex_normals(V, F).astype(np.float32)))
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(_usd_normals(V, F).astype(np.float32)))
     mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
     su.bind_rigid(mesh, skel, 0)
     su.write_blend_shapes(mesh, shapes, _shape_inbetweens(shapes))
