@@ -313,7 +313,6 @@ def test_james_texture_fallback(extra_scan):
     (2, 150_000, 0.02, "round"),     # eyes of different sizes (11.7 / 13.2 mm): radius not shared
 ])
 def test_synthetic_head_ground_truth(seed, triangles, noise, shape):
-    pytest.importorskip("pipeline.synthetic_head")
     from pipeline.synthetic_head import make_synthetic_head
 
     h = make_synthetic_head(seed=seed, target_triangles=triangles, noise_mm=noise, eye_shape=shape,
