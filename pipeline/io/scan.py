@@ -323,8 +323,9 @@ def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSp
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ScanError(sidecar, f"is not UTF-8 text ({one_line(exc)})") from None
+    loader = SidecarLoader(text)      # a SafeLoader subclass (duplicate keys, YAML 1.2 numbers)
     try:
-        data = yaml.load(text, Loader=SidecarLoader)  # noqa: S506 - a SafeLoader subclass
+        data = loader.get_single_data()
     except DuplicateKeyError as exc:
         raise ScanError(sidecar, f"{exc}: each key may appear once") from None
     except yaml.YAMLError as exc:
@@ -333,5 +334,7 @@ def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSp
         raise ScanError(sidecar, "YAML error: nesting too deep") from None
     except (ValueError, TypeError, OverflowError) as exc:   # a bad explicit tag value ("!!int mm", "!!binary x")
         raise ScanError(sidecar, f"YAML error: a tagged value cannot be read ({one_line(exc)[:120]})") from None
+    finally:
+        loader.dispose()
     return parse_sidecar(data, folder, sidecar)
 
