@@ -197,8 +197,11 @@ def main(argv) -> dict:
     out = args.out
     chash = config_hash(settings, asset.fingerprint())
     prep = prepare_out(out, chash, settings.n_images)
+    # the asset as a path from the working directory (the repository under DVC): an absolute
+    # path would make config.json, and so dvc.lock, depend on where the clone lives
     write_json(out / "config.json", {"config_hash": chash, "scan": asset.name,
-                                     "asset": str(asset.usda), "settings": settings.hashed()})
+                                     "asset": os.path.relpath(asset.usda),
+                                     "settings": settings.hashed()})
 
     n = settings.n_images
     n_pending = sum(1 for i in range(n) if not sh.done(out, i))

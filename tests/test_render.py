@@ -375,6 +375,8 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     sheet = Image.open(out / "contact_sheet.png")
     assert sheet.size == tuple(m["contact_sheet_px"])
     assert not (out / ".tmp").exists()
+    cfg = json.loads((out / "config.json").read_text())     # no absolute path: same bytes anywhere
+    assert not os.path.isabs(cfg["asset"]) and (ROOT / cfg["asset"]).resolve() == tiny["asset"].usda.resolve()
     app = extra["apparent_px"]                               # iris/pupil seen through the cornea
     assert len(app) == 16 and sum(q is not None for q in app) >= 8
     # nothing of the killed run is left running
