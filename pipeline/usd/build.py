@@ -1,0 +1,160 @@
+"""The usd stage's work: load and check the stage products an asset needs, write and validate
+the USD asset (and its usdz), and render its Cycles contact sheet in a Blender child process.
+
+``read_inputs`` -> ``build`` -> ``render_preview``; ``stages/usd.py`` only parses its paths and
+settings, calls them inside an atomic output folder and returns the metrics.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import pipeline
+from pipeline.errors import ScanError
+from pipeline.io.meshfile import read_stage_mesh
+from pipeline.io.png import strip_png_metadata
+from pipeline.io.scratch import run_child
+from pipeline.rig import lids
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _need(path: Path) -> Path:
+    if not path.is_file():
+        raise ScanError(path, "not found")
+    return path
+
+
+def _json(path: Path) -> dict:
+    try:
+        return json.loads(_need(path).read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ScanError(path, f"is not valid JSON ({exc.__class__.__name__})") from None
+
+
+def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) -> dict:
+    """Load and check everything the asset needs (ScanError on a missing/inconsistent input)."""
+    mesh_path = snap / "mesh.npz"
+    mesh = read_stage_mesh(mesh_path, required=())
+    for k in ("V", "F", "UV", "FUV"):
+        if k not in mesh:
+            raise ScanError(mesh_path, f"has no {k} array (the asset needs UVs from bake)")
+    V, F = np.asarray(mesh["V"], np.float64), np.asarray(mesh["F"], np.int64)
+    if not np.all(np.isfinite(V)):
+        raise ScanError(mesh_path, "has non-finite vertex coordinates")
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        raise ScanError(mesh_path, "face indices out of range")
+    rig_npz = _need(rig / "rig.npz")
+    try:
+        with np.load(rig_npz) as z:
+            arrays = {k: z[k] for k in z.files}
+        shapes = lids.shapes_from_arrays(arrays)
+        curves = {s: (arrays[f"landmarks.{s}.points"],
+                      lids.shapes_from_arrays(arrays, prefix=f"landmarks.{s}.")) for s in ("left", "right")}
+    except (KeyError, ValueError, OSError) as exc:
+        raise ScanError(rig_npz, f"is not a rig.npz of stage rig ({type(exc).__name__}: {exc})") from None
+    for s in shapes:
+        pi = np.asarray(s.point_indices)
+        if pi.size and (pi.min() < 0 or pi.max() >= len(V)):
+            raise ScanError(rig_npz, f"shape {s.name} indexes vertices outside snap/mesh.npz "
+                                     f"({len(V)} vertices): rig and snap are out of date")
+    rig_doc = _json(rig / "rig.json")
+    try:
+        eyes = {s: {k: rig_doc["eyes"][s][k] for k in ("center", "radius", "forward")} for s in ("left", "right")}
+        for s in eyes:
+            model_r = rig_doc["eyes"][s].get("surface", {})
+            if isinstance(model_r, dict) and "parametric_eye" in model_r:
+                eyes[s]["model_radius"] = float(model_r["parametric_eye"]["r1"])
+        if not all(np.isfinite(eyes[s]["radius"]) and eyes[s]["radius"] > 0 for s in eyes):
+            raise ValueError("radius")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ScanError(rig / "rig.json", f"has no usable eyes.<side>.center/radius/forward ({exc})") from None
+    scan = _json(ingest / "scan.json")
+    return {"V": V, "F": F, "UV": mesh["UV"], "FUV": mesh["FUV"], "shapes": shapes, "curves": curves,
+            "rig_doc": rig_doc, "eyes": eyes, "scan": scan,
+            "color": _need(bake / "color.png"), "displacement": _need(bake / "displacement.exr"),
+            "bake_json": _json(bake / "bake.json") if (bake / "bake.json").is_file() else {},
+            "eyeball": _need(eyeball / "eyeball.usda")}
+
+
+def build(inp: dict, out_dir: Path, name: str, all_params: dict, package: bool = True) -> dict:
+    """Write the asset into ``out_dir`` (an empty folder beside rigged_assets/eyeball); returns metrics."""
+    from pipeline.usd.asset import DISPLACEMENT_DOC, check_package, package_usdz, write_scan_asset
+    from pipeline.usd.validate import validate_stage
+
+    (out_dir / "textures").mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(inp["color"], out_dir / "textures" / "color.png")
+    shutil.copyfile(inp["displacement"], out_dir / "textures" / "displacement.exr")
+    # out_dir is a sibling of the final folder (atomic_dir), so the relative path is the same
+    ref = Path(os.path.relpath(inp["eyeball"].resolve(), out_dir.resolve()))
+    meta = {
+        "scan": inp["scan"].get("name", name),
+        "source_sha256": str(inp["scan"].get("source_sha256", "")),
+        "licence": str(inp["scan"].get("licence", "")),
+        "pipeline_version": pipeline.__version__,
+        "units": "mm", "frame": "head frame: +Y up, +Z out of the face, +X subject's left",
+        "weight_rule": lids.weight_rule(float(inp["rig_doc"].get("weight_rule", {}).get(
+            "max_pitch_deg", lids.MAX_PITCH_DEG))),
+        "eyes": {s: {"joint": f"head/eye_{s}", "center_mm": list(map(float, e["center"])),
+                     "radius_mm": float(e["radius"]), "forward": list(map(float, e["forward"]))}
+                 for s, e in inp["eyes"].items()},
+        "displacement": DISPLACEMENT_DOC,
+        "params": json.loads(json.dumps(all_params)),
+    }
+    t0 = time.perf_counter()
+    try:
+        usda = write_scan_asset(out_dir / f"{name}.usda", name=name, V=inp["V"], F=inp["F"], UV=inp["UV"],
+                                FUV=inp["FUV"], shapes=inp["shapes"], landmark_curves=inp["curves"],
+                                eyes=inp["eyes"], eyeball_ref=ref.as_posix(), metadata=meta)
+    except ValueError as exc:
+        raise ScanError(inp["eyeball"], str(exc)) from None
+    t_write = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    errors = validate_stage(usda)
+    t_val = time.perf_counter() - t0
+    if errors:
+        raise ScanError(usda, f"fails validation ({len(errors)} error(s)): {errors[0]}")
+    t_pkg = 0.0
+    if package:
+        t0 = time.perf_counter()
+        usdz = out_dir / f"{name}.usdz"
+        try:
+            package_usdz(usda, usdz, folder_name=name)
+        except ValueError as exc:
+            raise ScanError(usdz, f"cannot be packaged: {exc}") from None
+        bad = check_package(usdz)
+        if bad:
+            raise ScanError(usdz, f"package is incomplete ({len(bad)} error(s)): {bad[0]}")
+        t_pkg = time.perf_counter() - t0
+    return {"n_vertices": int(len(inp["V"])), "n_faces": int(len(inp["F"])),
+            "n_shapes": len(inp["shapes"]), "validation_errors": 0,
+            "write_s": round(t_write, 4), "validate_s": round(t_val, 4), "usdz_s": round(t_pkg, 4)}
+
+
+def render_preview(usda: Path, rig_npz: Path, out_png: Path, size: int, samples: int) -> dict:
+    """Run the Blender contact-sheet worker (subprocess); returns its JSON report + ``preview_s``."""
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as td:
+        info_path = Path(td) / "preview.json"
+        cmd = [sys.executable, "-m", "pipeline.blender.asset_preview", str(usda), str(rig_npz),
+               str(out_png), "--size", str(int(size)), "--samples", str(int(samples)),
+               "--json", str(info_path)]
+        res = run_child(cmd, capture_output=True, text=True, cwd=ROOT)
+        if res.returncode != 0 or not out_png.is_file():
+            last = (res.stderr or res.stdout or "").strip().splitlines()[-1:] or ["no output"]
+            raise ScanError(usda, f"the asset preview render failed ({last[0][:200]})")
+        strip_png_metadata(out_png)          # Blender's time/text chunks: same pixels, same bytes
+        info = json.loads(info_path.read_text(encoding="utf-8"))
+    return {"preview_s": round(time.perf_counter() - t0, 3),
+            "preview_render_s": info.get("render_s_total"),
+            "preview_px": info.get("sheet_px"), "preview_samples": info.get("samples"),
+            "preview_lid_max_error_mm": max(info.get("lid_max_error_mm", {0: 0.0}).values()),
+            "preview_gaze_pitch_deg": info.get("gaze_pitch_measured_deg")}
