@@ -30,6 +30,20 @@ ROOT = Path(__file__).resolve().parents[1]
 STAGES = ("ingest", "remove_eyeballs", "retopo", "bake", "snap")
 
 
+def stage_commands(scan, build, eyeball) -> dict:
+    """``python -m`` arguments of each per-scan stage up to ``rig``, as dvc.yaml runs them
+    (without ``--metrics`` / ``--params``), for a scan folder, a build folder and an eyeball asset."""
+    b = Path(build)
+    return {
+        "ingest": ["stages.ingest", scan, b / "ingest"],
+        "remove_eyeballs": ["stages.remove_eyeballs", b / "ingest", b / "remove_eyeballs"],
+        "retopo": ["stages.retopo", b / "remove_eyeballs", b / "retopo"],
+        "bake": ["stages.bake", b / "retopo", b / "remove_eyeballs", b / "bake"],
+        "snap": ["stages.snap", b / "bake", b / "remove_eyeballs", eyeball, b / "snap"],
+        "rig": ["stages.rig", b / "snap", b / "rig", "--eyeball", eyeball],
+    }
+
+
 def _run(cmd):
     t0 = time.perf_counter()
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
@@ -81,13 +95,7 @@ def main():
                    "--metrics", str(work / "eyeball.metrics.json")])
 
     b = work / "build"
-    cmds = {
-        "ingest": ["stages.ingest", scan, b / "ingest"],
-        "remove_eyeballs": ["stages.remove_eyeballs", b / "ingest", b / "remove_eyeballs"],
-        "retopo": ["stages.retopo", b / "remove_eyeballs", b / "retopo"],
-        "bake": ["stages.bake", b / "retopo", b / "remove_eyeballs", b / "bake"],
-        "snap": ["stages.snap", b / "bake", b / "remove_eyeballs", eyeball, b / "snap"],
-    }
+    cmds = stage_commands(scan, b, eyeball)
     runs = []
     for rep in range(args.repeats):
         times = {}

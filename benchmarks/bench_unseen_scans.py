@@ -270,15 +270,10 @@ def _synthetic_labels(head):
 # ----------------------------------------------------------------------------- chain
 def run_chain(folder: Path, build: Path, eyeball: Path, params: Path, stop_after="rig"):
     """Run the stages as dvc.yaml does; per stage exit code, stderr's last line and wall time."""
+    from benchmarks.bench_chain import stage_commands
+
     b = build
-    cmds = {
-        "ingest": ["stages.ingest", folder, b / "ingest"],
-        "remove_eyeballs": ["stages.remove_eyeballs", b / "ingest", b / "remove_eyeballs"],
-        "retopo": ["stages.retopo", b / "remove_eyeballs", b / "retopo"],
-        "bake": ["stages.bake", b / "retopo", b / "remove_eyeballs", b / "bake"],
-        "snap": ["stages.snap", b / "bake", b / "remove_eyeballs", eyeball, b / "snap"],
-        "rig": ["stages.rig", b / "snap", b / "rig", "--eyeball", eyeball],
-    }
+    cmds = stage_commands(folder, b, eyeball)
     out = {}
     for st in STAGES:
         cmd = [sys.executable, "-m"] + [str(c) for c in cmds[st]] + [
