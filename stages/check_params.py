@@ -29,7 +29,7 @@ from stages._common import read_params_file, stage_exit, stage_parser
 BLOCKS = {
     "synthetic_head": "pipeline.synthetic_head:SyntheticHeadSettings",
     "eyeball": "pipeline.eyeball.geometry:EyeballSettings",
-    "ingest": "pipeline.io.load:IngestSettings",
+    "ingest": "pipeline.geometry.ingest:IngestSettings",
     "remove_eyeballs": "pipeline.geometry.remove_eyeballs:EyeSettings",
     "retopo": "pipeline.geometry.retopo:RetopoSettings",
     "bake": "pipeline.bake.bake:BakeSettings",

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.geometry.ingest import IngestSettings, ingest_scan
 from pipeline.io.atomic import atomic_dir, write_json
-from pipeline.io.load import IngestSettings, ingest_scan
 from pipeline.io.meshfile import save_mesh
 from pipeline.io.scan import one_line
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser

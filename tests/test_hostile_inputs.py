@@ -99,7 +99,8 @@ def test_stl_triangle_count_checked_from_header_not_soup_vertices(tmp_path):
     the header check must not refuse them (only the face count is known before merging)."""
     import struct
 
-    from pipeline.io.load import Limits, load_stl
+    from pipeline.io.formats.common import Limits
+    from pipeline.io.formats.stl import load_stl
 
     path = tmp_path / "big.stl"
     n = 1_700_000
@@ -178,7 +179,7 @@ def test_ascii_stl_reader_matches_trimesh(tmp_path):
     import trimesh
     from trimesh.exchange.stl import load_stl as trimesh_stl
 
-    from pipeline.io.load import _stl_ascii_corners
+    from pipeline.io.formats.stl import _stl_ascii_corners
 
     V, F, _ = head_mesh(3)
     text = trimesh.Trimesh(V, F, process=False).export(file_type="stl_ascii")

@@ -366,7 +366,8 @@ def _obj_variants():
 
 @pytest.mark.parametrize("name,lines,fast", list(_obj_variants()), ids=[v[0] for v in _obj_variants()])
 def test_obj_fast_parser_agrees_with_line_parser(name, lines, fast):
-    from pipeline.io.load import Limits, _obj_fast, _obj_slow
+    from pipeline.io.formats.common import Limits
+    from pipeline.io.formats.obj import _obj_fast, _obj_slow
 
     raw = ("\n".join(lines) + "\n").encode()
     got = _obj_fast(raw, Path("x.obj"), Limits())

@@ -268,7 +268,7 @@ def _gt_errors(folder, res):
 
 
 def test_ict_neutral(extra_scan):
-    from pipeline.io.load import IngestSettings, ingest_scan
+    from pipeline.geometry.ingest import IngestSettings, ingest_scan
 
     folder = extra_scan("ict_neutral")
     r = ingest_scan(folder, IngestSettings())
@@ -286,7 +286,7 @@ def test_ict_neutral(extra_scan):
 def test_james_texture_fallback(extra_scan):
     from PIL import Image
 
-    from pipeline.io.load import IngestSettings, ingest_scan
+    from pipeline.geometry.ingest import IngestSettings, ingest_scan
 
     folder = extra_scan("james")
     r = ingest_scan(folder, IngestSettings())
