@@ -3,171 +3,20 @@
     python -m stages.render rigged_assets/<scan> build/<scan>/rig renders/<scan> \
         --metrics build/<scan>/render.metrics.json [--scheduler ADDRESS] [--workers N] [--n-images N]
 
-Sample ``i`` is a pure function of ``(seed, i)`` (pipeline/render/sampling.py), so sharding and
-resuming never change labels. Per image: ``NNNNNN.png`` + ``NNNNNN.json`` (label, written
-last = done); at the end ``index.jsonl`` (sorted, every index 0..n-1 exactly once),
-``contact_sheet.png`` (landmarks drawn) and ``config.json`` (the hash of everything that changes
-images or labels: the ``render`` params except n_images / worker settings, and the asset files).
-Re-running resumes: finished images are skipped; a config change deletes the stale images first.
-Images are rendered by persistent Blender processes (pipeline/blender/render_worker.py), one per
-dask worker (pipeline/render/shard.py): a ``LocalCluster`` of ``workers`` processes by default,
-or the cluster at ``--scheduler`` / params ``scheduler`` (its workers must see the same paths).
+Per image: ``NNNNNN.png`` + ``NNNNNN.json`` (label, written last = done);
+at the end ``index.jsonl`` (every index 0..n-1 exactly once), ``contact_sheet.png`` (landmarks
+drawn) and ``config.json`` (the hash of everything that changes images or labels). Re-running
+resumes: finished images are skipped; a config change deletes the stale images first. Images
+are rendered by persistent Blender processes, one per dask worker: a ``LocalCluster`` of
+``workers`` processes by default, or the cluster at ``--scheduler`` / params ``scheduler`` (its
+workers must see the same paths). The work is in pipeline/render/run.py (``render_scan``).
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
-import os
-import shutil
-import time
-from array import array
-from collections import Counter
 from pathlib import Path
 
-import numpy as np
-
-from pipeline.errors import ScanError
-from pipeline.io.atomic import atomic_file, write_json
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
-
-# Cycles given one thread still keeps a second one busy (about a quarter of an image's CPU
-# time wasted), so two Blenders sharing two cores are slower than one Blender using both:
-# 0.53 s/image with 2 workers x 1 thread against 0.43 s/image with 1 worker x 2 threads on
-# 2 cores (benchmarks/bench_render.py, scaling); two threads per Blender is the floor.
-MIN_THREADS = 2
-
-
-def auto_workers(cores: int) -> int:
-    """Local Blender workers for ``cores`` CPU cores: one per :data:`MIN_THREADS` cores."""
-    return max(1, int(cores) // MIN_THREADS)
-
-
-def config_hash(settings, fingerprint: str) -> str:
-    blob = json.dumps({"settings": settings.hashed(), "asset": fingerprint}, sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()
-
-
-def _image_files(out: Path):
-    for p in out.iterdir():
-        stem = p.name.split(".")[0]
-        if p.suffix in (".png", ".json") and stem.isdigit() and len(stem) == 6:
-            yield int(stem), p
-
-
-def prepare_out(out: Path, chash: str, n_images: int) -> dict:
-    """Create/clean the output folder: stale images of another config, extra indices, temp files."""
-    out.mkdir(parents=True, exist_ok=True)
-    cfg = out / "config.json"
-    removed = 0
-    old = None
-    if cfg.is_file():
-        try:
-            old = json.loads(cfg.read_text()).get("config_hash")
-        except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-            old = None
-    stale = old != chash
-    for i, p in list(_image_files(out)):
-        if stale or i >= n_images:
-            p.unlink()
-            removed += 1
-    for name in ("index.jsonl", "contact_sheet.png"):
-        (out / name).unlink(missing_ok=True)
-    shutil.rmtree(out / ".tmp", ignore_errors=True)
-    (out / ".tmp").mkdir()
-    for p in out.glob("*.png"):                       # a PNG without its JSON is unfinished
-        stem = p.stem
-        if stem.isdigit() and not (out / f"{stem}.json").is_file():
-            p.unlink()
-    return {"stale_config": bool(stale and old is not None), "removed_files": removed}
-
-
-def _pending_shards(asset, settings, out: Path, pending, window: int, stats: dict, source):
-    """Shards of ``(spec, label)`` pairs, sampled lazily ``window`` images at a time (memory stays
-    flat for any n_images): within a window, one HDRI per shard, at most ``shard_size`` images."""
-    from pipeline.render import labels as lb
-    from pipeline.render import sampling as sp
-
-    it = iter(pending)
-    while True:
-        chunk = [i for _, i in zip(range(window), it)]
-        if not chunk:
-            return
-        t0 = time.perf_counter()
-        by_hdri: dict = {}
-        for i in chunk:
-            try:
-                smp = sp.make_sample(asset, settings, i, sp.tmp_png(out, i))
-            except sp.RejectionError as exc:
-                raise ScanError(source, str(exc)) from None
-            label = lb.make_label(smp, settings, asset.name)
-            if asset.eyes[smp.side].eyeball_params:
-                label["_apparent_job"] = lb.apparent_job(smp, asset.eyes[smp.side], settings)
-            by_hdri.setdefault(smp.spec["lighting"]["hdri"], []).append((smp.spec, label))
-        stats["sampling_s"] += time.perf_counter() - t0
-        k = settings.shard_size
-        for _, grp in sorted(by_hdri.items()):
-            for j in range(0, len(grp), k):
-                stats["shards"] += 1
-                yield grp[j:j + k]
-
-
-class _Results:
-    """Per-image results of the run, aggregated as they come (no list of every image)."""
-
-    def __init__(self):
-        self.n = 0
-        self.failed = 0
-        self.first_failure = None
-        self.render_s = array("d")
-        self.cpu_s = array("d")
-        self.rss_max = None
-
-    def __call__(self, r: dict) -> None:
-        if r.get("skipped"):
-            return
-        self.n += 1
-        if not r.get("ok"):
-            self.failed += 1
-            self.first_failure = self.first_failure or r
-        if r.get("render_s") is not None:
-            self.render_s.append(r["render_s"])
-        if r.get("total_cpu_s") is not None:
-            self.cpu_s.append(r["total_cpu_s"])
-        if r.get("rss_mib") is not None:
-            self.rss_max = max(self.rss_max or 0.0, r["rss_mib"])
-
-
-def _index_and_sheet(out: Path, n: int, n_sheet: int) -> dict:
-    """index.jsonl (streamed), the contact sheet, and label statistics, reading each label once."""
-    from pipeline.render import shard as sh
-    from pipeline.render.sheet import contact_sheet
-
-    sheet, checks, attempts = [], [], Counter()
-    skin, hdri = Counter(), Counter()
-    check_max, rejections, attempts_max = None, 0, 0
-    with atomic_file(out / "index.jsonl") as tmp, open(tmp, "w", encoding="utf-8") as fh:
-        for i in range(n):
-            if not sh.done(out, i):
-                raise ScanError(out, f"image {i} missing after the run")
-            lab = json.loads((out / f"{i:06d}.json").read_text())
-            fh.write(json.dumps({"index": i, "png": f"{i:06d}.png", "json": f"{i:06d}.json",
-                                 "eye": lab["gaze"]["eye"], "gaze_camera_deg": [lab["gaze"]["camera"]["pitch_deg"],
-                                                                                 lab["gaze"]["camera"]["yaw_deg"]],
-                                 "landmark_check_mm": lab.get("landmark_check_mm")}) + "\n")
-            c = float(lab.get("landmark_check_mm") or 0.0)
-            check_max = c if check_max is None else max(check_max, c)
-            a = int(lab["seed"]["attempts"])
-            rejections += a - 1
-            attempts_max = max(attempts_max, a)
-            skin[lab["render"]["skin_detail"]] += 1
-            hdri[lab["lighting"]["hdri"]] += 1
-            if i < n_sheet:
-                sheet.append((out / f"{i:06d}.png", lab))
-    sheet_px = contact_sheet(sheet, out / "contact_sheet.png") if sheet else None
-    return {"landmark_check_max_mm": check_max, "rejections": rejections, "attempts_max": attempts_max,
-            "skin_detail": dict(skin), "hdri": dict(hdri),
-            "contact_sheet_px": list(sheet_px) if sheet_px else None}
 
 
 def main(argv) -> dict:
@@ -181,76 +30,19 @@ def main(argv) -> dict:
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
 
-    from pipeline.render import asset as ra
-    from pipeline.render import sampling as sp
-    from pipeline.render import shard as sh
+    from pipeline.render.asset import load_render_asset
+    from pipeline.render.run import render_scan
+    from pipeline.render.sampling import RenderSettings
 
-    t0 = time.perf_counter()
     params = load_params("render", args.params)
     for key, value in (("n_images", args.n_images), ("workers", args.workers)):
         if value is not None:
             params[key] = value
-    settings = sp.RenderSettings.from_params(params, source=args.params)
-    workers = settings.workers or auto_workers(os.cpu_count() or 1)
-    scheduler = args.scheduler or settings.scheduler or None
-    asset = ra.load_render_asset(args.asset, args.rig)
-    out = args.out
-    chash = config_hash(settings, asset.fingerprint())
-    prep = prepare_out(out, chash, settings.n_images)
-    # the asset as a path from the working directory (the repository under DVC): an absolute
-    # path would make config.json, and so dvc.lock, depend on where the clone lives
-    write_json(out / "config.json", {"config_hash": chash, "scan": asset.name,
-                                     "asset": os.path.relpath(asset.usda),
-                                     "settings": settings.hashed()})
-
-    n = settings.n_images
-    n_pending = sum(1 for i in range(n) if not sh.done(out, i))
-    pending = (i for i in range(n) if not sh.done(out, i))
-    stats = {"sampling_s": 0.0, "shards": 0}
-    # sampled a window at a time, a few shards per HDRI each
-    window = max(64, settings.shard_size * len(settings.hdris) * 4)
-    shards = _pending_shards(asset, settings, out, pending, window, stats, args.asset)
-    threads = settings.threads
-    if not threads and not scheduler:
-        threads = max(1, (os.cpu_count() or 1) // workers)
-    opts = {"threads": threads, "tile_size": settings.tile_size,
-            "tolerance_mm": settings.landmark_tolerance_mm, "log_dir": str((out / ".tmp").resolve()),
-            "image_timeout_s": settings.image_timeout_s}
-    t1 = time.perf_counter()
-    res = _Results()
-    run = {"workers": 0, "blender": {}}
-    if n_pending:
-        run = sh.run_shards(shards, asset.usda, asset.rig_npz, out.resolve(), opts, workers=workers,
-                            scheduler=scheduler, progress=not args.no_progress and settings.progress,
-                            connect_timeout_s=settings.connect_timeout_s, total=n_pending, on_result=res)
-    t_render = time.perf_counter() - t1 - stats["sampling_s"]
-    if res.failed:
-        f = res.first_failure
-        raise ScanError(out, f"{res.failed} of {res.n} images failed; first: image "
-                             f"{f['index']}: {f.get('error')}")
-
-    summary = _index_and_sheet(out, n, min(n, settings.sheet_images))
-    shutil.rmtree(out / ".tmp", ignore_errors=True)
-
-    wall = time.perf_counter() - t0
-    rs, cpu = np.asarray(res.render_s), np.asarray(res.cpu_s)
-    return {"_path": args.metrics or default_metrics_path(out),
-            "n_images": n,
-            "_run": {"rendered": res.n, "skipped_done": n - res.n,     # this run, not the renders
-                     "stale_config": prep["stale_config"], "removed_files": prep["removed_files"],
-                     "workers": run["workers"], "scheduler": scheduler or "LocalCluster",
-                     "threads_per_blender": threads, "shards": stats["shards"],
-                     "blender_starts": int(sum(v.get("starts", 0) for v in run["blender"].values()))},
-            "sampling_s": round(stats["sampling_s"], 3), "render_wall_s": round(t_render, 3),
-            "s_per_image": round(t_render / res.n, 4) if res.n else None,
-            "images_per_s": round(res.n / t_render, 4) if res.n and t_render > 0 else None,
-            "render_s_median": round(float(np.median(rs)), 4) if rs.size else None,
-            "blender_cpu_s_per_image_median": round(float(np.median(cpu)), 4) if cpu.size else None,
-            "worker_rss_max_mib": res.rss_max,
-            "landmark_check_max_mm": summary.pop("landmark_check_max_mm"),
-            **summary,
-            "samples": settings.samples, "size": [settings.width, settings.height],
-            "preset": settings.preset, "seed": settings.seed, "stage_wall_s": round(wall, 3)}
+    settings = RenderSettings.from_params(params, source=args.params)
+    asset = load_render_asset(args.asset, args.rig)
+    metrics = render_scan(asset, settings, args.out, source=args.asset, scheduler=args.scheduler,
+                          progress=not args.no_progress)
+    return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ from PIL import Image
 from conftest import EYES, make_inputs, usd_argv
 from pipeline.render import asset as ra
 from pipeline.render import labels as lb
+from pipeline.render import run as rr
 from pipeline.render import sampling as sp
 from pipeline.rig import lids
 from pipeline.rig.landmarks import eyelid_landmarks
@@ -300,8 +301,6 @@ def test_fingerprint_covers_the_referenced_eyeball_and_its_textures(tiny):
 
 
 def test_config_change_removes_stale_images(tmp_path):
-    from stages.render import prepare_out
-
     out = tmp_path / "out"
     out.mkdir()
     for i in range(3):
@@ -309,9 +308,9 @@ def test_config_change_removes_stale_images(tmp_path):
         (out / f"{i:06d}.json").write_text("{}")
     (out / "000003.png").write_bytes(b"half")               # unfinished: no JSON
     (out / "config.json").write_text(json.dumps({"config_hash": "a"}))
-    prepare_out(out, "a", 2)                                  # same config, fewer images
+    rr.prepare_out(out, "a", 2)                               # same config, fewer images
     assert sorted(p.name for p in out.glob("0*")) == ["000000.json", "000000.png", "000001.json", "000001.png"]
-    info = prepare_out(out, "b", 2)                           # another config: everything stale
+    info = rr.prepare_out(out, "b", 2)                        # another config: everything stale
     assert info["stale_config"] and not list(out.glob("0*"))
 
 
@@ -436,15 +435,13 @@ def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
 def test_sampling_streams_for_any_n_images(tiny, tmp_path, monkeypatch):
     """A million images: the stage samples one window of images before the first shard goes
     out, never all of them (memory stays flat); a billion is refused with one line."""
-    from stages import render as render_stage
-
     s = _settings(n_images=1_000_000)
     calls = []
     real = sp.make_sample
     monkeypatch.setattr(sp, "make_sample", lambda *a, **k: calls.append(a[2]) or real(*a, **k))
     stats = {"sampling_s": 0.0, "shards": 0}
-    shards = render_stage._pending_shards(tiny["asset"], s, tmp_path, iter(range(s.n_images)), 16, stats,
-                                          tiny["asset_dir"])
+    shards = rr.pending_shards(tiny["asset"], s, tmp_path, iter(range(s.n_images)), 16, stats,
+                               tiny["asset_dir"])
     first = next(shards)
     assert calls == list(range(16)) and 1 <= len(first) <= s.shard_size
     assert len({spec["lighting"]["hdri"] for spec, _ in first}) == 1
@@ -458,9 +455,7 @@ def test_sampling_streams_for_any_n_images(tiny, tmp_path, monkeypatch):
 
 
 def test_auto_workers_give_each_blender_two_cores():
-    from stages.render import auto_workers
-
-    assert [auto_workers(c) for c in (1, 2, 3, 4, 16)] == [1, 1, 1, 2, 8]
+    assert [rr.auto_workers(c) for c in (1, 2, 3, 4, 16)] == [1, 1, 1, 2, 8]
 
 
 @pytest.mark.blender
