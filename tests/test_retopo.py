@@ -11,8 +11,9 @@ import pytest
 
 from conftest import face_patch
 from pipeline.geometry import mesh_checks as mc
-from pipeline.geometry.retopo import (RetopoSettings, _project_to_polyline, clean_mesh,
-                                      count_flipped, retopologize)
+from pipeline.geometry.eyelid_loop import project_to_polyline
+from pipeline.geometry.flips import count_flipped
+from pipeline.geometry.retopo import RetopoSettings, clean_mesh, retopologize
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 from stages._common import read_stage_metrics
@@ -43,7 +44,7 @@ def check_result(r, V, eyes, n_loop):
         assert steps in ({1}, {n_loop - 1})
         # on the scan's loop curve, starting at the medial canthus, upper lid first
         curve = V[e["loop_indices"]]
-        assert _project_to_polyline(r.V[lp], curve)[2].max() < 1e-6
+        assert project_to_polyline(r.V[lp], curve)[2].max() < 1e-6
         assert np.linalg.norm(r.V[lp[0]] - curve[0]) < 0.5
         assert r.V[lp[n_loop // 4], 1] > r.V[lp, 1].mean()
     m = r.metrics
@@ -210,7 +211,7 @@ def test_eye_rings(patch, method, kw):
         rings, nq = ring_structure(r, side)
         assert len(rings) >= 4 and nq >= 3 * n       # loop + 3 rings, n quads between each pair
         curve = V[e["loop_indices"]]
-        d = [np.mean(_project_to_polyline(r.V[np.asarray(g)], curve)[2]) for g in rings[:4]]
+        d = [np.mean(project_to_polyline(r.V[np.asarray(g)], curve)[2]) for g in rings[:4]]
         for k, g in enumerate(rings[:4]):
             assert len(g) == n and len(set(g)) == n
         assert d[0] < 1e-6 and d[1] < d[2] < d[3]    # concentric: each ring further out

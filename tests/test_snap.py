@@ -10,6 +10,7 @@ import pytest
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import meshtopo
 from pipeline.geometry import snap as sn
+from pipeline.geometry.flips import untangle
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 
@@ -164,7 +165,7 @@ def test_untangle_moves_free_vertices_back_into_their_kernel(drag):
     V1 = V.copy()
     V1[12] += drag                                    # dragged across its one-ring: folded
     assert sn.flipped_faces(V, V1, F) > 0
-    V2, moved = sn.untangle(V1, F, n0, free)
+    V2, moved = untangle(V1, F, n0, free)
     assert sn.flipped_faces(V, V2, F) == 0
     assert set(moved.tolist()) <= {7, 12, 13}
     assert np.array_equal(V2[~free], V1[~free])       # held vertices stay
@@ -186,11 +187,11 @@ def test_untangle_respects_keep_out_even_when_it_cannot_unfold():
             return Q, np.tile([1.0, 0, 0], (len(P), 1)), P[:, 0] - x_min
         return closest
 
-    V2, moved = sn.untangle(V1, F, n0, free, keep_out=wall(3.2))   # beyond the whole kernel
+    V2, moved = untangle(V1, F, n0, free, keep_out=wall(3.2))   # beyond the whole kernel
     # no feasible spot: the least-violating one on the allowed side, still folded
     assert V2[12, 0] >= 3.2 - 1e-9 and sn.flipped_faces(V, V2, F) > 0
     assert V2[12, 0] <= V1[12, 0] and np.array_equal(V2[~free], V1[~free])
-    V3, moved = sn.untangle(V1, F, n0, free, keep_out=wall(2.4))   # leaves room in the kernel
+    V3, moved = untangle(V1, F, n0, free, keep_out=wall(2.4))   # leaves room in the kernel
     assert len(moved) == 1 and 2.4 - 1e-9 <= V3[12, 0] < 3.0
     assert sn.flipped_faces(V, V3, F) == 0
 
@@ -238,8 +239,8 @@ def test_untangle_lifts_near_flipped_slivers_above_the_area_floor():
     V1[12] += [0.97, 0.0, 0.0]                        # almost onto its right neighbours' edge
     assert sn.flipped_faces(V, V1, F) == 0
     need = 0.25 * np.linalg.norm(n0, axis=1)
-    V2, moved = sn.untangle(V1, F, n0, free, min_projected=need)
+    V2, moved = untangle(V1, F, n0, free, min_projected=need)
     assert list(moved) == [12]
     n2 = np.cross(V2[F[:, 1]] - V2[F[:, 0]], V2[F[:, 2]] - V2[F[:, 0]])
     assert (n2[:, 2] > need).all()                     # every face above a quarter of its area
-    assert np.array_equal(sn.untangle(V1, F, n0, free)[0], V1)   # flips only: nothing to do
+    assert np.array_equal(untangle(V1, F, n0, free)[0], V1)   # flips only: nothing to do

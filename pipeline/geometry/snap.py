@@ -14,7 +14,8 @@ of ``james`` sits up to 2.6 mm off the fitted eyeball), the zone can fold over. 
 displacement is then relaxed (Jacobi smoothing, margin and the rest held), and the free
 corners of any face still flipped, or squeezed below ``min_area_fraction`` of its rest area
 seen along its rest normal, are slid tangentially into the region where all their faces keep
-their orientation (:func:`untangle`, small linear programs), staying outside the eyeball.
+their orientation (:func:`pipeline.geometry.flips.untangle`, small linear programs), staying
+outside the eyeball.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.geometry import meshtopo
+from pipeline.geometry.flips import untangle
 from pipeline.settings import Settings, setting
 
 SIDES = ("left", "right")
@@ -207,163 +209,6 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
     return V2, {"moved": moved, "grazing": int(graze.sum()), "pushed_out": pushed,
                 "relax_iterations": relax_iters, "untangled": untangled,
                 "falloff_distance": dist}
-
-
-def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, min_projected=None):
-    """Move free vertices of flipped faces tangentially until no face points against its reference.
-
-    A face (a, b, v) with ``a``, ``b`` held has normal ``(b - a) x (v - a)``, whose dot product
-    with the face's reference normal ``r`` is ``(v - a) . (r x (b - a))``: linear in ``v``. So
-    with its neighbours held, the positions of ``v`` that leave all its faces unflipped form a
-    convex region (the kernel of its one-ring, seen along the references). Each round visits
-    the free corners of the flipped faces one by one (Gauss-Seidel) and solves two small linear
-    programs in the tangent plane of the vertex (normal = mean reference normal of its faces):
-    the largest reachable clearance ``t*`` from every face's edge line, then the smallest move
-    (L1) that reaches ``t*/2``. A vertex whose region is empty within ``max_step`` stays.
-    With ``min_projected`` a face also counts as bad (and is kept above it) while its doubled
-    area seen along its reference, ``n . r / |r|``, is at most that value (near-flipped slivers).
-
-    Parameters
-    ----------
-    V : (n, 3) float64
-        Current positions.
-    F : (m, 3) int64
-    ref_normals : (m, 3) float64
-        Reference direction per face (any length), e.g. the rest normals.
-    free : (n,) bool
-        Vertices that may move.
-    keep_out : callable, optional
-        ``keep_out(P) -> (Q, N, d)`` closest surface points, unit normals and signed distances
-        (e.g. :meth:`PlacedEye.closest`); moved vertices stay on the outer side of the surface's
-        tangent plane at their closest point (outside a convex surface).
-    rounds : int
-    max_step : float, optional
-        Largest move per coordinate and round, mm (default: the vertex's longest edge).
-    min_projected : (m,) float64, optional
-        Smallest acceptable doubled projected area per face, mm^2 (default 0: flips only).
-
-    Returns
-    -------
-    V2 : (n, 3) float64
-    moved : (k,) int64
-        Vertices that were moved.
-    """
-    from scipy.optimize import linprog
-
-    V = np.array(V, dtype=np.float64, copy=True)
-    F = np.asarray(F, dtype=np.int64)
-    R = np.asarray(ref_normals, dtype=np.float64)
-    R = R / np.maximum(np.linalg.norm(R, axis=1, keepdims=True), 1e-300)
-    free = np.asarray(free, dtype=bool)
-    need = np.zeros(len(F)) if min_projected is None else np.asarray(min_projected, np.float64)
-    order = np.argsort(F.ravel(), kind="stable")
-    starts = np.searchsorted(F.ravel()[order], np.arange(len(V) + 1))
-    moved = set()
-
-    def faces_of(v):
-        return order[starts[v]:starts[v + 1]] // 3
-
-    def bad_faces():
-        n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-        return np.flatnonzero(np.einsum("ij,ij->i", n, R) <= need)
-
-    for _ in range(rounds):
-        bad = bad_faces()
-        if len(bad) == 0:
-            break
-        cand = np.unique(F[bad].ravel())
-        cand = cand[free[cand]]
-        if len(cand) == 0:
-            break
-        changed = False
-        for v in cand:
-            fs = faces_of(v)
-            x0 = V[v]
-            rows, rhs, extra = [], [], []
-            for fi in fs:
-                f = F[fi]
-                k = int(np.flatnonzero(f == v)[0])
-                a, b = V[f[(k + 1) % 3]], V[f[(k + 2) % 3]]
-                g = np.cross(R[fi], b - a)
-                gn = np.linalg.norm(g)
-                if gn < 1e-12:
-                    continue
-                rows.append(g / gn)
-                rhs.append(float((g / gn) @ a))
-                extra.append(need[fi] / gn)
-            if not rows:
-                continue
-            G = np.array(rows)
-            nrm = R[fs].sum(axis=0)
-            if np.linalg.norm(nrm) < 1e-12:
-                continue
-            nrm /= np.linalg.norm(nrm)
-            e1 = np.cross(nrm, [1.0, 0.0, 0.0])
-            if np.linalg.norm(e1) < 0.1:
-                e1 = np.cross(nrm, [0.0, 1.0, 0.0])
-            e1 /= np.linalg.norm(e1)
-            e2 = np.cross(nrm, e1)
-            E = np.stack([e1, e2], axis=1)                        # x = x0 + E @ (alpha, beta)
-            A = G @ E                                              # slack_k = A_k . ab + s0_k
-            step = max_step
-            if step is None:
-                step = float(np.max(np.linalg.norm(V[F[fs]] - x0, axis=2)))
-            A_ub, b_ub = [], []
-            if keep_out is not None:
-                Q, Nq, _ = keep_out(x0[None])
-                # stay outside: Nq . (x - Q) >= 0
-                A_ub.append(np.concatenate([-(Nq[0] @ E), [0.0]]))
-                b_ub.append(float(Nq[0] @ (x0 - Q[0])))
-            ko_rows = [np.array(A_ub)] if A_ub else []
-            bounds = [(-step, step), (-step, step), (None, step)]
-            A1 = np.hstack([-A, np.ones((len(A), 1))])
-
-            def max_clearance(s0, floor=None):
-                """max t: slack_k = A_k . ab + s0_k >= t (and A_k . ab + s_flip_k >= floor)."""
-                rows, rhs_ = [A1] + ko_rows, [s0, b_ub]
-                if floor is not None:
-                    rows.append(np.hstack([-A, np.zeros((len(A), 1))]))
-                    rhs_.append(floor[0] - floor[1])
-                return linprog([0.0, 0.0, -1.0], A_ub=np.vstack(rows),
-                               b_ub=np.concatenate(rhs_), bounds=bounds, method="highs")
-
-            s_flip = G @ x0 - np.array(rhs)                        # projected heights
-            s_need = s_flip - np.array(extra)                      # ... above the area floor
-            lpf = max_clearance(s_flip)
-            t_flip = -lpf.fun if lpf.status == 0 else -np.inf
-            floor = (s_flip, 0.5 * t_flip) if t_flip > 0 else None
-            lp1 = max_clearance(s_need, floor)
-            if lp1.status != 0:
-                continue
-            if -lp1.fun <= 0:
-                # no spot clears every floor: take the one with the least violation when it
-                # improves on the current one (its neighbours' faces then turn bad and get
-                # their own turn, spreading the correction into the free zone)
-                if -lp1.fun > s_need.min() + 1e-9:
-                    V[v] = x0 + E @ lp1.x[:2]
-                    moved.add(int(v))
-                    changed = True
-                continue
-            want = 0.5 * (-lp1.fun)
-            # smallest L1 move reaching half that clearance: variables (ab+, ab-) >= 0
-            A_ub2 = [np.hstack([-A, A])]
-            b_ub2 = [s_need - want]
-            if floor is not None:
-                A_ub2.append(np.hstack([-A, A]))
-                b_ub2.append(s_flip - 0.5 * t_flip)
-            if A_ub:
-                ko = np.array(A_ub)[:, :2]
-                A_ub2.append(np.hstack([ko, -ko]))
-                b_ub2.append(np.array(b_ub))
-            lp2 = linprog(np.ones(4), A_ub=np.vstack(A_ub2), b_ub=np.concatenate(b_ub2),
-                          bounds=[(0, step)] * 4, method="highs")
-            ab = (lp2.x[:2] - lp2.x[2:]) if lp2.status == 0 else lp1.x[:2]
-            V[v] = x0 + E @ ab
-            moved.add(int(v))
-            changed = True
-        if not changed:
-            break
-    return V, np.array(sorted(moved), dtype=np.int64)
 
 
 def _flipped_mask(V0, V1, F):

@@ -1,0 +1,358 @@
+"""Keeping a moved or remeshed surface free of flipped faces.
+
+Against a reference surface (the dense scan a low-poly mesh approximates): :func:`count_flipped`
+counts the faces whose normal points against the reference's nearby normals; :func:`relax`
+smooths tangentially without creating any; :func:`repair_flips`, :func:`mirror_flipped`,
+:func:`collapse_flipped` and :func:`flip_slivers` repair them (retopology). Against per-face
+reference normals: :func:`untangle` slides the free corners of flipped faces into the region
+where all their faces keep their orientation (small linear programs; retopology and snap).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.geometry import mesh_checks as mc
+from pipeline.geometry.mesh_edit import TriMesh
+
+def _vertex_adjacency(F, n):
+    from scipy.sparse import coo_matrix
+
+    e = mc.edges_of(F)
+    A = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    A = ((A + A.T) > 0).astype(np.float64)
+    return A
+
+
+def reference_face_normals(V, F, ref_V, ref_F):
+    """Per face, the normalised sum of the reference surface's normals nearest its three vertices."""
+    _, fi, _ = mc.closest_points(V, ref_V, ref_F)
+    vn = mc.face_normals(ref_V, np.asarray(ref_F)[fi])
+    n = vn[F].sum(axis=1)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3):
+    """Tangential Laplacian smoothing of free vertices, reprojected onto the reference surface.
+
+    A face's orientation is judged against the reference surface's normals; a
+    step that would turn a face further than ``min_dot`` (cosine) away from the
+    reference, and away from where it was, is reverted for that face's vertices,
+    so relaxing never creates flipped faces and can repair existing ones.
+    """
+    V = np.asarray(V, dtype=np.float64).copy()
+    if iterations <= 0:
+        return V
+    A = _vertex_adjacency(F, len(V))
+    deg = np.asarray(A.sum(axis=1)).ravel()
+    free = np.ones(len(V), dtype=bool)
+    free[np.asarray(fixed, dtype=np.int64)] = False
+    for _ in range(iterations):
+        N = mc.vertex_normals(V, F)
+        R = reference_face_normals(V, F, ref_V, ref_F)
+        d0 = np.einsum("ij,ij->i", mc.face_normals(V, F), R)
+        L = (A @ V) / np.maximum(deg, 1)[:, None] - V
+        L -= np.einsum("ij,ij->i", L, N)[:, None] * N
+        Vn = V.copy()
+        Vn[free] += step * L[free]
+        _, _, C = mc.closest_points(Vn[free], ref_V, ref_F)
+        Vn[free] = C
+        d1 = np.einsum("ij,ij->i", mc.face_normals(Vn, F), R)
+        bad = (d1 < min_dot) & (d1 < d0)
+        if bad.any():
+            Vn[np.unique(F[bad])] = V[np.unique(F[bad])]
+        V = Vn
+    return V
+
+
+def repair_flips(V, F, fixed, ref_V, ref_F, rounds=10):
+    """Move the free vertices of flipped faces to the mean of their neighbours (then onto the
+    reference surface when that keeps the face unflipped); returns new V."""
+    V = np.asarray(V, dtype=np.float64).copy()
+    A = _vertex_adjacency(F, len(V))
+    deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1)
+    free = np.ones(len(V), dtype=bool)
+    free[np.asarray(fixed, dtype=np.int64)] = False
+    last = None
+    for _ in range(rounds):
+        R = reference_face_normals(V, F, ref_V, ref_F)
+        bad = np.einsum("ij,ij->i", mc.face_normals(V, F), R) <= 0.05
+        if not bad.any() or (last is not None and bad.sum() >= last):
+            break
+        last = int(bad.sum())
+        mv = np.unique(F[bad])
+        mv = mv[free[mv]]
+        if len(mv) == 0:
+            break
+        avg = (A[mv] @ V) / deg[mv, None]
+        Vt = V.copy()
+        Vt[mv] = avg
+        _, _, C = mc.closest_points(avg, ref_V, ref_F)
+        Vp = Vt.copy()
+        Vp[mv] = C
+        R2 = reference_face_normals(Vp, F, ref_V, ref_F)
+        if np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(Vp, F), R2) <= 0) <= \
+                np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(Vt, F), R2) <= 0):
+            V = Vp
+        else:
+            V = Vt
+    return V
+
+
+def mirror_flipped(V, F, fixed, ref_V, ref_F):
+    """Flipped faces with one free corner ``c`` and a fixed edge ``a-b`` (slivers at the eyelid
+    loop): move ``c`` to the inner side of the edge, a third of the edge length from it, keeping
+    the move only when it lowers the number of flipped faces."""
+    V = np.asarray(V, dtype=np.float64).copy()
+    fixed_m = np.zeros(len(V), dtype=bool)
+    fixed_m[np.asarray(fixed, dtype=np.int64)] = True
+    R = reference_face_normals(V, F, ref_V, ref_F)
+    dots = np.einsum("ij,ij->i", mc.face_normals(V, F), R)
+    for f in np.flatnonzero(dots <= 0):
+        face = F[f]
+        free = [k for k in range(3) if not fixed_m[face[k]]]
+        if len(free) != 1:
+            continue
+        k = free[0]
+        c, a, b = face[k], face[(k + 1) % 3], face[(k + 2) % 3]
+        e = V[b] - V[a]
+        inward = np.cross(R[f], e)          # for face (c, a, b) wound CCW about R, c lies on this side
+        inward /= max(np.linalg.norm(inward), 1e-300)
+        mid = 0.5 * (V[a] + V[b])
+        before = count_flipped(V, F, ref_V, ref_F)
+        old = V[c].copy()
+        V[c] = mid + inward * np.linalg.norm(e) / 3.0
+        if count_flipped(V, F, ref_V, ref_F) >= before:
+            V[c] = old
+    return V
+
+
+def flip_slivers(V, F, ref_V, ref_F, min_angle_deg=10.0):
+    """Flip the longest edge of sliver triangles (min angle below ``min_angle_deg``) when the edge
+    is interior and both new triangles are better shaped and agree with the reference normal."""
+    ang = mc.triangle_angles_deg(V, F)
+    bad = np.flatnonzero(ang.min(axis=1) < min_angle_deg)
+    if len(bad) == 0:
+        return F
+    R = reference_face_normals(V, F, ref_V, ref_F)
+    tm = TriMesh(V, F)
+    on_border = np.zeros(len(V), dtype=bool)
+    for lp in mc.boundary_loops(F):
+        on_border[lp] = True
+    key = {tuple(f): i for i, f in enumerate(F.tolist())}
+    for f in bad[np.argsort(ang[bad].min(axis=1))]:
+        fi = key.get(tuple(F[f].tolist()))
+        if fi is None or fi not in tm.F or tm.F[fi] != list(F[f]):
+            continue
+        face = tm.F[fi]
+        k = int(np.argmax(ang[f]))                 # largest angle; its opposite edge is the longest
+        a, c = face[(k + 1) % 3], face[(k + 2) % 3]
+        twins = [g for g in tm.vf[a] & tm.vf[c] if g != fi]
+        if len(twins) != 1:
+            continue
+        # a flip takes one face from a and from c: never leave a border vertex with a single
+        # face (an 'ear' whose three corners lie on an eyelid loop is degenerate or inverted
+        # on the convex opening and flips when snap moves the loop) or an interior vertex with
+        # fewer than three
+        if any(len(tm.vf[v]) <= (2 if on_border[v] else 3) for v in (a, c)):
+            continue
+        g = twins[0]
+        old_min = min(ang[f].min(), mc.triangle_angles_deg(np.array(tm.V), np.array([tm.F[g]])).min())
+        b = face[k]
+        d = [v for v in tm.F[g] if v not in (a, c)][0]
+        new = np.array([[a, b, d], [b, c, d]])
+        if mc.triangle_angles_deg(np.array(tm.V), new).min() <= old_min:
+            continue
+        tm.flip_edge(fi, a, c, R[f], min_cos=0.3)
+    Vn, Fn, _ = tm.arrays()
+    return Fn
+
+
+def collapse_flipped(V, F, loops, fixed, ref_V, ref_F):
+    """Remove flipped faces by collapsing their free vertex into one of the face's other corners."""
+    R = reference_face_normals(V, F, ref_V, ref_F)
+    bad = np.flatnonzero(np.einsum("ij,ij->i", mc.face_normals(V, F), R) <= 0)
+    fixed = set(map(int, fixed))
+    tm = TriMesh(V, F)
+    for f in bad:
+        face = F[f]
+        fi = [k for k, g in tm.F.items() if list(g) == list(face)]
+        if not fi:
+            continue
+        if any(tm.flip_edge(fi[0], int(face[i]), int(face[(i + 1) % 3]), R[f]) for i in range(3)):
+            continue
+        for c in face:
+            if int(c) in fixed or not tm.vf.get(int(c)):
+                continue
+            done = False
+            for t in face:
+                if t != c and tm.collapse(int(c), int(t), min_cos=0.05, ref=R[f]):
+                    done = True
+                    break
+            if done:
+                break
+    Vn, Fn, remap = tm.arrays()
+    return Vn, Fn, {k: remap[v] for k, v in loops.items()}
+
+
+def count_flipped(V, F, ref_V, ref_F):
+    """Faces whose normal points against the reference surface's nearby normals."""
+    R = reference_face_normals(V, F, ref_V, ref_F)
+    return int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, F), R) <= 0))
+
+
+def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, min_projected=None):
+    """Move free vertices of flipped faces tangentially until no face points against its reference.
+
+    A face (a, b, v) with ``a``, ``b`` held has normal ``(b - a) x (v - a)``, whose dot product
+    with the face's reference normal ``r`` is ``(v - a) . (r x (b - a))``: linear in ``v``. So
+    with its neighbours held, the positions of ``v`` that leave all its faces unflipped form a
+    convex region (the kernel of its one-ring, seen along the references). Each round visits
+    the free corners of the flipped faces one by one (Gauss-Seidel) and solves two small linear
+    programs in the tangent plane of the vertex (normal = mean reference normal of its faces):
+    the largest reachable clearance ``t*`` from every face's edge line, then the smallest move
+    (L1) that reaches ``t*/2``. A vertex whose region is empty within ``max_step`` stays.
+    With ``min_projected`` a face also counts as bad (and is kept above it) while its doubled
+    area seen along its reference, ``n . r / |r|``, is at most that value (near-flipped slivers).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+        Current positions.
+    F : (m, 3) int64
+    ref_normals : (m, 3) float64
+        Reference direction per face (any length), e.g. the rest normals.
+    free : (n,) bool
+        Vertices that may move.
+    keep_out : callable, optional
+        ``keep_out(P) -> (Q, N, d)`` closest surface points, unit normals and signed distances
+        (e.g. :meth:`pipeline.geometry.snap.PlacedEye.closest`); moved vertices stay on the outer
+        side of the surface's tangent plane at their closest point (outside a convex surface).
+    rounds : int
+    max_step : float, optional
+        Largest move per coordinate and round, mm (default: the vertex's longest edge).
+    min_projected : (m,) float64, optional
+        Smallest acceptable doubled projected area per face, mm^2 (default 0: flips only).
+
+    Returns
+    -------
+    V2 : (n, 3) float64
+    moved : (k,) int64
+        Vertices that were moved.
+    """
+    from scipy.optimize import linprog
+
+    V = np.array(V, dtype=np.float64, copy=True)
+    F = np.asarray(F, dtype=np.int64)
+    R = np.asarray(ref_normals, dtype=np.float64)
+    R = R / np.maximum(np.linalg.norm(R, axis=1, keepdims=True), 1e-300)
+    free = np.asarray(free, dtype=bool)
+    need = np.zeros(len(F)) if min_projected is None else np.asarray(min_projected, np.float64)
+    order = np.argsort(F.ravel(), kind="stable")
+    starts = np.searchsorted(F.ravel()[order], np.arange(len(V) + 1))
+    moved = set()
+
+    def faces_of(v):
+        return order[starts[v]:starts[v + 1]] // 3
+
+    def bad_faces():
+        n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+        return np.flatnonzero(np.einsum("ij,ij->i", n, R) <= need)
+
+    for _ in range(rounds):
+        bad = bad_faces()
+        if len(bad) == 0:
+            break
+        cand = np.unique(F[bad].ravel())
+        cand = cand[free[cand]]
+        if len(cand) == 0:
+            break
+        changed = False
+        for v in cand:
+            fs = faces_of(v)
+            x0 = V[v]
+            rows, rhs, extra = [], [], []
+            for fi in fs:
+                f = F[fi]
+                k = int(np.flatnonzero(f == v)[0])
+                a, b = V[f[(k + 1) % 3]], V[f[(k + 2) % 3]]
+                g = np.cross(R[fi], b - a)
+                gn = np.linalg.norm(g)
+                if gn < 1e-12:
+                    continue
+                rows.append(g / gn)
+                rhs.append(float((g / gn) @ a))
+                extra.append(need[fi] / gn)
+            if not rows:
+                continue
+            G = np.array(rows)
+            nrm = R[fs].sum(axis=0)
+            if np.linalg.norm(nrm) < 1e-12:
+                continue
+            nrm /= np.linalg.norm(nrm)
+            e1 = np.cross(nrm, [1.0, 0.0, 0.0])
+            if np.linalg.norm(e1) < 0.1:
+                e1 = np.cross(nrm, [0.0, 1.0, 0.0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(nrm, e1)
+            E = np.stack([e1, e2], axis=1)                        # x = x0 + E @ (alpha, beta)
+            A = G @ E                                              # slack_k = A_k . ab + s0_k
+            step = max_step
+            if step is None:
+                step = float(np.max(np.linalg.norm(V[F[fs]] - x0, axis=2)))
+            A_ub, b_ub = [], []
+            if keep_out is not None:
+                Q, Nq, _ = keep_out(x0[None])
+                # stay outside: Nq . (x - Q) >= 0
+                A_ub.append(np.concatenate([-(Nq[0] @ E), [0.0]]))
+                b_ub.append(float(Nq[0] @ (x0 - Q[0])))
+            ko_rows = [np.array(A_ub)] if A_ub else []
+            bounds = [(-step, step), (-step, step), (None, step)]
+            A1 = np.hstack([-A, np.ones((len(A), 1))])
+
+            def max_clearance(s0, floor=None):
+                """max t: slack_k = A_k . ab + s0_k >= t (and A_k . ab + s_flip_k >= floor)."""
+                rows, rhs_ = [A1] + ko_rows, [s0, b_ub]
+                if floor is not None:
+                    rows.append(np.hstack([-A, np.zeros((len(A), 1))]))
+                    rhs_.append(floor[0] - floor[1])
+                return linprog([0.0, 0.0, -1.0], A_ub=np.vstack(rows),
+                               b_ub=np.concatenate(rhs_), bounds=bounds, method="highs")
+
+            s_flip = G @ x0 - np.array(rhs)                        # projected heights
+            s_need = s_flip - np.array(extra)                      # ... above the area floor
+            lpf = max_clearance(s_flip)
+            t_flip = -lpf.fun if lpf.status == 0 else -np.inf
+            floor = (s_flip, 0.5 * t_flip) if t_flip > 0 else None
+            lp1 = max_clearance(s_need, floor)
+            if lp1.status != 0:
+                continue
+            if -lp1.fun <= 0:
+                # no spot clears every floor: take the one with the least violation when it
+                # improves on the current one (its neighbours' faces then turn bad and get
+                # their own turn, spreading the correction into the free zone)
+                if -lp1.fun > s_need.min() + 1e-9:
+                    V[v] = x0 + E @ lp1.x[:2]
+                    moved.add(int(v))
+                    changed = True
+                continue
+            want = 0.5 * (-lp1.fun)
+            # smallest L1 move reaching half that clearance: variables (ab+, ab-) >= 0
+            A_ub2 = [np.hstack([-A, A])]
+            b_ub2 = [s_need - want]
+            if floor is not None:
+                A_ub2.append(np.hstack([-A, A]))
+                b_ub2.append(s_flip - 0.5 * t_flip)
+            if A_ub:
+                ko = np.array(A_ub)[:, :2]
+                A_ub2.append(np.hstack([ko, -ko]))
+                b_ub2.append(np.array(b_ub))
+            lp2 = linprog(np.ones(4), A_ub=np.vstack(A_ub2), b_ub=np.concatenate(b_ub2),
+                          bounds=[(0, step)] * 4, method="highs")
+            ab = (lp2.x[:2] - lp2.x[2:]) if lp2.status == 0 else lp1.x[:2]
+            V[v] = x0 + E @ ab
+            moved.add(int(v))
+            changed = True
+        if not changed:
+            break
+    return V, np.array(sorted(moved), dtype=np.int64)
