@@ -1,0 +1,130 @@
+"""The bake stage's work: read the low-poly mesh and the dense scan, unwrap, bake, write the
+maps and measure the reconstruction error.
+
+The machine has 2 cores, so independent steps overlap in forked children (fork shares the
+arrays without copying): the xatlas unwrap (which holds the GIL) runs while the dense scan and
+its texture load and the UV-independent half of the accuracy metric runs; the UV-dependent
+half runs while the maps are written. A child that fails is rerun in the parent, so a result
+never depends on the fork.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_baseline, reconstruction_error
+from pipeline.bake.exr import preview_16bit, write_exr
+from pipeline.bake.uv import unwrap
+from pipeline.errors import ScanError
+from pipeline.io.atomic import write_json
+from pipeline.io.meshfile import read_stage_mesh, save_mesh
+
+
+def fork_call(fn, *args, **kwargs):
+    """Start ``fn(*args, **kwargs)`` in a forked child; returns a job for :func:`fork_result`."""
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+
+    def target():
+        t0 = time.perf_counter()
+        try:
+            send.send(("ok", fn(*args, **kwargs), time.perf_counter() - t0))
+        except BaseException as exc:  # reported to the parent, which reruns the call itself
+            send.send(("error", repr(exc), 0.0))
+
+    proc = ctx.Process(target=target, daemon=True)
+    proc.start()
+    send.close()
+    return proc, recv, fn, args, kwargs
+
+
+def fork_result(job):
+    """(value, seconds) of a :func:`fork_call` job; reruns the call here if the child failed."""
+    proc, recv, fn, args, kwargs = job
+    try:
+        status, value, dt = recv.recv()
+    except (EOFError, OSError):
+        status, value, dt = "error", None, 0.0
+    proc.join()
+    recv.close()
+    if status != "ok":
+        t0 = time.perf_counter()
+        value = fn(*args, **kwargs)
+        dt = time.perf_counter() - t0
+    return value, dt
+
+
+def _texture(path: Path):
+    """The dense scan's colour texture as (H, W, 3) uint8, or None when there is none."""
+    from PIL import Image
+
+    if not path.exists():
+        return None
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert("RGB"))
+    except OSError as exc:
+        raise ScanError(path, f"cannot read texture ({exc})") from None
+
+
+def _write(out: Path, low: dict, result, settings: BakeSettings) -> None:
+    from PIL import Image
+
+    q, scale, offset = preview_16bit(result.displacement, result.mask)
+    save_mesh(out / "mesh.npz", **{k: v for k, v in low.items() if k not in ("UV", "FUV")},
+              UV=result.UV, FUV=result.FUV)
+    write_exr(out / "displacement.exr", result.displacement)
+    Image.fromarray(q).save(out / "displacement_preview.png", compress_level=3)
+    colour = result.color if result.color is not None else np.full(
+        result.displacement.shape + (3,), 200, dtype=np.uint8)
+    Image.fromarray(colour).save(out / "color.png", compress_level=3)
+    write_json(out / "bake.json", {
+        "resolution": settings.resolution,
+        "displacement": {"file": "displacement.exr", "channel": "Y", "units": "mm",
+                         "meaning": "signed distance along the interpolated vertex normal of the "
+                                    "flat (midpoint-subdivided) low-poly surface; positive = outward",
+                         "falloff_mm_at_eyelid_loops": settings.falloff_mm},
+        "preview": {"file": "displacement_preview.png", "bits": 16,
+                    "value_mm = offset + scale * pixel": {"scale": scale, "offset": offset}},
+        "color": {"file": "color.png", "source": result.metrics["colour"] or "none (flat grey)"},
+        "uv": "mesh.npz UV/FUV, origin bottom-left; image rows top-down",
+    })
+
+
+def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> dict:
+    """Bake ``retopo_dir/mesh.npz`` (V, F, loop_left, loop_right) against the dense scan
+    ``dense_dir/mesh.npz`` (+ ``texture.png``) and write the bake product into ``out_dir``
+    (an existing, empty folder: the stage's atomic output). Returns the metrics.
+
+    Raises
+    ------
+    ScanError
+        A missing or incomplete input mesh, an unreadable texture.
+    """
+    retopo_dir, dense_dir, out_dir = Path(retopo_dir), Path(dense_dir), Path(out_dir)
+    low = read_stage_mesh(retopo_dir / "mesh.npz", required=("V", "F", "loop_left", "loop_right"))
+    # the xatlas unwrap (holds the GIL) runs in a forked child while the scan and texture load
+    uv_job = fork_call(unwrap, low["V"], low["F"], settings.resolution, settings.uv_padding_texels)
+    dense = read_stage_mesh(dense_dir / "mesh.npz")
+    texture = _texture(dense_dir / "texture.png")
+    loops = {"left": low["loop_left"], "right": low["loop_right"]}
+    # while the child unwraps: the UV-independent half of the accuracy metric
+    t0 = time.perf_counter()
+    baseline = reconstruction_baseline(low["V"], low["F"], dense["V"], dense["F"],
+                                       levels=settings.subdivision_levels, n_samples=settings.metric_samples)
+    baseline_s = time.perf_counter() - t0
+    (UV, FUV), unwrap_s = fork_result(uv_job)
+    result = bake_maps(low["V"], low["F"], loops, dense, texture, settings, UV=UV, FUV=FUV)
+    result.metrics["timings_s"]["unwrap_s"] = round(unwrap_s, 4)   # child process, overlapped with loading
+    # the accuracy metric runs in a child while the maps are written
+    err_job = fork_call(reconstruction_error, low["V"], low["F"], result.UV, result.FUV, result.displacement,
+                        dense["V"], dense["F"], levels=settings.subdivision_levels,
+                        n_samples=settings.metric_samples, baseline=baseline)
+    _write(out_dir, low, result, settings)
+    err, recon_s = fork_result(err_job)
+    result.metrics["timings_s"]["reconstruction_error_s"] = round(baseline_s + recon_s, 4)
+    return {**result.metrics, "reconstruction": err}
