@@ -21,6 +21,9 @@ import numpy as np
 from benchmarks.compare_ict_lids import load_ict
 from pipeline.io.atomic import write_json
 from pipeline.rig import lids
+from pipeline.rig.eye_frame import EyeFrame
+from pipeline.rig.lid_shapes import build_lid_shapes
+from pipeline.rig.sweep import sweep_check
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,8 +37,8 @@ def ict_eyes(V, remap, gt):
         r = float(g["eyeball_sphere"]["radius_mm"])
         w = V[loop] - c
         V[loop] = c + r * w / np.linalg.norm(w, axis=1, keepdims=True)
-        eyes.append(lids.EyeFrame(side, c, r, np.asarray(g["gaze_direction"], float), loop,
-                                  int(g["eyelid_margin"]["lateral_canthus_index"])))
+        eyes.append(EyeFrame(side, c, r, np.asarray(g["gaze_direction"], float), loop,
+                             int(g["eyelid_margin"]["lateral_canthus_index"])))
     return eyes
 
 
@@ -51,9 +54,9 @@ def main(argv=None) -> int:
         times = []
         for _ in range(5):
             t0 = time.perf_counter()
-            rig = lids.build_lid_shapes(V, F, eyes, params)
+            rig = build_lid_shapes(V, F, eyes, params)
             times.append(time.perf_counter() - t0)
-        res = lids.sweep_check(V, F, eyes, rig.shapes, pitches)
+        res = sweep_check(V, F, eyes, rig.shapes, pitches)
         n_floats = sum(s.offsets.size + s.inbetween_offsets.size for s in rig.shapes)
         rows.append({"max_chord_sag_mm": target, "poses_per_direction": rig.n_segments,
                      "predicted_sag_mm": rig.predicted_sag_mm,

@@ -24,6 +24,9 @@ import numpy as np
 
 from pipeline.io.atomic import write_json
 from pipeline.rig import lids
+from pipeline.rig.eye_frame import EyeFrame, rotate_about_axis
+from pipeline.rig.lid_shapes import build_lid_shapes, canthus_taper
+from pipeline.rig.sweep import sweep_check
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,12 +66,12 @@ def margin_motion(V, eye, gain_upper, gain_lower, pitch_deg, width, exponent):
     loop, li = eye.loop, eye.lateral_index
     x = (V[loop] - eye.center) @ eye.basis()[0]
     u = np.clip((x - x[0]) / (x[li] - x[0]), 0, 1)
-    taper = lids.canthus_taper(u, width, exponent)
+    taper = canthus_taper(u, width, exponent)
     taper[[0, li]] = 0.0
     gain = np.full(len(loop), float(gain_lower))
     gain[1:li] = gain_upper
     th = np.radians(pitch_deg) * gain * taper
-    return lids.rotate_about_axis(V[loop], eye.center, eye.axis, th) - V[loop]
+    return rotate_about_axis(V[loop], eye.center, eye.axis, th) - V[loop]
 
 
 def fit_gains(V, eyes, deltas):
@@ -102,10 +105,10 @@ def compare(Vs, F, eyes, deltas, params, corneas=None):
     times = []
     for _ in range(3):
         t0 = time.perf_counter()
-        rig = lids.build_lid_shapes(Vs, F, eyes, params)
+        rig = build_lid_shapes(Vs, F, eyes, params)
         times.append(time.perf_counter() - t0)
     pitches = np.arange(-25.0, 25.0 + 1e-9, 0.5)
-    sweep = lids.sweep_check(Vs, F, eyes, rig.shapes, pitches, corneas=corneas)
+    sweep = sweep_check(Vs, F, eyes, rig.shapes, pitches, corneas=corneas)
     result = {"n_segments": rig.n_segments, "build_s_median": float(np.median(times)),
               "sweep": sweep, "params": {k: getattr(params, k) for k in params.__dataclass_fields__},
               "eyes": {}}
@@ -159,7 +162,7 @@ def draw_figure(path, Vs, F, eyes, deltas, params):
     from PIL import Image, ImageDraw
 
     e = next(e for e in eyes if e.side == "left")
-    rig = lids.build_lid_shapes(Vs, F, eyes, params)
+    rig = build_lid_shapes(Vs, F, eyes, params)
     B = e.basis()
     curves = {"rest": Vs[e.loop]}
     for pitch, name, kind in ((25.0, lids.SHAPE_UP, "Up"), (-25.0, lids.SHAPE_DOWN, "Down")):
@@ -198,9 +201,9 @@ def main(argv=None) -> int:
         r = float(e["eyeball_sphere"]["radius_mm"])
         w = Vs[loop] - c
         Vs[loop] = c + r * w / np.linalg.norm(w, axis=1, keepdims=True)
-        eyes.append(lids.EyeFrame(side=side, center=c, radius=r,
-                                  forward=np.asarray(e["gaze_direction"], float), loop=loop,
-                                  lateral_index=int(e["eyelid_margin"]["lateral_canthus_index"])))
+        eyes.append(EyeFrame(side=side, center=c, radius=r,
+                             forward=np.asarray(e["gaze_direction"], float), loop=loop,
+                             lateral_index=int(e["eyelid_margin"]["lateral_canthus_index"])))
     corneas = {side: (np.asarray(gt["eyes"][side]["cornea_sphere"]["center_mm"], float),
                       float(gt["eyes"][side]["cornea_sphere"]["radius_mm"])) for side in SIDES}
     default = compare(Vs, F, eyes, deltas, lids.LidParams(), corneas)

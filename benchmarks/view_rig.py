@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.geometry.frame import eye_basis
 from pipeline.io.meshfile import load_mesh
 from pipeline.rig import lids
 
@@ -25,7 +26,7 @@ def panel(P, F, loop, eye: dict, pitch: float, size=400):
     from PIL import Image, ImageDraw
 
     c, r = np.asarray(eye["center"], float), float(eye["radius"])
-    B = lids.eye_basis(eye["forward"])
+    B = eye_basis(eye["forward"])
     sel = np.linalg.norm(P[F].mean(1) - c, axis=1) < 2.2 * r
     Fs = F[sel]
     n = np.cross(P[Fs[:, 1]] - P[Fs[:, 0]], P[Fs[:, 2]] - P[Fs[:, 0]])

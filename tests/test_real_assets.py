@@ -224,7 +224,7 @@ def test_blender_mesh_uvs_materials_and_shape_keys(asset, blender_import):
 
 @pytest.mark.blender
 def test_blender_armature_and_eyes_follow_bones(asset, blender_import):
-    from pipeline.rig.lids import eye_basis
+    from pipeline.geometry.frame import eye_basis
 
     rig = json.loads((asset["build"] / "rig" / "rig.json").read_text())
     data, meta = blender_import(asset)

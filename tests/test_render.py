@@ -26,6 +26,7 @@ from pipeline.render import labels as lb
 from pipeline.render import run as rr
 from pipeline.render import sampling as sp
 from pipeline.rig import lids
+from pipeline.rig.eye_frame import EyeFrame
 from pipeline.rig.landmarks import eyelid_landmarks
 from stages import usd as usd_stage
 from stages._common import read_stage_metrics, run_stage
@@ -60,8 +61,8 @@ def tiny(tmp_path_factory):
     V = inp["V"]
     for side, e in EYES.items():
         loop, lat = _ring(V, e["center"], side)
-        frame = lids.EyeFrame(side=side, center=np.asarray(e["center"]), radius=e["radius"],
-                              forward=np.asarray(e["forward"]), loop=loop, lateral_index=lat)
+        frame = EyeFrame(side=side, center=np.asarray(e["center"]), radius=e["radius"],
+                         forward=np.asarray(e["forward"]), loop=loop, lateral_index=lat)
         lm = eyelid_landmarks(V, frame)
         arrays[f"loop_{side}"] = loop
         arrays[f"landmarks.{side}.edge"] = lm.edge

@@ -15,6 +15,9 @@ from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import save_mesh
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
+from pipeline.rig.eye_frame import EyeFrame, eye_frames, find_lateral_canthus, rotate_about_axis
+from pipeline.rig.lid_shapes import build_lid_shapes, follow_surface, mesh_edges, smootherstep_falloff
+from pipeline.rig.sweep import cornea_intrusion, lid_opening, sweep_check
 from pipeline.rig.build import build_rig
 from stages import rig as rig_stage
 from stages._common import read_stage_metrics, run_stage
@@ -67,16 +70,16 @@ def two_eye_region(radius=12.0, profile=None, **kw):
     Vr, Fr, loopr, lir = eye_patch(cr, radius, "right", profile=profile, **kw)
     V = np.concatenate([Vl, Vr])
     F = np.concatenate([Fl, Fr + len(Vl)])
-    eyes = [lids.EyeFrame("left", cl, radius, np.array([0.0, 0, 1]), loopl, lil, profile),
-            lids.EyeFrame("right", cr, radius, np.array([0.0, 0, 1]), loopr + len(Vl), lir,
-                          profile)]
+    eyes = [EyeFrame("left", cl, radius, np.array([0.0, 0, 1]), loopl, lil, profile),
+            EyeFrame("right", cr, radius, np.array([0.0, 0, 1]), loopr + len(Vl), lir,
+                     profile)]
     return V, F, eyes
 
 
 @pytest.fixture(scope="module")
 def region():
     V, F, eyes = two_eye_region()
-    return V, F, eyes, lids.build_lid_shapes(V, F, eyes)
+    return V, F, eyes, build_lid_shapes(V, F, eyes)
 
 
 # ---------------------------------------------------------------- the pitch-to-weight rule
@@ -123,8 +126,8 @@ def test_flat_shape_keys_reproduce_inbetween_evaluation(region):
 @pytest.mark.parametrize("radius", [12.0, 15.4, 17.1])
 def test_sweep_keeps_margin_on_eyeball_no_flips_no_crossing(radius):
     V, F, eyes = two_eye_region(radius=radius)
-    rig = lids.build_lid_shapes(V, F, eyes)
-    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    rig = build_lid_shapes(V, F, eyes)
+    res = sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
     assert res["n_pitches"] == 51
     assert res["rest_max_abs_mm"] < 1e-9
     assert res["max_gap_mm"] <= 0.1
@@ -148,9 +151,9 @@ def test_margin_exactly_on_sphere_at_stored_poses(region):
 
 def test_without_inbetweens_the_chord_sinks_into_the_eyeball():
     V, F, eyes = two_eye_region(radius=15.4)
-    one = lids.build_lid_shapes(V, F, eyes, lids.LidParams(max_segments=1))
+    one = build_lid_shapes(V, F, eyes, lids.LidParams(max_segments=1))
     assert one.n_segments == 1
-    res = lids.sweep_check(V, F, eyes, one.shapes, np.arange(-25.0, 25.01, 0.5))
+    res = sweep_check(V, F, eyes, one.shapes, np.arange(-25.0, 25.01, 0.5))
     assert res["max_penetration_mm"] > 0.1          # the problem inbetweens fix
     assert res["max_penetration_mm"] == pytest.approx(one.predicted_sag_mm, rel=0.02)
     assert res["max_gap_mm"] < 1e-9                 # chords only ever cut inside the sphere
@@ -178,7 +181,7 @@ def test_lids_move_the_right_way(region):
 def test_falloff_support_and_smoothness(region):
     V, F, eyes, rig = region
     p = lids.LidParams()
-    edges = lids.mesh_edges(F)
+    edges = mesh_edges(F)
     elen = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
     for s in rig.shapes:
         full = np.zeros_like(V)
@@ -209,13 +212,13 @@ def test_falloff_support_and_smoothness(region):
 
 
 def test_smootherstep_is_c1_at_both_ends():
-    assert lids.smootherstep_falloff(0.0) == 1.0 and lids.smootherstep_falloff(1.0) == 0.0
+    assert smootherstep_falloff(0.0) == 1.0 and smootherstep_falloff(1.0) == 0.0
     h = 1e-4
-    assert abs(lids.smootherstep_falloff(h) - 1.0) < 1e-9
-    assert abs(lids.smootherstep_falloff(1 - h)) < 1e-9
-    assert lids.smootherstep_falloff(-3.0) == 1.0 and lids.smootherstep_falloff(7.0) == 0.0
+    assert abs(smootherstep_falloff(h) - 1.0) < 1e-9
+    assert abs(smootherstep_falloff(1 - h)) < 1e-9
+    assert smootherstep_falloff(-3.0) == 1.0 and smootherstep_falloff(7.0) == 0.0
     t = np.linspace(0, 1, 101)
-    assert np.all(np.diff(lids.smootherstep_falloff(t)) <= 0)
+    assert np.all(np.diff(smootherstep_falloff(t)) <= 0)
 
 
 # ---------------------------------------------------------------- landmarks
@@ -271,7 +274,7 @@ def test_landmark_curve_follows_the_lid_shapes(region):
 def test_lateral_canthus_detection(region):
     V, F, eyes, rig = region
     for e in eyes:
-        assert lids.find_lateral_canthus(V[e.loop], e.center, e.forward, e.side) == e.lateral_index
+        assert find_lateral_canthus(V[e.loop], e.center, e.forward, e.side) == e.lateral_index
 
 
 # ---------------------------------------------------------------- the stage
@@ -332,7 +335,7 @@ def test_stage_writes_rig_that_reopens(tmp_path, region):
         on_edge = (1 - t)[:, None] * Pm[edge[:, 0]] + t[:, None] * Pm[edge[:, 1]]
         assert np.abs(Lp - on_edge).max() < 0.05
         # the stored shapes reproduce the library's posing
-        res = lids.sweep_check(V, F, eyes, shapes, PITCHES_1DEG)
+        res = sweep_check(V, F, eyes, shapes, PITCHES_1DEG)
         assert res["max_penetration_mm"] <= 0.1
     assert not list(tmp_path.glob(".rig.tmp-*"))
 
@@ -360,13 +363,13 @@ def test_lateral_canthus_from_dense_loop_points_and_mesh_arrays():
     dense[37] = V[e.loop[li]] + 0.2
     doc = {**base, "left": {**base["left"], "loop_points": dense.tolist(),
                             "loop_indices": list(range(100)), "lateral_canthus_index": 37}}
-    assert lids.eye_frames(doc, mesh)[0].lateral_index == li
+    assert eye_frames(doc, mesh)[0].lateral_index == li
     # an index into another loop (different length, no points) is ignored
     doc = {**base, "left": {**base["left"], "loop_indices": list(range(100)),
                             "lateral_canthus_index": 37}}
-    assert lids.eye_frames(doc, mesh)[0].lateral_index == li
+    assert eye_frames(doc, mesh)[0].lateral_index == li
     # an explicit mesh array wins
-    assert lids.eye_frames(base, {**mesh, "lateral_index_left": np.array(li - 1)})[0] \
+    assert eye_frames(base, {**mesh, "lateral_index_left": np.array(li - 1)})[0] \
         .lateral_index == li - 1
 
 
@@ -426,11 +429,11 @@ def test_stage_missing_inputs(tmp_path, capsys):
 def test_degenerate_triangles_do_not_break_the_rig():
     V, F, eyes = two_eye_region()
     F2 = np.concatenate([F, [[0, 0, 1], [5, 5, 5]]])
-    rig = lids.build_lid_shapes(V, F2, eyes)
-    res = lids.sweep_check(V, F2, eyes, rig.shapes, [-25.0, -10.0, 0.0, 10.0, 25.0])
+    rig = build_lid_shapes(V, F2, eyes)
+    res = sweep_check(V, F2, eyes, rig.shapes, [-25.0, -10.0, 0.0, 10.0, 25.0])
     assert res["flipped_faces"] == 0 and res["max_penetration_mm"] <= 0.1
     with pytest.raises(ScanError, match="left eye needs center, radius and forward"):
-        lids.eye_frames({"left": {}, "right": {}}, {"V": V, "F": F})
+        eye_frames({"left": {}, "right": {}}, {"V": V, "F": F})
 
 
 # ---------------------------------------------------------------- the real ICT head
@@ -454,12 +457,12 @@ def test_ict_head_sweep(extra_scan):
         r = g["eyeball_sphere"]["radius_mm"]
         w = V[loop] - c
         V[loop] = c + r * w / np.linalg.norm(w, axis=1, keepdims=True)  # what snap does
-        eyes.append(lids.EyeFrame(side, c, r, np.asarray(g["gaze_direction"]), loop,
-                                  g["eyelid_margin"]["lateral_canthus_index"]))
-        assert lids.find_lateral_canthus(V[loop], c, eyes[-1].forward, side) == \
+        eyes.append(EyeFrame(side, c, r, np.asarray(g["gaze_direction"]), loop,
+                             g["eyelid_margin"]["lateral_canthus_index"]))
+        assert find_lateral_canthus(V[loop], c, eyes[-1].forward, side) == \
             g["eyelid_margin"]["lateral_canthus_index"]
-    rig = lids.build_lid_shapes(V, F, eyes)
-    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    rig = build_lid_shapes(V, F, eyes)
+    res = sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
     assert res["max_gap_mm"] <= 0.1 and res["max_penetration_mm"] <= 0.1
     assert res["flipped_faces"] == 0 and res["min_opening_mm"] > 0.5
     # the raw ICT skin lies up to 0.36 mm inside the fitted sphere at rest (only the margin is
@@ -532,18 +535,18 @@ def test_stage_stores_down_mask(region):
 def test_upper_lid_never_crosses_lower_lid_even_with_extreme_gains():
     V, F, eyes = two_eye_region(upper_deg=7.0, lower_deg=5.0)
     extreme = dict(gain_upper_down=1.0, gain_lower_down=0.0, gain_upper_up=0.0, gain_lower_up=1.0)
-    unguarded = lids.build_lid_shapes(V, F, eyes, lids.LidParams(**extreme, min_opening_fraction=-50))
-    res = lids.sweep_check(V, F, eyes, unguarded.shapes, [-25.0, 25.0])
+    unguarded = build_lid_shapes(V, F, eyes, lids.LidParams(**extreme, min_opening_fraction=-50))
+    res = sweep_check(V, F, eyes, unguarded.shapes, [-25.0, 25.0])
     assert res["min_opening_mm"] < 0                     # the lids would cross
-    rig = lids.build_lid_shapes(V, F, eyes, lids.LidParams(**extreme))
-    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    rig = build_lid_shapes(V, F, eyes, lids.LidParams(**extreme))
+    res = sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
     assert res["min_opening_mm"] > 0 and res["flipped_faces"] == 0
     assert res["max_penetration_mm"] <= 0.1
     # at every vertical line at least ~20 % of the rest opening remains
     for e in eyes:
-        rest = lids.lid_opening(V, e)
+        rest = lid_opening(V, e)
         for p in (-25.0, 25.0):
-            op = lids.lid_opening(lids.evaluate_shapes(V, rig.shapes, lids.lid_weights(p)), e)
+            op = lid_opening(lids.evaluate_shapes(V, rig.shapes, lids.lid_weights(p)), e)
             ok = np.isfinite(op) & np.isfinite(rest)
             assert np.all(op[ok] >= 0.2 * rest[ok] - 0.05)
 
@@ -567,22 +570,22 @@ def test_stage_command_line(tmp_path):
 
 
 def test_cornea_intrusion_geometry():
-    eye = lids.EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4)
+    eye = EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4)
     cornea_c, cornea_r = np.array([0.0, 0, 5.5]), 8.0            # apex at 13.5 mm
     pts = np.array([[0, 0, 12.0], [0, 12.0, 0], [0, 0, -12.0]])
-    got = lids.cornea_intrusion(pts, eye, cornea_c, cornea_r, 0.0)
+    got = cornea_intrusion(pts, eye, cornea_c, cornea_r, 0.0)
     np.testing.assert_allclose(got, [1.5, 0.0, 0.0], atol=1e-12)
     # pitched up 90 deg, the apex points along +Y
-    got = lids.cornea_intrusion(pts, eye, cornea_c, cornea_r, 90.0)
+    got = cornea_intrusion(pts, eye, cornea_c, cornea_r, 90.0)
     np.testing.assert_allclose(got, [0.0, 1.5, 0.0], atol=1e-9)
 
 
 def test_pitch_from_gaze_matches_eye_rotation():
     f = np.array([0.1366, 0.0117, 0.9906])
     f /= np.linalg.norm(f)
-    eye = lids.EyeFrame("left", np.zeros(3), 15.0, f, np.arange(8), 4)
+    eye = EyeFrame("left", np.zeros(3), 15.0, f, np.arange(8), 4)
     for p in (-25.0, -7.0, 0.0, 13.0, 25.0):
-        g = lids.rotate_about_axis(f[None], np.zeros(3), eye.axis, np.radians(p))[0]
+        g = rotate_about_axis(f[None], np.zeros(3), eye.axis, np.radians(p))[0]
         assert lids.pitch_from_gaze(g, f) == pytest.approx(p, abs=1e-9)
     # pure yaw does not change the pitch
     yaw = np.radians(20.0)
@@ -598,40 +601,40 @@ def test_margin_rides_the_corneal_bulge(radius):
     # the margin really lies on the cornea somewhere (off the sphere by > 0.5 mm)
     off = max((np.linalg.norm(V[e.loop] - e.center, axis=1) - e.radius).max() for e in eyes)
     assert off > 0.5
-    rig = lids.build_lid_shapes(V, F, eyes)
-    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    rig = build_lid_shapes(V, F, eyes)
+    res = sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
     assert res["rest_max_abs_mm"] < 1e-6
     assert res["max_gap_mm"] <= 0.1 and res["max_penetration_mm"] <= 0.1
     assert res["flipped_faces"] == 0 and res["min_opening_mm"] > 0
     assert res["min_skin_clearance_mm"] >= -lids.LidParams().max_chord_sag_mm
     # the sphere-only rig would let the cornea cut through the lids
-    sphere_eyes = [lids.EyeFrame(e.side, e.center, e.radius, e.forward, e.loop, e.lateral_index)
+    sphere_eyes = [EyeFrame(e.side, e.center, e.radius, e.forward, e.loop, e.lateral_index)
                    for e in eyes]
-    plain = lids.build_lid_shapes(V, F, sphere_eyes)
-    bad = lids.sweep_check(V, F, eyes, plain.shapes, PITCHES_1DEG)
+    plain = build_lid_shapes(V, F, sphere_eyes)
+    bad = sweep_check(V, F, eyes, plain.shapes, PITCHES_1DEG)
     assert max(bad["max_gap_mm"], bad["max_penetration_mm"]) > 0.3
     # and the stage validates the margin against the same surface
-    frames = lids.eye_frames({e.side: {"center": e.center, "radius": e.radius,
-                                       "forward": e.forward} for e in eyes},
-                             {"V": V, "F": F, "loop_left": eyes[0].loop,
-                              "loop_right": eyes[1].loop}, profile=profile)
+    frames = eye_frames({e.side: {"center": e.center, "radius": e.radius,
+                                  "forward": e.forward} for e in eyes},
+                        {"V": V, "F": F, "loop_left": eyes[0].loop,
+                         "loop_right": eyes[1].loop}, profile=profile)
     assert all(f.profile is profile for f in frames)
     with pytest.raises(ScanError, match="off the eyeball sphere"):
-        lids.eye_frames({e.side: {"center": e.center, "radius": e.radius,
-                                  "forward": e.forward} for e in eyes},
-                        {"V": V, "F": F, "loop_left": eyes[0].loop, "loop_right": eyes[1].loop})
+        eye_frames({e.side: {"center": e.center, "radius": e.radius,
+                             "forward": e.forward} for e in eyes},
+                   {"V": V, "F": F, "loop_left": eyes[0].loop, "loop_right": eyes[1].loop})
 
 
 def test_skin_on_the_eye_rides_the_turning_cornea():
     """Thin lid skin (0.3 mm over the eye) near a margin on the cornea: the corneal bulge turns
     with the eye by the full pitch, the skin by less, so the bulge slides under the skin. The
-    rig pushes the skin out by the clearance it would lose (pipeline.rig.lids.follow_surface):
+    rig pushes the skin out by the clearance it would lose (pipeline.rig.lid_shapes.follow_surface):
     no skin vertex sinks into the eye at any pitch (the margin-only correction sank it by
     0.016 mm here and flipped 2 faces; 0.46 mm on the james scan)."""
     V, F, eyes = two_eye_region(radius=15.4, profile=EyeballParams(), upper_deg=12.0,
                                 lower_deg=10.0, half_width_deg=40.0, rise_mm=0.3)
-    rig = lids.build_lid_shapes(V, F, eyes)
-    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    rig = build_lid_shapes(V, F, eyes)
+    res = sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
     assert res["rest_min_skin_clearance_mm"] == pytest.approx(0.3)
     assert res["min_skin_clearance_mm"] > 0.2
     assert res["flipped_faces"] == 0 and res["min_opening_mm"] > 0
@@ -640,8 +643,8 @@ def test_skin_on_the_eye_rides_the_turning_cornea():
 
 def test_follow_surface_restores_clearance_and_fades_out():
     profile = EyeballParams()
-    eye = lids.EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4,
-                        profile)
+    eye = EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4,
+                   profile)
     bulge = float(eye.surface_radius(np.array([[0.0, 0, 1]]))[0]) - 12.0    # 1.5 mm
     H = max(2.0, 1.25 * bulge)
     # points over the lower cornea edge, at rest clearances 0 .. beyond H
@@ -653,7 +656,7 @@ def test_follow_surface_restores_clearance_and_fades_out():
     # the eye looks down 25 deg, the skin stays put: the cornea slides under it
     sunk = eye.surface_distance(V, -25.0)
     assert sunk.min() < -0.4
-    P = lids.follow_surface(V, eye, -25.0, rest, 2.0)
+    P = follow_surface(V, eye, -25.0, rest, 2.0)
     after = eye.surface_distance(P, -25.0)
     assert after[0] == pytest.approx(0.0, abs=1e-9)          # on the eye: kept on it exactly
     assert (after >= -1e-9).all()                             # nothing ends up inside
@@ -661,8 +664,8 @@ def test_follow_surface_restores_clearance_and_fades_out():
     # moved only along the rays from the centre
     np.testing.assert_allclose(np.cross(P, V), 0.0, atol=1e-9)
     # a sphere needs no push
-    sphere = lids.EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4)
-    np.testing.assert_array_equal(lids.follow_surface(V, sphere, -25.0, rest, 2.0), V)
+    sphere = EyeFrame("left", np.zeros(3), 12.0, np.array([0.0, 0, 1]), np.arange(8), 4)
+    np.testing.assert_array_equal(follow_surface(V, sphere, -25.0, rest, 2.0), V)
 
 
 def test_support_widens_where_the_skin_would_fold():
@@ -671,18 +674,18 @@ def test_support_widens_where_the_skin_would_fold():
     params' radius; the support is widened just enough that no face flips at any pitch."""
     V, F, eyes = two_eye_region(radius=15.0, rise_mm=0.3, d_psi=3.0)
     tight = lids.LidParams(gain_upper_up=1.0, upper_falloff_mm=7.0, max_support_scale=1.0)
-    res = lids.sweep_check(V, F, eyes, lids.build_lid_shapes(V, F, eyes, tight).shapes, PITCHES_1DEG)
+    res = sweep_check(V, F, eyes, build_lid_shapes(V, F, eyes, tight).shapes, PITCHES_1DEG)
     assert res["flipped_faces"] > 0                          # the failure the widening prevents
     p = lids.LidParams(gain_upper_up=1.0, upper_falloff_mm=7.0)
-    rig = lids.build_lid_shapes(V, F, eyes, p)
-    res = lids.sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
+    rig = build_lid_shapes(V, F, eyes, p)
+    res = sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
     assert res["flipped_faces"] == 0
     assert res["max_gap_mm"] <= 0.1 and res["max_penetration_mm"] <= 0.1
     for f in rig.fields.values():
         assert 8.0 < f.support_mm <= p.max_support_scale * 8.0 + 1e-9
     # unchanged where nothing folds: the default region keeps the params' radius
     V, F, eyes = two_eye_region()
-    fields = lids.build_lid_shapes(V, F, eyes).fields
+    fields = build_lid_shapes(V, F, eyes).fields
     assert all(f.support_mm == pytest.approx(12.0) for f in fields.values())
 
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import EYES, R1, make_inputs, usd_argv
+from pipeline.geometry.frame import eye_basis
 from pipeline.rig import lids
 from stages import usd as usd_stage
 from stages._common import run_stage
@@ -134,7 +135,7 @@ def test_eyes_placed_and_rotated_by_joints(built):
         e = EYES[side]
         c, f, s = np.asarray(e["center"]), np.asarray(e["forward"]), e["radius"] / R1
         skinned, local = _skinned_eye(stage, side)
-        expect = c + s * local @ lids.eye_basis(f)
+        expect = c + s * local @ eye_basis(f)
         assert np.abs(skinned - expect).max() < 1e-3           # placed, scaled and oriented
         apex = skinned[np.argmax(local[:, 2])]                  # corneal apex: straight ahead
         d = apex - c

@@ -13,6 +13,7 @@ import numpy as np
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.flips import count_flipped, relax, repair_flips
 
+
 def _band_faces(V, F, loop, radius, locked):
     """Faces of an annulus around ``loop`` reaching about ``radius`` (edge-graph distance) out.
 

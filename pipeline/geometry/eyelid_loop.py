@@ -13,6 +13,7 @@ import numpy as np
 
 from pipeline.geometry.mesh_edit import TriMesh
 
+
 def polyline_arclength(P, closed=True):
     Q = np.vstack([P, P[:1]]) if closed else P
     seg = np.linalg.norm(np.diff(Q, axis=0), axis=1)

@@ -15,6 +15,7 @@ import numpy as np
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.mesh_edit import TriMesh
 
+
 def _vertex_adjacency(F, n):
     from scipy.sparse import coo_matrix
 

@@ -20,6 +20,7 @@ from pipeline.io.load import load_mesh_file, load_texture
 from pipeline.io.scan import one_line
 from pipeline.settings import Settings, setting
 
+
 @dataclass(frozen=True)
 class IngestSettings(Settings):
     """Every limit and threshold of the ingest stage (the ``ingest:`` block of params.yaml);

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+
 class TriMesh:
     """Tiny editable triangle mesh for boundary collapses/splits (Python dicts; a few hundred ops)."""
 

@@ -1,8 +1,8 @@
 """The rig stage's work: eyelid blend shapes, landmark curves and the pitch sweep for one scan.
 
 ``build_rig`` takes the snapped mesh and its eyes.json entries and returns the arrays of
-``rig.npz``, the ``rig.json`` document and the metrics; the method is in ``lids`` (shapes,
-sweep) and ``landmarks``. A sweep that flips a face refuses the scan.
+``rig.npz``, the ``rig.json`` document and the metrics; the method is in ``lid_shapes`` (the
+shapes), ``sweep`` (the pitch sweep) and ``landmarks``. A sweep that flips a face refuses the scan.
 """
 
 from __future__ import annotations
@@ -15,6 +15,9 @@ from pipeline.errors import ScanError
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
+from pipeline.rig.eye_frame import eye_frames
+from pipeline.rig.lid_shapes import build_lid_shapes
+from pipeline.rig.sweep import sweep_check
 from pipeline.rig import textures as tex
 
 
@@ -37,13 +40,13 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
     """
     st = params if isinstance(params, lids.RigSettings) else lids.RigSettings.from_params(params)
     lp = st.lid_params()
-    eyes = lids.eye_frames(eyes_json, mesh, eyes_source=str(eyes_path), mesh_source=str(mesh_path),
-                           max_rest_gap_mm=st.max_rest_gap_mm,
-                           profile=profile)
+    eyes = eye_frames(eyes_json, mesh, eyes_source=str(eyes_path), mesh_source=str(mesh_path),
+                      max_rest_gap_mm=st.max_rest_gap_mm,
+                      profile=profile)
     V = np.asarray(mesh["V"], np.float64)
     F = np.asarray(mesh["F"], np.int64)
     t0 = time.perf_counter()
-    rig = lids.build_lid_shapes(V, F, eyes, lp)
+    rig = build_lid_shapes(V, F, eyes, lp)
     t_build = time.perf_counter() - t0
 
     arrays = lids.shapes_to_arrays(rig.shapes)
@@ -74,8 +77,8 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
     pitches = np.unique(np.concatenate([np.arange(-lp.max_pitch_deg, lp.max_pitch_deg + 1e-9, step),
                                         [-lp.max_pitch_deg, 0.0, lp.max_pitch_deg]]))
     t0 = time.perf_counter()
-    sweep = lids.sweep_check(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg,
-                             corneas=_model_corneas(eyes))
+    sweep = sweep_check(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg,
+                        corneas=_model_corneas(eyes))
     t_sweep = time.perf_counter() - t0
     if sweep["flipped_faces"]:
         # a face that turns over while the eye moves is a visible fold in every render

@@ -21,8 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.rig.lids import (MAX_PITCH_DEG, BlendShape, EyeFrame, LidRig, evaluate_shapes,
-                              lid_weights, rotate_about_axis, shapes_from_arrays)
+from pipeline.rig.eye_frame import EyeFrame, rotate_about_axis
+from pipeline.rig.lid_shapes import LidRig
+from pipeline.rig.lids import MAX_PITCH_DEG, BlendShape, evaluate_shapes, lid_weights, shapes_from_arrays
 
 N_EYELID = 12
 N_IRIS = 8

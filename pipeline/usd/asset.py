@@ -37,7 +37,7 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.geometry import meshtopo
-from pipeline.rig import lids
+from pipeline.geometry.frame import eye_basis
 from pipeline.settings import Settings, setting
 
 
@@ -71,7 +71,7 @@ def _usd_normals(V, F) -> np.ndarray:
 def eye_frame_matrix(center, forward, scale: float = 1.0) -> np.ndarray:
     """(4, 4) row-vector matrix (USD convention): rows scale*e_x, scale*e_y, scale*forward, centre."""
     M = np.eye(4)
-    M[:3, :3] = lids.eye_basis(forward) * float(scale)
+    M[:3, :3] = eye_basis(forward) * float(scale)
     M[3, :3] = np.asarray(center, np.float64)
     return M
 

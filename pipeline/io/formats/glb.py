@@ -20,6 +20,7 @@ from pipeline.errors import ScanError
 from pipeline.io.formats.common import Limits, LoadedMesh, check_counts, check_file_size, max_pixels
 from pipeline.io.scan import one_line, short_repr
 
+
 def _glb_check_images(path: Path, doc: dict, limits: Limits) -> None:
     """Check every embedded GLB image's pixel count from its header before trimesh decodes it."""
     from PIL import Image

@@ -19,6 +19,7 @@ from pipeline.io.formats.common import (Limits, LoadedMesh, check_counts, check_
                                         fan_triangulate, parse_numbers, read_content, tokens_per_row)
 from pipeline.io.scan import TEXTURE_SUFFIXES, one_line, safe_path
 
+
 def _parse_floats(rows: list, path: Path, what: str, first_line: np.ndarray, min_cols: int) -> np.ndarray:
     """Rows of whitespace-separated numbers -> float64 array (k, c); ragged rows keep min_cols."""
     if not rows:

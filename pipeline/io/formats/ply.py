@@ -20,6 +20,7 @@ from pipeline.io.formats.common import (Limits, LoadedMesh, check_counts, check_
                                         fan_triangulate, parse_numbers, read_content, tokens_per_row)
 from pipeline.io.scan import TEXTURE_SUFFIXES, one_line, safe_path
 
+
 def _column(data, name):
     """A scalar property of a parsed PLY element (structured array or dict) or None."""
     if data is None:

@@ -17,6 +17,7 @@ from pipeline.errors import ScanError
 from pipeline.io.formats.common import Limits, LoadedMesh, check_counts, check_file_size, parse_numbers
 from pipeline.io.scan import one_line
 
+
 def _count_word(path: Path, word: bytes, chunk: int = 1 << 22) -> int:
     """Occurrences of ``word`` in a file, read in chunks (no copy of the file is kept)."""
     n, tail = 0, b""

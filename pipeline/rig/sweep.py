@@ -1,0 +1,166 @@
+"""Checks of the lid rig over a pitch sweep (:func:`sweep_check`): margin on the eyeball, no fold,
+lids never crossing (:func:`lid_opening`), skin outside the eye, the cornea not poking through the
+margin (:func:`cornea_intrusion`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pipeline.geometry import meshtopo
+from pipeline.rig.eye_frame import EyeFrame, rotate_about_axis
+from pipeline.rig.lid_shapes import near_eye_skin
+from pipeline.rig.lids import MAX_PITCH_DEG, evaluate_shapes, lid_weights
+
+
+def lid_opening(P, eye: EyeFrame, n_lines: int = 64, margin_frac: float = 0.02) -> np.ndarray:
+    """Vertical opening along vertical lines: lowest upper-lid minus highest lower-lid height.
+
+    The loop is projected on the eye's (horizontal, up) plane; vertical lines sample
+    the span between the canthi (leaving ``margin_frac`` at each end).
+
+    Parameters
+    ----------
+    P : (n, 3) float64
+        Posed mesh points.
+    eye : EyeFrame
+
+    Returns
+    -------
+    (n_lines,) float64
+        Opening per line, mm (negative = the upper lid crossed the lower lid);
+        NaN where a lid does not reach the line.
+    """
+    B = eye.basis()
+    loop = np.asarray(eye.loop)
+    li = int(eye.lateral_index)
+    Q = (np.asarray(P)[loop] - eye.center) @ B[:2].T
+    up = Q[: li + 1]
+    lo = np.concatenate([Q[li:], Q[:1]])
+    xa, xb = sorted((Q[0, 0], Q[li, 0]))
+    span = xb - xa
+    xs = np.linspace(xa + margin_frac * span, xb - margin_frac * span, n_lines)
+
+    def heights(poly, reduce):
+        x0, y0, x1, y1 = poly[:-1, 0], poly[:-1, 1], poly[1:, 0], poly[1:, 1]
+        res = np.full(len(xs), np.nan)
+        for k, s in enumerate(xs):
+            hit = ((x0 - s) * (x1 - s) <= 0) & (np.abs(x1 - x0) > 1e-12)
+            if hit.any():
+                y = y0[hit] + (s - x0[hit]) / (x1[hit] - x0[hit]) * (y1[hit] - y0[hit])
+                res[k] = reduce(y)
+        return res
+
+    return heights(up, np.min) - heights(lo, np.max)
+
+
+def cornea_intrusion(points, eye: EyeFrame, cornea_center, cornea_radius: float,
+                     pitch_deg: float) -> np.ndarray:
+    """How far the corneal bulge of the pitched eye pokes out past each margin point, mm.
+
+    Along the ray from the eyeball centre through each point, the distance of the
+    outer cornea-sphere surface (cornea rotated with the eye by ``pitch_deg``) minus
+    the point's distance; 0 where the ray misses the cornea or the cornea lies inside.
+
+    Parameters
+    ----------
+    points : (k, 3) float64
+    eye : EyeFrame
+    cornea_center : (3,) float64
+        Cornea sphere centre at rest.
+    cornea_radius : float
+    pitch_deg : float
+
+    Returns
+    -------
+    (k,) float64, >= 0
+    """
+    cc = rotate_about_axis(np.asarray(cornea_center, float)[None], eye.center, eye.axis,
+                           math.radians(pitch_deg))[0] - eye.center
+    w = np.asarray(points, float) - eye.center
+    dist = np.linalg.norm(w, axis=1)
+    d = w / dist[:, None]
+    b = d @ cc
+    disc = b * b - (cc @ cc - float(cornea_radius) ** 2)
+    t = np.where(disc >= 0, b + np.sqrt(np.maximum(disc, 0.0)), -np.inf)
+    return np.maximum(t - dist, 0.0)
+
+
+def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITCH_DEG,
+                corneas: dict | None = None) -> dict:
+    """Pose the rig at every pitch and measure the lid invariants.
+
+    The eyeball is a sphere about its centre, so rotating it by the pitch leaves
+    its surface in place: the margin-to-eyeball distance is ``|v - c| - r``.
+
+    Returns
+    -------
+    dict
+        ``max_gap_mm`` (margin outside the sphere), ``max_penetration_mm`` (inside),
+        ``rest_max_abs_mm`` (same at pitch 0), ``flipped_faces`` (max over pitches of
+        faces whose normal turned by more than 90 degrees), ``min_opening_mm``
+        (smallest upper-minus-lower lid height along vertical lines; < 0 = crossing),
+        ``min_skin_clearance_mm`` (smallest distance outside the pitched eyeball surface of
+        moved non-margin vertices within 2 r of the centre; ``rest_min_skin_clearance_mm`` the same at rest) and
+        ``max_skin_sink_mm`` (largest decrease of that clearance by posing), and with
+        ``corneas`` (``side -> (centre (3,), radius)``) ``max_cornea_intrusion_mm`` /
+        ``rest_cornea_intrusion_mm`` (:func:`cornea_intrusion` of the margin),
+        ``worst_pitch_deg`` for the gap/penetration, and ``n_pitches``.
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F, np.int64)
+    n0 = meshtopo.face_normals(V, F, normalize=False)
+    ok = np.linalg.norm(n0, axis=1) > 1e-12
+    moved = np.zeros(len(V), bool)
+    for s in shapes:
+        moved[s.point_indices] = True
+    check_faces = ok & moved[F].any(axis=1)
+    res = {"max_gap_mm": 0.0, "max_penetration_mm": 0.0, "flipped_faces": 0,
+           "min_opening_mm": math.inf, "min_skin_clearance_mm": math.inf,
+           "rest_min_skin_clearance_mm": math.inf, "max_skin_sink_mm": 0.0,
+           "worst_pitch_deg": 0.0, "n_pitches": 0}
+    skin = near_eye_skin(V, shapes, eyes)
+    near_skin = {}
+    for e in eyes:
+        sel = skin[e.side]
+        near_skin[e.side] = (sel, e.surface_distance(V[sel], 0.0))
+        if len(sel):
+            res["rest_min_skin_clearance_mm"] = min(res["rest_min_skin_clearance_mm"],
+                                                    float(near_skin[e.side][1].min()))
+    rest = max(float(np.max(np.abs(e.surface_distance(V[e.loop], 0.0)))) for e in eyes)
+    res["rest_max_abs_mm"] = rest
+    worst = -1.0
+    for p in pitches_deg:
+        P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch_deg))
+        for e in eyes:
+            d = e.surface_distance(P[e.loop], p)
+            gap, pen = float(max(d.max(), 0.0)), float(max(-d.min(), 0.0))
+            res["max_gap_mm"] = max(res["max_gap_mm"], gap)
+            res["max_penetration_mm"] = max(res["max_penetration_mm"], pen)
+            if max(gap, pen) > worst:
+                worst, res["worst_pitch_deg"] = max(gap, pen), float(p)
+            if corneas and e.side in corneas:
+                cin = cornea_intrusion(P[e.loop], e, *corneas[e.side], p)
+                res["max_cornea_intrusion_mm"] = max(res.get("max_cornea_intrusion_mm", 0.0),
+                                                     float(cin.max()))
+                if p == 0:
+                    res["rest_cornea_intrusion_mm"] = float(cin.max())
+            op = lid_opening(P, e)
+            if np.isfinite(op).any():
+                res["min_opening_mm"] = min(res["min_opening_mm"], float(np.nanmin(op)))
+            sel, rest_clear = near_skin[e.side]
+            if len(sel):
+                ds = e.surface_distance(P[sel], p)
+                res["min_skin_clearance_mm"] = min(res["min_skin_clearance_mm"], float(ds.min()))
+                res["max_skin_sink_mm"] = max(res["max_skin_sink_mm"],
+                                              float(np.max(rest_clear - ds)))
+        n1 = meshtopo.face_normals(P, F, normalize=False)
+        flipped = int(np.count_nonzero(np.einsum("ij,ij->i", n0[check_faces], n1[check_faces]) <= 0))
+        res["flipped_faces"] = max(res["flipped_faces"], flipped)
+        res["n_pitches"] += 1
+    for k in ("min_opening_mm", "min_skin_clearance_mm", "rest_min_skin_clearance_mm"):
+        if not math.isfinite(res[k]):
+            res[k] = None
+    return res
