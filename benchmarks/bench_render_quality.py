@@ -43,6 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.io.rig_file import read_rig
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 W, H = 120, 80
@@ -76,8 +78,8 @@ def ssim(a, b, sigma: float = 1.5, L: float = 255.0) -> float:
 
 def frame_spec(rig_dir: Path, png: Path, samples: int, denoise: bool, seed: int) -> dict:
     """The fixed benchmark frame (see the module docstring)."""
-    eyes = json.loads((rig_dir / "rig.json").read_text())["eyes"]
-    c, f = np.asarray(eyes["left"]["center"]), np.asarray(eyes["left"]["forward"])
+    eye = read_rig(rig_dir).eyes["left"]
+    c, f = eye.center, eye.forward
     M = np.eye(4)
     M[:3, 3] = -(c + 12.0 * f + 30.0 * np.array([0.0, 0.0, 1.0]))     # axes = head axes
     return {"index": seed, "png": str(png), "width": W, "height": H, "samples": int(samples),

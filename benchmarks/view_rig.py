@@ -17,6 +17,7 @@ import numpy as np
 
 from pipeline.geometry.frame import eye_basis
 from pipeline.io.meshfile import load_mesh
+from pipeline.io.rig_file import read_rig
 from pipeline.rig import lids
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,10 +65,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     m = load_mesh(a.snap / "mesh.npz")
     eyes = json.loads((a.snap / "eyes.json").read_text())
-    with np.load(a.rig / "rig.npz") as z:
-        shapes = lids.shapes_from_arrays(z)
-        loop = np.asarray(z[f"loop_{a.side}"])
-    max_pitch = json.loads((a.rig / "rig.json").read_text())["weight_rule"]["max_pitch_deg"]
+    rig = read_rig(a.rig, n_vertices=len(m["V"]))
+    shapes, max_pitch = rig.npz.shapes, rig.max_pitch_deg
+    loop = np.asarray(rig.npz.arrays[f"loop_{a.side}"])
     imgs = [panel(lids.evaluate_shapes(m["V"], shapes, lids.lid_weights(p, max_pitch)), m["F"],
                   loop, eyes[a.side], p) for p in (max_pitch, 0.0, -max_pitch)]
     out = Image.new("RGB", (sum(i.width for i in imgs), imgs[0].height))

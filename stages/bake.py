@@ -4,8 +4,8 @@
 
 Reads ``RETOPO_DIR/mesh.npz`` (V, F, loops [, polygons]) and the dense scan
 ``REMOVE_EYEBALLS_DIR/mesh.npz`` (+ ``texture.png`` when present); writes
-``OUT_DIR/{mesh.npz, displacement.exr, displacement_preview.png, color.png, bake.json}``.
-The work is in pipeline/bake/build.py (``bake_scan``).
+``OUT_DIR/{mesh.npz, displacement.exr, displacement_preview.png, color.png, bake.json}``
+(pipeline/io/bake_file.py). The work is in pipeline/bake/build.py (``bake_scan``).
 """
 
 from __future__ import annotations

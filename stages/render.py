@@ -3,7 +3,7 @@
     python -m stages.render rigged_assets/<scan> build/<scan>/rig renders/<scan> \
         --metrics build/<scan>/render.metrics.json [--scheduler ADDRESS] [--workers N] [--n-images N]
 
-Per image: ``NNNNNN.png`` + ``NNNNNN.json`` (label, written last = done);
+Per image: ``NNNNNN.png`` + ``NNNNNN.json`` (label, written last = done; pipeline/io/labels_file.py);
 at the end ``index.jsonl`` (every index 0..n-1 exactly once), ``contact_sheet.png`` (landmarks
 drawn) and ``config.json`` (the hash of everything that changes images or labels). Re-running
 resumes: finished images are skipped; a config change deletes the stale images first. Images
@@ -22,7 +22,7 @@ from stages._common import default_metrics_path, load_params, stage_exit, stage_
 def main(argv) -> dict:
     ap = stage_parser(__doc__.splitlines()[0])
     ap.add_argument("asset", type=Path, help="rigged_assets/<scan> (holds <scan>.usda)")
-    ap.add_argument("rig", type=Path, help="build/<scan>/rig (holds rig.npz)")
+    ap.add_argument("rig", type=Path, help="build/<scan>/rig (rig.npz + rig.json)")
     ap.add_argument("out", type=Path, help="renders/<scan>")
     ap.add_argument("--scheduler", default=None, help="dask scheduler address (default: a LocalCluster)")
     ap.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes")

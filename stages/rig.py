@@ -5,18 +5,18 @@
 Reads ``snap/mesh.npz`` (V, F, loop_left, loop_right) and ``snap/eyes.json``;
 writes ``rig/rig.npz`` (blend shapes with inbetweens, eyelid landmark curves and
 their shapes) and ``rig/rig.json`` (pitch-to-weight rule, shapes, eye joints,
-landmark order). See pipeline/rig/build.py and lids.py for the method.
+landmark order), through pipeline/io/rig_file.py. See pipeline/rig/build.py and lids.py
+for the method.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
-from pipeline.io.atomic import atomic_dir, write_json
+from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import read_stage_mesh
+from pipeline.io.rig_file import write_rig
 from pipeline.rig import lids
 from pipeline.rig.build import build_rig
 from pipeline.usd.eyeball import read_eyeball_params
@@ -45,9 +45,7 @@ def main(argv) -> dict:
         profile = read_eyeball_params(args.eyeball)
     arrays, doc, metrics = build_rig(mesh, eyes, params, mesh_path, eyes_path, profile)
     with atomic_dir(args.out) as tmp:
-        with open(tmp / "rig.npz", "wb") as fh:
-            np.savez(fh, **arrays)
-        write_json(tmp / "rig.json", doc)
+        write_rig(tmp, arrays, doc)
     return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
 
 

@@ -279,10 +279,11 @@ def make_inputs(root: Path, n_x: int = 23, n_y: int = 11) -> dict:
     """build/<scan>/{snap,bake,rig,ingest} + rigged_assets/eyeball for a tiny fake scan under ``root``."""
     from PIL import Image
 
-    from pipeline.bake.exr import write_exr
     from pipeline.eyeball import geometry as geo
     from pipeline.eyeball import textures as etex
+    from pipeline.io.bake_file import write_bake
     from pipeline.io.meshfile import save_mesh
+    from pipeline.io.rig_file import write_rig
     from pipeline.rig import lids
     from pipeline.usd.eyeball import write_eyeball_usd
 
@@ -317,16 +318,14 @@ def make_inputs(root: Path, n_x: int = 23, n_y: int = 11) -> dict:
                _shape(lids.SHAPE_DOWN, np.arange(12), np.tile([0, -1.0, 0], (12, 1)), np.zeros((12, 3)))]
         arrays[f"landmarks.{side}.points"] = pts
         arrays.update(lids.shapes_to_arrays(lup, prefix=f"landmarks.{side}."))
-    np.savez(dirs["rig"] / "rig.npz", **arrays)
-    rig_json = {"weight_rule": lids.weight_rule(25.0),
-                "eyes": {s: dict(e, joint=f"eye_{s}", surface={"parametric_eye": {"r1": R1}})
-                         for s, e in EYES.items()}}
-    (dirs["rig"] / "rig.json").write_text(json.dumps(rig_json))
+    write_rig(dirs["rig"], arrays, {"weight_rule": lids.weight_rule(25.0),
+                                    "eyes": {s: dict(e, joint=f"eye_{s}", surface={"parametric_eye": {"r1": R1}})
+                                             for s, e in EYES.items()}})
     (dirs["ingest"] / "scan.json").write_text(json.dumps(
         {"name": "tiny", "source_sha256": "ab" * 32, "licence": "CC0-1.0 (test)"}))
-    Image.fromarray(np.full((16, 16, 3), 180, np.uint8)).save(dirs["bake"] / "color.png")
-    write_exr(dirs["bake"] / "displacement.exr", np.linspace(-0.2, 0.2, 256).reshape(16, 16))
-    (dirs["bake"] / "bake.json").write_text("{}")
+    write_bake(dirs["bake"], {"V": V, "F": F, "UV": UV, "FUV": F.copy()},
+               np.linspace(-0.2, 0.2, 256).reshape(16, 16), None, np.full((16, 16, 3), 180, np.uint8),
+               resolution=16, falloff_mm=2.0, colour_source="flat test colour")
     return {"dirs": dirs, "eyeball": eb, "out": root / "rigged_assets" / "tiny", "V": V, "F": F,
             "shapes": shapes, "arrays": arrays, "metrics": b / "usd.metrics.json"}
 

@@ -16,6 +16,7 @@ from conftest import face_patch
 from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_error, subdivide_displaced
 from pipeline.bake.exr import preview_16bit, read_exr, write_exr
 from pipeline.bake.uv import dilate, rasterize, sample_bilinear, unwrap
+from pipeline.io.bake_file import read_bake, read_displacement
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 
@@ -189,14 +190,14 @@ def test_stage_cli(tmp_path):
     out = tmp_path / "bake"
     m = load_mesh(out / "mesh.npz")
     assert {"V", "F", "UV", "FUV", "loop_left", "loop_right"} <= set(m)
-    disp = read_exr(out / "displacement.exr")
-    meta = json.loads((out / "bake.json").read_text())
-    prev = np.asarray(Image.open(out / "displacement_preview.png")).astype(np.float64)
-    sc = meta["preview"]["value_mm = offset + scale * pixel"]
-    assert disp.shape == (512, 512) and prev.shape == (512, 512)
+    maps = read_bake(out)
+    disp = read_displacement(maps.displacement)
+    prev = np.asarray(Image.open(maps.preview)).astype(np.float64)
+    assert maps.resolution == 512 and disp.shape == (512, 512) and prev.shape == (512, 512)
     inside = disp != 0
-    assert np.abs(sc["offset"] + sc["scale"] * prev[inside] - disp[inside]).max() <= sc["scale"]
-    col = np.asarray(Image.open(out / "color.png"))
+    assert np.abs(maps.preview_offset + maps.preview_scale * prev[inside] - disp[inside]).max() \
+        <= maps.preview_scale
+    col = np.asarray(Image.open(maps.color))
     assert col.shape == (512, 512, 3) and np.all(col[inside] == 180)
     metrics = json.loads((tmp_path / "b.json").read_text())
     assert metrics["reconstruction"]["mean_error_removed"] > 0.7

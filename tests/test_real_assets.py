@@ -27,6 +27,7 @@ import pytest
 import yaml
 
 from conftest import extra_scans_dir
+from pipeline.io.rig_file import read_rig
 from stages._common import run_stage
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -210,7 +211,7 @@ def test_blender_mesh_uvs_materials_and_shape_keys(asset, blender_import):
     assert sorted(Path(p).name for p in o["images"]["Skin"]) == ["color.png", "displacement.exr"]
     assert np.abs(data["EyeRegion.basis"] - snap["V"]).max() < 1e-4
     assert o["shape_keys"] == [lids.SHAPE_UP, lids.SHAPE_DOWN]
-    shapes = lids.shapes_from_arrays(np.load(asset["build"] / "rig" / "rig.npz"))
+    shapes = read_rig(asset["build"] / "rig").npz.shapes
     for s in shapes:
         off = data[f"EyeRegion.key.{s.name}"] - data["EyeRegion.basis"]
         full = np.zeros_like(off)
@@ -226,7 +227,7 @@ def test_blender_mesh_uvs_materials_and_shape_keys(asset, blender_import):
 def test_blender_armature_and_eyes_follow_bones(asset, blender_import):
     from pipeline.geometry.frame import eye_basis
 
-    rig = json.loads((asset["build"] / "rig" / "rig.json").read_text())
+    rig = read_rig(asset["build"] / "rig").doc
     data, meta = blender_import(asset)
     arm_name, arm = next(iter(meta["armatures"].items()))
     assert {"eye_left", "eye_right"} <= set(arm["bones"])

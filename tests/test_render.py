@@ -21,6 +21,9 @@ import pytest
 from PIL import Image
 
 from conftest import EYES, make_inputs, usd_argv
+from pipeline.errors import ScanError
+from pipeline.io.labels_file import read_index, read_label
+from pipeline.io.rig_file import read_rig, write_rig
 from pipeline.render import asset as ra
 from pipeline.render import labels as lb
 from pipeline.render import run as rr
@@ -55,9 +58,8 @@ def _ring(V, center, side):
 def tiny(tmp_path_factory):
     root = tmp_path_factory.mktemp("render")
     inp = make_inputs(root)
-    rig_npz = inp["dirs"]["rig"] / "rig.npz"
-    with np.load(rig_npz) as z:
-        arrays = {k: z[k] for k in z.files}
+    rig = read_rig(inp["dirs"]["rig"])
+    arrays = dict(rig.npz.arrays)
     V = inp["V"]
     for side, e in EYES.items():
         loop, lat = _ring(V, e["center"], side)
@@ -68,7 +70,7 @@ def tiny(tmp_path_factory):
         arrays[f"landmarks.{side}.edge"] = lm.edge
         arrays[f"landmarks.{side}.t"] = lm.t
         arrays[f"landmarks.{side}.points"] = lm.points
-    np.savez(rig_npz, **arrays)
+    write_rig(inp["dirs"]["rig"], arrays, rig.doc)
     params = root / "usd_params.yaml"
     params.write_text("usd:\n  usdz: false\n  preview: false\n")
     args = usd_argv(inp)
@@ -354,7 +356,7 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     assert 2 <= n_before < 6 and not (out / "index.jsonl").exists()
     r = subprocess.run(_stage_cmd(tiny, out, params), cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
-    lines = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
+    lines = read_index(out / "index.jsonl")
     assert [x["index"] for x in lines] == list(range(6))
     assert sorted(p.name for p in out.glob("0*")) == sorted(f"{i:06d}.{e}" for i in range(6) for e in ("png", "json"))
     m = read_stage_metrics(out.parent / "tiny.metrics.json")
@@ -362,20 +364,20 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     assert m["landmark_check_max_mm"] < 0.01
     assert m["shards"] >= 1 and m["blender_starts"] == 1
     for x in lines:
-        lab = json.loads((out / x["json"]).read_text())
-        assert lab["index"] == x["index"] and lb.check_label(lab) < 0.01
+        lab = read_label(out / x["json"])
+        assert lab.index == x["index"] and lb.check_label(lab.doc) < 0.01
         a = np.asarray(Image.open(out / x["png"]).convert("RGB"), float)
         assert a.shape == (16, 24, 3) and a.std() > 1
     # the same seed gives the same labels as a fresh sampling (resume did not change them)
     s = _settings(n_images=6)
     fresh = lb.make_label(sp.make_sample(tiny["asset"], s, 3, "/x.png"), s, tiny["asset"].name)
-    stored = json.loads((out / "000003.json").read_text())
+    stored = read_label(out / "000003.json").doc
     extra = {k: stored["landmarks"].pop(k) for k in ("apparent_px", "apparent_order")}
     assert stored["landmarks"] == json.loads(json.dumps(fresh["landmarks"]))
     sheet = Image.open(out / "contact_sheet.png")
     assert sheet.size == tuple(m["contact_sheet_px"])
     assert not (out / ".tmp").exists()
-    cfg = json.loads((out / "config.json").read_text())     # no absolute path: same bytes anywhere
+    cfg = rr.read_config(out)                                # no absolute path: same bytes anywhere
     assert not os.path.isabs(cfg["asset"]) and (ROOT / cfg["asset"]).resolve() == tiny["asset"].usda.resolve()
     app = extra["apparent_px"]                               # iris/pupil seen through the cornea
     assert len(app) == 16 and sum(q is not None for q in app) >= 8
@@ -397,7 +399,7 @@ def test_stage_on_an_existing_dask_cluster(tiny, tmp_path):
     m = read_stage_metrics(out.parent / "tiny.metrics.json")
     assert m["scheduler"] == cl.scheduler_address and m["workers"] == 1 and m["rendered"] == 3
     assert m["shards"] == 3 and m["blender_starts"] == 1      # one Blender per dask worker, kept across tasks
-    assert [json.loads(x)["index"] for x in (out / "index.jsonl").read_text().splitlines()] == [0, 1, 2]
+    assert [x["index"] for x in read_index(out / "index.jsonl")] == [0, 1, 2]
 
 
 def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
@@ -421,13 +423,11 @@ def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     broken = tmp_path / "broken"
     broken.mkdir()
     (broken / "broken.usda").write_text("#usda 1.0\ngarbage (((\n")
-    from pipeline.errors import ScanError
-
     with pytest.raises(ScanError, match="could not be opened"):
         ra.load_render_asset(broken, tiny["rig_dir"])
     rig = tmp_path / "rig"
     rig.mkdir()
-    np.savez(rig / "rig.npz", junk=np.zeros(3))
+    write_rig(rig, {"junk": np.zeros(3)}, read_rig(tiny["rig_dir"]).doc)
     with pytest.raises(ScanError, match=r"rig\.npz: missing lid shape array 'shape_names'") as ei:
         ra.load_render_asset(tiny["asset_dir"], rig)
     assert ei.value.path == str(rig / "rig.npz")
@@ -476,5 +476,5 @@ def test_same_inputs_give_byte_identical_renders(tiny, tmp_path):
     for name, data in files[0].items():
         if name.endswith(".png"):
             assert not {kind for kind, _, _ in png_chunks(data)} & DROPPED, name
-    label = json.loads(files[0]["000000.json"])
+    label = read_label(outs[0] / "000000.json").doc
     assert not {"render_s", "total_s", "render_cpu_s", "total_cpu_s"} & set(label["render"])

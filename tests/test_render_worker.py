@@ -23,6 +23,7 @@ from PIL import Image
 
 from pipeline.blender.render_worker import (LASH_POINTS, LASHES, REPLY_PREFIX, camera_to_head, lash_curves,
                                            quat_to_matrix)
+from pipeline.io.rig_file import read_rig
 from pipeline.rig import lids
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -113,9 +114,8 @@ class Scene:
         from pipeline.io.meshfile import load_mesh
 
         self.paths = paths
-        self.rig = dict(np.load(paths["rig"] / "rig.npz"))
-        self.shapes = lids.shapes_from_arrays(self.rig)
-        self.eyes = json.loads((paths["rig"] / "rig.json").read_text())["eyes"]
+        rig = read_rig(paths["rig"])
+        self.rig, self.shapes, self.eyes = rig.npz.arrays, rig.npz.shapes, rig.doc["eyes"]
         self.V = load_mesh(paths["snap"] / "mesh.npz")["V"]
         stage = Usd.Stage.Open(str(paths["asset"]))
         self.inner = {}

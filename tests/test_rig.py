@@ -13,6 +13,8 @@ from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import meshtopo
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import save_mesh
+from pipeline.io.rig_file import SCHEMA as RIG_SCHEMA
+from pipeline.io.rig_file import read_rig
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.rig.eye_frame import EyeFrame, eye_frames, find_lateral_canthus, rotate_about_axis
@@ -305,8 +307,9 @@ def test_stage_writes_rig_that_reopens(tmp_path, region):
     assert m["sweep_flipped_faces"] == 0 and m["sweep_min_opening_mm"] > 0
     assert m["sweep_min_skin_clearance_mm"] >= -lids.LidParams().max_chord_sag_mm
     assert m["sweep_n_pitches"] == 101 and "wall_time_s" in m
-    doc = json.loads((out / "rig.json").read_text())
-    assert doc["weight_rule"]["max_pitch_deg"] == 25.0
+    rig = read_rig(out, n_vertices=len(V))
+    doc = rig.doc
+    assert doc["schema"] == RIG_SCHEMA and rig.max_pitch_deg == 25.0
     assert "clamp(pitch_deg / max_pitch_deg, 0, 1)" in doc["weight_rule"]["formula"]
     assert doc["landmarks"]["per_eye"] == 28
     assert doc["landmarks"]["iris"]["count"] == 8 and doc["landmarks"]["pupil"]["count"] == 8
@@ -315,28 +318,23 @@ def test_stage_writes_rig_that_reopens(tmp_path, region):
         assert len(landmark_indices()["iris"]) == 8
     assert m.get("sweep_max_cornea_intrusion_mm", 0.0) >= 0.0
     assert set(doc["eyes"]) == {"left", "right"}
-    with np.load(out / "rig.npz", allow_pickle=False) as z:
-        shapes = lids.shapes_from_arrays(z)
-        assert [s.name for s in shapes] == ["lids_up", "lids_down"]
-        for s in shapes:
-            assert s.offsets.shape == (len(s.point_indices), 3)
-            assert s.inbetween_offsets.shape == (len(s.inbetween_weights), len(s.point_indices), 3)
-            assert np.all(np.diff(s.inbetween_weights) > 0)
-            assert s.point_indices.max() < len(V) and np.isfinite(s.offsets).all()
-            assert len(np.unique(s.point_indices)) == len(s.point_indices)
-        for side in ("left", "right"):
-            assert z[f"landmarks.{side}.points"].shape == (12, 3)
-            ls = lids.shapes_from_arrays(z, prefix=f"landmarks.{side}.")
-            assert [len(s.point_indices) for s in ls] == [12, 12]
-        # posed landmarks for render labels: on the margin edge of the posed mesh
-        Pm = lids.evaluate_shapes(V, shapes, lids.lid_weights(-17.0))
-        Lp = lmk.posed_eyelid_landmarks(z, "left", -17.0)
-        edge, t = z["landmarks.left.edge"], z["landmarks.left.t"]
-        on_edge = (1 - t)[:, None] * Pm[edge[:, 0]] + t[:, None] * Pm[edge[:, 1]]
-        assert np.abs(Lp - on_edge).max() < 0.05
-        # the stored shapes reproduce the library's posing
-        res = sweep_check(V, F, eyes, shapes, PITCHES_1DEG)
-        assert res["max_penetration_mm"] <= 0.1
+    shapes = rig.npz.shapes           # shapes, weights, indices and finiteness checked by read_rig
+    assert [s.name for s in shapes] == ["lids_up", "lids_down"]
+    for s in shapes:
+        assert len(np.unique(s.point_indices)) == len(s.point_indices)
+    z = rig.npz.arrays
+    for side in ("left", "right"):
+        points, ls = rig.npz.curves[side]
+        assert points.shape == (12, 3) and [len(s.point_indices) for s in ls] == [12, 12]
+    # posed landmarks for render labels: on the margin edge of the posed mesh
+    Pm = lids.evaluate_shapes(V, shapes, lids.lid_weights(-17.0))
+    Lp = lmk.posed_eyelid_landmarks(z, "left", -17.0)
+    edge, t = z["landmarks.left.edge"], z["landmarks.left.t"]
+    on_edge = (1 - t)[:, None] * Pm[edge[:, 0]] + t[:, None] * Pm[edge[:, 1]]
+    assert np.abs(Lp - on_edge).max() < 0.05
+    # the stored shapes reproduce the library's posing
+    res = sweep_check(V, F, eyes, shapes, PITCHES_1DEG)
+    assert res["max_penetration_mm"] <= 0.1
     assert not list(tmp_path.glob(".rig.tmp-*"))
 
 
@@ -566,7 +564,7 @@ def test_stage_command_line(tmp_path):
     assert proc.returncode == 0, proc.stderr
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["sweep_max_penetration_mm"] <= 0.1 and m["sweep_flipped_faces"] == 0
-    assert (tmp_path / "rig" / "rig.npz").is_file() and (tmp_path / "rig" / "rig.json").is_file()
+    assert read_rig(tmp_path / "rig").npz.shapes
 
 
 def test_cornea_intrusion_geometry():

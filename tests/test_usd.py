@@ -10,6 +10,7 @@ import pytest
 
 from conftest import EYES, R1, make_inputs, usd_argv
 from pipeline.geometry.frame import eye_basis
+from pipeline.io.rig_file import read_rig, write_rig
 from pipeline.rig import lids
 from stages import usd as usd_stage
 from stages._common import run_stage
@@ -179,19 +180,20 @@ def _fail(inp, capsys):
 
 def test_broken_inputs_refused(tmp_path, capsys):
     inp = make_inputs(tmp_path)
-    rig = inp["dirs"]["rig"] / "rig.npz"
+    rig = inp["dirs"]["rig"]
+    doc = read_rig(rig).doc
     good = dict(inp["arrays"])
     # rig built for a bigger mesh
     bad = dict(good, **{"lids_up.point_indices": good["lids_up.point_indices"] + len(inp["V"])})
-    np.savez(rig, **bad)
+    write_rig(rig, bad, doc)
     err = _fail(inp, capsys)
-    assert "rig.npz" in err and "outside" in err
-    # non-finite offsets: only the validator sees them -> refused with its message
+    assert "rig.npz: shape lids_up indexes vertices outside" in err and "snap/mesh.npz" in err
+    # non-finite offsets: refused by the rig reader before anything is written
     bad = dict(good, **{"lids_down.offsets": good["lids_down.offsets"] * np.nan})
-    np.savez(rig, **bad)
+    write_rig(rig, bad, doc)
     err = _fail(inp, capsys)
-    assert "fails validation" in err and "not finite" in err
-    np.savez(rig, **good)
+    assert "rig.npz: lids_down.offsets has non-finite values" in err
+    write_rig(rig, good, doc)
     # missing displacement map
     (inp["dirs"]["bake"] / "displacement.exr").unlink()
     err = _fail(inp, capsys)

@@ -1,5 +1,5 @@
 """The bake stage's work: read the low-poly mesh and the dense scan, unwrap, bake, write the
-maps and measure the reconstruction error.
+bake product (pipeline/io/bake_file.py) and measure the reconstruction error.
 
 The machine has 2 cores, so independent steps overlap in forked children (fork shares the
 arrays without copying): the xatlas unwrap (which holds the GIL) runs while the dense scan and
@@ -17,11 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_baseline, reconstruction_error
-from pipeline.bake.exr import preview_16bit, write_exr
 from pipeline.bake.uv import unwrap
 from pipeline.errors import ScanError
-from pipeline.io.atomic import write_json
-from pipeline.io.meshfile import read_stage_mesh, save_mesh
+from pipeline.io.bake_file import write_bake
+from pipeline.io.meshfile import read_stage_mesh
 
 
 def fork_call(fn, *args, **kwargs):
@@ -71,30 +70,6 @@ def _texture(path: Path):
         raise ScanError(path, f"cannot read texture ({exc})") from None
 
 
-def _write(out: Path, low: dict, result, settings: BakeSettings) -> None:
-    from PIL import Image
-
-    q, scale, offset = preview_16bit(result.displacement, result.mask)
-    save_mesh(out / "mesh.npz", **{k: v for k, v in low.items() if k not in ("UV", "FUV")},
-              UV=result.UV, FUV=result.FUV)
-    write_exr(out / "displacement.exr", result.displacement)
-    Image.fromarray(q).save(out / "displacement_preview.png", compress_level=3)
-    colour = result.color if result.color is not None else np.full(
-        result.displacement.shape + (3,), 200, dtype=np.uint8)
-    Image.fromarray(colour).save(out / "color.png", compress_level=3)
-    write_json(out / "bake.json", {
-        "resolution": settings.resolution,
-        "displacement": {"file": "displacement.exr", "channel": "Y", "units": "mm",
-                         "meaning": "signed distance along the interpolated vertex normal of the "
-                                    "flat (midpoint-subdivided) low-poly surface; positive = outward",
-                         "falloff_mm_at_eyelid_loops": settings.falloff_mm},
-        "preview": {"file": "displacement_preview.png", "bits": 16,
-                    "value_mm = offset + scale * pixel": {"scale": scale, "offset": offset}},
-        "color": {"file": "color.png", "source": result.metrics["colour"] or "none (flat grey)"},
-        "uv": "mesh.npz UV/FUV, origin bottom-left; image rows top-down",
-    })
-
-
 def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> dict:
     """Bake ``retopo_dir/mesh.npz`` (V, F, loop_left, loop_right) against the dense scan
     ``dense_dir/mesh.npz`` (+ ``texture.png``) and write the bake product into ``out_dir``
@@ -124,7 +99,10 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> dict:
     err_job = fork_call(reconstruction_error, low["V"], low["F"], result.UV, result.FUV, result.displacement,
                         dense["V"], dense["F"], levels=settings.subdivision_levels,
                         n_samples=settings.metric_samples, baseline=baseline)
-    _write(out_dir, low, result, settings)
+    mesh = {**{k: v for k, v in low.items() if k not in ("UV", "FUV")}, "UV": result.UV, "FUV": result.FUV}
+    write_bake(out_dir, mesh, result.displacement, result.mask, result.color,
+               resolution=settings.resolution, falloff_mm=settings.falloff_mm,
+               colour_source=result.metrics["colour"])
     err, recon_s = fork_result(err_job)
     result.metrics["timings_s"]["reconstruction_error_s"] = round(baseline_s + recon_s, 4)
     return {**result.metrics, "reconstruction": err}

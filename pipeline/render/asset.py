@@ -30,6 +30,8 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry.frame import quat_to_matrix  # noqa: F401 (ra.quat_to_matrix)
+from pipeline.io.bake_file import read_displacement
+from pipeline.io.rig_file import read_rig
 from pipeline.rig import lids
 
 SIDES = ("left", "right")
@@ -121,6 +123,7 @@ class RenderAsset:
         files |= {self.usda, self.rig_npz}
         pkg = Path(__file__).resolve().parents[1]
         files |= set((pkg / "render").glob("*.py")) | set((pkg / "blender").glob("*.py"))
+        files.add(pkg / "io" / "labels_file.py")            # the label files' writer
         h = hashlib.sha256()
         for p in sorted(files):
             if p.is_file():
@@ -143,26 +146,13 @@ def _find_asset(asset_dir: Path) -> Path:
     return found[0]
 
 
-def _rig_npz(rig_dir: Path) -> Path:
-    p = rig_dir if rig_dir.suffix == ".npz" else rig_dir / "rig.npz"
-    if not p.is_file():
-        raise ScanError(p, "rig.npz not found")
-    return p
-
-
 def _displacement_amplitude(usda: Path) -> float:
     """99th percentile of |displacement| (mm) of textures/displacement.exr (0 if absent)."""
     p = usda.parent / "textures" / "displacement.exr"
     if not p.is_file():
         return 0.0
-    from pipeline.bake.exr import read_exr
-
-    try:
-        d = read_exr(p)
-    except Exception as exc:  # noqa: BLE001 -- any decoder failure is a bad input
-        raise ScanError(p, f"cannot read displacement map ({exc})") from None
-    d = np.abs(d[np.isfinite(d)])
-    return float(np.percentile(d, 99)) if d.size else 0.0
+    d = np.abs(read_displacement(p))
+    return float(np.percentile(d, 99))
 
 
 def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
@@ -171,7 +161,7 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
     Parameters
     ----------
     asset_dir : path   ``rigged_assets/<scan>/`` (or the .usda itself)
-    rig_dir : path     ``build/<scan>/rig/`` (or rig.npz itself)
+    rig_dir : path     ``build/<scan>/rig/`` (or its rig.npz), read with pipeline.io.rig_file
 
     Raises
     ------
@@ -179,7 +169,6 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
     """
     asset_dir, rig_dir = Path(asset_dir), Path(rig_dir)
     usda = _find_asset(asset_dir)
-    npz = _rig_npz(rig_dir)
     from pxr import Usd, UsdGeom, UsdSkel
 
     try:
@@ -213,18 +202,8 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
     joints = [str(j) for j in skel.GetJointsAttr().Get()]
     rest = [np.array(m, np.float64) for m in (skel.GetRestTransformsAttr().Get() or [])]
 
-    try:
-        with np.load(npz) as z:
-            arrays = {k: z[k] for k in z.files}
-    except Exception as exc:  # noqa: BLE001
-        raise ScanError(npz, f"cannot read ({exc})") from None
-    try:
-        lid_shapes = lids.shapes_from_arrays(arrays)
-    except KeyError as exc:
-        raise ScanError(npz, f"missing lid shape array {exc}") from None
-    for s in lid_shapes:
-        if len(s.point_indices) and int(np.max(s.point_indices)) >= len(V):
-            raise ScanError(npz, f"shape {s.name} indexes beyond the {len(V)} asset vertices")
+    rig = read_rig(rig_dir, n_vertices=len(V), against="the asset")
+    arrays, lid_shapes = rig.npz.arrays, rig.npz.shapes
 
     eyes = {}
     for side in SIDES:
@@ -256,20 +235,8 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
                                   f"indices, found {len(iris)} and {len(pupil)}")
         if max(iris.max(), pupil.max()) >= len(inner_rest):
             raise ScanError(usda, f"eye_{side}: landmark index beyond the Inner mesh")
-        pre = f"landmarks.{side}."
-        if pre + "points" not in arrays:
-            raise ScanError(npz, f"no eyelid landmarks for the {side} eye ({pre}points)")
-        edge = arrays.get(pre + "edge")
-        t = arrays.get(pre + "t")
-        if edge is not None:
-            edge = np.asarray(edge, np.int64)
-            if edge.shape != (N_EYELID, 2) or edge.max() >= len(V):
-                raise ScanError(npz, f"{pre}edge must be (12, 2) skin vertex indices")
-        loop = arrays.get(f"loop_{side}")
-        if loop is not None:
-            loop = np.asarray(loop, np.int64)
-            if loop.ndim != 1 or len(loop) < 3 or loop.max() >= len(V):
-                raise ScanError(npz, f"loop_{side} must be >= 3 skin vertex indices")
+        pre = f"landmarks.{side}."                 # checked by read_rig
+        edge, t, loop = arrays.get(pre + "edge"), arrays.get(pre + "t"), arrays.get(f"loop_{side}")
         basis = R[:3, :3] / np.linalg.norm(R[:3, :3], axis=1, keepdims=True)
         eb_meta = stage.GetPrimAtPath(f"{rp}/Eyes/eye_{side}").GetCustomDataByKey("eyerig") or {}
         eb_params = {k: float(v) for k, v in dict(eb_meta.get("params") or {}).items()}
@@ -279,8 +246,10 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
                               radius=radius, inner_rest=inner_rest,
                               inner_shapes=shapes, iris=iris, pupil=pupil,
                               pupil_center=int(np.argmax(inner_rest[:, 2])),
-                              lm_edge=edge, lm_t=None if t is None else np.asarray(t, np.float64),
-                              loop=loop, eyeball_params=eb_params,
+                              lm_edge=None if edge is None else np.asarray(edge, np.int64),
+                              lm_t=None if t is None else np.asarray(t, np.float64),
+                              loop=None if loop is None else np.asarray(loop, np.int64),
+                              eyeball_params=eb_params,
                               cornea_ior=float(eb_meta.get("cornea_ior", 1.376)))
 
     meta = root.GetCustomDataByKey("eyerig") or {}
@@ -289,7 +258,7 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
     vsets = {n: list(root.GetVariantSets().GetVariantSet(n).GetVariantNames())
              for n in root.GetVariantSets().GetNames()}
     name = str(meta.get("scan") or root.GetName())
-    return RenderAsset(name=name, usda=usda.resolve(), rig_npz=npz.resolve(), skin_rest=V,
+    return RenderAsset(name=name, usda=usda.resolve(), rig_npz=rig.npz_path.resolve(), skin_rest=V,
                        skin_faces_edge_mm=edge_len, lid_shapes=lid_shapes, rig_arrays=arrays,
                        eyes=eyes, max_pitch_deg=max_pitch,
                        displacement_amplitude_mm=_displacement_amplitude(usda), variants=vsets)

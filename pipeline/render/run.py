@@ -4,10 +4,10 @@
 deletes the stale images, unfinished ones are dropped), writes ``config.json``, samples the
 pending images a window at a time into shards of one HDRI each (:func:`pending_shards`),
 renders them through dask (pipeline/render/shard.py), then writes ``index.jsonl`` and the
-contact sheet from the labels and returns the metrics.
+contact sheet from the labels (pipeline/io/labels_file.py) and returns the metrics.
 
 Sample ``i`` is a pure function of ``(seed, i)`` (pipeline/render/sampling.py), so sharding and
-resuming never change labels. An image is done when its label JSON (written last) exists.
+resuming never change labels. An image is done when its label (written last) exists.
 ``config.json`` holds the hash of everything that changes images or labels: the ``render``
 settings except n_images / worker settings, and the asset fingerprint
 (:meth:`pipeline.render.asset.RenderAsset.fingerprint`).
@@ -28,6 +28,7 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_file, write_json
+from pipeline.io.labels_file import index_line, label_name, read_label
 
 # Cycles given one thread still keeps a second one busy (about a quarter of an image's CPU
 # time wasted), so two Blenders sharing two cores are slower than one Blender using both:
@@ -155,20 +156,20 @@ def _index_and_sheet(out: Path, n: int, n_sheet: int) -> dict:
         for i in range(n):
             if not sh.done(out, i):
                 raise ScanError(out, f"image {i} missing after the run")
-            lab = json.loads((out / f"{i:06d}.json").read_text())
-            fh.write(json.dumps({"index": i, "png": f"{i:06d}.png", "json": f"{i:06d}.json",
-                                 "eye": lab["gaze"]["eye"], "gaze_camera_deg": [lab["gaze"]["camera"]["pitch_deg"],
-                                                                                 lab["gaze"]["camera"]["yaw_deg"]],
-                                 "landmark_check_mm": lab.get("landmark_check_mm")}) + "\n")
-            c = float(lab.get("landmark_check_mm") or 0.0)
+            lab = read_label(out / label_name(i))
+            if lab.index != i:
+                raise ScanError(lab.path, f"holds the label of image {lab.index}")
+            fh.write(index_line(lab))
+            d = lab.doc
+            c = float(d.get("landmark_check_mm") or 0.0)
             check_max = c if check_max is None else max(check_max, c)
-            a = int(lab["seed"]["attempts"])
+            a = int(d["seed"]["attempts"])
             rejections += a - 1
             attempts_max = max(attempts_max, a)
-            skin[lab["render"]["skin_detail"]] += 1
-            hdri[lab["lighting"]["hdri"]] += 1
+            skin[d["render"]["skin_detail"]] += 1
+            hdri[d["lighting"]["hdri"]] += 1
             if i < n_sheet:
-                sheet.append((out / f"{i:06d}.png", lab))
+                sheet.append((out / f"{i:06d}.png", d))
     sheet_px = contact_sheet(sheet, out / "contact_sheet.png") if sheet else None
     return {"landmark_check_max_mm": check_max, "rejections": rejections, "attempts_max": attempts_max,
             "skin_detail": dict(skin), "hdri": dict(hdri),

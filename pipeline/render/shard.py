@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.io.atomic import write_json
+from pipeline.io.labels_file import label_name, write_label
 from pipeline.io.png import strip_png_metadata
 from pipeline.io.scratch import die_with_parent
 
@@ -233,7 +233,7 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
                 # label: the same sample must give the same bytes
                 strip_png_metadata(spec["png"])        # Blender's Date/Time/RenderTime text chunks
                 os.replace(spec["png"], out / f"{i:06d}.png")
-                write_json(out / f"{i:06d}.json", label)
+                write_label(out / label_name(i), label)
         results.append(res)
     return results
 

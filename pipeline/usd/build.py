@@ -19,8 +19,10 @@ import numpy as np
 
 import pipeline
 from pipeline.errors import ScanError
+from pipeline.io.bake_file import read_bake
 from pipeline.io.meshfile import read_stage_mesh
 from pipeline.io.png import strip_png_metadata
+from pipeline.io.rig_file import read_rig
 from pipeline.io.scratch import run_child
 from pipeline.rig import lids
 
@@ -52,36 +54,17 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
         raise ScanError(mesh_path, "has non-finite vertex coordinates")
     if F.size and (F.min() < 0 or F.max() >= len(V)):
         raise ScanError(mesh_path, "face indices out of range")
-    rig_npz = _need(rig / "rig.npz")
-    try:
-        with np.load(rig_npz) as z:
-            arrays = {k: z[k] for k in z.files}
-        shapes = lids.shapes_from_arrays(arrays)
-        curves = {s: (arrays[f"landmarks.{s}.points"],
-                      lids.shapes_from_arrays(arrays, prefix=f"landmarks.{s}.")) for s in ("left", "right")}
-    except (KeyError, ValueError, OSError) as exc:
-        raise ScanError(rig_npz, f"is not a rig.npz of stage rig ({type(exc).__name__}: {exc})") from None
-    for s in shapes:
-        pi = np.asarray(s.point_indices)
-        if pi.size and (pi.min() < 0 or pi.max() >= len(V)):
-            raise ScanError(rig_npz, f"shape {s.name} indexes vertices outside snap/mesh.npz "
-                                     f"({len(V)} vertices): rig and snap are out of date")
-    rig_doc = _json(rig / "rig.json")
-    try:
-        eyes = {s: {k: rig_doc["eyes"][s][k] for k in ("center", "radius", "forward")} for s in ("left", "right")}
-        for s in eyes:
-            model_r = rig_doc["eyes"][s].get("surface", {})
-            if isinstance(model_r, dict) and "parametric_eye" in model_r:
-                eyes[s]["model_radius"] = float(model_r["parametric_eye"]["r1"])
-        if not all(np.isfinite(eyes[s]["radius"]) and eyes[s]["radius"] > 0 for s in eyes):
-            raise ValueError("radius")
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ScanError(rig / "rig.json", f"has no usable eyes.<side>.center/radius/forward ({exc})") from None
+    r = read_rig(rig, n_vertices=len(V), against=str(mesh_path))
+    eyes = {}
+    for side, e in r.eyes.items():        # the values as stored (the asset metadata repeats them)
+        eyes[side] = {k: e.doc[k] for k in ("center", "radius", "forward")}
+        if e.model_radius is not None:
+            eyes[side]["model_radius"] = e.model_radius
+    maps = read_bake(bake)
     scan = _json(ingest / "scan.json")
-    return {"V": V, "F": F, "UV": mesh["UV"], "FUV": mesh["FUV"], "shapes": shapes, "curves": curves,
-            "rig_doc": rig_doc, "eyes": eyes, "scan": scan,
-            "color": _need(bake / "color.png"), "displacement": _need(bake / "displacement.exr"),
-            "bake_json": _json(bake / "bake.json") if (bake / "bake.json").is_file() else {},
+    return {"V": V, "F": F, "UV": mesh["UV"], "FUV": mesh["FUV"], "shapes": r.npz.shapes,
+            "curves": r.npz.curves, "max_pitch_deg": r.max_pitch_deg, "eyes": eyes, "scan": scan,
+            "color": maps.color, "displacement": maps.displacement,
             "eyeball": _need(eyeball / "eyeball.usda")}
 
 
@@ -101,8 +84,7 @@ def build(inp: dict, out_dir: Path, name: str, all_params: dict, package: bool =
         "licence": str(inp["scan"].get("licence", "")),
         "pipeline_version": pipeline.__version__,
         "units": "mm", "frame": "head frame: +Y up, +Z out of the face, +X subject's left",
-        "weight_rule": lids.weight_rule(float(inp["rig_doc"].get("weight_rule", {}).get(
-            "max_pitch_deg", lids.MAX_PITCH_DEG))),
+        "weight_rule": lids.weight_rule(inp["max_pitch_deg"]),
         "eyes": {s: {"joint": f"head/eye_{s}", "center_mm": list(map(float, e["center"])),
                      "radius_mm": float(e["radius"]), "forward": list(map(float, e["forward"]))}
                  for s, e in inp["eyes"].items()},
