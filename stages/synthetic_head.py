@@ -5,7 +5,7 @@
 Reads the ``synthetic_head:`` block of ``params.yaml`` (seed, target_triangles,
 eye_shape, eye_spacing_mm, noise_mm, texture_size) and writes, atomically,
 ``scan.ply`` (binary PLY with per-vertex UVs ``s``/``t``), ``texture.png``,
-``scan.yaml`` and ``ground_truth.json``. See pipeline/synthetic_head.py.
+``scan.yaml`` and ``ground_truth.json``. See pipeline/synthetic_head/.
 """
 
 from __future__ import annotations

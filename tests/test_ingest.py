@@ -428,7 +428,7 @@ def test_ply_texturefile_comment(tmp_path):
 
 
 def test_synthetic_head_generator_output(tmp_path):
-    """The generator (pipeline/synthetic_head.py) writes a folder ingest accepts as is."""
+    """The generator (pipeline/synthetic_head/) writes a folder ingest accepts as is."""
     from pipeline import synthetic_head as synthetic
 
     head = synthetic.make_synthetic_head(seed=3, target_triangles=20000, texture_size=128)

@@ -1,0 +1,360 @@
+"""The procedural head's shape model: the base curve of the skull outline, seeded smooth noise,
+the two eyes (sphere plus cornea, almond-shaped openings) and :class:`HeadModel`, whose
+``fields(t, y)`` evaluates the skin and eye depths along the base curve's outward normal
+(see :mod:`pipeline.synthetic_head`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+# base curve (superellipse in x-z) and domain
+_A_MM = 75.0          # half width of the head at the base curve
+_B_MM = 92.0          # base curve front (forehead) z
+_P = 4.0              # superellipse exponent: flat front, rounded sides
+T_RANGE = np.deg2rad(98.0)   # +-t covered: front half of the head out past the temples
+Y_RANGE = (-150.0, 95.0)     # neck to upper forehead, eyes at y ~ 0
+
+_K_LID = 1.0          # smooth-max width of the lid/eye crease (mm)
+_K_CORNEA = 0.5       # smooth-max width of the sclera/cornea seam (mm)
+_MISS = -1.0e3        # depth of a ray that misses a sphere
+
+
+# ----------------------------------------------------------------------------- helpers
+
+def _smax(a, b, k):
+    """Polynomial smooth maximum: ``max(a, b)`` where ``|a - b| >= k``, rounded inside."""
+    h = np.maximum(k - np.abs(a - b), 0.0) / k
+    return np.maximum(a, b) + h * h * k * 0.25
+
+
+def smoothstep(e0, e1, x):
+    s = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
+    return s * s * (3.0 - 2.0 * s)
+
+
+def _gauss(x, s):
+    return np.exp(-(x / s) ** 2)
+
+
+def _rho(t):
+    s, c = np.abs(np.sin(t)), np.abs(np.cos(t))
+    return 1.0 / ((s / _A_MM) ** _P + (c / _B_MM) ** _P) ** (1.0 / _P)
+
+
+def base_curve(t):
+    """Base curve point (x, z) and outward unit normal (nx, nz) at angle ``t``."""
+    r = _rho(t)
+    x, z = r * np.sin(t), r * np.cos(t)
+    eps = 1e-5
+    rp, rm = _rho(t + eps), _rho(t - eps)
+    dx = (rp * np.sin(t + eps) - rm * np.sin(t - eps)) / (2 * eps)
+    dz = (rp * np.cos(t + eps) - rm * np.cos(t - eps)) / (2 * eps)
+    n = np.hypot(dx, dz)
+    return x, z, -dz / n, dx / n
+
+
+_ARC_T = np.linspace(-T_RANGE, T_RANGE, 4001)
+
+
+def _arc_table():
+    x, z = _rho(_ARC_T) * np.sin(_ARC_T), _rho(_ARC_T) * np.cos(_ARC_T)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(z)))])
+    return s - np.interp(0.0, _ARC_T, s)
+
+
+_ARC_S = _arc_table()
+
+
+def arc(t):
+    """Signed arc length (mm) along the base curve from the midline (t = 0)."""
+    return np.interp(t, _ARC_T, _ARC_S)
+
+
+def t_for_x(x):
+    """Base-curve angle whose base point has abscissa ``x`` (front half)."""
+    lo, hi = -T_RANGE, T_RANGE
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if _rho(mid) * np.sin(mid) < x:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+class _Noise:
+    """Seeded 2-D value noise on a periodic lattice (vectorised, smooth)."""
+
+    def __init__(self, rng, size=256):
+        self.size = size
+        self.table = rng.random((size, size))
+
+    def __call__(self, u, v):
+        n = self.size
+        iu, iv = np.floor(u), np.floor(v)
+        fu, fv = u - iu, v - iv
+        fu = fu * fu * (3 - 2 * fu)
+        fv = fv * fv * (3 - 2 * fv)
+        i0 = iu.astype(np.int64) % n
+        j0 = iv.astype(np.int64) % n
+        i1, j1 = (i0 + 1) % n, (j0 + 1) % n
+        tb = self.table
+        a = tb[i0, j0] + (tb[i1, j0] - tb[i0, j0]) * fu
+        b = tb[i0, j1] + (tb[i1, j1] - tb[i0, j1]) * fu
+        return a + (b - a) * fv
+
+
+def _ray_sphere(ox, oy, oz, nx, nz, c, r):
+    """Outer root ``h`` of ``|o + h n - c| = r`` (``_MISS`` where the ray misses),
+    plus the closest-approach parameter ``h0`` and squared distance ``dd``."""
+    px, py, pz = ox - c[0], oy - c[1], oz - c[2]
+    b = px * nx + pz * nz
+    dd = px * px + py * py + pz * pz - b * b
+    r = np.asarray(r, dtype=float)
+    disc = r * r - dd
+    h = np.where(disc >= 0, -b + np.sqrt(np.maximum(disc, 0.0)), _MISS)
+    return h, -b, dd
+
+
+# ----------------------------------------------------------------------------- model
+
+@dataclasses.dataclass
+class _Eye:
+    side: str
+    lat: float                 # +1 left eye (+X), -1 right eye
+    center: np.ndarray         # (3,)
+    radius: float
+    gaze: np.ndarray           # (3,) unit
+    cornea_center: np.ndarray  # (3,)
+    cornea_radius: float
+    apex: np.ndarray           # (3,)
+    almond: dict               # angles in radians
+    boundary_mm: np.ndarray    # (k, 2) almond boundary in (r*alpha, r*beta)
+    tree: object               # cKDTree over boundary_mm
+    crow_angles: np.ndarray    # crow's-feet line angles (rad)
+    lateral_canthus: np.ndarray  # (2,) (alpha, beta) of the lateral corner
+
+
+def almond_curves(al, s):
+    """Upper and lower lid elevation (rad) at almond parameter ``s`` in [0, 1]."""
+    s = np.clip(s, 0.0, 1.0)
+    base = al["b_m"] + (al["b_l"] - al["b_m"]) * s
+    up = base + al["h_u"] * np.sin(np.pi * s ** al["g_u"])
+    lo = base - al["h_l"] * np.sin(np.pi * s ** al["g_l"]) ** 0.85
+    return base, up, lo
+
+
+def _make_eye(side, rng, ipd, hood, y_eye):
+    from scipy.spatial import cKDTree
+
+    lat = 1.0 if side == "left" else -1.0
+    radius = float(rng.uniform(11.0, 13.5))
+    x = lat * (ipd / 2.0 + rng.uniform(-0.3, 0.3))
+    tx = t_for_x(x)
+    bx, bz, _, _ = base_curve(np.array([tx]))
+    center = np.array([x, y_eye + rng.uniform(-0.4, 0.4), float(bz[0]) - 15.0 + rng.uniform(-0.5, 0.5)])
+    yaw = np.deg2rad(rng.uniform(-2.0, 2.0))
+    pitch = np.deg2rad(rng.uniform(-2.0, 2.0))
+    gaze = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
+    scale = radius / 12.0
+    rc = 7.6 * scale * rng.uniform(0.98, 1.02)
+    apex_dist = radius + rng.uniform(0.95, 1.25) * scale
+    cc = center + (apex_dist - rc) * gaze
+    d = np.deg2rad
+    al = {
+        "a_m": -d(rng.uniform(55.0, 60.0)), "a_l": d(rng.uniform(73.0, 78.0)),
+        "b_m": d(rng.uniform(-3.0, -1.0)), "b_l": d(rng.uniform(1.0, 4.0)),
+        "h_u": d((1 - hood) * rng.uniform(25.5, 27.5) + hood * rng.uniform(19.0, 21.0)),
+        "h_l": d(rng.uniform(23.0, 25.0)),
+        "g_u": float(rng.uniform(0.8, 0.95)), "g_l": float(rng.uniform(1.1, 1.25)),
+    }
+    s = np.linspace(0.0, 1.0, 1500)
+    _, up, lo = almond_curves(al, s)
+    alpha = al["a_m"] + (al["a_l"] - al["a_m"]) * s
+    bnd = np.concatenate([np.stack([alpha, up], 1), np.stack([alpha[::-1], lo[::-1]], 1)]) * radius
+    crow = np.deg2rad(rng.uniform(-35, 35, size=5) + np.array([-50, -25, 0, 25, 50]) * 0.9)
+    return _Eye(side, lat, center, radius, gaze, cc, rc, center + apex_dist * gaze, al, bnd,
+                cKDTree(bnd), crow, np.array([al["a_l"], al["b_l"]]))
+
+
+class HeadModel:
+    """All seeded shape parameters; ``fields(t, y)`` evaluates the surface depths."""
+
+    def __init__(self, seed, eye_shape, eye_spacing_mm, detail):
+        rng = np.random.default_rng(seed)
+        self.seed = seed
+        self.hood = float(eye_shape)
+        self.ipd = float(eye_spacing_mm)
+        self.detail_scale = float(detail)
+        self.y_eye = 0.0
+        self.eyes = [_make_eye("left", rng, self.ipd, self.hood, self.y_eye),
+                     _make_eye("right", rng, self.ipd, self.hood, self.y_eye)]
+        j = lambda a, b: float(rng.uniform(a, b))  # noqa: E731
+        self.face = {
+            "brow": j(3.5, 5.5), "nose": j(21.0, 27.0), "nose_w": j(0.9, 1.15), "cheek": j(5.0, 8.0),
+            "chin": j(4.0, 7.0), "orbit": j(7.0, 9.0), "lip": j(3.0, 4.5), "jaw": j(24.0, 32.0),
+            "tilt": j(-0.02, 0.02),
+        }
+        self.noise_pore = _Noise(rng)
+        self.noise_tone = _Noise(rng, 64)
+        self.noise_brow = _Noise(rng)
+        self.forehead_lines = np.sort(rng.uniform(38.0, 70.0, size=4))
+        self.forehead_phase = rng.uniform(0, 2 * np.pi, size=4)
+        self.pore_depth = float(rng.uniform(0.07, 0.1))
+        self.wrinkle_depth = float(rng.uniform(0.25, 0.32))
+
+    # -- face (no eyes) -------------------------------------------------------
+    def face_depth(self, x, y):
+        f = self.face
+        ax = np.abs(x)
+        ex = self.ipd / 2.0
+        h = -0.0038 * np.maximum(y - 28.0, 0.0) ** 2 + f["tilt"] * y
+        # brow ridge and glabella
+        h += f["brow"] * _gauss(y - 15.0, 7.5) * _gauss(ax - 28.0, 24.0)
+        h += 2.0 * _gauss(y - 12.0, 9.0) * _gauss(x, 12.0)
+        # orbits (eye sockets) and the temples
+        h -= f["orbit"] * np.exp(-(((ax - ex) / 16.0) ** 2 + ((y - 1.0) / 11.0) ** 2))
+        h -= 3.0 * np.exp(-(((ax - 64.0) / 10.0) ** 2 + ((y - 18.0) / 16.0) ** 2))
+        # nose: bridge to tip, alae
+        prof = f["nose"] * smoothstep(12.0, -44.0, y) ** 1.3 * smoothstep(-58.0, -45.0, y)
+        width = f["nose_w"] * (8.0 + 7.0 * smoothstep(4.0, -46.0, y))
+        h += prof * np.exp(-((x / width) ** 2))
+        h += 5.5 * np.exp(-(((ax - 14.0) / 6.0) ** 2 + ((y + 48.0) / 6.0) ** 2))
+        # cheeks, lips, chin
+        h += f["cheek"] * np.exp(-(((ax - 40.0) / 19.0) ** 2 + ((y + 30.0) / 17.0) ** 2))
+        h += f["lip"] * np.exp(-((x / 22.0) ** 4 + ((y + 66.0) / 5.5) ** 2))
+        h += 0.8 * f["lip"] * np.exp(-((x / 20.0) ** 4 + ((y + 79.0) / 5.0) ** 2))
+        h -= 2.2 * np.exp(-((x / 24.0) ** 4 + ((y + 72.5) / 1.3) ** 2))
+        h -= 2.0 * np.exp(-((x / 18.0) ** 2 + ((y + 88.0) / 4.0) ** 2))
+        h += f["chin"] * np.exp(-((x / 18.0) ** 2 + ((y + 101.0) / 10.0) ** 2))
+        # jaw narrowing, under the chin, neck
+        h -= f["jaw"] * (ax / _A_MM) ** 2.5 * smoothstep(-25.0, -115.0, y)
+        h -= 30.0 * smoothstep(-106.0, -132.0, y) * (1.0 - 0.6 * (ax / _A_MM) ** 2)
+        return h
+
+    # -- everything along the rays ------------------------------------------
+    def fields(self, t, y, detail=True, want_texture=False, base=None):
+        """Depths along the rays at grid parameters ``t`` (rad), ``y`` (mm).
+
+        Returns a dict with ``h`` (final depth), ``h_skin``, ``h_eye``, base point and
+        normal (``bx, bz, nx, nz``) and, for texturing, the eye-local fields.
+        """
+        t = np.asarray(t, float)
+        y = np.asarray(y, float)
+        bx, bz, nx, nz = base_curve(t) if base is None else base
+        h_face = self.face_depth(bx, y)
+        h_skin = h_face.copy()
+        h_eye = np.full(t.shape, _MISS)
+        d_all = np.full(t.shape, 99.0)
+        wrinkle = np.zeros(t.shape)
+        out = {}
+        if want_texture:
+            out.update(eye_angle=np.full(t.shape, np.pi), eye_radius=np.zeros(t.shape),
+                       upper=np.zeros(t.shape))
+        for e in self.eyes:
+            c = e.center
+            box = (np.abs(bx - c[0]) < 34.0) & (np.abs(y - c[1]) < 30.0)
+            if not box.any():
+                continue
+            ox, oy, oz = bx[box], y[box], bz[box]
+            mx, mz = nx[box], nz[box]
+            hs, h0, dd = _ray_sphere(ox, oy, oz, mx, mz, c, e.radius)
+            hc, _, _ = _ray_sphere(ox, oy, oz, mx, mz, e.cornea_center, e.cornea_radius)
+            he = _smax(hs, hc, _K_CORNEA)
+            # eye angular coordinates from the sphere hit (closest approach on a miss)
+            hp = np.where(hs > _MISS, hs, h0)
+            px, py, pz = ox + hp * mx - c[0], oy - c[1], oz + hp * mz - c[2]
+            alpha = np.arctan2(e.lat * px, pz)
+            beta = np.arctan2(py, np.hypot(px, pz))
+            al = e.almond
+            s = (alpha - al["a_m"]) / (al["a_l"] - al["a_m"])
+            base_b, up, lo = almond_curves(al, s)
+            # off the sphere, scale the angles by the ray's distance from the centre so d keeps
+            # growing away from the eye (continuous at the silhouette)
+            rho = np.where(hs > _MISS, e.radius, np.sqrt(np.maximum(dd, 0.0)))
+            dist, _ = e.tree.query(np.stack([alpha * rho, beta * rho], 1))
+            inside = (s > 0) & (s < 1) & (beta < up) & (beta > lo)
+            d = np.where(inside, -dist, dist)
+            upper = smoothstep(-0.02, 0.02, beta - base_b)
+            # lid profile T(d): thickness outside, behind the eye inside
+            thick = 2.3 + 0.4 * upper
+            tout = thick * np.tanh(np.maximum(d, 0.0) / 1.1) + 0.3 * np.maximum(d - 2.0, 0.0)
+            tin = -4.0 * (1.0 - np.exp(np.minimum(d, 0.0) / 1.0))
+            tlid = np.where(d >= 0, tout, tin)
+            # upper-lid crease (round) or a hanging skin fold (hooded)
+            hood = self.hood
+            fold = upper * ((1 - hood) * (-0.9 * _gauss(d - 7.5, 1.3))
+                            + hood * (2.6 * _gauss(d - 3.6, 1.6) - 1.2 * _gauss(d - 6.5, 1.2)))
+            lower_fold = (1 - upper) * (-0.5 * _gauss(d - 5.5, 1.8))
+            tlid = tlid + np.where(d > 0, (fold + lower_fold) * smoothstep(0.0, 1.2, d), 0.0)
+            # lid shell follows the eye surface scaled out by T (misses: continued past the rim)
+            rs = e.radius + np.maximum(tlid, -e.radius + 1.0)
+            hl_s, h0s, dds = _ray_sphere(ox, oy, oz, mx, mz, c, rs)
+            hl_s = np.where(hl_s > _MISS, hl_s, h0s - 2.0 * (np.sqrt(dds) - rs))
+            hl_c, _, _ = _ray_sphere(ox, oy, oz, mx, mz, e.cornea_center,
+                                     np.maximum(e.cornea_radius + tlid, 0.5))
+            h_lid = _smax(hl_s, hl_c, _K_CORNEA)
+            # a few mm out from the margin the skin never sinks behind the face (no moat)
+            q = smoothstep(1.0, 4.0, d)
+            h_lid = h_lid + q * (_smax(h_lid, h_skin[box], 3.0) - h_lid)
+            w = 1.0 - smoothstep(2.5, 12.0, d)
+            hsk = w * h_lid + (1 - w) * h_skin[box]
+            h_skin[box] = hsk
+            h_eye[box] = np.maximum(h_eye[box], he)
+            d_all[box] = np.minimum(d_all[box], d)
+            # crow's feet and lower-lid lines (negative = crease)
+            if detail:
+                lc = e.lateral_canthus
+                da, db = (alpha - lc[0]) * e.radius, (beta - lc[1]) * e.radius
+                rr = np.hypot(da, db)
+                ang = np.arctan2(db, da)
+                cf = np.zeros_like(rr)
+                for a0 in e.crow_angles:
+                    cf += _gauss(rr * np.sin(ang - a0), 0.35) * (np.cos(ang - a0) > 0)
+                cf *= smoothstep(2.0, 5.0, rr) * (1 - smoothstep(9.0, 15.0, rr))
+                ll = (1 - upper) * (_gauss(d - 3.2, 0.35) + 0.7 * _gauss(d - 6.0, 0.4)) \
+                    * smoothstep(0.15, 0.45, s) * (1 - smoothstep(0.75, 1.05, s))
+                wr = np.zeros(t.shape)
+                wr[box] = -np.minimum(cf + ll, 1.0)
+                wrinkle = np.minimum(wrinkle, wr)
+            if want_texture:
+                # angle from the optical axis on the eye surface (for iris/pupil)
+                qx = ox + he * mx - c[0]
+                qy = oy - c[1]
+                qz = oz + he * mz - c[2]
+                qn = np.sqrt(qx * qx + qy * qy + qz * qz)
+                cosang = (qx * e.gaze[0] + qy * e.gaze[1] + qz * e.gaze[2]) / np.maximum(qn, 1e-9)
+                out["eye_angle"][box] = np.minimum(out["eye_angle"][box], np.arccos(np.clip(cosang, -1, 1)))
+                out["eye_radius"][box] = e.radius
+                out["upper"][box] = np.maximum(out["upper"][box], upper)
+        det = np.zeros(t.shape)
+        if detail and self.detail_scale > 0:
+            det = self.skin_detail(bx, arc(t), y, d_all, wrinkle) * self.detail_scale
+            h_skin = h_skin + det
+        h = _smax(h_skin, h_eye, _K_LID)
+        out.update(h=h, h_skin=h_skin, h_eye=h_eye, d=d_all, detail=det, bx=bx, bz=bz, nx=nx, nz=nz,
+                   wrinkle=wrinkle)
+        return out
+
+    def skin_detail(self, x, u, y, d, wrinkle):
+        """Signed skin displacement (mm): pores, forehead lines, crow's feet, lid lines."""
+        pores = self.noise_pore(u / 0.55, y / 0.55)
+        pores = -self.pore_depth * smoothstep(0.55, 0.85, pores) \
+            + 0.03 * (self.noise_pore(u / 2.3 + 91.0, y / 2.3) - 0.5)
+        fl = np.zeros_like(x)
+        for yk, ph in zip(self.forehead_lines, self.forehead_phase):
+            yy = yk + 2.0 * np.sin(x / 23.0 + ph) + 0.00045 * x * x
+            fl += _gauss(y - yy, 0.55)
+        fl *= 1 - smoothstep(38.0, 60.0, np.abs(x))
+        lines = np.minimum(fl, 1.0)
+        wr = self.wrinkle_depth * np.minimum(-wrinkle + lines, 1.0)
+        det = pores - wr
+        # no detail on (or right next to) the eye: fade to 0 at the lid margin
+        return det * smoothstep(0.6, 2.0, d)
+
+
+def surface_points(f, y, h):
+    return np.stack([f["bx"] + h * f["nx"], y, f["bz"] + h * f["nz"]], axis=-1)

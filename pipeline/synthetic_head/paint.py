@@ -1,0 +1,70 @@
+"""The procedural head's colour texture, painted in its ``(t, y)`` UV space from the same fields as
+the shape (skin tone, redness, creases, brows, lash line, sclera, iris and pupil).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.synthetic_head.model import T_RANGE, Y_RANGE, arc, base_curve, smoothstep
+
+
+
+def paint_texture(model, size, rows_per_chunk=128):
+    """Colour texture (size, size, 3) uint8 painted in (t, y) UV space (row 0 = top)."""
+    out = np.empty((size, size, 3), dtype=np.uint8)
+    u = (np.arange(size) + 0.5) / size
+    for r0 in range(0, size, rows_per_chunk):
+        rows = np.arange(r0, min(r0 + rows_per_chunk, size))
+        vv = 1.0 - (rows + 0.5) / size
+        uu, vv = np.meshgrid(u, vv)
+        t = -T_RANGE + 2 * T_RANGE * uu
+        y = Y_RANGE[0] + (Y_RANGE[1] - Y_RANGE[0]) * vv
+        base = tuple(np.broadcast_to(b, t.shape).ravel() for b in base_curve(t[0]))
+        out[rows] = _paint(model, t.ravel(), y.ravel(), base).reshape(len(rows), size, 3)
+    return out
+
+
+def _paint(model, t, y, base=None):
+    """RGB uint8 (k, 3) of the skin/eye colour at parameters ``t``, ``y``."""
+    f = model.fields(t, y, detail=True, want_texture=True, base=base)
+    x = f["bx"]
+    yy = y
+    u = arc(t)
+    tone = model.noise_tone(u / 9.0, yy / 9.0) - 0.5
+    fine = model.noise_pore(u / 0.8 + 17.0, yy / 0.8) - 0.5
+    skin = np.array([224.0, 172.0, 146.0])
+    col = skin[None, :] * (1.0 + 0.10 * tone[:, None] + 0.04 * fine[:, None])
+    # redder cheeks, nose and lips; darker creases and pores
+    ax = np.abs(x)
+    red = 0.5 * np.exp(-(((ax - 40) / 16) ** 2 + ((yy + 28) / 14) ** 2)) \
+        + 0.8 * np.exp(-((x / 21.0) ** 4 + ((yy + 72.0) / 8.0) ** 2)) \
+        + 0.3 * np.exp(-((x / 8) ** 2 + ((yy + 40) / 10) ** 2))
+    col = col * (1 - 0.25 * red[:, None]) + np.array([190.0, 80.0, 80.0]) * 0.25 * red[:, None]
+    crease = np.clip(-f["detail"] / 0.3, 0, 1)
+    col *= (1.0 - 0.35 * crease)[:, None]
+    # brows: horizontal hair strokes along the brow ridge
+    ex = model.ipd / 2
+    by = 17.0 + 3.0 * np.sin(np.clip((ax - ex + 20) / 45, 0, 1) * np.pi) - 0.08 * np.maximum(ax - ex, 0)
+    band = np.exp(-((yy - by) / 3.2) ** 4) * smoothstep(6, 12, ax) * (1 - smoothstep(ex + 18, ex + 26, ax))
+    hair = smoothstep(0.35, 0.7, model.noise_brow(x / 2.5, yy / 0.3))
+    bmask = np.clip(band * (0.45 + 0.55 * hair), 0, 1)
+    col = col * (1 - 0.8 * bmask[:, None]) + np.array([60.0, 42.0, 32.0]) * 0.8 * bmask[:, None]
+    # lash line darkening along the upper margin
+    d = f["d"]
+    lash = (d > -0.2) & (d < 1.2)
+    col[lash] *= np.where(f["upper"][lash] > 0.5, 0.45, 0.8)[:, None]
+    # the scanned eyeball: sclera, iris, pupil where the eye surface is visible
+    eye = f["h_eye"] >= f["h_skin"]
+    ang = f["eye_angle"][eye]
+    r = np.maximum(f["eye_radius"][eye], 1.0)
+    rad_mm = r * np.sin(np.minimum(ang, np.pi / 2))
+    sclera = np.array([236.0, 226.0, 218.0]) * (1 - 0.08 * smoothstep(8, 14, rad_mm))[:, None]
+    iris_c = np.array([92.0, 118.0, 140.0])
+    ring = 0.85 + 0.15 * np.cos(np.arctan2(0, 1) + rad_mm * 6.0)
+    iris = iris_c[None, :] * ring[:, None]
+    iris = np.where((rad_mm > 5.4)[:, None], iris * 0.6, iris)
+    ec = np.where((rad_mm < 5.8)[:, None], iris, sclera)
+    ec = np.where((rad_mm < 1.9)[:, None], np.array([12.0, 10.0, 10.0]), ec)
+    col[eye] = ec
+    return np.clip(col, 0, 255).astype(np.uint8)
