@@ -19,10 +19,10 @@ driven with :func:`pipeline.rig.lids.flat_shape_weights`, which reproduces the U
 inbetween evaluation exactly (``lid_max_error_mm`` in the JSON checks that against
 :func:`pipeline.rig.lids.evaluate_shapes`).
 
-Materials: skin = Principled BSDF with subsurface scattering, the baked colour texture and
-the baked displacement map as bump (signed mm along the normal = object units); eyes =
-:func:`pipeline.blender.eyeball_materials.setup_eyeball_materials` with the iris / sclera
-textures the asset's variant selection imported. Output: one labelled PNG
+Materials (:mod:`pipeline.blender.materials`): skin = Principled BSDF with subsurface
+scattering, the baked colour texture and the baked displacement map as bump (signed mm along
+the normal = object units); eyes = :func:`pipeline.blender.materials.setup_eyeball_materials`
+with the iris / sclera textures the asset's variant selection imported. Output: one labelled PNG
 (:func:`sheet_size` gives its pixel size for a tile size).
 """
 
@@ -44,6 +44,9 @@ THREE_QUARTER_ELEV_DEG = 8.0
 TILE_ASPECT = 2            # tile width / height (both eyes side by side)
 PAD, LABEL_H = 6, 18
 BACKDROP = (46, 46, 50)
+# skin: subsurface scale in world units (m)
+SKIN_BSDF = {"Roughness": 0.5, "Specular IOR Level": 0.4, "Subsurface Weight": 0.25, "Subsurface Scale": 0.002,
+             "Subsurface Radius": (1.0, 0.35, 0.2)}
 
 
 def sheet_size(size: int) -> tuple[int, int]:
@@ -61,98 +64,12 @@ def _views():
             ("three-quarter (35 deg), subject's left eye, pitch 0 deg", 0.0, "three-quarter")]
 
 
-def _skin_material(mat, color_image, disp_image):
-    """Principled BSDF with subsurface, colour texture and bump from the displacement map."""
-    import bpy  # noqa: F401
-
-    from pipeline.blender.eyeball_materials import _new_tree, _principled
-
-    nt, out = _new_tree(mat)
-    b = _principled(nt, **{"Roughness": 0.5, "Specular IOR Level": 0.4,
-                           "Subsurface Weight": 0.25, "Subsurface Scale": 0.002,
-                           "Subsurface Radius": (1.0, 0.35, 0.2)})
-    uv = nt.nodes.new("ShaderNodeUVMap")
-    uv.uv_map = "st"
-    if color_image is not None:
-        tex = nt.nodes.new("ShaderNodeTexImage")
-        tex.image = color_image
-        nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
-        nt.links.new(tex.outputs["Color"], b.inputs["Base Color"])
-    else:
-        b.inputs["Base Color"].default_value = (0.75, 0.6, 0.55, 1.0)
-    if disp_image is not None:
-        disp_image.colorspace_settings.name = "Non-Color"
-        dtex = nt.nodes.new("ShaderNodeTexImage")
-        dtex.image = disp_image
-        dtex.interpolation = "Cubic"
-        nt.links.new(uv.outputs["UV"], dtex.inputs["Vector"])
-        d = nt.nodes.new("ShaderNodeDisplacement")
-        d.space = "OBJECT"                      # object units = stage mm = the map's units
-        d.inputs["Midlevel"].default_value = 0.0
-        d.inputs["Scale"].default_value = 1.0
-        nt.links.new(dtex.outputs["Color"], d.inputs["Height"])
-        nt.links.new(d.outputs["Displacement"], out.inputs["Displacement"])
-        try:
-            mat.displacement_method = "BUMP"
-        except AttributeError:
-            mat.cycles.displacement_method = "BUMP"
-    nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
-    return mat
-
-
-def _images_of(mat) -> list:
-    if mat is None or mat.node_tree is None:
-        return []
-    return [n.image for n in mat.node_tree.nodes if n.type == "TEX_IMAGE" and n.image is not None]
-
-
-def _find_image(objs, material: str, stem_prefix: str):
-    for o in objs:
-        for slot in o.material_slots:
-            if slot.material is not None and slot.material.name.split(".")[0] == material:
-                for im in _images_of(slot.material):
-                    if Path(im.filepath).name.startswith(stem_prefix):
-                        return im
-    return None
-
-
-def add_inbetween_keys(obj, shapes) -> list[str]:
-    """Add one shape key per stored inbetween pose (rest + offsets, object-local = stage mm).
-
-    Full shapes missing from the import are added too. Returns the names added.
-    """
-    me = obj.data
-    if me.shape_keys is None:
-        obj.shape_key_add(name="Basis", from_mix=False)
-    basis = me.shape_keys.reference_key
-    n = len(me.vertices)
-    rest = np.empty(n * 3)
-    basis.data.foreach_get("co", rest)
-    rest = rest.reshape(n, 3)
-    added = []
-    for s in shapes:
-        idx = np.asarray(s.point_indices, np.int64)
-        poses = list(zip(s.inbetween_names(), np.asarray(s.inbetween_offsets, float).reshape(-1, len(idx), 3)))
-        if me.shape_keys.key_blocks.get(s.name) is None:
-            poses.append((s.name, np.asarray(s.offsets, float)))
-        for name, off in poses:
-            kb = obj.shape_key_add(name=name, from_mix=False)
-            P = rest.copy()
-            P[idx] += off
-            kb.data.foreach_set("co", P.ravel())
-            kb.slider_min, kb.slider_max = 0.0, 1.0
-            added.append(name)
-    if me.shape_keys.animation_data is not None:   # imported weight animation would override values
-        me.shape_keys.animation_data_clear()
-    return added
-
-
 def _setup_scene(width: int, height: int, samples: int, hdri: Path):
     import bpy
 
-    from pipeline.blender.eyeball_preview import _setup_scene as eyeball_scene
+    from pipeline.blender.scene import preview_scene
 
-    scene, cam = eyeball_scene(height, samples, hdri)
+    scene, cam = preview_scene(height, samples, hdri)
     scene.render.resolution_x, scene.render.resolution_y = width, height
     scene.cycles.tile_size = 64
     scene.cycles.adaptive_threshold = 0.05
@@ -203,9 +120,8 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
     import bpy
     from PIL import Image, ImageDraw
 
-    from pipeline.blender.eyeball_materials import setup_eyeball_materials
-    from pipeline.blender.eyeball_preview import bundled_hdri
-    from pipeline.blender.usd_roundtrip import import_usd
+    from pipeline.blender.materials import setup_eyeball_materials, skin_material
+    from pipeline.blender.scene import add_inbetween_keys, bundled_hdri, evaluated_vertices, find_image, import_usd
     from pipeline.rig import lids
 
     t0 = time.perf_counter()
@@ -230,14 +146,14 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
     keys = skin.data.shape_keys.key_blocks
 
     # materials
-    color = _find_image([skin], "Skin", "color")
-    disp = _find_image([skin], "Skin", "displacement")
+    color = find_image([skin], "Skin", "color")
+    disp = find_image([skin], "Skin", "displacement")
     for slot in skin.material_slots:
         if slot.material is not None:
-            _skin_material(slot.material, color, disp)
+            skin_material(slot.material, color, disp, displacement_method="BUMP", **SKIN_BSDF)
     eyes = [o for o in objs if o is not skin]
-    iris = _find_image(eyes, "Iris", "iris_")
-    sclera = _find_image(eyes, "Sclera", "sclera_")
+    iris = find_image(eyes, "Iris", "iris_")
+    sclera = find_image(eyes, "Sclera", "sclera_")
     bump = None
     if sclera is not None:
         p = Path(bpy.path.abspath(sclera.filepath)).with_name("sclera_bump.png")
@@ -309,13 +225,8 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
             bpy.context.view_layer.update()
             pitch_meas[f"{pitch:+.0f}"] = {b: round(e - rest_elev[b], 4) for b, e in gaze_elevation_deg().items()}
             # check: the Blender shape-key mix equals the UsdSkel inbetween evaluation
-            dg = bpy.context.evaluated_depsgraph_get()
-            em = skin.evaluated_get(dg).to_mesh()
-            P = np.empty(n_v * 3)
-            em.vertices.foreach_get("co", P)
-            skin.evaluated_get(dg).to_mesh_clear()
-            lid_err[f"{pitch:+.0f}"] = float(np.abs(P.reshape(n_v, 3)
-                                                    - lids.evaluate_shapes(rest, shapes, cw)).max())
+            P, _ = evaluated_vertices(skin, bpy.context.evaluated_depsgraph_get())
+            lid_err[f"{pitch:+.0f}"] = float(np.abs(P - lids.evaluate_shapes(rest, shapes, cw)).max())
             if view == "front":
                 _place_camera(cam, view, target, 0.5, front_scale)
             else:

@@ -4,7 +4,7 @@
         [--hdri PATH] [--json TIMINGS.json]
 
 Imports the asset with Blender's USD importer, swaps in the Cycles materials
-(pipeline/blender/eyeball_materials.py), lights it with one of Blender's
+(pipeline/blender/materials.py), lights it with one of Blender's
 bundled HDRIs and renders one tile per (iris colour x view x pupil): rows =
 amber, blue, brown, grey; columns = front/constricted, front/dilated,
 three-quarter/constricted, three-quarter/dilated. CPU Cycles, OpenImageDenoise
@@ -27,64 +27,6 @@ COLUMNS = (("front", "pupil_constrict"), ("front", "pupil_dilate"),
            ("three-quarter", "pupil_constrict"), ("three-quarter", "pupil_dilate"))
 
 
-def bundled_hdri(name: str = "interior.exr") -> Path:
-    import bpy
-
-    base = Path(bpy.utils.system_resource("DATAFILES")) / "studiolights" / "world"
-    return base / name
-
-
-def _setup_scene(size: int, samples: int, hdri: Path):
-    import bpy
-
-    scene = bpy.context.scene
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = samples
-    scene.cycles.use_adaptive_sampling = True
-    scene.cycles.max_bounces = 6
-    scene.cycles.transmission_bounces = 6
-    scene.cycles.glossy_bounces = 2
-    scene.cycles.diffuse_bounces = 1
-    scene.cycles.transparent_max_bounces = 8
-    scene.cycles.caustics_reflective = False
-    scene.cycles.caustics_refractive = False
-    try:
-        scene.cycles.use_denoising = True
-        scene.cycles.denoiser = "OPENIMAGEDENOISE"
-    except Exception:  # denoiser not built in
-        scene.cycles.use_denoising = False
-    scene.render.resolution_x = scene.render.resolution_y = size
-    scene.render.resolution_percentage = 100
-    scene.render.film_transparent = True
-    scene.render.threads_mode = "AUTO"
-    scene.render.use_persistent_data = True
-    scene.view_settings.view_transform = "Standard"
-    scene.render.image_settings.file_format = "PNG"
-    scene.render.image_settings.color_mode = "RGBA"
-    world = bpy.data.worlds.new("PreviewWorld")
-    scene.world = world
-    world.use_nodes = True
-    nt = world.node_tree
-    for n in list(nt.nodes):
-        nt.nodes.remove(n)
-    env = nt.nodes.new("ShaderNodeTexEnvironment")
-    env.image = bpy.data.images.load(str(hdri), check_existing=True)
-    bg = nt.nodes.new("ShaderNodeBackground")
-    bg.inputs["Strength"].default_value = 1.2
-    out = nt.nodes.new("ShaderNodeOutputWorld")
-    nt.links.new(env.outputs["Color"], bg.inputs["Color"])
-    nt.links.new(bg.outputs["Background"], out.inputs["Surface"])
-    cam_data = bpy.data.cameras.new("PreviewCam")
-    cam_data.lens = 165.0
-    cam_data.sensor_width = 36.0
-    cam_data.clip_start = 0.001
-    cam = bpy.data.objects.new("PreviewCam", cam_data)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    return scene, cam
-
-
 def _place_camera(cam, view: str, distance_m: float = 0.125):
     """Aim at the eye centre (origin). The imported eye looks down Blender -Y (USD +Z)."""
     from mathutils import Vector
@@ -103,12 +45,12 @@ def render_sheet(asset: Path, out_png: Path, size: int = 160, samples: int = 16,
     import numpy as np
     from PIL import Image, ImageDraw
 
-    from pipeline.blender.eyeball_materials import setup_eyeball_materials
-    from pipeline.blender.usd_roundtrip import import_usd
+    from pipeline.blender.materials import setup_eyeball_materials
+    from pipeline.blender.scene import bundled_hdri, import_usd, preview_scene
 
     t0 = time.perf_counter()
     objs = import_usd(asset, unit_conversion=True)
-    scene, cam = _setup_scene(size, samples, hdri or bundled_hdri())
+    scene, cam = preview_scene(size, samples, hdri or bundled_hdri())
     tex_dir = asset.parent / "textures"
     iris_imgs = {c: bpy.data.images.load(str(tex_dir / f"iris_{c}.png")) for c in IRIS_COLORS}
     sclera_img = bpy.data.images.load(str(tex_dir / f"sclera_{veins}.png"))

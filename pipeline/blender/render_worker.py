@@ -43,14 +43,14 @@ Scene (SynthesEyes paper, section 4):
   displacement of the mesh vertices + bump for the finer detail, method BOTH), ``"bump"``
   (bump only) or ``"none"`` (map unplugged). The bake fades the map to 0 at the eyelid
   margins, so true displacement does not move the landmarks.
-* Eyeballs: :mod:`pipeline.blender.eyeball_materials` (refractive cornea n = 1.376); all
+* Eyeballs: :mod:`pipeline.blender.materials` (refractive cornea n = 1.376); all
   4 iris textures, 2 vein layers loaded once and switched per sample on the texture nodes,
   the sclera tint on the tint-multiply node.
-* Eyelashes: one hair-curves object per eye (:data:`LASHES`: 90 upper lashes up to 9 mm,
-  45 lower up to 5.5 mm, 0.14 mm thick at the root, tapering), rooted 0.5 mm in front of
-  the posed lid margin (the ``loop_<side>`` vertices of the evaluated skin mesh) and curling
-  away from the opening (up / down); rebuilt every sample so they follow the lids
-  (:func:`lash_curves`); dark glossy Principled BSDF, rendered as Cycles ribbons.
+* Eyelashes (:mod:`pipeline.blender.lashes`): one hair-curves object per eye (``LASHES``: 90
+  upper lashes up to 9 mm, 45 lower up to 5.5 mm, 0.14 mm thick at the root, tapering), rooted
+  0.5 mm in front of the posed lid margin (the ``loop_<side>`` vertices of the evaluated skin
+  mesh) and curling away from the opening (up / down); rebuilt every sample so they follow the
+  lids (``lash_curves``); dark glossy Principled BSDF, rendered as Cycles ribbons.
 * World: one of Blender's bundled studio-light HDRIs (or an absolute path), loaded only
   when it changes, with an orphan purge at each switch (importance map 256 px). Any edit
   of the world shader makes Cycles rebuild the map (~4 s per image here), so rotation and
@@ -86,6 +86,9 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.blender.lashes import LASHES, add_lash_objects, lash_curves
+from pipeline.blender.materials import eyelash_material, set_tint, setup_eyeball_materials, skin_material, thin_coat
+from pipeline.blender.scene import add_inbetween_keys, bundled_hdri, evaluated_vertices, find_image, import_usd
 from pipeline.eyeball.textures import IRIS_COLORS, SCLERA_TINTS, VEINS  # the asset's variants (no bpy)
 from pipeline.geometry.frame import quat_to_matrix
 
@@ -100,15 +103,9 @@ DENOISE_PREFILTER = "ACCURATE"   # OIDN albedo/normal prefilter: +0.7 dB at 16 s
 BSDF_DISTRIBUTION = "GGX"        # single-scatter GGX on every Principled BSDF (multi-scatter: ~1.3x time)
 LIGHT_PATHS = {"max_bounces": 8, "diffuse_bounces": 1, "glossy_bounces": 2, "transmission_bounces": 6,
                "transparent_max_bounces": 8, "volume_bounces": 0}
-# eyelashes (mm): count, max length, root / tip radius, curl angles (deg from the eye's forward
-# toward "away from the opening") at the root and at the tip
-LASHES = {"upper": {"count": 90, "length": 9.0, "root_angle": 25.0, "tip_angle": 80.0, "radius": 1.0},
-          "lower": {"count": 45, "length": 5.5, "root_angle": 35.0, "tip_angle": 70.0, "radius": 0.7}}
-LASH_ROOT_RADIUS_MM = 0.07
-LASH_TIP_RADIUS_MM = 0.02
-LASH_POINTS = 6
-LASH_VERTICAL_BIAS = 1.0
-LASH_OFFSET_MM = (0.5, 0.35)     # root: in front of the margin along forward, away from the opening
+# skin BSDF: subsurface scale is in world units (m): ~1.2 mm mean free path for red light
+SKIN_BSDF = {"Roughness": 0.45, "Specular IOR Level": 0.5, "IOR": 1.4, "Subsurface Weight": 0.35,
+             "Subsurface Scale": 0.0012, "Subsurface Radius": (1.0, 0.35, 0.2)}
 
 
 def rss_mib() -> float:
@@ -129,80 +126,6 @@ def _reply(obj: dict) -> None:
 
 
 # ----------------------------------------------------------------------------- pure numpy helpers
-
-def lash_curves(margin, lateral_index: int, forward, rng_table: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Eyelash polylines grown from a posed eyelid margin.
-
-    Parameters
-    ----------
-    margin : (L, 3) float64
-        Posed margin loop, head mm; starts at the medial canthus, runs over the upper lid to
-        ``lateral_index`` (lateral canthus) and back along the lower lid.
-    lateral_index : int
-    forward : (3,) float64
-        The eye's rest forward (unit, head frame).
-    rng_table : dict
-        ``{"upper"|"lower": (n, 4) float64}`` per-lash random numbers in [0, 1) (position
-        jitter, length, curl, sideways tilt): fixed per worker so lashes keep their identity.
-
-    Returns
-    -------
-    points : (N * LASH_POINTS, 3) float64
-        Polyline points, head mm, lash after lash (root first).
-    radius : (N * LASH_POINTS,) float64
-        Radius per point, mm (tapering root to tip).
-    """
-    P = np.asarray(margin, float)
-    f = np.asarray(forward, float)
-    f = f / np.linalg.norm(f)
-    centre = P.mean(0)
-    up = np.array([0.0, 1.0, 0.0]) - f[1] * f
-    up /= np.linalg.norm(up)
-    upper = P[:lateral_index + 1]
-    lower = np.concatenate([P[lateral_index:], P[:1]])
-    pts, rad = [], []
-    s = np.linspace(0.0, 1.0, LASH_POINTS)
-    for name, poly in (("upper", upper), ("lower", lower)):
-        cfg = LASHES[name]
-        rnd = rng_table[name]
-        n = len(rnd)
-        seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
-        cum = np.concatenate([[0.0], np.cumsum(seg)])
-        # roots evenly spread over 8..92 % of the lid, jittered by up to half a spacing
-        u = 0.08 + 0.84 * (np.arange(n) + 0.5 + (rnd[:, 0] - 0.5)) / n
-        target = np.clip(u, 0.0, 1.0) * cum[-1]
-        k = np.clip(np.searchsorted(cum, target, side="right") - 1, 0, len(seg) - 1)
-        t = np.where(seg[k] > 0, (target - cum[k]) / np.maximum(seg[k], 1e-12), 0.0)
-        root = poly[k] + t[:, None] * (poly[k + 1] - poly[k])
-        tang = poly[k + 1] - poly[k]
-        tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-12)
-        # "away from the opening": radial from the opening centre, biased toward head up (upper
-        # lid) / down (lower lid) so lashes near the canthi still curl up / down, not sideways
-        away = root - centre
-        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-12)
-        away = away + LASH_VERTICAL_BIAS * (1.0 if name == "upper" else -1.0) * up
-        away -= (away @ f)[:, None] * f
-        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-12)
-        root = root + LASH_OFFSET_MM[0] * f + LASH_OFFSET_MM[1] * away
-        # longest in the middle of the lid, shorter toward the canthi (more so medially)
-        prof = np.sin(np.pi * np.clip(u, 0, 1)) * (0.75 + 0.25 * u)
-        length = cfg["length"] * (0.25 + 0.75 * prof) * (0.85 + 0.3 * rnd[:, 1])
-        a0 = np.radians(cfg["root_angle"] + 10.0 * (rnd[:, 2] - 0.5))
-        a1 = np.radians(cfg["tip_angle"] + 15.0 * (rnd[:, 2] - 0.5))
-        tilt = 0.25 * (rnd[:, 3] - 0.5)                # sideways spread along the lid
-        for i in range(n):
-            ang = a0[i] + (a1[i] - a0[i]) * s ** 1.5
-            d = np.cos(ang)[:, None] * f + np.sin(ang)[:, None] * away[i] + tilt[i] * tang[i]
-            d /= np.linalg.norm(d, axis=1, keepdims=True)
-            step = length[i] / (LASH_POINTS - 1)
-            p = np.empty((LASH_POINTS, 3))
-            p[0] = root[i]
-            for j in range(1, LASH_POINTS):
-                p[j] = p[j - 1] + step * 0.5 * (d[j - 1] + d[j])
-            pts.append(p)
-            rad.append(cfg["radius"] * (LASH_ROOT_RADIUS_MM + (LASH_TIP_RADIUS_MM - LASH_ROOT_RADIUS_MM) * s))
-    return np.concatenate(pts), np.concatenate(rad)
-
 
 def camera_to_head(world_to_camera) -> np.ndarray:
     """(4, 4) camera -> head rigid transform from the spec's world_to_camera (orthonormalised)."""
@@ -246,9 +169,6 @@ class Worker:
                  thin_sclera_coat: bool = True):
         import bpy
 
-        from pipeline.blender.asset_preview import _find_image, add_inbetween_keys
-        from pipeline.blender.eyeball_materials import setup_eyeball_materials
-        from pipeline.blender.usd_roundtrip import import_usd
         from pipeline.rig import lids
 
         t0 = time.perf_counter()
@@ -324,12 +244,13 @@ class Worker:
             self.eyes[side]["t"] = np.asarray(self.rig[f"landmarks.{side}.t"], float)
 
         # materials: skin
-        color = _find_image([self.skin], "Skin", "color")
-        disp = _find_image([self.skin], "Skin", "displacement")
+        color = find_image([self.skin], "Skin", "color")
+        disp = find_image([self.skin], "Skin", "displacement")
         self.skin_mats = []
         for slot in self.skin.material_slots:
             if slot.material is not None:
-                self.skin_mats.append(self._skin_material(slot.material, color, disp))
+                self.skin_mats.append(skin_material(slot.material, color, disp, subsurface_method="BURLEY",
+                                                    **SKIN_BSDF))
         self.skin_detail = None
         # materials: eyes (textures of all variants loaded once)
         tex_dir = eb_path.parent / "textures"
@@ -345,7 +266,7 @@ class Worker:
         if thin_sclera_coat:
             for m in {sl.material for e in self.eyes.values() for sl in e["outer"].material_slots
                       if sl.material is not None and sl.material.name.split(".")[0] == "ScleraCoat"}:
-                self._thin_coat(m)
+                thin_coat(m)
         self.eye_variant = {}
 
         self._setup_render(threads, tile_size)
@@ -370,83 +291,6 @@ class Worker:
         im = self.bpy.data.images.load(str(path), check_existing=True)
         im.use_fake_user = True      # survives the orphan purges
         return im
-
-    def _skin_material(self, mat, color_image, disp_image):
-        from pipeline.blender.eyeball_materials import _new_tree, _principled
-
-        nt, out = _new_tree(mat)
-        # subsurface scale is in world units (m): ~1.2 mm mean free path for red light
-        b = _principled(nt, **{"Roughness": 0.45, "Specular IOR Level": 0.5, "IOR": 1.4,
-                               "Subsurface Weight": 0.35, "Subsurface Scale": 0.0012,
-                               "Subsurface Radius": (1.0, 0.35, 0.2)})
-        try:
-            b.subsurface_method = "BURLEY"
-        except (AttributeError, TypeError):
-            pass
-        uv = nt.nodes.new("ShaderNodeUVMap")
-        uv.uv_map = "st"
-        if color_image is not None:
-            tex = nt.nodes.new("ShaderNodeTexImage")
-            tex.image = color_image
-            nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
-            nt.links.new(tex.outputs["Color"], b.inputs["Base Color"])
-        else:
-            b.inputs["Base Color"].default_value = (0.75, 0.6, 0.55, 1.0)
-        d = None
-        if disp_image is not None:
-            disp_image.colorspace_settings.name = "Non-Color"
-            dtex = nt.nodes.new("ShaderNodeTexImage")
-            dtex.image = disp_image
-            dtex.interpolation = "Cubic"
-            nt.links.new(uv.outputs["UV"], dtex.inputs["Vector"])
-            d = nt.nodes.new("ShaderNodeDisplacement")
-            d.space = "OBJECT"                      # object units = stage mm = the map's units
-            d.inputs["Midlevel"].default_value = 0.0
-            d.inputs["Scale"].default_value = 1.0
-            nt.links.new(dtex.outputs["Color"], d.inputs["Height"])
-        nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
-        return {"mat": mat, "nt": nt, "disp": d, "out": out}
-
-    @staticmethod
-    def _thin_coat(mat) -> None:
-        """Sclera tear film as a thin clear coat: Fresnel mix of a sharp glossy reflection and
-        straight transmission (no refraction), keeping the bump of the asset's coat.
-
-        The asset's coat is a refracting glass shell 0.5 mm above the sclera that joins the
-        cornea: at oblique views rays refracted into that shell are piped along it into the
-        cornea and smear a dark/doubled iris over the sclera. A real sclera has no such
-        layer (the tear film is microns thick), so it is rendered as a thin coat; shadow rays
-        pass it (as in eyeball_materials).
-        """
-        from pipeline.blender.eyeball_materials import CORNEA_IOR
-
-        nt = mat.node_tree
-        out = next(n for n in nt.nodes if n.type == "OUTPUT_MATERIAL" and n.is_active_output)
-        bump = next((n for n in nt.nodes if n.type == "BUMP"), None)
-        keep = {out, bump} | {n for n in nt.nodes if n.type in ("TEX_IMAGE", "UVMAP")}
-        for n in list(nt.nodes):
-            if n not in keep:
-                nt.nodes.remove(n)
-        gloss = nt.nodes.new("ShaderNodeBsdfGlossy")
-        gloss.distribution = "GGX"
-        gloss.inputs["Roughness"].default_value = 0.03
-        clear = nt.nodes.new("ShaderNodeBsdfTransparent")
-        fres = nt.nodes.new("ShaderNodeFresnel")
-        fres.inputs["IOR"].default_value = CORNEA_IOR
-        coat = nt.nodes.new("ShaderNodeMixShader")
-        nt.links.new(fres.outputs["Fac"], coat.inputs["Fac"])
-        nt.links.new(clear.outputs["BSDF"], coat.inputs[1])
-        nt.links.new(gloss.outputs["BSDF"], coat.inputs[2])
-        if bump is not None:
-            nt.links.new(bump.outputs["Normal"], gloss.inputs["Normal"])
-            nt.links.new(bump.outputs["Normal"], fres.inputs["Normal"])
-        lp = nt.nodes.new("ShaderNodeLightPath")
-        shadow = nt.nodes.new("ShaderNodeBsdfTransparent")
-        mix = nt.nodes.new("ShaderNodeMixShader")
-        nt.links.new(lp.outputs["Is Shadow Ray"], mix.inputs["Fac"])
-        nt.links.new(coat.outputs["Shader"], mix.inputs[1])
-        nt.links.new(shadow.outputs["BSDF"], mix.inputs[2])
-        nt.links.new(mix.outputs["Shader"], out.inputs["Surface"])
 
     def _set_skin_detail(self, mode: str) -> None:
         if mode == self.skin_detail:
@@ -521,26 +365,10 @@ class Worker:
         scene.camera = self.cam
 
     def _setup_lashes(self) -> None:
-        bpy = self.bpy
-        from pipeline.blender.eyeball_materials import _new_tree, _principled
-
         rng = np.random.default_rng(12345)
         self.lash_rng = {side: {k: rng.random((v["count"], 4)) for k, v in LASHES.items()} for side in SIDES}
-        n_curves = sum(v["count"] for v in LASHES.values())
-        mat = bpy.data.materials.new("Eyelash")
-        nt, out = _new_tree(mat)
-        b = _principled(nt, **{"Base Color": (0.012, 0.009, 0.007, 1.0), "Roughness": 0.35,
-                               "Specular IOR Level": 0.5, "Coat Weight": 0.0})
-        nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
-        self.lashes = {}
-        for side in SIDES:
-            curves = bpy.data.hair_curves.new(f"Lashes_{side}")
-            curves.add_curves([LASH_POINTS] * n_curves)
-            curves.materials.append(mat)
-            obj = bpy.data.objects.new(f"Lashes_{side}", curves)
-            self.scene.collection.objects.link(obj)
-            rad = curves.attributes.get("radius") or curves.attributes.new("radius", "FLOAT", "POINT")
-            self.lashes[side] = (obj, curves, rad)
+        mat = eyelash_material(self.bpy.data.materials.new("Eyelash"))
+        self.lashes = add_lash_objects(self.bpy, self.scene, SIDES, mat)
 
     # -- per sample
     def _set_hdri(self, light: dict) -> None:
@@ -550,7 +378,7 @@ class Worker:
         if not p.is_absolute():
             if p.name != name or not name:
                 raise ValueError(f"lighting.hdri {name!r}: a bundled map name or an absolute path")
-            p = Path(bpy.utils.system_resource("DATAFILES")) / "studiolights" / "world" / name
+            p = bundled_hdri(name)
         if not p.is_file():
             raise ValueError(f"lighting.hdri {name!r}: no such environment map")
         if name != self.hdri:
@@ -613,7 +441,7 @@ class Worker:
                 h = e["handles"]
                 h["iris_tex"].image = self.iris_images[eb["iris_color"]]
                 h["sclera_tex"].image = self.sclera_images[eb["veins"]]
-                h["tint"].inputs[7].default_value = (*SCLERA_TINTS[eb["sclera_tint"]], 1.0)
+                set_tint(h, SCLERA_TINTS[eb["sclera_tint"]])
                 self.eye_variant[side] = variant
 
     def _set_lids(self, cw: dict) -> None:
@@ -646,13 +474,9 @@ class Worker:
         self.scene.render.resolution_x, self.scene.render.resolution_y = int(width), int(height)
 
     def _evaluated_head_mm(self, obj, dg) -> np.ndarray:
-        oe = obj.evaluated_get(dg)
-        em = oe.to_mesh()
-        P = np.empty(len(em.vertices) * 3)
-        em.vertices.foreach_get("co", P)
-        oe.to_mesh_clear()
-        M = self.Hinv @ self.Rw_inv @ np.array(oe.matrix_world)
-        return P.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+        P, Mw = evaluated_vertices(obj, dg)
+        M = self.Hinv @ self.Rw_inv @ Mw
+        return P @ M[:3, :3].T + M[:3, 3]
 
     def _lashes_and_landmarks(self, side: str, spec_lashes: bool) -> np.ndarray:
         """Rebuild both eyes' lashes from the posed margins; return the 28 measured landmarks of ``side``."""

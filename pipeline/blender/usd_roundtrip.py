@@ -24,23 +24,11 @@ import sys
 
 import numpy as np
 
-
-def import_usd(path: str, unit_conversion: bool = False):
-    """Import ``path`` into an empty scene; returns the list of mesh objects."""
-    import bpy
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.wm.usd_import(filepath=str(path), import_blendshapes=True, import_skeletons=True,
-                          import_materials=True, import_usd_preview=True,
-                          apply_unit_conversion_scale=unit_conversion, scale=1.0)
-    return [o for o in bpy.context.scene.objects if o.type == "MESH"]
+from pipeline.blender.scene import evaluated_vertices, images_of, import_usd
 
 
 def _material_images(mat) -> list[str]:
-    if mat is None or mat.node_tree is None:
-        return []
-    return sorted({n.image.filepath for n in mat.node_tree.nodes
-                   if n.type == "TEX_IMAGE" and n.image is not None})
+    return sorted({im.filepath for im in images_of(mat)})
 
 
 def _pose(pose: dict | None) -> dict:
@@ -94,13 +82,8 @@ def dump(path: str, unit_conversion: bool = True, pose: dict | None = None) -> d
                 keys.append(kb.name)
         out[f"{o.name}.basis"] = basis
         out[f"{o.name}.matrix_world"] = M
-        oe = o.evaluated_get(depsgraph)
-        em = oe.to_mesh()
-        W = np.empty(len(em.vertices) * 3)
-        em.vertices.foreach_get("co", W)
-        W = W.reshape(-1, 3) @ np.array(oe.matrix_world)[:3, :3].T + np.array(oe.matrix_world)[:3, 3]
-        oe.to_mesh_clear()
-        out[f"{o.name}.world"] = W
+        W, Mw = evaluated_vertices(o, depsgraph)
+        out[f"{o.name}.world"] = W @ Mw[:3, :3].T + Mw[:3, 3]
         prim = o.get("prim_path") or ""
         meta["objects"][o.name] = {"vertices": n, "polygons": len(me.polygons), "shape_keys": keys,
                                    "materials": [m.name if m else None for m in me.materials],

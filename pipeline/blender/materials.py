@@ -1,0 +1,248 @@
+"""Cycles materials of every Blender worker (runs inside Blender worker processes only): the
+eyeball's, the skin (:func:`skin_material`), the thin sclera coat of the render worker
+(:func:`thin_coat`) and the eyelashes (:func:`eyelash_material`). The functions fill the
+node tree of a material they are handed (``bpy`` itself is never imported here).
+
+Eyeball material slots are the ones the USD importer creates from the asset's
+material-bind subsets: ``Cornea`` and ``ScleraCoat`` on the outer mesh,
+``Pupil``, ``Iris`` and ``Sclera`` on the inner mesh.
+
+- Cornea: Principled BSDF, transmission 1, roughness 0, IOR 1.376 (refracts and
+  reflects by Fresnel); for shadow rays it is transparent (Light Path "Is
+  Shadow Ray" mix), the usual eye-shading shortcut that lets environment light
+  reach the iris without refractive caustics (otherwise Cycles leaves the iris
+  dark and noisy at low sample counts).
+- ScleraCoat: the same clear coat plus bumps from smoothed solid noise: the
+  asset's ``sclera_bump.png`` height map (pipeline/eyeball/textures.py, the
+  same field as the USD normal map) through a Bump node.
+- Iris: Principled BSDF with the iris texture (UV map ``st``), roughness 0.55.
+- Pupil: near-black diffuse.
+- Sclera: sclera texture (veins layer) x tint colour (tint layer), roughness 0.4,
+  a little subsurface.
+"""
+
+from __future__ import annotations
+
+CORNEA_IOR = 1.376
+SKIN_TONE = (0.75, 0.6, 0.55, 1.0)         # skin base colour where no colour map was baked
+
+
+def new_tree(mat):
+    """Empty ``mat``'s node tree down to a new material output; returns (node tree, output)."""
+    mat.use_nodes = True
+    nt = mat.node_tree
+    for n in list(nt.nodes):
+        nt.nodes.remove(n)
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    return nt, out
+
+
+def principled(nt, **inputs):
+    """A new Principled BSDF in ``nt`` with the given input values (names this Blender lacks are skipped)."""
+    b = nt.nodes.new("ShaderNodeBsdfPrincipled")
+    for k, v in inputs.items():
+        if k in b.inputs:
+            b.inputs[k].default_value = v
+    return b
+
+
+def _shadow_transparent(nt, shader, out) -> None:
+    """Plug the ``shader`` output socket into ``out``'s surface, transparent for shadow rays (a Light
+    Path "Is Shadow Ray" mix): environment light reaches what lies beneath without caustics."""
+    lp = nt.nodes.new("ShaderNodeLightPath")
+    transp = nt.nodes.new("ShaderNodeBsdfTransparent")
+    mix = nt.nodes.new("ShaderNodeMixShader")
+    nt.links.new(lp.outputs["Is Shadow Ray"], mix.inputs["Fac"])
+    nt.links.new(shader, mix.inputs[1])
+    nt.links.new(transp.outputs["BSDF"], mix.inputs[2])
+    nt.links.new(mix.outputs["Shader"], out.inputs["Surface"])
+
+
+def _coat(mat, bump_image=None, bump_distance_mm: float = 0.16, strength: float = 1.0):
+    nt, out = new_tree(mat)
+    glass = principled(nt, **{"Base Color": (1, 1, 1, 1), "Roughness": 0.0, "IOR": CORNEA_IOR,
+                              "Transmission Weight": 1.0, "Metallic": 0.0})
+    if bump_image is not None:
+        bump_image.colorspace_settings.name = "Non-Color"
+        uv = nt.nodes.new("ShaderNodeUVMap")
+        uv.uv_map = "st"
+        img = nt.nodes.new("ShaderNodeTexImage")
+        img.image = bump_image
+        img.interpolation = "Cubic"
+        bump = nt.nodes.new("ShaderNodeBump")
+        bump.inputs["Strength"].default_value = strength
+        # height texel 0..1 spans 8 noise amplitudes (textures.sclera_bump_maps); world units = metres
+        bump.inputs["Distance"].default_value = bump_distance_mm * 1e-3
+        nt.links.new(uv.outputs["UV"], img.inputs["Vector"])
+        nt.links.new(img.outputs["Color"], bump.inputs["Height"])
+        nt.links.new(bump.outputs["Normal"], glass.inputs["Normal"])
+    _shadow_transparent(nt, glass.outputs["BSDF"], out)
+    return mat
+
+
+def _textured(mat, image, tint=(1.0, 1.0, 1.0), roughness=0.5, subsurface=0.0):
+    nt, out = new_tree(mat)
+    b = principled(nt, **{"Roughness": roughness, "Specular IOR Level": 0.3})
+    uv = nt.nodes.new("ShaderNodeUVMap")
+    uv.uv_map = "st"
+    tex = nt.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tex.interpolation = "Cubic"
+    nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    mul = nt.nodes.new("ShaderNodeMix")
+    mul.data_type = "RGBA"
+    mul.blend_type = "MULTIPLY"
+    mul.inputs["Factor"].default_value = 1.0
+    mul.inputs[7].default_value = (*tint, 1.0)       # B (colour)
+    nt.links.new(tex.outputs["Color"], mul.inputs[6])  # A (colour)
+    nt.links.new(mul.outputs[2], b.inputs["Base Color"])
+    if subsurface:
+        b.inputs["Subsurface Weight"].default_value = subsurface
+        b.inputs["Subsurface Radius"].default_value = (1.0, 0.3, 0.2)
+        b.inputs["Subsurface Scale"].default_value = 0.5
+    nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
+    return mat, tex, mul
+
+
+def _pupil(mat):
+    nt, out = new_tree(mat)
+    d = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    d.inputs["Color"].default_value = (0.003, 0.003, 0.003, 1)
+    nt.links.new(d.outputs["BSDF"], out.inputs["Surface"])
+    return mat
+
+
+def setup_eyeball_materials(objects, iris_image, sclera_image, tint=(1.0, 1.0, 1.0),
+                            bump_image=None) -> dict:
+    """Replace the imported preview materials with the Cycles eyeball materials.
+
+    Parameters
+    ----------
+    objects : iterable of bpy mesh objects (the imported Outer and Inner)
+    iris_image, sclera_image : bpy.types.Image
+    tint : (3,) sclera tint colour
+    bump_image : bpy.types.Image, optional   the asset's ``sclera_bump.png`` (height)
+
+    Returns
+    -------
+    dict with the iris and sclera image texture nodes and the tint mix node
+    (``"iris_tex"``, ``"sclera_tex"``, ``"tint"``) so callers can switch variants.
+    """
+    handles = {}
+    for o in objects:
+        for slot in o.material_slots:
+            m = slot.material
+            if m is None:
+                continue
+            name = m.name.split(".")[0]
+            if name == "Cornea":
+                _coat(m)
+            elif name == "ScleraCoat":
+                _coat(m, bump_image=bump_image)
+            elif name == "Pupil":
+                _pupil(m)
+            elif name == "Iris":
+                _, handles["iris_tex"], _ = _textured(m, iris_image, roughness=0.55)
+            elif name == "Sclera":
+                _, handles["sclera_tex"], handles["tint"] = _textured(m, sclera_image, tint, 0.4, 0.05)
+    return handles
+
+
+def set_tint(handles: dict, tint) -> None:
+    """Switch the sclera tint layer."""
+    handles["tint"].inputs[7].default_value = (*tint, 1.0)
+
+
+def skin_material(mat, color_image, disp_image, displacement_method=None, subsurface_method=None,
+                  **bsdf_inputs) -> dict:
+    """Skin: Principled BSDF (``bsdf_inputs``) with the baked colour map on UV map ``st`` (a flat
+    :data:`SKIN_TONE` without one) and the baked displacement map (signed mm along the normal)
+    feeding a Displacement node in object space (object units = stage mm = the map's units).
+
+    ``displacement_method`` (``"BUMP"``, ``"BOTH"``, ...): plug the displacement into the output
+    and set the material's method; None leaves it unplugged (the caller switches it per render).
+    ``subsurface_method``: the BSDF's subsurface method where this Blender has it.
+
+    Returns
+    -------
+    dict
+        ``mat``, ``nt`` (node tree), ``out`` (material output), ``disp`` (Displacement node or None).
+    """
+    nt, out = new_tree(mat)
+    b = principled(nt, **bsdf_inputs)
+    if subsurface_method is not None:
+        try:
+            b.subsurface_method = subsurface_method
+        except (AttributeError, TypeError):
+            pass
+    uv = nt.nodes.new("ShaderNodeUVMap")
+    uv.uv_map = "st"
+    if color_image is not None:
+        tex = nt.nodes.new("ShaderNodeTexImage")
+        tex.image = color_image
+        nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+        nt.links.new(tex.outputs["Color"], b.inputs["Base Color"])
+    else:
+        b.inputs["Base Color"].default_value = SKIN_TONE
+    d = None
+    if disp_image is not None:
+        disp_image.colorspace_settings.name = "Non-Color"
+        dtex = nt.nodes.new("ShaderNodeTexImage")
+        dtex.image = disp_image
+        dtex.interpolation = "Cubic"
+        nt.links.new(uv.outputs["UV"], dtex.inputs["Vector"])
+        d = nt.nodes.new("ShaderNodeDisplacement")
+        d.space = "OBJECT"                      # object units = stage mm = the map's units
+        d.inputs["Midlevel"].default_value = 0.0
+        d.inputs["Scale"].default_value = 1.0
+        nt.links.new(dtex.outputs["Color"], d.inputs["Height"])
+        if displacement_method is not None:
+            nt.links.new(d.outputs["Displacement"], out.inputs["Displacement"])
+            try:
+                mat.displacement_method = displacement_method
+            except AttributeError:
+                mat.cycles.displacement_method = displacement_method
+    nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
+    return {"mat": mat, "nt": nt, "disp": d, "out": out}
+
+
+def thin_coat(mat) -> None:
+    """Sclera tear film as a thin clear coat: Fresnel mix of a sharp glossy reflection and
+    straight transmission (no refraction), keeping the bump of the asset's coat.
+
+    The asset's coat is a refracting glass shell 0.5 mm above the sclera that joins the
+    cornea: at oblique views rays refracted into that shell are piped along it into the
+    cornea and smear a dark/doubled iris over the sclera. A real sclera has no such
+    layer (the tear film is microns thick), so it is rendered as a thin coat; shadow rays
+    pass it (as in :func:`setup_eyeball_materials`).
+    """
+    nt = mat.node_tree
+    out = next(n for n in nt.nodes if n.type == "OUTPUT_MATERIAL" and n.is_active_output)
+    bump = next((n for n in nt.nodes if n.type == "BUMP"), None)
+    keep = {out, bump} | {n for n in nt.nodes if n.type in ("TEX_IMAGE", "UVMAP")}
+    for n in list(nt.nodes):
+        if n not in keep:
+            nt.nodes.remove(n)
+    gloss = nt.nodes.new("ShaderNodeBsdfGlossy")
+    gloss.distribution = "GGX"
+    gloss.inputs["Roughness"].default_value = 0.03
+    clear = nt.nodes.new("ShaderNodeBsdfTransparent")
+    fres = nt.nodes.new("ShaderNodeFresnel")
+    fres.inputs["IOR"].default_value = CORNEA_IOR
+    coat = nt.nodes.new("ShaderNodeMixShader")
+    nt.links.new(fres.outputs["Fac"], coat.inputs["Fac"])
+    nt.links.new(clear.outputs["BSDF"], coat.inputs[1])
+    nt.links.new(gloss.outputs["BSDF"], coat.inputs[2])
+    if bump is not None:
+        nt.links.new(bump.outputs["Normal"], gloss.inputs["Normal"])
+        nt.links.new(bump.outputs["Normal"], fres.inputs["Normal"])
+    _shadow_transparent(nt, coat.outputs["Shader"], out)
+
+
+def eyelash_material(mat):
+    """Eyelashes: dark glossy Principled BSDF (rendered on Cycles hair ribbons)."""
+    nt, out = new_tree(mat)
+    b = principled(nt, **{"Base Color": (0.012, 0.009, 0.007, 1.0), "Roughness": 0.35,
+                          "Specular IOR Level": 0.5, "Coat Weight": 0.0})
+    nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
+    return mat
