@@ -19,6 +19,7 @@ from PIL import Image
 
 from pipeline.eyeball import geometry as geo
 from pipeline.eyeball import textures as tex
+from pipeline.eyeball.checks import seam_dihedral_report
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.png import strip_png_metadata
 from pipeline.io.scratch import run_child
@@ -53,7 +54,7 @@ def build_asset(folder: Path, settings: geo.EyeballSettings) -> dict:
     t_val = time.perf_counter() - t3
     if report["errors"]:
         raise RuntimeError("eyeball asset failed validation:\n  " + "\n  ".join(report["errors"]))
-    seam = geo.seam_dihedral_report(p, eye.resolution)
+    seam = seam_dihedral_report(p, eye.resolution)
     return {"resolution": eye.resolution.__dict__, **eye.stats(),
             "geometry_s": round(t_geo, 4), "textures_s": round(t_tex, 4), "usd_write_s": round(t_usd, 4),
             "validate_s": round(t_val, 4), "validation_errors": len(report["errors"]),

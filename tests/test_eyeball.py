@@ -10,6 +10,8 @@ import pytest
 
 from pipeline.eyeball import geometry as geo
 from pipeline.eyeball import textures as tex
+from pipeline.eyeball.checks import mesh_edges_manifold, seam_dihedral_report
+from pipeline.eyeball.surface import outer_surface_closest_point
 from pipeline.geometry.meshtopo import face_normals
 from stages._common import read_stage_metrics
 
@@ -27,7 +29,7 @@ def eye():
 def test_meshes_closed_manifold_outward(res):
     e = geo.build_eyeball(P, res)
     for m in (e.outer, e.inner):
-        ok, bad = geo.mesh_edges_manifold(m.F)
+        ok, bad = mesh_edges_manifold(m.F)
         assert ok, f"{bad} non-manifold / inconsistently oriented edges"
         N = face_normals(m.V, m.F, normalize=False)
         assert np.linalg.norm(N, axis=1).min() > 1e-8            # no degenerate faces
@@ -54,9 +56,9 @@ def test_outer_radii_and_apex(eye):
 @pytest.mark.parametrize("res", ["medium", "high", "full"])
 def test_seam_has_no_crease(res):
     """Bound: the largest dihedral angle within 15 deg of the seam <= the largest elsewhere."""
-    rep = geo.seam_dihedral_report(P, res)
+    rep = seam_dihedral_report(P, res)
     assert rep["seam_max_deg"] <= max(rep["cornea_max_deg"], rep["sclera_max_deg"])
-    raw = geo.seam_dihedral_report(P, res, smooth=False)
+    raw = seam_dihedral_report(P, res, smooth=False)
     assert raw["seam_max_deg"] > 1.5 * max(raw["cornea_max_deg"], raw["sclera_max_deg"])
 
 
@@ -74,7 +76,7 @@ def test_inner_iris_and_gap(eye):
     assert 11.5 <= 2 * np.hypot(iris[:, 0], iris[:, 1]).mean() <= 12.0
     front = eye.inner.V[eye.inner.rings[0]]
     assert np.ptp(eye.inner.V[np.concatenate(eye.inner.rings[:P and 11]), 2]) < 1e-9  # planar front
-    _, _, d = geo.outer_surface_closest_point(eye.inner.V)
+    _, _, d = outer_surface_closest_point(eye.inner.V)
     assert -d.max() == pytest.approx(0.5, abs=1e-4)               # 0.5 mm gap, nothing closer
     assert np.all(d < 0)
     assert front[:, 2].max() < eye.outer.V[:, 2].max()
@@ -92,12 +94,12 @@ def test_closest_point_scaled_and_rotated():
     e2 = np.cross(f, e1)
     Rm = np.stack([e1, e2, f], 1)
     Vw = c + s * m.V @ Rm.T
-    Q, N, d = geo.outer_surface_closest_point(Vw, c, f, radius=15.4)
+    Q, N, d = outer_surface_closest_point(Vw, c, f, radius=15.4)
     assert np.abs(d).max() < 1e-4 and np.abs(Q - Vw).max() < 1e-4
     # off-surface points project back along the normal
     P0 = Vw[rng.choice(len(Vw), 200)]
-    _, N0, _ = geo.outer_surface_closest_point(P0, c, f, radius=15.4)
-    Q2, _, d2 = geo.outer_surface_closest_point(P0 + 0.3 * N0, c, f, radius=15.4)
+    _, N0, _ = outer_surface_closest_point(P0, c, f, radius=15.4)
+    Q2, _, d2 = outer_surface_closest_point(P0 + 0.3 * N0, c, f, radius=15.4)
     assert np.allclose(d2, 0.3, atol=1e-3)
     assert np.allclose(Q2, P0, atol=1e-3)
 
@@ -111,12 +113,12 @@ def _check_pose(e, W, rest_normals):
     cosang = np.einsum("ij,ij->i", N, rest_normals) / (
         np.linalg.norm(N, axis=1) * np.linalg.norm(rest_normals, axis=1))
     assert cosang.min() > 0.5, "flipped face"
-    ok, _ = geo.mesh_edges_manifold(e.inner.F)
+    ok, _ = mesh_edges_manifold(e.inner.F)
     assert ok
     pr = np.hypot(*Vp[e.landmarks["pupil"], :2].T)
     ir = np.hypot(*Vp[e.landmarks["iris"], :2].T)
     assert pr.max() < ir.min() - 0.5, "pupil leaves the iris"
-    _, _, d = geo.outer_surface_closest_point(Vp)
+    _, _, d = outer_surface_closest_point(Vp)
     assert d.max() <= -0.5 + 1e-6, "inner part pokes toward/through the outer part"
     return pr.mean(), ir.mean()
 
@@ -196,7 +198,7 @@ def test_tiny_and_huge_eyes_scale_cleanly():
     e = geo.build_eyeball(geo.EyeballParams(r1=1.2, r2=0.8, apex=1.35, seam_blend_mm=0.1, gap=0.05,
                                             iris_radius=0.59, pupil_radius=0.2, pupil_dilated_mm=0.4,
                                             pupil_constricted_mm=0.1), "low")
-    assert geo.mesh_edges_manifold(e.outer.F)[0] and geo.mesh_edges_manifold(e.inner.F)[0]
+    assert mesh_edges_manifold(e.outer.F)[0] and mesh_edges_manifold(e.inner.F)[0]
     big = geo.EyeballParams(r1=1200, r2=800, apex=1350, seam_blend_mm=100, gap=50, iris_radius=590,
                             pupil_radius=200, pupil_dilated_mm=400, pupil_constricted_mm=100)
     e2 = geo.build_eyeball(big, "low")

@@ -11,7 +11,7 @@ corneal sphere ``r2`` (8 mm) whose centre sits on +Z at ``apex - r2`` (apex
 ``theta`` is a C2 smooth maximum (cubic, blend width ``seam_blend_mm``) of the
 two spheres' radial functions, so the seam has no crease: the largest dihedral
 angle in the seam band is at most the largest dihedral of the tessellation
-elsewhere (see :func:`seam_dihedral_report`).
+elsewhere (see :func:`pipeline.eyeball.checks.seam_dihedral_report`).
 
 Inner part (``inner``): a sphere of radius ``r1 - gap`` (``gap`` = 0.5 mm,
 the thickness of the cornea/sclera shell) cut by the plane ``z = z_iris`` where
@@ -39,7 +39,6 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from pipeline.geometry.meshtopo import face_normals
 from pipeline.settings import SettingError, Settings, setting
 
 SHAPE_NAMES = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
@@ -556,161 +555,6 @@ def build_eyeball(params: EyeballParams | None = None, resolution="high") -> Eye
     res = Resolution.from_value(resolution)
     return Eyeball(params=p, resolution=res, outer=outer_mesh(p, res), inner=inner_mesh(p, res),
                    shapes=inner_blend_shapes(p, res), landmarks=landmark_indices(res, p))
-
-
-# --------------------------------------------------------------------------- closest point
-
-_PROFILE_CACHE: dict = {}
-
-
-def _profile(p: EyeballParams, n: int = 8192):
-    key = (p, n)
-    if key not in _PROFILE_CACHE:
-        th = np.linspace(0, np.pi, n)
-        R = outer_radial(th, p)
-        _PROFILE_CACHE.clear()
-        _PROFILE_CACHE[key] = np.stack([R * np.sin(th), R * np.cos(th)], 1)
-    return _PROFILE_CACHE[key]
-
-
-def _nearest_profile_index(prof, q2, step: int = 16, chunk: int = 4096):
-    """Index of the nearest profile sample: coarse scan (every ``step``-th), then a fine window.
-
-    Exact for the nearest sample as long as the true nearest lies within one
-    coarse interval of the nearest coarse sample (always the case for this
-    smooth, convex-ish profile at 16 x 8192 sampling). O(n * (n_prof/step + 2 step)).
-    """
-    n = len(prof)
-    coarse = np.arange(0, n, step)
-    out = np.empty(len(q2), np.int64)
-    win = np.arange(-step, step + 1)
-    for s0 in range(0, len(q2), chunk):
-        q = q2[s0:s0 + chunk]
-        d = ((q[:, None, :] - prof[coarse][None]) ** 2).sum(-1)
-        ic = coarse[np.argmin(d, 1)]
-        cand = np.clip(ic[:, None] + win[None], 0, n - 1)
-        dd = ((q[:, None, :] - prof[cand]) ** 2).sum(-1)
-        out[s0:s0 + chunk] = cand[np.arange(len(q)), np.argmin(dd, 1)]
-    return out
-
-
-def outer_surface_closest_point(P, center=(0.0, 0.0, 0.0), forward=(0.0, 0.0, 1.0),
-                                radius: float | None = None,
-                                params: EyeballParams | None = None):
-    """Closest points on the (smoothed) parametric outer surface of a placed eye.
-
-    The eye is scaled uniformly so its eyeball sphere has ``radius`` (default
-    ``params.r1``), centred at ``center`` and looking along ``forward``.
-    Accuracy: the profile is sampled at 8192 polar angles and refined on
-    segments (error < 1e-5 x radius).
-
-    Parameters
-    ----------
-    P : (n, 3) float64 query points, mm.
-    center : (3,), forward : (3,) (normalised here), radius : float, params : EyeballParams
-
-    Returns
-    -------
-    Q : (n, 3) float64 closest surface points
-    N : (n, 3) float64 unit outward surface normals at Q
-    d : (n,) float64 signed distance (positive outside)
-    """
-    p = params or EyeballParams()
-    P = np.atleast_2d(np.asarray(P, float))
-    c = np.asarray(center, float)
-    f = np.asarray(forward, float)
-    f = f / np.linalg.norm(f)
-    s = (radius / p.r1) if radius is not None else 1.0
-    # orthonormal frame (e1, e2, f)
-    a = np.array([1.0, 0, 0]) if abs(f[0]) < 0.9 else np.array([0, 1.0, 0])
-    e1 = np.cross(a, f)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(f, e1)
-    L = (P - c) / s
-    z = L @ f
-    x, y = L @ e1, L @ e2
-    rho = np.hypot(x, y)
-    prof = _profile(p)
-    q2 = np.stack([rho, z], 1)
-    i = _nearest_profile_index(prof, q2)
-    best = np.full(len(P), np.inf)
-    best_pt = np.zeros((len(P), 2))
-    best_t = np.zeros((len(P), 2))
-    for i0 in (i - 1, i):
-        a0 = prof[np.clip(i0, 0, len(prof) - 2)]
-        b0 = prof[np.clip(i0, 0, len(prof) - 2) + 1]
-        ab = b0 - a0
-        t = np.clip(np.einsum("ij,ij->i", q2 - a0, ab) / np.einsum("ij,ij->i", ab, ab), 0, 1)
-        pt = a0 + t[:, None] * ab
-        dd = np.linalg.norm(q2 - pt, axis=1)
-        better = dd < best
-        best[better] = dd[better]
-        best_pt[better] = pt[better]
-        best_t[better] = ab[better]
-    # outward normal of the profile: tangent (d rho, d z) rotated; profile runs apex -> back pole
-    tan = best_t / np.linalg.norm(best_t, axis=1, keepdims=True)
-    n2 = np.stack([-tan[:, 1], tan[:, 0]], 1)   # points away from the axis side (outside)
-    inside_r = np.hypot(*q2.T) < np.hypot(*best_pt.T)
-    sign = np.where(inside_r, -1.0, 1.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cph = np.where(rho > 1e-12, x / np.where(rho > 1e-12, rho, 1), 1.0)
-        sph = np.where(rho > 1e-12, y / np.where(rho > 1e-12, rho, 1), 0.0)
-    radial = cph[:, None] * e1 + sph[:, None] * e2
-    Q = c + s * (best_pt[:, :1] * radial + best_pt[:, 1:] * f)
-    N = n2[:, :1] * radial + n2[:, 1:] * f
-    N /= np.linalg.norm(N, axis=1, keepdims=True)
-    return Q, N, sign * best * s
-
-
-# --------------------------------------------------------------------------- checks
-
-def mesh_edges_manifold(F) -> tuple[bool, int]:
-    """(closed 2-manifold edge condition, number of boundary/non-manifold edges)."""
-    F = np.asarray(F, np.int64)
-    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    key = np.sort(e, 1)
-    _, cnt = np.unique(key, axis=0, return_counts=True)
-    # directed edges must be unique (consistent orientation)
-    _, dcnt = np.unique(e, axis=0, return_counts=True)
-    bad = int(np.sum(cnt != 2) + np.sum(dcnt != 1))
-    return bad == 0, bad
-
-
-def dihedral_angles(V, F):
-    """Angles (deg) between normals of faces sharing each interior edge, plus the edge keys."""
-    F = np.asarray(F, np.int64)
-    N = face_normals(V, F)
-    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    fid = np.tile(np.arange(len(F)), 3)
-    key = np.sort(e, 1)
-    order = np.lexsort((key[:, 1], key[:, 0]))
-    k, f = key[order], fid[order]
-    same = np.all(k[1:] == k[:-1], axis=1)
-    a, b = f[:-1][same], f[1:][same]
-    ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", N[a], N[b]), -1, 1)))
-    return ang, k[:-1][same]
-
-
-def seam_dihedral_report(params: EyeballParams | None = None, resolution=None,
-                         smooth: bool = True, band_deg: float = 15.0) -> dict:
-    """Largest dihedral angle in the seam band vs. on the cornea and sclera away from it.
-
-    The seam is smooth when ``seam_max_deg <= max(cornea_max_deg,
-    sclera_max_deg)``: no edge in the band within ``band_deg`` of the seam
-    bends more than the plain tessellation bends anywhere else (the raw sphere
-    union has a 15-20 deg crease there, tested).
-    """
-    p = params or EyeballParams()
-    m = outer_mesh(p, resolution, smooth=smooth)
-    ang, keys = dihedral_angles(m.V, m.F)
-    mid = (m.V[keys[:, 0]] + m.V[keys[:, 1]]) / 2
-    th = np.degrees(np.arctan2(np.hypot(mid[:, 0], mid[:, 1]), mid[:, 2]))
-    tl = math.degrees(limbus_theta(p))
-    band = np.abs(th - tl) <= band_deg
-    cornea = th < tl - band_deg
-    sclera = th > tl + band_deg
-    return {"limbus_theta_deg": tl, "seam_max_deg": float(ang[band].max()),
-            "cornea_max_deg": float(ang[cornea].max()), "sclera_max_deg": float(ang[sclera].max())}
 
 
 def with_resolution(eye: Eyeball, resolution) -> Eyeball:

@@ -61,7 +61,7 @@ class PlacedEye:
 
     def closest(self, P):
         """(Q, N, d): closest outer-surface points, normals, signed distances (n,)."""
-        from pipeline.eyeball.geometry import outer_surface_closest_point
+        from pipeline.eyeball.surface import outer_surface_closest_point
 
         return outer_surface_closest_point(P, center=self.center, forward=self.forward,
                                            radius=self.radius, params=self.params)
