@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.geometry import meshtopo
 from pipeline.geometry.meshtopo import face_normals, vertex_normals  # noqa: F401 (mc.*)
 
 
@@ -67,7 +68,9 @@ def boundary_loops(F):
 
     Each loop follows the boundary half-edges (the direction of the faces'
     own winding), so for a mesh seen from outside the loop around a hole runs
-    clockwise seen from outside.
+    clockwise seen from outside. Loops are walked (:func:`meshtopo.boundary_loops`) from the
+    boundary half-edges in face order: the first loop starts at the first boundary edge of the
+    lowest-numbered face.
 
     Returns
     -------
@@ -77,32 +80,9 @@ def boundary_loops(F):
     ------
     ValueError
         When a boundary vertex has more than one outgoing boundary edge
-        (non-manifold boundary).
+        (non-manifold boundary), or the boundary edges do not close into loops.
     """
-    he = edges_of(F)
-    key = he[:, 0] * (he.max() + 1 if len(he) else 1) + he[:, 1]
-    rkey = he[:, 1] * (he.max() + 1 if len(he) else 1) + he[:, 0]
-    bnd = he[~np.isin(key, rkey)]
-    if len(bnd) == 0:
-        return []
-    nxt = {}
-    for a, b in bnd:
-        if int(a) in nxt:
-            raise ValueError(f"non-manifold boundary at vertex {int(a)}")
-        nxt[int(a)] = int(b)
-    loops, seen = [], set()
-    for start in nxt:
-        if start in seen:
-            continue
-        loop, v = [], start
-        while v not in seen:
-            seen.add(v)
-            loop.append(v)
-            v = nxt.get(v)
-            if v is None:
-                raise ValueError("open boundary chain")
-        loops.append(np.asarray(loop, dtype=np.int64))
-    return loops
+    return meshtopo.boundary_loops(F, H=meshtopo.boundary_halfedges(F, face_order=True))
 
 
 @dataclass

@@ -60,10 +60,17 @@ def face_components(n_faces, pairs, mask=None):
     return labels.astype(np.int64)
 
 
-def boundary_halfedges(F):
-    """Directed edges (a, b) of faces whose opposite (b, a) belongs to no face, (k, 2) int64."""
+def boundary_halfedges(F, face_order: bool = False):
+    """Directed edges (a, b) of faces whose opposite (b, a) belongs to no face, (k, 2) int64.
+
+    In the order of the faces' first edges, then their second and third edges; with
+    ``face_order`` face by face (face 0's edges first).
+    """
     F = np.asarray(F, dtype=np.int64)
-    H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    if face_order:
+        H = np.stack([F, np.roll(F, -1, axis=1)], axis=-1).reshape(-1, 2)
+    else:
+        H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     n = int(F.max()) + 1 if len(F) else 0
     fwd = H[:, 0] * n + H[:, 1]
     rev = H[:, 1] * n + H[:, 0]

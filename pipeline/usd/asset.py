@@ -87,25 +87,14 @@ def _shape_inbetweens(shapes):
 
 
 def _skin_material(stage, path, color_tex: str | None, disp_tex: str | None):
-    from pxr import Sdf, UsdShade
+    from pxr import Sdf
 
     from pipeline.usd import stage as su
 
     mat, surf, _ = su.preview_material(stage, path, roughness=0.55, texture=color_tex,
                                        diffuse=(0.75, 0.6, 0.55))
     if disp_tex is not None:
-        reader = UsdShade.Shader.Get(stage, path + "/stReader")
-        if not reader:
-            reader = UsdShade.Shader.Define(stage, path + "/stReader")
-            reader.CreateIdAttr("UsdPrimvarReader_float2")
-            reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-        dt = UsdShade.Shader.Define(stage, path + "/DisplacementTexture")
-        dt.CreateIdAttr("UsdUVTexture")
-        dt.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(disp_tex))
-        dt.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
-        dt.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
-        dt.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
-        dt.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        dt = su.uv_texture(stage, path, "DisplacementTexture", disp_tex, "raw", "clamp", "clamp")
         dt.CreateOutput("r", Sdf.ValueTypeNames.Float)
         dt.GetPrim().SetDocumentation(DISPLACEMENT_DOC)
         surf.CreateInput("displacement", Sdf.ValueTypeNames.Float).ConnectToSource(

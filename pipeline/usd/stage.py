@@ -200,44 +200,49 @@ def preview_material(stage, path: str, *, diffuse=(0.8, 0.8, 0.8), roughness: fl
         surf.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*specular))
     tex = None
     if texture is not None or texture_variants:
-        reader = UsdShade.Shader.Define(stage, path + "/stReader")
-        reader.CreateIdAttr("UsdPrimvarReader_float2")
-        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-        tex = UsdShade.Shader.Define(stage, path + "/DiffuseTexture")
-        tex.CreateIdAttr("UsdUVTexture")
-        if texture is not None:
-            tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
-        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
-        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
-        if scale is not None:
-            tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*scale))
-        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
-            reader.ConnectableAPI(), "result")
+        extra = [("scale", Sdf.ValueTypeNames.Float4, Gf.Vec4f(*scale))] if scale is not None else []
+        tex = uv_texture(stage, path, "DiffuseTexture", texture, "sRGB", "repeat", "clamp", extra)
         tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
         surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
             tex.ConnectableAPI(), "rgb")
     else:
         surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*diffuse))
     if normal_texture is not None:
-        reader = UsdShade.Shader.Get(stage, path + "/stReader")
-        if not reader:
-            reader = UsdShade.Shader.Define(stage, path + "/stReader")
-            reader.CreateIdAttr("UsdPrimvarReader_float2")
-            reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-        nt = UsdShade.Shader.Define(stage, path + "/NormalTexture")
-        nt.CreateIdAttr("UsdUVTexture")
-        nt.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(normal_texture))
-        nt.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
-        nt.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
-        nt.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
-        nt.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(2, 2, 2, 1))
-        nt.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(-1, -1, -1, 0))
-        nt.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        nt = uv_texture(stage, path, "NormalTexture", normal_texture, "raw", "repeat", "clamp",
+                        [("scale", Sdf.ValueTypeNames.Float4, Gf.Vec4f(2, 2, 2, 1)),
+                         ("bias", Sdf.ValueTypeNames.Float4, Gf.Vec4f(-1, -1, -1, 0))])
         nt.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
         surf.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(nt.ConnectableAPI(), "rgb")
     mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
     return mat, surf, tex
+
+
+def uv_texture(stage, path: str, name: str, file: str | None, color_space: str, wrap_s: str, wrap_t: str,
+               inputs=()):
+    """A ``UsdUVTexture`` shader ``<path>/<name>`` reading ``file`` through the material's ``st``
+    primvar reader (``<path>/stReader``, defined on first use); the caller adds its outputs.
+
+    ``file`` None leaves ``inputs:file`` unauthored (variants set it); ``inputs``: further
+    ``(name, Sdf value type, value)`` inputs (``scale``, ``bias``), authored before ``st``.
+    """
+    from pxr import Sdf, UsdShade
+
+    reader = UsdShade.Shader.Get(stage, path + "/stReader")
+    if not reader:
+        reader = UsdShade.Shader.Define(stage, path + "/stReader")
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+    tex = UsdShade.Shader.Define(stage, f"{path}/{name}")
+    tex.CreateIdAttr("UsdUVTexture")
+    if file is not None:
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(file))
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(color_space)
+    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set(wrap_s)
+    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set(wrap_t)
+    for input_name, value_type, value in inputs:
+        tex.CreateInput(input_name, value_type).Set(value)
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    return tex
 
 
 def set_string_metadata(prim, key: str, value: dict):
