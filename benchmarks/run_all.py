@@ -73,6 +73,7 @@ BENCHMARKS = (
     Benchmark("bench_unseen_scans", args=("--scanify", "{scanify}", "--ict", "{scans}/ict_facekit"),
               needs=("scans", "scanify")),
     Benchmark("view_eye_sections", needs=("unseen_work",)),
+    Benchmark("bench_unseen_oracle", needs=("unseen_work",)),
     Benchmark("bench_usd", needs=("synthetic_build",)),
     Benchmark("view_rig", args=(str(SYNTH_BUILD / "snap"), str(SYNTH_BUILD / "rig"),
                                 str(ROOT / "benchmarks" / "out" / "view_rig_synthetic_head.png")),

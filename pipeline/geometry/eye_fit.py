@@ -604,8 +604,12 @@ def find_eye(mesh: EyeMesh, hint, side, st: EyeSettings, *, source="mesh", mesh_
                                         f"vertices on the fitted sphere)")
             fit = None
         elif fit.crease_deg < st.min_crease_deg or fit.residual_rms_mm > st.max_fit_rms_mm:
-            geo_err = ScanError(source, f"{side} eye looks closed or covered by the lids: no "
-                                        f"eyeball surface with a lid crease around it near "
+            # The fold is measured around the fitted sphere's cut: with too little sclera showing
+            # (down-gaze, squint, a coarse scan) a wrong sphere gives a flat fold too, so an open
+            # eye cannot be told from a closed one here; say both.
+            geo_err = ScanError(source, f"{side} eye looks closed, or too little of the eyeball "
+                                        f"shows to place it: no eyeball surface with a lid crease "
+                                        f"around it near "
                                         f"{np.round(hint, 2).tolist()} (fold {fit.crease_deg:.0f} deg "
                                         f"< {st.min_crease_deg:g} deg, residual "
                                         f"{fit.residual_rms_mm:.2f} mm)")
