@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.geometry.mesh_checks import closed_polyline_distance
+from pipeline.io.eyes_file import read_eyes
 from stages._common import read_stage_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,7 +108,7 @@ def main():
         print(f"run {rep + 1}: " + "  ".join(f"{k} {v:.2f}" for k, v in times.items()), flush=True)
 
     metrics = {st: read_stage_metrics(b / f"{st}.metrics.json") for st in STAGES}   # + timings
-    eyes = json.loads((b / "remove_eyeballs" / "eyes.json").read_text())
+    eyes = {s: e.doc for s, e in read_eyes(b / "remove_eyeballs" / "eyes.json").items()}
     accuracy = {}
     for s in ("left", "right"):
         g, e = gt["eyes"][s], eyes[s]

@@ -37,6 +37,7 @@ import numpy as np
 
 from pipeline.geometry.eye_checks import convex_fill
 from pipeline.geometry.mesh_checks import closed_polyline_distance
+from pipeline.io.eyes_file import read_eyes
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -332,7 +333,7 @@ def evaluate(case, folder: Path, build: Path, chain: dict) -> dict:
     eyes_p = build / "remove_eyeballs" / "eyes.json"
     if "remove_eyeballs" not in chain or chain["remove_eyeballs"]["rc"] != 0 or not eyes_p.is_file():
         return row
-    eyes = json.loads(eyes_p.read_text())
+    eyes = {s: e.doc for s, e in read_eyes(eyes_p).items()}
     rem = _remnant(folder, build, eyes)
     for s in SIDES:
         e, g = eyes[s], gt[s]

@@ -10,7 +10,6 @@ disc with an iris that rotates with the pitch, and the eyelid margin in green.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,7 @@ from pipeline.geometry.frame import eye_basis
 from pipeline.io.meshfile import load_mesh
 from pipeline.io.rig_file import read_rig
 from pipeline.rig import lids
+from pipeline.io.eyes_file import read_eyes
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     ap.add_argument("--side", default="left", choices=("left", "right"))
     a = ap.parse_args(argv)
     m = load_mesh(a.snap / "mesh.npz")
-    eyes = json.loads((a.snap / "eyes.json").read_text())
+    eyes = {s: e.doc for s, e in read_eyes(a.snap / "eyes.json", len(m["V"])).items()}
     rig = read_rig(a.rig, n_vertices=len(m["V"]))
     shapes, max_pitch = rig.npz.shapes, rig.max_pitch_deg
     loop = np.asarray(rig.npz.arrays[f"loop_{a.side}"])

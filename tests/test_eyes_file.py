@@ -91,3 +91,11 @@ def test_eyeball_params_from_the_usd_custom_data(tmp_path):
     usda.unlink()
     with pytest.raises(ScanError, match="not found"):
         read_eyeball_params(tmp_path)
+
+
+def test_write_refuses_what_read_would_refuse(tmp_path):
+    good = {"center": [0, 0, 0], "radius": 12.0, "forward": [0, 0, 1]}
+    bad = {**good, "loop_indices": list(range(10)), "lateral_canthus_index": 0}
+    with pytest.raises(ScanError, match=r"eyes\.json: left eye: lateral_canthus_index must be a position"):
+        write_eyes(tmp_path / "eyes.json", {"left": bad, "right": good})
+    assert not (tmp_path / "eyes.json").exists()

@@ -14,6 +14,7 @@ from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
 from pipeline.io.meshfile import load_mesh, save_mesh
+from pipeline.io.eyes_file import read_eyes
 
 R_EYE = 12.0
 CX = 30.0
@@ -200,7 +201,7 @@ def test_stage_writes_outputs(tmp_path):
     out = tmp_path / "remove_eyeballs"
     metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"])
     assert metrics["boundary_loops_out"] == 3
-    eyes = json.loads((out / "eyes.json").read_text())
+    eyes = {s: e.doc for s, e in read_eyes(out / "eyes.json").items()}
     m = load_mesh(out / "mesh.npz")
     for s in ("left", "right"):
         for k in ("center", "radius", "forward", "residual_rms_mm", "n_inliers", "loop_indices",

@@ -11,7 +11,7 @@ import pytest
 from pipeline.errors import ScanError
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import meshtopo
-from pipeline.io.eyes_file import write_eyes
+from pipeline.io.eyes_file import write_eyes, read_eyes
 from pipeline.io.meshfile import save_mesh
 from pipeline.io.rig_file import SCHEMA as RIG_SCHEMA
 from pipeline.io.rig_file import read_rig
@@ -345,7 +345,8 @@ def test_stage_reads_lateral_index_from_eyes_json(tmp_path):
                 eyes_override={"left": {"lateral_index": eyes[0].lateral_index}})
     arrays, doc, m = build_rig(
         dict(np.load(tmp_path / "snap" / "mesh.npz")),
-        json.loads((tmp_path / "snap" / "eyes.json").read_text()), {"sweep_step_deg": 5.0})
+        {s: e.doc for s, e in read_eyes(tmp_path / "snap" / "eyes.json").items()},
+        {"sweep_step_deg": 5.0})
     assert doc["eyes"]["left"]["lateral_index"] == eyes[0].lateral_index
     assert doc["eyes"]["right"]["lateral_index"] == eyes[1].lateral_index
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
@@ -11,7 +9,7 @@ from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import meshtopo
 from pipeline.geometry import snap as sn
 from pipeline.geometry.flips import untangle
-from pipeline.io.eyes_file import write_eyes
+from pipeline.io.eyes_file import read_eyes, write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 
 CENTER = np.array([31.0, 2.0, 70.0])
@@ -91,6 +89,7 @@ def test_margin_report_rotation():
 
 def _write_inputs(tmp_path):
     Vl, Fl, loopl = lid_ring(0.4)
+    loopl = np.roll(loopl, -int(np.argmin(Vl[loopl, 0])))   # medial canthus first (eyes.json contract)
     mirror = np.array([-1.0, 1, 1])
     Vr = (Vl - CENTER) * mirror + CENTER * mirror
     Fr = Fl[:, ::-1] + len(Vl)
@@ -128,7 +127,7 @@ def test_stage(tmp_path):
     src = load_mesh(bake / "mesh.npz")
     assert set(mesh) == set(src)
     assert np.array_equal(mesh["F"], src["F"]) and np.array_equal(mesh["UV"], src["UV"])
-    eyes = json.loads((out / "eyes.json").read_text())
+    eyes = {s: e.doc for s, e in read_eyes(out / "eyes.json").items()}
     for s in ("left", "right"):
         assert np.allclose(mesh["V"][eyes[s]["loop_indices"]], eyes[s]["loop_points"])
         assert eyes[s]["residual_rms_mm"] == 0.1

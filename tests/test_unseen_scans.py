@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from pipeline.io.eyes_file import read_eyes
 import pytest
 
 from conftest import ROOT, extra_scans_dir
@@ -93,7 +94,7 @@ def test_right_or_not_sure(scanify, tmp_path, name):
         return
     assert r.returncode == 0, r.stderr
     assert expected != "closed", "a blinked head got eyes"
-    eyes = json.loads((build / "remove_eyeballs" / "eyes.json").read_text())
+    eyes = {s: e.doc for s, e in read_eyes(build / "remove_eyeballs" / "eyes.json").items()}
     truth = json.loads((scan / "ground_truth.json").read_text())["eyes"]
     for side in ("left", "right"):
         e, g = eyes[side], truth[side]["eyeball_sphere"]

@@ -141,9 +141,16 @@ def read_eyes(path, n_vertices: int | None = None) -> dict[str, EyeRecord]:
 
 def write_eyes(path, eyes: dict) -> None:
     """Write ``{"left": entry, "right": entry}`` (entries as :func:`read_eyes` accepts them, or
-    :class:`EyeRecord`) with the schema number, atomically."""
+    :class:`EyeRecord`) with the schema number, atomically.
+
+    Raises
+    ------
+    ScanError
+        An entry that :func:`read_eyes` would refuse (one line naming ``path``); nothing is written.
+    """
     out = {"schema": SCHEMA}
     for s in SIDES:
         e = eyes[s]
         out[s] = e.doc if isinstance(e, EyeRecord) else e
+        _record(s, out[s], path, None)   # never write what read_eyes would refuse
     write_json(path, out)
