@@ -122,11 +122,11 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
 
     from pipeline.blender.materials import setup_eyeball_materials, skin_material
     from pipeline.blender.scene import add_inbetween_keys, bundled_hdri, evaluated_vertices, find_image, import_usd
+    from pipeline.io.rig_file import read_rig_arrays
     from pipeline.rig import lids
 
     t0 = time.perf_counter()
-    with np.load(rig_npz) as z:
-        shapes = lids.shapes_from_arrays({k: z[k] for k in z.files})
+    shapes = read_rig_arrays(rig_npz).shapes
     objs = import_usd(asset, unit_conversion=True)
     skin = next((o for o in objs if o.name.split(".")[0] == "EyeRegion"), None)
     if skin is None:

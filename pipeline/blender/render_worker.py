@@ -169,15 +169,15 @@ class Worker:
                  thin_sclera_coat: bool = True):
         import bpy
 
+        from pipeline.io.rig_file import read_rig_arrays
         from pipeline.rig import lids
 
         t0 = time.perf_counter()
         self.bpy = bpy
         self.lids = lids
         asset, rig_npz = Path(asset), Path(rig_npz)
-        with np.load(rig_npz) as z:
-            self.rig = {k: z[k] for k in z.files}
-        self.shapes = lids.shapes_from_arrays(self.rig)
+        rig = read_rig_arrays(rig_npz)
+        self.rig, self.shapes = rig.arrays, rig.shapes
         self.eb_landmarks, eb_path = _eyeball_landmark_indices(asset)
         objs = import_usd(asset, unit_conversion=True)
         scene = bpy.context.scene
