@@ -45,7 +45,8 @@ def stage_commands(scan, build, eyeball) -> dict:
     }
 
 
-def _run(cmd):
+def timed_run(cmd):
+    """Run ``cmd`` in the repository root; its wall time (s), or exit naming it and its stderr."""
     t0 = time.perf_counter()
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     dt = time.perf_counter() - t0
@@ -92,7 +93,7 @@ def main():
     if not args.eyeball and not (eyeball / "eyeball.usda").exists():
         pfile = work / "eyeball_params.yaml"
         pfile.write_text("eyeball: {preview: false}\n")
-        _run(py + ["stages.eyeball", str(eyeball), "--params", str(pfile),
+        timed_run(py + ["stages.eyeball", str(eyeball), "--params", str(pfile),
                    "--metrics", str(work / "eyeball.metrics.json")])
 
     b = work / "build"
@@ -102,7 +103,7 @@ def main():
         times = {}
         for st in STAGES:
             cmd = py + [str(c) for c in cmds[st]] + ["--metrics", str(b / f"{st}.metrics.json")]
-            times[st] = _run(cmd)
+            times[st] = timed_run(cmd)
         times["total"] = sum(times[s] for s in STAGES)
         runs.append(times)
         print(f"run {rep + 1}: " + "  ".join(f"{k} {v:.2f}" for k, v in times.items()), flush=True)

@@ -61,8 +61,6 @@ def main(argv=None):
     ap.add_argument("--input", default=None, help="a remove_eyeballs folder instead of the synthetic head")
     args = ap.parse_args(argv)
 
-    import numpy as np
-
     from pipeline.geometry.retopo import RetopoSettings, retopologize
     from pipeline.io.meshfile import load_mesh
     from stages.retopo import load_eyes

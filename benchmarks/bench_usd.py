@@ -15,29 +15,19 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from benchmarks.bench_chain import timed_run
 from pipeline.io.atomic import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 
 RUNS = 5
-
-
-def _run(cmd):
-    t0 = time.perf_counter()
-    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-    dt = time.perf_counter() - t0
-    if r.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
-    return dt
 
 
 def main(argv=None) -> int:
@@ -59,9 +49,9 @@ def main(argv=None) -> int:
         common = ["--params", str(td / "params.yaml")]
         for i in range(RUNS):
             rig_out, usd_out = td / f"rig{i}", td / "rigged_assets" / f"scan{i}"
-            t_rig = _run([py, "-m", "stages.rig", str(build / "snap"), str(rig_out), "--eyeball",
+            t_rig = timed_run([py, "-m", "stages.rig", str(build / "snap"), str(rig_out), "--eyeball",
                           str(td / "rigged_assets" / "eyeball"), "--metrics", str(td / f"rig{i}.json"), *common])
-            t_usd = _run([py, "-m", "stages.usd", str(build / "snap"), str(build / "bake"), str(rig_out),
+            t_usd = timed_run([py, "-m", "stages.usd", str(build / "snap"), str(build / "bake"), str(rig_out),
                           str(build / "ingest"), str(td / "rigged_assets" / "eyeball"), str(usd_out),
                           "--metrics", str(td / f"usd{i}.json"), *common])
             m = json.loads((td / f"usd{i}.json").read_text())

@@ -314,7 +314,6 @@ def test_usd_asset_contents(asset):
 
 
 def test_stage_cli_builds_asset_without_preview(tmp_path):
-    import json
     import subprocess
     import sys
     from pathlib import Path

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from conftest import (ROOT, head_mesh, ingest, make_scan, sphere_uv, write_obj, write_ply, write_png,
                       write_sidecar)
