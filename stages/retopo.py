@@ -18,7 +18,7 @@ from pipeline.errors import ScanError
 from pipeline.geometry.retopo import RetopoSettings, retopologize
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import read_eyes
-from pipeline.io.meshfile import load_mesh, save_mesh
+from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
@@ -43,12 +43,7 @@ def main(argv) -> dict:
     settings = load_settings(RetopoSettings, args.params)
     in_dir = Path(args.in_dir)
     mesh_path = in_dir / "mesh.npz"
-    try:
-        mesh = load_mesh(mesh_path)
-    except (OSError, ValueError, KeyError) as exc:
-        raise ScanError(mesh_path, f"cannot read mesh ({exc})") from None
-    if "V" not in mesh or "F" not in mesh:
-        raise ScanError(mesh_path, "mesh.npz lacks V or F")
+    mesh = read_stage_mesh(mesh_path)
     eyes = load_eyes(in_dir / "eyes.json", len(mesh["V"]))
     try:
         result = retopologize(mesh["V"], mesh["F"], eyes, settings)

@@ -11,7 +11,13 @@ are the same everywhere (one name across code, tests and docs):
 
 Polygon meshes (quad-dominant retopology) add ``poly_counts`` (p,) int64 and
 ``poly_indices`` (sum(poly_counts),) int64 in USD's faceVertexCounts/Indices
-layout; ``F`` is then their fan triangulation. Any other array is kept as is.
+layout; ``F`` is then their fan triangulation. Eyelid-opening loops are
+``loop_left`` / ``loop_right`` (L,) int64 vertex indices. Any other array is kept as is.
+
+The file carries ``schema`` (a 0-d int64, :data:`SCHEMA`), written by :func:`save_mesh` and
+left out of the dict :func:`load_mesh` returns. A stage reads its input mesh with
+:func:`read_stage_mesh`, which checks the schema and the arrays above (shapes, finite
+positions, indices inside the mesh) and refuses anything else with one line naming the file.
 """
 
 from __future__ import annotations
@@ -21,6 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.io.atomic import atomic_file
+
+SCHEMA = 1
 
 _DTYPES = {
     "V": np.float64,
@@ -44,16 +52,74 @@ def save_mesh(path, **arrays) -> None:
     """
     if "V" not in arrays or "F" not in arrays:
         raise ValueError("save_mesh needs at least V and F")
-    out = {k: np.ascontiguousarray(v, dtype=_DTYPES.get(k)) for k, v in arrays.items()}
+    out = {k: np.ascontiguousarray(v, dtype=_DTYPES.get(k)) for k, v in arrays.items() if k != "schema"}
+    out["schema"] = np.asarray(SCHEMA, dtype=np.int64)
     with atomic_file(Path(path)) as tmp:
         with open(tmp, "wb") as fh:
             np.savez(fh, **out)
 
 
 def load_mesh(path) -> dict[str, np.ndarray]:
-    """Read a mesh written by :func:`save_mesh` into a dict of arrays."""
+    """Read a mesh written by :func:`save_mesh` into a dict of arrays (without ``schema``;
+    nothing is checked: stages use :func:`read_stage_mesh`)."""
     with np.load(path, allow_pickle=False) as data:
-        return {k: data[k] for k in data.files}
+        return {k: data[k] for k in data.files if k != "schema"}
+
+
+def _schema_of(path) -> int | None:
+    with np.load(path, allow_pickle=False) as data:
+        if "schema" not in data.files:
+            return None
+        a = data["schema"]
+    return int(a) if a.shape == () and a.dtype.kind in "iu" else -1
+
+
+def check_mesh(mesh: dict, path) -> None:
+    """Refuse (ScanError, one line naming ``path``) arrays that break the layout above."""
+    from pipeline.errors import ScanError
+
+    def bad(msg):
+        raise ScanError(path, msg)
+
+    V, F = mesh.get("V"), mesh.get("F")
+    n = None
+    if V is not None:
+        if V.ndim != 2 or V.shape[1] != 3 or V.dtype.kind != "f":
+            bad(f"V must be (n, 3) floats, got {V.shape} {V.dtype}")
+        if not np.isfinite(V).all():
+            bad("V has non-finite vertex positions")
+        n = len(V)
+
+    def indices(k, a, cols, limit, of):
+        if a.dtype.kind not in "iu" or (cols and (a.ndim != 2 or a.shape[1] != cols)) \
+                or (not cols and a.ndim != 1):
+            bad(f"{k} must be {'(m, %d)' % cols if cols else '(k,)'} integers, got {a.shape} {a.dtype}")
+        if a.size and limit is not None and (a.min() < 0 or a.max() >= limit):
+            bad(f"{k} indexes outside the {limit} {of}")
+
+    if F is not None:
+        indices("F", F, 3, n, "vertices")
+    if "UV" in mesh or "FUV" in mesh:
+        UV, FUV = mesh.get("UV"), mesh.get("FUV")
+        if UV is None or FUV is None:
+            bad("UV and FUV come together (one is missing)")
+        if UV.ndim != 2 or UV.shape[1] != 2 or not np.isfinite(UV).all():
+            bad(f"UV must be (k, 2) finite floats, got {UV.shape}")
+        indices("FUV", FUV, 3, len(UV), "texture coordinates")
+        if F is not None and len(FUV) != len(F):
+            bad(f"FUV has {len(FUV)} faces, F {len(F)}")
+    if "VC" in mesh and n is not None and mesh["VC"].shape != (n, 3):
+        bad(f"VC must be ({n}, 3) colours, got {mesh['VC'].shape}")
+    if "poly_counts" in mesh or "poly_indices" in mesh:
+        pc, pi = mesh.get("poly_counts"), mesh.get("poly_indices")
+        if pc is None or pi is None:
+            bad("poly_counts and poly_indices come together (one is missing)")
+        indices("poly_indices", pi, 0, n, "vertices")
+        if pc.ndim != 1 or (pc.size and pc.min() < 3) or int(pc.sum()) != len(pi):
+            bad("poly_counts must be polygon sizes (>= 3) summing to len(poly_indices)")
+    for side in ("left", "right"):
+        if f"loop_{side}" in mesh:
+            indices(f"loop_{side}", mesh[f"loop_{side}"], 0, n, "vertices")
 
 
 def read_stage_mesh(path, required=("V", "F")) -> dict[str, np.ndarray]:
@@ -71,10 +137,15 @@ def read_stage_mesh(path, required=("V", "F")) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise ScanError(path, "not found")
     try:
+        schema = _schema_of(path)
         mesh = load_mesh(path)
     except Exception as exc:  # corrupt zip / npy: whatever numpy raises
         raise ScanError(path, f"cannot be read as a mesh .npz ({type(exc).__name__})") from None
+    if schema != SCHEMA:
+        raise ScanError(path, f"has mesh schema {schema}, this eyerig reads schema {SCHEMA} "
+                              f"(rebuild it with the stage that wrote it)")
     missing = [k for k in required if k not in mesh]
     if missing:
         raise ScanError(path, f"needs arrays {' and '.join(required)} (missing {', '.join(missing)})")
+    check_mesh(mesh, path)
     return mesh

@@ -1,0 +1,58 @@
+"""mesh.npz: the stage mesh contract (schema, layout checks, one-line refusals)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.errors import ScanError
+from pipeline.io.meshfile import SCHEMA, load_mesh, read_stage_mesh, save_mesh
+
+
+def _tet():
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    F = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+    return V, F
+
+
+def test_round_trip_keeps_arrays_and_writes_the_schema(tmp_path):
+    V, F = _tet()
+    save_mesh(tmp_path / "mesh.npz", V=V, F=F, loop_left=np.array([0, 1, 2]), extra=np.arange(5))
+    with np.load(tmp_path / "mesh.npz") as z:
+        assert int(z["schema"]) == SCHEMA
+    m = read_stage_mesh(tmp_path / "mesh.npz")
+    assert set(m) == {"V", "F", "loop_left", "extra"} == set(load_mesh(tmp_path / "mesh.npz"))
+    assert m["V"].dtype == np.float64 and m["F"].dtype == np.int64 and np.array_equal(m["F"], F)
+    save_mesh(tmp_path / "again.npz", **m)           # re-saving what was read: same bytes
+    assert (tmp_path / "again.npz").read_bytes() == (tmp_path / "mesh.npz").read_bytes()
+
+
+@pytest.mark.parametrize("arrays, message", [
+    (lambda V, F: dict(V=V[:, :2], F=F), r"V must be \(n, 3\) floats"),
+    (lambda V, F: dict(V=np.where(V == 1, np.nan, V), F=F), "V has non-finite vertex positions"),
+    (lambda V, F: dict(V=V, F=F + 1), "F indexes outside the 4 vertices"),
+    (lambda V, F: dict(V=V, F=F, UV=np.zeros((3, 2))), "UV and FUV come together"),
+    (lambda V, F: dict(V=V, F=F, UV=np.zeros((3, 2)), FUV=F), "FUV indexes outside the 3 texture"),
+    (lambda V, F: dict(V=V, F=F, poly_counts=np.array([4]), poly_indices=np.array([0, 1, 2])),
+     "poly_counts must be polygon sizes"),
+    (lambda V, F: dict(V=V, F=F, loop_right=np.array([0, 9])), "loop_right indexes outside"),
+    (lambda V, F: dict(V=V, F=F, VC=np.zeros((3, 3), np.uint8)), r"VC must be \(4, 3\) colours"),
+])
+def test_bad_layout_refused_in_one_line(tmp_path, arrays, message):
+    V, F = _tet()
+    save_mesh(tmp_path / "mesh.npz", **arrays(V, F))
+    with pytest.raises(ScanError, match=message) as exc:
+        read_stage_mesh(tmp_path / "mesh.npz")
+    assert str(tmp_path / "mesh.npz") in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_other_schema_or_garbage_refused(tmp_path):
+    V, F = _tet()
+    np.savez(tmp_path / "old.npz", V=V, F=F)          # no schema: written by an older eyerig
+    with pytest.raises(ScanError, match="has mesh schema None, this eyerig reads schema 1"):
+        read_stage_mesh(tmp_path / "old.npz")
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(ScanError, match=r"cannot be read as a mesh \.npz"):
+        read_stage_mesh(tmp_path / "junk.npz")
+    with pytest.raises(ScanError, match="not found"):
+        read_stage_mesh(tmp_path / "missing.npz")
