@@ -13,7 +13,9 @@ this module owns the file: ``{"schema": 1, "index": i, "scan": ..., "image": {..
 size, camera matrices, gaze, the 28 landmarks in pixels / camera mm / head mm, attempts,
 lighting map, skin detail) and refuses anything else with one line naming the file. Each
 ``index.jsonl`` line is ``{"index", "png", "json", "eye", "gaze_camera_deg",
-"landmark_check_mm"}``; :func:`read_index` checks every line and that each index appears once.
+"landmark_check_mm"}`` (plus ``"asset"`` and ``"asset_id"`` for the images of a dataset,
+whose labels carry ``"asset": {"name", "id"}``); :func:`read_index` checks every line and
+that each index appears once.
 """
 
 from __future__ import annotations
@@ -100,6 +102,10 @@ def read_label(path) -> Label:
     df.field(doc, "seed.attempts", path, int)
     df.field(doc, "lighting.hdri", path, str)
     df.field(doc, "render.skin_detail", path, str)
+    if "asset" in doc:                  # dataset images name their asset
+        df.field(doc, "asset.name", path, str)
+        if df.field(doc, "asset.id", path, int) < 0:
+            raise ScanError(path, f"asset.id must be >= 0 (got {doc['asset']['id']})")
     check = df.field(doc, "landmark_check_mm", path, default=None)
     if check is not None:
         df.number(doc, "landmark_check_mm", path)
@@ -115,10 +121,13 @@ def read_label(path) -> Label:
 def index_row(label: Label) -> dict:
     """The ``index.jsonl`` line of one label."""
     d = label.doc
-    return {"index": label.index, "png": f"{label.index:06d}.png", "json": label_name(label.index),
-            "eye": label.eye, "gaze_camera_deg": [d["gaze"]["camera"]["pitch_deg"],
-                                                  d["gaze"]["camera"]["yaw_deg"]],
-            "landmark_check_mm": d.get("landmark_check_mm")}
+    row = {"index": label.index, "png": f"{label.index:06d}.png", "json": label_name(label.index),
+           "eye": label.eye, "gaze_camera_deg": [d["gaze"]["camera"]["pitch_deg"],
+                                                 d["gaze"]["camera"]["yaw_deg"]],
+           "landmark_check_mm": d.get("landmark_check_mm")}
+    if "asset" in d:                    # a dataset image (pipeline/render/dataset.py)
+        row.update(asset=d["asset"]["name"], asset_id=d["asset"]["id"])
+    return row
 
 
 def index_line(label: Label) -> str:

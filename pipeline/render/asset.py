@@ -103,6 +103,7 @@ class RenderAsset:
     max_pitch_deg: float = lids.MAX_PITCH_DEG
     displacement_amplitude_mm: float = 0.0
     variants: dict = field(default_factory=dict)
+    metadata: dict = field(default_factory=dict)   # customData["eyerig"]: scan, licence, source_sha256, ...
 
     def fingerprint(self) -> str:
         """sha256 of every file the render reads (for the config hash of a render folder).
@@ -144,6 +145,18 @@ def _find_asset(asset_dir: Path) -> Path:
     if len(found) != 1:
         raise ScanError(asset_dir, f"expected one <scan>.usda, found {len(found)}")
     return found[0]
+
+
+def _plain(v):
+    """A USD customData value as plain Python (dicts, lists, str, numbers)."""
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (str, bool, int, float)) or v is None:
+        return v
+    try:
+        return [_plain(x) for x in v]
+    except TypeError:
+        return str(v)
 
 
 def _displacement_amplitude(usda: Path) -> float:
@@ -261,7 +274,8 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
     return RenderAsset(name=name, usda=usda.resolve(), rig_npz=rig.npz_path.resolve(), skin_rest=V,
                        skin_faces_edge_mm=edge_len, lid_shapes=lid_shapes, rig_arrays=arrays,
                        eyes=eyes, max_pitch_deg=max_pitch,
-                       displacement_amplitude_mm=_displacement_amplitude(usda), variants=vsets)
+                       displacement_amplitude_mm=_displacement_amplitude(usda), variants=vsets,
+                       metadata=_plain(meta))
 
 
 # ------------------------------------------------------------------------------------ posing

@@ -43,6 +43,27 @@ def auto_workers(cores: int) -> int:
     return max(1, int(cores) // MIN_THREADS)
 
 
+def run_options(settings, out: Path, scheduler: str | None = None) -> dict:
+    """How a run of ``settings`` into ``out`` goes.
+
+    Returns
+    -------
+    dict  ``workers`` (LocalCluster processes), ``scheduler`` (an address, or None for a
+          LocalCluster), ``threads`` (Cycles threads per Blender), ``window`` (images sampled at
+          a time: a few shards per HDRI) and ``opts`` (the shard task's options).
+    """
+    workers = settings.workers or auto_workers(os.cpu_count() or 1)
+    scheduler = scheduler or settings.scheduler or None
+    threads = settings.threads
+    if not threads and not scheduler:
+        threads = max(1, (os.cpu_count() or 1) // workers)
+    opts = {"threads": threads, "tile_size": settings.tile_size,
+            "tolerance_mm": settings.landmark_tolerance_mm, "log_dir": str((Path(out) / ".tmp").resolve()),
+            "image_timeout_s": settings.image_timeout_s}
+    return {"workers": workers, "scheduler": scheduler, "threads": threads, "opts": opts,
+            "window": max(64, settings.shard_size * len(settings.hdris) * 4)}
+
+
 def config_hash(settings, fingerprint: str) -> str:
     """sha256 of the hashed render settings and the asset fingerprint."""
     blob = json.dumps({"settings": settings.hashed(), "asset": fingerprint}, sort_keys=True)
@@ -202,8 +223,8 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
 
     t0 = time.perf_counter()
     out = Path(out)
-    workers = settings.workers or auto_workers(os.cpu_count() or 1)
-    scheduler = scheduler or settings.scheduler or None
+    how = run_options(settings, out, scheduler)
+    workers, scheduler, threads, opts = how["workers"], how["scheduler"], how["threads"], how["opts"]
     chash = config_hash(settings, asset.fingerprint())
     prep = prepare_out(out, chash, settings.n_images)
     # the asset as a path from the working directory (the repository under DVC): an absolute
@@ -215,15 +236,7 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
     n_pending = sum(1 for i in range(n) if not sh.done(out, i))
     pending = (i for i in range(n) if not sh.done(out, i))
     stats = {"sampling_s": 0.0, "shards": 0}
-    # sampled a window at a time, a few shards per HDRI each
-    window = max(64, settings.shard_size * len(settings.hdris) * 4)
-    shards = pending_shards(asset, settings, out, pending, window, stats, source)
-    threads = settings.threads
-    if not threads and not scheduler:
-        threads = max(1, (os.cpu_count() or 1) // workers)
-    opts = {"threads": threads, "tile_size": settings.tile_size,
-            "tolerance_mm": settings.landmark_tolerance_mm, "log_dir": str((out / ".tmp").resolve()),
-            "image_timeout_s": settings.image_timeout_s}
+    shards = pending_shards(asset, settings, out, pending, how["window"], stats, source)
     t1 = time.perf_counter()
     res = _Results()
     run = {"workers": 0, "blender": {}}
