@@ -10,7 +10,8 @@ Builders shared by several test files live here; import them with
   ``scan.yaml``): ingest, frame and hostile-input tests;
 * ``face_patch``: a bumpy height-field face with two eyelid openings (retopo, bake);
 * ``make_inputs`` / ``usd_argv``: the usd stage's inputs for a tiny fake scan (usd, render,
-  Blender import and asset-preview tests).
+  Blender import and asset-preview tests); ``make_render_asset``: that scan through the usd
+  stage, with the rig the render needs (render and dataset tests).
 """
 
 from __future__ import annotations
@@ -275,8 +276,10 @@ def _shape(name, idx, off, sag):
                       inbetween_weights=w, inbetween_offsets=ib)
 
 
-def make_inputs(root: Path, n_x: int = 23, n_y: int = 11) -> dict:
-    """build/<scan>/{snap,bake,rig,ingest} + rigged_assets/eyeball for a tiny fake scan under ``root``."""
+def make_inputs(root: Path, n_x: int = 23, n_y: int = 11, name: str = "tiny",
+                licence: str = "CC0-1.0 (test)") -> dict:
+    """build/<name>/{snap,bake,rig,ingest} + rigged_assets/eyeball for a tiny fake scan under ``root``
+    (the eyeball is written once per ``root``)."""
     from PIL import Image
 
     from pipeline.eyeball import geometry as geo
@@ -287,15 +290,16 @@ def make_inputs(root: Path, n_x: int = 23, n_y: int = 11) -> dict:
     from pipeline.rig import lids
     from pipeline.usd.eyeball import write_eyeball_usd
 
-    b = root / "build" / "tiny"
+    b = root / "build" / name
     dirs = {k: b / k for k in ("snap", "bake", "rig", "ingest")}
     for d in dirs.values():
         d.mkdir(parents=True)
     eb = root / "rigged_assets" / "eyeball"
-    (eb / "textures").mkdir(parents=True)
-    for name, img in etex.texture_set(0, 32, (32, 16)).items():
-        Image.fromarray(img).save(eb / "textures" / name)
-    write_eyeball_usd(geo.build_eyeball(resolution="low"), eb / "eyeball.usda")
+    if not (eb / "eyeball.usda").is_file():
+        (eb / "textures").mkdir(parents=True)
+        for tex, img in etex.texture_set(0, 32, (32, 16)).items():
+            Image.fromarray(img).save(eb / "textures" / tex)
+        write_eyeball_usd(geo.build_eyeball(resolution="low"), eb / "eyeball.usda")
 
     x, y = np.meshgrid(np.linspace(-55, 55, n_x), np.linspace(-25, 25, n_y))
     V = np.stack([x.ravel(), y.ravel(), 86.0 + 0.01 * x.ravel() ** 2 * 0], 1)
@@ -322,11 +326,11 @@ def make_inputs(root: Path, n_x: int = 23, n_y: int = 11) -> dict:
                                     "eyes": {s: dict(e, joint=f"eye_{s}", surface={"parametric_eye": {"r1": R1}})
                                              for s, e in EYES.items()}})
     (dirs["ingest"] / "scan.json").write_text(json.dumps(
-        {"name": "tiny", "source_sha256": "ab" * 32, "licence": "CC0-1.0 (test)"}))
+        {"name": name, "source_sha256": "ab" * 32, "licence": licence}))
     write_bake(dirs["bake"], {"V": V, "F": F, "UV": UV, "FUV": F.copy()},
                np.linspace(-0.2, 0.2, 256).reshape(16, 16), None, np.full((16, 16, 3), 180, np.uint8),
                resolution=16, falloff_mm=2.0, colour_source="flat test colour")
-    return {"dirs": dirs, "eyeball": eb, "out": root / "rigged_assets" / "tiny", "V": V, "F": F,
+    return {"dirs": dirs, "eyeball": eb, "out": root / "rigged_assets" / name, "V": V, "F": F,
             "shapes": shapes, "arrays": arrays, "metrics": b / "usd.metrics.json"}
 
 
@@ -335,3 +339,50 @@ def usd_argv(inp, out=None):
     d = inp["dirs"]
     return [str(d["snap"]), str(d["bake"]), str(d["rig"]), str(d["ingest"]), str(inp["eyeball"]),
             str(out or inp["out"]), "--metrics", str(inp["metrics"]), "--params", "/nonexistent.yaml"]
+
+
+def _ring(V, center, side):
+    """16 grid vertices on a square ring (10 mm) around the eye, medial first, upper lid first."""
+    gx, gy = np.round(center[0] / 5) * 5, np.round(center[1] / 5) * 5
+    d = np.maximum(np.abs(V[:, 0] - gx), np.abs(V[:, 1] - gy))
+    ring = np.flatnonzero(np.isclose(d, 10.0))
+    ang = np.arctan2(V[ring, 1] - gy, V[ring, 0] - gx)
+    if side == "left":          # medial = -X (angle pi), over the top to angle 0, then below
+        key = np.mod(np.pi - ang, 2 * np.pi)
+    else:                       # medial = +X (angle 0), over the top to angle pi
+        key = np.mod(ang, 2 * np.pi)
+    loop = ring[np.argsort(key)]
+    lat = int(np.flatnonzero(np.isclose(np.sort(key), np.pi))[0])
+    return loop, lat
+
+
+def make_render_asset(root: Path, name: str = "tiny", licence: str = "CC0-1.0 (test)") -> dict:
+    """``rigged_assets/<name>`` and ``build/<name>/rig`` as the render stage takes them:
+    :func:`make_inputs`' scan with 16-vertex lid loops and eyelid landmark edges added to its
+    rig, through the usd stage (no usdz, no preview). Returns root, asset_dir and rig_dir."""
+    from pipeline.io.rig_file import read_rig, write_rig
+    from pipeline.rig.eye_frame import EyeFrame
+    from pipeline.rig.landmarks import eyelid_landmarks
+    from stages import usd as usd_stage
+    from stages._common import run_stage
+
+    inp = make_inputs(root, name=name, licence=licence)
+    rig = read_rig(inp["dirs"]["rig"])
+    arrays = dict(rig.npz.arrays)
+    V = inp["V"]
+    for side, e in EYES.items():
+        loop, lat = _ring(V, e["center"], side)
+        frame = EyeFrame(side=side, center=np.asarray(e["center"]), radius=e["radius"],
+                         forward=np.asarray(e["forward"]), loop=loop, lateral_index=lat)
+        lm = eyelid_landmarks(V, frame)
+        arrays[f"loop_{side}"] = loop
+        arrays[f"landmarks.{side}.edge"] = lm.edge
+        arrays[f"landmarks.{side}.t"] = lm.t
+        arrays[f"landmarks.{side}.points"] = lm.points
+    write_rig(inp["dirs"]["rig"], arrays, rig.doc)
+    params = root / "usd_params.yaml"
+    params.write_text("usd:\n  usdz: false\n  preview: false\n")
+    args = usd_argv(inp)
+    args[args.index("--params") + 1] = str(params)
+    assert run_stage(usd_stage.main, args) == 0
+    return {"root": root, "asset_dir": inp["out"], "rig_dir": inp["dirs"]["rig"]}

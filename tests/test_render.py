@@ -1,9 +1,9 @@
 """Stage ``render``: sampling, labels, pupil-in-lid rule, resumable sharded rendering.
 
-The asset is built in a fixture from the small constructed scan of conftest.make_inputs (a flat
-skin grid with the eyeballs poking through it), with 16-vertex lid loops and eyelid landmark
-edges added to its rig.npz. Pure-Python parts are tested directly; Blender renders only a few
-tiny images (24 x 16 px, 1 sample).
+The asset is built in a fixture (conftest.make_render_asset) from the small constructed scan of
+conftest.make_inputs (a flat skin grid with the eyeballs poking through it), with 16-vertex lid
+loops and eyelid landmark edges added to its rig.npz. Pure-Python parts are tested directly;
+Blender renders only a few tiny images (24 x 16 px, 1 sample).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conftest import EYES, make_inputs, usd_argv
+from conftest import EYES, make_render_asset
 from pipeline.errors import ScanError
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.io.rig_file import read_rig, write_rig
@@ -29,55 +29,17 @@ from pipeline.render import labels as lb
 from pipeline.render import run as rr
 from pipeline.render import sampling as sp
 from pipeline.rig import lids
-from pipeline.rig.eye_frame import EyeFrame
-from pipeline.rig.landmarks import eyelid_landmarks
-from stages import usd as usd_stage
-from stages._common import read_stage_metrics, run_stage
+from stages._common import read_stage_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
         "progress": False, "connect_timeout_s": 3}
 
 
-def _ring(V, center, side):
-    """16 grid vertices on a square ring (10 mm) around the eye, medial first, upper lid first."""
-    gx, gy = np.round(center[0] / 5) * 5, np.round(center[1] / 5) * 5
-    d = np.maximum(np.abs(V[:, 0] - gx), np.abs(V[:, 1] - gy))
-    ring = np.flatnonzero(np.isclose(d, 10.0))
-    ang = np.arctan2(V[ring, 1] - gy, V[ring, 0] - gx)
-    if side == "left":          # medial = -X (angle pi), over the top to angle 0, then below
-        key = np.mod(np.pi - ang, 2 * np.pi)
-    else:                       # medial = +X (angle 0), over the top to angle pi
-        key = np.mod(ang, 2 * np.pi)
-    loop = ring[np.argsort(key)]
-    lat = int(np.flatnonzero(np.isclose(np.sort(key), np.pi))[0])
-    return loop, lat
-
-
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
-    root = tmp_path_factory.mktemp("render")
-    inp = make_inputs(root)
-    rig = read_rig(inp["dirs"]["rig"])
-    arrays = dict(rig.npz.arrays)
-    V = inp["V"]
-    for side, e in EYES.items():
-        loop, lat = _ring(V, e["center"], side)
-        frame = EyeFrame(side=side, center=np.asarray(e["center"]), radius=e["radius"],
-                         forward=np.asarray(e["forward"]), loop=loop, lateral_index=lat)
-        lm = eyelid_landmarks(V, frame)
-        arrays[f"loop_{side}"] = loop
-        arrays[f"landmarks.{side}.edge"] = lm.edge
-        arrays[f"landmarks.{side}.t"] = lm.t
-        arrays[f"landmarks.{side}.points"] = lm.points
-    write_rig(inp["dirs"]["rig"], arrays, rig.doc)
-    params = root / "usd_params.yaml"
-    params.write_text("usd:\n  usdz: false\n  preview: false\n")
-    args = usd_argv(inp)
-    args[args.index("--params") + 1] = str(params)
-    assert run_stage(usd_stage.main, args) == 0
-    asset = ra.load_render_asset(inp["out"], inp["dirs"]["rig"])
-    return {"root": root, "asset_dir": inp["out"], "rig_dir": inp["dirs"]["rig"], "asset": asset}
+    made = make_render_asset(tmp_path_factory.mktemp("render"))
+    return {**made, "asset": ra.load_render_asset(made["asset_dir"], made["rig_dir"])}
 
 
 def _settings(**kw):
