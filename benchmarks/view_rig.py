@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.geometry.frame import eye_basis
+from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import load_mesh
 from pipeline.io.rig_file import read_rig
 from pipeline.rig import lids
-from pipeline.io.eyes_file import read_eyes
 
 ROOT = Path(__file__).resolve().parents[1]
 

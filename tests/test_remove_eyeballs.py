@@ -13,8 +13,8 @@ from pipeline.geometry.eye_fit import eye_surface_distance
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
-from pipeline.io.meshfile import load_mesh, save_mesh
 from pipeline.io.eyes_file import read_eyes
+from pipeline.io.meshfile import load_mesh, save_mesh
 
 R_EYE = 12.0
 CX = 30.0

@@ -11,7 +11,7 @@ import pytest
 from pipeline.errors import ScanError
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import meshtopo
-from pipeline.io.eyes_file import write_eyes, read_eyes
+from pipeline.io.eyes_file import read_eyes, write_eyes
 from pipeline.io.meshfile import save_mesh
 from pipeline.io.rig_file import SCHEMA as RIG_SCHEMA
 from pipeline.io.rig_file import read_rig

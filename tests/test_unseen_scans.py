@@ -17,10 +17,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from pipeline.io.eyes_file import read_eyes
 import pytest
 
 from conftest import ROOT, extra_scans_dir
+from pipeline.io.eyes_file import read_eyes
 
 pytestmark = pytest.mark.slow
 
