@@ -1,0 +1,440 @@
+"""Datasets across many identities: one resumable, sharded render over several rigged assets.
+
+    python -m pipeline.render.dataset --assets rigged_assets/* --n 10000 --preset generic --out DIR \\
+        [--weights 2 1 1] [--rigs build/a/rig ...] [--seed S] [--params params.yaml] \\
+        [--set KEY=VALUE ...] [--workers N] [--scheduler ADDRESS] [--no-progress]
+
+Image ``i`` (global index ``0..n-1``) shows asset ``assign(n, weights, seed)[i]``
+(pipeline/render/mix.py: exact counts by largest remainder, interleaved by the seed) and is
+sample ``i`` of the render stage's sampler for that asset (``default_rng([seed, i, attempt])``,
+pipeline/render/sampling.py), so it is a pure function of the settings, the asset and ``i``.
+The render machinery is the render stage's (pipeline/render/run.py, shard.py): shards of one
+HDRI each go to a Dask ``LocalCluster`` or ``--scheduler``, one persistent Blender per worker,
+asset after asset; labels are written last (pipeline/io/labels_file.py), so an image is done
+when its JSON exists. Each label carries ``"asset": {"name", "id"}``.
+
+DIR holds ``NNNNNN.png`` + ``NNNNNN.json``; ``config.json`` (written first: the plan and the
+hashes a resumed run compares); at the end ``index.jsonl`` (every index once, with its asset),
+``contact_sheet.png``, ``dataset.json`` (the machine-readable description), ``README.md`` (the
+dataset card, pipeline/render/card.py) and ``timings.json`` (what the last run measured).
+
+Resuming: a re-run skips finished images. An image is kept only when the new plan gives its
+index the same asset with the same config hash (render settings, asset files and renderer
+source, :func:`pipeline.render.run.config_hash`) as the plan it was rendered under; every
+other image is deleted first, so a changed ``--n``, weight or asset re-renders only the
+images whose asset changed. Settings come from the ``render:`` block of ``--params``
+(image size, samples, ranges, label formats, workers, ...); ``--set KEY=VALUE``, ``--n``,
+``--preset`` and ``--seed`` override it.
+
+Bad input (a missing or invalid asset or rig, ``--n`` out of range, a weight count that does
+not match, an output folder that is not a dataset) ends with one line and exit 2 before
+anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.io.atomic import write_json, write_text
+from pipeline.io.labels_file import SCHEMA as LABEL_SCHEMA
+from pipeline.io.labels_file import label_name, read_index, read_label
+from pipeline.render import mix
+from pipeline.render import run as rr
+
+SCHEMA = 1
+INFO, CARD, TIMINGS = "dataset.json", "README.md", "timings.json"
+#: ``rigged_assets/eyeball`` holds the eyeball every asset references, not a head: skipped.
+SHARED_EYEBALL = "eyeball"
+#: What each per-image file holds (by its name with the index as NNNNNN); a file of another
+#: label format is listed as such (render.label_formats).
+IMAGE_FILES = {
+    "NNNNNN.png": "image NNNNNN (global index, 6 digits), 8-bit RGB",
+    "NNNNNN.json": "its label (see the label schema below); written last, it marks the image done",
+    "NNNNNN.pts": "the 28 landmarks as a 300-W .pts file (pixels)",
+    "unityeyes/NNNNNN.json": "the label in UnityEyes' JSON format (GazeML reads unityeyes/ as it is)",
+    "unityeyes/NNNNNN.jpg": "the image as a JPEG, beside its UnityEyes label",
+    "NNNNNN_seg.png": "segmentation mask: 8-bit indexed PNG, one class id per pixel (classes below)",
+    "NNNNNN_depth.exr": "z-depth in camera mm, float32 EXR channel Z (inf where nothing is seen)",
+}
+SEG_FILE = "NNNNNN_seg.png"
+FILES = {
+    "index.jsonl": "one line per image, every index 0..n-1 once: index, png, json, asset, asset_id, eye, "
+                   "gaze_camera_deg, landmark_check_mm",
+    "dataset.json": "this card as data: image size, assets (id, name, weight, count, licence), "
+                    "conventions, settings",
+    "contact_sheet.png": "the first images with their landmarks drawn",
+    "config.json": "the plan and hashes a resumed run compares (not data)",
+    "timings.json": "what the last run measured (not data)",
+    "README.md": "this card",
+}
+
+
+@dataclass
+class DatasetAsset:
+    """One identity of the dataset: its position ``id`` in ``--assets``, weight and render inputs."""
+
+    id: int
+    name: str
+    folder: Path
+    rig: Path
+    weight: float
+    asset: object                   # pipeline.render.asset.RenderAsset
+    config_hash: str
+
+    def meta(self, key: str) -> str:
+        return str(self.asset.metadata.get(key) or "")
+
+
+def is_shared_eyeball(folder: Path) -> bool:
+    """``rigged_assets/eyeball``: the parametric eye the scan assets reference."""
+    return folder.name == SHARED_EYEBALL and (folder / f"{SHARED_EYEBALL}.usda").is_file()
+
+
+def asset_inputs(paths, rigs=None) -> tuple[list[tuple[Path, Path]], list[Path]]:
+    """``(asset folder, rig folder)`` of each ``--assets`` path, and the skipped shared eyeball.
+
+    Without ``rigs`` the rig of ``<root>/rigged_assets/<name>`` is ``<root>/build/<name>/rig``
+    (where the rig stage writes it).
+
+    Raises
+    ------
+    ScanError  a path that is not a folder, no scan asset left, a rig count that does not match.
+    """
+    pairs, skipped = [], []
+    folders = [Path(p) for p in paths]
+    if rigs is not None and len(rigs) != len(folders):
+        raise ScanError("--rigs", f"{len(rigs)} rig folder(s) for {len(folders)} asset(s): give one per asset")
+    for k, f in enumerate(folders):
+        if not f.is_dir():
+            raise ScanError(f, "rigged asset folder not found")
+        if rigs is None and is_shared_eyeball(f):
+            skipped.append(f)
+            continue
+        rig = Path(rigs[k]) if rigs is not None else f.resolve().parent.parent / "build" / f.name / "rig"
+        if not (rig / "rig.npz").is_file():
+            raise ScanError(rig, f"no rig.npz for the asset {f} (the rig stage's output; --rigs names it)")
+        pairs.append((f, rig))
+    if not pairs:
+        raise ScanError(" ".join(map(str, folders)) or "--assets", "no scan asset given (rigged_assets/"
+                        f"{SHARED_EYEBALL} is the shared eyeball, not a head)")
+    return pairs, skipped
+
+
+def load_assets(pairs, weights, settings) -> list[DatasetAsset]:
+    """Read every asset and rig (pipeline/render/asset.py) and hash its render config.
+
+    Raises
+    ------
+    ScanError  an asset or rig the render cannot use, two assets with one name, bad weights.
+    """
+    from pipeline.render.asset import load_render_asset
+
+    try:
+        w = mix.check_weights(weights, len(pairs))
+    except ValueError as exc:
+        raise ScanError("--weights", str(exc)) from None
+    out, seen = [], {}
+    for k, ((folder, rig), wk) in enumerate(zip(pairs, w)):
+        a = load_render_asset(folder, rig)
+        if a.name in seen:
+            raise ScanError(folder, f"asset name '{a.name}' is also the name of {seen[a.name]} "
+                                    "(labels and index name images by their asset)")
+        seen[a.name] = folder
+        out.append(DatasetAsset(id=k, name=a.name, folder=folder, rig=rig, weight=wk, asset=a,
+                                config_hash=rr.config_hash(settings, a.fingerprint())))
+    return out
+
+
+def _plan_doc(assets, n: int, settings) -> dict:
+    return {"schema": SCHEMA, "n": int(n), "seed": int(settings.seed),
+            "assets": [{"name": a.name, "weight": a.weight, "config_hash": a.config_hash,
+                        "asset": os.path.relpath(a.asset.usda), "rig": os.path.relpath(a.asset.rig_npz)}
+                       for a in assets]}
+
+
+def _old_plan(doc) -> tuple[list[str], np.ndarray] | None:
+    """``(asset keys, asset position of every index)`` of an earlier run's plan; None when unusable."""
+    try:
+        ds = doc["dataset"]
+        keys = [f"{a['name']}\0{a['config_hash']}" for a in ds["assets"]]
+        return keys, mix.assign(int(ds["n"]), [float(a["weight"]) for a in ds["assets"]], int(ds["seed"]))
+    except (KeyError, TypeError, ValueError, IndexError):
+        return None
+
+
+def check_out(out: Path) -> None:
+    """``out`` is new, empty, or an earlier dataset (its ``config.json`` names a dataset plan)."""
+    if out.exists() and not out.is_dir():
+        raise ScanError(out, "exists and is not a folder")
+    if not out.is_dir():
+        return
+    if any(not p.name.startswith(".") for p in out.iterdir()) and "dataset" not in (rr.read_config(out) or {}):
+        raise ScanError(out, "exists, is not empty and is not a dataset folder (no dataset config.json): "
+                             "use a new or empty folder")
+
+
+def prepare_dataset(out: Path, assets, assign: np.ndarray, settings) -> dict:
+    """Clean ``out`` for the plan (see the module docstring) and write its ``config.json``."""
+    n = len(assign)
+    plan = _plan_doc(assets, n, settings)
+    chash = hashlib.sha256(json.dumps({"settings": settings.hashed(), "plan": plan},
+                                      sort_keys=True).encode()).hexdigest()
+    old_cfg = rr.read_config(out) if out.is_dir() else None
+    old = _old_plan(old_cfg) if old_cfg else None
+    stale = 0
+    keep_hash = chash                  # no usable old plan: prepare_out drops every image
+    if old is not None:
+        keep_hash = old_cfg.get("config_hash")
+        old_keys, old_assign = old
+        new_keys = [f"{a.name}\0{a.config_hash}" for a in assets]
+        gone = set()
+        for i, p in list(rr._image_files(out)):     # every file of an image, in every label format
+            if i < n and (i >= len(old_assign) or old_keys[old_assign[i]] != new_keys[assign[i]]):
+                p.unlink()
+                gone.add(i)
+        stale = len(gone)
+    prep = rr.prepare_out(out, keep_hash, n)        # extra indices, unfinished images, .tmp
+    for name in (CARD, INFO, TIMINGS):
+        (out / name).unlink(missing_ok=True)
+    write_json(out / rr.CONFIG, {"config_hash": chash, "dataset": plan, "settings": settings.hashed()})
+    return {"stale_images": stale, "removed_files": prep["removed_files"],
+            "stale_config": bool(prep["stale_config"])}
+
+
+def _tagged(shards, a: DatasetAsset):
+    """The shards of :func:`pipeline.render.run.pending_shards` with the asset in every label."""
+    for shard in shards:
+        for _, label in shard:
+            label["asset"] = {"name": a.name, "id": a.id}
+        yield shard
+
+
+def image_files(out: Path) -> dict:
+    """``{"NNNNNN<rest>": what it holds}`` for the files image 0 has, in the folder and its
+    sub-folders (every image has the same files)."""
+    out = Path(out)
+    names = sorted(p.relative_to(out).as_posix().replace("000000", "NNNNNN", 1)
+                   for d in (out, *(q for q in out.iterdir() if q.is_dir() and not q.name.startswith(".")))
+                   for p in d.glob("000000[._]*") if p.is_file())
+    return {k: IMAGE_FILES.get(k, "a per-image file of another label format (render.label_formats)")
+            for k in names}
+
+
+def masks_info(out: Path) -> dict | None:
+    """What ``dataset.json`` says of the segmentation masks: None when image 0 has none."""
+    if not (Path(out) / SEG_FILE.replace("NNNNNN", "000000")).is_file():
+        return None
+    from pipeline.render.seg import CLASSES          # the masks' class table (written with them)
+
+    return {"file": SEG_FILE, "format": "8-bit indexed PNG (mode P), one class id per pixel",
+            "classes": {str(i): name for i, (name, _) in sorted(CLASSES.items())}}
+
+
+def dataset_info(out: Path, assets, counts, settings, n: int) -> dict:
+    """The ``dataset.json`` description (also what the card is written from)."""
+    import pipeline
+    from pipeline.render.labels import FRAMES, LANDMARK_ORDER
+
+    total_w = sum(a.weight for a in assets)
+    return {
+        "schema": SCHEMA, "name": Path(out).resolve().name, "pipeline_version": pipeline.__version__,
+        "n_images": int(n), "seed": int(settings.seed), "preset": settings.preset,
+        "label_schema": LABEL_SCHEMA,
+        "image": {"width": settings.width, "height": settings.height, "channels": 3, "dtype": "uint8",
+                  "format": "PNG, 8-bit RGB", "pixels": "origin at the top-left pixel corner, x right, "
+                                                       "y down, pixel centres at +0.5"},
+        "files": {**image_files(out), **FILES},
+        "mixing": "Image i shows asset assign(n, weights, seed)[i] (pipeline/render/mix.py): exact counts "
+                  "by largest remainder (each within one image of n * weight / sum of weights), interleaved "
+                  "by a seeded permutation; images are drawn with numpy.random.default_rng([seed, i, attempt]) "
+                  "over the global index i, so no two images share a random stream.",
+        "assets": [{"id": a.id, "name": a.name, "weight": a.weight, "share": a.weight / total_w,
+                    "count": int(counts[a.id]), "licence": a.meta("licence"),
+                    "source_sha256": a.meta("source_sha256"), "pipeline_version": a.meta("pipeline_version"),
+                    "asset": os.path.relpath(a.asset.usda), "rig": os.path.relpath(a.asset.rig_npz)}
+                   for a in assets],
+        "frames": FRAMES, "units": "mm", "angles": "degrees",
+        "landmarks": {"n": 28, "order": LANDMARK_ORDER},
+        "masks": masks_info(out),
+        "settings": settings.hashed(),
+    }
+
+
+def _check_index(out: Path, assets, assign: np.ndarray) -> np.ndarray:
+    """Every index once, from its planned asset (index.jsonl against the plan); counts per asset."""
+    rows = read_index(out / "index.jsonl")
+    if [r["index"] for r in rows] != list(range(len(assign))):
+        raise ScanError(out / "index.jsonl", "does not list every index 0..n-1 once in order")
+    for r in rows:
+        a = assets[int(assign[r["index"]])]
+        if r.get("asset_id") != a.id or r.get("asset") != a.name:
+            raise ScanError(out / r["json"], f"is an image of {r.get('asset')!r}, planned: {a.name!r}")
+    return np.bincount(assign, minlength=len(assets))
+
+
+def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, progress: bool = True) -> dict:
+    """Render (resuming) the ``n``-image dataset of ``assets`` into ``out``; returns the run's measures.
+
+    Parameters
+    ----------
+    assets : list of DatasetAsset   (:func:`load_assets`)
+    settings : pipeline.render.sampling.RenderSettings   (its n_images is not used)
+    n : int                          images in the dataset
+    out : path                       the dataset folder (new, empty or an earlier dataset)
+    scheduler : str, optional        a dask scheduler address (default: a LocalCluster)
+
+    Raises
+    ------
+    ScanError  an image failed, a sample could not be drawn, the scheduler is unreachable.
+    """
+    from pipeline.render import shard as sh
+    from pipeline.render.card import dataset_card
+
+    t0 = time.perf_counter()
+    out = Path(out)
+    check_out(out)
+    assign = mix.assign(n, [a.weight for a in assets], settings.seed)
+    prep = prepare_dataset(out, assets, assign, settings)
+    how = rr.run_options(settings, out, scheduler)
+    res = rr._Results()
+    stats = {"sampling_s": 0.0, "shards": 0}
+    per_asset, starts, t_render = {}, 0, 0.0
+    for a in assets:
+        pending = [int(i) for i in np.flatnonzero(assign == a.id) if not sh.done(out, int(i))]
+        per_asset[a.name] = {"pending": len(pending)}
+        if not pending:
+            continue
+        t1, s0 = time.perf_counter(), stats["sampling_s"]
+        shards = _tagged(rr.pending_shards(a.asset, settings, out, pending, how["window"], stats, a.folder), a)
+        run = sh.run_shards(shards, a.asset.usda, a.asset.rig_npz, out.resolve(), how["opts"],
+                            workers=how["workers"], scheduler=how["scheduler"],
+                            progress=progress and settings.progress, connect_timeout_s=settings.connect_timeout_s,
+                            total=len(pending), on_result=res)
+        dt = time.perf_counter() - t1 - (stats["sampling_s"] - s0)
+        t_render += dt
+        starts += int(sum(v.get("starts", 0) for v in run["blender"].values()))
+        per_asset[a.name]["render_wall_s"] = round(dt, 3)
+        if res.failed:
+            f = res.first_failure
+            raise ScanError(out, f"{res.failed} of {res.n} images failed; first: image "
+                                 f"{f['index']} ({a.name}): {f.get('error')}")
+
+    summary = rr._index_and_sheet(out, n, min(n, settings.sheet_images))
+    counts = _check_index(out, assets, assign)
+    info = dataset_info(out, assets, counts, settings, n)
+    write_json(out / INFO, info)
+    write_text(out / CARD, dataset_card(info, read_label(out / label_name(0)).doc))
+    shutil.rmtree(out / ".tmp", ignore_errors=True)
+    wall = time.perf_counter() - t0
+    timings = {"n_images": n, "rendered": res.n, "skipped_done": n - res.n, **prep,
+               "workers": how["workers"], "scheduler": how["scheduler"] or "LocalCluster",
+               "threads_per_blender": how["threads"], "shards": stats["shards"], "blender_starts": starts,
+               "sampling_s": round(stats["sampling_s"], 3), "render_wall_s": round(t_render, 3),
+               "images_per_s": round(res.n / t_render, 4) if res.n and t_render > 0 else None,
+               "s_per_image": round(t_render / res.n, 4) if res.n else None,
+               "landmark_check_max_mm": summary["landmark_check_max_mm"], "rejections": summary["rejections"],
+               "per_asset": per_asset, "counts": {a.name: int(counts[a.id]) for a in assets},
+               "wall_s": round(wall, 3)}
+    write_json(out / TIMINGS, timings)
+    return timings
+
+
+# --------------------------------------------------------------------------------- command line
+
+class _Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line and exit 2, like every bad input."""
+
+    def error(self, message):
+        self.exit(2, f"error: {self.prog}: {message}\n")
+
+
+def _settings(args):
+    import yaml
+
+    from pipeline.render.sampling import MAX_IMAGES, RenderSettings
+
+    if not 1 <= args.n <= MAX_IMAGES:
+        raise ScanError("--n", f"must be between 1 and {MAX_IMAGES} (got {args.n})")
+    params = {}
+    p = Path(args.params)
+    if p.is_file():
+        try:
+            doc = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            raise ScanError(p, f"cannot be read as YAML ({type(exc).__name__})") from None
+        params = dict((doc.get("render") if isinstance(doc, dict) else None) or {})
+    elif args.params != "params.yaml":
+        raise ScanError(p, "params file not found")
+    for item in args.set or ():
+        key, eq, value = item.partition("=")
+        if not eq or not key:
+            raise ScanError("--set", f"{item!r} is not KEY=VALUE")
+        try:
+            params[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ScanError("--set", f"{key}: {value!r} is not a YAML value") from None
+    params["n_images"] = args.n
+    for key in ("preset", "seed", "workers"):
+        if getattr(args, key) is not None:
+            params[key] = getattr(args, key)
+    if args.no_progress:
+        params["progress"] = False
+    return RenderSettings.from_params(params, source=args.params)
+
+
+def main(argv=None) -> int:
+    ap = _Parser(prog="python -m pipeline.render.dataset", description=__doc__.splitlines()[0])
+    ap.add_argument("--assets", nargs="+", required=True, help="rigged_assets/<scan> folders (rigged_assets/* "
+                                                               "works: the shared eyeball is skipped)")
+    ap.add_argument("--n", type=int, required=True, help="images in the dataset")
+    ap.add_argument("--out", type=Path, required=True, help="the dataset folder (new, empty or earlier dataset)")
+    ap.add_argument("--weights", nargs="+", default=None, help="one weight per asset (default: equal)")
+    ap.add_argument("--rigs", nargs="+", default=None, help="build/<scan>/rig per asset (default: beside it)")
+    ap.add_argument("--preset", default=None, help="render preset (default: the params' render.preset)")
+    ap.add_argument("--seed", type=int, default=None, help="default: the params' render.seed")
+    ap.add_argument("--params", default="params.yaml", help="its render: block gives the settings")
+    ap.add_argument("--set", nargs="+", default=None, metavar="KEY=VALUE",
+                    help="override render settings (YAML values), e.g. width=240 height=160 samples=32")
+    ap.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes")
+    ap.add_argument("--scheduler", default=None, help="dask scheduler address (default: a LocalCluster)")
+    ap.add_argument("--no-progress", action="store_true")
+    args = ap.parse_args(argv)
+
+    from pipeline.io.scratch import stage_scratch
+
+    try:
+        settings = _settings(args)
+        pairs, skipped = asset_inputs(args.assets, args.rigs)
+        check_out(args.out)
+        for f in skipped:
+            print(f"note: skipped {f} (the shared eyeball, not a head)", file=sys.stderr)
+        assets = load_assets(pairs, args.weights, settings)
+        with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
+            m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
+                               progress=not args.no_progress)
+    except ScanError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("error: interrupted (a re-run resumes)", file=sys.stderr)
+        return 130
+    rate = f", {m['images_per_s']:.2f} images/s" if m["images_per_s"] else ""
+    print(f"{args.out}: {m['n_images']} images of {len(assets)} assets ({m['rendered']} rendered, "
+          f"{m['skipped_done']} kept{rate}, {m['wall_s']:.1f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("PYTHONHASHSEED", "0")
+    raise SystemExit(main())

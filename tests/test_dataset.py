@@ -1,0 +1,215 @@
+"""``python -m pipeline.render.dataset``: several assets mixed by weight in one resumable render;
+the dataset card.
+
+Two tiny assets (conftest.make_render_asset, different names and licences) render 24 x 16 px
+images at 1 sample. The mix is tested exactly: counts come from largest-remainder allocation,
+so every asset gets its quota rounded up or down, never a sampled count.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import make_render_asset
+from pipeline.io.labels_file import read_index, read_label
+from pipeline.render import labels as lb
+from pipeline.render import mix
+from pipeline.render.sampling import MAX_IMAGES
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
+        "connect_timeout_s": 3, "sheet_images": 4}
+LICENCES = {"alpha": "CC0-1.0 (test alpha)", "beta": "CC-BY-4.0 (test beta)"}
+
+
+# ------------------------------------------------------------------------------- the mix (no Blender)
+
+def _largest_remainder(n, weights):
+    """Hamilton's method in exact rational arithmetic (integer weights)."""
+    quota = [Fraction(n * w, sum(weights)) for w in weights]
+    base = [q.numerator // q.denominator for q in quota]
+    order = sorted(range(len(weights)), key=lambda k: (-(quota[k] - base[k]), k))
+    for k in order[:n - sum(base)]:
+        base[k] += 1
+    return base
+
+
+def test_mixing_weights_respected_exactly():
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        k = int(rng.integers(1, 7))
+        weights = [int(x) for x in rng.integers(1, 20, size=k)]
+        n = int(rng.integers(0, 5000))
+        counts = mix.allocate(n, weights)
+        assert counts.sum() == n
+        quota = n * np.asarray(weights, float) / sum(weights)
+        assert np.all(np.abs(counts - quota) < 1)                     # the stated tolerance: < 1 image
+        assert counts.tolist() == _largest_remainder(n, weights)
+        a = mix.assign(n, weights, seed=int(rng.integers(0, 2**40)))
+        assert a.shape == (n,) and np.bincount(a, minlength=k).tolist() == counts.tolist()
+    # float weights: the quotas, exactly split
+    assert mix.allocate(10, [2.5, 1.25, 1.25]).tolist() == [5, 3, 2]
+    assert mix.allocate(10000, [2, 1, 1]).tolist() == [5000, 2500, 2500]
+
+
+def test_assignment_is_a_pure_function_of_the_seed_and_mixes_every_slice():
+    a = mix.assign(1000, [1, 1], seed=0)
+    assert np.array_equal(a, mix.assign(1000, [1, 1], seed=0))
+    assert not np.array_equal(a, mix.assign(1000, [1, 1], seed=1))
+    for lo in range(0, 1000, 100):                                    # interleaved, not in blocks
+        assert 25 <= np.count_nonzero(a[lo:lo + 100] == 0) <= 75
+    # the mixing stream's key [seed, MIX_TAG] is no image's key [seed, index, attempt]
+    assert mix.MIX_TAG >= MAX_IMAGES
+
+
+@pytest.mark.parametrize("weights, message", [
+    ([1, 2, 3], "3 weight(s) for 2 asset(s)"), ([1, 0], "weight 2 must be a finite number > 0"),
+    ([1, "nan"], "weight 2 must be a finite number > 0"), (["x", 1], "weight 1 ('x') is not a number")])
+def test_bad_weights_named(weights, message):
+    with pytest.raises(ValueError) as ei:
+        mix.check_weights(weights, 2)
+    assert message in str(ei.value)
+
+
+# ------------------------------------------------------------------------------- the command
+
+@pytest.fixture(scope="module")
+def two(tmp_path_factory):
+    root = tmp_path_factory.mktemp("dataset")
+    made = [make_render_asset(root, name, licence=lic) for name, lic in LICENCES.items()]
+    params = root / "params.yaml"
+    params.write_text(yaml.safe_dump({"render": TINY}))
+    return {"root": root, "assets": [m["asset_dir"] for m in made], "params": params,
+            "eyeball": root / "rigged_assets" / "eyeball"}
+
+
+def _cmd(two, out, *extra, n=6, assets=None):
+    return [sys.executable, "-m", "pipeline.render.dataset", "--assets",
+            *map(str, two["assets"] if assets is None else assets), "--n", str(n), "--out", str(out),
+            "--params", str(two["params"]), "--no-progress", *extra]
+
+
+def _run(cmd, **kw):
+    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600, **kw)
+
+
+def test_bad_inputs_exit_2_with_one_line_and_nothing_written(two, tmp_path):
+    out = tmp_path / "ds"
+    broken = two["root"] / "rigged_assets" / "broken"            # a folder with a rig but no valid asset
+    broken.mkdir(exist_ok=True)
+    (broken / "broken.usda").write_text("#usda 1.0\ngarbage (((\n")
+    shutil.copytree(two["root"] / "build" / "alpha" / "rig", two["root"] / "build" / "broken" / "rig",
+                    dirs_exist_ok=True)
+    cases = [
+        (_cmd(two, out, assets=[two["assets"][0], tmp_path / "missing"]), "missing: rigged asset folder not found"),
+        (_cmd(two, out, assets=[two["assets"][0], tmp_path]), f"{tmp_path.name}/rig: no rig.npz"),
+        (_cmd(two, out, assets=[two["assets"][0], broken]), "broken.usda: USD stage could not be opened"),
+        (_cmd(two, out, assets=[two["eyeball"]]), "no scan asset given"),
+        (_cmd(two, out, n=0), "--n: must be between 1 and 1000000 (got 0)"),
+        (_cmd(two, out, "--weights", "1", "2", "3"), "--weights: 3 weight(s) for 2 asset(s)"),
+        (_cmd(two, out, "--weights", "1", "-1"), "--weights: weight 2 must be a finite number > 0"),
+        (_cmd(two, out, "--preset", "nope"), "render.preset must be one of"),
+        (_cmd(two, out, assets=[two["assets"][0], two["assets"][0]]), "asset name 'alpha' is also the name of"),
+        ([sys.executable, "-m", "pipeline.render.dataset", "--assets", str(two["assets"][0]), "--n", "6"],
+         "the following arguments are required: --out"),
+    ]
+    for cmd, message in cases:
+        r = _run(cmd)
+        assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, (cmd, r.stderr)
+        assert message in r.stderr, (message, r.stderr)
+        assert not out.exists(), message
+    taken = tmp_path / "taken"                                         # not a dataset: left alone
+    taken.mkdir()
+    (taken / "notes.txt").write_text("mine")
+    (taken / "000000.png").write_bytes(b"not yours")
+    r = _run(_cmd(two, taken))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is not a dataset folder" in r.stderr
+    assert sorted(p.name for p in taken.iterdir()) == ["000000.png", "notes.txt"]
+
+
+def _labels(out):
+    return sorted(p for p in out.glob("0*.json"))
+
+
+@pytest.fixture(scope="module")
+def resumed(two, tmp_path_factory):
+    """A 6-image dataset of alpha (weight 2) and beta (weight 1), killed after two images and resumed."""
+    out = tmp_path_factory.mktemp("resumed") / "ds"
+    cmd = _cmd(two, out, "--weights", "2", "1")
+    proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    t0 = time.time()
+    while time.time() - t0 < 180 and len(_labels(out)) < 2 and proc.poll() is None:
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.stderr.read().decode()
+    os.killpg(proc.pid, signal.SIGKILL)                               # the run and its dask/Blender children
+    proc.wait()
+    n_before = len(_labels(out))
+    assert 2 <= n_before < 6 and not (out / "index.jsonl").exists() and not (out / "README.md").exists()
+    r = _run(cmd)
+    assert r.returncode == 0, r.stderr
+    return {"out": out, "n_before": n_before, "stdout": r.stdout}
+
+
+@pytest.mark.blender
+def test_resumed_dataset_has_every_index_exactly_once(two, resumed):
+    out = resumed["out"]
+    plan = mix.assign(6, [2, 1], seed=0)
+    names = list(LICENCES)
+    rows = read_index(out / "index.jsonl")
+    assert [r["index"] for r in rows] == list(range(6))
+    assert [r["asset"] for r in rows] == [names[k] for k in plan]
+    assert sorted(p.name for p in out.glob("0*")) == sorted(f"{i:06d}.{e}" for i in range(6) for e in ("png", "json"))
+    streams = set()
+    for r in rows:
+        lab = read_label(out / r["json"])
+        assert lab.doc["asset"] == {"name": names[plan[r["index"]]], "id": int(plan[r["index"]])}
+        assert lab.doc["scan"] == names[plan[r["index"]]] and lb.check_label(lab.doc) < 0.01
+        streams.add((lab.doc["seed"]["seed"], lab.doc["seed"]["index"]))
+    assert len(streams) == 6                                          # no two images share a random stream
+    t = json.loads((out / "timings.json").read_text())
+    assert t["skipped_done"] >= resumed["n_before"] and t["rendered"] == 6 - t["skipped_done"]
+    assert t["counts"] == {"alpha": 4, "beta": 2} and not (out / ".tmp").exists()
+    info = json.loads((out / "dataset.json").read_text())
+    assert [(a["name"], a["count"], a["licence"]) for a in info["assets"]] == [
+        ("alpha", 4, LICENCES["alpha"]), ("beta", 2, LICENCES["beta"])]
+    card = (out / "README.md").read_text()
+    for text in ("| 0 | `alpha` | 2 | 0.6667 | 4 | CC0-1.0 (test alpha)", "| 1 | `beta` | 1 | 0.3333 | 2 | CC-BY-4.0",
+                 "24 x 16 px", "Label schema 1", "`asset.id`: integer", "`landmarks.px`: numbers, shape (28, 2)",
+                 "no segmentation masks", "pixel centres at +0.5"):
+        assert text in card, text
+    assert (out / "contact_sheet.png").is_file()
+    # run again: nothing to render, the same files
+    before = {p.name: p.read_bytes() for p in out.glob("0*")}
+    r = _run(_cmd(two, out, "--weights", "2", "1"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((out / "timings.json").read_text())["rendered"] == 0
+    assert {p.name: p.read_bytes() for p in out.glob("0*")} == before
+
+
+@pytest.mark.blender
+def test_changed_weights_rerender_only_the_images_whose_asset_changed(two, resumed, tmp_path):
+    out = tmp_path / "ds"
+    shutil.copytree(resumed["out"], out)
+    old, new = mix.assign(6, [2, 1], seed=0), mix.assign(5, [1, 1], seed=0)
+    changed = int(np.count_nonzero(old[:5] != new))
+    keep = {f"{i:06d}.png": (out / f"{i:06d}.png").read_bytes() for i in range(5) if old[i] == new[i]}
+    r = _run(_cmd(two, out, "--weights", "1", "1", n=5))
+    assert r.returncode == 0, r.stderr
+    t = json.loads((out / "timings.json").read_text())
+    assert t["rendered"] == changed and t["skipped_done"] == 5 - changed and t["stale_images"] == changed
+    assert [r["asset_id"] for r in read_index(out / "index.jsonl")] == new.tolist()
+    assert not (out / "000005.json").exists()
+    assert all((out / k).read_bytes() == v for k, v in keep.items())
