@@ -1,5 +1,5 @@
 """``python -m pipeline.render.dataset``: several assets mixed by weight in one resumable render;
-the dataset card.
+the dataset card; ``examples/load_dataset.py``.
 
 Two tiny assets (conftest.make_render_asset, different names and licences) render 24 x 16 px
 images at 1 sample. The mix is tested exactly: counts come from largest-remainder allocation,
@@ -8,6 +8,7 @@ so every asset gets its quota rounded up or down, never a sampled count.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import shutil
@@ -29,6 +30,7 @@ from pipeline.render import mix
 from pipeline.render.sampling import MAX_IMAGES
 
 ROOT = Path(__file__).resolve().parents[1]
+LOADER = ROOT / "examples" / "load_dataset.py"
 TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
         "connect_timeout_s": 3, "sheet_images": 4}
 LICENCES = {"alpha": "CC0-1.0 (test alpha)", "beta": "CC-BY-4.0 (test beta)"}
@@ -213,3 +215,47 @@ def test_changed_weights_rerender_only_the_images_whose_asset_changed(two, resum
     assert [r["asset_id"] for r in read_index(out / "index.jsonl")] == new.tolist()
     assert not (out / "000005.json").exists()
     assert all((out / k).read_bytes() == v for k, v in keep.items())
+
+
+@pytest.mark.blender
+def test_loader_example_reads_arrays_without_the_project(resumed, tmp_path):
+    out = resumed["out"]
+    # a subprocess in which importing pipeline or stages fails: the example must not need them
+    code = ("import runpy, sys\n"
+            "class Block:\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name.split('.')[0] in ('pipeline', 'stages', 'conftest'):\n"
+            "            raise ImportError('project import: ' + name)\n"
+            "sys.meta_path.insert(0, Block())\n"
+            "sys.argv = sys.argv[1:]\n"
+            "runpy.run_path(sys.argv[0], run_name='__main__')\n")
+    r = subprocess.run([sys.executable, "-c", code, str(LOADER), str(out)], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "images        (6, 16, 24, 3) uint8" in r.stdout and "landmarks     (6, 28, 2) float32" in r.stdout
+    assert "gaze          (6, 3) float32" in r.stdout and "per asset     alpha: 4, beta: 2" in r.stdout
+    spec = importlib.util.spec_from_file_location("load_dataset", LOADER)
+    loader = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(loader)
+    data = loader.load_dataset(out)
+    assert data["asset_ids"].tolist() == mix.assign(6, [2, 1], seed=0).tolist() and data["masks"] is None
+    assert data["asset_names"] == ["alpha", "beta"]
+    lab = read_label(out / "000003.json")
+    np.testing.assert_allclose(data["landmarks"][3], lab.px, atol=1e-4)
+    np.testing.assert_allclose(data["gaze"][3], lab.doc["gaze"]["vector_camera"], atol=1e-6)
+    assert data["images"].dtype == np.uint8 and data["images"].std() > 1
+    assert loader.check(data)["reprojection_px_max"] < 0.01
+    # masks, when dataset.json names them: one class id per pixel from the indexed PNGs
+    from PIL import Image
+
+    copy = tmp_path / "with_masks"
+    shutil.copytree(out, copy)
+    info = json.loads((copy / "dataset.json").read_text())
+    info["masks"] = {"file": "NNNNNN_seg.png", "format": "8-bit indexed PNG", "classes": {"0": "background"}}
+    (copy / "dataset.json").write_text(json.dumps(info))
+    for i in range(6):
+        im = Image.fromarray(np.full((16, 24), i, np.uint8), mode="P")
+        im.putpalette([v for k in range(256) for v in (k, 0, 255 - k)])
+        im.save(copy / f"{i:06d}_seg.png", optimize=False)
+    masks = loader.load_dataset(copy)["masks"]
+    assert masks.shape == (6, 16, 24) and masks.dtype == np.uint8 and masks[:, 0, 0].tolist() == list(range(6))
