@@ -173,7 +173,8 @@ def test_resumed_dataset_has_every_index_exactly_once(two, resumed):
     rows = read_index(out / "index.jsonl")
     assert [r["index"] for r in rows] == list(range(6))
     assert [r["asset"] for r in rows] == [names[k] for k in plan]
-    assert sorted(p.name for p in out.glob("0*")) == sorted(f"{i:06d}.{e}" for i in range(6) for e in ("png", "json"))
+    assert sorted(p.name for p in out.glob("0*")) == sorted(f"{i:06d}{e}" for i in range(6)
+                                                             for e in (".png", ".json", "_seg.png", "_depth.exr"))
     streams = set()
     for r in rows:
         lab = read_label(out / r["json"])
@@ -190,7 +191,7 @@ def test_resumed_dataset_has_every_index_exactly_once(two, resumed):
     card = (out / "README.md").read_text()
     for text in ("| 0 | `alpha` | 2 | 0.6667 | 4 | CC0-1.0 (test alpha)", "| 1 | `beta` | 1 | 0.3333 | 2 | CC-BY-4.0",
                  "24 x 16 px", "Label schema 1", "`asset.id`: integer", "`landmarks.px`: numbers, shape (28, 2)",
-                 "no segmentation masks", "pixel centres at +0.5"):
+                 "`NNNNNN_seg.png`: 8-bit indexed PNG", "pixel centres at +0.5"):
         assert text in card, text
     assert (out / "contact_sheet.png").is_file()
     # run again: nothing to render, the same files
@@ -238,7 +239,8 @@ def test_loader_example_reads_arrays_without_the_project(resumed, tmp_path):
     loader = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(loader)
     data = loader.load_dataset(out)
-    assert data["asset_ids"].tolist() == mix.assign(6, [2, 1], seed=0).tolist() and data["masks"] is None
+    assert data["asset_ids"].tolist() == mix.assign(6, [2, 1], seed=0).tolist()
+    assert data["masks"].shape == (6, 16, 24) and data["masks"].max() <= 6       # render.masks (default on)
     assert data["asset_names"] == ["alpha", "beta"]
     lab = read_label(out / "000003.json")
     np.testing.assert_allclose(data["landmarks"][3], lab.px, atol=1e-4)

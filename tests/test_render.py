@@ -271,10 +271,14 @@ def test_config_change_removes_stale_images(tmp_path):
     for i in range(3):
         (out / f"{i:06d}.png").write_bytes(b"x")
         (out / f"{i:06d}.json").write_text("{}")
+        (out / f"{i:06d}_seg.png").write_bytes(b"x")          # mask and depth map (render.masks)
+        (out / f"{i:06d}_depth.exr").write_bytes(b"x")
     (out / "000003.png").write_bytes(b"half")               # unfinished: no JSON
+    (out / "000003_seg.png").write_bytes(b"half")
     (out / "config.json").write_text(json.dumps({"config_hash": "a"}))
     rr.prepare_out(out, "a", 2)                               # same config, fewer images
-    assert sorted(p.name for p in out.glob("0*")) == ["000000.json", "000000.png", "000001.json", "000001.png"]
+    assert sorted(p.name for p in out.glob("0*")) == sorted(f"{i:06d}{e}" for i in range(2)
+                                                             for e in (".json", ".png", "_seg.png", "_depth.exr"))
     info = rr.prepare_out(out, "b", 2)                        # another config: everything stale
     assert info["stale_config"] and not list(out.glob("0*"))
 
@@ -320,7 +324,8 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     assert r.returncode == 0, r.stderr
     lines = read_index(out / "index.jsonl")
     assert [x["index"] for x in lines] == list(range(6))
-    assert sorted(p.name for p in out.glob("0*")) == sorted(f"{i:06d}.{e}" for i in range(6) for e in ("png", "json"))
+    assert sorted(p.name for p in out.glob("0*")) == sorted(f"{i:06d}{e}" for i in range(6)
+                                                             for e in (".png", ".json", "_seg.png", "_depth.exr"))
     m = read_stage_metrics(out.parent / "tiny.metrics.json")
     assert m["skipped_done"] >= n_before and m["rendered"] == 6 - m["skipped_done"]
     assert m["landmark_check_max_mm"] < 0.01
@@ -334,7 +339,8 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     s = _settings(n_images=6)
     fresh = lb.make_label(sp.make_sample(tiny["asset"], s, 3, "/x.png"), s, tiny["asset"].name)
     stored = read_label(out / "000003.json").doc
-    extra = {k: stored["landmarks"].pop(k) for k in ("apparent_px", "apparent_order")}
+    extra = {k: stored["landmarks"].pop(k) for k in ("apparent_px", "apparent_order", "visible", "occlusion",
+                                                     "visibility_rule")}
     assert stored["landmarks"] == json.loads(json.dumps(fresh["landmarks"]))
     sheet = Image.open(out / "contact_sheet.png")
     assert sheet.size == tuple(m["contact_sheet_px"])

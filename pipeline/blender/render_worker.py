@@ -87,7 +87,9 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.blender.lashes import LASHES, add_lash_objects, lash_curves
-from pipeline.blender.materials import eyelash_material, set_tint, setup_eyeball_materials, skin_material, thin_coat
+from pipeline.blender.materials import (CORNEA_IOR, eyelash_material, set_tint, setup_eyeball_materials,
+                                        skin_material, thin_coat)
+from pipeline.blender.seg_passes import SegPasses
 from pipeline.blender.scene import add_inbetween_keys, bundled_hdri, evaluated_vertices, find_image, import_usd
 from pipeline.eyeball.textures import IRIS_COLORS, SCLERA_TINTS, VEINS  # the asset's variants (no bpy)
 from pipeline.geometry.frame import quat_to_matrix
@@ -271,6 +273,7 @@ class Worker:
 
         self._setup_render(threads, tile_size)
         self._setup_lashes()
+        self.seg = SegPasses(self, not thin_sclera_coat, CORNEA_IOR, CAMERA_PULLBACK_M)   # set up on first use
         for m in self.bpy.data.materials:
             for n in (m.node_tree.nodes if m.node_tree else ()):
                 if n.type == "BSDF_PRINCIPLED":
@@ -518,6 +521,9 @@ class Worker:
         detail = spec.get("skin_detail", "bump")
         if detail not in SKIN_DETAIL:
             raise ValueError(f"skin_detail {detail!r} not in {SKIN_DETAIL}")
+        outs = {k: Path(spec[k]) for k in ("seg_png", "depth_exr") if spec.get(k)}
+        if any(not p.is_absolute() or not p.parent.is_dir() for p in outs.values()):
+            raise ValueError("seg_png / depth_exr: absolute paths in an existing folder")
         lm_in = np.asarray(spec["landmarks_head_mm"], float)
         if lm_in.shape != (28, 3) or not np.all(np.isfinite(lm_in)):
             raise ValueError(f"landmarks_head_mm must be 28 x 3 finite numbers, got shape {lm_in.shape}")
@@ -538,6 +544,8 @@ class Worker:
         self.bpy.context.view_layer.update()
         measured = self._lashes_and_landmarks(side, bool(spec.get("lashes", True)))
         check = float(np.linalg.norm(measured - lm_in, axis=1).max())
+        if outs:
+            self.seg.before_render(self.bpy.context.evaluated_depsgraph_get())
         tmp = png.with_name(f".{png.stem}.tmp{os.getpid()}.png")
         self.scene.render.filepath = str(tmp)
         t1, c1 = time.perf_counter(), time.process_time()
@@ -546,9 +554,15 @@ class Worker:
         if not tmp.is_file():
             raise RuntimeError("Blender wrote no image")
         os.replace(tmp, png)
+        t2 = time.perf_counter()
+        if outs:
+            self.seg.after_render(outs.get("seg_png"), outs.get("depth_exr"),
+                                  png.with_name(f".{png.stem}.passes{os.getpid()}.exr"))
+        passes_s = time.perf_counter() - t2
         return {"index": spec.get("index"), "ok": True, "render_s": round(t_render, 4),
                 "render_cpu_s": round(c_render, 4), "total_s": round(time.perf_counter() - t0, 4),
                 "total_cpu_s": round(time.process_time() - c0, 4), "rss_mib": rss_mib(),
+                "passes_s": round(passes_s, 4),
                 "landmark_check_mm": check, "landmarks_measured_head_mm": measured.round(6).tolist()}
 
 

@@ -11,7 +11,12 @@ this module owns the file: ``{"schema": 1, "index": i, "scan": ..., "image": {..
 
 :func:`read_label` validates the schema and every field a consumer relies on (index, image
 size, camera matrices, gaze, the 28 landmarks in pixels / camera mm / head mm, attempts,
-lighting map, skin detail) and refuses anything else with one line naming the file. Each
+lighting map, skin detail) and refuses anything else with one line naming the file. Labels
+rendered with ``render.masks`` (schema 1 extended; labels without these fields still read) also
+carry ``"seg": {"file": "NNNNNN_seg.png", ...}``, ``"depth": {"file": "NNNNNN_depth.exr", ...}``
+(files beside the label, pipeline/io/seg_file.py) and per landmark ``landmarks.visible`` (28
+booleans) and ``landmarks.occlusion`` (null where visible, else ``lid``, ``lashes``, ``eye`` or
+``outside``; pipeline/render/visibility.py), checked when present. Each
 ``index.jsonl`` line is ``{"index", "png", "json", "eye", "gaze_camera_deg",
 "landmark_check_mm"}`` (plus ``"asset"`` and ``"asset_id"`` for the images of a dataset,
 whose labels carry ``"asset": {"name", "id"}``); :func:`read_index` checks every line and
@@ -69,6 +74,8 @@ class Label:
     camera_mm: np.ndarray
     head_mm: np.ndarray
     doc: dict = field(repr=False)
+    visible: np.ndarray | None = None    # (28,) bool, with render.masks (else None)
+    occlusion: list | None = None        # 28 of None | "lid" | "lashes" | "eye" | "outside"
 
 
 def write_label(path, label: dict) -> None:
@@ -109,13 +116,36 @@ def read_label(path) -> Label:
     check = df.field(doc, "landmark_check_mm", path, default=None)
     if check is not None:
         df.number(doc, "landmark_check_mm", path)
+    visible, occlusion = _visibility(doc, path)
     return Label(path=path, index=index, width=w, height=h, eye=eye,
                  projection=df.array_field(doc, "camera.projection", (3, 4), path),
                  world_to_camera=df.array_field(doc, "camera.world_to_camera", (4, 4), path),
                  px=df.array_field(doc, "landmarks.px", (N_LANDMARKS, 2), path),
                  camera_mm=df.array_field(doc, "landmarks.camera_mm", (N_LANDMARKS, 3), path),
                  head_mm=df.array_field(doc, "landmarks.head_mm", (N_LANDMARKS, 3), path),
-                 doc=doc)
+                 doc=doc, visible=visible, occlusion=occlusion)
+
+
+OCCLUSIONS = ("lid", "lashes", "eye", "outside")
+
+
+def _visibility(doc: dict, path):
+    """``landmarks.visible`` / ``occlusion`` and the ``seg`` / ``depth`` file names, checked when
+    the label has them (render.masks; labels written without masks have none of them)."""
+    if not any(k in doc for k in ("seg", "depth")) and not any(
+            k in doc.get("landmarks", {}) for k in ("visible", "occlusion")):
+        return None, None
+    for k in ("seg.file", "depth.file"):
+        df.plain_name(doc, k, path, Path(path).parent)
+    vis = df.field(doc, "landmarks.visible", path, list)
+    occ = df.field(doc, "landmarks.occlusion", path, list)
+    if len(vis) != N_LANDMARKS or not all(isinstance(v, bool) for v in vis):
+        raise ScanError(path, f"landmarks.visible must be {N_LANDMARKS} true/false values")
+    if len(occ) != N_LANDMARKS or any((o is None) != v or (o is not None and o not in OCCLUSIONS)
+                                      for v, o in zip(vis, occ)):
+        raise ScanError(path, f"landmarks.occlusion must be {N_LANDMARKS} entries: null where visible, else one "
+                              f"of {', '.join(OCCLUSIONS)}")
+    return np.array(vis, bool), list(occ)
 
 
 def index_row(label: Label) -> dict:

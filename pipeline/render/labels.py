@@ -35,7 +35,7 @@ def _ring_radius(P) -> float:
 
 
 #: Worker reply fields that measure time, not the image: kept out of the labels.
-TIMING_KEYS = ("render_s", "total_s", "render_cpu_s", "total_cpu_s")
+TIMING_KEYS = ("render_s", "total_s", "render_cpu_s", "total_cpu_s", "passes_s")
 
 
 def make_label(smp: sp.Sample, settings: sp.RenderSettings, scan: str, reply: dict | None = None) -> dict:

@@ -59,7 +59,7 @@ def run_options(settings, out: Path, scheduler: str | None = None) -> dict:
         threads = max(1, (os.cpu_count() or 1) // workers)
     opts = {"threads": threads, "tile_size": settings.tile_size,
             "tolerance_mm": settings.landmark_tolerance_mm, "log_dir": str((Path(out) / ".tmp").resolve()),
-            "image_timeout_s": settings.image_timeout_s}
+            "image_timeout_s": settings.image_timeout_s, "masks": settings.masks}
     return {"workers": workers, "scheduler": scheduler, "threads": threads, "opts": opts,
             "window": max(64, settings.shard_size * len(settings.hdris) * 4)}
 
@@ -81,9 +81,11 @@ def read_config(out: Path) -> dict | None:
 
 
 def _image_files(out: Path):
+    """``(index, path)`` of every file of a numbered image: ``NNNNNN.png/.json`` and the mask and
+    depth map ``NNNNNN_seg.png`` / ``NNNNNN_depth.exr`` (pipeline/io/seg_file.py)."""
     for p in out.iterdir():
-        stem = p.name.split(".")[0]
-        if p.suffix in (".png", ".json") and stem.isdigit() and len(stem) == 6:
+        stem = p.name.split(".")[0].removesuffix("_seg").removesuffix("_depth")
+        if p.suffix in (".png", ".json", ".exr") and stem.isdigit() and len(stem) == 6:
             yield int(stem), p
 
 

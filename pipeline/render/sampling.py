@@ -122,6 +122,9 @@ class RenderSettings(Settings):
     hdris: tuple[str, ...] = setting(HDRIS, min_len=1, max_len=1000)
     max_attempts: int = setting(100, ge=1, le=100_000)
     landmark_tolerance_mm: float = setting(0.01, gt=0, le=10)
+    # per image also NNNNNN_seg.png, NNNNNN_depth.exr and landmark visibility, from the same render's
+    # passes (pipeline/render/seg.py, visibility.py)
+    masks: bool = True
     presets: dict[str, RenderPreset] = setting(
         default_factory=lambda: {k: RenderPreset(**v) for k, v in PRESETS.items()})
     # how to run (RUN_KEYS: not part of the config hash)

@@ -31,6 +31,7 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.io.labels_file import label_name, write_label
 from pipeline.io.png import strip_png_metadata
+from pipeline.io.seg_file import depth_name, read_depth, read_seg, seg_name
 from pipeline.io.scratch import die_with_parent
 
 REPLY_PREFIX = "@@render@@ "
@@ -180,6 +181,24 @@ def apparent_landmarks(job: dict) -> dict:
     return {"apparent_px": px, "apparent_order": job["order"]}
 
 
+def add_masks(label: dict, spec: dict, extra: dict | None) -> None:
+    """Add the mask and depth files and the landmarks' visibility (pipeline/render/visibility.py,
+    from the worker's seg PNG and depth EXR) to ``label``."""
+    from pipeline.render import seg as sg
+    from pipeline.render import visibility as vis
+
+    w, h = int(spec["width"]), int(spec["height"])
+    seg = read_seg(spec["seg_png"], (w, h))
+    depth = read_depth(spec["depth_exr"], (w, h))
+    lm = label["landmarks"]
+    v = vis.landmark_visibility(lm["px"], (extra or {}).get("apparent_px"),
+                                -np.asarray(lm["camera_mm"], float)[:, 2], seg, depth, label["camera"]["mm_per_px"])
+    label["landmarks"] = dict(lm, visible=v["visible"], occlusion=v["occlusion"], visibility_rule=vis.RULE)
+    label["seg"] = {"file": Path(spec["seg_png"]).name, "classes": sg.classes_text(), "rule": sg.RULE}
+    label["depth"] = {"file": Path(spec["depth_exr"]).name, "units": "mm", "channel": "Z",
+                      "convention": sg.DEPTH_CONVENTION}
+
+
 def done(out_dir, index: int) -> bool:
     """Is image ``index`` finished (its PNG and, written last, its JSON exist)?"""
     out = Path(out_dir)
@@ -205,6 +224,9 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
         label = dict(label)
         job = label.pop("_apparent_job", None)
         extra = None
+        if opts.get("masks"):             # seg mask + depth map from the same render (into .tmp/)
+            tmp = Path(spec["png"]).parent
+            spec = {**spec, "seg_png": str(tmp / seg_name(i)), "depth_exr": str(tmp / depth_name(i))}
         for attempt in range(2):          # one restart if Blender died under us
             try:
                 bp = get_blender(asset, rig, opts)
@@ -231,8 +253,18 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
                 label["landmark_check_mm"] = float(check)
                 # timings (render_s, cpu seconds, rss) go to the stage metrics, never into the
                 # label: the same sample must give the same bytes
+                if opts.get("masks"):
+                    try:
+                        add_masks(label, spec, extra)
+                    except ScanError as exc:          # the worker's seg / depth file is unusable
+                        res.update(ok=False, error=f"masks: {exc}")
+                        results.append(res)
+                        continue
                 strip_png_metadata(spec["png"])        # Blender's Date/Time/RenderTime text chunks
                 os.replace(spec["png"], out / f"{i:06d}.png")
+                for k in ("seg_png", "depth_exr"):
+                    if k in spec:
+                        os.replace(spec[k], out / Path(spec[k]).name)
                 write_label(out / label_name(i), label)
         results.append(res)
     return results
