@@ -125,6 +125,7 @@ class RenderAsset:
         pkg = Path(__file__).resolve().parents[1]
         files |= set((pkg / "render").glob("*.py")) | set((pkg / "blender").glob("*.py"))
         files.add(pkg / "io" / "labels_file.py")            # the label files' writer
+        files |= {pkg / "io" / "unityeyes_file.py", pkg / "io" / "pts_file.py"}   # the other formats'
         h = hashlib.sha256()
         for p in sorted(files):
             if p.is_file():

@@ -81,12 +81,19 @@ def read_config(out: Path) -> dict | None:
 
 
 def _image_files(out: Path):
-    """``(index, path)`` of every file of a numbered image: ``NNNNNN.png/.json`` and the mask and
-    depth map ``NNNNNN_seg.png`` / ``NNNNNN_depth.exr`` (pipeline/io/seg_file.py)."""
-    for p in out.iterdir():
-        stem = p.name.split(".")[0].removesuffix("_seg").removesuffix("_depth")
-        if p.suffix in (".png", ".json", ".exr") and stem.isdigit() and len(stem) == 6:
-            yield int(stem), p
+    """``(index, path)`` of every file of a numbered image: ``NNNNNN.png/.json``, the mask and
+    depth map ``NNNNNN_seg.png`` / ``NNNNNN_depth.exr`` (pipeline/io/seg_file.py), the 300-W
+    ``NNNNNN.pts`` and the UnityEyes pair ``unityeyes/NNNNNN.json/.jpg``
+    (pipeline/render/label_formats.py)."""
+    from pipeline.render.label_formats import UNITYEYES_DIR
+
+    for folder, suffixes in ((out, (".png", ".json", ".exr", ".pts")), (out / UNITYEYES_DIR, (".json", ".jpg"))):
+        if not folder.is_dir():
+            continue
+        for p in folder.iterdir():
+            stem = p.name.split(".")[0].removesuffix("_seg").removesuffix("_depth")
+            if p.suffix in suffixes and stem.isdigit() and len(stem) == 6:
+                yield int(stem), p
 
 
 def prepare_out(out: Path, chash: str, n_images: int) -> dict:
@@ -103,9 +110,9 @@ def prepare_out(out: Path, chash: str, n_images: int) -> dict:
         (out / name).unlink(missing_ok=True)
     shutil.rmtree(out / ".tmp", ignore_errors=True)
     (out / ".tmp").mkdir()
-    for p in out.glob("*.png"):                       # a PNG without its JSON is unfinished
-        stem = p.stem
-        if stem.isdigit() and not (out / f"{stem}.json").is_file():
+    for i, p in list(_image_files(out)):              # files of an image without its label: unfinished
+        label = out / f"{i:06d}.json"
+        if p != label and not label.is_file():
             p.unlink()
     return {"stale_config": bool(stale and old is not None), "removed_files": removed}
 
@@ -114,6 +121,7 @@ def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict
     """Shards of ``(spec, label)`` pairs, sampled lazily ``window`` images at a time (memory stays
     flat for any n_images): within a window, one HDRI per shard, at most ``shard_size`` images.
     A sample that cannot be drawn is a ScanError naming ``source``."""
+    from pipeline.render import label_formats as lf
     from pipeline.render import labels as lb
     from pipeline.render import sampling as sp
 
@@ -132,6 +140,9 @@ def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict
             label = lb.make_label(smp, settings, asset.name)
             if asset.eyes[smp.side].eyeball_params:
                 label["_apparent_job"] = lb.apparent_job(smp, asset.eyes[smp.side], settings)
+            formats = lf.format_job(asset, smp, settings.label_formats)
+            if formats is not None:                  # unityeyes / pts files (written before the label)
+                label["_formats"] = formats
             by_hdri.setdefault(smp.spec["lighting"]["hdri"], []).append((smp.spec, label))
         stats["sampling_s"] += time.perf_counter() - t0
         k = settings.shard_size

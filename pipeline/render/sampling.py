@@ -11,7 +11,8 @@ Posing (SynthesEyes section 4.1), for one sample drawn with
    looks at ``c`` (plus a small random in-plane shift ``center_jitter_mm``) from
    ``c + camera_distance_mm * d``; image up = the eye's up ``e_y`` projected off ``d`` (no
    roll), image right = up x d. Orthographic scale (the image width, mm) uniform in
-   ``ortho_scale_mm``.
+   ``ortho_scale_mm``, or, with ``iris_distance_px`` (the ``unityeyes`` preset), the scale that
+   puts the iris centre that many pixels from the eyeball centre (:func:`iris_framed_scale`).
 3. **Gaze**: eye contact (``d``, towards the orthographic camera) expressed as pitch/yaw in
    the eye's rest frame (``e_x`` = towards head +X = subject's left, ``e_y`` up, ``f``), plus
    offsets drawn from the grid ``k * gaze_step_deg``, ``|k * step| <= gaze_offset_max_deg``
@@ -69,6 +70,13 @@ PRESETS = {
     "generic": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 45.0, "gaze_step_deg": 10.0},
     # paper's laptop setting: 10 deg pose, 20 deg gaze variation
     "targeted": {"camera_polar_max_deg": 5.0, "gaze_offset_max_deg": 10.0, "gaze_step_deg": 5.0},
+    # framed as UnityEyes frames its images, so that GazeML's UnityEyes loader (eyeball centre at the
+    # image centre, iris centre 71.7593 px from it along the gaze) holds; see
+    # pipeline/render/label_formats.py. UnityEyes' recommended 512 x 384, its left eye, its camera
+    # 10 units (cm) from the eyeball centre looking at it (no shift), GazeML's |head pitch|, |yaw| <= 20
+    "unityeyes": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 30.0, "gaze_step_deg": 1.0,
+                  "width": 512, "height": 384, "eyes": ("left",), "center_jitter_mm": 0.0,
+                  "camera_distance_mm": 100.0, "iris_distance_px": 71.7593},
 }
 
 
@@ -77,11 +85,18 @@ _GENERIC = PRESETS["generic"]
 
 @dataclass(frozen=True)
 class RenderPreset(Settings):
-    """One entry of ``render.presets``: pose and gaze ranges filled in by ``render.preset``."""
+    """One entry of ``render.presets``: pose and gaze ranges (and, for a preset that names them,
+    image size, eyes and framing) filled in by ``render.preset``; only the keys the entry names."""
 
     camera_polar_max_deg: float = setting(_GENERIC["camera_polar_max_deg"], ge=0, lt=80)
     gaze_offset_max_deg: float = setting(_GENERIC["gaze_offset_max_deg"], ge=0, le=90)
     gaze_step_deg: float = setting(_GENERIC["gaze_step_deg"], gt=0, le=90)
+    width: int = setting(120, ge=8, le=8192)
+    height: int = setting(80, ge=8, le=8192)
+    eyes: tuple[Literal["left", "right"], ...] = setting(("left", "right"), min_len=1, max_len=2)
+    center_jitter_mm: float = setting(1.0, ge=0, le=100)
+    camera_distance_mm: float = setting(200.0, gt=0, le=100_000)
+    iris_distance_px: float | None = setting(None, gt=0, le=100_000)
 
 
 #: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
@@ -122,6 +137,13 @@ class RenderSettings(Settings):
     hdris: tuple[str, ...] = setting(HDRIS, min_len=1, max_len=1000)
     max_attempts: int = setting(100, ge=1, le=100_000)
     landmark_tolerance_mm: float = setting(0.01, gt=0, le=10)
+    # framing for GazeML's UnityEyes loader: the orthographic scale of each image puts the iris
+    # centre this many pixels from the eyeball centre (ortho_scale_mm is then not used)
+    iris_distance_px: float | None = setting(None, gt=0, le=100_000)
+    # label files per image: eyerig (NNNNNN.json, always), unityeyes (unityeyes/NNNNNN.json + .jpg),
+    # pts (NNNNNN.pts, 300-W); pipeline/render/label_formats.py
+    label_formats: tuple[Literal["eyerig", "unityeyes", "pts"], ...] = setting(("eyerig",), min_len=1,
+                                                                                max_len=3)
     # per image also NNNNNN_seg.png, NNNNNN_depth.exr and landmark visibility, from the same render's
     # passes (pipeline/render/seg.py, visibility.py)
     masks: bool = True
@@ -164,6 +186,14 @@ class RenderSettings(Settings):
                                         f"{self.width} x {self.height})")
         if any(not h.endswith(".exr") for h in self.hdris):
             raise SettingError("hdris", "must be a list of .exr names")
+        if self.iris_distance_px is not None and self.center_jitter_mm != 0:
+            raise SettingError("center_jitter_mm", "must be 0 with iris_distance_px (GazeML's loader takes the "
+                                                   "image centre for the eyeball centre); with preset unityeyes, "
+                                                   "drop the explicit center_jitter_mm, width, height, eyes and "
+                                                   f"camera_distance_mm or set them (got {self.center_jitter_mm:g})")
+        if "eyerig" not in self.label_formats or len(set(self.label_formats)) < len(self.label_formats):
+            raise SettingError("label_formats", "must list eyerig (its label marks an image done) and each "
+                                                f"format once (got {list(self.label_formats)})")
 
     def hashed(self) -> dict:
         """The settings that change images or labels (not n_images: sample i ignores it; not how to run)."""
@@ -357,6 +387,22 @@ def _blend(pupil: float, iris: float) -> dict:
             "iris_large": max(iris, 0.0), "iris_small": max(-iris, 0.0)}
 
 
+def iris_framed_scale(eye: ra.EyeAsset, blend: dict, s: RenderSettings) -> float:
+    """Orthographic scale (image width, mm) putting the iris centre ``s.iris_distance_px`` pixels
+    from the eyeball centre.
+
+    GazeML's UnityEyes loader puts the iris centre at ``image centre + 71.7593 px * (look x,
+    -look y)`` (an orthographic eyeball of fixed radius, gaze in camera axes). Our camera is
+    orthographic and looks at the eyeball centre, so the projected iris centre (the centre of the
+    iris ring, on the gaze axis at distance ``d`` from the eyeball centre) is there exactly when
+    ``d`` mm span that many pixels. ``d`` changes with the iris size blend shapes (the iris plane
+    moves along the flattened inner sphere), so it is taken from the posed iris landmarks.
+    """
+    iris = ra.inner_points(eye, blend, np.eye(3), eye.iris)
+    d = float(np.linalg.norm(iris.mean(0) - eye.center))
+    return float(s.width) * d / float(s.iris_distance_px)
+
+
 def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: int, png: str,
                 overrides: dict | None = None) -> Sample:
     """Pose one attempt of sample ``index`` (no rejection test; see :func:`make_sample`)."""
@@ -364,6 +410,8 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
     d = _draw(asset, s, rng, overrides)
     side = d["side"]
     eye = asset.eyes[side]
+    if s.iris_distance_px and "ortho_scale_mm" not in (overrides or {}):
+        d["ortho_scale_mm"] = iris_framed_scale(eye, _blend(d["pupil"], d["iris"]), s)
     B = eye.basis
     th, ph = math.radians(d["polar_deg"]), math.radians(d["azimuth_deg"])
     view = math.cos(th) * B[2] + math.sin(th) * (math.cos(ph) * B[0] + math.sin(ph) * B[1])

@@ -9,7 +9,9 @@
   cache :data:`_BLENDER` (so Blender starts once per worker, not per task), renders every
   image whose label is not yet on disk, moves the PNG from ``.tmp/`` into place and writes
   ``NNNNNN.json`` last (atomically): a file pair with its JSON is a finished image, so a
-  killed worker loses at most its in-flight image and a resumed run skips finished ones.
+  killed worker loses at most its in-flight image and a resumed run skips finished ones. The
+  other label formats of ``render.label_formats`` (UnityEyes pair, 300-W ``.pts``;
+  pipeline/render/label_formats.py) are written just before that JSON.
 * :func:`run_shards` submits the shards to a ``LocalCluster(n_workers, threads_per_worker=1)``
   or, given a scheduler address, to that cluster (``Client(address)``) -- the same code path --
   and shows a tqdm progress bar (images/s, ETA).
@@ -33,6 +35,7 @@ from pipeline.io.labels_file import label_name, write_label
 from pipeline.io.png import strip_png_metadata
 from pipeline.io.seg_file import depth_name, read_depth, read_seg, seg_name
 from pipeline.io.scratch import die_with_parent
+from pipeline.render.label_formats import write_formats
 
 REPLY_PREFIX = "@@render@@ "
 ROOT = Path(__file__).resolve().parents[2]
@@ -223,6 +226,7 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
         reply = None
         label = dict(label)
         job = label.pop("_apparent_job", None)
+        formats = label.pop("_formats", None)
         extra = None
         if opts.get("masks"):             # seg mask + depth map from the same render (into .tmp/)
             tmp = Path(spec["png"]).parent
@@ -265,6 +269,8 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
                 for k in ("seg_png", "depth_exr"):
                     if k in spec:
                         os.replace(spec[k], out / Path(spec[k]).name)
+                if formats is not None:                 # unityeyes / pts, before the label (= done)
+                    write_formats(out, i, label, formats, out / f"{i:06d}.png")
                 write_label(out / label_name(i), label)
         results.append(res)
     return results
