@@ -38,6 +38,7 @@ SHARED = ROOT.parent / "shared"
 SYNTH_BUILD = ROOT / "build" / "synthetic_head"
 SYNTH_ASSET = ROOT / "rigged_assets" / "synthetic_head" / "synthetic_head.usda"
 EYEBALL = ROOT / "rigged_assets" / "eyeball" / "eyeball.usda"
+SYNTH_RENDERS = ROOT / "renders" / "synthetic_head"
 UNSEEN_WORK = ROOT / "benchmarks" / "out" / "unseen"
 REPORT = ROOT / "benchmarks" / "out" / "run_all.json"
 NOT_BENCHMARKS = {"__init__", "run_all"}
@@ -82,6 +83,10 @@ BENCHMARKS = (
     Benchmark("bench_render", needs=("synthetic_asset",)),
     Benchmark("bench_render_quality", modest=("--repeats", "1"), needs=("synthetic_asset",)),
     Benchmark("bench_label_formats", modest=("--images", "8"), needs=("synthetic_asset",)),
+    Benchmark("bench_masks", args=(str(SYNTH_ASSET.parent), str(SYNTH_BUILD / "rig")),
+              modest=("--n", "6"), needs=("synthetic_asset",)),
+    Benchmark("view_masks", args=(str(SYNTH_RENDERS), str(ROOT / "benchmarks" / "out" / "masks_synthetic_head.png")),
+              needs=("synthetic_renders",)),
 )
 
 
@@ -111,6 +116,9 @@ def missing(need: str) -> str | None:
     if need == "synthetic_asset":
         gone = [p for p in (SYNTH_ASSET, SYNTH_BUILD / "rig" / "rig.npz") if not p.exists()]
         return f"needs {gone[0].relative_to(ROOT)} (run `make run` first)" if gone else None
+    if need == "synthetic_renders":
+        index = SYNTH_RENDERS / "index.jsonl"
+        return None if index.is_file() else f"needs {index.relative_to(ROOT)} (run `make run` first)"
     raise ValueError(f"unknown requirement {need!r}")
 
 
