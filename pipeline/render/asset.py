@@ -39,6 +39,11 @@ N_EYELID, N_IRIS, N_PUPIL = 12, 8, 8
 N_LANDMARKS = N_EYELID + N_IRIS + N_PUPIL
 
 
+#: Modules of pipeline/render that plan datasets rather than render an image (which asset an index
+#: shows is checked per image by the dataset run): editing them must not invalidate renders.
+NOT_RENDERER = frozenset({"dataset.py", "mix.py", "card.py"})
+
+
 @dataclass
 class EyeAsset:
     """One eye of the asset.
@@ -110,8 +115,9 @@ class RenderAsset:
 
         The asset layer with all its USD dependencies (the referenced eyeball layer, every
         texture and the files beside them, from ``UsdUtils.ComputeAllDependencies``), rig.npz,
-        and the source of the renderer (``pipeline/render/*.py``, ``pipeline/blender/*.py``):
-        a changed input or renderer invalidates the images of a resumable render folder.
+        and the source of the renderer (``pipeline/render/*.py`` but the dataset orchestration
+        :data:`NOT_RENDERER`, ``pipeline/blender/*.py``, the label, mask and depth writers): a
+        changed input or renderer invalidates the images of a resumable render folder.
         """
         import hashlib
 
@@ -123,9 +129,11 @@ class RenderAsset:
         files |= {q for a in assets for q in Path(a).parent.iterdir()}   # e.g. sclera_bump.png
         files |= {self.usda, self.rig_npz}
         pkg = Path(__file__).resolve().parents[1]
-        files |= set((pkg / "render").glob("*.py")) | set((pkg / "blender").glob("*.py"))
+        files |= {p for p in (pkg / "render").glob("*.py") if p.name not in NOT_RENDERER}
+        files |= set((pkg / "blender").glob("*.py"))
         files.add(pkg / "io" / "labels_file.py")            # the label files' writer
         files |= {pkg / "io" / "unityeyes_file.py", pkg / "io" / "pts_file.py"}   # the other formats'
+        files |= {pkg / "io" / "seg_file.py", pkg / "bake" / "exr.py"}            # masks and depth maps
         h = hashlib.sha256()
         for p in sorted(files):
             if p.is_file():

@@ -199,7 +199,7 @@ def prepare_dataset(out: Path, assets, assign: np.ndarray, settings) -> dict:
         old_keys, old_assign = old
         new_keys = [f"{a.name}\0{a.config_hash}" for a in assets]
         gone = set()
-        for i, p in list(rr._image_files(out)):     # every file of an image, in every label format
+        for i, p in list(rr.image_files(out)):     # every file of an image, in every label format
             if i < n and (i >= len(old_assign) or old_keys[old_assign[i]] != new_keys[assign[i]]):
                 p.unlink()
                 gone.add(i)
@@ -307,7 +307,7 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
     assign = mix.assign(n, [a.weight for a in assets], settings.seed)
     prep = prepare_dataset(out, assets, assign, settings)
     how = rr.run_options(settings, out, scheduler)
-    res = rr._Results()
+    res = rr.Results()
     stats = {"sampling_s": 0.0, "shards": 0}
     per_asset, starts, t_render = {}, 0, 0.0
     for a in assets:
@@ -330,7 +330,7 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
             raise ScanError(out, f"{res.failed} of {res.n} images failed; first: image "
                                  f"{f['index']} ({a.name}): {f.get('error')}")
 
-    summary = rr._index_and_sheet(out, n, min(n, settings.sheet_images))
+    summary = rr.index_and_sheet(out, n, min(n, settings.sheet_images))
     counts = _check_index(out, assets, assign)
     info = dataset_info(out, assets, counts, settings, n)
     write_json(out / INFO, info)

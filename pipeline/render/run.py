@@ -80,7 +80,7 @@ def read_config(out: Path) -> dict | None:
     return doc if isinstance(doc, dict) else None
 
 
-def _image_files(out: Path):
+def image_files(out: Path):
     """``(index, path)`` of every file of a numbered image: ``NNNNNN.png/.json``, the mask and
     depth map ``NNNNNN_seg.png`` / ``NNNNNN_depth.exr`` (pipeline/io/seg_file.py), the 300-W
     ``NNNNNN.pts`` and the UnityEyes pair ``unityeyes/NNNNNN.json/.jpg``
@@ -102,7 +102,7 @@ def prepare_out(out: Path, chash: str, n_images: int) -> dict:
     old = (read_config(out) or {}).get("config_hash")
     removed = 0
     stale = old != chash
-    for i, p in list(_image_files(out)):
+    for i, p in list(image_files(out)):
         if stale or i >= n_images:
             p.unlink()
             removed += 1
@@ -110,7 +110,7 @@ def prepare_out(out: Path, chash: str, n_images: int) -> dict:
         (out / name).unlink(missing_ok=True)
     shutil.rmtree(out / ".tmp", ignore_errors=True)
     (out / ".tmp").mkdir()
-    for i, p in list(_image_files(out)):              # files of an image without its label: unfinished
+    for i, p in list(image_files(out)):              # files of an image without its label: unfinished
         label = out / f"{i:06d}.json"
         if p != label and not label.is_file():
             p.unlink()
@@ -152,7 +152,7 @@ def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict
                 yield grp[j:j + k]
 
 
-class _Results:
+class Results:
     """Per-image results of the run, aggregated as they come (no list of every image)."""
 
     def __init__(self):
@@ -178,7 +178,7 @@ class _Results:
             self.rss_max = max(self.rss_max or 0.0, r["rss_mib"])
 
 
-def _index_and_sheet(out: Path, n: int, n_sheet: int) -> dict:
+def index_and_sheet(out: Path, n: int, n_sheet: int) -> dict:
     """index.jsonl (streamed), the contact sheet, and label statistics, reading each label once."""
     from pipeline.render import shard as sh
     from pipeline.render.sheet import contact_sheet
@@ -251,7 +251,7 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
     stats = {"sampling_s": 0.0, "shards": 0}
     shards = pending_shards(asset, settings, out, pending, how["window"], stats, source)
     t1 = time.perf_counter()
-    res = _Results()
+    res = Results()
     run = {"workers": 0, "blender": {}}
     if n_pending:
         run = sh.run_shards(shards, asset.usda, asset.rig_npz, out.resolve(), opts, workers=workers,
@@ -263,7 +263,7 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
         raise ScanError(out, f"{res.failed} of {res.n} images failed; first: image "
                              f"{f['index']}: {f.get('error')}")
 
-    summary = _index_and_sheet(out, n, min(n, settings.sheet_images))
+    summary = index_and_sheet(out, n, min(n, settings.sheet_images))
     shutil.rmtree(out / ".tmp", ignore_errors=True)
 
     wall = time.perf_counter() - t0
