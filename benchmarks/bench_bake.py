@@ -40,11 +40,11 @@ def main(argv=None):
     from pipeline.bake.uv import unwrap
     from pipeline.geometry.retopo import RetopoSettings, retopologize
     from pipeline.io.meshfile import load_mesh
-    from stages.retopo import load_eyes
+    from pipeline.io.eyes_file import read_eye_loops
 
     folder = Path(args.input) if args.input else prepare_input(args.triangles)[0]
     dense = load_mesh(folder / "mesh.npz")
-    eyes = load_eyes(folder / "eyes.json", len(dense["V"]))
+    eyes = read_eye_loops(folder / "eyes.json", len(dense["V"]))
     texture = None
     if (folder / "texture.png").exists():
         texture = np.asarray(Image.open(folder / "texture.png").convert("RGB"))

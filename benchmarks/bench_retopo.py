@@ -63,14 +63,14 @@ def main(argv=None):
 
     from pipeline.geometry.retopo import RetopoSettings, retopologize
     from pipeline.io.meshfile import load_mesh
-    from stages.retopo import load_eyes
+    from pipeline.io.eyes_file import read_eye_loops
 
     if args.input:
         folder, chain = Path(args.input), {}
     else:
         folder, chain = prepare_input(args.triangles)
     mesh = load_mesh(folder / "mesh.npz")
-    eyes = load_eyes(folder / "eyes.json", len(mesh["V"]))
+    eyes = read_eye_loops(folder / "eyes.json", len(mesh["V"]))
     rows = []
     for method in args.methods:
         for target in args.targets:

@@ -17,22 +17,9 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.geometry.retopo import RetopoSettings, retopologize
 from pipeline.io.atomic import atomic_dir
-from pipeline.io.eyes_file import read_eyes
+from pipeline.io.eyes_file import read_eye_loops
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
-
-
-def load_eyes(path: Path, n_vertices: int) -> dict:
-    """eyes.json -> {side: {"center", "loop_indices", "lateral_canthus_index"}}, validated
-    against the mesh size."""
-    out = {}
-    for side, e in read_eyes(path, n_vertices).items():
-        if e.loop_indices is None:
-            raise ScanError(path, f"{side} eye: no loop_indices (write it with remove_eyeballs)")
-        out[side] = {"center": e.center, "loop_indices": e.loop_indices}
-        if e.lateral_canthus_index is not None:
-            out[side]["lateral_canthus_index"] = e.lateral_canthus_index
-    return out
 
 
 def main(argv) -> dict:
@@ -44,7 +31,7 @@ def main(argv) -> dict:
     in_dir = Path(args.in_dir)
     mesh_path = in_dir / "mesh.npz"
     mesh = read_stage_mesh(mesh_path)
-    eyes = load_eyes(in_dir / "eyes.json", len(mesh["V"]))
+    eyes = read_eye_loops(in_dir / "eyes.json", len(mesh["V"]))
     try:
         result = retopologize(mesh["V"], mesh["F"], eyes, settings)
     except ValueError as exc:
