@@ -273,3 +273,29 @@ def test_landmarks_outside_the_image(rendered):
         out = not (0 <= px[k, 0] < W and 0 <= px[k, 1] < H)
         assert (r["vis"]["occlusion"][k] == "outside") == out, k
     assert r["vis"]["occlusion"][0] == "outside" and r["vis"]["occlusion"][6] == "outside"   # both canthi
+
+
+def test_contact_sheet_shows_the_mask_and_marks_visibility(tmp_path):
+    from PIL import Image
+
+    from pipeline.io.seg_file import write_seg
+    from pipeline.render.sheet import contact_sheet
+
+    w, h, scale = 40, 30, 2
+    Image.new("RGB", (w, h), (90, 90, 90)).save(tmp_path / "000000.png")
+    seg = np.ones((h, w), np.uint8)                      # skin everywhere
+    write_seg(tmp_path / "000000_seg.png", seg)
+    px = [[2.0 + (k % 7) * 5, 3.0 + (k // 7) * 6] for k in range(28)]      # 5 px apart
+    visible = [k != 3 for k in range(28)]
+    label = {"index": 0, "seg": {"file": "000000_seg.png"},
+             "gaze": {"eye": "left", "camera": {"pitch_deg": 0.0, "yaw_deg": 0.0}, "vector_camera": [0, 0, 1]},
+             "landmarks": {"px": px, "apparent_px": None, "pupil_center_px": [20.0, 15.0],
+                           "visible": visible, "occlusion": [None if v else "lid" for v in visible]}}
+    W, H = contact_sheet([(tmp_path / "000000.png", label)], tmp_path / "sheet.png", scale=scale)
+    sheet = np.asarray(Image.open(tmp_path / "sheet.png").convert("RGB")).astype(int)
+    assert W >= 2 * w * scale                            # the mask panel beside the image
+    x0 = 4 + w * scale + 4                               # PAD, tile, PAD: the mask panel's left edge
+    y0 = 4 + 14                                          # PAD + caption
+    vis = sheet[y0 + 3 * scale, x0 + 17 * scale]         # landmark 3 at (17, 3) px: occluded, a red cross
+    ok = sheet[y0 + 15 * scale, x0 + 7 * scale]          # landmark 15 at (7, 15) px: visible, a white dot
+    assert vis[0] > 200 and vis[1] < 80 and ok.min() > 200

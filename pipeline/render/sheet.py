@@ -4,7 +4,10 @@ Each tile: the image upscaled ``scale`` times (nearest neighbour, so pixels stay
 the eyelid polygon (12 landmarks, green, canthi larger), the iris (cyan) and pupil (yellow)
 landmarks (straight projection, circles) and where they appear through the cornea (magenta
 dots, ``apparent_px``), and the gaze direction in the camera frame as a red line from the pupil centre
-(length proportional to the gaze's in-image component). Caption: index, eye, gaze
+(length proportional to the gaze's in-image component). With ``render.masks`` the label names
+a seg mask: the tile then shows the mask (its palette, pipeline/render/seg.py) beside the image,
+and each landmark is drawn where it is seen (through the cornea for iris and pupil) as a filled
+dot when visible or a red cross when occluded (``landmarks.visible``). Caption: index, eye, gaze
 pitch/yaw in the camera frame.
 """
 
@@ -42,11 +45,41 @@ def _tile(png: Path, label: dict, scale: int):
     L = 0.35 * h * scale
     tip = pc + L * np.array([g[0], -g[1]])
     d.line([tuple(pc), tuple(tip)], fill=(255, 60, 60), width=2)
-    return img
+    seg = label.get("seg", {}).get("file") if isinstance(label.get("seg"), dict) else None
+    if seg is None or label["landmarks"].get("visible") is None:
+        return img
+    return _with_mask(img, Path(png).with_name(seg), label, scale)
 
 
-def contact_sheet(items, out_png, scale: int = 2, columns: int = 4) -> tuple[int, int]:
-    """Write a grid of ``(png_path, label_dict)`` tiles to ``out_png``; returns its (w, h)."""
+def _with_mask(img, seg_png: Path, label: dict, scale: int):
+    """The tile beside its seg mask, both with every landmark marked visible (dot) or not (cross)."""
+    from PIL import Image, ImageDraw
+
+    from pipeline.render.visibility import positions
+
+    w, h = img.size
+    mask = Image.open(seg_png).convert("RGB").resize((w, h), Image.NEAREST)
+    both = Image.new("RGB", (2 * w + PAD, h), (28, 28, 31))
+    both.paste(img, (0, 0))
+    both.paste(mask, (w + PAD, 0))
+    d = ImageDraw.Draw(both)
+    P = positions(label["landmarks"]["px"], label["landmarks"].get("apparent_px")) * scale
+    r = max(1.5, scale * 0.6)
+    for x0 in (0, w + PAD):
+        for (x, y), vis in zip(P, label["landmarks"]["visible"]):
+            x += x0
+            if vis:
+                d.ellipse([x - r, y - r, x + r, y + r], fill=(255, 255, 255), outline=(0, 0, 0))
+            else:
+                d.line([(x - r, y - r), (x + r, y + r)], fill=(255, 40, 40), width=2)
+                d.line([(x - r, y + r), (x + r, y - r)], fill=(255, 40, 40), width=2)
+    return both
+
+
+def contact_sheet(items, out_png, scale: int = 2, columns: int | None = None) -> tuple[int, int]:
+    """Write a grid of ``(png_path, label_dict)`` tiles to ``out_png``; returns its (w, h).
+
+    ``columns`` defaults to 4 (2 when the tiles carry their masks, which doubles their width)."""
     from PIL import Image, ImageDraw
 
     items = list(items)
@@ -55,6 +88,8 @@ def contact_sheet(items, out_png, scale: int = 2, columns: int = 4) -> tuple[int
     tiles = [(_tile(Path(p), lab, scale), lab) for p, lab in items]
     tw = max(t.size[0] for t, _ in tiles)
     th = max(t.size[1] for t, _ in tiles)
+    if columns is None:
+        columns = 2 if any("seg" in lab for _, lab in tiles) else 4
     cols = min(columns, len(tiles))
     rows = math.ceil(len(tiles) / cols)
     W = cols * (tw + PAD) + PAD
