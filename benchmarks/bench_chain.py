@@ -1,12 +1,12 @@
-"""Benchmark the per-scan chain ingest -> remove_eyeballs -> retopo -> bake -> snap on a big synthetic head.
+"""Benchmark the per-scan chain ingest -> remove_eyeballs -> retopo -> bake -> snap -> rig -> usd on a big synthetic head.
 
     .venv/bin/python -m benchmarks.bench_chain [--triangles 1400000] [--repeats 3] [--texture-size 1024]
                                                [--eyeball DIR] [--keep DIR]
 
 Generates the synthetic head once (``make_synthetic_head`` + ``write_scan_folder`` into a temp folder),
 builds the eyeball asset once (preview off) unless ``--eyeball`` names one, then runs each stage exactly as
-dvc.yaml does (``python -m stages.<stage> ... --metrics ...``, params from ./params.yaml) as a subprocess,
-timing its wall time. Repeated ``--repeats`` times; writes benchmarks/results/chain.json with the median per
+dvc.yaml does (``python -m stages.<stage> ... --metrics ...``, params from ./params.yaml with the usd
+stage's preview off: a scan to a validated USD asset) as a subprocess, timing its wall time. Repeated ``--repeats`` times; writes benchmarks/results/chain.json with the median per
 stage and of the total, every run's times, and the last run's stage metrics (internal timings, accuracy)
 plus accuracy against the ground truth (eye centre/radius error, loop-to-margin distance).
 """
@@ -28,11 +28,11 @@ from pipeline.io.eyes_file import read_eyes
 from stages._common import read_stage_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGES = ("ingest", "remove_eyeballs", "retopo", "bake", "snap")
+STAGES = ("ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "usd")
 
 
 def stage_commands(scan, build, eyeball) -> dict:
-    """``python -m`` arguments of each per-scan stage up to ``rig``, as dvc.yaml runs them
+    """``python -m`` arguments of each per-scan stage up to ``usd``, as dvc.yaml runs them
     (without ``--metrics`` / ``--params``), for a scan folder, a build folder and an eyeball asset."""
     b = Path(build)
     return {
@@ -42,6 +42,9 @@ def stage_commands(scan, build, eyeball) -> dict:
         "bake": ["stages.bake", b / "retopo", b / "remove_eyeballs", b / "bake"],
         "snap": ["stages.snap", b / "bake", b / "remove_eyeballs", eyeball, b / "snap"],
         "rig": ["stages.rig", b / "snap", b / "rig", "--eyeball", eyeball],
+        # the asset beside the eyeball, as rigged_assets/ holds them (usdz packs the eyeball with it)
+        "usd": ["stages.usd", b / "snap", b / "bake", b / "rig", b / "ingest", eyeball,
+                Path(eyeball).parent / f"{Path(scan).name}_asset"],
     }
 
 
@@ -89,8 +92,12 @@ def main():
     gen_s = time.perf_counter() - t0
     print(f"synthetic head ready in {gen_s:.1f} s", flush=True)
 
-    eyeball = Path(args.eyeball) if args.eyeball else work / "eyeball"
-    if not args.eyeball and not (eyeball / "eyeball.usda").exists():
+    eyeball = work / "eyeball"
+    if args.eyeball and not eyeball.exists():             # beside the asset, as rigged_assets/ holds them
+        import shutil
+
+        shutil.copytree(args.eyeball, eyeball)
+    if not (eyeball / "eyeball.usda").exists():
         pfile = work / "eyeball_params.yaml"
         pfile.write_text("eyeball: {preview: false}\n")
         timed_run(py + ["stages.eyeball", str(eyeball), "--params", str(pfile),
@@ -98,11 +105,18 @@ def main():
 
     b = work / "build"
     cmds = stage_commands(scan, b, eyeball)
+    import yaml
+
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    params.setdefault("usd", {})["preview"] = False      # scan to validated USD (the preview is item 2's)
+    pfile = work / "chain_params.yaml"
+    pfile.write_text(yaml.safe_dump(params, sort_keys=False))
     runs = []
     for rep in range(args.repeats):
         times = {}
         for st in STAGES:
-            cmd = py + [str(c) for c in cmds[st]] + ["--metrics", str(b / f"{st}.metrics.json")]
+            cmd = py + [str(c) for c in cmds[st]] + ["--metrics", str(b / f"{st}.metrics.json"),
+                                                     "--params", str(pfile)]
             times[st] = timed_run(cmd)
         times["total"] = sum(times[s] for s in STAGES)
         runs.append(times)
