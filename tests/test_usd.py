@@ -134,14 +134,17 @@ def test_eyes_placed_and_rotated_by_joints(built):
     stage = Usd.Stage.Open(str(built["out"] / "tiny.usda"))
     for side in ("left", "right"):
         e = EYES[side]
-        c, f, s = np.asarray(e["center"]), np.asarray(e["forward"]), e["radius"] / R1
+        c, f, r = np.asarray(e["center"]), np.asarray(e["forward"]), e["radius"]
         skinned, local = _skinned_eye(stage, side)
-        expect = c + s * local @ eye_basis(f)
-        assert np.abs(skinned - expect).max() < 1e-3           # placed, scaled and oriented
+        expect = c + local @ eye_basis(f)
+        assert np.abs(skinned - expect).max() < 1e-3           # placed and oriented, not scaled
+        # the sclera has the fitted radius, the cornea keeps the eyeball asset's apex protrusion
+        assert np.linalg.norm(local, axis=1).min() == pytest.approx(r, abs=1e-4)
+        assert r != R1 and local[:, 2].max() == pytest.approx(r + 1.5, abs=1e-4)
         apex = skinned[np.argmax(local[:, 2])]                  # corneal apex: straight ahead
         d = apex - c
         assert np.allclose(d / np.linalg.norm(d), f, atol=1e-4)
-        assert np.linalg.norm(d) == pytest.approx(local[:, 2].max() * s, rel=1e-5)
+        assert np.linalg.norm(d) == pytest.approx(local[:, 2].max(), rel=1e-5)
         posed, _ = _skinned_eye(stage, side, 20.0)
         # rigid rotation about the centre by 20 degrees
         assert np.allclose(np.linalg.norm(posed - c, axis=1), np.linalg.norm(skinned - c, axis=1), atol=1e-3)

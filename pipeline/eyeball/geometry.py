@@ -25,6 +25,9 @@ to ``pupil_dilated_mm``), ``pupil_constrict`` (to ``pupil_constricted_mm``),
 Weight rule (:func:`clamp_weights`): finite weights are clamped to [0, 1];
 NaN/inf and unknown shape names are refused with ``ValueError``.
 
+Placed in a scan (:func:`placed_params`): the sclera sphere takes the fitted radius, everything
+else (cornea, apex protrusion, iris, pupil) keeps its size in mm; the eye is never scaled.
+
 Landmarks: 8 iris-boundary and 8 pupil-boundary vertices of the inner mesh at
 azimuths ``45 deg * k`` (k = 0..7), starting at +X and running counter-clockwise
 seen from the front (+X -> +Y -> -X -> -Y). With the eye facing the camera,
@@ -33,6 +36,8 @@ landmark 0 is at image right and landmark 2 at the top.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal
@@ -58,7 +63,7 @@ class EyeballParams(Settings):
     apex: float = setting(13.5, gt=0)                 # corneal apex distance from the eyeball centre
     seam_blend_mm: float = setting(1.0, ge=0)         # width of the smooth maximum at the seam
     gap: float = setting(0.5, gt=0)                   # cornea thickness: inner part lies this far inside
-    iris_radius: float = setting(5.9, gt=0)           # visible iris diameter 11.8 mm
+    iris_radius: float = setting(5.85, gt=0)          # visible iris diameter 11.7 mm (see below)
     pupil_radius: float = setting(2.0, gt=0)          # rest pupil
     pupil_dilated_mm: float = setting(4.0, gt=0)
     pupil_constricted_mm: float = setting(1.0, gt=0)
@@ -84,6 +89,11 @@ class EyeballParams(Settings):
     @property
     def cornea_center_z(self) -> float:
         return self.apex - self.r2
+
+    @property
+    def protrusion(self) -> float:
+        """How far the corneal apex stands out of the eyeball sphere, mm (``apex - r1``)."""
+        return self.apex - self.r1
 
     @property
     def inner_radius(self) -> float:
@@ -180,6 +190,35 @@ class RingMesh:
     poly_uv_indices: np.ndarray
     subsets: dict = field(default_factory=dict)
     rings: list = field(default_factory=list)
+
+
+def placed_params(params: EyeballParams, radius: float) -> EyeballParams:
+    """The eyeball as placed in a scan whose eyeball sphere was fitted with ``radius`` (mm).
+
+    THE placement rule, used wherever a placed eye is built or evaluated (snap's margin surface,
+    the rig's eye frames, the usd stage's per-eye geometry, render): the sclera sphere follows
+    the fit (``r1 = radius``); the cornea (``r2``), the corneal apex's protrusion out of the
+    sphere (``apex - r1``), the iris and pupil radii, the cornea thickness (``gap``) and the seam
+    blend keep their absolute values in mm, so the visible eye keeps human proportions whatever
+    radius the scan's sclera gave (an eye scaled uniformly to ICT-FaceKit's 15.4 mm sphere had a
+    15.1 mm iris). The defaults are human: iris 11.7 mm across (horizontal visible iris diameter
+    11.71 +- 0.42 mm, Ruefer et al. 2005, "White-to-white corneal diameter: normal values in
+    healthy humans"), cornea 8 mm (paper 3.1 after Ruhland et al. 2014; Gullstrand's schematic eye
+    7.7 mm), apex 1.5 mm out of the 12 mm sphere (paper 3.1: 13.5 mm from the centre, the centre
+    of rotation 13.5 mm behind the apex of Fry & Hill 1962). ``radius == params.r1`` gives
+    ``params`` back.
+    """
+    r = float(radius)
+    if not (math.isfinite(r) and r > 0):
+        raise ValueError(f"eyeball radius must be a positive number, got {radius!r}")
+    if r == params.r1:
+        return params
+    return _placed(params, r)
+
+
+@functools.lru_cache(maxsize=64)
+def _placed(params: EyeballParams, r: float) -> EyeballParams:
+    return dataclasses.replace(params, r1=r, apex=r + params.protrusion)
 
 
 # --------------------------------------------------------------------------- profile

@@ -1,13 +1,14 @@
 """Closest points on the outer surface of a placed parametric eye (the smoothed sphere + cornea
-profile of :mod:`pipeline.eyeball.geometry`, scaled to a fitted radius, centred and turned to a
-forward direction): what the snap stage moves the eyelid margin onto.
+profile of :mod:`pipeline.eyeball.geometry` placed with a fitted radius by
+:func:`~pipeline.eyeball.geometry.placed_params`, centred and turned to a forward direction): what
+the snap stage moves the eyelid margin onto.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from pipeline.eyeball.geometry import EyeballParams, outer_radial
+from pipeline.eyeball.geometry import EyeballParams, outer_radial, placed_params
 
 
 _PROFILE_CACHE: dict = {}
@@ -18,7 +19,8 @@ def _profile(p: EyeballParams, n: int = 8192):
     if key not in _PROFILE_CACHE:
         th = np.linspace(0, np.pi, n)
         R = outer_radial(th, p)
-        _PROFILE_CACHE.clear()
+        if len(_PROFILE_CACHE) >= 4:
+            _PROFILE_CACHE.clear()
         _PROFILE_CACHE[key] = np.stack([R * np.sin(th), R * np.cos(th)], 1)
     return _PROFILE_CACHE[key]
 
@@ -49,9 +51,9 @@ def outer_surface_closest_point(P, center=(0.0, 0.0, 0.0), forward=(0.0, 0.0, 1.
                                 params: EyeballParams | None = None):
     """Closest points on the (smoothed) parametric outer surface of a placed eye.
 
-    The eye is scaled uniformly so its eyeball sphere has ``radius`` (default
-    ``params.r1``), centred at ``center`` and looking along ``forward``.
-    Accuracy: the profile is sampled at 8192 polar angles and refined on
+    The eye placed with its sphere of ``radius`` (default ``params.r1``; the cornea keeps its
+    size, :func:`~pipeline.eyeball.geometry.placed_params`), centred at ``center`` and looking
+    along ``forward``. Accuracy: the profile is sampled at 8192 polar angles and refined on
     segments (error < 1e-5 x radius).
 
     Parameters
@@ -66,17 +68,18 @@ def outer_surface_closest_point(P, center=(0.0, 0.0, 0.0), forward=(0.0, 0.0, 1.
     d : (n,) float64 signed distance (positive outside)
     """
     p = params or EyeballParams()
+    if radius is not None:
+        p = placed_params(p, radius)
     P = np.atleast_2d(np.asarray(P, float))
     c = np.asarray(center, float)
     f = np.asarray(forward, float)
     f = f / np.linalg.norm(f)
-    s = (radius / p.r1) if radius is not None else 1.0
     # orthonormal frame (e1, e2, f)
     a = np.array([1.0, 0, 0]) if abs(f[0]) < 0.9 else np.array([0, 1.0, 0])
     e1 = np.cross(a, f)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(f, e1)
-    L = (P - c) / s
+    L = P - c
     z = L @ f
     x, y = L @ e1, L @ e2
     rho = np.hypot(x, y)
@@ -106,7 +109,7 @@ def outer_surface_closest_point(P, center=(0.0, 0.0, 0.0), forward=(0.0, 0.0, 1.
         cph = np.where(rho > 1e-12, x / np.where(rho > 1e-12, rho, 1), 1.0)
         sph = np.where(rho > 1e-12, y / np.where(rho > 1e-12, rho, 1), 0.0)
     radial = cph[:, None] * e1 + sph[:, None] * e2
-    Q = c + s * (best_pt[:, :1] * radial + best_pt[:, 1:] * f)
+    Q = c + (best_pt[:, :1] * radial + best_pt[:, 1:] * f)
     N = n2[:, :1] * radial + n2[:, 1:] * f
     N /= np.linalg.norm(N, axis=1, keepdims=True)
-    return Q, N, sign * best * s
+    return Q, N, sign * best

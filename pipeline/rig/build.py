@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.eyeball.geometry import EyeballParams
+from pipeline.eyeball.geometry import EyeballParams, placed_params
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.rig.eye_frame import eye_frames
@@ -23,11 +23,10 @@ from pipeline.rig import textures as tex
 
 def _model_corneas(eyes):
     """Cornea sphere of the parametric eyeball placed in each fitted eye (for a metric)."""
-    p = EyeballParams()
     out = {}
     for e in eyes:
-        s = e.radius / p.r1
-        out[e.side] = (e.center + e.forward * (p.apex - p.r2) * s, p.r2 * s)
+        p = placed_params(e.profile or EyeballParams(), e.radius)
+        out[e.side] = (e.center + e.forward * p.cornea_center_z, p.r2)
     return out
 
 
@@ -64,8 +63,8 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
         arrays[f"loop_{e.side}"] = e.loop
         eyes_doc[e.side] = {
             "surface": "sphere" if e.profile is None else
-                       {"parametric_eye": {k: getattr(e.profile, k) for k in ("r1", "r2", "apex",
-                                                                              "seam_blend_mm")}},
+                       {"parametric_eye": {k: getattr(placed_params(e.profile, e.radius), k)
+                                           for k in ("r1", "r2", "apex", "seam_blend_mm")}},
             "joint": f"eye_{e.side}",
             "center": e.center, "radius": e.radius, "forward": e.forward,
             "pitch_axis": e.axis,

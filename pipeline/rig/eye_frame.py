@@ -59,18 +59,19 @@ class EyeFrame:
         """(n,) distance from the centre to the eyeball's outer surface along each point's ray.
 
         ``profile`` None: the sphere (``radius``). Else an ``EyeballParams`` of the parametric
-        eye (pipeline.eyeball.geometry), scaled so its sphere has ``radius``, looking along
-        the pitched gaze: the sphere joined smoothly with the corneal bulge.
+        eye (pipeline.eyeball.geometry), placed with its sphere of ``radius`` (the cornea keeps
+        its size: ``placed_params``), looking along the pitched gaze: the sphere joined smoothly
+        with the corneal bulge.
         """
         P = np.asarray(P, float)
         if self.profile is None:
             return np.full(len(P), float(self.radius))
-        from pipeline.eyeball.geometry import outer_radial
+        from pipeline.eyeball.geometry import outer_radial, placed_params
 
         w = P - self.center
         u = w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
         alpha = np.arccos(np.clip(u @ self.gaze(pitch_deg), -1.0, 1.0))
-        return outer_radial(alpha, self.profile) * (float(self.radius) / float(self.profile.r1))
+        return outer_radial(alpha, placed_params(self.profile, self.radius))
 
     def surface_distance(self, P, pitch_deg: float = 0.0) -> np.ndarray:
         """(n,) radial distance of points outside (+) / inside (-) the pitched eyeball surface."""

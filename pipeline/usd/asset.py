@@ -12,7 +12,9 @@ head frame, metersPerUnit 0.001, upAxis Y, +Z out of the face)::
                                   joint "head"; blend shapes lids_up, lids_down (with inbetweens)
         Eyes/eye_left, eye_right  Xform referencing ../eyeball/eyeball.usda (typeName overridden
                                   from SkelRoot to Xform, kind subcomponent, its own Skel
-                                  deactivated); Outer/Inner rebound rigidly to the eye joint
+                                  deactivated); Outer/Inner rebound rigidly to the eye joint, their
+                                  points and the Inner blend shapes overridden with the eye placed
+                                  at the fitted radius (customData eyerig.params: its geometry)
         Landmarks/eyelid_left,    BasisCurves (12 points, linear, periodic) with the same lid
                   eyelid_right    blend shapes and inbetweens
         Landmarks/eye_left, ...   Scope: eyerig:landmarks:iris / :pupil (Inner vertex indices,
@@ -23,9 +25,13 @@ head frame, metersPerUnit 0.001, upAxis Y, +Z out of the face)::
 Eyes and joints: UsdSkel does not move child prims of joints, so each eye's meshes are
 skinned rigidly (constant ``jointIndices``/``jointWeights``) to their eye joint. The joint's
 bind/rest transform is the fitted eye frame (rotation rows e_x, e_y, forward; translation =
-fitted centre); ``geomBindTransform`` = scale(radius / r1) * that frame, so at rest the
-parametric eye (r1 at the origin, looking +Z) sits at the fitted centre with the fitted
-radius and forward direction, and rotating the joint rotates the eye about its centre.
+fitted centre) and so is ``geomBindTransform`` (no scale): the eye's points are the parametric
+eye placed at the fitted radius (:func:`pipeline.eyeball.geometry.placed_params`: the sclera
+sphere takes the radius, cornea, iris and pupil keep their size in mm), built at the referenced
+eyeball's resolution from its own parameters (customData eyerig.params and .resolution) and
+authored over the reference's points, with the Inner blend shapes' offsets; the eye prim's
+customData eyerig.params says which. At rest the eye sits at the fitted centre looking along
+the fitted forward direction, and rotating the joint rotates it about its centre.
 """
 
 from __future__ import annotations
@@ -117,6 +123,62 @@ def _nul_free(value, key: str = "eyerig") -> None:
             _nul_free(v, key)
 
 
+def _eyeball_model(prim, eyeball_ref: str):
+    """(EyeballParams, Resolution) of the eyeball asset ``prim`` references (its customData
+    eyerig.params / .resolution); ValueError when it has none."""
+    from pipeline.eyeball import geometry as geo
+
+    data = prim.GetCustomDataByKey("eyerig") or {}
+    params, res = data.get("params"), data.get("resolution")
+    if not isinstance(params, dict) or not isinstance(res, dict):
+        raise ValueError(f"eyeball reference {eyeball_ref!r} carries no eyerig params/resolution "
+                         "in its customData (rebuild it with the eyeball stage)")
+    try:
+        p = geo.EyeballParams.from_dict({k: float(v) for k, v in params.items()
+                                         if k in geo.EyeballParams.__dataclass_fields__})
+        r = geo.Resolution(**{k: int(v) for k, v in res.items()
+                              if k in geo.Resolution.__dataclass_fields__})
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"eyeball reference {eyeball_ref!r}: eyerig params: {exc}") from None
+    return p, r
+
+
+def _place_eye(prim, model, radius: float, eyeball_ref: str) -> None:
+    """Author over the referenced eyeball under ``prim`` the eye placed at ``radius`` (mm): the
+    Outer and Inner points (and extents), the Inner blend shapes, and customData eyerig.params /
+    cornea_center_mm / placement. ValueError when the reference's topology differs."""
+    from pxr import Gf, UsdGeom, UsdSkel, Vt
+
+    from pipeline.eyeball import geometry as geo
+
+    params, res = model
+    placed = geo.placed_params(params, radius)
+    eye = geo.build_eyeball(placed, res)
+    for name, ring in (("Outer", eye.outer), ("Inner", eye.inner)):
+        mesh = UsdGeom.Mesh(prim.GetChild(name))
+        n = len(mesh.GetPointsAttr().Get() or [])
+        if not mesh or n != len(ring.V):
+            raise ValueError(f"eyeball reference {eyeball_ref!r}: {name} has {n} points, its "
+                             f"parameters give {len(ring.V)}")
+        pts = np.asarray(ring.V, np.float32)
+        mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(pts))
+        mesh.GetExtentAttr().Set([Gf.Vec3f(*map(float, pts.min(0))), Gf.Vec3f(*map(float, pts.max(0)))])
+    inner = prim.GetChild("Inner")
+    for s in eye.shapes:
+        bs = UsdSkel.BlendShape(inner.GetChild(s.name))
+        if not bs:
+            raise ValueError(f"eyeball reference {eyeball_ref!r}: Inner has no blend shape {s.name}")
+        bs.GetOffsetsAttr().Set(Vt.Vec3fArray.FromNumpy(np.asarray(s.offsets, np.float32)))
+        bs.GetPointIndicesAttr().Set(Vt.IntArray.FromNumpy(np.asarray(s.point_indices, np.int32)))
+    prim.SetCustomDataByKey("eyerig:params",
+                            {k: float(getattr(placed, k)) for k in placed.__dataclass_fields__})
+    prim.SetCustomDataByKey("eyerig:cornea_center_mm", Gf.Vec3d(0, 0, placed.cornea_center_z))
+    prim.SetCustomDataByKey("eyerig:placement",
+                            "pipeline.eyeball.geometry.placed_params: the eyeball sphere r1 = the "
+                            "fitted radius; r2, apex - r1, iris, pupil, gap in mm as in the "
+                            "referenced eyeball (not scaled)")
+
+
 def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves: dict, eyes: dict,
                      eyeball_ref: str, color_tex: str | None = "./textures/color.png",
                      disp_tex: str | None = "./textures/displacement.exr",
@@ -130,7 +192,8 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     V : (n, 3) float64 mm ; F : (m, 3) int64 ; UV : (k, 2) ; FUV : (m, 3) per-corner UV indices
     shapes : list of pipeline.rig.lids.BlendShape (lids_up, lids_down with inbetweens)
     landmark_curves : dict side -> (points (12, 3) mm, list of BlendShape on points 0..11)
-    eyes : dict side -> {"center": (3,), "radius": r, "forward": (3,)}
+    eyes : dict side -> {"center": (3,), "radius": r, "forward": (3,)}; the eye is placed at
+                             the fitted radius (see the module docstring)
     eyeball_ref : str        asset path of eyeball.usda relative to this layer (``../eyeball/eyeball.usda``)
     metadata : dict          stored as customData["eyerig"] on the default prim
 
@@ -196,13 +259,14 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     skin = _skin_material(stage, rp + "/Materials/Skin", color_tex, disp_tex)
     su.bind_material(mesh.GetPrim(), skin)
 
-    # eyes: rigid skinning to their joints
+    # eyes: placed at the fitted radius, rigid skinning to their joints
+    model = _eyeball_model(probe, eyeball_ref)
     for j, side in enumerate(SIDES, start=1):
         p = eye_prims[side]
         Usd.ModelAPI(p).SetKind(Kind.Tokens.subcomponent)
         p.GetChild("Skel").SetActive(False)
-        s = float(eyes[side]["radius"]) / float(eyes[side].get("model_radius", 12.0))
-        G = _gf(eye_frame_matrix(eyes[side]["center"], eyes[side]["forward"], s))
+        _place_eye(p, model, float(eyes[side]["radius"]), eyeball_ref)
+        G = _gf(eye_frame_matrix(eyes[side]["center"], eyes[side]["forward"]))
         for child in p.GetChildren():
             if child.IsA(UsdGeom.Mesh):
                 api = UsdSkel.BindingAPI.Apply(child)
@@ -210,9 +274,10 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
                 api.CreateJointIndicesPrimvar(True, 1).Set([j])
                 api.CreateJointWeightsPrimvar(True, 1).Set([1.0])
                 api.CreateGeomBindTransformAttr().Set(G)
-        p.SetDocumentation(f"Subject's {side} eye: {eyeball_ref} rigidly skinned to joint {JOINTS[j]} "
-                           f"(centre {list(map(float, eyes[side]['center']))} mm, radius "
-                           f"{float(eyes[side]['radius']):.4f} mm, scale {s:.6f})")
+        p.SetDocumentation(f"Subject's {side} eye: {eyeball_ref} placed at the fitted radius "
+                           f"{float(eyes[side]['radius']):.4f} mm (sclera; cornea, iris and pupil "
+                           f"keep their size) and rigidly skinned to joint {JOINTS[j]} (centre "
+                           f"{list(map(float, eyes[side]['center']))} mm)")
 
     # landmarks
     UsdGeom.Scope.Define(stage, rp + "/Landmarks")

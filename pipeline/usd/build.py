@@ -58,8 +58,6 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
     eyes = {}
     for side, e in r.eyes.items():        # the values as stored (the asset metadata repeats them)
         eyes[side] = {k: e.doc[k] for k in ("center", "radius", "forward")}
-        if e.model_radius is not None:
-            eyes[side]["model_radius"] = e.model_radius
     maps = read_bake(bake)
     scan = _json(ingest / "scan.json")
     return {"V": V, "F": F, "UV": mesh["UV"], "FUV": mesh["FUV"], "shapes": r.npz.shapes,
