@@ -10,15 +10,20 @@ triangulates into one connected sheet with its only boundary at the grid rim.
 ``h`` is the smooth maximum of two depths along the same ray:
 
 * the eye surface: the outer intersection with the eyeball sphere (radius drawn in
-  11-13.5 mm by the seed) joined by a smooth maximum with the corneal sphere
-  (radius ~8 mm, apex ~13-14 mm from the eyeball centre);
+  ``eye_radius_mm``, 15.5-16.8 mm by default, by the seed) joined by a smooth maximum with
+  the corneal sphere (radius ~7.6 mm, apex ~1.1 mm out of the sphere, whatever its radius);
 * the skin: a face depth field (forehead, brow ridge, orbits, nose, cheeks, lips,
   chin, jaw, neck) blended, near each eye, into a lid shell that follows the eye
   surface at ``+T(d)``, where ``d`` is the signed distance (mm) from an almond
   opening drawn in the eye's angular coordinates. ``T`` rises from 0 at the
   margin to the lid thickness outside and drops behind the eyeball inside, so
   inside the almond the eye surface wins and the crossing curve (the eyelid
-  margin) lies on the eyeball.
+  margin) lies on the eyeball. The almond spans about 130 degrees of the eye
+  horizontally, so with the default radii the opening is 27-31 mm corner to corner
+  (adults: about 28-30 mm); its height is kept in mm whatever the radius (~11 mm).
+  The lid margin rests on the eyeball sphere up to the canthi, so an opening that wide
+  needs a sphere of about 15 mm (as ICT-FaceKit's, 15.4 mm in its neutral head): on a
+  12 mm eye the corner-to-corner width is at most 24 mm.
 
 The smooth maximum rounds the lid/eye crease over ~1 mm, like a Poisson
 reconstruction, while eye vertices away from the crease lie exactly on the
@@ -68,6 +73,7 @@ class SyntheticHeadSettings(Settings):
     eye_spacing_mm: float = setting(63.0, ge=40, le=90)          # interpupillary distance
     noise_mm: float = setting(0.02, ge=0, le=1)                  # scanner noise along normals (0 = off)
     texture_size: int = setting(2048, ge=16, le=8192)            # colour texture side (px)
+    eye_radius_mm: tuple[float, float] = setting((15.5, 16.8), ge=8, le=20, ordered=True)  # drawn by the seed
 
     def validate(self) -> None:
         if isinstance(self.eye_shape, float) and not 0.0 <= self.eye_shape <= 1.0:
@@ -147,14 +153,15 @@ def _normals(P):
 
 def make_synthetic_head(seed: int = 7, target_triangles: int = 300_000, eye_shape="round",
                         eye_spacing_mm: float = 63.0, noise_mm: float = 0.0,
-                        texture_size: int = 1024, skin_detail: float = 1.0) -> SyntheticHead:
+                        texture_size: int = 1024, skin_detail: float = 1.0,
+                        eye_radius_mm=(15.5, 16.8)) -> SyntheticHead:
     """Generate the procedural test head.
 
     Parameters
     ----------
     seed : int
-        Drives every shape detail (eyeball radius 11-13.5 mm, cornea, gaze, lid
-        shape, face proportions, skin detail, eye hints).
+        Drives every shape detail (eyeball radius, cornea, gaze, lid shape, face
+        proportions, skin detail, eye hints).
     target_triangles : int
         Approximate triangle count (grid chosen to match within ~1 %), >= 200.
     eye_shape : {"round", "hooded"} or float
@@ -168,6 +175,8 @@ def make_synthetic_head(seed: int = 7, target_triangles: int = 300_000, eye_shap
         Side of the square colour texture in pixels.
     skin_detail : float
         Scale of the fine skin detail (1 = nominal, 0 = none).
+    eye_radius_mm : (2,) float
+        Range the eyeball radii are drawn from, mm (the opening is ~1.8 radii wide).
 
     Returns
     -------
@@ -188,8 +197,11 @@ def make_synthetic_head(seed: int = 7, target_triangles: int = 300_000, eye_shap
         raise ValueError(f"noise_mm must be >= 0, got {noise_mm}")
     if int(texture_size) < 16:
         raise ValueError(f"texture_size must be >= 16, got {texture_size}")
+    lo, hi = (float(r) for r in eye_radius_mm)
+    if not 8.0 <= lo <= hi <= 20.0:
+        raise ValueError(f"eye_radius_mm must be an ordered range within [8, 20], got {list(eye_radius_mm)}")
     seed = int(seed)
-    model = HeadModel(seed, hood, eye_spacing_mm, skin_detail)
+    model = HeadModel(seed, hood, eye_spacing_mm, skin_detail, (lo, hi))
     ny, nt = grid_shape(target_triangles)
     tv = np.linspace(-T_RANGE, T_RANGE, nt)
     yv = np.linspace(Y_RANGE[0], Y_RANGE[1], ny)

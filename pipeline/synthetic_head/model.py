@@ -147,28 +147,36 @@ def almond_curves(al, s):
     return base, up, lo
 
 
-def _make_eye(side, rng, ipd, hood, y_eye):
+#: Eyeball radius of the opening's vertical shape: the lid heights are drawn as angles on an eye
+#: of this radius and kept in mm on the drawn one (the opening is as tall whatever the radius).
+_LID_REF_RADIUS_MM = 12.25
+
+
+def _make_eye(side, rng, ipd, hood, y_eye, radius_range=(15.5, 16.8)):
     from scipy.spatial import cKDTree
 
     lat = 1.0 if side == "left" else -1.0
-    radius = float(rng.uniform(11.0, 13.5))
+    radius = float(rng.uniform(*radius_range))
     x = lat * (ipd / 2.0 + rng.uniform(-0.3, 0.3))
     tx = t_for_x(x)
     bx, bz, _, _ = base_curve(np.array([tx]))
-    center = np.array([x, y_eye + rng.uniform(-0.4, 0.4), float(bz[0]) - 15.0 + rng.uniform(-0.5, 0.5)])
+    # the eye's front stays where a 12.25 mm eye's was: a larger sphere sits deeper
+    depth = 15.0 + (radius - _LID_REF_RADIUS_MM)
+    center = np.array([x, y_eye + rng.uniform(-0.4, 0.4), float(bz[0]) - depth + rng.uniform(-0.5, 0.5)])
     yaw = np.deg2rad(rng.uniform(-2.0, 2.0))
     pitch = np.deg2rad(rng.uniform(-2.0, 2.0))
     gaze = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
-    scale = radius / 12.0
-    rc = 7.6 * scale * rng.uniform(0.98, 1.02)
-    apex_dist = radius + rng.uniform(0.95, 1.25) * scale
+    # a human cornea whatever the sclera's radius (r ~ 7.6 mm, apex ~1.1 mm out of the sphere)
+    rc = 7.6 * rng.uniform(0.98, 1.02)
+    apex_dist = radius + rng.uniform(0.95, 1.25)
     cc = center + (apex_dist - rc) * gaze
     d = np.deg2rad
+    v = _LID_REF_RADIUS_MM / radius           # vertical angles: mm of a 12.25 mm eye
     al = {
         "a_m": -d(rng.uniform(55.0, 60.0)), "a_l": d(rng.uniform(73.0, 78.0)),
-        "b_m": d(rng.uniform(-3.0, -1.0)), "b_l": d(rng.uniform(1.0, 4.0)),
-        "h_u": d((1 - hood) * rng.uniform(25.5, 27.5) + hood * rng.uniform(19.0, 21.0)),
-        "h_l": d(rng.uniform(23.0, 25.0)),
+        "b_m": v * d(rng.uniform(-3.0, -1.0)), "b_l": v * d(rng.uniform(1.0, 4.0)),
+        "h_u": v * d((1 - hood) * rng.uniform(25.5, 27.5) + hood * rng.uniform(19.0, 21.0)),
+        "h_l": v * d(rng.uniform(23.0, 25.0)),
         "g_u": float(rng.uniform(0.8, 0.95)), "g_l": float(rng.uniform(1.1, 1.25)),
     }
     s = np.linspace(0.0, 1.0, 1500)
@@ -183,15 +191,16 @@ def _make_eye(side, rng, ipd, hood, y_eye):
 class HeadModel:
     """All seeded shape parameters; ``fields(t, y)`` evaluates the surface depths."""
 
-    def __init__(self, seed, eye_shape, eye_spacing_mm, detail):
+    def __init__(self, seed, eye_shape, eye_spacing_mm, detail, eye_radius_mm=(15.5, 16.8)):
         rng = np.random.default_rng(seed)
         self.seed = seed
         self.hood = float(eye_shape)
         self.ipd = float(eye_spacing_mm)
         self.detail_scale = float(detail)
         self.y_eye = 0.0
-        self.eyes = [_make_eye("left", rng, self.ipd, self.hood, self.y_eye),
-                     _make_eye("right", rng, self.ipd, self.hood, self.y_eye)]
+        rr = tuple(float(r) for r in eye_radius_mm)
+        self.eyes = [_make_eye("left", rng, self.ipd, self.hood, self.y_eye, rr),
+                     _make_eye("right", rng, self.ipd, self.hood, self.y_eye, rr)]
         j = lambda a, b: float(rng.uniform(a, b))  # noqa: E731
         self.face = {
             "brow": j(3.5, 5.5), "nose": j(21.0, 27.0), "nose_w": j(0.9, 1.15), "cheek": j(5.0, 8.0),
