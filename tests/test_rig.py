@@ -163,19 +163,27 @@ def test_without_inbetweens_the_chord_sinks_into_the_eyeball():
 
 def test_lids_move_the_right_way(region):
     V, F, eyes, rig = region
+    p = lids.LidParams()
     for e in eyes:
         ey = e.basis()[1]
         li = e.lateral_index
         top, bottom = e.loop[li // 2], e.loop[li + (len(e.loop) - li) // 2]
         up = lids.evaluate_shapes(V, rig.shapes, {"lids_up": 1.0}) - V
         dn = lids.evaluate_shapes(V, rig.shapes, {"lids_down": 1.0}) - V
-        assert up[top] @ ey > 2.0 and up[bottom] @ ey > 0.0
-        assert up[top] @ ey > 2.0 * (up[bottom] @ ey)          # lower lid moves less
+        assert up[top] @ ey > 1.0 and up[bottom] @ ey > 0.0
+        assert up[top] @ ey > 1.3 * (up[bottom] @ ey)          # lower lid moves less
         assert dn[top] @ ey < -2.0 and dn[bottom] @ ey < 0.0
         assert -(dn[top] @ ey) > 1.5 * -(dn[bottom] @ ey)
-        # canthi stay put (taper to zero)
+        # the canthi move only by the floor share of the lids' mean gain (0 with no floor)
         for k in (e.loop[0], e.loop[li]):
-            assert np.linalg.norm(up[k]) < 1e-12 and np.linalg.norm(dn[k]) < 1e-12
+            for d, g in ((up, p.gain_upper_up + p.gain_lower_up), (dn, p.gain_upper_down + p.gain_lower_down)):
+                arc = np.linalg.norm(V[k] - e.center) * np.radians(25.0) * p.canthus_floor * g / 2
+                assert np.linalg.norm(d[k]) <= arc + 1e-9
+    still = build_lid_shapes(V, F, eyes, lids.LidParams(canthus_floor=0.0))
+    for e in eyes:
+        for name in ("lids_up", "lids_down"):
+            d = lids.evaluate_shapes(V, still.shapes, {name: 1.0}) - V
+            assert np.abs(d[[e.loop[0], e.loop[e.lateral_index]]]).max() < 1e-12
 
 
 # ---------------------------------------------------------------- falloff
@@ -533,7 +541,14 @@ def test_stage_stores_down_mask(region):
 
 def test_upper_lid_never_crosses_lower_lid_even_with_extreme_gains():
     V, F, eyes = two_eye_region(upper_deg=7.0, lower_deg=5.0)
-    extreme = dict(gain_upper_down=1.0, gain_lower_down=0.0, gain_upper_up=0.0, gain_lower_up=1.0)
+    # only the lids' guard is tested, with the hand-set taper and falloff of the rule before the
+    # ICT fit: the skin keeps the margin's gains (no rise) and the canthi stay still (no floor:
+    # the guard does not limit the canthi's own share; with the fitted canthus taper these
+    # extreme gains fold the corners of so narrow an opening)
+    extreme = dict(gain_upper_down=1.0, gain_lower_down=0.0, gain_upper_up=0.0, gain_lower_up=1.0,
+                   upper_rise_mm=0.0, lower_rise_mm=0.0, canthus_floor=0.0, canthus_width=0.35,
+                   lateral_canthus_width=0.35, canthus_exponent=1.0, upper_falloff_mm=12.0,
+                   lower_falloff_mm=8.0)
     unguarded = build_lid_shapes(V, F, eyes, lids.LidParams(**extreme, min_opening_fraction=-50))
     res = sweep_check(V, F, eyes, unguarded.shapes, [-25.0, 25.0])
     assert res["min_opening_mm"] < 0                     # the lids would cross
@@ -678,10 +693,12 @@ def test_support_widens_where_the_skin_would_fold():
     the skin above the rising lid would be squeezed past zero thickness (faces flip) with the
     params' radius; the support is widened just enough that no face flips at any pitch."""
     V, F, eyes = two_eye_region(radius=15.0, rise_mm=0.3, d_psi=3.0)
-    tight = lids.LidParams(gain_upper_up=1.0, upper_falloff_mm=7.0, max_support_scale=1.0)
+    case = dict(gain_upper_up=1.0, upper_falloff_mm=7.0, lower_falloff_mm=8.0, upper_rise_mm=0.0,
+                lower_rise_mm=0.0)
+    tight = lids.LidParams(**case, max_support_scale=1.0)
     res = sweep_check(V, F, eyes, build_lid_shapes(V, F, eyes, tight).shapes, PITCHES_1DEG)
     assert res["flipped_faces"] > 0                          # the failure the widening prevents
-    p = lids.LidParams(gain_upper_up=1.0, upper_falloff_mm=7.0)
+    p = lids.LidParams(**case)
     rig = build_lid_shapes(V, F, eyes, p)
     res = sweep_check(V, F, eyes, rig.shapes, PITCHES_1DEG)
     assert res["flipped_faces"] == 0
@@ -691,7 +708,9 @@ def test_support_widens_where_the_skin_would_fold():
     # unchanged where nothing folds: the default region keeps the params' radius
     V, F, eyes = two_eye_region()
     fields = build_lid_shapes(V, F, eyes).fields
-    assert all(f.support_mm == pytest.approx(12.0) for f in fields.values())
+    p = lids.LidParams()
+    assert all(f.support_mm == pytest.approx(max(p.upper_falloff_mm, p.lower_falloff_mm))
+               for f in fields.values())
 
 
 def test_stage_refuses_a_rig_whose_sweep_flips_faces(tmp_path, capsys):

@@ -4,19 +4,26 @@
 * The eyelid margin (the loop where skin meets the eyeball) rotates about the
   eye's horizontal axis through the eyeball centre ``c``: the upper lid by
   ``gain_upper * pitch``, the lower lid by ``gain_lower * pitch`` (the lower lid
-  moves less), tapered to zero at both canthi by :func:`canthus_taper` (a sine
-  ramp over ``canthus_width`` of the lid width at each end, 1 in the middle;
+  moves less), tapered toward both canthi by :func:`canthus_taper` (a sine
+  ramp over ``canthus_width`` of the lid width at the medial end and
+  ``lateral_canthus_width`` at the lateral end, from ``canthus_floor`` to 1 in the middle;
   ``u`` = 0 at the medial and 1 at the lateral canthus, measured along the eye's
   horizontal axis). A rotation about ``c`` keeps every point at its
   distance from ``c``, so a margin that lies on the eyeball sphere stays on it.
-* Skin around the margin rotates the same way with an angle that fades with
+* Skin around the margin rotates the same way with an angle that changes with
   the (edge-graph) geodesic distance ``D`` from the margin: ``theta(v) =
-  Theta(v) * S(D / R(v))``, where ``Theta`` and ``R`` are harmonic extensions of
-  the margin's angle gains and falloff radii (``upper_falloff_mm`` above,
-  ``lower_falloff_mm`` below) and ``S`` is the C2 "smootherstep" falloff
-  (``S(0) = 1``, ``S(1) = 0``, first and second derivatives zero at both ends),
-  so there is no visible step at the edge of the support and nothing moves
-  beyond it. Where the skin far from the pitch axis would be squeezed past zero
+  S(D / R(v)) * (Theta(v) + (K(v) - Theta(v)) * (1 - S(D / Q(v))))``, where ``Theta``,
+  ``K``, ``R`` and ``Q`` are harmonic extensions of the margin's angle gains, the
+  lid skin's gains (``skin_gain_*``, tapered at the canthi like the margin's), the
+  falloff radii (``upper_falloff_mm`` above, ``lower_falloff_mm`` below) and the rise
+  distances (``upper_rise_mm``, ``lower_rise_mm``; 0 = the skin keeps the margin's gain
+  and the skin gains are not used), and ``S`` is the C2 "smootherstep" falloff (``S(0) = 1``,
+  ``S(1) = 0``, first and second derivatives zero at both ends): the gain goes from the
+  margin's to the skin's over the rise distance and fades to zero at the falloff radius,
+  so there is no visible step at the edge of the support and nothing moves beyond it.
+  (A captured lid moves its skin a few mm above the margin farther than the margin itself:
+  ICT-FaceKit's eyeLookDown turns the upper lid's margin by about 0.55 of the eye's pitch and
+  its skin 3-8 mm above it by about 0.85; benchmarks/compare_ict_lids.py.) Where the skin far from the pitch axis would be squeezed past zero
   thickness by the rising upper (or dropping lower) lid, the radii are widened by
   the smallest factor (up to ``max_support_scale``) that keeps every face of the
   full poses above ``min_area_fraction`` of its rest area (no fold-over).
@@ -40,19 +47,26 @@ from pipeline.rig.eye_frame import EyeFrame, rotate_about_axis
 from pipeline.rig.lids import SHAPE_DOWN, SHAPE_UP, BlendShape, LidParams, evaluate_shapes, lid_weights
 
 
-def canthus_taper(u, width: float = 0.35, exponent: float = 1.0) -> np.ndarray:
+def canthus_taper(u, width: float = 0.35, exponent: float = 1.0, lateral_width: float | None = None,
+                  floor: float = 0.0) -> np.ndarray:
     """How much of the lid gain applies at horizontal position ``u`` (0 medial, 1 lateral canthus).
 
-    ``sin(pi/2 * min(1, u / width, (1 - u) / width)) ** exponent``: zero at both canthi,
-    a plateau of 1 over the middle ``[width, 1 - width]``, C1 where ramp and plateau meet.
-    ``width = 0.5, exponent = 1`` gives ``sin(pi u)``.
+    ``floor + (1 - floor) * sin(pi/2 * min(1, u / width, (1 - u) / lateral_width)) ** exponent``:
+    ``floor`` at both canthi, a plateau of 1 between the ramps (``width`` at the medial end,
+    ``lateral_width``, default ``width``, at the lateral end; 0 = no ramp), C1 where ramp and
+    plateau meet. ``width = 0.5, exponent = 1, floor = 0`` gives ``sin(pi u)``.
     """
     u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
-    w = float(width)
-    if not 0.0 < w <= 0.5:
-        raise ValueError(f"canthus width must be in (0, 0.5], got {width!r}")
-    x = np.minimum(1.0, np.minimum(u, 1.0 - u) / w)
-    return np.sin(0.5 * np.pi * x) ** float(exponent)
+    wm = float(width)
+    wl = wm if lateral_width is None else float(lateral_width)
+    for w in (wm, wl):
+        if not 0.0 <= w <= 0.5:
+            raise ValueError(f"canthus width must be in [0, 0.5], got {w!r}")
+    if not 0.0 <= floor <= 1.0:
+        raise ValueError(f"canthus floor must be in [0, 1], got {floor!r}")
+    xm = np.minimum(1.0, u / wm) if wm > 0 else np.ones_like(u)
+    xl = np.minimum(1.0, (1.0 - u) / wl) if wl > 0 else np.ones_like(u)
+    return floor + (1.0 - floor) * np.sin(0.5 * np.pi * np.minimum(xm, xl)) ** float(exponent)
 
 
 def smootherstep_falloff(t) -> np.ndarray:
@@ -194,20 +208,26 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
     x = (V[loop] - eye.center) @ B[0]
     x0, x1 = x[0], x[li]
     u = np.clip((x - x0) / (x1 - x0), 0.0, 1.0) if abs(x1 - x0) > 1e-9 else np.zeros(L)
-    taper = canthus_taper(u, params.canthus_width, params.canthus_exponent)
-    taper[[0, li]] = 0.0
+    taper = canthus_taper(u, params.canthus_width, params.canthus_exponent,
+                          params.lateral_canthus_width, params.canthus_floor)
+    taper[[0, li]] = params.canthus_floor            # the canthi: the floor share of both lids' mean
     upper = np.zeros(L, bool)
     upper[1:li] = True
     lower = np.zeros(L, bool)
     lower[li + 1:] = True
-    gain_up = np.where(upper, params.gain_upper_up, params.gain_lower_up) * taper
-    gain_dn = np.where(upper, params.gain_upper_down, params.gain_lower_down) * taper
+
+    def per_lid(a, b):
+        return np.where(upper, a, np.where(lower, b, 0.5 * (a + b)))
+
+    gain_up = per_lid(params.gain_upper_up, params.gain_lower_up) * taper
+    gain_dn = per_lid(params.gain_upper_down, params.gain_lower_down) * taper
     gain_up, gain_dn = _keep_lids_apart(V[loop] - eye.center, B, u, upper, lower, gain_up, gain_dn,
                                         math.radians(params.max_pitch_deg),
                                         params.min_opening_fraction)
-    radius = np.where(upper, params.upper_falloff_mm,
-                      np.where(lower, params.lower_falloff_mm,
-                               0.5 * (params.upper_falloff_mm + params.lower_falloff_mm)))
+    skin_up = per_lid(params.skin_gain_upper_up, params.skin_gain_lower_up) * taper
+    skin_dn = per_lid(params.skin_gain_upper_down, params.skin_gain_lower_down) * taper
+    radius = per_lid(params.upper_falloff_mm, params.lower_falloff_mm)
+    rise = per_lid(params.upper_rise_mm, params.lower_rise_mm)
     # Skin turning by Theta * S(D / R) is compressed where the motion falls off fast along D
     # (above the upper lid when it rises, below the lower lid when it drops): neighbours differ
     # in arc displacement by about rho * Theta * |S'(D / R)| / R per mm (rho = distance from the
@@ -222,10 +242,19 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
         r_max = float(radius.max()) * scale
         D = dijkstra(G, directed=False, indices=loop, min_only=True, limit=r_max * 1.0001)
         region = np.isfinite(D)
-        ext = _harmonic_extension(G, region, loop, np.stack([gain_up, gain_dn, scale * radius], axis=1))
+        ext = _harmonic_extension(G, region, loop, np.stack([gain_up, gain_dn, scale * radius,
+                                                             skin_up, skin_dn, scale * rise], axis=1))
         R = np.where(region, np.maximum(ext[:, 2], 1e-6), 1.0)
-        S = np.where(region, smootherstep_falloff(np.where(region, D, 0.0) / R), 0.0)
-        th_up, th_dn = pmax * ext[:, 0] * S, -pmax * ext[:, 1] * S
+        Dr = np.where(region, D, 0.0)
+        S = np.where(region, smootherstep_falloff(Dr / R), 0.0)
+        # share of the skin's gain: 0 at the margin, 1 from the rise distance on (none where the
+        # rise distance is 0: the skin keeps the margin's gain)
+        Q = ext[:, 5]
+        k = np.where(Q > 1e-6, 1.0 - smootherstep_falloff(Dr / np.maximum(Q, 1e-6)), 0.0)
+        k[loop] = 0.0
+        g_up = ext[:, 0] + (ext[:, 3] - ext[:, 0]) * k
+        g_dn = ext[:, 1] + (ext[:, 4] - ext[:, 1]) * k
+        th_up, th_dn = pmax * g_up * S, -pmax * g_dn * S
         worst = np.inf
         for th in (th_up, th_dn):
             mv = np.flatnonzero(th != 0.0)
