@@ -82,6 +82,7 @@ BENCHMARKS = (
     Benchmark("bench_asset_preview", modest=("--runs", "1"), needs=("synthetic_asset",)),
     Benchmark("bench_render", needs=("synthetic_asset",)),
     Benchmark("bench_render_quality", modest=("--repeats", "1"), needs=("synthetic_asset",)),
+    Benchmark("bench_proportions", needs=("synthetic_asset",)),
     Benchmark("bench_label_formats", modest=("--images", "8"), needs=("synthetic_asset",)),
     Benchmark("bench_masks", args=(str(SYNTH_ASSET.parent), str(SYNTH_BUILD / "rig")),
               modest=("--n", "6"), needs=("synthetic_asset",)),
