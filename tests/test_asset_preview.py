@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from conftest import make_inputs, usd_argv
-from pipeline.blender.asset_preview import LABEL_H, PAD, TILE_ASPECT, sheet_size
+from pipeline.blender.asset_preview import LABEL_H, PAD, TILE_ASPECT, sheet_size, tile_boxes
 from stages import usd as usd_stage
 from stages._common import read_stage_metrics, run_stage
 
@@ -29,13 +29,7 @@ def previewed(tmp_path_factory):
 
 def _tiles(img):
     a = np.asarray(img.convert("RGB"), np.float64)
-    w, h = TILE_ASPECT * SIZE, SIZE
-    out = []
-    for i in range(4):
-        x = PAD + (i % 2) * (w + PAD)
-        y = PAD + (i // 2) * (h + LABEL_H + PAD) + LABEL_H
-        out.append(a[y:y + h, x:x + w])
-    return out
+    return [a[y:y + h, x:x + w] for x, y, w, h in tile_boxes(SIZE)]
 
 
 def test_sheet_written_with_expected_size_and_content(previewed):
@@ -71,3 +65,29 @@ def test_no_preview_by_default(tmp_path):
     assert run_stage(usd_stage.main, usd_argv(inp)) == 0
     assert not (inp["out"] / "preview.png").exists()
     assert "preview_s" not in read_stage_metrics(inp["metrics"])
+
+
+def test_tiles_lie_inside_the_sheet_apart():
+    W, H = sheet_size(SIZE)
+    boxes = tile_boxes(SIZE)
+    for x, y, w, h in boxes:
+        assert 0 < x and x + w < W and LABEL_H <= y and y + h < H and (w, h) == (TILE_ASPECT * SIZE, SIZE)
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:]:
+            assert a[0] + a[2] <= b[0] or b[0] + b[2] <= a[0] or a[1] + a[3] <= b[1] or b[1] + b[3] <= a[1]
+
+
+def test_render_options_checked(tmp_path, capsys):
+    from pipeline.blender.asset_preview import RENDER_OPTIONS, main, render_options
+
+    assert render_options() == RENDER_OPTIONS
+    got = render_options({"denoise": "off", "world_map_resolution": "512", "subsurface_method": "RANDOM_WALK"})
+    assert got["denoise"] is False and got["world_map_resolution"] == 512
+    assert got["subsurface_method"] == "RANDOM_WALK"
+    for bad in ({"nope": 1}, {"denoise": "maybe"}, {"tile_size": "big"}):
+        with pytest.raises(ValueError):
+            render_options(bad)
+    out = tmp_path / "x.png"
+    assert main([str(tmp_path / "a.usda"), str(tmp_path / "r.npz"), str(out), "--option", "nope=1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: unknown render option 'nope'") and not out.exists()

@@ -1,7 +1,7 @@
 """Blender worker: Cycles contact sheet of a per-scan rigged asset.
 
-    python -m pipeline.blender.asset_preview ASSET.usda RIG.npz OUT.png [--size 240] [--samples 8]
-        [--hdri PATH] [--json INFO.json]
+    python -m pipeline.blender.asset_preview ASSET.usda RIG.npz OUT.png [--size 180] [--samples 4]
+        [--hdri PATH] [--json INFO.json] [--option KEY=VALUE ...]
 
 Imports ``rigged_assets/<scan>/<scan>.usda`` with Blender's USD importer and renders four
 tiles with CPU Cycles (+ OpenImageDenoise when built in), lit by one of Blender's bundled
@@ -24,6 +24,16 @@ scattering, the baked colour texture and the baked displacement map as bump (sig
 the normal = object units); eyes = :func:`pipeline.blender.materials.setup_eyeball_materials`
 with the iris / sclera textures the asset's variant selection imported. Output: one labelled PNG
 (:func:`sheet_size` gives its pixel size for a tile size).
+
+Speed (benchmarks/bench_asset_preview.py): one Blender process imports the asset once and renders
+the four tiles with persistent render data, so a tile re-syncs only the posed bones, shape keys
+and camera (~0.01 s). A tile's cost is its pixels x samples: path tracing ~2.6 CPU-us per
+sample and pixel (Christensen-Burley subsurface, one Cycles tile; Blender's default random walk
+in 64-px tiles: ~5.2) plus the denoiser, ~4.5 CPU-us per pixel; the first render also builds the
+world's importance map. :data:`RENDER_OPTIONS` holds the measured choices; ``--option KEY=VALUE``
+overrides one (benchmarks). The JSON reports the
+time of each phase (Blender start, USD import, scene setup, per tile posing + checks and
+rendering, composing) and the process CPU time.
 """
 
 from __future__ import annotations
@@ -47,6 +57,18 @@ BACKDROP = (46, 46, 50)
 # skin: subsurface scale in world units (m)
 SKIN_BSDF = {"Roughness": 0.5, "Specular IOR Level": 0.4, "Subsurface Weight": 0.25, "Subsurface Scale": 0.002,
              "Subsurface Radius": (1.0, 0.35, 0.2)}
+# Cycles choices of the preview, measured by benchmarks/bench_asset_preview.py --split: a 480 x 240
+# tile at 8 spp took 5.9 CPU-s with the former choices (in the comments), 2.8 with these
+RENDER_OPTIONS = {
+    "denoise": True,                 # OpenImageDenoise (when built in)
+    "denoise_prefilter": "ACCURATE",  # albedo/normal seen through the cornea are noisy: FAST speckles the pupil
+    "denoise_quality": "BALANCED",   # was HIGH: ~2.2x the denoiser time for no visible difference here
+    "subsurface_method": "BURLEY",   # the render stage's; was RANDOM_WALK (Blender's default): +33 % per tile
+    "world_map_resolution": 256,     # world importance map; was 0 = automatic (the HDRI's 1024 x 512): +1.2 CPU-s
+    "tile_size": 2048,               # Cycles tile, px: the whole preview tile at once; was 64: +23 % per tile
+    "adaptive_threshold": 0.05,      # adaptive sampling: a pixel stops below this noise level
+    "adaptive_min_samples": 0,       # ... after at least this many samples (0 = Cycles' automatic)
+}
 
 
 def sheet_size(size: int) -> tuple[int, int]:
@@ -54,6 +76,13 @@ def sheet_size(size: int) -> tuple[int, int]:
     w = 2 * TILE_ASPECT * size + 3 * PAD
     h = 2 * (size + LABEL_H) + 3 * PAD
     return w, h
+
+
+def tile_boxes(size: int) -> list[tuple[int, int, int, int]]:
+    """(x, y, width, height) in the sheet of the four rendered tiles (their labels above them left
+    out), row-major, for tile height ``size``."""
+    w, h = TILE_ASPECT * size, size
+    return [(PAD + (i % 2) * (w + PAD), PAD + (i // 2) * (h + LABEL_H + PAD) + LABEL_H, w, h) for i in range(4)]
 
 
 def _views():
@@ -64,15 +93,44 @@ def _views():
             ("three-quarter (35 deg), subject's left eye, pitch 0 deg", 0.0, "three-quarter")]
 
 
-def _setup_scene(width: int, height: int, samples: int, hdri: Path):
+def render_options(overrides: dict | None = None) -> dict:
+    """:data:`RENDER_OPTIONS` with ``overrides`` (``{key: value or its string}``) applied and checked."""
+    out = dict(RENDER_OPTIONS)
+    for k, v in (overrides or {}).items():
+        if k not in RENDER_OPTIONS:
+            raise ValueError(f"unknown render option {k!r} (known: {', '.join(RENDER_OPTIONS)})")
+        ref = RENDER_OPTIONS[k]
+        if isinstance(v, str) and not isinstance(ref, str):
+            low = v.strip().lower()
+            if isinstance(ref, bool):
+                if low not in ("1", "0", "true", "false", "on", "off"):
+                    raise ValueError(f"render option {k}: {v!r} is not a boolean")
+                v = low in ("1", "true", "on")
+            else:
+                v = type(ref)(v)
+        out[k] = v
+    return out
+
+
+def _setup_scene(width: int, height: int, samples: int, hdri: Path, opts: dict):
     import bpy
 
     from pipeline.blender.scene import preview_scene
 
     scene, cam = preview_scene(height, samples, hdri)
     scene.render.resolution_x, scene.render.resolution_y = width, height
-    scene.cycles.tile_size = 64
-    scene.cycles.adaptive_threshold = 0.05
+    c = scene.cycles
+    c.tile_size = int(opts["tile_size"])
+    c.adaptive_threshold = float(opts["adaptive_threshold"])
+    c.adaptive_min_samples = int(opts["adaptive_min_samples"])
+    if c.use_denoising:
+        c.use_denoising = bool(opts["denoise"])
+        c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+        c.denoising_prefilter = opts["denoise_prefilter"]
+        c.denoising_quality = opts["denoise_quality"]
+    if int(opts["world_map_resolution"]) > 0:
+        scene.world.cycles.sampling_method = "MANUAL"
+        scene.world.cycles.sample_map_resolution = int(opts["world_map_resolution"])
     cam.data.type = "ORTHO"
     cam.data.clip_end = 10.0
     scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 1.0
@@ -114,10 +172,16 @@ def _place_camera(cam, view: str, target, distance: float, ortho_scale: float):
     cam.data.ortho_scale = ortho_scale
 
 
-def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, samples: int = 8,
-                 hdri: Path | None = None) -> dict:
-    """Render the contact sheet; returns timings and checks (see the module docstring)."""
-    import bpy
+def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 180, samples: int = 4,
+                 hdri: Path | None = None, options: dict | None = None) -> dict:
+    """Render the contact sheet; returns timings and checks (see the module docstring).
+
+    ``options`` overrides :data:`RENDER_OPTIONS` (see :func:`render_options`).
+    """
+    opts = render_options(options)
+    t_start = time.perf_counter()
+    import bpy                                    # the first import starts Blender
+    t_bpy = time.perf_counter() - t_start
     from PIL import Image, ImageDraw
 
     from pipeline.blender.materials import setup_eyeball_materials, skin_material
@@ -128,6 +192,7 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
     t0 = time.perf_counter()
     shapes = read_rig_arrays(rig_npz).shapes
     objs = import_usd(asset, unit_conversion=True)
+    t_import = time.perf_counter() - t0
     skin = next((o for o in objs if o.name.split(".")[0] == "EyeRegion"), None)
     if skin is None:
         raise RuntimeError(f"{asset}: no EyeRegion mesh imported")
@@ -150,7 +215,8 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
     disp = find_image([skin], "Skin", "displacement")
     for slot in skin.material_slots:
         if slot.material is not None:
-            skin_material(slot.material, color, disp, displacement_method="BUMP", **SKIN_BSDF)
+            skin_material(slot.material, color, disp, displacement_method="BUMP",
+                          subsurface_method=opts["subsurface_method"], **SKIN_BSDF)
     eyes = [o for o in objs if o is not skin]
     iris = find_image(eyes, "Iris", "iris_")
     sclera = find_image(eyes, "Sclera", "sclera_")
@@ -210,12 +276,13 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
 
     rest_elev = gaze_elevation_deg()
     w, h = TILE_ASPECT * size, size
-    scene, cam = _setup_scene(w, h, samples, hdri or bundled_hdri())
+    scene, cam = _setup_scene(w, h, samples, hdri or bundled_hdri(), opts)
     t_setup = time.perf_counter() - t0
 
-    tiles, times, lid_err, pitch_meas = [], [], {}, {}
+    tiles, times, cpu_times, pose_times, lid_err, pitch_meas = [], [], [], [], {}, {}
     with tempfile.TemporaryDirectory() as td:
         for i, (label, pitch, view) in enumerate(_views()):
+            t = time.perf_counter()
             _pose_eyes(arm, pitch)
             cw = lids.lid_weights(pitch)
             flat = lids.flat_shape_weights(shapes, cw)
@@ -233,26 +300,33 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 240, sam
                 _place_camera(cam, view, tq_target, 0.5, tq_scale)
             path = Path(td) / f"tile{i}.png"
             scene.render.filepath = str(path)
-            t = time.perf_counter()
+            pose_times.append(time.perf_counter() - t)
+            t, c = time.perf_counter(), time.process_time()
             bpy.ops.render.render(write_still=True)
             times.append(time.perf_counter() - t)
+            cpu_times.append(time.process_time() - c)
             tiles.append((label, Image.open(path).convert("RGBA")))
 
+    t = time.perf_counter()
     W, H = sheet_size(size)
     sheet = Image.new("RGB", (W, H), (30, 30, 33))
     bg = Image.new("RGBA", (w, h), (*BACKDROP, 255))
-    for i, (label, tile) in enumerate(tiles):
-        x = PAD + (i % 2) * (w + PAD)
-        y = PAD + (i // 2) * (h + LABEL_H + PAD)
+    for (label, tile), (x, y, _, _) in zip(tiles, tile_boxes(size)):
         lab = Image.new("RGB", (w, LABEL_H), (30, 30, 33))   # clipped to the tile width
         ImageDraw.Draw(lab).text((2, 3), label, fill=(235, 235, 235))
-        sheet.paste(lab, (x, y))
-        sheet.paste(Image.alpha_composite(bg, tile).convert("RGB"), (x, y + LABEL_H))
+        sheet.paste(lab, (x, y - LABEL_H))
+        sheet.paste(Image.alpha_composite(bg, tile).convert("RGB"), (x, y))
     sheet.save(out_png)
-    return {"setup_s": round(t_setup, 3), "render_s_total": round(float(np.sum(times)), 3),
-            "render_s_per_tile_median": round(float(np.median(times)), 3), "tiles": len(times),
-            "tile_px": [w, h], "sheet_px": [W, H], "samples": samples,
-            "denoiser": bool(scene.cycles.use_denoising), "hdri": Path(hdri or bundled_hdri()).name,
+    t_compose = time.perf_counter() - t
+    return {"blender_start_s": round(t_bpy, 3), "import_s": round(t_import, 3), "setup_s": round(t_setup, 3),
+            "pose_s_total": round(float(np.sum(pose_times)), 3),
+            "render_s_total": round(float(np.sum(times)), 3), "render_s": [round(x, 3) for x in times],
+            "render_cpu_s": [round(x, 3) for x in cpu_times],
+            "render_s_per_tile_median": round(float(np.median(times)), 3), "compose_s": round(t_compose, 3),
+            "sheet_s": round(time.perf_counter() - t_start, 3), "cpu_s": round(time.process_time(), 3),
+            "tiles": len(times), "tile_px": [w, h], "sheet_px": [W, H], "samples": samples,
+            "denoiser": bool(scene.cycles.use_denoising), "render_options": opts,
+            "hdri": Path(hdri or bundled_hdri()).name,
             "shape_keys": [kb.name for kb in keys], "lid_max_error_mm": lid_err,
             "gaze_pitch_measured_deg": pitch_meas}
 
@@ -262,15 +336,24 @@ def main(argv=None) -> int:
     ap.add_argument("asset", type=Path)
     ap.add_argument("rig", type=Path)
     ap.add_argument("out", type=Path)
-    ap.add_argument("--size", type=int, default=240, help="tile height, px (tiles are 2:1)")
-    ap.add_argument("--samples", type=int, default=8)
+    ap.add_argument("--size", type=int, default=180, help="tile height, px (tiles are 2:1)")
+    ap.add_argument("--samples", type=int, default=4, help="Cycles samples per pixel (+ the denoiser)")
     ap.add_argument("--hdri", type=Path, default=None)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help=f"override a render option (benchmarks): {', '.join(RENDER_OPTIONS)}")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     if args.size < 8 or args.samples < 1:
         print("error: --size must be >= 8 and --samples >= 1", file=sys.stderr)
         return 2
-    info = render_sheet(args.asset, args.rig, args.out, args.size, args.samples, args.hdri)
+    try:
+        options = render_options(dict(o.split("=", 1) for o in args.option if "=" in o))
+        if any("=" not in o for o in args.option):
+            raise ValueError("--option takes KEY=VALUE")
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    info = render_sheet(args.asset, args.rig, args.out, args.size, args.samples, args.hdri, options)
     if args.json:
         args.json.write_text(json.dumps(info, indent=1) + "\n")
     return 0
