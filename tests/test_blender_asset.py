@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import EYES, R1, make_inputs, usd_argv
+from conftest import EYES, make_inputs, usd_argv
 from stages import usd as usd_stage
 from stages._common import run_stage
 
@@ -79,7 +79,7 @@ def test_armature_and_eyes(imported):
         assert len(eyes) == 2                                        # Outer + Inner
         for name, o in eyes.items():
             assert o["modifiers"] == [["ARMATURE", "Skel"]] and o["vertex_groups"] == [f"eye_{side}"]
-            assert o["world_scale"] == pytest.approx(0.001 * EYES[side]["radius"] / R1, rel=1e-5)
+            assert o["world_scale"] == pytest.approx(0.001, rel=1e-5)     # placed, not scaled
         outer = next(n for n, o in eyes.items() if "Cornea" in " ".join(o["materials"]))
         W = data[f"{outer}.world"]
         c = _usd_to_blender(EYES[side]["center"])
@@ -88,8 +88,9 @@ def test_armature_and_eyes(imported):
         apex = W[np.argmax(local[:, 2])]
         d = (apex - c) / np.linalg.norm(apex - c)
         assert np.allclose(d, f, atol=1e-4)                           # looks down the fitted forward
-        assert np.linalg.norm(apex - c) == pytest.approx(
-            0.001 * local[:, 2].max() * EYES[side]["radius"] / R1, rel=1e-4)
+        assert np.linalg.norm(apex - c) == pytest.approx(0.001 * local[:, 2].max(), rel=1e-4)
+        # the eye placed at the fitted radius: its cornea keeps the asset's 1.5 mm protrusion
+        assert local[:, 2].max() == pytest.approx(EYES[side]["radius"] + 1.5, abs=1e-3)
         inner = next(n for n in eyes if n != outer)
         assert any(Path(p).name == "iris_brown.png" for p in eyes[inner]["images"].values() for p in p)
 

@@ -233,7 +233,7 @@ def test_blender_armature_and_eyes_follow_bones(asset, blender_import):
     assert {"eye_left", "eye_right"} <= set(arm["bones"])
     for side in SIDES:
         e = rig["eyes"][side]
-        c_mm, scale = np.asarray(e["center"]), e["radius"] / 12.0   # 12 mm parametric eyeball
+        c_mm = np.asarray(e["center"])
         head = np.asarray(arm["heads"][arm["bones"].index(f"eye_{side}")])
         assert np.abs(head - c_mm).max() < 1e-3                  # armature space = stage mm
         eyes = _eye_objects(meta, side)
@@ -244,10 +244,12 @@ def test_blender_armature_and_eyes_follow_bones(asset, blender_import):
         for name, o in eyes.items():
             assert o["modifiers"] == [["ARMATURE", arm_name]] and o["vertex_groups"] == [f"eye_{side}"]
             W, local = data[f"{name}.world"], data[f"{name}.basis"]
-            # rigid: every point keeps its model distance from the centre, scaled to the fit
+            # rigid: every point keeps its distance from the centre (the eye is placed at the
+            # fitted radius, not scaled: its points are head mm)
             np.testing.assert_allclose(np.linalg.norm(W - c, axis=1),
-                                       0.001 * scale * np.linalg.norm(local, axis=1), atol=1e-6)
+                                       0.001 * np.linalg.norm(local, axis=1), atol=1e-6)
         W, local = data[f"{outer}.world"], data[f"{outer}.basis"]
+        assert np.linalg.norm(local, axis=1).min() == pytest.approx(e["radius"], abs=1e-3)   # sclera
         apex = W[np.argmax(local[:, 2])] - c                      # corneal apex direction
         f = np.asarray(e["forward"], float)
         a = np.radians(POSE_DEG if side == "left" else 0.0)     # bone turned about its pitch axis
