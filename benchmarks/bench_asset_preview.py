@@ -1,7 +1,7 @@
 """Cost of the rigged asset's Cycles contact sheet (usd stage, ``preview: true``; target <= 5 s wall on 2 cores).
 
     .venv/bin/python -m benchmarks.bench_asset_preview [ASSET.usda [RIG.npz]] [--runs 5] [--split]
-        [--split-runs 3] [--quality] [--reference-samples 256] [--keep DIR]
+        [--split-runs 3] [--compare] [--quality] [--reference-samples 256] [--keep DIR]
 
 Defaults: rigged_assets/synthetic_head/synthetic_head.usda and build/synthetic_head/rig/rig.npz
 (from `dvc repro usd@synthetic_head`). Every measurement runs the Blender worker
@@ -22,12 +22,15 @@ samples from the ``usd:`` block of params.yaml, into a temporary folder.
   for the first and last, the same without the denoiser and at 1 spp without
   it, which splits a tile into path tracing per sample, the denoiser and the per-render overhead
   (``--split-runs`` runs each).
+* ``--compare``: the former settings (:data:`BEFORE`: pixel-identical to the worker at 595996b)
+  and the stage's configuration alternately, ``--split-runs`` times each, so both see the same load;
+  medians of wall and CPU seconds.
 * ``--quality``: PSNR of the four tiles against a ``--reference-samples`` render without the
   denoiser (same size; adaptive sampling down to a 0.002 noise threshold), for 1, 2, 4, 8 and 16
   spp with the denoiser; ``benchmarks/results/asset_preview_quality.csv`` (samples, cpu_s, wall_s,
   psnr_db) is a DVC plot.
 
-Writes benchmarks/results/asset_preview.json (sections ``stage``, ``split``, ``quality``; a section
+Writes benchmarks/results/asset_preview.json (sections ``stage``, ``split``, ``compare``, ``quality``; a section
 not run this time is kept from the last run) and prints a summary. ``--keep DIR`` copies each
 configuration's PNG there (for looking at them side by side).
 """
@@ -160,6 +163,24 @@ def slug(name: str) -> str:
     return "_".join("".join(c if c.isalnum() else " " for c in name).split())
 
 
+def compare(asset, rig, td, size, samples, runs) -> dict:
+    before, now = [], []
+    for i in range(runs):
+        before.append(run_worker(asset, rig, td / f"cmp_before_{i}.png", BEFORE["size"], BEFORE["samples"],
+                                 BEFORE["options"]))
+        now.append(run_worker(asset, rig, td / f"cmp_now_{i}.png", size, samples, {}))
+    out = {}
+    for name, infos in (("before", before), ("now", now)):
+        out[name] = {"wall_s": round(float(np.median([i["process_s"] for i in infos])), 3),
+                     "cpu_s": round(float(np.median([i["cpu_s"] for i in infos])), 3),
+                     "wall_s_all": [round(i["process_s"], 2) for i in infos]}
+    out["speed_up_wall"] = round(out["before"]["wall_s"] / out["now"]["wall_s"], 2)
+    out["speed_up_cpu"] = round(out["before"]["cpu_s"] / out["now"]["cpu_s"], 2)
+    print(f"  before {out['before']['wall_s']} s wall ({out['before']['cpu_s']} cpu-s), now {out['now']['wall_s']} s "
+          f"({out['now']['cpu_s']} cpu-s): {out['speed_up_wall']}x wall, {out['speed_up_cpu']}x cpu", flush=True)
+    return out
+
+
 def quality(asset, rig, td, size, ref_samples, keep) -> dict:
     ref_png = td / "reference.png"
     t0 = time.perf_counter()
@@ -194,6 +215,7 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--split", action="store_true", help="also measure what each setting costs (see above)")
     ap.add_argument("--split-runs", type=int, default=3, help="runs of each --split configuration")
+    ap.add_argument("--compare", action="store_true", help="also the former settings and these, alternately")
     ap.add_argument("--quality", action="store_true", help="also PSNR against a many-sample reference")
     ap.add_argument("--reference-samples", type=int, default=256)
     ap.add_argument("--keep", type=Path, default=None, help="copy the PNGs here")
@@ -213,10 +235,9 @@ def main(argv=None) -> int:
             res = {}                     # the file of an older version of this benchmark
     except (OSError, ValueError):
         res = {}
-    try:
-        asset_name = os.path.relpath(args.asset, ROOT)
-    except ValueError:
-        asset_name = str(args.asset)
+    asset_name = str(args.asset.resolve())
+    if args.asset.resolve().is_relative_to(ROOT):
+        asset_name = str(args.asset.resolve().relative_to(ROOT))
     res.update({"asset": asset_name, "cpu_count": os.cpu_count(),
                 "load_avg_before": [round(x, 2) for x in os.getloadavg()]})
     with tempfile.TemporaryDirectory() as td:
@@ -226,6 +247,9 @@ def main(argv=None) -> int:
         if args.split:
             print("split (one change after another):", flush=True)
             res["split"] = split(args.asset, args.rig, td, size, samples, args.split_runs, args.keep)
+        if args.compare:
+            print("before / now, alternately:", flush=True)
+            res["compare"] = compare(args.asset, args.rig, td, size, samples, args.split_runs)
         if args.quality:
             print("quality:", flush=True)
             res["quality"] = quality(args.asset, args.rig, td, size, args.reference_samples, args.keep)

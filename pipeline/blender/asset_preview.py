@@ -29,11 +29,10 @@ Speed (benchmarks/bench_asset_preview.py): one Blender process imports the asset
 the four tiles with persistent render data, so a tile re-syncs only the posed bones, shape keys
 and camera (~0.01 s). A tile's cost is its pixels x samples: path tracing ~2.6 CPU-us per
 sample and pixel (Christensen-Burley subsurface, one Cycles tile; Blender's default random walk
-in 64-px tiles: ~5.2) plus the denoiser, ~4.5 CPU-us per pixel; the first render also builds the
+in 64-px tiles: ~5) plus the denoiser, ~4 CPU-us per pixel; the first render also builds the
 world's importance map. :data:`RENDER_OPTIONS` holds the measured choices; ``--option KEY=VALUE``
-overrides one (benchmarks). The JSON reports the
-time of each phase (Blender start, USD import, scene setup, per tile posing + checks and
-rendering, composing) and the process CPU time.
+overrides one (benchmarks). The JSON reports the time of each phase (Blender start, USD import,
+scene setup, per tile posing + checks and rendering, composing) and the process CPU time.
 """
 
 from __future__ import annotations
@@ -58,7 +57,7 @@ BACKDROP = (46, 46, 50)
 SKIN_BSDF = {"Roughness": 0.5, "Specular IOR Level": 0.4, "Subsurface Weight": 0.25, "Subsurface Scale": 0.002,
              "Subsurface Radius": (1.0, 0.35, 0.2)}
 # Cycles choices of the preview, measured by benchmarks/bench_asset_preview.py --split: a 480 x 240
-# tile at 8 spp took 5.9 CPU-s with the former choices (in the comments), 2.8 with these
+# tile at 8 spp took 5.7 CPU-s with the former choices (in the comments), 2.6 with these
 RENDER_OPTIONS = {
     "denoise": True,                 # OpenImageDenoise (when built in)
     "denoise_prefilter": "ACCURATE",  # albedo/normal seen through the cornea are noisy: FAST speckles the pupil
