@@ -55,8 +55,8 @@ class UsdSettings(Settings):
 
     usdz: bool = True                                   # also write <scan>.usdz (self-contained)
     preview: bool = False                               # Cycles contact sheet preview.png
-    preview_px: int = setting(240, ge=16, le=2048)      # tile height (tiles are 2:1, both eyes)
-    preview_samples: int = setting(8, ge=1, le=4096)    # + OpenImageDenoise
+    preview_px: int = setting(180, ge=16, le=2048)      # tile height (tiles are 2:1, both eyes)
+    preview_samples: int = setting(4, ge=1, le=4096)    # + OpenImageDenoise (bench_asset_preview --quality)
 
 
 SIDES = ("left", "right")
