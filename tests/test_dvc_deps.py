@@ -135,6 +135,18 @@ def test_the_closure_follows_function_imports_strings_and_workers():
     assert "pipeline/rig" in compact({f"pipeline/rig/{f.name}" for f in (ROOT / "pipeline/rig").glob("*.py")})
 
 
+def test_render_fingerprint_hashes_the_render_closure():
+    """A render folder's config hash covers exactly the renderer source the render stage imports:
+    a file it hashes but DVC does not track (or the reverse) makes dvc.lock depend on history."""
+    from pipeline.render.asset import renderer_sources
+
+    hashed = {str(p.relative_to(ROOT)) for p in renderer_sources()}
+    closure = import_closure("render")
+    mine = {p for p in closure if p.startswith(("pipeline/render/", "pipeline/blender/"))}
+    assert mine <= hashed, f"render imports but does not hash: {sorted(mine - hashed)}"
+    assert hashed <= closure, f"hashed but not a render dep: {sorted(hashed - closure)}"
+
+
 def write_dvc_yaml() -> list[str]:
     """Rewrite the pipeline/ and stages/ deps of every stage in dvc.yaml as its exact closure
     (data deps and everything else untouched); returns the stages whose deps changed."""

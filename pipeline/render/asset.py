@@ -39,9 +39,22 @@ N_EYELID, N_IRIS, N_PUPIL = 12, 8, 8
 N_LANDMARKS = N_EYELID + N_IRIS + N_PUPIL
 
 
-#: Modules of pipeline/render that plan datasets rather than render an image (which asset an index
-#: shows is checked per image by the dataset run): editing them must not invalidate renders.
-NOT_RENDERER = frozenset({"dataset.py", "mix.py", "card.py"})
+#: Modules of pipeline/render and pipeline/blender that no rendered image depends on: the dataset
+#: planning (which asset an index shows is checked per image by the dataset run) and the other
+#: Blender workers (previews, USD round trip). Editing them must not invalidate renders, and the
+#: render stage's DVC deps (its import closure) do not list them either.
+NOT_RENDERER = frozenset({"dataset.py", "mix.py", "card.py",
+                          "asset_preview.py", "eyeball_preview.py", "usd_roundtrip.py"})
+
+
+def renderer_sources() -> list[Path]:
+    """The source files whose change invalidates rendered images: pipeline/render and
+    pipeline/blender (less :data:`NOT_RENDERER`), and the label, mask and depth writers."""
+    pkg = Path(__file__).resolve().parents[1]
+    files = [p for d in ("render", "blender") for p in sorted((pkg / d).glob("*.py"))
+             if p.name not in NOT_RENDERER]
+    files += [pkg / "io" / n for n in ("labels_file.py", "unityeyes_file.py", "pts_file.py", "seg_file.py")]
+    return files + [pkg / "bake" / "exr.py"]
 
 
 @dataclass
@@ -128,12 +141,7 @@ class RenderAsset:
         files |= {Path(a) for a in assets}
         files |= {q for a in assets for q in Path(a).parent.iterdir()}   # e.g. sclera_bump.png
         files |= {self.usda, self.rig_npz}
-        pkg = Path(__file__).resolve().parents[1]
-        files |= {p for p in (pkg / "render").glob("*.py") if p.name not in NOT_RENDERER}
-        files |= set((pkg / "blender").glob("*.py"))
-        files.add(pkg / "io" / "labels_file.py")            # the label files' writer
-        files |= {pkg / "io" / "unityeyes_file.py", pkg / "io" / "pts_file.py"}   # the other formats'
-        files |= {pkg / "io" / "seg_file.py", pkg / "bake" / "exr.py"}            # masks and depth maps
+        files |= set(renderer_sources())
         h = hashlib.sha256()
         for p in sorted(files):
             if p.is_file():
