@@ -22,6 +22,7 @@ from PIL import Image
 
 from conftest import EYES, make_render_asset
 from pipeline.errors import ScanError
+from pipeline.geometry.frame import quat_to_matrix
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.io.rig_file import read_rig, write_rig
 from pipeline.render import asset as ra
@@ -189,7 +190,7 @@ def test_extremes_give_finite_clipped_labels(tiny):
         # Listing's law: the eye rotation takes the rest forward to the gaze, axis perpendicular to it
         eye = tiny["asset"].eyes["left"]
         q = lab["eyes"]["left"]["rotation_wxyz"]
-        R = ra.quat_to_matrix(q)
+        R = quat_to_matrix(q)
         np.testing.assert_allclose(R @ eye.forward, lab["gaze"]["vector_head"], atol=1e-12)
         assert abs(np.dot(q[1:], eye.forward)) < 1e-12
         w = lab["eyelids"]["weights"]

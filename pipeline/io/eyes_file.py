@@ -122,20 +122,10 @@ def read_eyes(path, n_vertices: int | None = None) -> dict[str, EyeRecord]:
     ScanError
         One line naming ``path``: missing, not JSON, another schema, or a bad entry.
     """
-    import json
+    from pipeline.io.docfile import read_json_doc
 
     path = Path(path)
-    if not path.is_file():
-        raise ScanError(path, "not found")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ScanError(path, f"is not valid JSON ({exc.__class__.__name__})") from None
-    if not isinstance(doc, dict):
-        raise ScanError(path, "is not an eyes.json (not a mapping)")
-    if doc.get("schema") != SCHEMA:
-        raise ScanError(path, f"has schema {doc.get('schema')!r}, this eyerig reads schema {SCHEMA} "
-                              f"(rebuild it with the remove_eyeballs stage)")
+    doc = read_json_doc(path, "eyes.json", SCHEMA, "remove_eyeballs")
     return {s: _record(s, doc.get(s), path, n_vertices) for s in SIDES}
 
 

@@ -66,12 +66,14 @@ def load_mesh(path) -> dict[str, np.ndarray]:
         return {k: data[k] for k in data.files if k != "schema"}
 
 
-def _schema_of(path) -> int | None:
+def _load_with_schema(path) -> tuple[int | None, dict[str, np.ndarray]]:
+    """(the file's schema: None when absent, -1 when not a 0-d integer; the other arrays)."""
     with np.load(path, allow_pickle=False) as data:
-        if "schema" not in data.files:
-            return None
-        a = data["schema"]
-    return int(a) if a.shape == () and a.dtype.kind in "iu" else -1
+        arrays = {k: data[k] for k in data.files}
+    a = arrays.pop("schema", None)
+    if a is None:
+        return None, arrays
+    return (int(a) if a.shape == () and a.dtype.kind in "iu" else -1), arrays
 
 
 def check_mesh(mesh: dict, path) -> None:
@@ -137,8 +139,7 @@ def read_stage_mesh(path, required=("V", "F")) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise ScanError(path, "not found")
     try:
-        schema = _schema_of(path)
-        mesh = load_mesh(path)
+        schema, mesh = _load_with_schema(path)
     except Exception as exc:  # corrupt zip / npy: whatever numpy raises
         raise ScanError(path, f"cannot be read as a mesh .npz ({type(exc).__name__})") from None
     if schema != SCHEMA:

@@ -29,7 +29,6 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.geometry.frame import quat_to_matrix  # noqa: F401 (ra.quat_to_matrix)
 from pipeline.io.bake_file import read_displacement
 from pipeline.io.rig_file import read_rig
 from pipeline.rig import lids

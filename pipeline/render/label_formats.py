@@ -82,6 +82,8 @@ import math
 
 import numpy as np
 
+from pipeline.render.labels import ring_radius
+
 FORMATS = ("eyerig", "unityeyes", "pts")
 #: Folder of the UnityEyes pairs inside a render folder.
 UNITYEYES_DIR = "unityeyes"
@@ -177,12 +179,7 @@ def unityeyes_job(asset, smp) -> dict:
     iris_rest = ra.inner_points(eye, {}, np.eye(3), eye.iris)
     iris = ra.inner_points(eye, smp.spec["eyeball"]["blend"], np.eye(3), eye.iris)
     return {"interior_head_mm": interior.tolist(), "caruncle_head_mm": caruncle.tolist(),
-            "iris_size": float(_ring_radius(iris) / _ring_radius(iris_rest))}
-
-
-def _ring_radius(P) -> float:
-    P = np.asarray(P, float)
-    return float(np.mean(np.linalg.norm(P - P.mean(0), axis=1)))
+            "iris_size": float(ring_radius(iris) / ring_radius(iris_rest))}
 
 
 # --------------------------------------------------------------------------- UnityEyes document

@@ -29,7 +29,8 @@ def _angles(v) -> dict:
             "yaw_deg": math.degrees(math.atan2(v[0], v[2]))}
 
 
-def _ring_radius(P) -> float:
+def ring_radius(P) -> float:
+    """Mean distance of points (k, d) from their centroid: the radius of a ring of landmarks."""
     P = np.asarray(P, float)
     return float(np.mean(np.linalg.norm(P - P.mean(0), axis=1)))
 
@@ -105,8 +106,8 @@ def make_label(smp: sp.Sample, settings: sp.RenderSettings, scan: str, reply: di
                               "sclera_tint": spec["eyeball"]["sclera_tint"],
                               "veins": spec["eyeball"]["veins"],
                               "blend": spec["eyeball"]["blend"],
-                              "pupil_radius_mm": _ring_radius(lm_h[20:28]),
-                              "iris_radius_mm": _ring_radius(lm_h[12:20])},
+                              "pupil_radius_mm": ring_radius(lm_h[20:28]),
+                              "iris_radius_mm": ring_radius(lm_h[12:20])},
         "lighting": dict(spec["lighting"]),
         "render": {"engine": "cycles", "samples": spec["samples"], "denoise": spec["denoise"],
                    "cycles_seed": spec["cycles_seed"], "skin_detail": spec["skin_detail"]},
