@@ -1,8 +1,8 @@
 """Snap the eyelid margin onto the placed eyeball (SynthesEyes 3.3).
 
 Each margin-loop vertex moves along its vertex normal to where that line meets the eyeball's
-outer surface (the parametric eye of pipeline/eyeball scaled to the fitted radius, placed at
-the fitted centre and forward direction); when the line misses or grazes the surface (no
+outer surface (the parametric eye of pipeline/eyeball with its sphere at the fitted radius,
+``placed_params``: cornea, iris and pupil keep their mm; at the fitted centre and forward direction); when the line misses or grazes the surface (no
 crossing within ``max_move_mm``) the vertex goes to its closest surface point instead.
 Vertices near the margin follow with a smooth falloff of the margin displacement over the
 edge-graph distance ``falloff_mm`` (C1 smoothstep, weight 1 at the margin, 0 beyond), so no
@@ -248,7 +248,7 @@ def margin_report(V, loop, eye: PlacedEye, st: SnapSettings, n_steps=5):
     mids = 0.5 * (P + np.roll(P, -1, axis=0))
     dm = eye.signed_distance(mids)
     gmax, imax, cornea = 0.0, 0.0, False
-    base = eye.signed_distance(P)
+    base = d
     for pitch in np.linspace(-st.max_pitch_deg, st.max_pitch_deg, n_steps):
         for yaw in np.linspace(-st.max_yaw_deg, st.max_yaw_deg, n_steps):
             dr = rotated(eye, pitch, yaw).signed_distance(P)

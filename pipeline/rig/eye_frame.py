@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.geometry.frame import eye_basis
+from pipeline.io.eyes_file import lateral_canthus_index
 
 
 @dataclass
@@ -91,10 +92,7 @@ def find_lateral_canthus(points, center, forward, side: str) -> int:
     side : {"left", "right"}
         Lateral is head +X for the left eye, -X for the right eye.
     """
-    ex = eye_basis(forward)[0]
-    sign = 1.0 if side == "left" else -1.0
-    x = (np.asarray(points, dtype=np.float64) - np.asarray(center)) @ ex * sign
-    return int(np.argmax(x))
+    return lateral_canthus_index(points, np.asarray(center, dtype=np.float64), forward, side)
 
 
 def rotate_about_axis(P, center, axis, angles) -> np.ndarray:
