@@ -1,20 +1,29 @@
 """Benchmark the per-scan chain ingest -> remove_eyeballs -> retopo -> bake -> snap -> rig -> usd on a big synthetic head.
 
     .venv/bin/python -m benchmarks.bench_chain [--triangles 1400000] [--repeats 3] [--texture-size 1024]
-                                               [--eyeball DIR] [--keep DIR]
+                                               [--eyeball DIR] [--keep DIR] [--compare CHECKOUT]
 
 Generates the synthetic head once (``make_synthetic_head`` + ``write_scan_folder`` into a temp folder),
 builds the eyeball asset once (preview off) unless ``--eyeball`` names one, then runs each stage exactly as
 dvc.yaml does (``python -m stages.<stage> ... --metrics ...``, params from ./params.yaml with the usd
-stage's preview off: a scan to a validated USD asset) as a subprocess, timing its wall time. Repeated ``--repeats`` times; writes benchmarks/results/chain.json with the median per
-stage and of the total, every run's times, and the last run's stage metrics (internal timings, accuracy)
+stage's preview off: a scan to a validated USD asset) as a subprocess, timing its wall time and its
+CPU time (user + system; hardly moved by other jobs on the machine). Repeated ``--repeats`` times;
+writes benchmarks/results/chain.json with the median per stage and of the total, every run's times,
+the load average before each run, and the last run's stage metrics (internal timings, accuracy)
 plus accuracy against the ground truth (eye centre/radius error, loop-to-margin distance).
+
+``--compare CHECKOUT`` runs another checkout's stages too (``git clone`` of the commit before a
+change), alternating with this one's stage by stage, on the same head: the result gains both
+medians, their ratios, and the files whose bytes differ between the two build folders and
+assets (sha256; the timings files left out).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -48,14 +57,31 @@ def stage_commands(scan, build, eyeball) -> dict:
     }
 
 
-def timed_run(cmd):
-    """Run ``cmd`` in the repository root; its wall time (s), or exit naming it and its stderr."""
+def timed_run(cmd, cwd=ROOT):
+    """Run ``cmd`` in the repository root; (wall s, CPU s: user + system of it and its children),
+    or exit naming it and its stderr. The CPU time hardly moves with other jobs on the machine,
+    the wall time does: both are kept."""
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    r = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
     dt = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if r.returncode != 0:
         raise SystemExit(f"failed ({r.returncode}): {' '.join(map(str, cmd))}\n{r.stderr[-3000:]}")
-    return dt
+    return dt, (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+
+
+def output_hashes(folders: dict) -> dict:
+    """sha256 of every file under each of ``folders`` (label -> folder), keyed ``label/relative
+    path``; the timings files (wall times) are left out."""
+    import hashlib
+
+    out = {}
+    for label, folder in folders.items():
+        for p in sorted(Path(folder).rglob("*")):
+            if p.is_file() and not p.name.endswith(".timings.json"):
+                out[f"{label}/{p.relative_to(folder)}"] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
 
 
 def main():
@@ -68,6 +94,10 @@ def main():
     ap.add_argument("--eyeball", default=None, help="existing eyeball asset folder (else built once)")
     ap.add_argument("--keep", default=None, help="work folder to use/keep (default: a temp folder)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "chain.json"))
+    ap.add_argument("--compare", default=None,
+                    help="another checkout (e.g. a clone at the commit before a change): its stages run "
+                         "alternately with this one's, on the same head, into WORK/compare; reports both "
+                         "medians, their ratios and which outputs differ (sha256)")
     args = ap.parse_args()
 
     from pipeline.synthetic_head import make_synthetic_head, write_scan_folder
@@ -111,16 +141,63 @@ def main():
     params.setdefault("usd", {})["preview"] = False      # scan to validated USD (the preview is item 2's)
     pfile = work / "chain_params.yaml"
     pfile.write_text(yaml.safe_dump(params, sort_keys=False))
-    runs = []
+    sides = {"this": (ROOT, b, cmds)}
+    if args.compare:
+        import shutil
+
+        cw = work / "compare"
+        if not (cw / "eyeball" / "eyeball.usda").exists():
+            shutil.copytree(eyeball, cw / "eyeball", dirs_exist_ok=True)
+        sides["compare"] = (Path(args.compare).resolve(), cw / "build",
+                            stage_commands(scan, cw / "build", cw / "eyeball"))
+    runs, cpu_runs, loads = {k: [] for k in sides}, {k: [] for k in sides}, []
     for rep in range(args.repeats):
-        times = {}
+        times = {k: {} for k in sides}
+        cpu = {k: {} for k in sides}
+        loads.append(round(os.getloadavg()[0], 2))
+        # stage by stage, the two sides alternate (ABBA over the repeats), so load drifts hit both
+        order = list(sides) if rep % 2 == 0 else list(sides)[::-1]
         for st in STAGES:
-            cmd = py + [str(c) for c in cmds[st]] + ["--metrics", str(b / f"{st}.metrics.json"),
-                                                     "--params", str(pfile)]
-            times[st] = timed_run(cmd)
-        times["total"] = sum(times[s] for s in STAGES)
-        runs.append(times)
-        print(f"run {rep + 1}: " + "  ".join(f"{k} {v:.2f}" for k, v in times.items()), flush=True)
+            for side in order:
+                cwd, bb, cc = sides[side]
+                cmd = py + [str(c) for c in cc[st]] + ["--metrics", str(bb / f"{st}.metrics.json"),
+                                                       "--params", str(pfile)]
+                times[side][st], cpu[side][st] = timed_run(cmd, cwd)
+        for side in sides:
+            times[side]["total"] = sum(times[side][s] for s in STAGES)
+            cpu[side]["total"] = sum(cpu[side][s] for s in STAGES)
+            runs[side].append(times[side])
+            cpu_runs[side].append(cpu[side])
+            print(f"run {rep + 1} {side} (load {loads[-1]:.1f}): "
+                  + "  ".join(f"{k} {v:.2f}" for k, v in times[side].items())
+                  + f"  (CPU {cpu[side]['total']:.1f} s)", flush=True)
+    compare = None
+    if args.compare:
+        def med(rs, k):
+            return float(np.median([r[k] for r in rs]))
+
+        keys = list(STAGES) + ["total"]
+        ha = output_hashes({"build": b, "asset": eyeball.parent / f"{scan.name}_asset"})
+        hb = output_hashes({"build": sides["compare"][1], "asset": work / "compare" / f"{scan.name}_asset"})
+        compare = {
+            "checkout": str(sides["compare"][0]),
+            "median_s": {k: med(runs["compare"], k) for k in keys},
+            "median_cpu_s": {k: med(cpu_runs["compare"], k) for k in keys},
+            "wall_ratio_this_over_compare": {k: med(runs["this"], k) / med(runs["compare"], k) for k in keys},
+            "cpu_ratio_this_over_compare": {k: med(cpu_runs["this"], k) / med(cpu_runs["compare"], k)
+                                            for k in keys},
+            "runs_s": runs["compare"], "runs_cpu_s": cpu_runs["compare"],
+            "files_compared": len(set(ha) | set(hb)),
+            "files_differing": sorted(k for k in set(ha) | set(hb) if ha.get(k) != hb.get(k)),
+        }
+        print("compare median s: " + "  ".join(f"{k} {v:.2f}" for k, v in compare["median_s"].items()))
+        print("wall ratio this/compare: " + "  ".join(
+            f"{k} {v:.2f}" for k, v in compare["wall_ratio_this_over_compare"].items()))
+        print("CPU ratio this/compare: " + "  ".join(
+            f"{k} {v:.2f}" for k, v in compare["cpu_ratio_this_over_compare"].items()))
+        print(f"outputs: {len(compare['files_differing'])} of {compare['files_compared']} files differ"
+              + (": " + ", ".join(compare["files_differing"]) if compare["files_differing"] else ""))
+    runs, cpu_runs = runs["this"], cpu_runs["this"]
 
     metrics = {st: read_stage_metrics(b / f"{st}.metrics.json") for st in STAGES}   # + timings
     eyes = {s: e.doc for s, e in read_eyes(b / "remove_eyeballs" / "eyes.json").items()}
@@ -138,13 +215,19 @@ def main():
         "generate_s": gen_s,
         "median_s": {k: float(np.median([r[k] for r in runs])) for k in list(STAGES) + ["total"]},
         "runs_s": runs,
+        "median_cpu_s": {k: float(np.median([r[k] for r in cpu_runs])) for k in list(STAGES) + ["total"]},
+        "runs_cpu_s": cpu_runs,
+        "load_average_1min": loads,
         "accuracy": accuracy,
         "stage_metrics": metrics,
     }
+    if compare is not None:
+        result["compare"] = compare
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
     print("median s: " + "  ".join(f"{k} {v:.2f}" for k, v in result["median_s"].items()))
+    print("median CPU s: " + "  ".join(f"{k} {v:.2f}" for k, v in result["median_cpu_s"].items()))
     print("accuracy: " + json.dumps(accuracy))
     for st in STAGES:
         m = {k: v for k, v in metrics[st].items() if k.endswith("_s") or "error" in k or "removed" in k}

@@ -80,6 +80,7 @@ BENCHMARKS = (
                                 str(ROOT / "benchmarks" / "out" / "view_rig_synthetic_head.png")),
               needs=("synthetic_build",)),
     Benchmark("bench_asset_preview", modest=("--runs", "1"), needs=("synthetic_asset",)),
+    Benchmark("bench_new_scan", modest=("--repeats", "1")),        # its own clone: dvc repro of one new scan
     Benchmark("bench_render", needs=("synthetic_asset",)),
     Benchmark("bench_render_quality", modest=("--repeats", "1"), needs=("synthetic_asset",)),
     Benchmark("bench_proportions", needs=("synthetic_asset",)),

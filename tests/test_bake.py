@@ -99,6 +99,42 @@ def test_missed_texels_are_counted_and_filled():
     assert np.isfinite(b.displacement).all()
 
 
+def test_prebuilt_scene_gives_the_same_maps():
+    """bake_scan builds the Embree scene while the mesh unwraps and hands it to bake_maps: the maps
+    (a half scan: some misses) are the same bytes as when bake_maps builds the scene itself, and as
+    without the far faces (the colour lookup maps hits back through the scene's face_ids)."""
+    from pipeline.bake.bake import dense_scene
+    from pipeline.bake.raycast import cast_both_ways
+
+    Vd, Fd = bumpy_sphere(5)
+    keep = Vd[Fd].mean(1)[:, 2] > 0
+    # faces far outside the low-poly mesh's box come first, so the scene's faces are renumbered
+    Vd = np.concatenate([Vd, Vd + 100.0])
+    Fd = np.concatenate([Fd[:500] + len(Vd) // 2, Fd[keep]])
+    dense = {"V": Vd, "F": Fd, "VC": (np.abs(Vd) * 10 % 255).astype(np.uint8)}
+    V, F = smooth_sphere(2)
+    s = BakeSettings(resolution=128, falloff_mm=0.0, max_distance_mm=1.0)
+    UV, FUV = unwrap(V, F, s.resolution, s.uv_padding_texels)
+    scene = dense_scene(V, dense, s)
+    assert scene.face_ids[0] == 500 and np.array_equal(scene.F, dense["F"][scene.face_ids])
+    a = bake_maps(V, F, {}, dense, None, s, UV=UV, FUV=FUV)
+    b = bake_maps(V, F, {}, dense, None, s, UV=UV, FUV=FUV, scene=scene)
+    c = bake_maps(V, F, {}, {**dense, "F": Fd[500:]}, None, s, UV=UV, FUV=FUV)   # without the far faces
+    assert a.metrics["missed_texels"] > 0
+    for other in (b, c):
+        assert np.array_equal(a.displacement, other.displacement) and np.array_equal(a.color, other.color)
+    # the two-way cast picks the nearer of the forward and backward hits of intersect()
+    P = V * 1.01
+    N = P / np.linalg.norm(P, axis=1, keepdims=True)
+    disp, face, bary = cast_both_ways(scene, P, N, 1.0)
+    t, f, w = scene.intersect(np.concatenate([P - 1e-3 * N, P + 1e-3 * N]), np.concatenate([N, -N]), 1.0 + 1e-3)
+    k = len(P)
+    back = np.isnan(t[:k]) | (np.abs(t[k:] - 1e-3) < np.abs(t[:k] - 1e-3))
+    assert np.allclose(np.where(back, -(t[k:] - 1e-3), t[:k] - 1e-3), disp, equal_nan=True)
+    assert np.array_equal(np.where(back, f[k:], f[:k]), face)
+    assert np.array_equal(np.where(back[:, None], w[k:], w[:k]), bary)
+
+
 def test_exr_roundtrip_and_preview(tmp_path):
     rng = np.random.default_rng(1)
     a = (rng.standard_normal((37, 53)) * 0.3).astype(np.float32)

@@ -77,7 +77,7 @@ def distance_to_polylines(P, loops, step=0.05):
         t = np.concatenate([np.arange(k) / k for k in n])
         ia = np.repeat(np.arange(len(L)), n)
         pts.append(A[ia] + t[:, None] * (B[ia] - A[ia]))
-    d, _ = cKDTree(np.concatenate(pts)).query(P)
+    d, _ = cKDTree(np.concatenate(pts)).query(P, workers=-1)     # nearest neighbours: same on any core count
     return d
 
 
@@ -97,8 +97,23 @@ def _dense_colour(dense: dict, texture, face, bary):
     return None
 
 
+def dense_scene(V, dense: dict, settings: BakeSettings = BakeSettings()) -> DenseScene:
+    """The Embree scene of the part of the dense scan that rays from the low-poly mesh ``V``
+    (n, 3) can reach: faces with a vertex in its bounding box padded by ``max_distance_mm`` + 1.
+    Its BVH is built here (one ray is cast), so it can be made while the mesh is unwrapped.
+    Its ``face_ids`` (r,) int64 map the scene's faces back to ``dense["F"]``."""
+    V = np.asarray(V, dtype=np.float64)
+    dV = np.asarray(dense["V"], dtype=np.float64)
+    dF_all = np.asarray(dense["F"], dtype=np.int64)
+    pad = settings.max_distance_mm + 1.0
+    near_faces = faces_near_box(dV, dF_all, V.min(axis=0) - pad, V.max(axis=0) + pad)
+    scene = DenseScene(dV, dF_all[near_faces], face_ids=near_faces)
+    scene.intersect(V[:1], np.array([[0.0, 0.0, 1.0]]), 1.0)     # Embree builds the BVH on first use
+    return scene
+
+
 def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = BakeSettings(),
-              UV=None, FUV=None) -> BakeResult:
+              UV=None, FUV=None, scene: DenseScene | None = None) -> BakeResult:
     """UV-unwrap the low-poly mesh and bake displacement and colour from the dense scan.
 
     Parameters
@@ -111,6 +126,7 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
         Dense scan arrays ``V``, ``F`` and optionally ``UV``/``FUV`` (with ``texture``) or ``VC``.
     texture : (h, w, 3|4) uint8 array or None
     UV, FUV : optional existing atlas (skips xatlas)
+    scene : optional :func:`dense_scene` of ``V`` and ``dense`` with these settings, already built
 
     Returns
     -------
@@ -135,13 +151,9 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     timings["rasterize_s"] = time.perf_counter() - t1
 
     t2 = time.perf_counter()
-    # only the scan near the low-poly mesh matters: faces with a vertex in its padded bounding box
-    dV = np.asarray(dense["V"], dtype=np.float64)
-    dF_all = np.asarray(dense["F"], dtype=np.int64)
-    near_faces = faces_near_box(dV, dF_all, V.min(axis=0) - s.max_distance_mm - 1.0,
-                                V.max(axis=0) + s.max_distance_mm + 1.0)
-    dF = dF_all[near_faces]
-    scene = DenseScene(dV, dF)
+    if scene is None:
+        scene = dense_scene(V, dense, s)
+    dV, dF, near_faces = scene.V, scene.F, scene.face_ids
     timings["scene_s"] = time.perf_counter() - t2
     t3 = time.perf_counter()
     disp, hface, hbary = cast_both_ways(scene, P, N, s.max_distance_mm)

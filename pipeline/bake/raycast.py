@@ -13,14 +13,17 @@ class DenseScene:
     Parameters
     ----------
     V : (n, 3) float64, F : (m, 3) int64
+    face_ids : optional (m,) int64, kept as ``face_ids``: where each face of ``F`` comes from
+        (e.g. its index in the whole scan when ``F`` is a part of it)
     """
 
-    def __init__(self, V, F):
+    def __init__(self, V, F, face_ids=None):
         from embreex import rtcore_scene as rtcs
         from embreex.mesh_construction import TriangleMesh
 
         self.V = np.asarray(V, dtype=np.float64)
         self.F = np.asarray(F, dtype=np.int64)
+        self.face_ids = None if face_ids is None else np.asarray(face_ids, dtype=np.int64)
         self.origin = 0.5 * (self.V.min(axis=0) + self.V.max(axis=0))
         self.scene = rtcs.EmbreeScene()
         tri = (self.V - self.origin)[self.F].astype(np.float32)
@@ -35,8 +38,15 @@ class DenseScene:
         face : (k,) int64 (-1 where missed)
         bary : (k, 3) float64 barycentric coordinates of the hit in ``F[face]``
         """
-        o = np.ascontiguousarray(np.asarray(origins, dtype=np.float64) - self.origin, dtype=np.float32)
-        d = np.ascontiguousarray(dirs, dtype=np.float32)
+        tfar, face, u, v = self.trace(np.asarray(origins, dtype=np.float64) - self.origin, dirs, max_dist)
+        t = np.where(face >= 0, tfar.astype(np.float64), np.nan)
+        return t, face.astype(np.int64), _bary(u, v)
+
+    def trace(self, o, d, max_dist):
+        """Raw Embree hits of rays from ``o`` (re-centred) along ``d``: tfar, primID, u, v
+        (float32, int32, float32, float32; primID -1 where missed)."""
+        o = np.ascontiguousarray(o, dtype=np.float32)
+        d = np.ascontiguousarray(d, dtype=np.float32)
         dist = np.full(len(o), float(max_dist), dtype=np.float32)
         # embreex releases the GIL while tracing: split big batches over the cores (rays are
         # independent, so the results do not depend on the split)
@@ -52,16 +62,21 @@ class DenseScene:
                                                              dists=dist[ab[0]:ab[1]], output=1),
                                     zip(bounds[:-1], bounds[1:])))
 
-        def col(name, dtype):
-            return np.concatenate([np.asarray(p[name], dtype=dtype) for p in parts])
+        def col(name):
+            return np.concatenate([np.asarray(p[name]) for p in parts])
 
-        face = col("primID", np.int64)
-        hit = face >= 0
-        t = np.where(hit, col("tfar", np.float64), np.nan)
-        u = col("u", np.float64)
-        v = col("v", np.float64)
-        bary = np.stack([1.0 - u - v, u, v], axis=1)
-        return t, face, bary
+        return col("tfar"), col("primID"), col("u"), col("v")
+
+
+def _bary(u, v):
+    """Barycentric coordinates (k, 3) float64 of Embree's hit coordinates ``u``, ``v``."""
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    bary = np.empty((len(u), 3))
+    bary[:, 0] = 1.0 - u - v
+    bary[:, 1] = u
+    bary[:, 2] = v
+    return bary
 
 
 def cast_both_ways(scene: DenseScene, P, N, max_dist, eps=1e-3):
@@ -80,10 +95,14 @@ def cast_both_ways(scene: DenseScene, P, N, max_dist, eps=1e-3):
     N = np.asarray(N, dtype=np.float64)
     k = len(P)
     o = np.concatenate([P - eps * N, P + eps * N])
+    o -= scene.origin
     d = np.concatenate([N, -N])
-    t, face, bary = scene.intersect(o, d, max_dist + eps)
+    tfar, face, u, v = scene.trace(o, d, max_dist + eps)
+    # the nearer of the two hits, chosen first: only k of the 2k rays get float64 barycentrics
+    hit = face >= 0
+    t = np.where(hit, tfar.astype(np.float64), np.nan)
     tf, tb = t[:k] - eps, t[k:] - eps
     use_b = np.isnan(tf) | (~np.isnan(tb) & (np.abs(tb) < np.abs(tf)))
     disp = np.where(use_b, -tb, tf)
     sel = np.where(use_b, np.arange(k) + k, np.arange(k))
-    return disp, face[sel], bary[sel]
+    return disp, face[sel].astype(np.int64), _bary(u[sel], v[sel])
