@@ -9,7 +9,8 @@ dvc.yaml does (``python -m stages.<stage> ... --metrics ...``, params from ./par
 stage's preview off: a scan to a validated USD asset) as a subprocess, timing its wall time and its
 CPU time (user + system; hardly moved by other jobs on the machine). Repeated ``--repeats`` times;
 writes benchmarks/results/chain.json with the median per stage and of the total, every run's times,
-the load average before each run, and the last run's stage metrics (internal timings, accuracy)
+the load average before each run, each stage's import time (one more run with ``-X importtime``,
+the imports done lazily inside functions included), and the last run's stage metrics (internal timings, accuracy)
 plus accuracy against the ground truth (eye centre/radius error, loop-to-margin distance).
 
 ``--compare CHECKOUT`` runs another checkout's stages too (``git clone`` of the commit before a
@@ -69,6 +70,22 @@ def timed_run(cmd, cwd=ROOT):
     if r.returncode != 0:
         raise SystemExit(f"failed ({r.returncode}): {' '.join(map(str, cmd))}\n{r.stderr[-3000:]}")
     return dt, (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+
+
+def import_seconds(cmd, cwd=ROOT) -> float:
+    """Seconds a run of ``cmd`` (``python -m stages.<stage> ...``) spends importing modules, the
+    lazy imports inside functions included: the top-level entries of ``-X importtime``."""
+    r = subprocess.run([cmd[0], "-X", "importtime", *cmd[1:]], cwd=cwd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"failed ({r.returncode}): {' '.join(map(str, cmd))}\n{r.stderr[-3000:]}")
+    total_us = 0
+    for line in r.stderr.splitlines():
+        parts = line.split("|")
+        # "import time: self [us] | cumulative | name": a top-level import's name has one leading space
+        if line.startswith("import time:") and len(parts) == 3 and parts[1].strip().isdigit() \
+                and parts[2].startswith(" ") and not parts[2].startswith("  "):
+            total_us += int(parts[1])
+    return total_us / 1e6
 
 
 def output_hashes(folders: dict) -> dict:
@@ -171,6 +188,13 @@ def main():
             print(f"run {rep + 1} {side} (load {loads[-1]:.1f}): "
                   + "  ".join(f"{k} {v:.2f}" for k, v in times[side].items())
                   + f"  (CPU {cpu[side]['total']:.1f} s)", flush=True)
+    # the profile's start-up share: one more run of each stage with -X importtime
+    imports = {}
+    for st in STAGES:
+        cwd, bb, cc = sides["this"]
+        imports[st] = import_seconds(py + [str(c) for c in cc[st]]
+                                     + ["--metrics", str(bb / f"{st}.metrics.json"), "--params", str(pfile)], cwd)
+    print("imports s: " + "  ".join(f"{k} {v:.2f}" for k, v in imports.items()), flush=True)
     compare = None
     if args.compare:
         def med(rs, k):
@@ -218,6 +242,7 @@ def main():
         "median_cpu_s": {k: float(np.median([r[k] for r in cpu_runs])) for k in list(STAGES) + ["total"]},
         "runs_cpu_s": cpu_runs,
         "load_average_1min": loads,
+        "imports_s": imports,
         "accuracy": accuracy,
         "stage_metrics": metrics,
     }

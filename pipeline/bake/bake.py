@@ -27,7 +27,7 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.bake.raycast import DenseScene, cast_both_ways
-from pipeline.bake.uv import dilate_many, rasterize, sample_bilinear, unwrap
+from pipeline.bake.uv import dilation_sources, rasterize, sample_bilinear, unwrap
 from pipeline.geometry import mesh_checks as mc
 from pipeline.settings import Settings, setting
 
@@ -113,7 +113,7 @@ def dense_scene(V, dense: dict, settings: BakeSettings = BakeSettings()) -> Dens
 
 
 def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = BakeSettings(),
-              UV=None, FUV=None, scene: DenseScene | None = None) -> BakeResult:
+              UV=None, FUV=None, scene: DenseScene | None = None, on_displacement=None) -> BakeResult:
     """UV-unwrap the low-poly mesh and bake displacement and colour from the dense scan.
 
     Parameters
@@ -127,6 +127,8 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     texture : (h, w, 3|4) uint8 array or None
     UV, FUV : optional existing atlas (skips xatlas)
     scene : optional :func:`dense_scene` of ``V`` and ``dense`` with these settings, already built
+    on_displacement : optional callable ``(UV, FUV, displacement)``, called as soon as the padded
+        displacement map is final, before the colour map (bake_scan starts the accuracy metric there)
 
     Returns
     -------
@@ -182,14 +184,16 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     mask[rows, cols] = True
     dimg = np.zeros((res, res), dtype=np.float32)
     dimg[rows, cols] = disp_w
+    grow, sy, sx = dilation_sources(mask, s.padding_texels)
+    dimg[grow] = dimg[sy, sx]
+    if on_displacement is not None:
+        on_displacement(UV, FUV, dimg)
     col = _dense_colour(dense, texture, hface, hbary)
     cimg = None
     if col is not None:
         cimg = np.zeros((res, res, 3), dtype=np.uint8)
         cimg[rows, cols] = np.clip(np.round(col), 0, 255).astype(np.uint8)
-        (dimg, cimg), _ = dilate_many([dimg, cimg], mask, s.padding_texels)
-    else:
-        (dimg,), _ = dilate_many([dimg], mask, s.padding_texels)
+        cimg[grow] = cimg[sy, sx]
     timings["maps_s"] = time.perf_counter() - t4
     timings["total_s"] = time.perf_counter() - t0
     metrics = {

@@ -118,20 +118,19 @@ def rasterize(UV, FUV, width, height):
     return rows[first], cols[first], face[first], bary[first]
 
 
-def dilate_many(images, mask, iterations):
-    """:func:`dilate` for several images sharing one mask (one distance transform)."""
+def dilation_sources(mask, iterations):
+    """Where :func:`dilate` pads past the edges of ``mask`` (H, W) bool, computed once for any
+    number of images: ``grow`` (H, W) bool, the padded texels, and ``sy``, ``sx`` (k,), the row and
+    column of the masked texel each of them copies (``img[grow] = img[sy, sx]``)."""
     from scipy import ndimage
 
     mask = np.asarray(mask, dtype=bool)
-    out = [np.array(im, copy=True) for im in images]
     if not mask.any() or iterations <= 0:
-        return out, mask.copy()
+        none = np.zeros(0, dtype=np.int64)
+        return np.zeros_like(mask), none, none
     dist, (iy, ix) = ndimage.distance_transform_edt(~mask, return_indices=True)
     grow = (~mask) & (dist <= iterations)
-    sy, sx = iy[grow], ix[grow]
-    for im in out:
-        im[grow] = im[sy, sx]
-    return out, mask | grow
+    return grow, iy[grow], ix[grow]
 
 
 def dilate(img, mask, iterations):
@@ -147,15 +146,10 @@ def dilate(img, mask, iterations):
     -------
     img, mask : the padded image (same dtype) and the grown mask (inputs are not modified)
     """
-    from scipy import ndimage
-
     mask = np.asarray(mask, dtype=bool)
     img = np.array(img, copy=True)
-    if not mask.any() or iterations <= 0:
-        return img, mask.copy()
-    dist, (iy, ix) = ndimage.distance_transform_edt(~mask, return_indices=True)
-    grow = (~mask) & (dist <= iterations)
-    img[grow] = img[iy[grow], ix[grow]]
+    grow, sy, sx = dilation_sources(mask, iterations)
+    img[grow] = img[sy, sx]
     return img, mask | grow
 
 

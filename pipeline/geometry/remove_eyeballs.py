@@ -19,6 +19,7 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.fork import fork_call, fork_result
 from pipeline.geometry import eye_checks, meshtopo
 from pipeline.geometry.eye_fit import (EyeMesh, eye_surface_distance, find_eye, local_mesh,
                                        median_edge_length)
@@ -334,6 +335,20 @@ def _holes_inside(F, remove):
     return int((~kept).sum())
 
 
+def _find_both(mesh, hints, st, per_side: dict, **kwargs) -> dict:
+    """``find_eye`` of both sides, the left one in a forked child while this process fits the right
+    one: the fits are independent (each side seeds its own generator), so the results are those
+    of one after the other, and so is the error when both fail (the left one's)."""
+    left, right = SIDES
+    job = fork_call(find_eye, mesh, hints[left], left, st, **kwargs, **per_side.get(left, {}))
+    try:
+        fit_right = find_eye(mesh, hints[right], right, st, **kwargs, **per_side.get(right, {}))
+    except BaseException:
+        fork_result(job)        # raises the left side's error, when it has one
+        raise
+    return {left: fork_result(job)[0], right: fit_right}
+
+
 def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None):
     """Fit both eyes; with ``shared_radius`` refit both with their inverse-variance weighted mean
     radius when both are geometric fits whose radii agree within ``shared_radius_max_z`` standard
@@ -357,14 +372,12 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
         rim = np.array([np.flatnonzero(np.isin(Fs[:n_local], loop).any(axis=1))[0] for loop in holes])
         sub_arrays["FUV"] = np.concatenate([sub_arrays["FUV"],
                                             sub_arrays["FUV"][rim[hole_of_face[n_local:]]]])
-    fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=sub_arrays,
-                        texture=texture) for s in SIDES}
+    fits = _find_both(mesh, hints, st, {}, source=source, mesh_arrays=sub_arrays, texture=texture)
     if st.shared_radius and all(fits[s].method == "geometry" for s in SIDES) and _radii_agree(fits, st):
         w = np.array([1.0 / max(fits[s].radius_sigma, 1e-3) ** 2 for s in SIDES])
         r = float(np.average([fits[s].radius for s in SIDES], weights=w))
-        fits = {s: find_eye(mesh, hints[s], s, st, source=source, mesh_arrays=sub_arrays,
-                            texture=texture, fixed_radius=r, capped=fits[s].capped)
-                for s in SIDES}
+        fits = _find_both(mesh, hints, st, {s: {"fixed_radius": r, "capped": fits[s].capped} for s in SIDES},
+                          source=source, mesh_arrays=sub_arrays, texture=texture)
     for fit in fits.values():       # back to full-mesh ids
         region = np.zeros(len(F), bool)
         region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
