@@ -17,7 +17,8 @@ The head is procedural (``make_synthetic_head`` with ``--seed``, not the home sc
 with ``--source scanify``, an ICT-FaceKit identity from scanify (``../shared/tools/scanify``,
 about a minute to generate); generating it is not timed. Per stage the result has the wall
 time between DVC's ``Running stage`` lines (DVC's own hashing and lock writing included) and
-the stage's own ``wall_time_s`` (build/<scan>/<stage>.timings.json). Writes
+the stage's own ``wall_time_s`` and ``cpu_time_s`` (build/<scan>/<stage>.timings.json; the CPU
+time hardly moves with other jobs on the machine, the wall times do). Writes
 benchmarks/results/new_scan.json: medians over the repeats, every repeat, the load average
 before each, and the clone's commit.
 """
@@ -181,6 +182,7 @@ def main():
         run = {"scan": name, "load_average_1min": round(load, 2), "total_s": round(total, 3),
                "dvc_stage_s": {k: round(v, 3) for k, v in stage_walls(starts, total).items()},
                "stage_wall_time_s": {k: v.get("wall_time_s") for k, v in own.items()},
+               "stage_cpu_time_s": {k: v.get("cpu_time_s") for k, v in own.items()},
                "preview_s": usd.get("preview_s"), "images": images,
                "render_timings": own.get("render", {})}
         runs.append(run)
@@ -201,6 +203,7 @@ def main():
         "median_total_s": med("total_s"),
         "median_dvc_stage_s": {st: med("dvc_stage_s", st) for st in STAGES},
         "median_stage_wall_time_s": {st: med("stage_wall_time_s", st) for st in STAGES[1:]},
+        "median_stage_cpu_time_s": {st: med("stage_cpu_time_s", st) for st in STAGES[1:]},
         "median_preview_s": med("preview_s"),
         "images": runs[-1]["images"],
         "runs": runs,

@@ -2,7 +2,7 @@
 
 A stage's ``main`` is wrapped by :func:`run_stage`, which turns
 :class:`pipeline.errors.ScanError` into one line on stderr and exit status 2
-(no traceback), and adds wall time and peak memory to the stage's metrics.
+(no traceback), and adds wall time, CPU time and peak memory to the stage's metrics.
 """
 
 from __future__ import annotations
@@ -110,6 +110,14 @@ def peak_memory_mib() -> float:
     return max(own, children) / 1024.0
 
 
+def cpu_time_s() -> float:
+    """CPU seconds (user + system) of this process and its waited-for children (forked helpers,
+    Blender workers): unlike the wall time, hardly moved by other jobs on the machine."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def is_timing_key(key) -> bool:
     """A metrics key that measures the run (seconds, MiB): a ``s`` or ``mib`` word in its name
     (``wall_time_s``, ``render_s_median``, ``images_per_s``, ``peak_memory_mib``)."""
@@ -186,7 +194,7 @@ def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
 
     ``main`` returns its metrics dict and the path to write them to under the key
     ``"_path"``. What the run measured rather than what it made (every key with an ``_s``
-    or ``_mib`` word, anything under ``"_run"``, and the wall time and peak memory added
+    or ``_mib`` word, anything under ``"_run"``, and the wall time, CPU time and peak memory added
     here) goes to the timings file beside (:func:`split_timings`, :func:`timings_path`), so
     the metrics file, a DVC output, has the same bytes for the same inputs. ``main`` runs with its own scratch
     folder as ``TMPDIR`` (pipeline.io.scratch.stage_scratch), removed when it returns.
@@ -228,7 +236,7 @@ def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
         run = metrics.pop("_run", {})
         results, timings = split_timings(metrics)
         timings = {**run, **timings, "wall_time_s": round(time.perf_counter() - t0, 4),
-                   "peak_memory_mib": round(peak_memory_mib(), 1)}
+                   "cpu_time_s": round(cpu_time_s(), 4), "peak_memory_mib": round(peak_memory_mib(), 1)}
         write_json(path, results)
         write_json(timings_path(path), timings)
     return 0

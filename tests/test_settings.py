@@ -135,6 +135,7 @@ def test_timings_go_beside_the_metrics_not_into_them(tmp_path):
     """What a run measured (seconds, MiB, run facts) goes to <stage>.timings.json; the metrics
     file (a DVC output hashed in dvc.lock) keeps only what the inputs determine."""
     import json
+    import time
 
     from stages._common import read_stage_metrics, run_stage, split_timings, timings_path
 
@@ -150,10 +151,12 @@ def test_timings_go_beside_the_metrics_not_into_them(tmp_path):
     def main(argv):
         return {"_path": path, "accuracy_mm": 0.5, "fit_s": 1.25, "_run": {"skipped_done": 2}}
 
+    cpu_before = time.process_time()
     assert run_stage(main, []) == 0
     assert json.loads(path.read_text()) == {"accuracy_mm": 0.5}
     t = json.loads(timings_path(path).read_text())
     assert t["fit_s"] == 1.25 and t["skipped_done"] == 2 and t["wall_time_s"] >= 0 and t["peak_memory_mib"] > 0
+    assert t["cpu_time_s"] >= cpu_before > 0        # this process's CPU from its start, children added
     assert read_stage_metrics(path)["fit_s"] == 1.25
 
 
