@@ -17,7 +17,17 @@ stage draws its images (``pipeline.render.sampling.make_sample`` with the ``rend
 sample i = image i, no Blender needed), and over the labels of the stage's own images in
 ``renders/<s>/`` when they exist. Also in mm: the iris diameter and the canthus distance in the
 image (px times mm per px), the eye's fitted radius and the rest canthus distance in 3D.
-Target (issue 14): the median ratio in 0.35-0.43 on every home scan. Writes
+Target (issue 14): the median ratio in 0.35-0.43 on every home scan.
+
+Where the scan folder (``raw_scans/<s>/``) holds the truth of its eye corners, the rest canthus
+landmarks are compared with it, per eye, in mm (``truth`` in the JSON): ``ground_truth.json``
+``eyes.<side>.eyelid_margin`` (synthetic heads and scanify heads: the margin loop's
+``medial_canthus_index`` / ``lateral_canthus_index`` points), or 68-point annotations
+``*_landmarks68.npy`` + ``*_landmarks68_groups.json`` (menpo's groups, as ``james`` ships them:
+``reye`` = the subject's left eye; its corners are the group's points farthest toward and away
+from the midline). Only a scan whose ``scan.yaml`` already is in mm and the head frame is compared
+(the truth is in scan coordinates). ``iris_over_true_corners`` is the median iris diameter over
+the true corner distance: the ratio the labels would give with exact canthus landmarks. Writes
 ``benchmarks/results/proportions.json`` and prints a table.
 """
 
@@ -95,6 +105,63 @@ def rest_geometry(asset) -> dict:
     return out
 
 
+def truth_corners(scan_dir: Path) -> dict | None:
+    """The true eye corners of a scan folder, or None when it has none (module doc).
+
+    Returns
+    -------
+    dict
+        ``{"source": str, "left": {"medial": (3,), "lateral": (3,)}, "right": {...}}``, mm.
+    """
+    import json
+
+    import yaml
+
+    meta = yaml.safe_load((scan_dir / "scan.yaml").read_text(encoding="utf-8")) or {}
+    if (meta.get("units"), meta.get("up_axis"), meta.get("forward_axis")) != ("mm", "+Y", "+Z"):
+        return None
+    gt = scan_dir / "ground_truth.json"
+    if gt.is_file():
+        eyes = json.loads(gt.read_text(encoding="utf-8")).get("eyes", {})
+        out = {"source": "ground_truth.json eyelid_margin"}
+        for side in ("left", "right"):
+            m = eyes[side]["eyelid_margin"]
+            P = np.asarray(m["points_mm"], float)
+            out[side] = {"medial": P[int(m["medial_canthus_index"])],
+                         "lateral": P[int(m["lateral_canthus_index"])]}
+        return out
+    for npy in sorted(scan_dir.glob("*_landmarks68.npy")):
+        groups = npy.with_name(npy.stem + "_groups.json")
+        if not groups.is_file():
+            continue
+        L, g = np.load(npy), json.loads(groups.read_text(encoding="utf-8"))
+        eyes = {"left": L[g["reye"]], "right": L[g["leye"]]}
+        mid = 0.5 * (eyes["left"][:, 0].mean() + eyes["right"][:, 0].mean())
+        out = {"source": f"{npy.name} (68-point annotations)"}
+        for side, P in eyes.items():
+            lateral = (P[:, 0] - mid) * (1.0 if side == "left" else -1.0)
+            out[side] = {"medial": P[int(np.argmin(lateral))], "lateral": P[int(np.argmax(lateral))]}
+        return out
+    return None
+
+
+def truth_errors(asset, corners: dict, iris_mm: float) -> dict:
+    """Per eye: rest landmarks 0 / 6 against the true corners (mm) and the true corner distance."""
+    from pipeline.render import asset as ra
+
+    out = {"source": corners["source"]}
+    for side in asset.eyes:
+        lm = ra.posed_landmarks(asset, side, {}, {}, np.eye(3))
+        med, lat = corners[side]["medial"], corners[side]["lateral"]
+        true_d = float(np.linalg.norm(med - lat))
+        out[side] = {"medial_error_mm": float(np.linalg.norm(lm[0] - med)),
+                     "lateral_error_mm": float(np.linalg.norm(lm[6] - lat)),
+                     "true_canthus_distance_mm": true_d,
+                     "rest_canthus_distance_mm": float(np.linalg.norm(lm[0] - lm[6])),
+                     "iris_over_true_corners": iris_mm / true_d}
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scans", nargs="+", default=["synthetic_head", "ict_neutral", "james"])
@@ -124,6 +191,9 @@ def main(argv=None) -> int:
         labels = rendered(ROOT / "renders" / scan)
         if labels:
             entry["renders"] = stats(labels)
+        corners = truth_corners(ROOT / "raw_scans" / scan)
+        if corners is not None:
+            entry["truth"] = truth_errors(asset, corners, entry["sampled"]["iris_mm"]["median"])
         result["scans"][scan] = entry
         s, r = entry["sampled"], entry.get("renders")
         rest = ", ".join(f"{k[0].upper()} {v['radius_mm']:.1f} / {v['canthus_distance_mm']:.1f}"
@@ -131,6 +201,12 @@ def main(argv=None) -> int:
         print(f"{scan:16s} {s['ratio']['median']:>8.3f} ({s['ratio']['p5']:.2f}-{s['ratio']['p95']:.2f}) "
               f"{'':5s}{r['ratio']['median'] if r else float('nan'):>8.3f} {s['iris_mm']['median']:>8.2f} "
               f"{s['canthus_mm']['median']:>10.2f}  {rest} mm")
+        if "truth" in entry:
+            t = entry["truth"]
+            print(f"{'':16s} vs {t['source']}: " + "; ".join(
+                f"{k[0].upper()} medial {v['medial_error_mm']:.2f} / lateral {v['lateral_error_mm']:.2f} mm off, "
+                f"true {v['true_canthus_distance_mm']:.1f} mm (iris / true {v['iris_over_true_corners']:.3f})"
+                for k, v in t.items() if k != "source"))
     out = ROOT / "benchmarks" / "results" / "proportions.json"
     write_json(out, result)
     print(f"wrote {out.relative_to(ROOT)}")

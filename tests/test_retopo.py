@@ -235,3 +235,32 @@ def test_eye_rings_off_is_the_plain_result(patch):
         assert np.allclose(a.V[a.loops[side]], b.V[b.loops[side]])   # same loop, same order
     with pytest.raises(ValueError, match="eye_rings"):
         RetopoSettings.from_params({"eye_rings": -1})
+
+
+def test_both_canthi_are_loop_targets():
+    # an almond with sharp corners, medial canthus first, upper lid first; 40 loop vertices
+    from pipeline.geometry.eyelid_loop import orient_and_place, polyline_arclength
+
+    u = np.linspace(0.0, 1.0, 61)
+    x = -14.0 + 28.0 * u
+    upper = np.column_stack([x, 5.0 * np.sin(np.pi * u), np.zeros_like(u)])
+    lower = np.column_stack([x[::-1], -3.0 * np.sin(np.pi * u[::-1]), np.zeros_like(u)])[1:-1]
+    curve = np.vstack([upper, lower])
+    lateral = len(upper) - 1
+    ang = np.linspace(0, 2 * np.pi, 40, endpoint=False) + 0.05
+    V = np.column_stack([13.5 * np.cos(ang + np.pi), 4.0 * np.sin(ang + np.pi), np.zeros(40)])
+    loop = np.arange(40)
+    _, old, _ = orient_and_place(V, loop, curve, curve[0])
+    lp, T, k = orient_and_place(V, loop, curve, curve[0], lateral)
+    assert np.allclose(T[0], curve[0]) and np.allclose(T[k], curve[lateral])
+    # the whole-loop spacing misses the lateral corner; per-lid spacing lands on it
+    assert old[:, 0].max() < 14.0 - 0.05
+    assert T[:, 0].max() == pytest.approx(14.0)
+    # each lid evenly spaced along the curve (the arc length is measured on a smoothed copy,
+    # which shortens the sharp corners: the end spans are up to a third longer), the vertices
+    # shared by arc length
+    for lid in (T[: k + 1], np.vstack([T[k:], T[:1]])):
+        seg = np.diff(polyline_arclength(lid, closed=False)[0])
+        assert seg.max() < 1.4 * seg.min()
+    up_len = polyline_arclength(upper, closed=False)[0][-1]
+    assert k == round(40 * up_len / polyline_arclength(curve)[0][-1])

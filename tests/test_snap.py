@@ -243,3 +243,39 @@ def test_untangle_lifts_near_flipped_slivers_above_the_area_floor():
     n2 = np.cross(V2[F[:, 1]] - V2[F[:, 0]], V2[F[:, 2]] - V2[F[:, 0]])
     assert (n2[:, 2] > need).all()                     # every face above a quarter of its area
     assert np.array_equal(untangle(V1, F, n0, free)[0], V1)   # flips only: nothing to do
+
+
+def test_snap_lines_never_point_into_the_opening():
+    # a circular loop seen along +Z: normals leaning inward lose that part, outward ones stay
+    ang = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    radial = np.stack([np.cos(ang), np.sin(ang), np.zeros(24)], 1)
+    P = 10.0 * radial
+    z = np.array([0, 0, 1.0])
+    for loop in (P, P[::-1]):
+        rad = loop / 10.0
+        inward = sn._outward_lines(loop, -0.6 * rad + 0.8 * z, z)
+        assert np.allclose(inward, z)
+        outward = 0.6 * rad + 0.8 * z
+        assert np.allclose(sn._outward_lines(loop, outward, z), outward)
+
+
+def test_keep_opening_keeps_the_canthus_where_the_lid_leans_over_it():
+    # the lid rises steeply off the loop, so its vertex normals lean into the opening: snapping
+    # along them moves every loop vertex toward the eye's axis; keep_opening moves none inward
+    V, F, loop = lid_ring(1.2)
+    for ring, lift in ((1, 3.0), (2, 2.0)):                  # a lid wall next to the margin
+        k = np.arange(ring * 72, (ring + 1) * 72)
+        w = V[k] - CENTER
+        V[k] = CENTER + w * (1.0 + lift / np.linalg.norm(w, axis=1, keepdims=True))
+    N = meshtopo.vertex_normals(V, F)[loop]
+    rad = (V[loop] - CENTER) * [1, 1, 0]
+    assert (np.einsum("ij,ij->i", N, rad) < 0).all()           # the premise: normals lean inward
+    eye = _eye()
+    r0 = np.linalg.norm(rad, axis=1)
+    paper, _ = sn.snap_loop(V, F, loop, eye, sn.SnapSettings(keep_opening=False))
+    kept, _ = sn.snap_loop(V, F, loop, eye, sn.SnapSettings())
+    r_paper = np.linalg.norm((paper[loop] - CENTER)[:, :2], axis=1)
+    r_kept = np.linalg.norm((kept[loop] - CENTER)[:, :2], axis=1)
+    assert (r_paper < r0 - 0.1).all()
+    assert (r_kept >= r0 - 1e-9).all()
+    assert np.abs(eye.signed_distance(kept[loop])).max() <= 0.05

@@ -4,7 +4,7 @@ along the dense scan's eyelid loop.
 :func:`resample_loop` collapses or splits boundary edges of a :class:`TriMesh` until the loop
 has the wanted number of vertices; :func:`orient_and_place` orders it like the reference curve
 (same direction, vertex 0 nearest the medial canthus) and gives target positions at even
-arc-length steps. The polyline helpers measure and project along closed polylines.
+arc-length steps along each lid, both canthi among them. The polyline helpers measure and project along closed polylines.
 """
 
 from __future__ import annotations
@@ -88,9 +88,25 @@ def resample_loop(tm: TriMesh, loop, n, curve=None):
     return loop
 
 
-def orient_and_place(V, loop, curve, start_point):
+def orient_and_place(V, loop, curve, start_point, end_index=None):
     """Order the loop like the reference curve (same direction, vertex 0 nearest ``start_point``)
-    and return target positions evenly spaced along the curve."""
+    and return target positions evenly spaced along the curve.
+
+    With ``end_index`` (the lateral canthus: index of a ``curve`` point, ``start_point`` being
+    ``curve[0]``, the medial canthus) each lid is spaced evenly on its own and the lateral canthus
+    is a target itself, as vertex ``k``: the loop's vertices are shared between the lids in
+    proportion to their arc lengths. Without it one even spacing runs round the whole loop, and
+    the lateral canthus falls between two vertices: up to half a spacing short of the corner,
+    which the canthus landmark (the most lateral loop vertex) then misses by as much (0.3-0.8 mm
+    on the synthetic heads at 64 loop vertices).
+
+    Returns
+    -------
+    loop : (L,) int64
+    targets : (L, 3) float64
+    lateral : int or None
+        Position of the lateral canthus target in the loop (None without ``end_index``).
+    """
     loop = np.asarray(loop, dtype=np.int64)
     sp, _, _ = project_to_polyline(V[loop], curve)
     total = polyline_arclength(curve)[0][-1]
@@ -108,5 +124,13 @@ def orient_and_place(V, loop, curve, start_point):
     ss, _ = polyline_arclength(Ps)
     so, _ = polyline_arclength(curve)
     s0s = np.interp(s0, so, ss)
-    targets = point_at_arclength(curve, s0s + np.arange(len(loop)) * ss[-1] / len(loop), smooth=sm)
-    return loop, targets
+    L = len(loop)
+    if end_index is None or not 0 < int(end_index) < len(curve) or L < 6:
+        steps = s0s + np.arange(L) * ss[-1] / L
+        return loop, point_at_arclength(curve, steps, smooth=sm), None
+    upper = float(ss[int(end_index)] - s0s)
+    lower = float(ss[-1] - upper)
+    lat = int(np.clip(round(L * upper / ss[-1]), 3, L - 3))
+    steps = np.concatenate([s0s + np.arange(lat) * upper / lat,
+                            s0s + upper + np.arange(L - lat) * lower / (L - lat)])
+    return loop, point_at_arclength(curve, steps, smooth=sm), lat

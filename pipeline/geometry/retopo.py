@@ -458,7 +458,9 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     all_boundary = np.concatenate(mc.boundary_loops(Fn))
     for side, lp in new_loops.items():
         lp = remap[np.asarray(lp, dtype=np.int64)]
-        lp, targets = orient_and_place(Vn, lp, curves[side], curves[side][0])
+        # both canthi are targets: the stage maps the lateral one to its loop vertex (for rig)
+        lp, targets, _ = orient_and_place(Vn, lp, curves[side], curves[side][0],
+                                          eyes[side].get("lateral_canthus_index"))
         # move in a few steps, keeping faces from flipping
         for alpha in (0.2, 0.4, 0.6, 0.8, 1.0):
             Vt = Vn.copy()

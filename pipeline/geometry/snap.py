@@ -39,6 +39,7 @@ class SnapSettings(Settings):
     block: ClassVar[str] = "snap"
 
     falloff_mm: float = setting(4.0, ge=0, le=100)        # margin displacement fades to 0 over this edge-graph distance
+    keep_opening: bool = True                             # the snap line loses its part into the opening (module doc)
     max_move_mm: float = setting(6.0, gt=0, le=100)       # search range along the normal
     ray_samples: int = setting(49, ge=2, le=10000)        # samples of the normal line before bisection
     clearance_mm: float = setting(0.0, ge=-5, le=5)       # extra offset off the eyeball surface
@@ -98,6 +99,30 @@ def _ray_hit(eye: PlacedEye, P, N, max_move, samples):
     return out
 
 
+def _outward_lines(P, N, forward):
+    """Snap lines (L, 3) of a margin loop ``P`` that never point into the opening.
+
+    Seen along the eye's axis, each line keeps only its part along the loop and out of the
+    opening: the part of the vertex normal ``N`` (L, 3) along the loop's in-plane normal toward
+    the opening's inside is removed. At the canthi, where the boundary vertex has faces on one
+    side only, the normal leans into the opening, and the paper's snap along it pulled each
+    canthus 0.3-1.0 mm toward the eye's centre.
+    """
+    f = np.asarray(forward, float)
+    f = f / np.linalg.norm(f)
+    T = np.roll(P, -1, axis=0) - np.roll(P, 1, axis=0)
+    o = np.cross(T, f)
+    o /= np.maximum(np.linalg.norm(o, axis=1, keepdims=True), 1e-12)
+    away = P - P.mean(axis=0)
+    away -= np.outer(away @ f, f)
+    if np.sum(np.einsum("ij,ij->i", o, away)) < 0:      # the loop runs the other way round
+        o = -o
+    into = np.minimum(np.einsum("ij,ij->i", N, o), 0.0)
+    M = N - into[:, None] * o
+    n = np.linalg.norm(M, axis=1, keepdims=True)
+    return np.where(n > 0.2, M / np.maximum(n, 1e-12), N)
+
+
 def _edge_graph(V, F):
     from scipy.sparse import coo_matrix
 
@@ -146,6 +171,8 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
     loop = np.asarray(loop, dtype=np.int64)
     N = meshtopo.vertex_normals(V, F)[loop]
     P = V[loop]
+    if st.keep_opening:
+        N = _outward_lines(P, N, eye.forward)
     t = _ray_hit(eye, P, N, st.max_move_mm, st.ray_samples)
     Qc, _, dc = eye.closest(P)
     # along the normal unless the line meets the surface only far away (grazing): then the
