@@ -6,7 +6,9 @@
   ``gain_upper * pitch``, the lower lid by ``gain_lower * pitch`` (the lower lid
   moves less), tapered toward both canthi by :func:`canthus_taper` (a sine
   ramp over ``canthus_width`` of the lid width at the medial end and
-  ``lateral_canthus_width`` at the lateral end, from ``canthus_floor`` to 1 in the middle;
+  ``lateral_canthus_width`` at the lateral end, from the canthus gain, ``canthus_floor`` times
+  the mean of the two lids' gains (``lateral_canthus_floor`` at the lateral canthus) and the
+  same for both lids, to each lid's own in the middle;
   ``u`` = 0 at the medial and 1 at the lateral canthus, measured along the eye's
   horizontal axis). A rotation about ``c`` keeps every point at its
   distance from ``c``, so a margin that lies on the eyeball sphere stays on it.
@@ -21,12 +23,12 @@
   ``S(1) = 0``, first and second derivatives zero at both ends): the gain goes from the
   margin's to the skin's over the rise distance and fades to zero at the falloff radius,
   so there is no visible step at the edge of the support and nothing moves beyond it.
-  (A captured lid moves its skin a few mm above the margin farther than the margin itself:
-  ICT-FaceKit's eyeLookDown turns the upper lid's margin by about 0.55 of the eye's pitch and
-  its skin 3-8 mm above it by about 0.85; benchmarks/compare_ict_lids.py.) Where the skin far from the pitch axis would be squeezed past zero
-  thickness by the rising upper (or dropping lower) lid, the radii are widened by
-  the smallest factor (up to ``max_support_scale``) that keeps every face of the
-  full poses above ``min_area_fraction`` of its rest area (no fold-over).
+  (ICT-FaceKit's captured visible lid keeps the margin's gain for 4-6 mm and then falls off,
+  over about 11 mm above the upper lid looking down; benchmarks/compare_ict_lids.py.) Where
+  the skin far from the pitch axis would be squeezed past zero thickness by the rising
+  upper (or dropping lower) lid, the radii are widened by the smallest factor (up to
+  ``max_support_scale``) that keeps every face of the full poses above
+  ``min_area_fraction`` of its rest area (no fold-over).
 
 Linear blend shapes move each point along the straight chord of its rotation
 arc, which would sink the margin into the eyeball (for 25 degrees on a 15 mm
@@ -47,14 +49,15 @@ from pipeline.rig.eye_frame import EyeFrame, rotate_about_axis
 from pipeline.rig.lids import SHAPE_DOWN, SHAPE_UP, BlendShape, LidParams, evaluate_shapes, lid_weights
 
 
-def canthus_taper(u, width: float = 0.35, exponent: float = 1.0, lateral_width: float | None = None,
-                  floor: float = 0.0) -> np.ndarray:
-    """How much of the lid gain applies at horizontal position ``u`` (0 medial, 1 lateral canthus).
+def canthus_taper(u, width: float = 0.35, exponent: float = 1.0,
+                  lateral_width: float | None = None) -> np.ndarray:
+    """The ramp of the lid gain at horizontal position ``u`` (0 medial, 1 lateral canthus).
 
-    ``floor + (1 - floor) * sin(pi/2 * min(1, u / width, (1 - u) / lateral_width)) ** exponent``:
-    ``floor`` at both canthi, a plateau of 1 between the ramps (``width`` at the medial end,
-    ``lateral_width``, default ``width``, at the lateral end; 0 = no ramp), C1 where ramp and
-    plateau meet. ``width = 0.5, exponent = 1, floor = 0`` gives ``sin(pi u)``.
+    ``sin(pi/2 * min(1, u / width, (1 - u) / lateral_width)) ** exponent``: 0 at both canthi, a
+    plateau of 1 between the ramps (``width`` at the medial end, ``lateral_width``, default
+    ``width``, at the lateral end; 0 = no ramp), C1 where ramp and plateau meet.
+    ``width = 0.5, exponent = 1`` gives ``sin(pi u)``. The rig ramps each lid's gain from the
+    canthus gain to its own by this share (:func:`lid_angle_field`).
     """
     u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
     wm = float(width)
@@ -62,11 +65,9 @@ def canthus_taper(u, width: float = 0.35, exponent: float = 1.0, lateral_width: 
     for w in (wm, wl):
         if not 0.0 <= w <= 0.5:
             raise ValueError(f"canthus width must be in [0, 0.5], got {w!r}")
-    if not 0.0 <= floor <= 1.0:
-        raise ValueError(f"canthus floor must be in [0, 1], got {floor!r}")
     xm = np.minimum(1.0, u / wm) if wm > 0 else np.ones_like(u)
     xl = np.minimum(1.0, (1.0 - u) / wl) if wl > 0 else np.ones_like(u)
-    return floor + (1.0 - floor) * np.sin(0.5 * np.pi * np.minimum(xm, xl)) ** float(exponent)
+    return np.sin(0.5 * np.pi * np.minimum(xm, xl)) ** float(exponent)
 
 
 def smootherstep_falloff(t) -> np.ndarray:
@@ -208,9 +209,13 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
     x = (V[loop] - eye.center) @ B[0]
     x0, x1 = x[0], x[li]
     u = np.clip((x - x0) / (x1 - x0), 0.0, 1.0) if abs(x1 - x0) > 1e-9 else np.zeros(L)
-    taper = canthus_taper(u, params.canthus_width, params.canthus_exponent,
-                          params.lateral_canthus_width, params.canthus_floor)
-    taper[[0, li]] = params.canthus_floor            # the canthi: the floor share of both lids' mean
+    ramp = canthus_taper(u, params.canthus_width, params.canthus_exponent,
+                         params.lateral_canthus_width)
+    ramp[[0, li]] = 0.0
+    # which canthus's ramp a point is on: the medial one up to where the two ramps meet
+    wm, wl = params.canthus_width, params.lateral_canthus_width
+    medial = u <= (wm / (wm + wl) if wm + wl > 0 else 0.5)
+    medial[[0, li]] = [True, False]
     upper = np.zeros(L, bool)
     upper[1:li] = True
     lower = np.zeros(L, bool)
@@ -219,13 +224,21 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
     def per_lid(a, b):
         return np.where(upper, a, np.where(lower, b, 0.5 * (a + b)))
 
-    gain_up = per_lid(params.gain_upper_up, params.gain_lower_up) * taper
-    gain_dn = per_lid(params.gain_upper_down, params.gain_lower_down) * taper
+    def tapered(a, b):
+        # Both lids ramp from the same canthus gain (the floor share of their mean) to their own:
+        # a floor taken of each lid's own gain parts the two lids right at the corner, and the
+        # corner faces (two margin points and the skin beyond) shear over (the rig tests' narrow
+        # opening on the cornea folded so).
+        corner = np.where(medial, params.canthus_floor, params.lateral_canthus_floor) * 0.5 * (a + b)
+        return corner + (per_lid(a, b) - corner) * ramp
+
+    gain_up = tapered(params.gain_upper_up, params.gain_lower_up)
+    gain_dn = tapered(params.gain_upper_down, params.gain_lower_down)
     gain_up, gain_dn = _keep_lids_apart(V[loop] - eye.center, B, u, upper, lower, gain_up, gain_dn,
                                         math.radians(params.max_pitch_deg),
                                         params.min_opening_fraction)
-    skin_up = per_lid(params.skin_gain_upper_up, params.skin_gain_lower_up) * taper
-    skin_dn = per_lid(params.skin_gain_upper_down, params.skin_gain_lower_down) * taper
+    skin_up = tapered(params.skin_gain_upper_up, params.skin_gain_lower_up)
+    skin_dn = tapered(params.skin_gain_upper_down, params.skin_gain_lower_down)
     radius = per_lid(params.upper_falloff_mm, params.lower_falloff_mm)
     rise = per_lid(params.upper_rise_mm, params.lower_rise_mm)
     # Skin turning by Theta * S(D / R) is compressed where the motion falls off fast along D
