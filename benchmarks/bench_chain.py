@@ -190,10 +190,13 @@ def main():
                   + f"  (CPU {cpu[side]['total']:.1f} s)", flush=True)
     # the profile's start-up share: one more run of each stage with -X importtime
     imports = {}
+    (work / "importtime").mkdir(exist_ok=True)
     for st in STAGES:
         cwd, bb, cc = sides["this"]
+        # its metrics elsewhere: the timed runs' timings files are the ones reported
         imports[st] = import_seconds(py + [str(c) for c in cc[st]]
-                                     + ["--metrics", str(bb / f"{st}.metrics.json"), "--params", str(pfile)], cwd)
+                                     + ["--metrics", str(work / "importtime" / f"{st}.metrics.json"),
+                                        "--params", str(pfile)], cwd)
     print("imports s: " + "  ".join(f"{k} {v:.2f}" for k, v in imports.items()), flush=True)
     compare = None
     if args.compare:
