@@ -360,3 +360,26 @@ def test_spherefit_helpers():
     outer = c + (r + 0.5) * u[u[:, 2] > 0.3]
     c3, r3 = refine_sphere(noisy[band], c + [0, 0, 1.5], r - 1.5, inside_points=outer, inside_margin=0.2)
     assert (np.linalg.norm(outer - c3, axis=1) - r3).min() > -0.3
+
+
+def test_holes_inside_counts_only_holes_whose_every_edge_is_removed():
+    """A grid with two holes (one quad cut out each): a cut that covers a hole's whole rim absorbs
+    it, a cut through part of its rim does not; the outer border is a loop too and counts only
+    when every face along it goes."""
+    from pipeline.geometry.remove_eyeballs import _holes_inside
+
+    n = 12
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    quads = [(i, j) for i in range(n) for j in range(n) if (i, j) not in ((3, 3), (8, 8))]
+    F = np.array([t for i, j in quads for t in ((idx[i, j], idx[i + 1, j], idx[i + 1, j + 1]),
+                                                (idx[i, j], idx[i + 1, j + 1], idx[i, j + 1]))])
+    quad_of = np.repeat(np.array(quads), 2, axis=0)
+
+    def near(c, r):
+        return np.abs(quad_of - np.array(c)).max(axis=1) <= r
+    H = meshtopo.boundary_halfedges(F)
+    assert _holes_inside(F, near((3, 3), 1)) == 1                   # the ring around hole (3, 3)
+    assert _holes_inside(F, near((3, 3), 1), H) == 1                # same with H given
+    assert _holes_inside(F, near((3, 3), 1) | near((8, 8), 1)) == 2
+    assert _holes_inside(F, near((3, 2), 0) | near((2, 3), 0)) == 0  # part of the rim only
+    assert _holes_inside(F, np.ones(len(F), bool)) == 3              # both holes and the border
