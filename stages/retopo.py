@@ -40,13 +40,9 @@ def main(argv) -> dict:
     arrays = {"V": result.V, "F": result.F, "loop_left": result.loops["left"],
               "loop_right": result.loops["right"]}
     for side in ("left", "right"):
-        # lateral canthus of the dense loop -> nearest vertex of the resampled loop (for rig)
-        lat = eyes[side].get("lateral_canthus_index")
-        if lat is not None:
-            p = np.asarray(mesh["V"], dtype=np.float64)[eyes[side]["loop_indices"][lat]]
-            lp = result.loops[side]
-            arrays[f"lateral_index_{side}"] = np.array(
-                [int(np.argmin(np.linalg.norm(result.V[lp] - p, axis=1)))], dtype=np.int64)
+        # position of the lateral canthus in the resampled loop (for rig)
+        if result.lateral.get(side) is not None:
+            arrays[f"lateral_index_{side}"] = np.array([int(result.lateral[side])], dtype=np.int64)
     if result.poly_counts is not None:
         arrays.update(poly_counts=result.poly_counts, poly_indices=result.poly_indices)
     with atomic_dir(out) as tmp:

@@ -264,3 +264,59 @@ def test_both_canthi_are_loop_targets():
         assert seg.max() < 1.4 * seg.min()
     up_len = polyline_arclength(upper, closed=False)[0][-1]
     assert k == round(40 * up_len / polyline_arclength(curve)[0][-1])
+
+
+def _almond(n=121, round_mm=0.0):
+    """Closed almond curve, medial canthus (-14, 0) first, upper lid first: lids straight for
+    8 mm from each canthus (as a lid near its canthus), curving in depth like an eye; with
+    ``round_mm`` each canthus is cut off by the chord between the lid points that far from it
+    (in x), as the scan's loop rounds it."""
+    x = np.linspace(-14.0, 14.0, n)
+    up = np.column_stack([x, np.interp(x, [-14, -6, 6, 14], [0, 4.8, 4.8, 0]), -0.02 * x ** 2])
+    lo = np.column_stack([x[::-1], np.interp(x[::-1], [-14, -6, 6, 14], [0, -3, -3, 0]),
+                          -0.02 * x[::-1] ** 2])
+    P = np.vstack([up, lo[1:-1]])
+    lateral = n - 1
+    if round_mm:
+        near = np.minimum(np.abs(P[:, 0] + 14.0), np.abs(P[:, 0] - 14.0)) <= round_mm
+        up_idx, lo_idx = np.arange(1, lateral), np.arange(lateral + 1, len(P))
+        ua, ub = up_idx[~near[up_idx]][[0, -1]]           # first / last kept upper-lid point
+        la, lb = lo_idx[~near[lo_idx]][[0, -1]]           # first (lateral) / last (medial) lower
+        med, lat = 0.5 * (P[ua] + P[lb]), 0.5 * (P[ub] + P[la])
+        P = np.vstack([med, P[ua:ub + 1], lat, P[la:lb + 1]])
+        lateral = ub - ua + 2
+    return P, lateral
+
+
+def test_canthus_apex_finds_the_corners_a_rounded_loop_cut_off():
+    from pipeline.geometry.eyelid_loop import canthus_apex
+
+    sharp, lat0 = _almond()
+    P, lat = _almond(round_mm=1.0)
+    assert np.linalg.norm(P[0] - sharp[0]) > 0.5 and np.linalg.norm(P[lat] - sharp[lat0]) > 0.5
+    Q, k, info = canthus_apex(P, lat)
+    assert info["medial"]["moved"] and info["lateral"]["moved"]
+    # exact seen along the eye's axis (z); in depth a line through the curving lid is a chord,
+    # 0.23 mm off here (snap then puts the corner on the eye)
+    assert np.abs(Q[0, :2] - sharp[0, :2]).max() < 0.01 and abs(Q[0, 2] - sharp[0, 2]) < 0.3
+    assert np.abs(Q[k, :2] - sharp[lat0, :2]).max() < 0.01 and abs(Q[k, 2] - sharp[lat0, 2]) < 0.3
+    # between the canthi the lids are the input's own points
+    assert all(np.linalg.norm(P - q, axis=1).min() < 1e-12 for q in np.delete(Q, [0, k], axis=0))
+    # an already sharp curve keeps its corners (apex at the canthus, not beyond it)
+    Q2, k2, info2 = canthus_apex(sharp, lat0)
+    assert np.abs(Q2[0, :2] - sharp[0, :2]).max() < 0.01
+    assert np.abs(Q2[k2, :2] - sharp[lat0, :2]).max() < 0.01
+
+
+def test_canthus_apex_keeps_what_it_is_unsure_of():
+    from pipeline.geometry.eyelid_loop import canthus_apex
+
+    P, lat = _almond(round_mm=1.0)
+    # too far beyond: not trusted
+    Q, k, info = canthus_apex(P, lat, max_reach_mm=0.05)
+    assert not info["medial"]["moved"] and "beyond the canthus" in info["medial"]["why"]
+    assert np.array_equal(Q, P) and k == lat
+    # a coarse loop (james: 11 points) has no lid arc inside the window
+    coarse = P[:: len(P) // 10]
+    Q, k, info = canthus_apex(coarse, int(np.argmax(coarse[:, 0])), window=(1.0, 2.0))
+    assert info["lateral"] == {"moved": False, "reach_mm": None, "why": "lid shorter than the window"}

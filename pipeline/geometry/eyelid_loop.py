@@ -134,3 +134,91 @@ def orient_and_place(V, loop, curve, start_point, end_index=None):
     steps = np.concatenate([s0s + np.arange(lat) * upper / lat,
                             s0s + upper + np.arange(L - lat) * lower / (L - lat)])
     return loop, point_at_arclength(curve, steps, smooth=sm), lat
+
+
+def _line(Q):
+    """Centroid (3,) and unit direction (3,) of the least-squares line through points Q (k, 3)."""
+    c = Q.mean(axis=0)
+    return c, np.linalg.svd(Q - c)[2][0]
+
+
+def canthus_apex(curve, lateral: int, window=(1.0, 6.0), max_reach_mm: float = 3.0,
+                 max_gap_mm: float = 2.0):
+    """The canthi where the lid lines meet: a sharpened copy of a closed margin curve.
+
+    A loop that follows the scan where its surface lifts off the eye rounds each canthus off:
+    the canthus is an acute wedge, and a line a fixed height above the eye leaves its apex.
+    Near each canthus the upper and the lower lid are each fitted with a straight line over the
+    arc length ``window`` (mm from the canthus); where the two lines meet (the midpoint of their
+    closest approach) is the apex. It replaces the curve's points within ``window[0]`` of the
+    canthus when it lies beyond the canthus (away from the other canthus) by at most
+    ``max_reach_mm`` and the lines pass within ``max_gap_mm`` of each other; otherwise that
+    canthus is kept (a lid too short for the window, lines too far apart or nearly parallel, or
+    an apex inside the loop): unsure, recorded in the info.
+
+    Parameters
+    ----------
+    curve : (n, 3) float64
+        Closed margin curve, medial canthus first, upper lid first.
+    lateral : int
+        Index of the lateral canthus in ``curve``.
+
+    Returns
+    -------
+    curve : (m, 3) float64
+        Medial canthus (apex or kept) first, upper lid first.
+    lateral : int
+        Index of the lateral canthus in the returned curve.
+    info : dict
+        Per canthus (``medial``, ``lateral``): ``moved`` (bool), ``reach_mm`` (how far the apex
+        lies beyond the curve's canthus; None when none was found) and ``why`` when kept.
+    """
+    P = np.asarray(curve, dtype=np.float64)
+    n, li = len(P), int(lateral)
+    upper = P[: li + 1]                         # medial .. lateral
+    lower = np.vstack([P[li:], P[:1]])          # lateral .. medial
+    other = {"medial": P[li], "lateral": P[0]}
+    lids = {"medial": (upper, lower[::-1]), "lateral": (upper[::-1], lower)}
+    keep = {"medial": (0, 0), "lateral": (0, 0)}   # points dropped on each lid next to the canthus
+    apex, info = {}, {}
+    for name, (a, b) in lids.items():
+        corner = a[0]
+        lines, drop = [], []
+        for lid in (a, b):
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(lid, axis=0), axis=1))])
+            m = (s >= window[0]) & (s <= window[1])
+            if m.sum() < 2:
+                break
+            lines.append(_line(lid[m]))
+            drop.append(int(np.count_nonzero(s < window[0])) - 1)   # the canthus itself not counted
+        if len(lines) < 2:
+            info[name] = {"moved": False, "reach_mm": None, "why": "lid shorter than the window"}
+            continue
+        (c1, u1), (c2, u2) = lines
+        w = c1 - c2
+        b12, d1, d2 = float(u1 @ u2), float(u1 @ w), float(u2 @ w)
+        den = 1.0 - b12 * b12
+        if den < 1e-3:
+            info[name] = {"moved": False, "reach_mm": None, "why": "lid lines parallel"}
+            continue
+        t1, t2 = (b12 * d2 - d1) / den, (d2 - b12 * d1) / den
+        q1, q2 = c1 + t1 * u1, c2 + t2 * u2
+        q = 0.5 * (q1 + q2)
+        axis = corner - other[name]
+        reach = float((q - corner) @ axis / np.linalg.norm(axis))
+        gap = float(np.linalg.norm(q1 - q2))
+        if gap > max_gap_mm or not 0.0 < reach <= max_reach_mm:
+            info[name] = {"moved": False, "reach_mm": reach,
+                          "why": f"lines {gap:.2f} mm apart" if gap > max_gap_mm
+                          else f"apex {reach:.2f} mm beyond the canthus"}
+            continue
+        apex[name] = q
+        keep[name] = tuple(drop)
+        info[name] = {"moved": True, "reach_mm": reach}
+    (mu, ml), (lu, ll) = keep["medial"], keep["lateral"]
+    up = P[1 + mu: li - lu]                        # upper lid without the rounded ends
+    lo = P[li + 1 + ll: n - ml]                    # lower lid without the rounded ends
+    med = apex.get("medial", P[0])
+    lat = apex.get("lateral", P[li])
+    out = np.vstack([med[None], up, lat[None], lo])
+    return out, 1 + len(up), info

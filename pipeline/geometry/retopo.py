@@ -47,8 +47,8 @@ import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.eye_rings import add_eye_rings
-from pipeline.geometry.eyelid_loop import (orient_and_place, polyline_arclength, project_to_polyline,
-                                          resample_loop)
+from pipeline.geometry.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
+                                          project_to_polyline, resample_loop)
 from pipeline.geometry.flips import (collapse_flipped, count_flipped, flip_slivers, mirror_flipped,
                                      reference_face_normals, relax, repair_flips, untangle)
 from pipeline.geometry.mesh_edit import TriMesh
@@ -77,6 +77,9 @@ class RetopoSettings(Settings):
     eye_rings: int = setting(0, ge=0, le=20)                 # rings of quads around each eyelid loop (0 = off)
     ring_spacing_mm: float = setting(0.0, ge=0, le=20)       # between rings; 0: the loop's mean edge length
     metric_samples: int = setting(50000, ge=100, le=10_000_000)
+    canthus_apex: bool = True                                # loop corners where the lid lines meet (eyelid_loop.canthus_apex)
+    canthus_window_mm: tuple[float, float] = setting((1.0, 6.0), ge=0, le=50, ordered=True)  # lid arc fitted by each line
+    canthus_max_reach_mm: float = setting(3.0, ge=0, le=20)  # an apex farther beyond the scan's corner is not trusted
 
 
 @dataclass
@@ -84,6 +87,7 @@ class RetopoResult:
     V: np.ndarray            # (n, 3) float64
     F: np.ndarray            # (m, 3) int64 triangles (fan triangulation of the polygons)
     loops: dict              # side -> (loop_points,) int64 ordered loop vertex indices
+    lateral: dict            # side -> position of the lateral canthus in its loop (None: not known)
     poly_counts: np.ndarray | None
     poly_indices: np.ndarray | None
     crop_V: np.ndarray       # the cropped dense surface the result approximates
@@ -376,10 +380,14 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     timings = {}
     Vc, Fc, vmap = crop_eye_region(V, F, eyes, s)
     inv = {int(v): i for i, v in enumerate(vmap)}
-    curves = {}
+    curves, lateral, apex_info = {}, {}, {}
     for side, e in eyes.items():
         li = np.asarray(e["loop_indices"], dtype=np.int64)
         curves[side] = np.asarray(V, dtype=np.float64)[li]
+        lateral[side] = e.get("lateral_canthus_index")
+        if s.canthus_apex and lateral[side] is not None:
+            curves[side], lateral[side], apex_info[side] = canthus_apex(
+                curves[side], lateral[side], s.canthus_window_mm, s.canthus_max_reach_mm)
     timings["crop_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -458,9 +466,9 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     all_boundary = np.concatenate(mc.boundary_loops(Fn))
     for side, lp in new_loops.items():
         lp = remap[np.asarray(lp, dtype=np.int64)]
-        # both canthi are targets: the stage maps the lateral one to its loop vertex (for rig)
-        lp, targets, _ = orient_and_place(Vn, lp, curves[side], curves[side][0],
-                                          eyes[side].get("lateral_canthus_index"))
+        # both canthi are targets; the lateral one's position goes to the stage (for rig)
+        lp, targets, lateral[side] = orient_and_place(Vn, lp, curves[side], curves[side][0],
+                                                      lateral[side])
         # move in a few steps, keeping faces from flipping
         for alpha in (0.2, 0.4, 0.6, 0.8, 1.0):
             Vt = Vn.copy()
@@ -533,10 +541,11 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         "crop_faces": int(len(Fc)),
         "crop_subdivisions": int(refine_levels),
         "eye_rings": ring_info,
+        "canthus_apex": apex_info,
         "timings_s": {k: round(v, 4) for k, v in timings.items()},
         "time_s": round(timings["total_s"], 4),
     })
-    return RetopoResult(Vn, Fn, loops, poly_counts, poly_indices, Vc, Fc, metrics)
+    return RetopoResult(Vn, Fn, loops, lateral, poly_counts, poly_indices, Vc, Fc, metrics)
 
 
 def retopo_metrics(V, F, loops, Vc, Fc, curves, n_samples=50000) -> dict:

@@ -4,6 +4,8 @@ Each margin-loop vertex moves along its vertex normal to where that line meets t
 outer surface (the parametric eye of pipeline/eyeball with its sphere at the fitted radius,
 ``placed_params``: cornea, iris and pupil keep their mm; at the fitted centre and forward direction); when the line misses or grazes the surface (no
 crossing within ``max_move_mm``) the vertex goes to its closest surface point instead.
+With ``keep_opening`` (default) the normal first loses its part into the opening, seen along
+the eye's axis (:func:`_outward_lines`), so the canthi are not pulled toward the eye's centre.
 Vertices near the margin follow with a smooth falloff of the margin displacement over the
 edge-graph distance ``falloff_mm`` (C1 smoothstep, weight 1 at the margin, 0 beyond), so no
 vertex farther than ``falloff_mm`` moves. Any vertex of the falloff zone left inside the
