@@ -83,6 +83,8 @@ BENCHMARKS = (
     Benchmark("bench_new_scan", modest=("--repeats", "1")),        # its own clone: dvc repro of one new scan
     Benchmark("bench_render", needs=("synthetic_asset",)),
     Benchmark("bench_render_quality", modest=("--repeats", "1"), needs=("synthetic_asset",)),
+    Benchmark("bench_render_split", modest=("--images", "6"), needs=("synthetic_asset",)),
+    Benchmark("bench_render_curves", modest=("--images", "4"), needs=("synthetic_asset",)),
     Benchmark("bench_proportions", needs=("synthetic_asset",)),
     Benchmark("bench_label_formats", modest=("--images", "8"), needs=("synthetic_asset",)),
     Benchmark("bench_masks", args=(str(SYNTH_ASSET.parent), str(SYNTH_BUILD / "rig")),

@@ -78,17 +78,16 @@ def lash_curves(margin, lateral_index: int, forward, rng_table: dict) -> tuple[n
         a0 = np.radians(cfg["root_angle"] + 10.0 * (rnd[:, 2] - 0.5))
         a1 = np.radians(cfg["tip_angle"] + 15.0 * (rnd[:, 2] - 0.5))
         tilt = 0.25 * (rnd[:, 3] - 0.5)                # sideways spread along the lid
-        for i in range(n):
-            ang = a0[i] + (a1[i] - a0[i]) * s ** 1.5
-            d = np.cos(ang)[:, None] * f + np.sin(ang)[:, None] * away[i] + tilt[i] * tang[i]
-            d /= np.linalg.norm(d, axis=1, keepdims=True)
-            step = length[i] / (LASH_POINTS - 1)
-            p = np.empty((LASH_POINTS, 3))
-            p[0] = root[i]
-            for j in range(1, LASH_POINTS):
-                p[j] = p[j - 1] + step * 0.5 * (d[j - 1] + d[j])
-            pts.append(p)
-            rad.append(cfg["radius"] * (LASH_ROOT_RADIUS_MM + (LASH_TIP_RADIUS_MM - LASH_ROOT_RADIUS_MM) * s))
+        # every lash at once (n, LASH_POINTS, 3): direction per point, trapezoid steps along it
+        ang = a0[:, None] + (a1 - a0)[:, None] * s ** 1.5
+        d = (np.cos(ang)[..., None] * f + np.sin(ang)[..., None] * away[:, None]
+             + (tilt[:, None] * tang)[:, None])
+        d /= np.linalg.norm(d, axis=2, keepdims=True)
+        step = (length / (LASH_POINTS - 1))[:, None, None] * 0.5 * (d[:, :-1] + d[:, 1:])
+        p = np.concatenate([root[:, None], root[:, None] + np.cumsum(step, axis=1)], axis=1)
+        pts.append(p.reshape(-1, 3))
+        r = cfg["radius"] * (LASH_ROOT_RADIUS_MM + (LASH_TIP_RADIUS_MM - LASH_ROOT_RADIUS_MM) * s)
+        rad.append(np.tile(r, n))
     return np.concatenate(pts), np.concatenate(rad)
 
 

@@ -68,9 +68,10 @@ Render settings (see benchmarks/bench_render_quality.py for the measured trade-o
 Cycles, samples / denoise / seed from the spec, OpenImageDenoise with albedo + normal passes
 and the ACCURATE prefilter, adaptive sampling (threshold 0.02), single-scatter GGX on every
 Principled BSDF, light paths limited to what the cornea needs (:data:`LIGHT_PATHS`), one
-tile for the whole image, persistent render data. Optional spec keys (tests/benchmarks):
-``lashes``, ``adaptive_sampling``, ``adaptive_threshold``, ``denoise_prefilter`` and the
-:data:`LIGHT_PATHS` names.
+tile for the whole image, persistent render data, blue-noise sampling and no light tree
+(:data:`CYCLES`). Optional spec keys (tests/benchmarks): ``lashes``, ``skin_subdivision``, ``adaptive_sampling``,
+``adaptive_threshold``, ``denoise_prefilter``, the :data:`LIGHT_PATHS` names and ``cycles``
+(``{scene.cycles property: value}`` for that image only; the defaults come back on the next).
 """
 
 from __future__ import annotations
@@ -103,6 +104,10 @@ ADAPTIVE_THRESHOLD = 0.02
 WORLD_MAP_RESOLUTION = 256
 DENOISE_PREFILTER = "ACCURATE"   # OIDN albedo/normal prefilter: +0.7 dB at 16 spp for ~0.3 CPU-s
 BSDF_DISTRIBUTION = "GGX"        # single-scatter GGX on every Principled BSDF (multi-scatter: ~1.3x time)
+# Measured on bench_render_quality's frame, same 2048-spp reference (benchmarks/bench_render_split.py):
+# blue-noise sample pattern = +0.5 dB after OIDN at the same samples (what lets 10 spp replace 12);
+# no light tree: the world is the only light, so the tree only costs (-6 % CPU, same PSNR).
+CYCLES = {"sampling_pattern": "BLUE_NOISE", "use_light_tree": False}
 LIGHT_PATHS = {"max_bounces": 8, "diffuse_bounces": 1, "glossy_bounces": 2, "transmission_bounces": 6,
                "transparent_max_bounces": 8, "volume_bounces": 0}
 # skin BSDF: subsurface scale is in world units (m): ~1.2 mm mean free path for red light
@@ -270,6 +275,7 @@ class Worker:
                       if sl.material is not None and sl.material.name.split(".")[0] == "ScleraCoat"}:
                 thin_coat(m)
         self.eye_variant = {}
+        self.cycles_saved = {}
 
         self._setup_render(threads, tile_size)
         self._setup_lashes()
@@ -307,6 +313,19 @@ class Worker:
                 m["mat"].displacement_method = "BOTH" if mode == "displacement" else "BUMP"
         self.skin_detail = mode
 
+    def _set_skin_subdivision(self, levels: int) -> None:
+        """Benchmarks only (render time against polygon count): Catmull-Clark subdivide the skin
+        ``levels`` times (4x the polygons per level) after the rig's deformation; 0 = as imported.
+        The smoothing moves the lid margin off the labels: the landmark check fails there."""
+        if not 0 <= levels <= 3:
+            raise ValueError(f"skin_subdivision {levels} outside 0..3")
+        mod = self.skin.modifiers.get("BenchSubdivision")
+        if mod is None and levels > 0:
+            mod = self.skin.modifiers.new("BenchSubdivision", "SUBSURF")
+        if mod is not None:
+            mod.levels = mod.render_levels = levels
+            mod.show_viewport = mod.show_render = levels > 0
+
     def _setup_render(self, threads: int, tile_size: int) -> None:
         bpy = self.bpy
         scene = self.scene
@@ -319,6 +338,8 @@ class Worker:
             setattr(c, k, v)
         c.caustics_reflective = False
         c.caustics_refractive = False
+        for k, v in CYCLES.items():
+            setattr(c, k, v)
         c.use_auto_tile = True
         c.tile_size = int(tile_size)
         try:
@@ -527,11 +548,13 @@ class Worker:
         lm_in = np.asarray(spec["landmarks_head_mm"], float)
         if lm_in.shape != (28, 3) or not np.all(np.isfinite(lm_in)):
             raise ValueError(f"landmarks_head_mm must be 28 x 3 finite numbers, got shape {lm_in.shape}")
+        t_in = time.perf_counter()
         self._set_hdri(spec["lighting"])
         self._set_eyes(spec)
         self._set_lids(spec["lid_weights"])
         self._set_camera(spec["camera"], width, height)
         self._set_skin_detail(detail)
+        self._set_skin_subdivision(int(spec.get("skin_subdivision", 0)))
         c = self.scene.cycles
         c.samples = samples
         c.use_denoising = bool(spec.get("denoise", True)) and self.has_denoiser
@@ -541,9 +564,19 @@ class Worker:
         for k, v in LIGHT_PATHS.items():
             setattr(c, k, int(spec.get(k, v)))
         c.denoising_prefilter = str(spec.get("denoise_prefilter", DENOISE_PREFILTER))
+        for k, v in spec.get("cycles", {}).items():       # benchmarks: any scene.cycles property, this image only
+            if k not in self.cycles_saved:
+                self.cycles_saved[k] = getattr(c, k)
+            setattr(c, k, v)
+        for k in [k for k in self.cycles_saved if k not in spec.get("cycles", {})]:
+            setattr(c, k, self.cycles_saved.pop(k))
         self.bpy.context.view_layer.update()
+        polygons = (len(self.skin.evaluated_get(self.bpy.context.evaluated_depsgraph_get()).data.polygons)
+                    if "skin_subdivision" in spec else None)
+        t_pose = time.perf_counter()
         measured = self._lashes_and_landmarks(side, bool(spec.get("lashes", True)))
         check = float(np.linalg.norm(measured - lm_in, axis=1).max())
+        t_lash = time.perf_counter()
         if outs:
             self.seg.before_render(self.bpy.context.evaluated_depsgraph_get())
         tmp = png.with_name(f".{png.stem}.tmp{os.getpid()}.png")
@@ -562,8 +595,10 @@ class Worker:
         return {"index": spec.get("index"), "ok": True, "render_s": round(t_render, 4),
                 "render_cpu_s": round(c_render, 4), "total_s": round(time.perf_counter() - t0, 4),
                 "total_cpu_s": round(time.process_time() - c0, 4), "rss_mib": rss_mib(),
-                "passes_s": round(passes_s, 4),
-                "landmark_check_mm": check, "landmarks_measured_head_mm": measured.round(6).tolist()}
+                "passes_s": round(passes_s, 4), "check_s": round(t_in - t0, 4), "pose_s": round(t_pose - t_in, 4),
+                "lashes_s": round(t_lash - t_pose, 4), "seg_setup_s": round(t1 - t_lash, 4),
+                "landmark_check_mm": check, "landmarks_measured_head_mm": measured.round(6).tolist(),
+                **({"skin_polygons": polygons} if polygons is not None else {})}
 
 
 def main(argv=None) -> int:

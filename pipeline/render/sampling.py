@@ -122,7 +122,7 @@ class RenderSettings(Settings):
     seed: int = setting(0, ge=0, le=2**63 - 1)
     width: int = setting(120, ge=8, le=8192)
     height: int = setting(80, ge=8, le=8192)
-    samples: int = setting(12, ge=1, le=65536)          # Cycles samples per pixel
+    samples: int = setting(10, ge=1, le=65536)          # Cycles samples per pixel
     denoise: bool = True
     eyes: tuple[Literal["left", "right"], ...] = setting(("left", "right"), min_len=1, max_len=2)
     camera_polar_max_deg: float = setting(_GENERIC["camera_polar_max_deg"], ge=0, lt=80)   # the preset's

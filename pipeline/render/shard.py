@@ -13,8 +13,9 @@
   other label formats of ``render.label_formats`` (UnityEyes pair, 300-W ``.pts``;
   pipeline/render/label_formats.py) are written just before that JSON.
 * :func:`run_shards` submits the shards to a ``LocalCluster(n_workers, threads_per_worker=1)``
-  or, given a scheduler address, to that cluster (``Client(address)``) -- the same code path --
-  and shows a tqdm progress bar (images/s, ETA).
+  (one worker: a thread of this process; more: processes) or, given a scheduler address, to
+  that cluster (``Client(address)``) -- the same code path -- and shows a tqdm progress bar
+  (images/s, ETA).
 """
 
 from __future__ import annotations
@@ -214,66 +215,94 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
     A result is ``{"index", "ok", "render_s", "rss_mib", "landmark_check_mm", "error", "skipped"}``.
     Images whose JSON exists are skipped (a retried task after a lost worker). A label is
     written only when the worker's landmark check is within ``opts["tolerance_mm"]``.
+    As soon as an image's reply arrives the next spec of the shard is sent, so Blender renders
+    it while this process reads the masks and writes the files (Blender would otherwise idle
+    through that Python work, about 5 % of an image).
     """
     out = Path(out_dir)
     tol = float(opts.get("tolerance_mm", 0.01))
     results = []
+    jobs = []
     for spec, label in items:
         i = int(spec["index"])
         if done(out, i):
             results.append({"index": i, "ok": True, "skipped": True})
             continue
-        reply = None
         label = dict(label)
         job = label.pop("_apparent_job", None)
         formats = label.pop("_formats", None)
-        extra = None
         if opts.get("masks"):             # seg mask + depth map from the same render (into .tmp/)
             tmp = Path(spec["png"]).parent
             spec = {**spec, "seg_png": str(tmp / seg_name(i)), "depth_exr": str(tmp / depth_name(i))}
-        for attempt in range(2):          # one restart if Blender died under us
-            try:
-                bp = get_blender(asset, rig, opts)
-                bp.send(spec)
-                if job is not None and extra is None:      # computed while Blender renders
-                    extra = apparent_landmarks(job)
-                reply = bp.receive(float(opts.get("image_timeout_s", 600)))
-                break
-            except WorkerDied as exc:
-                reply = {"index": i, "ok": False, "error": str(exc)}
-                _close_all()
-        res = {"index": i, "ok": bool(reply.get("ok")), "render_s": reply.get("render_s"),
-               "total_cpu_s": reply.get("total_cpu_s"),
-               "rss_mib": reply.get("rss_mib"), "landmark_check_mm": reply.get("landmark_check_mm"),
-               "error": reply.get("error"), "pid": os.getpid()}
-        if res["ok"]:
-            check = reply.get("landmark_check_mm")
-            if check is None or not check <= tol:
-                res.update(ok=False, error=f"landmark check {check} mm > {tol} mm: labels do not "
-                                           "match the rendered scene")
-            else:
-                if extra is not None:
-                    label["landmarks"] = dict(label["landmarks"], **extra)
-                label["landmark_check_mm"] = float(check)
-                # timings (render_s, cpu seconds, rss) go to the stage metrics, never into the
-                # label: the same sample must give the same bytes
-                if opts.get("masks"):
-                    try:
-                        add_masks(label, spec, extra)
-                    except ScanError as exc:          # the worker's seg / depth file is unusable
-                        res.update(ok=False, error=f"masks: {exc}")
-                        results.append(res)
-                        continue
-                strip_png_metadata(spec["png"])        # Blender's Date/Time/RenderTime text chunks
-                os.replace(spec["png"], out / f"{i:06d}.png")
-                for k in ("seg_png", "depth_exr"):
-                    if k in spec:
-                        os.replace(spec[k], out / Path(spec[k]).name)
-                if formats is not None:                 # unityeyes / pts, before the label (= done)
-                    write_formats(out, i, label, formats, out / f"{i:06d}.png")
-                write_label(out / label_name(i), label)
-        results.append(res)
+        jobs.append((i, spec, label, job, formats))
+    sent = False                          # jobs[k]'s spec already sent to the live Blender
+    try:
+        for k, (i, spec, label, job, formats) in enumerate(jobs):
+            reply, extra = None, None
+            for attempt in range(2):      # one restart if Blender died under us
+                try:
+                    bp = get_blender(asset, rig, opts)
+                    if not sent:
+                        bp.send(spec)
+                    sent = False
+                    if job is not None and extra is None:      # computed while Blender renders
+                        extra = apparent_landmarks(job)
+                    reply = bp.receive(float(opts.get("image_timeout_s", 600)))
+                    if reply.get("index") != i:
+                        raise WorkerDied(f"Blender answered image {reply.get('index')} for image {i}")
+                    break
+                except WorkerDied as exc:
+                    reply = {"index": i, "ok": False, "error": str(exc)}
+                    sent = False
+                    _close_all()
+            if k + 1 < len(jobs) and _BLENDER:
+                try:
+                    bp.send(jobs[k + 1][1])
+                    sent = True
+                except WorkerDied:
+                    _close_all()
+            results.append(_finish(out, i, spec, label, extra, formats, reply, tol, opts))
+    finally:
+        if sent:                          # a reply nobody will read: the next task needs a clean pipe
+            _close_all()
     return results
+
+
+def _finish(out: Path, i: int, spec: dict, label: dict, extra, formats, reply: dict, tol: float,
+            opts: dict) -> dict:
+    """Check one image's reply and, when it passes, move its files into ``out`` and write its
+    label files (the eyerig JSON last). Returns the image's result."""
+    res = {"index": i, "ok": bool(reply.get("ok")), "render_s": reply.get("render_s"),
+           "total_cpu_s": reply.get("total_cpu_s"),
+           "rss_mib": reply.get("rss_mib"), "landmark_check_mm": reply.get("landmark_check_mm"),
+           "error": reply.get("error"), "pid": os.getpid()}
+    if not res["ok"]:
+        return res
+    check = reply.get("landmark_check_mm")
+    if check is None or not check <= tol:
+        res.update(ok=False, error=f"landmark check {check} mm > {tol} mm: labels do not "
+                                   "match the rendered scene")
+        return res
+    if extra is not None:
+        label["landmarks"] = dict(label["landmarks"], **extra)
+    label["landmark_check_mm"] = float(check)
+    # timings (render_s, cpu seconds, rss) go to the stage metrics, never into the
+    # label: the same sample must give the same bytes
+    if opts.get("masks"):
+        try:
+            add_masks(label, spec, extra)
+        except ScanError as exc:          # the worker's seg / depth file is unusable
+            res.update(ok=False, error=f"masks: {exc}")
+            return res
+    strip_png_metadata(spec["png"])        # Blender's Date/Time/RenderTime text chunks
+    os.replace(spec["png"], out / f"{i:06d}.png")
+    for k in ("seg_png", "depth_exr"):
+        if k in spec:
+            os.replace(spec[k], out / Path(spec[k]).name)
+    if formats is not None:                 # unityeyes / pts, before the label (= done)
+        write_formats(out, i, label, formats, out / f"{i:06d}.png")
+    write_label(out / label_name(i), label)
+    return res
 
 
 #: Length of dask's low-level logs (scheduler, client, workers). They keep references to recent
@@ -296,7 +325,10 @@ def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0
             return Client(scheduler, timeout=f"{connect_timeout_s}s"), None
         except (OSError, TimeoutError, ValueError) as exc:
             raise ScanError(scheduler, f"cannot connect to the dask scheduler ({type(exc).__name__})") from None
-    cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+    # One worker runs in this process (a thread): no nanny and worker processes to start and
+    # import dask in (~2 CPU-s), no pickling of every shard; its Blender is still a subprocess.
+    # Several workers get processes: the Blender cache (_BLENDER) is per process.
+    cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=int(workers) > 1,
                            dashboard_address=None, memory_limit=0, silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
