@@ -179,7 +179,9 @@ def rendered(tmp_path_factory):
         done[name] = r
         return r
 
-    front = {"polar_deg": 0.0, "azimuth_deg": 0.0, "jitter": np.zeros(2), "ortho_scale_mm": 30.0,
+    # 34 mm wide: the synthetic head's opening is ~30 mm corner to corner (issue 14), so a 30 mm
+    # frame cut a canthus off
+    front = {"polar_deg": 0.0, "azimuth_deg": 0.0, "jitter": np.zeros(2), "ortho_scale_mm": 34.0,
              "gaze_pitch_deg": 0.0, "gaze_yaw_deg": 0.0}
     render("random", 0)
     render("front", 1, front)
