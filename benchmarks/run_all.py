@@ -76,6 +76,10 @@ BENCHMARKS = (
     Benchmark("view_eye_sections", needs=("unseen_work",)),
     Benchmark("bench_unseen_oracle", needs=("unseen_work",)),
     Benchmark("bench_usd", needs=("synthetic_build",)),
+    # the README's figures come from the three home scans and six procedural heads (its command)
+    Benchmark("bench_margin_smoothness", args=(str(SYNTH_BUILD), "--out", str(
+        ROOT / "benchmarks" / "out" / "margin_smoothness_synthetic_head.json")),
+              needs=("synthetic_build",)),
     Benchmark("view_rig", args=(str(SYNTH_BUILD / "snap"), str(SYNTH_BUILD / "rig"),
                                 str(ROOT / "benchmarks" / "out" / "view_rig_synthetic_head.png")),
               needs=("synthetic_build",)),

@@ -48,7 +48,7 @@ import numpy as np
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.eye_rings import add_eye_rings
 from pipeline.geometry.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
-                                          project_to_polyline, resample_loop)
+                                          project_to_polyline, resample_loop, smooth_margin)
 from pipeline.geometry.flips import (collapse_flipped, count_flipped, flip_slivers, mirror_flipped,
                                      reference_face_normals, relax, repair_flips, untangle)
 from pipeline.geometry.mesh_edit import TriMesh
@@ -80,6 +80,8 @@ class RetopoSettings(Settings):
     canthus_apex: bool = True                                # loop corners where the lid lines meet (eyelid_loop.canthus_apex)
     canthus_window_mm: tuple[float, float] = setting((1.0, 6.0), ge=0, le=50, ordered=True)  # lid arc fitted by each line
     canthus_max_reach_mm: float = setting(3.0, ge=0, le=20)  # an apex farther beyond the scan's corner is not trusted
+    margin_smooth_mm: float = setting(3.0, ge=0, le=20)      # eyelid_loop.smooth_margin bandwidth (0 = off)
+    margin_smooth_max_move_mm: float = setting(2.0, gt=0, le=20)  # no margin point moves farther
 
 
 @dataclass
@@ -388,6 +390,11 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         if s.canthus_apex and lateral[side] is not None:
             curves[side], lateral[side], apex_info[side] = canthus_apex(
                 curves[side], lateral[side], s.canthus_window_mm, s.canthus_max_reach_mm)
+        if s.margin_smooth_mm > 0 and lateral[side] is not None:
+            # the cut follows the scan's triangles in 0.5-1 mm teeth, which snap amplifies
+            curves[side], lateral[side] = smooth_margin(curves[side], lateral[side],
+                                                        s.margin_smooth_mm,
+                                                        s.margin_smooth_max_move_mm)
     timings["crop_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()

@@ -1,0 +1,88 @@
+"""eyelid_loop.smooth_margin: a zigzag lid on a known sphere comes back near the true smooth
+curve, the canthi stay exactly where they were, and margin_jag scores the difference."""
+
+import numpy as np
+import pytest
+
+from pipeline.geometry.eyelid_loop import margin_jag, margin_teeth, smooth_margin
+from pipeline.geometry.mesh_checks import closed_polyline_distance
+
+R = 12.0
+
+
+def _almond(n_upper=60, n_lower=50):
+    """A smooth almond-shaped margin on a sphere of radius R (centre at the origin, looking +z):
+    (n, 3) closed, medial canthus (x = -11) first, upper lid first; lateral canthus index."""
+    a = 11.0
+    xu = np.linspace(-a, a, n_upper + 1)
+    xl = np.linspace(a, -a, n_lower + 1)[1:-1]
+    yu = 4.0 * (1 - (xu / a) ** 2)
+    yl = -3.0 * (1 - (xl / a) ** 2)
+    x = np.concatenate([xu, xl])
+    y = np.concatenate([yu, yl])
+    # a 1.0 mm lift off the sphere, as retopo's curve (the scan's margin) sits
+    z = np.sqrt((R + 1.0) ** 2 - x ** 2 - y ** 2)
+    return np.stack([x, y, z], axis=1), n_upper
+
+
+def _zigzag(P, lateral, amp, seed=0):
+    """Teeth of +-amp (alternating, jittered) across the curve on the sphere, canthi untouched."""
+    rng = np.random.default_rng(seed)
+    T = np.roll(P, -1, axis=0) - np.roll(P, 1, axis=0)
+    N = np.cross(T, P)
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    sign = np.where(np.arange(len(P)) % 2 == 0, 1.0, -1.0)
+    off = amp * sign * rng.uniform(0.6, 1.0, len(P))
+    off[[0, lateral]] = 0.0
+    return P + off[:, None] * N
+
+
+def test_zigzag_lid_comes_back_to_the_smooth_curve_canthi_fixed():
+    P, lat = _almond()
+    Z = _zigzag(P, lat, 0.5)
+    assert np.percentile(margin_jag(Z, (0, lat)), 95) > 0.3
+    S, lat2 = smooth_margin(Z, lat, sigma_mm=3.0, max_move_mm=2.0)
+    # both canthi kept exactly, in the same places of the order
+    assert np.array_equal(S[0], Z[0]) and np.array_equal(S[lat2], Z[lat])
+    # within 0.1 mm of the true curve (the teeth were 0.3-0.5 mm), away from the canthi too
+    d = closed_polyline_distance(S, P)
+    assert d.max() < 0.1, d.max()
+    # the smoothed curve keeps the lid's curvature: its apex is within 0.1 mm of the true one
+    assert abs(S[:lat2 + 1, 1].max() - P[:lat + 1, 1].max()) < 0.1
+
+
+def test_smooth_lid_untouched_and_moves_bounded():
+    P, lat = _almond()
+    S, lat2 = smooth_margin(P, lat, sigma_mm=3.0, max_move_mm=2.0)
+    # a smooth lid is hardly moved (the local fit rounds the lid a little next to the canthi)
+    assert closed_polyline_distance(S, P).max() < 0.1
+    Z = _zigzag(P, lat, 0.5)
+    S, _ = smooth_margin(Z, lat, sigma_mm=3.0, max_move_mm=0.2)
+    assert closed_polyline_distance(S, Z).max() <= 0.2 + 1e-9
+
+
+def test_coarse_cut_is_densified_into_a_smooth_curve():
+    P, lat = _almond(8, 6)       # james-like: a few points round the eye
+    S, lat2 = smooth_margin(P, lat, sigma_mm=3.0)
+    edges = np.linalg.norm(S - np.roll(S, -1, axis=0), axis=1)
+    assert edges.max() < 1.0 and lat2 > 4 * lat   # the 2.8 mm edges are split
+
+
+def test_bad_lateral_index_is_refused():
+    P, lat = _almond()
+    with pytest.raises(ValueError, match="lateral canthus index"):
+        smooth_margin(P, len(P) - 1)
+
+
+def test_jag_figures_on_a_zigzag_and_a_circle():
+    """margin_jag's curvature floor (about k h^2) and margin_teeth's absence of one; both see a
+    zigzag of amplitude a as 0.8 a and 2.67 a."""
+    n, r = 64, 11.0
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    C = np.stack([r * np.cos(t), r * np.sin(t), np.zeros(n)], axis=1)
+    h = 2 * np.pi * r / n
+    assert np.median(margin_jag(C)) == pytest.approx(h * h / r, rel=0.02)
+    assert margin_teeth(C).max() < 0.01 * h * h / r * 10
+    Z = C * (1 + 0.2 / r * np.where(np.arange(n) % 2 == 0, 1.0, -1.0))[:, None]
+    assert np.median(margin_jag(Z)) == pytest.approx(0.8 * 0.2, abs=0.02 + h * h / r)
+    assert np.median(margin_teeth(Z)) == pytest.approx(2.67 * 0.2, abs=0.02)
