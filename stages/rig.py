@@ -13,12 +13,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pipeline.fork import fork_call, fork_result
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import read_stage_mesh
 from pipeline.io.rig_file import write_rig
-from pipeline.rig import lids
-from pipeline.rig.build import build_rig
 from pipeline.usd.eyeball import read_eyeball_params
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
@@ -38,11 +37,15 @@ def main(argv) -> dict:
                         help="rigged_assets/eyeball: follow its outer surface (sphere + cornea), "
                              "as snap does; without it the margin follows the fitted sphere")
     args = parser.parse_args(argv)
+    # pxr's import and the read (0.1 s) run in a child beside this process's imports and reading;
+    # a failed read is rerun here, so its error is the reader's own
+    profile_job = None if args.eyeball is None else fork_call(read_eyeball_params, args.eyeball)
+    from pipeline.rig import lids               # with scipy: after the fork, beside the child
+    from pipeline.rig.build import build_rig
+
     params = load_settings(lids.RigSettings, args.params)
     mesh, eyes, mesh_path, eyes_path = _read_inputs(args.snap)
-    profile = None
-    if args.eyeball is not None:
-        profile = read_eyeball_params(args.eyeball)
+    profile = None if profile_job is None else fork_result(profile_job)[0]
     arrays, doc, metrics = build_rig(mesh, eyes, params, mesh_path, eyes_path, profile)
     with atomic_dir(args.out) as tmp:
         write_rig(tmp, arrays, doc)

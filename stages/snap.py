@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.geometry import snap as sn
+from pipeline.fork import fork_call, fork_result
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import lateral_canthus_index, read_eyes, write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
@@ -32,13 +32,19 @@ def main(argv) -> dict:
     parser.add_argument("eyeball", type=Path, help="rigged_assets/eyeball (eyeball.usda)")
     parser.add_argument("out", type=Path, help="build/<scan>/snap")
     args = parser.parse_args(argv)
+    # pxr's import and the read (0.1 s) run in a child beside this process's scipy imports and
+    # reading; a failed read is rerun here, so its error is the reader's own
+    params_job = fork_call(read_eyeball_params, args.eyeball)
+    from pipeline.geometry import snap as sn    # imports scipy: after the fork, beside the child
+
     st = load_settings(sn.SnapSettings, args.params)
     mesh_path = args.bake / "mesh.npz"
     mesh = read_stage_mesh(mesh_path)
     records = read_eyes(args.remove_eyeballs / "eyes.json")
     eyes = {s: (e.center, e.radius, e.forward) for s, e in records.items()}
-    params = read_eyeball_params(args.eyeball)
-    out, reports, metrics = sn.snap_mesh(mesh, eyes, params, st, source=str(mesh_path))
+    graph = sn.edge_graph(np.asarray(mesh["V"], float), np.asarray(mesh["F"], np.int64))
+    params, _ = fork_result(params_job)
+    out, reports, metrics = sn.snap_mesh(mesh, eyes, params, st, source=str(mesh_path), graph=graph)
     doc = {}
     for s, e in records.items():  # loop fields now refer to the snapped mesh
         loop = np.asarray(out[f"loop_{s}"], np.int64)

@@ -199,6 +199,32 @@ def test_falloff_zero_at_loop_and_padding():
     assert m.sum() > b.mask.sum() and np.all(img[m] == 1.0)
 
 
+def test_forked_weights_and_padding_give_the_same_maps(monkeypatch):
+    # bake_maps makes the falloff weights and padding in a forked child while it casts rays;
+    # made in this process instead (the fork's fallback), the maps are the same to the bit
+    import pipeline.bake.bake as bk
+
+    Vd, Fd = bumpy_sphere(5)
+    V, F = smooth_sphere(3)
+    front = np.argsort(-V[:, 2])[:6]
+    s = BakeSettings(resolution=256, falloff_mm=3.0, max_distance_mm=2.0, padding_texels=4)
+    UV, FUV = unwrap(V, F, 256, 2)
+    forked = bake_maps(V, F, {"left": front}, {"V": Vd, "F": Fd}, None, s, UV=UV, FUV=FUV)
+    calls = []
+
+    def here(fn, *args, **kwargs):
+        calls.append(fn.__name__)
+        return fn(*args, **kwargs)
+
+    monkeypatch.setattr(bk, "fork_call", here)
+    monkeypatch.setattr(bk, "fork_result", lambda value: (value, 0.0))
+    local = bake_maps(V, F, {"left": front}, {"V": Vd, "F": Fd}, None, s, UV=UV, FUV=FUV)
+    assert calls == ["_weights_and_padding"]
+    assert np.array_equal(forked.displacement, local.displacement)
+    assert np.array_equal(forked.mask, local.mask)
+    assert (np.abs(local.displacement[local.mask]) < 1e-6).mean() < 0.9      # not an empty bake
+
+
 def test_sample_bilinear_pixel_centres():
     img = np.arange(12, dtype=float).reshape(3, 4)
     uv = np.array([[(1 + 0.5) / 4, 1 - (2 + 0.5) / 3], [(0.5 + 0.5) / 4, 1 - (0 + 0.5) / 3]])

@@ -479,6 +479,17 @@ def test_stage_missing_inputs(tmp_path, capsys):
     assert rc == 2 and "mesh.npz: not found" in capsys.readouterr().err
 
 
+def test_stage_missing_eyeball_one_line(tmp_path, capsys, region):
+    # the eyeball is read in a forked child; its failure is rerun here, naming the file
+    V, F, eyes, _ = region
+    snap = tmp_path / "snap"
+    _write_snap(snap, V, F, eyes)
+    rc = run_stage(rig_stage.main, [str(snap), str(tmp_path / "rig"), "--eyeball", str(tmp_path / "eb")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "eyeball.usda: not found" in err and "\n" not in err
+    assert not (tmp_path / "rig").exists()
+
+
 def test_degenerate_triangles_do_not_break_the_rig():
     V, F, eyes = two_eye_region()
     F2 = np.concatenate([F, [[0, 0, 1], [5, 5, 5]]])

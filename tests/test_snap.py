@@ -279,3 +279,66 @@ def test_keep_opening_keeps_the_canthus_where_the_lid_leans_over_it():
     assert (r_paper < r0 - 0.1).all()
     assert (r_kept >= r0 - 1e-9).all()
     assert np.abs(eye.signed_distance(kept[loop])).max() <= 0.05
+
+
+# ---------------------------------------------------------------- both eyes at once (forked)
+
+def _one_after_the_other(mesh, eyes, st):
+    """The snapped V and per-side metrics of snapping the left eye, then the right on its result."""
+    V0 = np.asarray(mesh["V"], float)
+    F = np.asarray(mesh["F"], np.int64)
+    G = sn.edge_graph(V0, F)
+    V, metrics = V0, {}
+    for s in sn.SIDES:
+        eye = sn.PlacedEye(*eyes[s], EyeballParams())
+        V, _, metrics[s], _ = sn._snap_side(V, V0, F, np.asarray(mesh[f"loop_{s}"]), eye, st, G)
+    return V, metrics
+
+
+def _two_eye_mesh(tmp_path):
+    bake, rem, _ = _write_inputs(tmp_path)
+    mesh = load_mesh(bake / "mesh.npz")
+    eyes = {s: (e.center, e.radius, e.forward) for s, e in read_eyes(rem / "eyes.json").items()}
+    return mesh, eyes
+
+
+def _overlapping_zones():
+    """One lid with the 'left' loop on ring 0 and the 'right' loop on ring 3 (1.6 mm away), both
+    around the same eye: the second snap reads vertices the first one moved."""
+    V, F, loop = lid_ring(0.4)
+    mesh = {"V": V, "F": F, "loop_left": loop, "loop_right": loop + 3 * 72}
+    eye = (CENTER, R, np.array([0, 0, 1.0]))
+    return mesh, {"left": eye, "right": eye}
+
+
+@pytest.mark.parametrize("case", ["apart", "overlapping"])
+def test_snap_mesh_equals_one_eye_after_the_other(case, tmp_path):
+    mesh, eyes = _two_eye_mesh(tmp_path) if case == "apart" else _overlapping_zones()
+    st = sn.SnapSettings()
+    V0, F = np.asarray(mesh["V"], float), np.asarray(mesh["F"], np.int64)
+    G = sn.edge_graph(V0, F)
+    first = sn._snap_side(V0, V0, F, np.asarray(mesh["loop_left"]),
+                          sn.PlacedEye(*eyes["left"], EyeballParams()), st, G)[0]
+    second = sn._snap_side(V0, V0, F, np.asarray(mesh["loop_right"]),
+                           sn.PlacedEye(*eyes["right"], EyeballParams()), st, G)[3]
+    # the premise: which of snap_mesh's two branches this case takes
+    assert sn._independent(G, F, second, V0, first) == (case == "apart")
+    out, _, metrics = sn.snap_mesh(mesh, eyes, EyeballParams(), st)
+    V_ref, m_ref = _one_after_the_other(mesh, eyes, st)
+    assert np.array_equal(out["V"], V_ref)
+    for s in sn.SIDES:
+        assert metrics[s] == m_ref[s]
+    assert not np.array_equal(out["V"][mesh["loop_right"]], V0[mesh["loop_right"]])
+
+
+def test_stage_missing_eyeball_one_line(tmp_path, capsys):
+    # the eyeball is read in a forked child; its failure is rerun here, naming the file
+    from stages._common import run_stage
+    from stages.snap import main
+
+    bake, rem, eb = _write_inputs(tmp_path)
+    (eb / "eyeball.usda").unlink()
+    assert run_stage(main, [str(bake), str(rem), str(eb), str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "eyeball.usda" in err and "not found" in err and "\n" not in err
+    assert not (tmp_path / "out").exists()

@@ -28,6 +28,7 @@ import numpy as np
 
 from pipeline.bake.raycast import DenseScene, cast_both_ways
 from pipeline.bake.uv import dilation_sources, rasterize, sample_bilinear, unwrap
+from pipeline.fork import fork_call, fork_result
 from pipeline.geometry import mesh_checks as mc
 from pipeline.settings import Settings, setting
 
@@ -152,6 +153,11 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
     timings["rasterize_s"] = time.perf_counter() - t1
 
+    mask = np.zeros((res, res), dtype=bool)
+    mask[rows, cols] = True
+    # the falloff weights and the padding need the texels only, not the rays: a forked child
+    # makes them while this process casts the rays
+    texel_job = fork_call(_weights_and_padding, V, F, P, face, list(loops.values()), mask, s)
     t2 = time.perf_counter()
     if scene is None:
         scene = dense_scene(V, dense, s)
@@ -170,21 +176,10 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     hface = near_faces[hface]                      # back to the scan's own face indices
 
     t4 = time.perf_counter()
-    lp = [V[np.asarray(l, dtype=np.int64)] for l in loops.values()]
-    w = np.ones(len(P))
-    if s.falloff_mm > 0 and lp:
-        # only faces that can reach within falloff of a loop need the per-texel distance
-        dv = distance_to_polylines(V, lp)
-        elen = np.linalg.norm(V[F] - np.roll(V[F], 1, axis=1), axis=2).max(axis=1)
-        near_face = dv[F].min(axis=1) <= s.falloff_mm + elen
-        sel = near_face[face]
-        w[sel] = smoothstep(distance_to_polylines(P[sel], lp) / s.falloff_mm)
+    (w, (grow, sy, sx)), timings["weights_padding_s"] = fork_result(texel_job)
     disp_w = disp * w
-    mask = np.zeros((res, res), dtype=bool)
-    mask[rows, cols] = True
     dimg = np.zeros((res, res), dtype=np.float32)
     dimg[rows, cols] = disp_w
-    grow, sy, sx = dilation_sources(mask, s.padding_texels)
     dimg[grow] = dimg[sy, sx]
     if on_displacement is not None:
         on_displacement(UV, FUV, dimg)
@@ -209,6 +204,27 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
         "time_s": round(timings["total_s"], 4),
     }
     return BakeResult(UV, FUV, dimg, cimg, mask, metrics)
+
+
+def falloff_weights(V, F, P, face, loops, falloff_mm):
+    """Displacement weights (k,) of texels at ``P`` (k, 3) on faces ``face`` (k,) of the low-poly
+    mesh (V, F): a smoothstep from 0 on the eyelid ``loops`` (vertex index lists) to 1 at
+    ``falloff_mm`` from them."""
+    lp = [V[np.asarray(l, dtype=np.int64)] for l in loops]
+    w = np.ones(len(P))
+    if falloff_mm > 0 and lp:
+        # only faces that can reach within falloff of a loop need the per-texel distance
+        dv = distance_to_polylines(V, lp)
+        elen = np.linalg.norm(V[F] - np.roll(V[F], 1, axis=1), axis=2).max(axis=1)
+        near_face = dv[F].min(axis=1) <= falloff_mm + elen
+        sel = near_face[face]
+        w[sel] = smoothstep(distance_to_polylines(P[sel], lp) / falloff_mm)
+    return w
+
+
+def _weights_and_padding(V, F, P, face, loops, mask, s: BakeSettings):
+    """:func:`falloff_weights` and :func:`~pipeline.bake.uv.dilation_sources` of ``mask``."""
+    return falloff_weights(V, F, P, face, loops, s.falloff_mm), dilation_sources(mask, s.padding_texels)
 
 
 def _interpolate(bary, X, corners):

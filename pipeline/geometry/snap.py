@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from scipy.sparse.csgraph import dijkstra
 
 from pipeline.geometry import meshtopo
 from pipeline.geometry.flips import untangle
@@ -125,7 +126,8 @@ def _outward_lines(P, N, forward):
     return np.where(n > 0.2, M / np.maximum(n, 1e-12), N)
 
 
-def _edge_graph(V, F):
+def edge_graph(V, F):
+    """Edge-length graph (n, n) of (V, F), symmetric CSR."""
     from scipy.sparse import coo_matrix
 
     E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
@@ -165,8 +167,6 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
         ``moved`` (k,) int64 vertices that moved, ``grazing`` count (closest-point fallback),
         ``pushed_out`` count, ``falloff_distance`` (n,) float64.
     """
-    from scipy.sparse.csgraph import dijkstra
-
     st = st or SnapSettings()
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
@@ -186,7 +186,7 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
         _, Nq, _ = eye.closest(target)
         target = target + st.clearance_mm * Nq
     delta = target - P
-    G = _edge_graph(V, F) if graph is None else graph
+    G = edge_graph(V, F) if graph is None else graph
     dist, _, src = dijkstra(G, directed=False, indices=loop, min_only=True,
                             return_predecessors=True, limit=st.falloff_mm)
     w = smoothstep_falloff(dist, st.falloff_mm)
@@ -291,8 +291,51 @@ def margin_report(V, loop, eye: PlacedEye, st: SnapSettings, n_steps=5):
 
 
 
-def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz"):
+def _snap_side(V_in, V0, F, loop, eye: PlacedEye, st: SnapSettings, G):
+    """One eye's snap of ``V_in`` (n, 3): (snapped (n, 3), margin report, metrics).
+
+    ``V0`` (n, 3) is the unsnapped mesh, from which ``max_move_mm`` is measured.
+    """
+    Vs, info = snap_loop(V_in, F, loop, eye, st, graph=G)
+    moved = info["moved"]
+    far = info["falloff_distance"] > st.falloff_mm
+    moved_far = int((np.linalg.norm(Vs - V_in, axis=1)[far] > 0).sum())
+    rep = margin_report(Vs, loop, eye, st)
+    d_zone = eye.signed_distance(Vs[moved])
+    metrics = {"loop_length": int(len(loop)), "moved_vertices": int(len(moved)),
+               "grazing_fallbacks": info["grazing"], "pushed_out": info["pushed_out"],
+               "relax_iterations": info["relax_iterations"],
+               "moved_outside_falloff": moved_far,
+               "zone_inside_max_mm": float(max(0.0, -d_zone.min())),
+               "max_move_mm": float(np.linalg.norm(Vs[moved] - V0[moved], axis=1).max()),
+               **rep}
+    return Vs, rep, metrics, moved
+
+
+def _independent(G, F, moved, V0, V_first):
+    """True when snapping ``moved``'s eye on ``V0`` gives what snapping it on ``V_first`` (V0 with
+    the other eye snapped) gives, so the two eyes can be snapped at once.
+
+    An eye's snap reads the mesh only at its moved vertices and their neighbours (normals,
+    relaxation, untangling), and, over the whole mesh, which faces are degenerate (the flip
+    counts treat a zero-area face as flipped): both must be the same in ``V0`` and ``V_first``.
+    """
+    near = np.zeros(len(V0), bool)
+    near[moved] = True
+    near[G[moved].indices] = True
+    if (V_first[near] != V0[near]).any():
+        return False
+    return bool(np.array_equal(_flipped_mask(V0, V0, F), _flipped_mask(V_first, V_first, F)))
+
+
+def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz", graph=None):
     """Snap both eyes' loops of a mesh (the snap stage's work).
+
+    The eyes are snapped one after the other, the first on the mesh, the second on the mesh with
+    the first snapped. Since the two zones lie far apart, the first is snapped in a forked child
+    while this process snaps the second on the unsnapped mesh; where the second's zone reaches
+    the first's (:func:`_independent`), the second is snapped again on the first's result. The
+    result is the same either way, to the bit.
 
     Parameters
     ----------
@@ -306,18 +349,19 @@ def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz
     st : SnapSettings
     source : str
         Named in errors.
+    graph : scipy.sparse matrix, optional
+        Edge-length graph of (V, F) (:func:`edge_graph`), made here when not given.
 
     Returns
     -------
     (mesh arrays with V snapped, per-eye margin reports, metrics)
     """
     from pipeline.errors import ScanError
+    from pipeline.fork import fork_call, fork_result
 
     V = np.asarray(mesh["V"], float)
     F = np.asarray(mesh["F"], np.int64)
-    V2 = V.copy()
-    G = _edge_graph(V, F)
-    metrics, reports = {}, {}
+    loops = {}
     for s in SIDES:
         key = f"loop_{s}"
         if key not in mesh:
@@ -325,23 +369,21 @@ def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz
         loop = np.asarray(mesh[key], np.int64)
         if loop.ndim != 1 or len(loop) < 3 or loop.min() < 0 or loop.max() >= len(V):
             raise ScanError(source, f"{key} is not a list of >= 3 vertex indices")
-        c, r, f = eyes[s]
-        eye = PlacedEye(c, r, f, params)
-        Vs, info = snap_loop(V2, F, loop, eye, st, graph=G)
-        far = info["falloff_distance"] > st.falloff_mm
-        moved_far = int((np.linalg.norm(Vs - V2, axis=1)[far] > 0).sum())
-        V2 = Vs
-        rep = margin_report(V2, loop, eye, st)
-        d_zone = eye.signed_distance(V2[info["moved"]])
-        reports[s] = rep
-        metrics[s] = {"loop_length": int(len(loop)), "moved_vertices": int(len(info["moved"])),
-                      "grazing_fallbacks": info["grazing"], "pushed_out": info["pushed_out"],
-                      "relax_iterations": info["relax_iterations"],
-                      "moved_outside_falloff": moved_far,
-                      "zone_inside_max_mm": float(max(0.0, -d_zone.min())),
-                      "max_move_mm": float(np.linalg.norm(V2[info["moved"]] - V[info["moved"]],
-                                                          axis=1).max()),
-                      **rep}
+        loops[s] = loop
+    G = edge_graph(V, F) if graph is None else graph
+    placed = {s: PlacedEye(*eyes[s], params) for s in SIDES}
+    first, second = SIDES
+    job = fork_call(_snap_side, V, V, F, loops[first], placed[first], st, G)
+    V2nd, rep2, met2, moved2 = _snap_side(V, V, F, loops[second], placed[second], st, G)
+    (V1st, rep1, met1, _), _ = fork_result(job)
+    if _independent(G, F, moved2, V, V1st):
+        V2 = V1st.copy()
+        changed = (V2nd != V).any(axis=1)
+        V2[changed] = V2nd[changed]
+    else:
+        V2, rep2, met2, _ = _snap_side(V1st, V, F, loops[second], placed[second], st, G)
+    reports = {first: rep1, second: rep2}
+    metrics = {first: met1, second: met2}
     out = dict(mesh)
     out["V"] = V2
     metrics["flipped_faces"] = flipped_faces(V, V2, F)
