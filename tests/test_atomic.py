@@ -223,3 +223,38 @@ def test_a_starting_stage_clears_stale_siblings_of_its_paths(tmp_path, capsys):
     assert not dead.exists() and live.exists()
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "ran out of memory" in err[0]
+
+
+def test_files_inside_atomic_dir_are_flushed_once_with_the_tree(tmp_path, monkeypatch):
+    # every file of a published folder is flushed before the rename, exactly once; a lone
+    # atomic_file still flushes itself and its folder
+    import os
+    from pipeline.io import atomic
+    synced = []
+    real = os.fsync
+
+    def record(fd):
+        synced.append(os.path.basename(os.readlink(f"/proc/self/fd/{fd}")))
+        real(fd)
+
+    monkeypatch.setattr(atomic.os, "fsync", record)
+    out = tmp_path / "out"
+    with atomic_dir(out) as tmp:
+        write_json(tmp / "a.json", {"x": 1})
+        (tmp / "sub").mkdir()
+        with atomic_file(tmp / "sub" / "b.bin") as t:
+            t.write_bytes(b"b")
+        (tmp / "c.txt").write_text("c")
+    names = [n for n in synced if not n.startswith(".out.tmp-")]
+    assert sorted(names) == ["a.json", "b.bin", "c.txt", "sub", tmp_path.name]
+    assert sum(n.startswith(".out.tmp-") for n in synced) == 1       # the folder, once
+    assert atomic._OPEN_DIRS == set()
+    assert json.loads((out / "a.json").read_text()) == {"x": 1} and (out / "sub" / "b.bin").read_bytes() == b"b"
+    synced.clear()
+    write_json(tmp_path / "lone.json", [1])
+    assert len(synced) == 2 and synced[1] == tmp_path.name and synced[0].endswith(".json")
+    # a failed folder leaves no open entry behind: later files outside it are flushed again
+    with pytest.raises(RuntimeError):
+        with atomic_dir(tmp_path / "bad") as tmp:
+            raise RuntimeError("x")
+    assert atomic._OPEN_DIRS == set()

@@ -810,3 +810,48 @@ def test_stage_refuses_a_rig_whose_sweep_flips_faces(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "flips" in err[0] and "mesh.npz" in err[0]
     assert not out.exists()
+
+
+# ---------------------------------------------------------------- the forked sweep
+
+def _sweep_cases():
+    V, F, eyes = two_eye_region(radius=15.4)
+    from pipeline.rig.build import _model_corneas
+    full = build_lid_shapes(V, F, eyes)
+    one = build_lid_shapes(V, F, eyes, lids.LidParams(max_segments=1))
+    return {
+        "corneas": (V, F, eyes, full.shapes, PITCHES_1DEG, _model_corneas(eyes)),
+        "sagging_chords_odd": (V, F, eyes, one.shapes, np.arange(-25.0, 25.01, 0.5), None),
+        "two_pitches": (V, F, eyes, one.shapes, [25.0, -25.0], _model_corneas(eyes)),
+        "one_pitch": (V, F, eyes, full.shapes, [0.0], _model_corneas(eyes)),
+    }
+
+
+@pytest.mark.parametrize("case", ["corneas", "sagging_chords_odd", "two_pitches", "one_pitch"])
+def test_forked_sweep_equals_the_single_process_sweep(case):
+    # the first half of the pitches in a child; every measure, the worst pitch and the key order
+    # (the metrics file's bytes) must be those of the one-process sweep
+    V, F, eyes, shapes, pitches, corneas = _sweep_cases()[case]
+    here = sweep_check(V, F, eyes, shapes, pitches, corneas=corneas)
+    forked = sweep_check(V, F, eyes, shapes, pitches, corneas=corneas, fork=True)
+    assert list(forked.items()) == list(here.items())
+    if case == "sagging_chords_odd":
+        assert here["max_penetration_mm"] > 0.1 and here["n_pitches"] == 101
+        assert here["worst_pitch_deg"] < 0          # found in the child's half of the pitches
+
+
+def test_forked_sweep_child_failure_is_rerun_here(monkeypatch):
+    import os
+    from pipeline.rig import sweep as sweep_mod
+    V, F, eyes, shapes, pitches, corneas = _sweep_cases()["corneas"]
+    here = sweep_check(V, F, eyes, shapes, pitches, corneas=corneas)
+    parent, real = os.getpid(), sweep_mod._sweep_pitches
+
+    def child_fails(*args):
+        if os.getpid() != parent:
+            raise MemoryError("child ran out")
+        return real(*args)
+
+    monkeypatch.setattr(sweep_mod, "_sweep_pitches", child_fails)
+    forked = sweep_check(V, F, eyes, shapes, pitches, corneas=corneas, fork=True)
+    assert list(forked.items()) == list(here.items())

@@ -166,3 +166,31 @@ def test_a_blend_shape_that_folds_the_mesh_is_an_error(good):
     bs.GetOffsetsAttr().Set(off.astype(np.float32))
     errs = validate_stage(st)
     assert any("pupil_dilate" in e and "flips" in e for e in errs), errs
+
+
+def _polygon_normals_loop(P, counts, idx):
+    """The per-polygon Python loop the vectorised fan replaced (the reference)."""
+    N = np.zeros((len(counts), 3))
+    s = 0
+    for f, c in enumerate(counts):
+        for k in range(1, c - 1):
+            a, b, d = idx[s], idx[s + k], idx[s + k + 1]
+            N[f] += np.cross(P[b] - P[a], P[d] - P[a])
+        s += c
+    return N
+
+
+def test_polygon_normals_equal_the_loop_on_mixed_polygons():
+    from pipeline.usd.validate import _fan_triangles, _polygon_normals
+    rng = np.random.default_rng(3)
+    counts = rng.choice([3, 4, 5, 7, 12, 2], size=400)     # a 2-gon has no area: a zero normal
+    idx = rng.integers(0, 300, size=int(counts.sum()))
+    P = rng.normal(size=(300, 3)) * 10.0
+    ref = _polygon_normals_loop(P, counts, idx)
+    got = _polygon_normals(P, counts, idx)
+    np.testing.assert_array_equal(got, ref)                # the same bits, summed in the same order
+    assert np.all(got[counts == 2] == 0) and np.abs(got[counts > 2]).max() > 1.0
+    face, a, b, c = _fan_triangles(counts, idx)
+    assert len(face) == int(np.maximum(counts - 2, 0).sum())
+    np.testing.assert_array_equal(_polygon_normals(P, counts, idx, (face, a, b, c)), ref)
+    assert _polygon_normals(P, [], []).shape == (0, 3)

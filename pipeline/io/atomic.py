@@ -2,7 +2,8 @@
 
 Everything is written to a temporary sibling (same folder, so the final
 ``os.replace`` is a rename on one filesystem), flushed to disk (``fsync`` of every
-file, then of the folder after the rename) and renamed into place. A killed
+file, then of the folder after the rename; a file written atomically inside an
+``atomic_dir`` folder is flushed once, with that folder's tree) and renamed into place. A killed
 stage leaves at most a ``.<name>.tmp-<pid>-*`` sibling, which git and DVC ignore,
 and never a half-written output; other scans' outputs are never touched. The
 next write of the same output removes such siblings once their process
@@ -56,6 +57,17 @@ def remove_stale_siblings(path) -> list[Path]:
         _remove(Path(e.path))
         removed.append(Path(e.path))
     return removed
+
+
+# temporary folders of the atomic_dir calls now open in this process (absolute paths): a file
+# written atomically inside one need not be flushed itself, since the folder's tree is flushed
+# before it is published, and an unpublished folder is garbage after a crash anyway
+_OPEN_DIRS: set[str] = set()
+
+
+def _inside_open_dir(path: Path) -> bool:
+    parent = Path(os.path.abspath(path)).parent
+    return any(str(p) in _OPEN_DIRS for p in (parent, *parent.parents))
 
 
 def _fsync_path(path: Path, directory: bool = False) -> None:
@@ -119,8 +131,11 @@ def atomic_dir(path) -> Iterator[Path]:
     """
     path = Path(path)
     tmp = _tmp_sibling(path, directory=True)
+    key = os.path.abspath(tmp)
+    _OPEN_DIRS.add(key)
     try:
         yield tmp
+        _OPEN_DIRS.discard(key)
         _fsync_tree(tmp)
         if path.exists() or path.is_symlink():
             old = _tmp_sibling(path, directory=True)
@@ -132,6 +147,7 @@ def atomic_dir(path) -> Iterator[Path]:
             os.replace(tmp, path)
         _fsync_path(path.parent, directory=True)
     except BaseException:
+        _OPEN_DIRS.discard(key)
         _remove(tmp)
         raise
 
@@ -152,9 +168,12 @@ def atomic_file(path) -> Iterator[Path]:
     os.replace(tmp, tmp_with_suffix)
     try:
         yield tmp_with_suffix
-        _fsync_path(tmp_with_suffix)
+        flush = not _inside_open_dir(path)     # else the enclosing atomic_dir flushes it
+        if flush:
+            _fsync_path(tmp_with_suffix)
         os.replace(tmp_with_suffix, path)
-        _fsync_path(path.parent, directory=True)
+        if flush:
+            _fsync_path(path.parent, directory=True)
     except BaseException:
         _remove(tmp_with_suffix)
         raise

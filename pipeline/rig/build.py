@@ -77,7 +77,7 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
                                         [-lp.max_pitch_deg, 0.0, lp.max_pitch_deg]]))
     t0 = time.perf_counter()
     sweep = sweep_check(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg,
-                        corneas=_model_corneas(eyes))
+                        corneas=_model_corneas(eyes), fork=True)
     t_sweep = time.perf_counter() - t0
     if sweep["flipped_faces"]:
         # a face that turns over while the eye moves is a visible fold in every render

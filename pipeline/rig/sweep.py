@@ -89,7 +89,7 @@ def cornea_intrusion(points, eye: EyeFrame, cornea_center, cornea_radius: float,
 
 
 def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITCH_DEG,
-                corneas: dict | None = None) -> dict:
+                corneas: dict | None = None, fork: bool = False) -> dict:
     """Pose the rig at every pitch and measure the lid invariants.
 
     The eyeball is a sphere about its centre, so rotating it by the pitch leaves
@@ -108,6 +108,7 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         ``corneas`` (``side -> (centre (3,), radius)``) ``max_cornea_intrusion_mm`` /
         ``rest_cornea_intrusion_mm`` (:func:`cornea_intrusion` of the margin),
         ``worst_pitch_deg`` for the gap/penetration, and ``n_pitches``.
+        With ``fork`` the first half of the pitches runs in a forked child (the same result).
     """
     V = np.asarray(V, float)
     F = np.asarray(F, np.int64)
@@ -131,6 +132,45 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
                                                     float(near_skin[e.side][1].min()))
     rest = max(float(np.max(np.abs(e.surface_distance(V[e.loop], 0.0)))) for e in eyes)
     res["rest_max_abs_mm"] = rest
+    pitches = list(pitches_deg)
+    args = (V, F, eyes, shapes, max_pitch_deg, corneas, n0, check_faces, near_skin)
+    if fork and len(pitches) > 1:
+        # the pitches are independent: the first half in a forked child beside the second half
+        # here; min/max merge exactly, so the result equals the single-process sweep
+        from pipeline.fork import fork_call, fork_result
+        half = len(pitches) // 2
+        job = fork_call(_sweep_pitches, pitches[:half], *args)
+        second = _sweep_pitches(pitches[half:], *args)
+        parts = [fork_result(job)[0], second]
+    else:
+        parts = [_sweep_pitches(pitches, *args)]
+    worst = -1.0
+    for part in parts:                   # in pitch order: the first pitch reaching the worst wins
+        for k in ("max_gap_mm", "max_penetration_mm", "flipped_faces", "max_skin_sink_mm"):
+            res[k] = max(res[k], part[k])
+        for k in ("min_opening_mm", "min_skin_clearance_mm"):
+            res[k] = min(res[k], part[k])
+        if "max_cornea_intrusion_mm" in part:
+            res["max_cornea_intrusion_mm"] = max(res.get("max_cornea_intrusion_mm", 0.0),
+                                                 part["max_cornea_intrusion_mm"])
+        if "rest_cornea_intrusion_mm" in part:
+            res["rest_cornea_intrusion_mm"] = part["rest_cornea_intrusion_mm"]
+        if part["worst"] > worst:
+            worst, res["worst_pitch_deg"] = part["worst"], part["worst_pitch_deg"]
+        res["n_pitches"] += part["n_pitches"]
+    for k in ("min_opening_mm", "min_skin_clearance_mm", "rest_min_skin_clearance_mm"):
+        if not math.isfinite(res[k]):
+            res[k] = None
+    return res
+
+
+def _sweep_pitches(pitches_deg, V, F, eyes, shapes, max_pitch_deg, corneas, n0, check_faces,
+                   near_skin) -> dict:
+    """:func:`sweep_check`'s measures over some of the pitches (merged by the caller), with
+    ``worst`` the largest gap/penetration and ``worst_pitch_deg`` its first pitch."""
+    res = {"max_gap_mm": 0.0, "max_penetration_mm": 0.0, "flipped_faces": 0,
+           "min_opening_mm": math.inf, "min_skin_clearance_mm": math.inf,
+           "max_skin_sink_mm": 0.0, "worst_pitch_deg": 0.0, "n_pitches": 0}
     worst = -1.0
     for p in pitches_deg:
         P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch_deg))
@@ -160,7 +200,5 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         flipped = int(np.count_nonzero(np.einsum("ij,ij->i", n0[check_faces], n1[check_faces]) <= 0))
         res["flipped_faces"] = max(res["flipped_faces"], flipped)
         res["n_pitches"] += 1
-    for k in ("min_opening_mm", "min_skin_clearance_mm", "rest_min_skin_clearance_mm"):
-        if not math.isfinite(res[k]):
-            res[k] = None
+    res["worst"] = worst
     return res

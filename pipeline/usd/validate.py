@@ -101,23 +101,35 @@ def _mesh_checks(mesh, errors):
     return n
 
 
-def _polygon_normals(P, counts, idx):
-    """(nfaces, 3) area-weighted normals of polygons (fan sums; exact for planar polygons)."""
+def _fan_triangles(counts, idx):
+    """Fan triangulation of polygons: ``(face, a, b, c)``, each (t,) int64, in face order and
+    fan order within a face (the order :func:`_polygon_normals` sums in)."""
     counts = np.asarray(counts, np.int64)
     idx = np.asarray(idx, np.int64)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    face = np.repeat(np.arange(len(counts)), np.maximum(counts - 2, 0))
-    k = np.concatenate([np.arange(1, c - 1) for c in counts]) if len(counts) else np.zeros(0, np.int64)
-    a, b, c = idx[start[face]], idx[start[face] + k], idx[start[face] + k + 1]
-    N = np.zeros((len(counts), 3))
-    np.add.at(N, face, np.cross(P[b] - P[a], P[c] - P[a]))
-    return N
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    n_tri = np.maximum(counts - 2, 0)
+    face = np.repeat(np.arange(len(counts)), n_tri)
+    # k = 1 .. count-2 within each face: a running index minus where the face's run began
+    first = np.cumsum(n_tri) - n_tri
+    k = np.arange(len(face), dtype=np.int64) - first[face] + 1
+    return face, idx[start[face]], idx[start[face] + k], idx[start[face] + k + 1]
+
+
+def _polygon_normals(P, counts, idx, fan=None):
+    """(nfaces, 3) area-weighted normals of polygons (fan sums; exact for planar polygons).
+    ``fan``: :func:`_fan_triangles` of ``counts, idx``, when the caller reuses it."""
+    face, a, b, c = _fan_triangles(counts, idx) if fan is None else fan
+    T = np.cross(P[b] - P[a], P[c] - P[a])
+    # bincount adds each face's triangles in order from 0.0, as np.add.at did: the same bits
+    n = len(counts)
+    return np.stack([np.bincount(face, T[:, j], minlength=n) for j in range(3)], axis=1)
 
 
 def _posed_flips(P, counts, idx, point_indices, offsets_list):
     """Largest number of faces whose normal turns by more than 90 degrees when the shape is
     applied at each given offsets array (full weight and every inbetween)."""
-    N0 = _polygon_normals(P, counts, idx)
+    fan = _fan_triangles(counts, idx)
+    N0 = _polygon_normals(P, counts, idx, fan)
     ok = np.linalg.norm(N0, axis=1) > 1e-20
     worst = 0
     for O in offsets_list:
@@ -126,7 +138,7 @@ def _posed_flips(P, counts, idx, point_indices, offsets_list):
             Q += O
         else:
             Q[point_indices] += O
-        N1 = _polygon_normals(Q, counts, idx)
+        N1 = _polygon_normals(Q, counts, idx, fan)
         worst = max(worst, int(np.count_nonzero(np.einsum("ij,ij->i", N0[ok], N1[ok]) <= 0)))
     return worst
 
