@@ -855,3 +855,41 @@ def test_forked_sweep_child_failure_is_rerun_here(monkeypatch):
     monkeypatch.setattr(sweep_mod, "_sweep_pitches", child_fails)
     forked = sweep_check(V, F, eyes, shapes, pitches, corneas=corneas, fork=True)
     assert list(forked.items()) == list(here.items())
+
+
+def _lid_opening_loop(P, eye, n_lines=64, margin_frac=0.02):
+    """lid_opening as it was, one vertical line at a time (the reference)."""
+    B = eye.basis()
+    li = int(eye.lateral_index)
+    Q = (np.asarray(P)[np.asarray(eye.loop)] - eye.center) @ B[:2].T
+    up, lo = Q[: li + 1], np.concatenate([Q[li:], Q[:1]])
+    xa, xb = sorted((Q[0, 0], Q[li, 0]))
+    xs = np.linspace(xa + margin_frac * (xb - xa), xb - margin_frac * (xb - xa), n_lines)
+
+    def heights(poly, reduce):
+        x0, y0, x1, y1 = poly[:-1, 0], poly[:-1, 1], poly[1:, 0], poly[1:, 1]
+        res = np.full(len(xs), np.nan)
+        for k, s in enumerate(xs):
+            hit = ((x0 - s) * (x1 - s) <= 0) & (np.abs(x1 - x0) > 1e-12)
+            if hit.any():
+                res[k] = reduce(y0[hit] + (s - x0[hit]) / (x1[hit] - x0[hit]) * (y1[hit] - y0[hit]))
+        return res
+
+    return heights(up, np.min) - heights(lo, np.max)
+
+
+def test_lid_opening_equals_the_line_by_line_loop():
+    # jagged, crossing and folded-back loops: the same numbers
+    rng = np.random.default_rng(5)
+    n_crossed = 0
+    for trial in range(60):
+        n = int(rng.integers(6, 90))
+        li = int(rng.integers(2, n - 2))
+        t = np.linspace(np.pi, -np.pi, n, endpoint=False)
+        P = np.stack([12 * np.cos(t), 5 * np.sin(t) + rng.normal(0, 2, n), rng.normal(0, 1, n)], 1)
+        eye = EyeFrame("left", np.array([0.0, 0, -10]), 12.0, np.array([0.0, 0, 1]), np.arange(n), li)
+        ref = _lid_opening_loop(P, eye)
+        got = lid_opening(P, eye)
+        np.testing.assert_array_equal(got, ref)
+        n_crossed += int((ref < 0).sum())
+    assert n_crossed > 0 and np.isfinite(ref).all()

@@ -43,17 +43,20 @@ def lid_opening(P, eye: EyeFrame, n_lines: int = 64, margin_frac: float = 0.02) 
     span = xb - xa
     xs = np.linspace(xa + margin_frac * span, xb - margin_frac * span, n_lines)
 
-    def heights(poly, reduce):
+    def heights(poly, lowest):
+        # every line against every segment at once (lines x segments); the crossing heights are
+        # the per-line formula's, element for element, so the min/max are the same numbers
         x0, y0, x1, y1 = poly[:-1, 0], poly[:-1, 1], poly[1:, 0], poly[1:, 1]
-        res = np.full(len(xs), np.nan)
-        for k, s in enumerate(xs):
-            hit = ((x0 - s) * (x1 - s) <= 0) & (np.abs(x1 - x0) > 1e-12)
-            if hit.any():
-                y = y0[hit] + (s - x0[hit]) / (x1[hit] - x0[hit]) * (y1[hit] - y0[hit])
-                res[k] = reduce(y)
-        return res
+        s = xs[:, None]
+        hit = ((x0 - s) * (x1 - s) <= 0) & (np.abs(x1 - x0) > 1e-12)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            y = y0 + (s - x0) / (x1 - x0) * (y1 - y0)
+        fill = np.inf if lowest else -np.inf
+        res = (np.where(hit, y, fill).min(axis=1) if lowest
+               else np.where(hit, y, fill).max(axis=1))
+        return np.where(hit.any(axis=1), res, np.nan)
 
-    return heights(up, np.min) - heights(lo, np.max)
+    return heights(up, True) - heights(lo, False)
 
 
 def cornea_intrusion(points, eye: EyeFrame, cornea_center, cornea_radius: float,
