@@ -893,3 +893,15 @@ def test_lid_opening_equals_the_line_by_line_loop():
         np.testing.assert_array_equal(got, ref)
         n_crossed += int((ref < 0).sum())
     assert n_crossed > 0 and np.isfinite(ref).all()
+
+
+def test_rest_cornea_intrusion_is_the_worse_eye():
+    # it used to keep whichever eye was swept last at pitch 0
+    V, F, eyes, shapes, _, corneas = _sweep_cases()["corneas"]
+    centre, radius = corneas["right"]          # the fixture is symmetric: bulge one cornea more
+    corneas = {**corneas, "right": (centre, radius + 0.3)}
+    per_eye = {side: sweep_check(V, F, eyes, shapes, [0.0], corneas={side: c})
+               ["rest_cornea_intrusion_mm"] for side, c in corneas.items()}
+    both = sweep_check(V, F, eyes, shapes, [0.0], corneas=corneas)["rest_cornea_intrusion_mm"]
+    assert len(per_eye) == 2 and per_eye["left"] != per_eye["right"]
+    assert both == max(per_eye.values())

@@ -157,7 +157,8 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
             res["max_cornea_intrusion_mm"] = max(res.get("max_cornea_intrusion_mm", 0.0),
                                                  part["max_cornea_intrusion_mm"])
         if "rest_cornea_intrusion_mm" in part:
-            res["rest_cornea_intrusion_mm"] = part["rest_cornea_intrusion_mm"]
+            res["rest_cornea_intrusion_mm"] = max(res.get("rest_cornea_intrusion_mm", -math.inf),
+                                                  part["rest_cornea_intrusion_mm"])
         if part["worst"] > worst:
             worst, res["worst_pitch_deg"] = part["worst"], part["worst_pitch_deg"]
         res["n_pitches"] += part["n_pitches"]
@@ -188,8 +189,9 @@ def _sweep_pitches(pitches_deg, V, F, eyes, shapes, max_pitch_deg, corneas, n0, 
                 cin = cornea_intrusion(P[e.loop], e, *corneas[e.side], p)
                 res["max_cornea_intrusion_mm"] = max(res.get("max_cornea_intrusion_mm", 0.0),
                                                      float(cin.max()))
-                if p == 0:
-                    res["rest_cornea_intrusion_mm"] = float(cin.max())
+                if p == 0:          # the worse of the two eyes, like every other measure
+                    res["rest_cornea_intrusion_mm"] = max(res.get("rest_cornea_intrusion_mm", -math.inf),
+                                                          float(cin.max()))
             op = lid_opening(P, e)
             if np.isfinite(op).any():
                 res["min_opening_mm"] = min(res["min_opening_mm"], float(np.nanmin(op)))
