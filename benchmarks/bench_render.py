@@ -7,8 +7,8 @@ Needs rigged_assets/<scan> and build/<scan>/rig (``dvc repro usd@<scan>``). Thre
 
 1. **stage**: the whole ``python -m stages.render`` command at the default ``render`` params of
    params.yaml (only ``n_images`` changed to ``--images``) into a fresh folder: wall time /
-   images, Blender start-up, dask cluster and sampling included. Target: <= 0.5 s per
-   120 x 80 image on this 2-core machine. Median over ``--runs``.
+   images, Blender start-up, dask cluster and sampling included. Target (issue 15): <= 0.25 s
+   per 120 x 80 image on this 2-core machine. Median over ``--runs``.
 2. **memory**: one persistent Blender worker (pipeline.render.shard.BlenderProcess) renders
    ``--memory`` specs of the stage's sampler in index order (the HDRI changes almost every
    image: the worst case for leaks; the stage groups by HDRI) at the default size with 1
@@ -44,6 +44,7 @@ from stages._common import read_stage_metrics
 ROOT = Path(__file__).resolve().parents[1]
 
 RESULTS = ROOT / "benchmarks" / "results"
+TARGET_S_PER_IMAGE = 0.25       # issue 15 (issue 6 asked for 0.5)
 
 
 def _stage(scan: str, out: Path, params: Path, n: int, workers: int | None = None) -> dict:
@@ -124,6 +125,7 @@ def main(argv=None) -> int:
     skip = set(filter(None, args.skip.split(",")))
     out_json = RESULTS / "render.json"
     res = json.loads(out_json.read_text()) if out_json.is_file() else {}
+    res.pop("notes", None)          # hand-written once, stale as soon as the defaults change
     params = yaml.safe_load((ROOT / "params.yaml").read_text())["render"]
     res.update({"scan": args.scan, "cpu_count": os.cpu_count(),
                 "default_params": {k: params.get(k) for k in ("width", "height", "samples", "denoise",
@@ -141,9 +143,9 @@ def main(argv=None) -> int:
                             "s_per_image_median": float(np.median([r["s_per_image"] for r in runs])),
                             "s_per_image_on_free_cores_median":
                                 float(np.median([r["s_per_image_on_free_cores"] for r in runs])),
-                            "target_s_per_image": 0.5,
+                            "target_s_per_image": TARGET_S_PER_IMAGE,
                             "loadavg_after": os.getloadavg()[0]}
-            res["stage"]["meets_target"] = res["stage"]["s_per_image_median"] <= 0.5
+            res["stage"]["meets_target"] = res["stage"]["s_per_image_median"] <= TARGET_S_PER_IMAGE
         if "scaling" not in skip:
             sc = {}
             for w in (1, 2):
