@@ -23,9 +23,10 @@ from pipeline.io.atomic import write_json
 EXIT_BAD_INPUT = 2
 
 
-# libyaml's parser when PyYAML has it (the same resolver and constructors, about 10x faster: the
-# pure-Python one took 27 ms per read of params.yaml, and the usd stage reads every block)
-_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+# a safe loader (plain YAML types only, never Python objects): libyaml's when PyYAML has it (the
+# same resolver and constructors as yaml.safe_load, about 10x faster: the pure-Python one took
+# 27 ms per read of params.yaml, and the usd stage reads every block)
+_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 _PARAMS_CACHE: dict = {}      # resolved path -> ((mtime_ns, size), parsed document)
 
 
@@ -44,7 +45,7 @@ def read_params_file(path="params.yaml") -> dict:
             data = hit[1]
         else:
             with open(p, encoding="utf-8") as fh:
-                data = yaml.load(fh, Loader=_YAML_LOADER)
+                data = yaml.load(fh, Loader=_SAFE_LOADER)
             _PARAMS_CACHE[key] = (stamp, data)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise ScanError(p, f"cannot be read as YAML ({type(exc).__name__})") from None

@@ -34,15 +34,18 @@ def project_to_polyline(X, P):
     return s[j] + t[k, j] * np.sqrt(L2[j]), C[k, j], d[k, j]
 
 
+def closed_moving_average(P, half: int):
+    """(n, 3) mean of each vertex of the closed polyline P and its ``half`` neighbours each side."""
+    return sum(np.roll(P, j, axis=0) for j in range(-int(half), int(half) + 1)) / (2 * int(half) + 1)
+
+
 def point_at_arclength(P, t, smooth=0):
     """Points at arc-length ``t`` along the closed polyline P; with ``smooth`` > 0 the arc
     length is measured on a moving-average-smoothed copy (robust to staircase loops) while
     the points stay on P itself."""
     s, Q = polyline_arclength(P)
     if smooth > 0:
-        k = 2 * int(smooth) + 1
-        Ps = sum(np.roll(P, j, axis=0) for j in range(-int(smooth), int(smooth) + 1)) / k
-        s, _ = polyline_arclength(Ps)
+        s, _ = polyline_arclength(closed_moving_average(P, smooth))
     t = np.mod(t, s[-1])
     j = np.clip(np.searchsorted(s, t, side="right") - 1, 0, len(Q) - 2)
     u = (t - s[j]) / np.maximum(s[j + 1] - s[j], 1e-300)
@@ -185,7 +188,7 @@ def canthus_apex(curve, lateral: int, window=(1.0, 6.0), max_reach_mm: float = 3
         corner = a[0]
         lines, drop = [], []
         for lid in (a, b):
-            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(lid, axis=0), axis=1))])
+            s = polyline_arclength(lid, closed=False)[0]
             m = (s >= window[0]) & (s <= window[1])
             if m.sum() < 2:
                 break
@@ -233,7 +236,7 @@ def _smooth_lid(P, sigma, max_move):
     # unevenly by its teeth
     A = P.copy()
     A[1:-1] = (P[:-2] + P[1:-1] + P[2:]) / 3.0
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(A, axis=0), axis=1))])
+    s = polyline_arclength(A, closed=False)[0]
     # residual from the canthus-to-canthus chord is 0 at both ends; its odd reflection about each
     # end keeps a local quadratic fit there at exactly 0 (odd data, symmetric weights), so the
     # canthi stay put and each lid leaves its canthus along its own straight line (sharp corner)
@@ -318,8 +321,7 @@ def margin_jag(P, corners=(0,), skip: int = 6):
         Loop positions left out with their ``skip`` neighbours each side.
     """
     P = np.asarray(P, dtype=np.float64)
-    S = sum(np.roll(P, j, axis=0) for j in range(-2, 3)) / 5.0
-    return _away_from_corners(np.linalg.norm(P - S, axis=1), corners, skip)
+    return _away_from_corners(np.linalg.norm(P - closed_moving_average(P, 2), axis=1), corners, skip)
 
 
 def _away_from_corners(dev, corners, skip):
