@@ -27,7 +27,9 @@ landmarks are compared with it, per eye, in mm (``truth`` in the JSON): ``ground
 ``reye`` = the subject's left eye; its corners are the group's points farthest toward and away
 from the midline). Only a scan whose ``scan.yaml`` already is in mm and the head frame is compared
 (the truth is in scan coordinates). ``iris_over_true_corners`` is the median iris diameter over
-the true corner distance: the ratio the labels would give with exact canthus landmarks. Writes
+the true corner distance: the ratio the labels would give with exact canthus landmarks. The
+asset's own doubts (``eyes.<side>.doubts`` in its metadata, from remove_eyeballs) are listed
+beside its figures (``doubts`` in the JSON). Writes
 ``benchmarks/results/proportions.json`` and prints a table.
 """
 
@@ -194,6 +196,8 @@ def main(argv=None) -> int:
         corners = truth_corners(ROOT / "raw_scans" / scan)
         if corners is not None:
             entry["truth"] = truth_errors(asset, corners, entry["sampled"]["iris_mm"]["median"])
+        eyes_meta = asset.metadata.get("eyes") or {}
+        entry["doubts"] = {side: list((eyes_meta.get(side) or {}).get("doubts") or []) for side in asset.eyes}
         result["scans"][scan] = entry
         s, r = entry["sampled"], entry.get("renders")
         rest = ", ".join(f"{k[0].upper()} {v['radius_mm']:.1f} / {v['canthus_distance_mm']:.1f}"
@@ -207,6 +211,9 @@ def main(argv=None) -> int:
                 f"{k[0].upper()} medial {v['medial_error_mm']:.2f} / lateral {v['lateral_error_mm']:.2f} mm off, "
                 f"true {v['true_canthus_distance_mm']:.1f} mm (iris / true {v['iris_over_true_corners']:.3f})"
                 for k, v in t.items() if k != "source"))
+        for side, doubts in entry["doubts"].items():
+            for d in doubts:
+                print(f"{'':16s} doubted by the pipeline, {side} eye: {d}")
     out = ROOT / "benchmarks" / "results" / "proportions.json"
     write_json(out, result)
     print(f"wrote {out.relative_to(ROOT)}")

@@ -7,14 +7,17 @@ Reads ``ingest/mesh.npz``, ``ingest/scan.json`` (eye hints; its ``folder`` is th
 a refusal names) and ``ingest/texture.png`` when present; writes ``mesh.npz`` (head with the two
 eye openings, UV/FUV/VC carried), ``eyes.json`` (per eye: center, radius, forward,
 residual_rms_mm, n_inliers, placement, checks, loop_indices, loop_points,
-lateral_canthus_index) and copies ``texture.png``. See pipeline/geometry/remove_eyeballs.py,
-eye_fit.py and eye_checks.py.
+lateral_canthus_index, texture_fissure, doubts) and copies ``texture.png``. Each doubt (a
+placement that passed its checks but that a measurement says is partly off: a texture-placed
+opening much narrower than the texture's fissure) is also printed to stderr as a warning.
+See pipeline/geometry/remove_eyeballs.py, eye_fit.py, eye_texture.py and eye_checks.py.
 """
 
 from __future__ import annotations
 
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +62,9 @@ def main(argv) -> dict:
     st = load_settings(EyeSettings, args.params)
     mesh, hints, texture, source, tex_path = _read(args.ingest)
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture)
+    for side in ("left", "right"):      # published, but not sure: say so where the user looks
+        for doubt in res.eyes[side]["doubts"]:
+            print(f"warning: {source}: {side} eye: {doubt}", file=sys.stderr)
     with atomic_dir(args.out) as tmp:
         save_mesh(tmp / "mesh.npz", **res.mesh)
         write_eyes(tmp / "eyes.json", res.eyes)

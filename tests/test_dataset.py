@@ -193,6 +193,7 @@ def test_resumed_dataset_has_every_index_exactly_once(two, resumed):
                  "24 x 16 px", "Label schema 1", "`asset.id`: integer", "`landmarks.px`: numbers, shape (28, 2)",
                  "`NNNNNN_seg.png`: 8-bit indexed PNG", "pixel centres at +0.5"):
         assert text in card, text
+    assert "## Doubts" not in card and all(a["doubts"] == [] for a in info["assets"])
     assert (out / "contact_sheet.png").is_file()
     # run again: nothing to render, the same files
     before = {p.name: p.read_bytes() for p in out.glob("0*")}
@@ -261,3 +262,20 @@ def test_loader_example_reads_arrays_without_the_project(resumed, tmp_path):
         im.save(copy / f"{i:06d}_seg.png", optimize=False)
     masks = loader.load_dataset(copy)["masks"]
     assert masks.shape == (6, 16, 24) and masks.dtype == np.uint8 and masks[:, 0, 0].tolist() == list(range(6))
+
+
+def test_asset_doubts_reach_the_card():
+    """An asset whose metadata doubts an eye (remove_eyeballs' ``doubts``, carried by rig and
+    usd) is listed under "Doubts" in the card, named, with the sentence."""
+    from types import SimpleNamespace
+
+    from pipeline.render.card import _doubts
+    from pipeline.render.dataset import DatasetAsset
+
+    doubt = "opening 18.0 mm wide where the texture's fissure is 31.5 mm"
+    meta = {"eyes": {"left": {"doubts": [doubt]}, "right": {}}}
+    a = DatasetAsset(0, "james", Path("."), Path("."), 1.0, SimpleNamespace(metadata=meta), "")
+    assert a.doubts() == [f"left eye: {doubt}"]
+    lines = _doubts([{"name": "james", "doubts": a.doubts()}, {"name": "ok", "doubts": []}])
+    assert lines[0] == "## Doubts" and f"- `james`, left eye: {doubt}" in lines
+    assert not any("`ok`" in line for line in lines) and _doubts([{"name": "ok", "doubts": []}]) == []

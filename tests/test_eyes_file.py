@@ -53,6 +53,8 @@ def test_lateral_canthus_is_the_most_lateral_loop_point():
     (lambda d: d["left"].update(loop_indices=[0] * 12), "left eye: loop_indices repeat a vertex"),
     (lambda d: d["right"].update(loop_indices=list(range(20, 32))), "right eye: loop_indices outside the mesh's 24"),
     (lambda d: d["left"].update(lateral_canthus_index=0), "left eye: lateral_canthus_index must be a position"),
+    (lambda d: d["right"].update(doubts="too narrow"), "right eye: doubts must be a list of sentences"),
+    (lambda d: d["right"].update(doubts=[""]), "right eye: doubts must be a list of sentences"),
 ])
 def test_bad_entries_are_one_line_naming_the_file(tmp_path, edit, message):
     doc = {"schema": SCHEMA, **{s: _entry(s) for s in ("left", "right")}}
@@ -99,3 +101,11 @@ def test_write_refuses_what_read_would_refuse(tmp_path):
     with pytest.raises(ScanError, match=r"eyes\.json: left eye: lateral_canthus_index must be a position"):
         write_eyes(tmp_path / "eyes.json", {"left": bad, "right": good})
     assert not (tmp_path / "eyes.json").exists()
+
+
+def test_doubts_read_back(tmp_path):
+    doc = {s: _entry(s) for s in ("left", "right")}
+    doc["left"]["doubts"] = ["opening 18.0 mm wide where the texture's fissure is 31.5 mm"]
+    write_eyes(tmp_path / "eyes.json", doc)
+    eyes = read_eyes(tmp_path / "eyes.json", n_vertices=24)
+    assert eyes["left"].doubts == doc["left"]["doubts"] and eyes["right"].doubts == []

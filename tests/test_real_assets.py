@@ -155,6 +155,22 @@ def blender_import(chain_root):
 
 # ------------------------------------------------------------------ geometry of the chain
 
+def test_doubts_reach_the_asset_only_where_measured(asset):
+    """james's coarse openings (texture placement, 18 mm against a 31.5 mm fissure in its photo)
+    are doubted in the asset's metadata; the dense scans, whose openings come from geometry,
+    carry no doubt."""
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(asset["usda"]))
+    eyes = stage.GetDefaultPrim().GetCustomDataByKey("eyerig")["eyes"]
+    doubts = {s: list(eyes[s].get("doubts") or []) for s in SIDES}
+    assert asset["metrics"]["remove_eyeballs"]["left"]["doubts"] == len(doubts["left"])
+    if asset["name"] == "james":
+        assert all(len(d) == 1 and "canthi" in d[0] for d in doubts.values()), doubts
+    else:
+        assert doubts == {"left": [], "right": []}
+
+
 def test_snap_keeps_orientation_and_margin_on_eye(asset):
     m = asset["metrics"]["snap"]
     assert m["flipped_faces"] == 0, asset["name"]

@@ -303,6 +303,17 @@ def test_james_texture_fallback(extra_scan):
         e = res.eyes[s]
         assert e["method"] == "texture" and e["residual_rms_mm"] < 2.0
         assert np.linalg.norm(np.array(e["center"]) - hints[s]) < 20.0
+    # the coarse scan's opening (17.7 / 18.0 mm) is far narrower than its photo's fissure; the
+    # stage must say so. The fissure read from the texture (31.5 mm both eyes) against the
+    # hand-marked corners (68-point annotations: 31.3 mm subject's left, 28.5 mm right)
+    L = np.load(folder / "james_landmarks68.npy")
+    groups = json.loads((folder / "james_landmarks68_groups.json").read_text())
+    for s, group in (("left", "reye"), ("right", "leye")):
+        e = res.eyes[s]
+        corners = L[groups[group]][:, 0]
+        assert abs(e["texture_fissure"]["width_mm"] - (corners.max() - corners.min())) <= 3.5
+        assert len(e["doubts"]) == 1 and "canthi" in e["doubts"][0], e["doubts"]
+        assert res.metrics[s]["doubts"] == 1
 
 
 @pytest.mark.parametrize("seed,triangles,noise,shape", [
@@ -383,3 +394,68 @@ def test_holes_inside_counts_only_holes_whose_every_edge_is_removed():
     assert _holes_inside(F, near((3, 3), 1) | near((8, 8), 1)) == 2
     assert _holes_inside(F, near((3, 2), 0) | near((2, 3), 0)) == 0  # part of the rim only
     assert _holes_inside(F, np.ones(len(F), bool)) == 3              # both holes and the border
+
+
+def _shrunk_about_centroid(P, share):
+    c = P.mean(axis=0)
+    return c + share * (P - c)
+
+
+def test_texture_fissure_reads_the_painted_opening():
+    """The texture fissure of the procedural head against its true margin's width; a loop of
+    that width is not doubted, one shrunk to 60 % is, with both widths in the sentence."""
+    from types import SimpleNamespace
+
+    from pipeline.geometry.eye_texture import texture_fissure
+    from pipeline.geometry.frame import eye_basis
+    from pipeline.geometry.remove_eyeballs import _fissure_doubts
+    from pipeline.synthetic_head import make_synthetic_head
+
+    h = make_synthetic_head(seed=3, target_triangles=60_000, texture_size=1024)
+    arrays = {"UV": h.UV, "FUV": h.F}
+    for s in ("left", "right"):
+        g = h.ground_truth["eyes"][s]
+        fwd = np.asarray(g["gaze_direction"], float)
+        margin = np.asarray(g["eyelid_margin"]["points_mm"], float)
+        x = margin @ eye_basis(fwd)[0]
+        true_w = x.max() - x.min()
+        fis = texture_fissure(h.V, h.F, h.UV, h.F, h.texture, h.hints[s], fwd)
+        # measured 2.0-2.6 mm wide of the margin: the painted lash line and liner run past the
+        # corners, and the grid adds up to a cell at each end
+        assert true_w - 1.0 <= fis["width_mm"] <= true_w + 3.5, (s, fis, true_w)
+        fit = SimpleNamespace(center=np.asarray(g["eyeball_sphere"]["center_mm"], float), forward=fwd)
+        rec, doubts = _fissure_doubts(h.V, h.F, arrays, h.texture, h.hints[s], fit, margin, EyeSettings())
+        assert doubts == [] and abs(rec["loop_width_mm"] - true_w) < 1e-9
+        rec, doubts = _fissure_doubts(h.V, h.F, arrays, h.texture, h.hints[s], fit,
+                                      _shrunk_about_centroid(margin, 0.6), EyeSettings())
+        assert len(doubts) == 1 and f"{0.6 * true_w:.1f} mm wide" in doubts[0], doubts
+        assert f"{fis['width_mm']:.1f} mm" in doubts[0]
+
+
+def test_texture_fissure_without_skin_around_reads_nothing():
+    """A texture that is one colour everywhere has no fissure (nothing differs from the skin)."""
+    from pipeline.geometry.eye_texture import texture_fissure
+    from pipeline.synthetic_head import make_synthetic_head
+
+    h = make_synthetic_head(seed=3, target_triangles=20_000, texture_size=16)
+    flat = np.full((64, 64, 3), 180, np.uint8)
+    fis = texture_fissure(h.V, h.F, h.UV, h.F, flat, h.hints["left"], np.array([0.0, 0.0, 1.0]))
+    assert fis == {"width_mm": 0.0, "height_mm": 0.0, "cells": 0}
+
+
+def test_stage_warns_of_each_doubt_and_still_publishes(extra_scan, tmp_path, capsys):
+    """james: the stage exits 0 with both eyes written, and says on stderr, once per eye and
+    naming the scan folder, that the opening is narrower than the texture's fissure."""
+    from stages import ingest
+    from stages._common import run_stage
+    from stages.remove_eyeballs import main
+
+    folder = extra_scan("james")
+    assert run_stage(ingest.main, [str(folder), str(tmp_path / "ingest"), "--params", "none.yaml"]) == 0
+    capsys.readouterr()
+    assert run_stage(main, [str(tmp_path / "ingest"), str(tmp_path / "out"), "--params", "none.yaml"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert [w.split(": ")[2] for w in warnings] == ["left eye", "right eye"], warnings
+    assert all(str(folder) in w and "texture's fissure" in w for w in warnings)
+    eyes = read_eyes(tmp_path / "out" / "eyes.json")
+    assert all(len(eyes[s].doubts) == 1 for s in ("left", "right"))

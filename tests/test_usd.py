@@ -256,3 +256,27 @@ def test_same_inputs_give_byte_identical_asset(built):
     assert [k for k in first if first[k] != second[k]] == []
     with zipfile.ZipFile(out / "tiny.usdz") as zf:
         assert {i.date_time for i in zf.infolist()} == {(1980, 1, 1, 0, 0, 0)} and zf.testzip() is None
+
+
+def test_eye_doubts_carried_into_the_asset_metadata(tmp_path):
+    """A doubt recorded for one eye (remove_eyeballs -> snap -> rig.json) is in the asset's
+    customData ``eyerig.eyes.<side>.doubts``, where the render and dataset read it; an eye
+    without doubts has no such key (USD cannot type an empty list)."""
+    from pxr import Usd
+
+    from pipeline.render.asset import load_render_asset
+    from pipeline.render.dataset import DatasetAsset
+
+    inp = make_inputs(tmp_path)
+    rig_json = inp["dirs"]["rig"] / "rig.json"
+    doc = json.loads(rig_json.read_text())
+    doubt = "opening 18.0 mm wide where the texture's fissure is 31.5 mm"
+    doc["eyes"]["left"]["doubts"] = [doubt]
+    rig_json.write_text(json.dumps(doc))
+    assert run_stage(usd_stage.main, usd_argv(inp)) == 0
+    stage = Usd.Stage.Open(str(inp["out"] / "tiny.usda"))
+    meta = stage.GetDefaultPrim().GetCustomDataByKey("eyerig")
+    assert list(meta["eyes"]["left"]["doubts"]) == [doubt] and "doubts" not in meta["eyes"]["right"]
+    asset = load_render_asset(inp["out"], inp["dirs"]["rig"])
+    entry = DatasetAsset(0, "tiny", inp["out"], inp["dirs"]["rig"], 1.0, asset, "")
+    assert entry.doubts() == [f"left eye: {doubt}"]

@@ -61,6 +61,7 @@ class EyeSettings(Settings):
     max_center_hint_distance_mm: float = setting(22.0, gt=0, le=100)
     texture_fallback: bool = True
     texture_min_contrast: float = setting(3.0, gt=0, le=1000)
+    texture_fissure_min_share: float = setting(0.8, gt=0, le=1)  # a texture-placed opening narrower than this share of the texture's fissure is doubted
     max_fit_rms_mm: float = setting(0.6, gt=0, le=20)
     margin_lift_mm: float = setting(0.6, ge=0, le=20)          # 0 = loop left on the cut
     margin_max_turn_deg: float = setting(60.0, gt=0, le=180)
@@ -394,6 +395,28 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
     return mesh, fits
 
 
+def _fissure_doubts(V, F, mesh_arrays, texture, hint, fit, loop_points, st: EyeSettings):
+    """A texture-placed eye's opening against the fissure its texture shows.
+
+    Returns ``(record, doubts)``: the fissure's and the loop's widths along the eye (mm) and a
+    list holding one sentence when the loop spans less than ``texture_fissure_min_share`` of
+    the fissure (its canthi, eyelid landmarks 0 and 6, then lie far inside the true corners)."""
+    from pipeline.geometry.eye_texture import texture_fissure
+    from pipeline.geometry.frame import eye_basis
+
+    fis = texture_fissure(V, F, mesh_arrays["UV"], mesh_arrays["FUV"], texture, hint, fit.forward,
+                          radius_mm=st.patch_radius_mm, min_contrast=st.texture_min_contrast)
+    x = (np.asarray(loop_points, float) - fit.center) @ eye_basis(fit.forward)[0]
+    record = {"width_mm": fis["width_mm"], "height_mm": fis["height_mm"],
+              "loop_width_mm": float(x.max() - x.min()), "min_share": st.texture_fissure_min_share}
+    doubts = []
+    if record["loop_width_mm"] < st.texture_fissure_min_share * fis["width_mm"]:
+        doubts.append(f"opening {record['loop_width_mm']:.1f} mm wide where the texture's fissure is "
+                      f"{fis['width_mm']:.1f} mm: the canthi (eyelid landmarks 0 and 6) lie too close "
+                      f"together; the scan is too coarse for its eye opening")
+    return record, doubts
+
+
 def _refuse_unsure(eyes: dict, source):
     """One line naming every failed self-check (``eye_checks``): an eye placed wrongly would
     otherwise pass silently into every later stage."""
@@ -506,6 +529,9 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
             V, F, fit.center, fit.radius, fit.forward, V2[loop], lim, fit.residual_rms_mm,
             eye_points=V[np.unique(F[fit.region])] if fit.method == "geometry" else None,
             cornea=fit.cornea)
+        fissure, doubts = None, []
+        if fit.method == "texture" and texture is not None:
+            fissure, doubts = _fissure_doubts(V, F, mesh_arrays, texture, hints[s], fit, V2[loop], st)
         eyes[s] = {
             "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
             "residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
@@ -517,13 +543,19 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
                 "radius": fit.cornea["radius"], "n_inliers": fit.cornea["n_inliers"]},
             "loop_indices": loop.tolist(), "loop_points": V2[loop].tolist(),
             "lateral_canthus_index": lat,
+            "texture_fissure": fissure,
+            "doubts": doubts,
         }
         metrics[s] = {"radius_mm": round(fit.radius, 4), "residual_rms_mm": round(fit.residual_rms_mm, 4),
                       "n_inliers": fit.n_inliers, "method": fit.method,
                       "faces_removed": int(fit.region.sum()), "loop_length": len(loop),
                       "crease_deg": round(fit.crease_deg, 3),
                       "cornea_fitted": fit.cornea is not None,
-                      "loop_moved_mean_mm": round(moved.get(s, 0.0), 4)}
+                      "loop_moved_mean_mm": round(moved.get(s, 0.0), 4),
+                      "doubts": len(doubts)}
+        if fissure is not None:
+            metrics[s].update({"texture_fissure_width_mm": round(fissure["width_mm"], 2),
+                               "loop_width_mm": round(fissure["loop_width_mm"], 2)})
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
     for s in SIDES:
         eyes[s]["checks"].update(pair)

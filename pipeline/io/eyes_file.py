@@ -57,6 +57,12 @@ class EyeRecord:
     lateral_canthus_index: int | None
     doc: dict = field(repr=False)
 
+    @property
+    def doubts(self) -> list[str]:
+        """What the pipeline is not sure of about this eye, one sentence each (``doubts``: the
+        placement passed its self-checks, but a measurement says part of it is off)."""
+        return list(self.doc.get("doubts") or [])
+
 
 def lateral_canthus_index(points, center, forward, side: str) -> int:
     """Position of the lateral canthus in a loop: the point farthest toward the eye's lateral
@@ -111,6 +117,10 @@ def _record(side: str, e, path, n_vertices):
                                   f"the loop")
     else:
         lat = None
+    doubts = e.get("doubts")
+    if doubts is not None and (not isinstance(doubts, list)
+                               or not all(isinstance(d, str) and d for d in doubts)):
+        raise ScanError(path, f"{side} eye: doubts must be a list of sentences")
     return EyeRecord(side, c, r, f / n, loop, lat, e)
 
 

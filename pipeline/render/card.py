@@ -60,6 +60,19 @@ def _table(head, rows) -> list[str]:
     return out
 
 
+def _doubts(assets) -> list[str]:
+    """The card's "Doubts" section: what the pipeline was not sure of in each asset (nothing when
+    it doubted nothing). A doubted asset's labels carry the doubt: its images are still rendered,
+    and a user decides whether to keep them."""
+    rows = [(a["name"], d) for a in assets for d in (a.get("doubts") or [])]
+    if not rows:
+        return []
+    return ["## Doubts", "",
+            "The pipeline published these assets but is not sure of part of them; their labels "
+            "inherit the doubt:", "",
+            *[f"- `{name}`, {d}" for name, d in rows], ""]
+
+
 def dataset_card(info: dict, label: dict) -> str:
     """The Markdown card of a finished dataset.
 
@@ -95,6 +108,7 @@ def dataset_card(info: dict, label: dict) -> str:
                   a["licence"] or "not recorded in the asset", f"`{a['source_sha256'][:16]}...`"
                   if a["source_sha256"] else "-") for a in assets]),
         "",
+        *_doubts(assets),
         "## Licences",
         "",
         "Each image shows one asset, built from a scan; the scan's licence, carried from its "

@@ -95,6 +95,13 @@ class DatasetAsset:
     def meta(self, key: str) -> str:
         return str(self.asset.metadata.get(key) or "")
 
+    def doubts(self) -> list[str]:
+        """What the pipeline was not sure of when it built this asset (its metadata's
+        ``eyes.<side>.doubts``), as "<side> eye: <sentence>"."""
+        eyes = self.asset.metadata.get("eyes") or {}
+        return [f"{side} eye: {d}" for side in ("left", "right")
+                for d in ((eyes.get(side) or {}).get("doubts") or [])]
+
 
 def is_shared_eyeball(folder: Path) -> bool:
     """``rigged_assets/eyeball``: the parametric eye the scan assets reference."""
@@ -262,6 +269,7 @@ def dataset_info(out: Path, assets, counts, settings, n: int) -> dict:
         "assets": [{"id": a.id, "name": a.name, "weight": a.weight, "share": a.weight / total_w,
                     "count": int(counts[a.id]), "licence": a.meta("licence"),
                     "source_sha256": a.meta("source_sha256"), "pipeline_version": a.meta("pipeline_version"),
+                    "doubts": a.doubts(),
                     "asset": os.path.relpath(a.asset.usda), "rig": os.path.relpath(a.asset.rig_npz)}
                    for a in assets],
         "frames": FRAMES, "units": "mm", "angles": "degrees",

@@ -69,6 +69,7 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
             "center": e.center, "radius": e.radius, "forward": e.forward,
             "pitch_axis": e.axis,
             "lateral_index": e.lateral_index, "loop_length": len(e.loop),
+            "doubts": list(eyes_json[e.side].get("doubts") or []),   # carried from remove_eyeballs
         }
         lm_doc[e.side] = {"eyelid_loop_position": lm.loop_position, "eyelid_edges": lm.edge}
 

@@ -58,6 +58,7 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
     eyes = {}
     for side, e in r.eyes.items():        # the values as stored (the asset metadata repeats them)
         eyes[side] = {k: e.doc[k] for k in ("center", "radius", "forward")}
+        eyes[side]["doubts"] = list(e.doc.get("doubts") or [])
     maps = read_bake(bake)
     scan = _json(ingest / "scan.json")
     return {"V": V, "F": F, "UV": mesh["UV"], "FUV": mesh["FUV"], "shapes": r.npz.shapes,
@@ -84,7 +85,9 @@ def build(inp: dict, out_dir: Path, name: str, all_params: dict, package: bool =
         "units": "mm", "frame": "head frame: +Y up, +Z out of the face, +X subject's left",
         "weight_rule": lids.weight_rule(inp["max_pitch_deg"]),
         "eyes": {s: {"joint": f"head/eye_{s}", "center_mm": list(map(float, e["center"])),
-                     "radius_mm": float(e["radius"]), "forward": list(map(float, e["forward"]))}
+                     "radius_mm": float(e["radius"]), "forward": list(map(float, e["forward"])),
+                     # USD cannot type an empty list: no key means nothing doubted
+                     **({"doubts": list(e["doubts"])} if e.get("doubts") else {})}
                  for s, e in inp["eyes"].items()},
         "displacement": DISPLACEMENT_DOC,
         "params": json.loads(json.dumps(all_params)),
