@@ -595,8 +595,3 @@ def build_eyeball(params: EyeballParams | None = None, resolution="high") -> Eye
     return Eyeball(params=p, resolution=res, outer=outer_mesh(p, res), inner=inner_mesh(p, res),
                    shapes=inner_blend_shapes(p, res), landmarks=landmark_indices(res, p))
 
-
-def with_resolution(eye: Eyeball, resolution) -> Eyeball:
-    """The same eyeball at another resolution."""
-    return build_eyeball(eye.params, resolution)
-

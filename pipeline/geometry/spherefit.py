@@ -1,4 +1,4 @@
-"""Sphere fitting: algebraic, robust geometric (with a radius prior) and RANSAC.
+"""Sphere fitting: robust geometric (with a radius prior) and RANSAC.
 
 All functions work on point arrays in millimetres and return plain tuples/arrays.
 """
@@ -6,35 +6,6 @@ All functions work on point arrays in millimetres and return plain tuples/arrays
 from __future__ import annotations
 
 import numpy as np
-
-
-def fit_sphere_algebraic(P, w=None):
-    """Least-squares algebraic (Kasa) sphere fit.
-
-    Parameters
-    ----------
-    P : (n, 3) float64
-        Points, n >= 4 and not coplanar.
-    w : (n,) float64, optional
-        Non-negative weights.
-
-    Returns
-    -------
-    center : (3,) float64
-    radius : float
-    """
-    P = np.asarray(P, dtype=np.float64)
-    mu = P.mean(axis=0)
-    Q = P - mu
-    A = np.column_stack([2.0 * Q, np.ones(len(Q))])
-    b = (Q * Q).sum(axis=1)
-    if w is not None:
-        sw = np.sqrt(np.asarray(w, dtype=np.float64))
-        A, b = A * sw[:, None], b * sw
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    c = sol[:3]
-    r2 = sol[3] + c @ c
-    return c + mu, float(np.sqrt(max(r2, 0.0)))
 
 
 def sphere_through_4(P4):

@@ -293,13 +293,6 @@ def n_segments_for_sag(dist_to_axis, theta, max_sag_mm: float, max_segments: int
     return int(max_segments)
 
 
-def chord_sag(dist_to_axis, theta, n: int) -> float:
-    """Largest chord sag, mm, of points rotated by ``theta`` sampled at ``n`` even segments."""
-    d = np.asarray(dist_to_axis, float)
-    th = np.abs(np.asarray(theta, float))
-    return float(np.max(d * (1.0 - np.cos(th / (2.0 * n))))) if d.size else 0.0
-
-
 @dataclass
 class LidRig:
     """The lid blend shapes of a mesh and how they were made.

@@ -245,11 +245,6 @@ def uv_texture(stage, path: str, name: str, file: str | None, color_space: str, 
     return tex
 
 
-def set_string_metadata(prim, key: str, value: dict):
-    """Store a JSON-able dict in the prim's ``customData[key]`` (strings, numbers, lists)."""
-    prim.SetCustomDataByKey(key, value)
-
-
 def relpath(path, start) -> str:
     """``./``-prefixed relative asset path (USD anchors it to the layer)."""
     rel = Path(path).resolve().relative_to(Path(start).resolve())
