@@ -62,14 +62,15 @@ def _table(head, rows) -> list[str]:
 
 def _doubts(assets) -> list[str]:
     """The card's "Doubts" section: what the pipeline was not sure of in each asset (nothing when
-    it doubted nothing). A doubted asset's labels carry the doubt: its images are still rendered,
-    and a user decides whether to keep them."""
+    it doubted nothing). A doubted asset's images are still rendered; the user decides whether
+    to keep them (``asset`` in each label says which asset an image shows)."""
     rows = [(a["name"], d) for a in assets for d in (a.get("doubts") or [])]
     if not rows:
         return []
     return ["## Doubts", "",
-            "The pipeline published these assets but is not sure of part of them; their labels "
-            "inherit the doubt:", "",
+            "The pipeline published these assets but is not sure of part of them. Every image "
+            "of such an asset has the same doubt in its labels (`asset` in a label names the asset):",
+            "",
             *[f"- `{name}`, {d}" for name, d in rows], ""]
 
 
