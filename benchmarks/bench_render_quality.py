@@ -152,7 +152,8 @@ def choose_default(rows: list[dict], key: str = "cpu_s", bar: float | None = Non
         bar = next(r for r in rows if r["samples"] == 150 and not r["denoise"])["psnr_db"]
     ok = [r for r in rows if r["psnr_db"] >= bar]
     best = min(ok, key=lambda r: r[key])
-    return {"samples": best["samples"], "denoise": best["denoise"], "time_s": best["time_s"],
+    return {"samples": best["samples"], "denoise": best["denoise"], "denoiser": best.get("denoiser"),
+            "time_s": best["time_s"],
             "cpu_s": best["cpu_s"], "psnr_db": best["psnr_db"], "ssim": best["ssim"],
             "psnr_bar_db": bar, "chosen_by": key}
 
@@ -181,6 +182,8 @@ def main(argv=None) -> int:
     ap.add_argument("--reference-samples", type=int, default=2048)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", type=Path, default=RESULTS / "render_quality")
+    ap.add_argument("--denoisers", nargs="+", default=["worker"], choices=["worker", "cycles"],
+                    help="denoised rows with the worker's own OIDN filters and/or Cycles' denoiser")
     ap.add_argument("--keep", type=Path, default=None, help="copy the reference and 16-spp PNGs here")
     ap.add_argument("--extra-samples", type=int, nargs="*", default=[9, 10, 11, 12, 20, 24],
                     help="denoised-only sample counts added around the expected default")
@@ -199,6 +202,7 @@ def main(argv=None) -> int:
         spec = frame_spec(args.rig, ref_png, args.reference_samples, False, 1)
         spec["adaptive_sampling"] = False
         spec["cycles"] = BAR_CYCLES
+        spec["denoiser"] = "cycles"                                         # Blender's own film, as before
         client.render(frame_spec(args.rig, td / "warm.png", 4, True, 0))      # warm-up (first sync)
         rep, ref_s = client.render(spec)
         ref = load(ref_png)
@@ -207,16 +211,17 @@ def main(argv=None) -> int:
         bars = []
         for k in range(args.repeats):
             png = td / f"bar_{k}.png"
-            client.render(dict(frame_spec(args.rig, png, BAR_SAMPLES, False, 1000 + k), cycles=BAR_CYCLES))
+            client.render(dict(frame_spec(args.rig, png, BAR_SAMPLES, False, 1000 + k), cycles=BAR_CYCLES,
+                               denoiser="cycles"))
             bars.append(psnr(load(png), ref))
         bar = round(float(np.mean(bars)), 3)
         print(f"bar: {BAR_SAMPLES} spp undenoised with {BAR_CYCLES}: PSNR {bar:.2f} dB", flush=True)
-        for denoise in (False, True):
+        for denoise, denoiser in [(False, "cycles")] + [(True, d) for d in args.denoisers]:
             for s in sorted(set(args.samples) | (set(args.extra_samples) if denoise else set())):
                 times, rtimes, cpus, ps, ss = [], [], [], [], []
                 for k in range(args.repeats):
-                    png = td / f"s{s}_d{int(denoise)}_{k}.png"
-                    rep, t = client.render(frame_spec(args.rig, png, s, denoise, 1000 + k))
+                    png = td / f"s{s}_d{int(denoise)}{denoiser}_{k}.png"
+                    rep, t = client.render(dict(frame_spec(args.rig, png, s, denoise, 1000 + k), denoiser=denoiser))
                     img = load(png)
                     times.append(t)
                     rtimes.append(rep["render_s"])
@@ -226,13 +231,13 @@ def main(argv=None) -> int:
                     if args.keep and k == 0 and s == 16:
                         args.keep.mkdir(parents=True, exist_ok=True)
                         (args.keep / f"bench_16spp_denoise{int(denoise)}.png").write_bytes(png.read_bytes())
-                row = {"samples": s, "denoise": denoise, "time_s": round(float(np.median(times)), 4),
+                row = {"samples": s, "denoise": denoise, "denoiser": denoiser if denoise else None, "time_s": round(float(np.median(times)), 4),
                        "render_s": round(float(np.median(rtimes)), 4),
                        "cpu_s": round(float(np.median(cpus)), 4),
                        "psnr_db": round(float(np.mean(ps)), 3), "ssim": round(float(np.mean(ss)), 5),
                        "times_s": [round(t, 4) for t in times]}
                 rows.append(row)
-                print(f"{s:5d} spp  denoise={str(denoise):5s}  {row['time_s']:.3f} s/img "
+                print(f"{s:5d} spp  denoise={str(denoise):5s} {row['denoiser'] or '':6s} {row['time_s']:.3f} s/img "
                       f"(render {row['render_s']:.3f}, CPU {row['cpu_s']:.3f} s)  PSNR {row['psnr_db']:.2f} dB  SSIM {row['ssim']:.4f}",
                       flush=True)
         if args.keep:

@@ -12,13 +12,16 @@ load drifts hit all variants alike):
 * ``one_spp`` (1 sample, no denoiser, no masks), ``one_spp_again`` (the same spec once more:
   nothing in the scene changed, so no scene sync or BVH update), ``one_spp_no_lashes``;
 * ``light_tree`` / ``sobol``: the default with Cycles' light tree on / the Sobol pattern
-  (the settings before issue 15).
+  (the settings before issue 15);
+* ``cycles_denoiser``: the default with Cycles' own denoiser and Blender's PNG writing instead
+  of the worker's persistent OIDN filters and film (the way before; same pixels).
 
 The worker reports per image the wall and CPU seconds of its phases (posing, eyelash rebuild
 and landmark check, mask set-up, the render call, pass reading); the render call is split by
 differences of medians: scene sync + BVH = one_spp - one_spp_again, the rest of the fixed
-render cost = one_spp_again, path tracing = no_denoise_no_masks - one_spp, denoising = default -
-no_denoise, masks = default - no_masks. The stage side is measured in this process on the same
+render cost = one_spp_again (with the worker's film: reading the passes back and writing the
+PNG), path tracing = no_denoise_no_masks - one_spp, denoising = default - no_denoise (also
+reported directly: the worker's OIDN call, ``denoise_cpu_s``), masks = default - no_masks. The stage side is measured in this process on the same
 specs: sampling and label building (main process), the apparent iris (refraction), masks and
 visibility, file writing (dask worker), plus one Blender start-up and one LocalCluster start.
 
@@ -59,6 +62,7 @@ VARIANTS = {
     "one_spp_no_lashes": lambda s: _strip(s, samples=1, denoise=False, masks=False, lashes=False),
     "light_tree": lambda s: _strip(s, cycles={"use_light_tree": True}),
     "sobol": lambda s: _strip(s, cycles={"sampling_pattern": "TABULATED_SOBOL"}),
+    "cycles_denoiser": lambda s: _strip(s, denoiser="cycles"),
 }
 PHASES = ("check_s", "pose_s", "lashes_s", "seg_setup_s", "render_s", "passes_s", "total_s")
 
@@ -164,7 +168,8 @@ def main(argv=None) -> int:
             bp.close()
         client = client_side(asset, settings, kept, td)
     cluster_s = cluster_start_s()
-    med = {v: {k: round(_med(rs, k), 5) for k in PHASES + ("total_cpu_s", "render_cpu_s")} for v, rs in rows.items()}
+    med = {v: {k: round(_med(rs, k), 5) for k in PHASES + ("total_cpu_s", "render_cpu_s", "denoise_s", "denoise_cpu_s")}
+           for v, rs in rows.items()}
 
     def diff(a, b, key):
         return round(med[a][key] - med[b][key], 5)
@@ -176,12 +181,13 @@ def main(argv=None) -> int:
         "mask planes (before render)": (d["seg_setup_s"], None),
         "render: scene sync + BVH update": (diff("one_spp", "one_spp_again", "render_s"),
                                             diff("one_spp", "one_spp_again", "render_cpu_s")),
-        "render: session, film, PNG (1 spp, nothing changed)": (med["one_spp_again"]["render_s"],
+        "render: session, film, passes, PNG (1 spp, nothing changed)": (med["one_spp_again"]["render_s"],
                                                                  med["one_spp_again"]["render_cpu_s"]),
         f"render: path tracing ({settings.samples - 1} more samples)": (
             diff("no_denoise_no_masks", "one_spp", "render_s"), diff("no_denoise_no_masks", "one_spp", "render_cpu_s")),
         "render: OpenImageDenoise": (diff("default", "no_denoise", "render_s"),
                                      diff("default", "no_denoise", "render_cpu_s")),
+        "  of it the worker's OIDN call": (d["denoise_s"], d["denoise_cpu_s"]),
         "render: mask and depth passes": (diff("no_denoise", "no_denoise_no_masks", "render_s"),
                                           diff("no_denoise", "no_denoise_no_masks", "render_cpu_s")),
         "pass reading, seg PNG + depth EXR writing": (d["passes_s"], None),
@@ -194,7 +200,9 @@ def main(argv=None) -> int:
                        for k, v in split.items()},
            "lashes_in_render_s": diff("one_spp", "one_spp_no_lashes", "render_s"),
            "levers": {"light_tree_on_cpu_ratio": round(med["light_tree"]["total_cpu_s"] / d["total_cpu_s"], 4),
-                      "sobol_cpu_ratio": round(med["sobol"]["total_cpu_s"] / d["total_cpu_s"], 4)},
+                      "sobol_cpu_ratio": round(med["sobol"]["total_cpu_s"] / d["total_cpu_s"], 4),
+                      "cycles_denoiser_cpu_ratio": round(med["cycles_denoiser"]["total_cpu_s"] / d["total_cpu_s"], 4),
+                      "cycles_denoiser_wall_ratio": round(med["cycles_denoiser"]["total_s"] / d["total_s"], 4)},
            "stage_side_cpu_s_per_image": client, "blender_start_s": round(blender_start, 3),
            "local_cluster_start_s": cluster_s, "variants_median": med,
            "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}

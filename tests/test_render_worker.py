@@ -71,9 +71,9 @@ def build_small_synthetic_asset(root: Path) -> dict:
 
 
 class Worker:
-    def __init__(self, asset, rig_npz):
+    def __init__(self, asset, rig_npz, *extra):
         self.p = subprocess.Popen([sys.executable, "-m", "pipeline.blender.render_worker", str(asset),
-                                   str(rig_npz), "--threads", "2"], cwd=ROOT, stdin=subprocess.PIPE,
+                                   str(rig_npz), "--threads", "2", *map(str, extra)], cwd=ROOT, stdin=subprocess.PIPE,
                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         self.ready = self.read()
 
@@ -331,6 +331,7 @@ def test_bad_specs_get_ok_false_and_the_worker_carries_on(setup):
         "relative png": {**good, "png": "x.png"},
         "landmarks shape": {**good, "landmarks_head_mm": [[0, 0, 0]]},
         "lid weight > 1": {**good, "lid_weights": {"lids_up": 1.5, "lids_down": 0.0}},
+        "bad denoiser": {**good, "denoiser": "optix"},
     }
     for name, spec in cases.items():
         rep = w.send(spec)
@@ -368,6 +369,54 @@ def test_benchmark_keys_apply_to_one_image_only(setup):
     assert p0 == p2 and 3 * p0 <= p1 <= 4 * p0               # an n-gon becomes n quads
     assert "skin_polygons" not in w.send(scene.spec(503, out))
     assert "outside 0..3" in w.send(scene.spec(504, out, skin_subdivision=5))["error"]
+
+
+def _pixels(spec) -> np.ndarray:
+    return np.asarray(Image.open(spec["png"]).convert("RGB"), np.int16)
+
+
+def test_worker_film_and_denoiser_give_blenders_pixels(setup):
+    """The worker's own film (passes -> Standard view -> PNG) and OIDN filters against Blender's
+    PNG and Cycles' denoiser on the same render (same seed): the denoised floats are Cycles'
+    (pipeline/blender/oidn.py), so the only difference left is Blender's +-1 level dither."""
+    scene, w, out = setup
+    assert w.ready["denoiser"] == "worker"
+    light = {"hdri": "forest.exr", "rotation_deg": 40.0, "strength": 1.4}    # exposure log2(1.4) stops
+    for k, denoise in enumerate((False, True)):
+        ours, blender = (scene.spec(600 + 2 * k + j, out, denoise=denoise, denoiser=d, cycles_seed=11,
+                                    lighting=light) for j, d in enumerate(("worker", "cycles")))
+        r_ours, r_blender = w.send(ours), w.send(blender)
+        assert r_ours["ok"] and r_blender["ok"], (r_ours, r_blender)
+        assert r_ours["denoiser"] == ("worker" if denoise else None)
+        assert r_blender["denoiser"] == ("cycles" if denoise else None)
+        assert (r_ours["denoise_cpu_s"] > 0) == denoise
+        a, b = _pixels(ours), _pixels(blender)
+        assert np.abs(a - b).max() <= 1, denoise
+        assert abs(float((a - b).mean())) < 0.05, denoise       # dither: no bias
+        assert a.mean() > 20
+    # and the denoiser did denoise: the 4-spp image is smoother than the undenoised one
+    grad = [np.abs(np.diff(luminance(scene.spec(600 + i, out)["png"]), axis=1)).mean() for i in (0, 2)]
+    assert grad[1] < 0.8 * grad[0], grad
+
+
+def test_without_the_oidn_library_cycles_denoises(setup, tmp_path):
+    scene, _, out = setup
+    missing = tmp_path / "libOpenImageDenoise.so.2"
+    w2 = Worker(scene.paths["asset"], scene.paths["rig"] / "rig.npz", "--oidn-library", missing)
+    try:
+        assert w2.ready["ready"] is True and w2.ready["denoiser"] == "cycles", w2.ready
+        specs = [scene.spec(700 + i, out, cycles_seed=5, **kw) for i, kw in enumerate(
+            [{"denoise": False}, {"denoise": True}, {"denoise": True, "denoiser": "cycles"}])]
+        reps = [w2.send(s) for s in specs]
+        assert all(r["ok"] for r in reps), reps
+        assert [r["denoiser"] for r in reps] == [None, "cycles", "cycles"]
+        assert all(r["denoise_cpu_s"] == 0 for r in reps)
+        noisy, fallback, cycles = (_pixels(s) for s in specs)
+        assert np.array_equal(fallback, cycles)           # the fallback is Cycles' denoiser, Blender's PNG
+        grad = [np.abs(np.diff(luminance(s["png"]), axis=1)).mean() for s in specs[:2]]
+        assert grad[1] < 0.8 * grad[0], grad              # and it denoised
+    finally:
+        assert w2.close() == 0
 
 
 def test_hdri_switches_keep_the_worker_going(setup):

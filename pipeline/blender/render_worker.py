@@ -1,6 +1,7 @@
 """Persistent Blender worker: renders eye close-ups from sample specs (stage ``render``).
 
     python -m pipeline.blender.render_worker ASSET.usda RIG.npz [--threads N] [--tile-size PX]
+        [--oidn-library PATH]
 
 Loads ``rigged_assets/<scan>/<scan>.usda`` once with Blender's USD importer, builds the
 Cycles scene and then reads one JSON sample spec per line on stdin (the spec is defined in the
@@ -9,15 +10,16 @@ and writes the PNG to ``spec["png"]`` (temp name in the same folder + ``os.repla
 to stdout, one line each, prefixed with :data:`REPLY_PREFIX` so they can be told apart from
 Blender's own prints::
 
-    @@render@@ {"ready": true, "setup_s": 2.1, "rss_mib": 400.0}                 (once, after loading)
+    @@render@@ {"ready": true, "setup_s": 2.1, "rss_mib": 400.0, "denoiser": "worker"}  (once, after loading)
     @@render@@ {"index": 17, "ok": true, "render_s": 0.21, "total_s": 0.25, "render_cpu_s": 0.4,
-                "total_cpu_s": 0.45, "rss_mib": 612.0,
+                "total_cpu_s": 0.45, "rss_mib": 612.0, "denoiser": "worker", "denoise_cpu_s": 0.09,
                 "landmark_check_mm": 3e-6, "landmarks_measured_head_mm": [[x, y, z] * 28]}
     @@render@@ {"index": 17, "ok": false, "error": "..."}                          (and carries on)
 
-``*_s`` = wall seconds of the render call / of the whole sample, ``*_cpu_s`` = CPU seconds of
+``*_s`` = wall seconds of the render call (with the worker's film: the render, reading its
+passes, denoising and writing the PNG) / of the whole sample, ``*_cpu_s`` = CPU seconds of
 this process (all threads) over the same spans: robust to other processes on a shared
-machine. stdin EOF or ``{"quit": true}`` ends the worker.
+machine; ``denoise_*`` = the worker's OIDN call alone. stdin EOF or ``{"quit": true}`` ends the worker.
 
 Scene (SynthesEyes paper, section 4):
 
@@ -64,12 +66,21 @@ Scene (SynthesEyes paper, section 4):
   ``eyerig:landmarks:iris|pupil`` of the eyeball asset -- brought back to head mm and
   compared with ``landmarks_head_mm`` (max distance, mm).
 
+Film and denoiser (spec ``denoiser``, :data:`DENOISERS`): by default (``"worker"``) Cycles
+renders without its denoiser, the worker reads the render's passes (noisy colour, denoising
+albedo and normal; :mod:`pipeline.blender.film`), denoises them with OpenImageDenoise filters
+it built once (:mod:`pipeline.blender.oidn`: the same filters and settings as Cycles', the same
+pixels, without Cycles' per-render device and filter set-up) and writes the PNG through
+Blender's Standard view transform itself. ``"cycles"``, or a worker whose OIDN library cannot
+be loaded (said once on stderr, ``"denoiser": "cycles"`` in the ready reply): Cycles denoises
+and Blender writes the PNG, as before.
+
 Render settings (see benchmarks/bench_render_quality.py for the measured trade-off): CPU
 Cycles, samples / denoise / seed from the spec, OpenImageDenoise with albedo + normal passes
 and the ACCURATE prefilter, adaptive sampling (threshold 0.02), single-scatter GGX on every
 Principled BSDF, light paths limited to what the cornea needs (:data:`LIGHT_PATHS`), one
 tile for the whole image, persistent render data, blue-noise sampling and no light tree
-(:data:`CYCLES`). Optional spec keys (tests/benchmarks): ``lashes``, ``skin_subdivision``, ``adaptive_sampling``,
+(:data:`CYCLES`). Optional spec keys (tests/benchmarks): ``denoiser``, ``lashes``, ``skin_subdivision``, ``adaptive_sampling``,
 ``adaptive_threshold``, ``denoise_prefilter``, the :data:`LIGHT_PATHS` names and ``cycles``
 (``{scene.cycles property: value}`` for that image only; the defaults come back on the next).
 """
@@ -87,6 +98,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.blender.film import render_passes, standard_view_srgb8, write_png_rgb
 from pipeline.blender.lashes import LASHES, add_lash_objects, lash_curves
 from pipeline.blender.materials import (CORNEA_IOR, eyelash_material, set_tint, setup_eyeball_materials,
                                         skin_material, thin_coat)
@@ -102,6 +114,7 @@ EYE_BLENDS = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
 SKIN_DETAIL = ("displacement", "bump", "none")
 ADAPTIVE_THRESHOLD = 0.02
 WORLD_MAP_RESOLUTION = 256
+DENOISERS = ("worker", "cycles")  # the worker's own persistent OIDN filters (default) | Cycles' per render
 DENOISE_PREFILTER = "ACCURATE"   # OIDN albedo/normal prefilter: +0.7 dB at 16 spp for ~0.3 CPU-s
 BSDF_DISTRIBUTION = "GGX"        # single-scatter GGX on every Principled BSDF (multi-scatter: ~1.3x time)
 # Measured on bench_render_quality's frame, same 2048-spp reference (benchmarks/bench_render_split.py):
@@ -173,7 +186,7 @@ class Worker:
     """The loaded scene; :meth:`render` renders one spec."""
 
     def __init__(self, asset: Path, rig_npz: Path, threads: int = 0, tile_size: int = 2048,
-                 thin_sclera_coat: bool = True):
+                 thin_sclera_coat: bool = True, oidn_library: Path | None = None):
         import bpy
 
         from pipeline.io.rig_file import read_rig_arrays
@@ -278,6 +291,7 @@ class Worker:
         self.cycles_saved = {}
 
         self._setup_render(threads, tile_size)
+        self._setup_oidn(oidn_library, threads)
         self._setup_lashes()
         self.seg = SegPasses(self, not thin_sclera_coat, CORNEA_IOR, CAMERA_PULLBACK_M)   # set up on first use
         for m in self.bpy.data.materials:
@@ -387,6 +401,20 @@ class Worker:
         self.cam = bpy.data.objects.new("RenderCam", cam_data)
         scene.collection.objects.link(self.cam)
         scene.camera = self.cam
+
+    def _setup_oidn(self, library, threads: int) -> None:
+        """The worker's own OIDN denoiser (:mod:`pipeline.blender.oidn`), built once; without the
+        library the images keep Cycles' denoiser (said once on stderr)."""
+        from pipeline.blender.oidn import Denoiser, OidnUnavailable
+
+        try:
+            self.oidn = Denoiser(library, threads=threads)
+        except OidnUnavailable as exc:
+            self.oidn = None
+            print(f"render_worker: {exc}; denoising with Cycles' own denoiser", file=sys.stderr, flush=True)
+            return
+        # the noisy colour's guides: albedo and normal passes, written whether or not Cycles denoises
+        self.scene.view_layers[0].cycles.denoising_store_passes = True
 
     def _setup_lashes(self) -> None:
         rng = np.random.default_rng(12345)
@@ -557,13 +585,19 @@ class Worker:
         self._set_skin_subdivision(int(spec.get("skin_subdivision", 0)))
         c = self.scene.cycles
         c.samples = samples
-        c.use_denoising = bool(spec.get("denoise", True)) and self.has_denoiser
+        denoise = bool(spec.get("denoise", True))
+        denoiser = spec.get("denoiser", "worker")
+        if denoiser not in DENOISERS:
+            raise ValueError(f"denoiser {denoiser!r} not in {DENOISERS}")
+        own = denoiser == "worker" and self.oidn is not None     # the worker's film and OIDN, else Blender's
+        prefilter = str(spec.get("denoise_prefilter", DENOISE_PREFILTER))
+        c.use_denoising = denoise and self.has_denoiser and not own
         c.seed = int(spec.get("cycles_seed", 0)) & 0x7FFFFFFF
         c.use_adaptive_sampling = bool(spec.get("adaptive_sampling", True))
         c.adaptive_threshold = float(spec.get("adaptive_threshold", ADAPTIVE_THRESHOLD))
         for k, v in LIGHT_PATHS.items():
             setattr(c, k, int(spec.get(k, v)))
-        c.denoising_prefilter = str(spec.get("denoise_prefilter", DENOISE_PREFILTER))
+        c.denoising_prefilter = prefilter
         for k, v in spec.get("cycles", {}).items():       # benchmarks: any scene.cycles property, this image only
             if k not in self.cycles_saved:
                 self.cycles_saved[k] = getattr(c, k)
@@ -582,20 +616,35 @@ class Worker:
         tmp = png.with_name(f".{png.stem}.tmp{os.getpid()}.png")
         self.scene.render.filepath = str(tmp)
         t1, c1 = time.perf_counter(), time.process_time()
-        bpy.ops.render.render(write_still=True)
+        bpy.ops.render.render(write_still=not own)
+        passes, t_den, c_den = None, 0.0, 0.0
+        if own or outs:
+            scratch = png.with_name(f".{png.stem}.passes{os.getpid()}.exr")
+            try:
+                passes = render_passes(bpy, self.scene, scratch)
+            finally:
+                if scratch.exists():
+                    scratch.unlink()
+        if own:
+            rgb = passes["Combined"][..., :3]
+            if denoise:
+                td, cd = time.perf_counter(), time.process_time()
+                rgb = self.oidn.denoise(rgb, passes["Denoising Albedo"], passes["Denoising Normal"], prefilter)
+                t_den, c_den = time.perf_counter() - td, time.process_time() - cd
+            write_png_rgb(tmp, standard_view_srgb8(rgb, self.scene.view_settings.exposure))
         t_render, c_render = time.perf_counter() - t1, time.process_time() - c1
         if not tmp.is_file():
             raise RuntimeError("Blender wrote no image")
         os.replace(tmp, png)
         t2 = time.perf_counter()
         if outs:
-            self.seg.after_render(outs.get("seg_png"), outs.get("depth_exr"),
-                                  png.with_name(f".{png.stem}.passes{os.getpid()}.exr"))
+            self.seg.after_render(outs.get("seg_png"), outs.get("depth_exr"), passes)
         passes_s = time.perf_counter() - t2
         return {"index": spec.get("index"), "ok": True, "render_s": round(t_render, 4),
                 "render_cpu_s": round(c_render, 4), "total_s": round(time.perf_counter() - t0, 4),
                 "total_cpu_s": round(time.process_time() - c0, 4), "rss_mib": rss_mib(),
-                "passes_s": round(passes_s, 4), "check_s": round(t_in - t0, 4), "pose_s": round(t_pose - t_in, 4),
+                "passes_s": round(passes_s, 4), "denoise_s": round(t_den, 4), "denoise_cpu_s": round(c_den, 4),
+                "denoiser": ("worker" if own else "cycles") if denoise else None, "check_s": round(t_in - t0, 4), "pose_s": round(t_pose - t_in, 4),
                 "lashes_s": round(t_lash - t_pose, 4), "seg_setup_s": round(t1 - t_lash, 4),
                 "landmark_check_mm": check, "landmarks_measured_head_mm": measured.round(6).tolist(),
                 **({"skin_polygons": polygons} if polygons is not None else {})}
@@ -607,15 +656,19 @@ def main(argv=None) -> int:
     ap.add_argument("rig", type=Path)
     ap.add_argument("--threads", type=int, default=0, help="render threads (0 = all cores)")
     ap.add_argument("--tile-size", type=int, default=2048, help="Cycles tile size, px")
+    ap.add_argument("--oidn-library", type=Path, default=None,
+                    help="OpenImageDenoise library for the worker's denoiser (default: the bpy wheel's)")
     ap.add_argument("--refractive-sclera-coat", action="store_true",
                     help="keep the asset's refracting sclera coat shell (default: thin clear coat)")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        w = Worker(args.asset, args.rig, args.threads, args.tile_size, not args.refractive_sclera_coat)
+        w = Worker(args.asset, args.rig, args.threads, args.tile_size, not args.refractive_sclera_coat,
+                   args.oidn_library)
     except Exception as exc:  # noqa: BLE001 -- any unloadable asset/rig: one line, exit 2
         _reply({"ready": False, "error": f"{type(exc).__name__}: {exc}"})
         return 2
-    _reply({"ready": True, "setup_s": round(w.setup_s, 3), "rss_mib": rss_mib()})
+    _reply({"ready": True, "setup_s": round(w.setup_s, 3), "rss_mib": rss_mib(),
+            "denoiser": "worker" if w.oidn is not None else "cycles"})
     for line in sys.stdin:
         line = line.strip()
         if not line:

@@ -10,8 +10,8 @@ documented once in :mod:`pipeline.render.seg`. Here:
   attribute), iris, pupil, sclera and lashes; for the cornea and sclera coat the
   "what lies behind" nodes (:func:`_behind_nodes`) whose plane uniforms are returned.
 * :func:`set_eye_planes` sets those uniforms per image from the evaluated pupil and iris rings.
-* :func:`read_passes` saves the render result's passes to a multilayer EXR and returns the
-  per-class coverages and the Z pass.
+* :func:`coverage_and_depth` takes the per-class coverages and the Z pass from the render's
+  passes (read once per image by :func:`pipeline.blender.film.render_passes`).
 
 None of it changes the image: AOV outputs and data passes do not feed the combined pass.
 """
@@ -189,42 +189,23 @@ def set_eye_planes(uniforms: list, pupil_world, iris_world) -> None:
                 p["r"].outputs[0].default_value = r
 
 
-def read_passes(bpy, scene, path) -> tuple[dict, np.ndarray]:
-    """Save the last render's passes to the multilayer EXR ``path`` and read them back.
+def coverage_and_depth(passes: dict) -> tuple[dict, np.ndarray]:
+    """Per-class coverages and the Z pass from the render's passes (:func:`pipeline.blender.film.render_passes`).
 
     Returns
     -------
     coverage : dict  class id -> (H, W) float32 (top row first)
     z : (H, W) float32  Cycles' Z pass (metres from the camera along its axis)
     """
-    import OpenEXR
-
-    s = scene.render.image_settings
-    old = (s.media_type, s.file_format, s.color_depth)
-    s.media_type = "MULTI_LAYER_IMAGE"            # Blender 5: file_format becomes OPEN_EXR_MULTILAYER
-    s.color_depth = "32"
-    s.exr_codec = "NONE"
-    try:
-        bpy.data.images["Render Result"].save_render(str(path), scene=scene)
-    finally:
-        s.media_type = old[0]
-        s.file_format = old[1]
-        s.color_depth = old[2]
-    ch = {}
-    with OpenEXR.File(str(path)) as f:
-        for part in f.parts:
-            ch.update({k: np.asarray(v.pixels, np.float32) for k, v in part.channels.items()})
-    vl = scene.view_layers[0].name
-
     def get(*names):
         for nm in names:
-            if f"{vl}.{nm}" in ch:
-                return ch[f"{vl}.{nm}"]
-        raise RuntimeError(f"render passes lack {names[0]} (has {sorted(ch)})")
+            if nm in passes:
+                return passes[nm]
+        raise RuntimeError(f"render passes lack {names[0]} (has {sorted(passes)})")
 
     cov = {}
     for name, chans in AOV_CHANNELS.items():
-        rgb = get(name)                  # the python OpenEXR groups R, G, B into one (H, W, 3) channel
+        rgb = get(name)
         for k, c in enumerate(chans):
             cov[c] = rgb[..., k]
     return cov, get("Depth.Z", "Depth")
@@ -262,18 +243,12 @@ class SegPasses:
             lm = self.w.eb_landmarks
             set_eye_planes(self.uniforms[side], W[lm["pupil"]], W[lm["iris"]])
 
-    def after_render(self, seg_path, depth_path, scratch_exr) -> None:
-        """Read the passes of the last render, write the seg PNG and depth EXR."""
-        import os
-
+    def after_render(self, seg_path, depth_path, passes: dict) -> None:
+        """Write the seg PNG and depth EXR from the last render's passes."""
         from pipeline.io.seg_file import write_depth, write_seg
         from pipeline.render.seg import classes_from_coverage, depth_mm_from_z
 
-        try:
-            cov, z = read_passes(self.w.bpy, self.w.scene, scratch_exr)
-        finally:
-            if os.path.exists(scratch_exr):
-                os.remove(scratch_exr)
+        cov, z = coverage_and_depth(passes)
         if seg_path is not None:
             write_seg(seg_path, classes_from_coverage(cov))
         if depth_path is not None:

@@ -108,7 +108,7 @@ def apparent_projection(points_head, world_to_camera, model_to_head, params: Eye
     # far start: 4 eye sizes before the point along the ray (orthographic: depth is free)
     back = 4.0 * (params.apex + 1.0)
 
-    def residual(xy):
+    def residual(xy, P_m):
         O_h = cam_pos + xy[:, :1] * xc + xy[:, 1:] * yc
         O_m = O_h @ Ainv[:3, :3].T + Ainv[:3, 3]
         O_m = O_m + ((P_m - O_m) @ d_m - back)[:, None] * d_m     # slide the origin near the eye
@@ -121,26 +121,28 @@ def apparent_projection(points_head, world_to_camera, model_to_head, params: Eye
 
     cam = P @ Rc.T + W[:3, 3]
     xy = cam[:, :2].copy()
-    good = np.ones(len(P), bool)
+    n_p = len(P)
+    good = np.ones(n_p, bool)
     h = 1e-4
+    P_m3 = np.tile(P_m, (3, 1))
     for _ in range(max_iter):
-        r, ok = residual(xy)
+        # the residual at xy and at its two finite-difference steps in one call (rows are
+        # independent: the same values as three calls, for a third of the numpy overhead)
+        r3, ok3 = residual(np.concatenate([xy, xy + [h, 0.0], xy + [0.0, h]]), P_m3)
+        r, ok = r3[:n_p], ok3[:n_p]
         good &= ok
         if np.all(np.abs(r[good]) < tol_mm):
             break
-        J = np.empty((len(P), 2, 2))
+        J = np.empty((n_p, 2, 2))
         for j in range(2):
-            dxy = xy.copy()
-            dxy[:, j] += h
-            rj, _ = residual(dxy)
-            J[:, :, j] = (rj - r) / h
+            J[:, :, j] = (r3[(j + 1) * n_p:(j + 2) * n_p] - r) / h
         det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
         good &= np.abs(det) > 1e-12
         detg = np.where(good, det, 1.0)
         step = np.stack([(J[:, 1, 1] * r[:, 0] - J[:, 0, 1] * r[:, 1]) / detg,
                          (-J[:, 1, 0] * r[:, 0] + J[:, 0, 0] * r[:, 1]) / detg], 1)
         xy = xy - np.where(good[:, None], np.clip(step, -2.0, 2.0), 0.0)
-    r, ok = residual(xy)
+    r, ok = residual(xy, P_m)
     good &= ok & np.all(np.abs(r) < 1e-4, axis=1)
     xy[~good] = np.nan
     return xy
