@@ -99,7 +99,7 @@ def _textured(mat, image, tint=(1.0, 1.0, 1.0), roughness=0.5, subsurface=0.0):
     if subsurface:
         b.inputs["Subsurface Weight"].default_value = subsurface
         b.inputs["Subsurface Radius"].default_value = (1.0, 0.3, 0.2)
-        b.inputs["Subsurface Scale"].default_value = 0.5
+        b.inputs["Subsurface Scale"].default_value = 0.0005   # scene units are metres: 0.5 mm (was 0.5 m)
     nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
     return mat, tex, mul
 
