@@ -6,7 +6,9 @@
 Per image: ``NNNNNN.png`` + ``NNNNNN.json`` (label, written last = done; pipeline/io/labels_file.py);
 at the end ``index.jsonl`` (every index 0..n-1 exactly once), ``contact_sheet.png`` (landmarks
 drawn) and ``config.json`` (the hash of everything that changes images or labels). Re-running
-resumes: finished images are skipped; a config change deletes the stale images first. Images
+resumes: finished images are skipped; a config change deletes the stale images first. An asset
+that remove_eyeballs doubted (its metadata's ``eyes.<side>.doubts``) is rendered all the same,
+with one ``warning:`` line per doubt on stderr. Images
 are rendered by persistent Blender processes, one per dask worker: a ``LocalCluster`` of
 ``workers`` processes by default, or the cluster at ``--scheduler`` / params ``scheduler`` (its
 workers must see the same paths). The work is in pipeline/render/run.py (``render_scan``).
@@ -14,6 +16,7 @@ workers must see the same paths). The work is in pipeline/render/run.py (``rende
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
@@ -40,6 +43,8 @@ def main(argv) -> dict:
             params[key] = value
     settings = RenderSettings.from_params(params, source=args.params)
     asset = load_render_asset(args.asset, args.rig)
+    for doubt in asset.doubts():          # rendered all the same: say so where the user looks
+        print(f"warning: {args.asset}: {doubt}", file=sys.stderr)
     metrics = render_scan(asset, settings, args.out, source=args.asset, scheduler=args.scheduler,
                           progress=not args.no_progress)
     return {"_path": args.metrics or default_metrics_path(args.out), **metrics}

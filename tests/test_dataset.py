@@ -267,14 +267,15 @@ def test_loader_example_reads_arrays_without_the_project(resumed, tmp_path):
 def test_asset_doubts_reach_the_card():
     """An asset whose metadata doubts an eye (remove_eyeballs' ``doubts``, carried by rig and
     usd) is listed under "Doubts" in the card, named, with the sentence."""
-    from types import SimpleNamespace
-
+    from pipeline.render.asset import RenderAsset
     from pipeline.render.card import _doubts
     from pipeline.render.dataset import DatasetAsset
 
     doubt = "opening 18.0 mm wide where the texture's fissure is 31.5 mm"
     meta = {"eyes": {"left": {"doubts": [doubt]}, "right": {}}}
-    a = DatasetAsset(0, "james", Path("."), Path("."), 1.0, SimpleNamespace(metadata=meta), "")
+    asset = RenderAsset("james", Path("james.usda"), Path("rig.npz"), np.zeros((0, 3)), 1.0, [], {}, {},
+                        metadata=meta)
+    a = DatasetAsset(0, "james", Path("."), Path("."), 1.0, asset, "")
     assert a.doubts() == [f"left eye: {doubt}"]
     lines = _doubts([{"name": "james", "doubts": a.doubts()}, {"name": "ok", "doubts": []}])
     assert lines[0] == "## Doubts" and f"- `james`, left eye: {doubt}" in lines

@@ -122,6 +122,13 @@ class RenderAsset:
     variants: dict = field(default_factory=dict)
     metadata: dict = field(default_factory=dict)   # customData["eyerig"]: scan, licence, source_sha256, ...
 
+    def doubts(self) -> list[str]:
+        """What the pipeline was not sure of when it built this asset (``eyes.<side>.doubts`` in
+        its metadata, from remove_eyeballs), as "<side> eye: <sentence>"."""
+        eyes = self.metadata.get("eyes") or {}
+        return [f"{side} eye: {d}" for side in ("left", "right")
+                for d in ((eyes.get(side) or {}).get("doubts") or [])]
+
     def fingerprint(self) -> str:
         """sha256 of every file the render reads (for the config hash of a render folder).
 

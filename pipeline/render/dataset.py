@@ -96,11 +96,8 @@ class DatasetAsset:
         return str(self.asset.metadata.get(key) or "")
 
     def doubts(self) -> list[str]:
-        """What the pipeline was not sure of when it built this asset (its metadata's
-        ``eyes.<side>.doubts``), as "<side> eye: <sentence>"."""
-        eyes = self.asset.metadata.get("eyes") or {}
-        return [f"{side} eye: {d}" for side in ("left", "right")
-                for d in ((eyes.get(side) or {}).get("doubts") or [])]
+        """The asset's doubts (:meth:`pipeline.render.asset.RenderAsset.doubts`)."""
+        return self.asset.doubts()
 
 
 def is_shared_eyeball(folder: Path) -> bool:
@@ -428,6 +425,9 @@ def main(argv=None) -> int:
         for f in skipped:
             print(f"note: skipped {f} (the shared eyeball, not a head)", file=sys.stderr)
         assets = load_assets(pairs, args.weights, settings)
+        for a in assets:                      # rendered all the same; the card lists them too
+            for d in a.doubts():
+                print(f"warning: {a.folder}: {d}", file=sys.stderr)
         with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
             m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
                                progress=not args.no_progress)
