@@ -312,6 +312,25 @@ def test_extreme_images_are_not_black_or_blank(tiny, tmp_path):
 
 
 @pytest.mark.blender
+def test_resumed_images_are_byte_identical(tiny, tmp_path):
+    """An image rendered first in a fresh Blender worker (a resumed run) has the same bytes as
+    the same index rendered after others: image, mask, depth map and label."""
+    params = _params(tmp_path, "p.yaml", n_images=4)
+    whole, resumed = tmp_path / "whole" / "tiny", tmp_path / "resumed" / "tiny"
+    for out in (whole, resumed):
+        r = subprocess.run(_stage_cmd(tiny, out, params), cwd=ROOT, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+    for f in list(resumed.glob("00000[12]*")) + [resumed / "index.jsonl"]:
+        f.unlink()
+    r = subprocess.run(_stage_cmd(tiny, resumed, params), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert read_stage_metrics(resumed.parent / "tiny.metrics.json")["rendered"] == 2
+    files = sorted(p.name for p in whole.glob("0*"))
+    assert len(files) == 16 and files == sorted(p.name for p in resumed.glob("0*"))
+    assert [f for f in files if (whole / f).read_bytes() != (resumed / f).read_bytes()] == []
+
+
+@pytest.mark.blender
 def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     out = tmp_path / "renders" / "tiny"
     params = _params(tmp_path, "p.yaml", n_images=6)
