@@ -9,12 +9,16 @@
   255 levels. Blender adds a +-1 level dither (``render.dither_intensity`` 1) when it writes
   PNGs itself; here it is left out, so one image is one set of bytes (measured against
   Blender's own PNG of the same render: at most 1 level apart, mean difference 0.0005 level).
-* :func:`write_png_rgb` writes it without time or text chunks.
+* :func:`write_png_rgb` writes it without time or text chunks; :func:`write_film_png` is the
+  worker's whole step: the noisy colour, denoised by the worker's OIDN filters when given,
+  through the view transform into the PNG.
 """
 
 from __future__ import annotations
 
 import io
+import time
+from pathlib import Path
 
 import numpy as np
 
@@ -39,8 +43,24 @@ def write_png_rgb(path, rgb8) -> None:
         f.write(buf.getvalue())
 
 
+def write_film_png(path, passes: dict, exposure: float, denoiser=None, prefilter: str = "ACCURATE"):
+    """The worker's PNG at ``path`` from the render's ``passes`` (:func:`render_passes`): the
+    noisy colour, denoised by ``denoiser`` (a :class:`pipeline.blender.oidn.Denoiser`, with the
+    denoising albedo and normal) when given, through the Standard view at ``exposure`` stops.
+    Returns the denoiser's wall and CPU seconds (0 without it)."""
+    rgb = passes["Combined"][..., :3]
+    t_den = c_den = 0.0
+    if denoiser is not None:
+        t0, c0 = time.perf_counter(), time.process_time()
+        rgb = denoiser.denoise(rgb, passes["Denoising Albedo"], passes["Denoising Normal"], prefilter)
+        t_den, c_den = time.perf_counter() - t0, time.process_time() - c0
+    write_png_rgb(path, standard_view_srgb8(rgb, exposure))
+    return t_den, c_den
+
+
 def render_passes(bpy, scene, path) -> dict:
-    """The last render's passes by name (view-layer prefix dropped), via the multilayer EXR ``path``.
+    """The last render's passes by name (view-layer prefix dropped), via the multilayer EXR
+    ``path`` (a scratch file, removed before returning).
 
     Returns
     -------
@@ -49,21 +69,23 @@ def render_passes(bpy, scene, path) -> dict:
     """
     import OpenEXR
 
+    path = Path(path)
     s = scene.render.image_settings
     old = (s.media_type, s.file_format, s.color_depth)
     s.media_type = "MULTI_LAYER_IMAGE"            # Blender 5: file_format becomes OPEN_EXR_MULTILAYER
     s.color_depth = "32"
     s.exr_codec = "NONE"
+    ch = {}
     try:
         bpy.data.images["Render Result"].save_render(str(path), scene=scene)
+        with OpenEXR.File(str(path)) as f:
+            for part in f.parts:
+                ch.update({k: np.asarray(v.pixels, np.float32) for k, v in part.channels.items()})
     finally:
         s.media_type = old[0]
         s.file_format = old[1]
         s.color_depth = old[2]
-    ch = {}
-    with OpenEXR.File(str(path)) as f:
-        for part in f.parts:
-            ch.update({k: np.asarray(v.pixels, np.float32) for k, v in part.channels.items()})
+        path.unlink(missing_ok=True)      # a scratch file beside the image
     prefix = scene.view_layers[0].name + "."
     out, split = {}, {}
     for k, v in ch.items():

@@ -53,13 +53,9 @@ Scene (SynthesEyes paper, section 4):
   0.5 mm in front of the posed lid margin (the ``loop_<side>`` vertices of the evaluated skin
   mesh) and curling away from the opening (up / down); rebuilt every sample so they follow the
   lids (``lash_curves``); dark glossy Principled BSDF, rendered as Cycles ribbons.
-* World: one of Blender's bundled studio-light HDRIs (or an absolute path), loaded only
-  when it changes, with an orphan purge at each switch (importance map 256 px). Any edit
-  of the world shader makes Cycles rebuild the map (~4 s per image here), so rotation and
-  strength never touch it: the map is rotated by ``rotation_deg`` about head +Y (= Blender
-  +Z, counter-clockwise seen from above) by rotating every root object and the camera by
-  ``-rotation_deg`` instead (the same picture), and ``strength`` is applied as exposure
-  ``log2(strength)`` stops (the world is the only light, so this is the same linear scale).
+* World (:mod:`pipeline.blender.world`): one of Blender's bundled studio-light HDRIs (or an
+  absolute path), loaded only when it changes (importance map 256 px); its rotation turns
+  every root object and the camera instead, its strength is the exposure.
 * Landmark check: the 28 landmarks of ``eye`` are measured in the posed, evaluated
   Blender scene -- eyelid landmark k = lerp of the evaluated skin vertices of
   ``landmarks.<side>.edge[k]`` at ``t[k]``; iris/pupil = evaluated Inner-mesh vertices
@@ -98,12 +94,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.blender.film import render_passes, standard_view_srgb8, write_png_rgb
+from pipeline.blender.film import render_passes, write_film_png
 from pipeline.blender.lashes import LASHES, add_lash_objects, lash_curves
 from pipeline.blender.materials import (CORNEA_IOR, eyelash_material, set_tint, setup_eyeball_materials,
                                         skin_material, thin_coat)
 from pipeline.blender.seg_passes import SegPasses
-from pipeline.blender.scene import add_inbetween_keys, bundled_hdri, evaluated_vertices, find_image, import_usd
+from pipeline.blender.scene import add_inbetween_keys, evaluated_vertices, find_image, import_usd
+from pipeline.blender.world import EnvironmentWorld
 from pipeline.eyeball.textures import IRIS_COLORS, SCLERA_TINTS, VEINS  # the asset's variants (no bpy)
 from pipeline.geometry.frame import quat_to_matrix
 
@@ -298,7 +295,6 @@ class Worker:
             for n in (m.node_tree.nodes if m.node_tree else ()):
                 if n.type == "BSDF_PRINCIPLED":
                     n.distribution = BSDF_DISTRIBUTION
-        self.hdri = None
         # root objects (armature, skin/eye parents, lashes) and their head-aligned world matrices;
         # the environment rotation is applied by rotating these (see _set_hdri)
         self.roots = {o: np.array(o.matrix_world) for o in scene.objects
@@ -379,19 +375,7 @@ class Worker:
         r.image_settings.color_depth = "8"
         scene.view_settings.view_transform = "Standard"
         scene.view_settings.look = "None"
-        world = bpy.data.worlds.new("RenderWorld")
-        scene.world = world
-        world.use_nodes = True
-        world.cycles.sampling_method = "MANUAL"      # importance map built once per HDRI: keep it small
-        world.cycles.sample_map_resolution = WORLD_MAP_RESOLUTION
-        nt = world.node_tree
-        for n in list(nt.nodes):
-            nt.nodes.remove(n)
-        self.env = nt.nodes.new("ShaderNodeTexEnvironment")
-        self.background = nt.nodes.new("ShaderNodeBackground")
-        out = nt.nodes.new("ShaderNodeOutputWorld")
-        nt.links.new(self.env.outputs["Color"], self.background.inputs["Color"])
-        nt.links.new(self.background.outputs["Background"], out.inputs["Surface"])
+        self.world = EnvironmentWorld(bpy, scene, WORLD_MAP_RESOLUTION)
         cam_data = bpy.data.cameras.new("RenderCam")
         cam_data.type = "ORTHO"
         cam_data.sensor_fit = "AUTO"
@@ -424,38 +408,12 @@ class Worker:
 
     # -- per sample
     def _set_hdri(self, light: dict) -> None:
-        bpy = self.bpy
-        name = str(light["hdri"])
-        p = Path(name)
-        if not p.is_absolute():
-            if p.name != name or not name:
-                raise ValueError(f"lighting.hdri {name!r}: a bundled map name or an absolute path")
-            p = bundled_hdri(name)
-        if not p.is_file():
-            raise ValueError(f"lighting.hdri {name!r}: no such environment map")
-        if name != self.hdri:
-            old = self.env.image
-            self.env.image = bpy.data.images.load(str(p), check_existing=False)
-            if old is not None:
-                bpy.data.images.remove(old)
-            bpy.data.orphans_purge(do_local_ids=True, do_linked_ids=True, do_recursive=True)
-            self.hdri = name
-        rot = float(light.get("rotation_deg", 0.0))
-        strength = float(light.get("strength", 1.0))
-        if not (math.isfinite(rot) and math.isfinite(strength) and strength > 0):
-            raise ValueError("lighting.rotation_deg / strength must be finite, strength > 0")
-        # Any edit of the world shader makes Cycles rebuild the environment's importance map
-        # (seconds per image). Both are done without touching it, exactly:
-        # * rotating the map by +rot about head +Y (= Blender +Z) = rotating everything else
-        #   (all root objects and the camera) by -rot about Blender +Z;
-        # * the world is the only light, so its strength is a linear scale of the image =
-        #   exposure log2(strength) stops (applied before the view transform).
-        a = math.radians(rot)
-        ca, sa = math.cos(a), math.sin(a)
-        self.Rw = np.array([[ca, sa, 0, 0], [-sa, ca, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])   # Rz(-rot)
+        """The spec's environment map, its rotation (everything else turned by ``Rw``) and its
+        strength (exposure): :mod:`pipeline.blender.world`."""
+        self.Rw, exposure = self.world.set(light)
         self.Rw_inv = self.Rw.T.copy()
         self._apply_world_rotation()
-        self.scene.view_settings.exposure = math.log2(strength)
+        self.scene.view_settings.exposure = exposure
 
     def _apply_world_rotation(self) -> None:
         from mathutils import Matrix
@@ -619,19 +577,10 @@ class Worker:
         bpy.ops.render.render(write_still=not own)
         passes, t_den, c_den = None, 0.0, 0.0
         if own or outs:
-            scratch = png.with_name(f".{png.stem}.passes{os.getpid()}.exr")
-            try:
-                passes = render_passes(bpy, self.scene, scratch)
-            finally:
-                if scratch.exists():
-                    scratch.unlink()
+            passes = render_passes(bpy, self.scene, png.with_name(f".{png.stem}.passes{os.getpid()}.exr"))
         if own:
-            rgb = passes["Combined"][..., :3]
-            if denoise:
-                td, cd = time.perf_counter(), time.process_time()
-                rgb = self.oidn.denoise(rgb, passes["Denoising Albedo"], passes["Denoising Normal"], prefilter)
-                t_den, c_den = time.perf_counter() - td, time.process_time() - cd
-            write_png_rgb(tmp, standard_view_srgb8(rgb, self.scene.view_settings.exposure))
+            t_den, c_den = write_film_png(tmp, passes, self.scene.view_settings.exposure,
+                                          self.oidn if denoise else None, prefilter)
         t_render, c_render = time.perf_counter() - t1, time.process_time() - c1
         if not tmp.is_file():
             raise RuntimeError("Blender wrote no image")
