@@ -26,17 +26,22 @@ if TYPE_CHECKING:
     from pipeline.geometry.remove_eyeballs import EyeSettings
 
 
+def _texels(texture, uv) -> np.ndarray:
+    """(..., 3) float64 sRGB of the nearest texel at each UV (..., 2) (origin bottom-left,
+    wrapped into [0, 1))."""
+    H, W = texture.shape[:2]
+    px = np.clip((uv[..., 0] % 1.0) * W, 0, W - 1).astype(np.int64)
+    py = np.clip((1.0 - uv[..., 1] % 1.0) * H, 0, H - 1).astype(np.int64)
+    return texture[py, px, :3].astype(np.float64)
+
+
 def texture_colours(mesh_arrays, texture, faces, samples=7):
     """Median sRGB colour of the texture over each face, (k, 3) float64 (0..255)."""
     UV = np.asarray(mesh_arrays["UV"], dtype=np.float64)
     FUV = np.asarray(mesh_arrays["FUV"], dtype=np.int64)[faces]
-    H, W = texture.shape[:2]
     bary = np.array([[1 / 3, 1 / 3, 1 / 3], [0.6, 0.2, 0.2], [0.2, 0.6, 0.2], [0.2, 0.2, 0.6],
                      [0.45, 0.45, 0.1], [0.1, 0.45, 0.45], [0.45, 0.1, 0.45]])[:samples]
-    uv = np.einsum("sk,fkd->fsd", bary, UV[FUV])
-    px = np.clip((uv[..., 0] % 1.0) * W, 0, W - 1).astype(np.int64)
-    py = np.clip((1.0 - uv[..., 1] % 1.0) * H, 0, H - 1).astype(np.int64)
-    return np.median(texture[py, px, :3].astype(np.float64), axis=1)
+    return np.median(_texels(texture, np.einsum("sk,fkd->fsd", bary, UV[FUV])), axis=1)
 
 
 def _colour_z(col, ring):
@@ -59,7 +64,6 @@ def surface_texels(V, F, UV, FUV, texture, faces, step_mm=0.25):
     points : (k, 3) float64
     colours : (k, 3) float64, sRGB 0..255 (nearest texel)
     """
-    H, W = texture.shape[:2]
     A = np.asarray(V, np.float64)[np.asarray(F, np.int64)[faces]]
     T = np.asarray(UV, np.float64)[np.asarray(FUV, np.int64)[faces]]
     longest = np.linalg.norm(A - np.roll(A, 1, axis=1), axis=2).max(axis=1)
@@ -71,10 +75,7 @@ def surface_texels(V, F, UV, FUV, texture, faces, step_mm=0.25):
         tri = (i + j) <= n
         bary = np.stack([i[tri], j[tri], n - i[tri] - j[tri]], axis=1) / n
         points.append(np.einsum("sk,fkd->fsd", bary, A[sel]).reshape(-1, 3))
-        uv = np.einsum("sk,fkd->fsd", bary, T[sel]).reshape(-1, 2)
-        px = np.clip((uv[:, 0] % 1.0) * W, 0, W - 1).astype(np.int64)
-        py = np.clip((1.0 - uv[:, 1] % 1.0) * H, 0, H - 1).astype(np.int64)
-        colours.append(texture[py, px, :3].astype(np.float64))
+        colours.append(_texels(texture, np.einsum("sk,fkd->fsd", bary, T[sel]).reshape(-1, 2)))
     return np.concatenate(points), np.concatenate(colours)
 
 
