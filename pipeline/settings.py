@@ -365,17 +365,20 @@ class Settings:
 SAFE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}")
 
 
-def check_scan_name(name, source="params.yaml") -> str:
-    """``name`` if it is a safe scan name, else ScanError naming ``source`` and the name.
+def check_scan_name(name, source="params.yaml", key: str | None = "scans") -> str:
+    """``name`` if it is a safe scan name, else ScanError naming ``source`` (and ``key``, the
+    params key it is listed under; None for a folder's name) and the name.
 
     Safe: 1-128 characters from letters, digits, ``.``, ``_`` and ``-``, not starting with a
     dot (so never ``.``, ``..`` or a hidden folder). Scan names become folder names and
     command-line words in ``dvc.yaml``; anything else could reach a shell or leave the repository.
+    The rule is for the scan's own name only: the folders above it are ordinary paths.
     """
     if isinstance(name, str) and SAFE_NAME.fullmatch(name) and name not in (".", ".."):
         return name
     shown = repr(name) if isinstance(name, str) else f"{name!r} ({type(name).__name__})"
     if isinstance(name, str) and len(name) > 60:
         shown = repr(name[:57] + "...")
-    raise ScanError(source, f"scans: {shown} is not a safe scan name (use 1-128 letters, digits, "
+    where = f"{key}: " if key else ""
+    raise ScanError(source, f"{where}{shown} is not a safe scan name (use 1-128 letters, digits, "
                             "'.', '_' or '-', not starting with '.')")

@@ -75,32 +75,28 @@ def load_settings(cls, path="params.yaml", block: str | None = None):
     return cls.from_params(load_params(block, path), source=os.fspath(path), block=block)
 
 
-def check_path_words(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Defence in depth for scan names: every path given as a positional argument (or
-    ``--metrics``) consists of safe names only (pipeline.settings.check_scan_name), so a scan
-    name with shell syntax or ``..`` is refused even when the stage runs without DVC."""
-    from pipeline.settings import SAFE_NAME
-
-    dests = [a.dest for a in parser._actions if not a.option_strings] + ["metrics"]
-    for dest in dests:
-        v = getattr(args, dest, None)
-        if v is None or not isinstance(v, (str, os.PathLike)):
-            continue
-        text = os.fspath(v)
-        parts = [p for p in text.split("/") if p]
-        bad = [p for p in parts if p in (".", "..") or not SAFE_NAME.fullmatch(p)]
-        if not parts or bad:
-            what = repr(bad[0]) if bad else "an empty path"
-            raise ScanError(text, f"{what} is not a safe path component (scan names: letters, digits, "
-                                  "'.', '_' or '-', not starting with '.'; no '..')")
+def scan_folder_name(path) -> str:
+    """The scan name a stage takes from the folder ``path``: its own name (``raw_scans/<name>``,
+    ``rigged_assets/<name>``), or the resolved folder's for a path like ``.``."""
+    p = Path(path)
+    return p.name or p.resolve().name
 
 
 class StageArgumentParser(argparse.ArgumentParser):
-    """``argparse`` with :func:`check_path_words` applied to the parsed paths."""
+    """``argparse`` that checks the safe-name rule (pipeline.settings.check_scan_name) on the one
+    folder whose own name a stage takes as the scan's name (``scan_arg``), as DVC would have it
+    from ``params.yaml``'s ``scans:``: defence in depth for a stage run by hand. Every other path,
+    and every parent folder, is ordinary (spaces, dots, leading dots, non-ASCII)."""
+
+    scan_arg: str | None = None
 
     def parse_args(self, args=None, namespace=None):  # noqa: D102
+        from pipeline.settings import check_scan_name
+
         ns = super().parse_args(args, namespace)
-        check_path_words(self, ns)
+        value = getattr(ns, self.scan_arg) if self.scan_arg else None
+        if value is not None:
+            check_scan_name(scan_folder_name(value), source=os.fspath(value), key=None)
         return ns
 
 
@@ -181,9 +177,11 @@ def default_metrics_path(out_dir) -> Path:
     return out_dir.with_name(out_dir.name + ".metrics.json")
 
 
-def stage_parser(description: str) -> argparse.ArgumentParser:
-    """An argument parser with the ``--metrics PATH`` option every stage takes."""
+def stage_parser(description: str, scan_arg: str | None = None) -> argparse.ArgumentParser:
+    """An argument parser with the ``--metrics PATH`` option every stage takes; ``scan_arg`` names
+    the argument (added by the stage) of the folder whose own name is the scan's name."""
     parser = StageArgumentParser(description=description)
+    parser.scan_arg = scan_arg
     parser.add_argument("--metrics", default=None,
                         help="where to write metrics JSON (default: OUT_DIR.metrics.json)")
     parser.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")

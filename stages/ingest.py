@@ -65,7 +65,7 @@ def quiet_library_logs() -> None:
 
 
 def main(argv, bound: bool = False) -> dict:
-    parser = stage_parser(__doc__.splitlines()[0])
+    parser = stage_parser(__doc__.splitlines()[0], scan_arg="scan_dir")
     parser.add_argument("scan_dir", help="raw_scans/<name>: scan.yaml + mesh [+ texture]")
     parser.add_argument("out_dir", help="build/<name>/ingest")
     args = parser.parse_args(argv)

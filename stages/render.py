@@ -6,7 +6,8 @@
 Per image: ``NNNNNN.png`` + ``NNNNNN.json`` (label, written last = done; pipeline/io/labels_file.py);
 at the end ``index.jsonl`` (every index 0..n-1 exactly once), ``contact_sheet.png`` (landmarks
 drawn) and ``config.json`` (the hash of everything that changes images or labels). Re-running
-resumes: finished images are skipped; a config change deletes the stale images first. An asset
+resumes: finished images are skipped; a config change deletes the stale images first (only the
+render's own files: a folder that holds no earlier render is refused). An asset
 that remove_eyeballs doubted (its metadata's ``eyes.<side>.doubts``) is rendered all the same,
 with one ``warning:`` line per doubt on stderr. Images
 are rendered by persistent Blender processes, one per dask worker: a ``LocalCluster`` of
@@ -31,12 +32,16 @@ def main(argv) -> dict:
     ap.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes")
     ap.add_argument("--n-images", type=int, default=None, help="override params render.n_images")
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--dashboard", action="store_true",
+                    help="serve the LocalCluster's dask dashboard on 127.0.0.1 (a free port, printed)")
     args = ap.parse_args(argv)
 
     from pipeline.render.asset import load_render_asset
-    from pipeline.render.run import render_scan
+    from pipeline.render.run import check_render_out, render_scan
     from pipeline.render.sampling import RenderSettings
+    from pipeline.render.shard import dashboard_text
 
+    check_render_out(args.out)            # someone else's folder: refused before any work
     params = load_params("render", args.params)
     for key, value in (("n_images", args.n_images), ("workers", args.workers)):
         if value is not None:
@@ -45,8 +50,15 @@ def main(argv) -> dict:
     asset = load_render_asset(args.asset, args.rig)
     for doubt in asset.doubts():          # rendered all the same: say so where the user looks
         print(f"warning: {args.asset}: {doubt}", file=sys.stderr)
+    def dashboard(url):
+        print(dashboard_text(url), file=sys.stderr)
+
     metrics = render_scan(asset, settings, args.out, source=args.asset, scheduler=args.scheduler,
-                          progress=not args.no_progress)
+                          progress=not args.no_progress, on_dashboard=dashboard if args.dashboard else None)
+    run = metrics["_run"]
+    if run["stale_config"] and run["removed_files"]:
+        print(f"note: {args.out}: the render config changed: {run['removed_files']} files of the "
+              "earlier renders were removed", file=sys.stderr)
     return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
 
 

@@ -19,7 +19,7 @@ from stages._common import default_metrics_path, load_settings, stage_exit, stag
 
 
 def main(argv) -> dict:
-    parser = stage_parser(__doc__.splitlines()[0])
+    parser = stage_parser(__doc__.splitlines()[0], scan_arg="out_dir")
     parser.add_argument("out_dir", help="scan folder to write (replaced atomically)")
     args = parser.parse_args(argv)
     out = Path(args.out_dir)

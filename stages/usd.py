@@ -20,7 +20,8 @@ from pathlib import Path
 
 from pipeline.io.atomic import atomic_dir
 from pipeline.usd.build import build, read_inputs, render_preview
-from stages._common import default_metrics_path, load_params, load_settings, stage_exit, stage_parser
+from stages._common import (default_metrics_path, load_params, load_settings, scan_folder_name, stage_exit,
+                            stage_parser)
 
 PARAM_BLOCKS = ("ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "eyeball", "usd")
 
@@ -33,7 +34,7 @@ def _all_params(path) -> dict:
 
 
 def main(argv) -> dict:
-    parser = stage_parser(__doc__.splitlines()[0])
+    parser = stage_parser(__doc__.splitlines()[0], scan_arg="out")
     for a in ("snap", "bake", "rig", "ingest", "eyeball", "out"):
         parser.add_argument(a, type=Path)
     args = parser.parse_args(argv)
@@ -41,7 +42,7 @@ def main(argv) -> dict:
 
     settings = load_settings(UsdSettings, args.params)
     inp = read_inputs(args.snap, args.bake, args.rig, args.ingest, args.eyeball)
-    name = args.out.name
+    name = scan_folder_name(args.out)
     with atomic_dir(args.out) as tmp:
         metrics = build(inp, Path(tmp), name, _all_params(args.params),
                         package=settings.usdz)

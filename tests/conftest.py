@@ -30,8 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def extra_scans_dir() -> Path | None:
-    # absolute: the stages refuse '..' in a path (scan names never climb out of raw_scans/),
-    # and the README's command gives ../shared/scans
+    # absolute: the README's command gives ../shared/scans, and tests run stages from other folders
     value = os.environ.get("EYERIG_EXTRA_SCANS")
     return Path(value).resolve() if value else None
 
@@ -386,3 +385,13 @@ def make_render_asset(root: Path, name: str = "tiny", licence: str = "CC0-1.0 (t
     args[args.index("--params") + 1] = str(params)
     assert run_stage(usd_stage.main, args) == 0
     return {"root": root, "asset_dir": inp["out"], "rig_dir": inp["dirs"]["rig"]}
+
+
+def make_two_assets(root: Path, render: dict, licences: dict | None = None) -> dict:
+    """Two tiny assets, ``alpha`` and ``beta`` (:func:`make_render_asset`), and a ``params.yaml``
+    whose ``render:`` block is ``render``, under ``root``: the dataset command's inputs."""
+    licences = licences or {"alpha": "CC0-1.0 (test)", "beta": "CC0-1.0 (test)"}
+    made = [make_render_asset(root, name, licence=lic) for name, lic in licences.items()]
+    params = root / "params.yaml"
+    params.write_text(yaml.safe_dump({"render": render}))
+    return {"root": root, "assets": [m["asset_dir"] for m in made], "params": params}

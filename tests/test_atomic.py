@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_dir, atomic_file, write_json
 from pipeline.io.meshfile import load_mesh, save_mesh
 
@@ -37,14 +38,36 @@ def test_atomic_dir_failure_keeps_previous_output(tmp_path):
     assert _siblings(tmp_path) == ["out"]
 
 
-def test_atomic_dir_replaces_whole_folder(tmp_path):
+def test_atomic_dir_replaces_an_earlier_write_of_the_same_output(tmp_path):
     out = tmp_path / "out"
     with atomic_dir(out) as tmp:
-        (tmp / "stale.txt").write_text("1")
+        (tmp / "sub").mkdir()
+        (tmp / "sub" / "a.txt").write_text("1")
     with atomic_dir(out) as tmp:
-        (tmp / "fresh.txt").write_text("2")
-    assert _siblings(out) == ["fresh.txt"]
+        (tmp / "sub").mkdir()
+        (tmp / "sub" / "a.txt").write_text("2")
+        (tmp / "b.txt").write_text("new")
+    assert _siblings(out) == ["b.txt", "sub"] and (out / "sub" / "a.txt").read_text() == "2"
     assert _siblings(tmp_path) == ["out"]
+
+
+def test_atomic_dir_never_deletes_a_file_it_would_not_write(tmp_path):
+    """A folder holding a file the new output has no namesake for is someone's work (or an older
+    output with other files): refused, left as it was, nothing of the run left behind."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "a.txt").write_text("mine")
+    (out / "notes.txt").write_text("mine too")
+    with pytest.raises(ScanError, match=r"out: holds 'notes.txt' that this run does not write"):
+        with atomic_dir(out) as tmp:
+            (tmp / "a.txt").write_text("new")
+    assert (out / "a.txt").read_text() == "mine" and _siblings(out) == ["a.txt", "notes.txt"]
+    assert _siblings(tmp_path) == ["out"]
+    (tmp_path / "f").write_text("a file")
+    with pytest.raises(ScanError, match="f: exists and is not a folder"):
+        with atomic_dir(tmp_path / "f") as tmp:
+            pytest.fail("ran into a file's place")
+    assert (tmp_path / "f").read_text() == "a file" and _siblings(tmp_path) == ["f", "out"]
 
 
 def test_outputs_honour_umask(tmp_path):

@@ -85,21 +85,49 @@ def test_unknown_block_refused(tmp_path, capsys):
     assert "'retopology' is not a block of this pipeline" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("stage", ["ingest", "retopo", "bake", "snap", "rig", "usd", "render"])
-def test_stages_refuse_unsafe_path_words(tmp_path, capsys, monkeypatch, stage):
-    """Defence in depth: a stage run by hand (or by DVC without check_params) refuses the name."""
+#: the stages that take a scan's name from a folder's own name, and where that folder is
+SCAN_FOLDER = {"ingest": (0, 2), "usd": (5, 6), "synthetic_head": (0, 1)}
+
+
+@pytest.mark.parametrize("stage", sorted(SCAN_FOLDER))
+def test_stages_refuse_an_unsafe_scan_folder_name(tmp_path, capsys, monkeypatch, stage):
+    """Defence in depth: a stage run by hand (or by DVC without check_params) refuses a scan
+    folder whose own name is not a safe scan name, whatever the folders above it are called."""
     import importlib
 
     mod = importlib.import_module(f"stages.{stage}")
-    n_pos = {"ingest": 2, "retopo": 2, "bake": 3, "snap": 4, "rig": 2, "usd": 6, "render": 3}[stage]
-    argv = [str(tmp_path / "ok")] * (n_pos - 1) + [f"build/{EVIL}/{stage}"]
+    at, n_pos = SCAN_FOLDER[stage]
+    argv = [str(tmp_path / "ok")] * n_pos
+    argv[at] = f"My Scans/{EVIL}"
     monkeypatch.chdir(tmp_path)
     assert run_stage(mod.main, argv) == 2
     err = capsys.readouterr().err
-    assert f"{EVIL!r} is not a safe path component" in err and err.count("\n") == 1
-    assert not (tmp_path / "build").exists() and not (tmp_path / "PWNED").exists()
-    with pytest.raises(ScanError, match="'..' is not a safe path component"):
-        mod.main([str(tmp_path / "ok")] * (n_pos - 1) + ["build/../../x"])
+    assert err == f"error: My Scans/{EVIL}: {EVIL!r} is not a safe scan name (use 1-128 letters, digits, " \
+                  "'.', '_' or '-', not starting with '.')\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [] and not list(tmp_path.rglob("PWNED"))
+    for name in ("..", ".hidden", "a b"):
+        argv[at] = f"raw_scans/{name}"
+        with pytest.raises(ScanError, match=f"raw_scans/{name}: '{name}' is not a safe scan name"):
+            mod.main(argv)
+
+
+ORDINARY = ("My Scans", ".local", "out dir", "données.v2", "..", "x y")
+
+
+@pytest.mark.parametrize("stage", ["ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "usd", "render"])
+def test_stages_take_ordinary_parent_paths(tmp_path, capsys, stage):
+    """Spaces, dots, leading dots, non-ASCII and '..' in the folders above a scan folder are
+    ordinary: the stage goes on to read its (here missing) inputs. A whole run: test_paths.py."""
+    import importlib
+
+    mod = importlib.import_module(f"stages.{stage}")
+    base = tmp_path.joinpath(*ORDINARY)
+    n_pos = {"ingest": 2, "remove_eyeballs": 2, "retopo": 2, "bake": 3, "snap": 4, "rig": 2, "usd": 6,
+             "render": 3}[stage]
+    argv = [str(base / "scan" / f"in{k}") for k in range(n_pos)]
+    assert run_stage(mod.main, argv + ["--params", str(tmp_path / "none.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {base}") and "safe" not in err and err.count("\n") == 1, err
 
 
 def test_dvc_repro_with_a_malicious_scan_runs_nothing(tmp_path):

@@ -160,7 +160,7 @@ def resumed(two, tmp_path_factory):
     proc.wait()
     n_before = len(_labels(out))
     assert 2 <= n_before < 6 and not (out / "index.jsonl").exists() and not (out / "README.md").exists()
-    r = _run(cmd)
+    r = _run(cmd + ["--resume"])
     assert r.returncode == 0, r.stderr
     return {"out": out, "n_before": n_before, "stdout": r.stdout}
 
@@ -204,16 +204,25 @@ def test_resumed_dataset_has_every_index_exactly_once(two, resumed):
 
 
 @pytest.mark.blender
-def test_changed_weights_rerender_only_the_images_whose_asset_changed(two, resumed, tmp_path):
+def test_changed_weights_need_overwrite_and_rerender_only_the_images_whose_asset_changed(two, resumed, tmp_path):
     out = tmp_path / "ds"
     shutil.copytree(resumed["out"], out)
     old, new = mix.assign(6, [2, 1], seed=0), mix.assign(5, [1, 1], seed=0)
     changed = int(np.count_nonzero(old[:5] != new))
     keep = {f"{i:06d}.png": (out / f"{i:06d}.png").read_bytes() for i in range(5) if old[i] == new[i]}
-    r = _run(_cmd(two, out, "--weights", "1", "1", n=5))
+    (out / "notes.txt").write_text("the user's own")
+    r = _run(_cmd(two, out, "--weights", "1", "1", n=5))                  # another plan: refused
+    assert r.returncode == 2 and r.stderr.startswith(f"error: {out}: holds a dataset of another plan (n 6 -> 5; "
+                                                     "weights [2.0, 1.0] -> [1.0, 1.0]): --overwrite replaces it")
+    # --overwrite: 4 files per image that goes (index 5 and the changed ones), the index, sheet and card
+    gone = 4 * (changed + 1) + 5
+    r = _run(_cmd(two, out, "--weights", "1", "1", "--overwrite", n=5))
     assert r.returncode == 0, r.stderr
+    assert r.stderr == f"note: --overwrite: {gone} files of the earlier dataset in {out} go (n 6 -> 5; " \
+                       "weights [2.0, 1.0] -> [1.0, 1.0])\n"
     t = json.loads((out / "timings.json").read_text())
     assert t["rendered"] == changed and t["skipped_done"] == 5 - changed and t["stale_images"] == changed
+    assert t["removed_files"] == gone and (out / "notes.txt").read_text() == "the user's own"
     assert [r["asset_id"] for r in read_index(out / "index.jsonl")] == new.tolist()
     assert not (out / "000005.json").exists()
     assert all((out / k).read_bytes() == v for k, v in keep.items())

@@ -117,25 +117,54 @@ def _remove(path: Path) -> None:
             path.unlink()
 
 
+def _files(root: Path) -> set[str]:
+    """Relative paths of the files (and links) under ``root``, not following links."""
+    out = set()
+    for dirpath, dirs, files in os.walk(root):
+        rel = Path(dirpath).relative_to(root)
+        out.update((rel / f).as_posix() for f in files)
+        out.update((rel / d).as_posix() for d in dirs if Path(dirpath, d).is_symlink())
+    return out
+
+
+def foreign_files(old, new) -> list[str]:
+    """Files under the folder ``old`` that the folder ``new`` has no file of the same path for
+    (sorted relative paths): what replacing ``old`` with ``new`` would delete that an earlier
+    write of the same output would not have held."""
+    return sorted(_files(Path(old)) - _files(Path(new)))
+
+
 @contextlib.contextmanager
 def atomic_dir(path) -> Iterator[Path]:
     """Build a folder in a temporary sibling and rename it to ``path`` on success.
 
-    An existing ``path`` is replaced only after the new folder is complete. On any
-    exception the temporary folder is removed and ``path`` is left as it was.
+    An existing ``path`` is replaced only after the new folder is complete, and only when every
+    file in it has a namesake in the new folder (an earlier write of this output): a folder that
+    holds anything else (:func:`foreign_files`), or a file at ``path``, is someone else's work
+    and is refused with a ScanError. On any exception the temporary folder is removed and
+    ``path`` is left as it was.
 
     Yields
     ------
     pathlib.Path
         The temporary folder to write into.
     """
+    from pipeline.errors import ScanError
+
     path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ScanError(path, "exists and is not a folder: it was left as it was")
     tmp = _tmp_sibling(path, directory=True)
     key = os.path.abspath(tmp)
     _OPEN_DIRS.add(key)
     try:
         yield tmp
         _OPEN_DIRS.discard(key)
+        foreign = foreign_files(path, tmp) if path.is_dir() and not path.is_symlink() else []
+        if foreign:
+            more = f" and {len(foreign) - 1} more file(s)" if len(foreign) > 1 else ""
+            raise ScanError(path, f"holds {foreign[0]!r}{more} that this run does not write: move them or "
+                                  "choose another folder (it was left as it was)")
         _fsync_tree(tmp)
         if path.exists() or path.is_symlink():
             old = _tmp_sibling(path, directory=True)

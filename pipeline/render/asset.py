@@ -42,7 +42,7 @@ N_LANDMARKS = N_EYELID + N_IRIS + N_PUPIL
 #: planning (which asset an index shows is checked per image by the dataset run) and the other
 #: Blender workers (previews, USD round trip). Editing them must not invalidate renders, and the
 #: render stage's DVC deps (its import closure) do not list them either.
-NOT_RENDERER = frozenset({"dataset.py", "mix.py", "card.py",
+NOT_RENDERER = frozenset({"dataset.py", "mix.py", "card.py", "plan.py",
                           "asset_preview.py", "eyeball_preview.py", "usd_roundtrip.py"})
 
 

@@ -2,7 +2,8 @@
 
     python -m pipeline.render.dataset --assets rigged_assets/* --n 10000 --preset generic --out DIR \\
         [--weights 2 1 1] [--rigs build/a/rig ...] [--seed S] [--params params.yaml] \\
-        [--set KEY=VALUE ...] [--workers N] [--scheduler ADDRESS] [--no-progress]
+        [--set KEY=VALUE ...] [--workers N] [--scheduler ADDRESS] [--no-progress] [--dashboard] \\
+        [--overwrite | --resume]
 
 Image ``i`` (global index ``0..n-1``) shows asset ``assign(n, weights, seed)[i]``
 (pipeline/render/mix.py: exact counts by largest remainder, interleaved by the seed) and is
@@ -18,17 +19,21 @@ hashes a resumed run compares); at the end ``index.jsonl`` (every index once, wi
 ``contact_sheet.png``, ``dataset.json`` (the machine-readable description), ``README.md`` (the
 dataset card, pipeline/render/card.py) and ``timings.json`` (what the last run measured).
 
-Resuming: a re-run skips finished images. An image is kept only when the new plan gives its
-index the same asset with the same config hash (render settings, asset files and renderer
-source, :func:`pipeline.render.run.config_hash`) as the plan it was rendered under; every
-other image is deleted first, so a changed ``--n``, weight or asset re-renders only the
-images whose asset changed. Settings come from the ``render:`` block of ``--params``
-(image size, samples, ranges, label formats, workers, ...); ``--set KEY=VALUE``, ``--n``,
-``--preset`` and ``--seed`` override it.
+The folder (pipeline/render/plan.py): a re-run of the same plan (the number of images, seed,
+assets, weights, render settings and each asset's config hash: render settings, asset files and
+renderer source, :func:`pipeline.render.run.config_hash`) continues it, skipping finished images;
+``--resume`` does only that. A dataset of another plan is refused with one line naming what
+differs, unless ``--overwrite``: then the command says how many files go, keeps every image
+whose index the new plan gives the same asset under the same config hash and deletes the other
+images first, so a changed ``--n``, weight or asset re-renders only the images whose asset
+changed. Only the files a render writes are ever deleted; a folder that is neither new, empty
+nor a dataset is refused, ``--overwrite`` or not. Settings come from the ``render:`` block of
+``--params`` (image size, samples, ranges, label formats, workers, ...); ``--set KEY=VALUE``,
+``--n``, ``--preset`` and ``--seed`` override it.
 
 Bad input (a missing or invalid asset or rig, ``--n`` out of range, a weight count that does
-not match, an output folder that is not a dataset) ends with one line and exit 2 before
-anything is written.
+not match, an output folder that is not a dataset or holds another plan) ends with one line
+and exit 2 before anything is written.
 """
 
 from __future__ import annotations
@@ -50,10 +55,11 @@ from pipeline.io.atomic import write_json, write_text
 from pipeline.io.labels_file import SCHEMA as LABEL_SCHEMA
 from pipeline.io.labels_file import label_name, read_index, read_label
 from pipeline.render import mix
+from pipeline.render import plan as pl
 from pipeline.render import run as rr
+from pipeline.render.plan import SCHEMA, check_out
 
-SCHEMA = 1
-INFO, CARD, TIMINGS = "dataset.json", "README.md", "timings.json"
+INFO, CARD, TIMINGS = pl.OWN_FILES
 #: ``rigged_assets/eyeball`` holds the eyeball every asset references, not a head: skipped.
 SHARED_EYEBALL = "eyeball"
 #: What each per-image file holds (by its name with the index as NNNNNN); a file of another
@@ -160,60 +166,30 @@ def load_assets(pairs, weights, settings) -> list[DatasetAsset]:
     return out
 
 
-def _plan_doc(assets, n: int, settings) -> dict:
-    return {"schema": SCHEMA, "n": int(n), "seed": int(settings.seed),
-            "assets": [{"name": a.name, "weight": a.weight, "config_hash": a.config_hash,
-                        "asset": os.path.relpath(a.asset.usda), "rig": os.path.relpath(a.asset.rig_npz)}
-                       for a in assets]}
+def prepare_dataset(out: Path, assets, assign: np.ndarray, settings, overwrite: bool = False,
+                    resume: bool = False) -> dict:
+    """Clean ``out`` for the plan (see the module docstring) and write its ``config.json``.
 
-
-def _old_plan(doc) -> tuple[list[str], np.ndarray] | None:
-    """``(asset keys, asset position of every index)`` of an earlier run's plan; None when unusable."""
-    try:
-        ds = doc["dataset"]
-        keys = [f"{a['name']}\0{a['config_hash']}" for a in ds["assets"]]
-        return keys, mix.assign(int(ds["n"]), [float(a["weight"]) for a in ds["assets"]], int(ds["seed"]))
-    except (KeyError, TypeError, ValueError, IndexError):
-        return None
-
-
-def check_out(out: Path) -> None:
-    """``out`` is new, empty, or an earlier dataset (its ``config.json`` names a dataset plan)."""
-    if out.exists() and not out.is_dir():
-        raise ScanError(out, "exists and is not a folder")
-    if not out.is_dir():
-        return
-    if any(not p.name.startswith(".") for p in out.iterdir()) and "dataset" not in (rr.read_config(out) or {}):
-        raise ScanError(out, "exists, is not empty and is not a dataset folder (no dataset config.json): "
-                             "use a new or empty folder")
-
-
-def prepare_dataset(out: Path, assets, assign: np.ndarray, settings) -> dict:
-    """Clean ``out`` for the plan (see the module docstring) and write its ``config.json``."""
+    Raises
+    ------
+    ScanError  ``out`` is not a dataset folder, holds another plan without ``overwrite``, or holds
+               no dataset or another plan with ``resume`` (:func:`pipeline.render.plan.refusal`).
+    """
     n = len(assign)
-    plan = _plan_doc(assets, n, settings)
+    fp = pl.inspect_dataset(out, assets, assign, settings)
+    err = pl.refusal(out, fp, overwrite=overwrite, resume=resume)
+    if err is not None:
+        raise err
+    plan = pl.plan_doc(assets, n, settings)
     chash = hashlib.sha256(json.dumps({"settings": settings.hashed(), "plan": plan},
                                       sort_keys=True).encode()).hexdigest()
-    old_cfg = rr.read_config(out) if out.is_dir() else None
-    old = _old_plan(old_cfg) if old_cfg else None
-    stale = 0
-    keep_hash = chash                  # no usable old plan: prepare_out drops every image
-    if old is not None:
-        keep_hash = old_cfg.get("config_hash")
-        old_keys, old_assign = old
-        new_keys = [f"{a.name}\0{a.config_hash}" for a in assets]
-        gone = set()
-        for i, p in list(rr.image_files(out)):     # every file of an image, in every label format
-            if i < n and (i >= len(old_assign) or old_keys[old_assign[i]] != new_keys[assign[i]]):
-                p.unlink()
-                gone.add(i)
-        stale = len(gone)
-    prep = rr.prepare_out(out, keep_hash, n)        # extra indices, unfinished images, .tmp
-    for name in (CARD, INFO, TIMINGS):
-        (out / name).unlink(missing_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+    for p in fp.remove:
+        p.unlink(missing_ok=True)
+    shutil.rmtree(out / ".tmp", ignore_errors=True)
     write_json(out / rr.CONFIG, {"config_hash": chash, "dataset": plan, "settings": settings.hashed()})
-    return {"stale_images": stale, "removed_files": prep["removed_files"],
-            "stale_config": bool(prep["stale_config"])}
+    (out / ".tmp").mkdir()              # after config.json: a folder holding only .tmp is not ours
+    return {"stale_images": fp.stale_images, "removed_files": len(fp.remove), "stale_config": fp.state == "other"}
 
 
 def _tagged(shards, a: DatasetAsset):
@@ -288,7 +264,8 @@ def _check_index(out: Path, assets, assign: np.ndarray) -> np.ndarray:
     return np.bincount(assign, minlength=len(assets))
 
 
-def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, progress: bool = True) -> dict:
+def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, progress: bool = True,
+                   overwrite: bool = False, resume: bool = False, on_dashboard=None) -> dict:
     """Render (resuming) the ``n``-image dataset of ``assets`` into ``out``; returns the run's measures.
 
     Parameters
@@ -298,19 +275,23 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
     n : int                          images in the dataset
     out : path                       the dataset folder (new, empty or an earlier dataset)
     scheduler : str, optional        a dask scheduler address (default: a LocalCluster)
+    overwrite : bool                 replace a dataset of another plan (its images the new plan
+                                     shares are kept); without it such a folder is refused
+    resume : bool                    only continue a dataset of this plan
+    on_dashboard : callable, optional  serve a LocalCluster's dashboard (127.0.0.1), called with its URL
 
     Raises
     ------
-    ScanError  an image failed, a sample could not be drawn, the scheduler is unreachable.
+    ScanError  ``out`` refused (:func:`prepare_dataset`), an image failed, a sample could not be
+               drawn, the scheduler is unreachable.
     """
     from pipeline.render import shard as sh
     from pipeline.render.card import dataset_card
 
     t0 = time.perf_counter()
     out = Path(out)
-    check_out(out)
     assign = mix.assign(n, [a.weight for a in assets], settings.seed)
-    prep = prepare_dataset(out, assets, assign, settings)
+    prep = prepare_dataset(out, assets, assign, settings, overwrite=overwrite, resume=resume)
     how = rr.run_options(settings, out, scheduler)
     res = rr.Results()
     stats = {"sampling_s": 0.0, "shards": 0}
@@ -325,7 +306,7 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
         run = sh.run_shards(shards, a.asset.usda, a.asset.rig_npz, out.resolve(), how["opts"],
                             workers=how["workers"], scheduler=how["scheduler"],
                             progress=progress and settings.progress, connect_timeout_s=settings.connect_timeout_s,
-                            total=len(pending), on_result=res)
+                            total=len(pending), on_result=res, on_dashboard=on_dashboard)
         dt = time.perf_counter() - t1 - (stats["sampling_s"] - s0)
         t_render += dt
         starts += int(sum(v.get("starts", 0) for v in run["blender"].values()))
@@ -414,9 +395,16 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes")
     ap.add_argument("--scheduler", default=None, help="dask scheduler address (default: a LocalCluster)")
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--dashboard", action="store_true",
+                    help="serve the LocalCluster's dask dashboard on 127.0.0.1 (a free port, printed)")
+    how = ap.add_mutually_exclusive_group()
+    how.add_argument("--overwrite", action="store_true",
+                     help="replace a dataset of another plan in --out (its images the new plan shares are kept)")
+    how.add_argument("--resume", action="store_true", help="only continue the dataset of this plan in --out")
     args = ap.parse_args(argv)
 
     from pipeline.io.scratch import stage_scratch
+    from pipeline.render import shard as sh
 
     try:
         settings = _settings(args)
@@ -428,9 +416,25 @@ def main(argv=None) -> int:
         for a in assets:                      # rendered all the same; the card lists them too
             for d in a.doubts():
                 print(f"warning: {a.folder}: {d}", file=sys.stderr)
+        assign = mix.assign(args.n, [a.weight for a in assets], settings.seed)
+        fp = pl.inspect_dataset(args.out, assets, assign, settings)
+        err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
+        if err is not None:
+            raise err
+        if args.overwrite and fp.state == "new":
+            print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
+        elif args.overwrite:
+            what = "; ".join(fp.differences) or "the same plan"
+            print(f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {args.out} go ({what})",
+                  file=sys.stderr)
+
+        def dashboard(url):
+            print(sh.dashboard_text(url), file=sys.stderr)
+
         with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
             m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
-                               progress=not args.no_progress)
+                               progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume,
+                               on_dashboard=dashboard if args.dashboard else None)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

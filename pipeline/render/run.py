@@ -1,8 +1,9 @@
 """The render stage's work: one resumable, sharded render of a scan's asset into its folder.
 
-:func:`render_scan` prepares the output folder (:func:`prepare_out`: a changed config
-deletes the stale images, unfinished ones are dropped), writes ``config.json``, samples the
-pending images a window at a time into shards of one HDRI each (:func:`pending_shards`),
+:func:`render_scan` checks the output folder is new, empty or an earlier render
+(:func:`check_render_out`: someone else's folder is refused), prepares it (:func:`prepare_out`:
+a changed config deletes the stale images, unfinished ones are dropped), writes ``config.json``,
+samples the pending images a window at a time into shards of one HDRI each (:func:`pending_shards`),
 renders them through dask (pipeline/render/shard.py), then writes ``index.jsonl`` and the
 contact sheet from the labels (pipeline/io/labels_file.py) and returns the metrics.
 
@@ -96,25 +97,82 @@ def image_files(out: Path):
                 yield int(stem), p
 
 
+#: Files a run rebuilds from the labels at its end (removed first, so a killed run leaves none stale).
+DERIVED_FILES = ("index.jsonl", "contact_sheet.png")
+
+
+def folder_state(out: Path) -> str:
+    """What ``out`` is to a render: ``"new"`` (absent, or holding nothing but hidden entries other
+    than ``.tmp``), ``"render"`` or ``"dataset"`` (its ``config.json`` is a render stage's or a
+    dataset command's), ``"file"`` (not a folder) or ``"other"`` (someone else's folder).
+
+    Only a ``"render"`` or ``"dataset"`` folder is ever cleaned, and then only of the files a
+    render writes (:func:`doomed_files`): every other file in it stays."""
+    out = Path(out)
+    if not out.exists():
+        return "file" if out.is_symlink() else "new"
+    if not out.is_dir():
+        return "file"
+    cfg = read_config(out)
+    if cfg is not None and isinstance(cfg.get("config_hash"), str):
+        return "dataset" if "dataset" in cfg else "render"
+    # hidden files (.DS_Store, a killed write's temp sibling) do not make a folder someone's work;
+    # a .tmp does: a render would empty it
+    if all(e.name.startswith(".") and e.name != ".tmp" for e in os.scandir(out)):
+        return "new"
+    return "other"
+
+
+#: Why a folder in each state is refused, by the kind of folder a command writes.
+_REFUSED = {
+    "render": {"dataset": "holds a dataset of python -m pipeline.render.dataset, not a scan's renders: "
+                          "use another folder",
+               "other": "exists, is not empty and holds no renders (no render config.json): "
+                        "use a new or empty folder"},
+    "dataset": {"render": "holds a scan's renders (the render stage's), not a dataset: use another folder",
+                "other": "exists, is not empty and is not a dataset folder (no dataset config.json): "
+                         "use a new or empty folder"},
+}
+
+
+def check_out_folder(out: Path, kind: str) -> None:
+    """``out`` is new, empty or an earlier folder of ``kind`` (``"render"``: the render stage's,
+    ``"dataset"``); else a ScanError saying why, and nothing in it is touched."""
+    state = folder_state(out)
+    if state == "file":
+        raise ScanError(out, "exists and is not a folder")
+    why = _REFUSED[kind].get(state)
+    if why is not None:
+        raise ScanError(out, f"{why} (nothing was changed)")
+
+
+def check_render_out(out: Path) -> None:
+    """:func:`check_out_folder` for the render stage."""
+    check_out_folder(out, "render")
+
+
+def doomed_files(out: Path, keep) -> list[Path]:
+    """The files a run into the render folder ``out`` removes before rendering: every file of image
+    ``i`` unless ``keep(i)`` and its label exists (an image without its label is unfinished), and
+    :data:`DERIVED_FILES`. Only names a render writes; nothing else in ``out``."""
+    out = Path(out)
+    files = list(image_files(out)) if out.is_dir() else []
+    gone = [p for i, p in files if not (keep(i) and (out / label_name(i)).is_file())]
+    return gone + [out / n for n in DERIVED_FILES if (out / n).is_file()]
+
+
 def prepare_out(out: Path, chash: str, n_images: int) -> dict:
-    """Create/clean the output folder: stale images of another config, extra indices, temp files."""
+    """Clean the render folder ``out`` for a run of config ``chash`` (:func:`doomed_files`: images of
+    another config, extra indices, unfinished images; the scratch folder ``.tmp``). The caller
+    checked ``out`` (:func:`check_render_out`) and writes ``config.json``, then ``.tmp``."""
     out.mkdir(parents=True, exist_ok=True)
     old = (read_config(out) or {}).get("config_hash")
-    removed = 0
     stale = old != chash
-    for i, p in list(image_files(out)):
-        if stale or i >= n_images:
-            p.unlink()
-            removed += 1
-    for name in ("index.jsonl", "contact_sheet.png"):
-        (out / name).unlink(missing_ok=True)
+    gone = doomed_files(out, lambda i: not stale and i < n_images)
+    for p in gone:
+        p.unlink(missing_ok=True)
     shutil.rmtree(out / ".tmp", ignore_errors=True)
-    (out / ".tmp").mkdir()
-    for i, p in list(image_files(out)):              # files of an image without its label: unfinished
-        label = out / f"{i:06d}.json"
-        if p != label and not label.is_file():
-            p.unlink()
-    return {"stale_config": bool(stale and old is not None), "removed_files": removed}
+    return {"stale_config": bool(stale and old is not None), "removed_files": len(gone)}
 
 
 def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict, source):
@@ -210,7 +268,8 @@ def index_and_sheet(out: Path, n: int, n_sheet: int) -> dict:
             "contact_sheet_px": list(sheet_px) if sheet_px else None}
 
 
-def render_scan(asset, settings, out, source, scheduler: str | None = None, progress: bool = True) -> dict:
+def render_scan(asset, settings, out, source, scheduler: str | None = None, progress: bool = True,
+                on_dashboard=None) -> dict:
     """Render ``settings.n_images`` labelled images of ``asset`` into ``out`` (resuming).
 
     Parameters
@@ -223,6 +282,8 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
         A dask scheduler address (default: ``settings.scheduler``, else a LocalCluster of
         ``settings.workers`` or :func:`auto_workers` Blender processes).
     progress : bool       show a progress bar (and ``settings.progress``)
+    on_dashboard : callable, optional
+        Serve a LocalCluster's dask dashboard (on 127.0.0.1) and call this with its URL.
 
     Returns
     -------
@@ -239,11 +300,13 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
     how = run_options(settings, out, scheduler)
     workers, scheduler, threads, opts = how["workers"], how["scheduler"], how["threads"], how["opts"]
     chash = config_hash(settings, asset.fingerprint())
+    check_render_out(out)
     prep = prepare_out(out, chash, settings.n_images)
     # the asset as a path from the working directory (the repository under DVC): an absolute
     # path would make config.json, and so dvc.lock, depend on where the clone lives
     write_json(out / CONFIG, {"config_hash": chash, "scan": asset.name,
                               "asset": os.path.relpath(asset.usda), "settings": settings.hashed()})
+    (out / ".tmp").mkdir()              # after config.json: a folder holding only .tmp is not ours
 
     n = settings.n_images
     n_pending = sum(1 for i in range(n) if not sh.done(out, i))
@@ -256,7 +319,8 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
     if n_pending:
         run = sh.run_shards(shards, asset.usda, asset.rig_npz, out.resolve(), opts, workers=workers,
                             scheduler=scheduler, progress=progress and settings.progress,
-                            connect_timeout_s=settings.connect_timeout_s, total=n_pending, on_result=res)
+                            connect_timeout_s=settings.connect_timeout_s, total=n_pending, on_result=res,
+                            on_dashboard=on_dashboard)
     t_render = time.perf_counter() - t1 - stats["sampling_s"]
     if res.failed:
         f = res.first_failure

@@ -312,7 +312,15 @@ def _finish(out: Path, i: int, spec: dict, label: dict, extra, formats, reply: d
 LOW_LEVEL_LOG_LENGTH = 32
 
 
-def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0):
+#: Where a LocalCluster listens: loopback only. A dask scheduler runs whatever pickled function it
+#: is sent, so one reachable from the network runs code as the user.
+LOOPBACK = "127.0.0.1"
+
+
+def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0, dashboard: bool = False):
+    """``(client, cluster)``: a Client of the cluster at ``scheduler``, else of a new LocalCluster
+    (``cluster``, None for a given scheduler) whose every server listens on 127.0.0.1 only, each on
+    a free port (concurrent runs never collide), with the dashboard only when ``dashboard``."""
     import logging
 
     import dask
@@ -328,19 +336,55 @@ def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0
     # One worker runs in this process (a thread): no nanny and worker processes to start and
     # import dask in (~2 CPU-s), no pickling of every shard; its Blender is still a subprocess.
     # Several workers get processes: the Blender cache (_BLENDER) is per process.
-    cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=int(workers) > 1,
-                           dashboard_address=None, memory_limit=0, silence_logs=logging.ERROR)
+    # Every dask server also starts an HTTP server (health and metrics routes, and the dashboard
+    # when asked): given no address it binds every interface for an in-process (inproc) cluster
+    # and tries port 8787 (a second run warns), so each is given 127.0.0.1 and a free port. (The
+    # in-process cluster talks inproc, which a host would turn into tcp that fails to start.)
+    http = f"{LOOPBACK}:0"
+    processes = int(workers) > 1
+    # a scheduler asked for a dashboard without bokeh appends a route to this config list in
+    # place, which would serve that page from every later scheduler of the process: a copy each
+    routes = list(dask.config.get("distributed.scheduler.http.routes"))
+    with dask.config.set({"distributed.scheduler.http.routes": routes}):
+        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=processes,
+                               host=LOOPBACK if processes else None, dashboard_address=http,
+                               scheduler_kwargs={"dashboard": bool(dashboard)},
+                               worker_class=None if processes else _loopback_worker_class(),
+                               memory_limit=0, silence_logs=logging.ERROR)
     return Client(cluster), cluster
+
+
+def dashboard_text(url: str) -> str:
+    """The one line a command prints for the dashboard at ``url``."""
+    import importlib.util
+
+    need = "" if importlib.util.find_spec("bokeh") else " (install bokeh to see it; without it the page says so)"
+    return f"note: dask dashboard (this machine only): {url}{need}"
+
+
+def _loopback_worker_class():
+    from dask.distributed import Worker
+
+    class LoopbackWorker(Worker):
+        """The in-process worker with its HTTP server on 127.0.0.1 and no dashboard (LocalCluster
+        passes ``dashboard_address=None``, which binds every interface for an inproc worker)."""
+
+        def __init__(self, *args, **kwargs):
+            kwargs.update(dashboard_address=f"{LOOPBACK}:0", dashboard=False)
+            super().__init__(*args, **kwargs)
+
+    return LoopbackWorker
 
 
 def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, scheduler: str | None = None,
                progress: bool = True, connect_timeout_s: float = 10.0, total: int | None = None,
-               on_result=None, max_in_flight: int | None = None) -> dict:
+               on_result=None, max_in_flight: int | None = None, on_dashboard=None) -> dict:
     """Render every shard (an iterable of lists of ``(spec, label)``, consumed lazily: at most
     ``max_in_flight`` shards, default 2 per worker + 2, are sampled and submitted ahead).
 
     ``on_result(result)`` is called for each image's result as it arrives; without it the
-    results are collected in the returned ``"results"`` list.
+    results are collected in the returned ``"results"`` list. Given ``on_dashboard``, a
+    LocalCluster serves the dask dashboard (on 127.0.0.1) and ``on_dashboard(url)`` is called.
 
     Returns
     -------
@@ -356,8 +400,10 @@ def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, schedu
     first = next(shards, None)
     if first is None:
         return {"results": results, "workers": 0, "blender": {}}
-    client, cluster = _client(workers, scheduler, connect_timeout_s)
+    client, cluster = _client(workers, scheduler, connect_timeout_s, dashboard=on_dashboard is not None)
     try:
+        if cluster is not None and on_dashboard is not None:
+            on_dashboard(f"http://{LOOPBACK}:{cluster.scheduler.http_server.port}/status")
         n_workers = len(client.scheduler_info().get("workers", {}))
         limit = max_in_flight or 2 * max(1, n_workers or int(workers)) + 2
         bar = tqdm(total=total, unit="img", desc="render", disable=not progress or total == 0,
