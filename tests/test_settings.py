@@ -226,3 +226,15 @@ def test_every_block_takes_its_limits_and_refuses_past_them_in_one_line(block):
         check_params({block: _nested(key, value)})        # the stage that runs first agrees
         taken += 1
     assert taken >= sum(ok for _, _, ok in cases) // 2, f"{block}: most limits collide with other defaults"
+
+
+def test_library_defaults_are_the_settings_defaults():
+    """One definition per default: the ingest block's are the readers' limits and the repair's."""
+    from pipeline.geometry.ingest import IngestSettings
+    from pipeline.geometry.repair import RepairSettings
+    from pipeline.io.formats.common import Limits
+    from pipeline.io.scan import DEFAULT_MAX_YAML_BYTES
+
+    s = IngestSettings()
+    assert s.limits == Limits() and s.repair == RepairSettings() and s.max_yaml_bytes == DEFAULT_MAX_YAML_BYTES
+    assert IngestSettings.from_params({"max_file_mb": 1}).limits.max_file_bytes == 2**20
