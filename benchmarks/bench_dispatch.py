@@ -17,6 +17,8 @@ Settings (numpy 1.26 names; a feature the CPU lacks is ignored):
 * ``npy_sse3``: everything above the x86-64 baseline off (SSE3 kernels only).
 * ``blas_haswell`` / ``blas_prescott``: ``OPENBLAS_CORETYPE`` (numpy's and scipy's OpenBLAS
   both read it): AVX2 kernels, and SSE3 kernels of 2004.
+* ``libm_no_fma``: glibc's non-FMA libm (a CPU without FMA) and one OpenBLAS thread (a
+  one-core machine).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ SETTINGS = {
     "npy_sse3": {"NPY_DISABLE_CPU_FEATURES": f"{_AVX512} AVX2 FMA3 F16C AVX SSE42 POPCNT SSE41 SSSE3"},
     "blas_haswell": {"OPENBLAS_CORETYPE": "Haswell"},
     "blas_prescott": {"OPENBLAS_CORETYPE": "Prescott"},
+    "libm_no_fma": {"GLIBC_TUNABLES": "glibc.cpu.hwcaps=-FMA,-AVX2", "OPENBLAS_NUM_THREADS": "1"},
 }
 OUTPUTS = ("raw_scans/synthetic_head", "build", "rigged_assets", "renders")
 
@@ -58,7 +61,8 @@ def run_setting(name: str, env_extra: dict, work: Path) -> dict:
     clone = work / name
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
     (clone / ".venv").symlink_to((ROOT / ".venv").resolve())
-    env = {k: v for k, v in os.environ.items() if k not in ("NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE")}
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "GLIBC_TUNABLES")}
     env.update(env_extra)
     env["PATH"] = f"{clone / '.venv' / 'bin'}{os.pathsep}{env.get('PATH', '')}"
     env.pop("PYTHONPATH", None)
