@@ -378,12 +378,15 @@ def _scalar(tp):
     return None
 
 
-def _edge(tp, bound, inward: int):
-    """The value just inside (``inward = +1`` above a lower bound, -1 below an upper bound) or
-    just outside a bound: the neighbouring integer or float."""
+def _step(tp, x, direction: int):
+    """``x`` (direction 0) or its neighbouring integer / float above (+1) or below (-1)."""
     if tp is int:
-        return int(bound) + inward if inward else int(bound)
-    return math.nextafter(float(bound), math.inf if inward > 0 else -math.inf) if inward else float(bound)
+        return int(x) + direction
+    return math.nextafter(float(x), math.copysign(math.inf, direction)) if direction else float(x)
+
+
+#: bound kind -> (direction of the last accepted value, of the first refused one) from the bound
+_EDGES = {"ge": (0, -1), "gt": (1, 0), "le": (0, 1), "lt": (-1, 0)}
 
 
 def boundaries(cls, prefix: tuple = ()) -> list[tuple[tuple, object, bool]]:
@@ -415,13 +418,11 @@ def boundaries(cls, prefix: tuple = ()) -> list[tuple[tuple, object, bool]]:
             return x if width is None else [x] * width
 
         if num is not None:
-            for op, inward in (("ge", 0), ("gt", 1), ("le", 0), ("lt", -1)):
+            for op, (inside, outside) in _EDGES.items():
                 b = meta.get(op)
-                if b is None:
-                    continue
-                out.append((key, shaped(_edge(num, b, inward)), True))
-                outward = -1 if op in ("ge", "gt") else 1
-                out.append((key, shaped(_edge(num, b, outward if op in ("ge", "le") else 0)), False))
+                if b is not None:
+                    out += [(key, shaped(_step(num, b, inside)), True),
+                            (key, shaped(_step(num, b, outside)), False)]
             if num is float:
                 out += [(key, shaped(math.nan), False), (key, shaped(math.inf), False)]
         if tp is bool:
