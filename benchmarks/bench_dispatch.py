@@ -56,10 +56,11 @@ def output_hashes(clone: Path) -> dict[str, str]:
     return out
 
 
-def run_setting(name: str, env_extra: dict, work: Path) -> dict:
-    """Clone HEAD into ``work/name``, ``dvc repro`` there under ``env_extra``; hashes and status."""
+def run_setting(name: str, env_extra: dict, work: Path, commit: str) -> dict:
+    """Clone ``commit`` into ``work/name``, ``dvc repro`` there under ``env_extra``; hashes and status."""
     clone = work / name
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
+    subprocess.run(["git", "checkout", "-q", "-B", "bench", commit], cwd=clone, check=True)
     (clone / ".venv").symlink_to((ROOT / ".venv").resolve())
     env = {k: v for k, v in os.environ.items()
            if k not in ("NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "GLIBC_TUNABLES")}
@@ -130,7 +131,7 @@ def main(argv=None) -> int:
         work.mkdir(parents=True, exist_ok=True)
         runs = {}
         for n in names:
-            runs[n] = run_setting(n, SETTINGS[n], work)
+            runs[n] = run_setting(n, SETTINGS[n], work, head)
             print(f"{n}: {len(runs[n]['hashes'])} files, {runs[n]['wall_s']} s, "
                   f"git status {'clean' if not runs[n]['git_status'] else runs[n]['git_status']}", file=sys.stderr)
     diff = compare(runs)
