@@ -24,8 +24,9 @@ environment is read only when a process starts, so :func:`pin_process` sets it a
 program again in place (``os.execve``, same process id) when it differs; child processes (the
 Blender workers, Dask workers) inherit it. ``python -m stages.<stage>`` and ``python -m
 pipeline.<module>`` do this on their own (``pipeline/__init__.py``); importing the package from
-other code changes nothing. The measured cost is within run-to-run noise (the synthetic head
-takes the same CPU time either way; the chain's BLAS work is small matrices).
+other code changes nothing. Cost, measured on the 2-core machine: the whole chain took 95-106 CPU
+seconds pinned (three runs) and 96 s on the CPU's own kernels; the render stage 19-22 s against
+17 s, the other stages within run-to-run noise (the chain's BLAS work is small matrices).
 
 ``EYERIG_NATIVE_KERNELS=1`` opts out: the CPU's own kernels, faster on big BLAS work, with
 bytes that may differ between machines. Other architectures run as they are (the names below
