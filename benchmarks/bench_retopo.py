@@ -38,7 +38,8 @@ def prepare_input(triangles: int, seed: int = 7) -> tuple[Path, dict]:
         from pipeline.synthetic_head import make_synthetic_head, write_scan_folder
 
         (cache / "raw").mkdir(parents=True, exist_ok=True)
-        write_scan_folder(make_synthetic_head(seed=seed, target_triangles=triangles), cache / "raw")
+        write_scan_folder(make_synthetic_head(seed=seed, target_triangles=triangles, noise_mm=0.0,
+                                              texture_size=1024), cache / "raw")
         for stage, args in (("ingest", [cache / "raw", cache / "ingest"]),
                             ("remove_eyeballs", [cache / "ingest", cache / "remove_eyeballs"])):
             t0 = time.perf_counter()

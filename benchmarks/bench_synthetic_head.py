@@ -34,7 +34,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--texture-size", type=int, default=1024)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "synthetic_head.json"))
     args = ap.parse_args(argv)
-    make_synthetic_head(target_triangles=2_000, texture_size=32)   # warm up imports
+    make_synthetic_head(target_triangles=2_000, texture_size=32, noise_mm=0.0)   # warm up imports
     rows = []
     cases = [(100_000, args.texture_size), (350_000, args.texture_size), (350_000, 2048),
              (1_400_000, args.texture_size)]
@@ -43,7 +43,7 @@ def main(argv=None) -> dict:
         for _ in range(args.repeats):
             head = None
             t0 = time.perf_counter()
-            head = make_synthetic_head(seed=7, target_triangles=target, texture_size=tex)
+            head = make_synthetic_head(seed=7, target_triangles=target, texture_size=tex, noise_mm=0.0)
             times.append(time.perf_counter() - t0)
         row = {"target_triangles": target, "n_faces": int(len(head.F)), "n_vertices": int(len(head.V)),
                "texture_size": tex, "generate_s_median": round(statistics.median(times), 3),

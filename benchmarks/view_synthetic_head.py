@@ -49,7 +49,8 @@ def main(argv=None) -> int:
     out = ap.parse_args(argv).out
     tiles = []
     for shape in ("round", "hooded"):
-        head = make_synthetic_head(seed=7, target_triangles=1_400_000, eye_shape=shape, texture_size=1024)
+        head = make_synthetic_head(seed=7, target_triangles=1_400_000, eye_shape=shape, texture_size=1024,
+                                   noise_mm=0.0)
         eye = head.ground_truth["eyes"]["left"]["eyeball_sphere"]["center_mm"]
         tiles.append(np.concatenate([splat(head, (0.0, -25.0), 125.0, 360),
                                      _upscale(splat(head, (eye[0], eye[1]), 20.0, 100), 360)], axis=1))

@@ -45,7 +45,8 @@ from typing import Any, ClassVar, Literal
 
 from pipeline.errors import ScanError
 
-__all__ = ["Settings", "SettingError", "SettingsError", "setting", "check_scan_name", "SAFE_NAME"]
+__all__ = ["Settings", "SettingError", "SettingsError", "setting", "boundaries", "check_scan_name",
+           "SAFE_NAME"]
 
 _MISSING = dataclasses.MISSING
 # YAML 1.2 core-schema numbers that YAML 1.1 (PyYAML) reads as text: 1e9, 3.45e1, +12, .5
@@ -358,6 +359,79 @@ class Settings:
                 return {k: plain(x) for k, x in v.items()}
             return v
         return {k: plain(getattr(self, k)) for k in self.keys()}
+
+
+# ---------------------------------------------------------------------------- boundaries
+
+def _scalar(tp):
+    """The number type a field's values are checked as (int / float), through ``X | None`` and
+    tuples; None for anything else."""
+    origin = typing.get_origin(tp)
+    if tp in (int, float):
+        return tp
+    if origin in (typing.Union, types.UnionType):
+        nums = [a for a in map(_scalar, typing.get_args(tp)) if a is not None]
+        return nums[0] if len(nums) == 1 else None
+    if origin is tuple:
+        args = [a for a in typing.get_args(tp) if a is not Ellipsis]
+        return _scalar(args[0]) if args and all(a == args[0] for a in args) else None
+    return None
+
+
+def _step(tp, x, direction: int):
+    """``x`` (direction 0) or its neighbouring integer / float above (+1) or below (-1)."""
+    if tp is int:
+        return int(x) + direction
+    return math.nextafter(float(x), math.copysign(math.inf, direction)) if direction else float(x)
+
+
+#: bound kind -> (direction of the last accepted value, of the first refused one) from the bound
+_EDGES = {"ge": (0, -1), "gt": (1, 0), "le": (0, 1), "lt": (-1, 0)}
+
+
+def boundaries(cls, prefix: tuple = ()) -> list[tuple[tuple, object, bool]]:
+    """``(key path, value, accepted)`` at the limits of every field of a :class:`Settings` class.
+
+    For each numeric field (and each numeric tuple field, every element set to the value): its
+    bounds as accepted (``ge`` / ``le`` the bound itself, ``gt`` / ``lt`` the next number inside)
+    and the next number outside as refused; NaN and infinity refused for a float; every choice of
+    a ``Literal`` accepted and another word refused; both booleans accepted. Nested blocks are
+    walked (``("geometry", "r1")``). A value accepted field by field may still be refused by a
+    block's cross-field :meth:`Settings.validate` with the other fields at their defaults.
+    """
+    out = []
+    hints = _hints(cls)
+    for f in dataclasses.fields(cls):
+        if not f.init:
+            continue
+        key, tp = prefix + (f.name,), hints[f.name]
+        if isinstance(tp, type) and issubclass(tp, Settings):
+            out += boundaries(tp, key)
+            continue
+        meta = f.metadata.get("check", {})
+        args = typing.get_args(tp)
+        num = _scalar(tp)
+        default = f.default if f.default is not _MISSING else None
+        width = len(default) if isinstance(default, tuple) else None
+
+        def shaped(x):
+            return x if width is None else [x] * width
+
+        if num is not None:
+            for op, (inside, outside) in _EDGES.items():
+                b = meta.get(op)
+                if b is not None:
+                    out += [(key, shaped(_step(num, b, inside)), True),
+                            (key, shaped(_step(num, b, outside)), False)]
+            if num is float:
+                out += [(key, shaped(math.nan), False), (key, shaped(math.inf), False)]
+        if tp is bool:
+            out += [(key, True, True), (key, False, True), (key, "maybe", False)]
+        lits = [a for a in (args if typing.get_origin(tp) in (typing.Union, types.UnionType) else (tp,))
+                if typing.get_origin(a) is Literal]
+        for lit in lits:
+            out += [(key, c, True) for c in typing.get_args(lit)] + [(key, "no-such-choice", False)]
+    return out
 
 
 # ---------------------------------------------------------------------------- scan names

@@ -25,7 +25,7 @@ def main(argv) -> dict:
     out = Path(args.out_dir)
     settings = load_settings(SyntheticHeadSettings, args.params)
     t0 = time.perf_counter()
-    head = make_synthetic_head(**settings.kwargs())
+    head = make_synthetic_head(settings)
     t1 = time.perf_counter()
     with atomic_dir(out) as tmp:
         write_scan_folder(head, tmp)

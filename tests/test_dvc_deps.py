@@ -1,17 +1,14 @@
 """dvc.yaml: every stage's ``deps`` cover its whole import closure, so no output goes stale.
 
-The closure of a stage starts at ``stages/<stage>.py`` and follows, transitively, every import
-of a ``pipeline.*`` or ``stages.*`` module (top-level or inside functions, ``from`` imports of
-submodules, the packages' ``__init__.py``) and every string naming one (``-m
-pipeline.blender.render_worker`` for a Blender worker, ``"pipeline.x:Class"`` looked up with
-importlib, ``pipeline/x.py`` paths). Regenerate the code deps of dvc.yaml after changing imports:
+The closure of a stage is :func:`pipeline.sources.stage_closure` (the one definition the render
+fingerprint uses too): ``stages/<stage>.py`` and, transitively, every ``pipeline.*`` / ``stages.*``
+module it imports or names. Regenerate the code deps of dvc.yaml after changing imports:
 
     .venv/bin/python tests/test_dvc_deps.py          # rewrites the pipeline/ and stages/ deps
 """
 
 from __future__ import annotations
 
-import ast
 import re
 import sys
 from pathlib import Path
@@ -19,70 +16,16 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-CODE = ("pipeline", "stages")
-_NAME = re.compile(r"(?:pipeline|stages)(?:[./][A-Za-z_][A-Za-z0-9_]*)*(?:\.py)?")
+if __name__ == "__main__":              # run as a script: this checkout's pipeline/, not an installed one
+    sys.path.insert(0, str(ROOT))
 
-
-def module_file(name: str) -> Path | None:
-    """``pipeline.a.b`` (or ``pipeline/a/b.py``) -> its file under ROOT, or None."""
-    name = name[:-3] if name.endswith(".py") else name
-    rel = name.replace(".", "/")
-    for p in (ROOT / f"{rel}.py", ROOT / rel / "__init__.py"):
-        if p.is_file():
-            return p
-    return None
-
-
-def _package_inits(path: Path) -> list[Path]:
-    out, d = [], path.parent
-    while d != ROOT and d.name:
-        init = d / "__init__.py"
-        if init.is_file():
-            out.append(init)
-        d = d.parent
-    return out
-
-
-def imported_files(path: Path) -> set[Path]:
-    """Project files ``path`` imports or names (see the module doc)."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    pkg = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
-    names = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            names += [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = pkg.split(".")[: len(pkg.split(".")) - node.level + 1]
-                base = ".".join([p for p in parts if p] + ([base] if base else []))
-            names.append(base)
-            names += [f"{base}.{a.name}" for a in node.names]
-        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
-            text = node.value.split(":")[0].strip()
-            if _NAME.fullmatch(text):
-                names.append(text)
-    out = set()
-    for n in names:
-        if n.split(".")[0].split("/")[0] not in CODE:
-            continue
-        f = module_file(n)
-        if f is not None and f != path:
-            out.add(f)
-            out.update(_package_inits(f))
-    return out
+from pipeline import sources  # noqa: E402
+from pipeline.sources import CODE  # noqa: E402
 
 
 def import_closure(stage: str) -> set[str]:
     """Repository-relative paths of every project file stage ``stage`` runs."""
-    start = ROOT / "stages" / f"{stage}.py"
-    seen, todo = {start, *_package_inits(start)}, [start]
-    while todo:
-        for f in imported_files(todo.pop()):
-            if f not in seen:
-                seen.add(f)
-                todo.append(f)
-    return {p.relative_to(ROOT).as_posix() for p in seen}
+    return sources.stage_closure(stage, ROOT)
 
 
 def compact(paths: set[str]) -> list[str]:
@@ -136,15 +79,62 @@ def test_the_closure_follows_function_imports_strings_and_workers():
 
 
 def test_render_fingerprint_hashes_the_render_closure():
-    """A render folder's config hash covers exactly the renderer source the render stage imports:
-    a file it hashes but DVC does not track (or the reverse) makes dvc.lock depend on history."""
+    """A render folder's config hash covers exactly the source the render stage runs: a file it
+    hashes but DVC does not track (or the reverse) keeps stale images or makes dvc.lock depend
+    on history."""
     from pipeline.render.asset import renderer_sources
 
-    hashed = {str(p.relative_to(ROOT)) for p in renderer_sources()}
-    closure = import_closure("render")
-    mine = {p for p in closure if p.startswith(("pipeline/render/", "pipeline/blender/"))}
-    assert mine <= hashed, f"render imports but does not hash: {sorted(mine - hashed)}"
-    assert hashed <= closure, f"hashed but not a render dep: {sorted(hashed - closure)}"
+    hashed = {p.relative_to(ROOT).as_posix() for p in renderer_sources(ROOT)}
+    assert hashed == import_closure("render")
+    deps = stage_deps()["render"]
+    assert all(covered(p, deps) for p in hashed)
+    for module in ("pipeline/rig/lids.py", "pipeline/rig/landmarks.py", "pipeline/eyeball/geometry.py",
+                   "pipeline/eyeball/textures.py", "pipeline/geometry/frame.py", "pipeline/io/rig_file.py",
+                   "pipeline/settings.py", "stages/render.py"):
+        assert module in hashed
+
+
+def _copy_code(dst: Path) -> Path:
+    for top in CODE:
+        for f in (ROOT / top).rglob("*.py"):
+            out = dst / f.relative_to(ROOT)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_bytes(f.read_bytes())
+    return dst
+
+
+def test_editing_any_module_the_render_stage_runs_changes_the_render_fingerprint(tmp_path, monkeypatch):
+    """Each file of the render closure, edited in a copy of the code, changes the asset fingerprint
+    (and so the config hash a resumed render compares); a module outside it does not."""
+    import numpy as np
+
+    from pipeline.render import asset as ra
+    from pipeline.render import run, sampling
+
+    copy = _copy_code(tmp_path / "code")
+    monkeypatch.setattr(sources, "ROOT", copy)
+    usda = tmp_path / "a.usda"
+    usda.write_text("#usda 1.0\n")
+    rig = tmp_path / "rig.npz"
+    rig.write_bytes(b"rig")
+    asset = ra.RenderAsset(name="a", usda=usda, rig_npz=rig, skin_rest=np.zeros((0, 3)),
+                           skin_faces_edge_mm=1.0, lid_shapes=[], rig_arrays={}, eyes={})
+    closure = sorted(import_closure("render"))
+    assert len(closure) > 40
+    before = asset.fingerprint()
+    for rel in closure + ["pipeline/render/dataset.py"]:
+        f = copy / rel
+        text = f.read_bytes()
+        f.write_bytes(text + b"\n# edited\n")
+        try:
+            changed = asset.fingerprint() != before
+        finally:
+            f.write_bytes(text)
+        assert changed == (rel in closure), rel
+    assert asset.fingerprint() == before
+    # the settings are the config hash's other half
+    s0, s1 = sampling.RenderSettings.from_dict({}), sampling.RenderSettings.from_dict({"seed": 1})
+    assert run.config_hash(s0, before) != run.config_hash(s1, before)
 
 
 def write_dvc_yaml() -> list[str]:

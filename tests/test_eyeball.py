@@ -438,3 +438,69 @@ def test_stage_cli_refuses_bad_settings(tmp_path):
                          cwd=root, capture_output=True, text=True)
     assert res.returncode == 2 and "multiple of 8" in res.stderr and "Traceback" not in res.stderr
     assert not out.exists()
+
+
+# ------------------------------------------------------------------ one limit per value
+
+def _eyeball_limits(expensive: bool):
+    from pipeline.settings import boundaries
+
+    big = {("iris_texture_px", 4096), ("sclera_texture_px", 8192)}
+    out = []
+    for key, value, ok in boundaries(geo.EyeballSettings):
+        if not ok or key[0].startswith("preview"):          # the preview is Blender's (tests/test_blender_eyeball.py)
+            continue
+        edge = (key[0], value[0] if isinstance(value, list) else value)
+        if (edge in big) == expensive:
+            out.append((key, value))
+    return out
+
+
+def _build_at(tmp_path, key, value):
+    from pipeline.settings import SettingsError
+    from stages.eyeball import build_asset
+
+    small = {"resolution": "low", "iris_texture_px": 16, "sclera_texture_px": [16, 16], "preview": False}
+    raw = dict(small)
+    if len(key) == 2:
+        raw[key[0]] = {key[1]: value}
+    else:
+        raw[key[0]] = value
+    try:
+        s = geo.EyeballSettings.from_params(raw)
+    except SettingsError as exc:           # a limit that collides with another default: one line
+        assert "\n" not in str(exc)
+        return
+    build_asset(tmp_path, s)              # builds, writes and validates (an error raises)
+    assert (tmp_path / "eyeball.usda").is_file()
+
+
+@pytest.mark.parametrize("key, value", _eyeball_limits(expensive=False))
+def test_every_value_the_settings_accept_builds_a_valid_asset(tmp_path, key, value):
+    """Issue 22: each value the eyeball block accepts at its limits builds and validates."""
+    _build_at(tmp_path, key, value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key, value", _eyeball_limits(expensive=True))
+def test_the_largest_accepted_textures_build(tmp_path, key, value):
+    _build_at(tmp_path, key, value)
+
+
+def test_library_guards_agree_with_the_settings():
+    """Guards kept in library functions (they also take values read from assets) accept every
+    value the settings accept: the iris texture size, the rig's canthus widths and pitch limit."""
+    from pipeline.rig.lid_shapes import canthus_taper
+    from pipeline.rig.lids import RigSettings, lid_weights
+    from pipeline.settings import boundaries
+
+    for key, value, ok in boundaries(geo.EyeballSettings):
+        if ok and key == ("iris_texture_px",) and value <= 512:
+            assert tex.iris_texture("brown", value, 0).shape == (value, value, 3)
+    u = np.linspace(0, 1, 9)
+    for key, value, ok in boundaries(RigSettings):
+        if ok and key[0] in ("canthus_width", "lateral_canthus_width"):
+            assert np.isfinite(canthus_taper(u, value, 1.0, value)).all()
+        if ok and key[0] == "max_pitch_deg":
+            w = lid_weights(10.0, value)
+            assert 0.0 <= min(w.values()) <= max(w.values()) <= 1.0

@@ -430,7 +430,7 @@ def test_synthetic_head_generator_output(tmp_path):
     """The generator (pipeline/synthetic_head/) writes a folder ingest accepts as is."""
     from pipeline import synthetic_head as synthetic
 
-    head = synthetic.make_synthetic_head(seed=3, target_triangles=20000, texture_size=128)
+    head = synthetic.make_synthetic_head(seed=3, target_triangles=20000, texture_size=128, noise_mm=0.0)
     folder = tmp_path / "synthetic_head"
     folder.mkdir()
     synthetic.write_scan_folder(head, folder)

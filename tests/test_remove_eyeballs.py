@@ -411,7 +411,7 @@ def test_texture_fissure_reads_the_painted_opening():
     from pipeline.geometry.remove_eyeballs import _fissure_doubts
     from pipeline.synthetic_head import make_synthetic_head
 
-    h = make_synthetic_head(seed=3, target_triangles=60_000, texture_size=1024)
+    h = make_synthetic_head(seed=3, target_triangles=60_000, texture_size=1024, noise_mm=0.0)
     arrays = {"UV": h.UV, "FUV": h.F}
     for s in ("left", "right"):
         g = h.ground_truth["eyes"][s]
@@ -437,7 +437,7 @@ def test_texture_fissure_without_skin_around_reads_nothing():
     from pipeline.geometry.eye_texture import texture_fissure
     from pipeline.synthetic_head import make_synthetic_head
 
-    h = make_synthetic_head(seed=3, target_triangles=20_000, texture_size=16)
+    h = make_synthetic_head(seed=3, target_triangles=20_000, texture_size=16, noise_mm=0.0)
     flat = np.full((64, 64, 3), 180, np.uint8)
     fis = texture_fissure(h.V, h.F, h.UV, h.F, flat, h.hints["left"], np.array([0.0, 0.0, 1.0]))
     assert fis == {"width_mm": 0.0, "height_mm": 0.0, "cells": 0}

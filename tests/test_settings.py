@@ -176,3 +176,65 @@ def test_a_subclass_post_init_runs_after_the_checks_not_instead():
     with pytest.raises(SettingsError, match=r"params.yaml: legacy.r must be in increasing order"):
         Legacy.from_params({"r": [2, 1]})
     assert len(seen) == 1
+
+
+# ------------------------------------------------------------------- every block at its limits
+
+def _nested(key: tuple, value) -> dict:
+    d = value
+    for k in reversed(key):
+        d = {k: d}
+    return d
+
+
+def _block_boundaries():
+    from pipeline.settings import boundaries
+    from stages.check_params import BLOCKS, settings_class
+
+    return [(block, key, value, ok) for block in BLOCKS
+            for key, value, ok in boundaries(settings_class(block))]
+
+
+@pytest.mark.parametrize("block", ["synthetic_head", "eyeball", "ingest", "remove_eyeballs", "retopo",
+                                   "bake", "snap", "rig", "usd", "render"])
+def test_every_block_takes_its_limits_and_refuses_past_them_in_one_line(block):
+    """Fuzz from each block's own schema: a value at a limit is read as that value (or refused
+    by a check across fields, in one line), the next value past it is refused in one line
+    naming params.yaml and the key; the check_params stage reads the block the same way."""
+    from stages.check_params import check_params, settings_class
+
+    cls = settings_class(block)
+    cases = [(k, v, ok) for b, k, v, ok in _block_boundaries() if b == block]
+    assert cases
+    taken = 0
+    for key, value, ok in cases:
+        dotted = ".".join(key)
+        try:
+            s = cls.from_params(_nested(key, value))
+        except SettingsError as exc:
+            msg = str(exc)
+            assert "\n" not in msg and msg.startswith(f"params.yaml: {block}."), (dotted, value, msg)
+            if not ok:
+                assert msg.startswith(f"params.yaml: {block}.{dotted}"), (dotted, value, msg)
+            continue
+        assert ok, f"{block}.{dotted} = {value!r} was accepted past its limit"
+        got = s
+        for k in key:
+            got = getattr(got, k)
+        want = tuple(value) if isinstance(value, list) else value
+        assert got == want, (dotted, value, got)
+        check_params({block: _nested(key, value)})        # the stage that runs first agrees
+        taken += 1
+    assert taken >= sum(ok for _, _, ok in cases) // 2, f"{block}: most limits collide with other defaults"
+
+
+def test_library_defaults_are_the_settings_defaults():
+    """One definition per default: the ingest block's are the readers' limits and the repair's."""
+    from pipeline.geometry.ingest import IngestSettings
+    from pipeline.geometry.repair import RepairSettings
+    from pipeline.io.formats.common import Limits
+    from pipeline.io.scan import DEFAULT_MAX_YAML_BYTES
+
+    s = IngestSettings()
+    assert s.limits == Limits() and s.repair == RepairSettings() and s.max_yaml_bytes == DEFAULT_MAX_YAML_BYTES
+    assert IngestSettings.from_params({"max_file_mb": 1}).limits.max_file_bytes == 2**20

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,12 +13,13 @@ from scipy.sparse.csgraph import connected_components
 
 from pipeline.synthetic_head import grid_shape, make_synthetic_head, write_scan_folder
 
-SMALL = dict(texture_size=64)
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = dict(texture_size=64, noise_mm=0.0)
 
 
 @pytest.fixture(scope="module")
 def head():
-    return make_synthetic_head(seed=7, target_triangles=100_000, texture_size=128)
+    return make_synthetic_head(seed=7, target_triangles=100_000, texture_size=128, noise_mm=0.0)
 
 
 @pytest.fixture(scope="module")
@@ -119,7 +121,7 @@ def test_bad_parameters_are_refused():
     with pytest.raises(ValueError, match="target_triangles"):
         make_synthetic_head(target_triangles=10, **SMALL)
     with pytest.raises(ValueError, match="noise_mm"):
-        make_synthetic_head(noise_mm=-1.0, target_triangles=2_000, **SMALL)
+        make_synthetic_head(noise_mm=-1.0, target_triangles=2_000, texture_size=64)
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -247,7 +249,7 @@ def test_eye_spacing_parameter():
 
 
 def test_noise_along_normals():
-    kw = dict(seed=2, target_triangles=20_000, **SMALL)
+    kw = dict(seed=2, target_triangles=20_000, texture_size=64)
     a = make_synthetic_head(noise_mm=0.0, **kw)
     b = make_synthetic_head(noise_mm=0.1, **kw)
     d = np.linalg.norm(b.V - a.V, axis=1)
@@ -275,7 +277,7 @@ def test_texture_and_uvs(head):
     assert head.UV.shape == (len(head.V), 2)
     assert head.UV.min() >= 0.0 and head.UV.max() <= 1.0
     # the texel under the left corneal apex is dark (iris/pupil); sclera near the lateral corner bright
-    tex = make_synthetic_head(seed=7, target_triangles=100_000, texture_size=512).texture
+    tex = make_synthetic_head(seed=7, target_triangles=100_000, texture_size=512, noise_mm=0.0).texture
     gt = head.ground_truth["eyes"]["left"]
     apex = np.array(gt["corneal_apex_mm"])
     i = np.argmin(np.linalg.norm(head.V - apex, axis=1))
@@ -328,3 +330,72 @@ def test_stage_writes_folder_and_metrics(tmp_path):
     assert abs(metrics["n_faces"] - 20_000) < 400 and metrics["texture_size"] == 64
     assert str(metrics["_path"]).endswith("m.json")
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]   # no temp left
+
+
+# ----------------------------------------------------------------------------- one limit per value
+
+def test_library_defaults_are_the_settings_defaults():
+    import inspect
+
+    from pipeline.synthetic_head import SyntheticHeadSettings
+
+    sig = inspect.signature(make_synthetic_head)
+    assert list(sig.parameters)[:1] == ["settings"] and sig.parameters["settings"].default is None
+    d = SyntheticHeadSettings()
+    assert (d.target_triangles, d.texture_size, d.noise_mm) == (350_000, 2048, 0.02)
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())["synthetic_head"]
+    assert SyntheticHeadSettings.from_params(params) == d     # params.yaml repeats the defaults
+
+
+def _limits(expensive: bool):
+    from pipeline.settings import boundaries
+    from pipeline.synthetic_head import SyntheticHeadSettings
+
+    cases = [(k[0], v) for k, v, ok in boundaries(SyntheticHeadSettings) if ok]
+    cases += [("eye_shape", 0.0), ("eye_shape", 1.0), ("eye_radius_mm", [8.0, 20.0])]
+    big = [("target_triangles", 5_000_000), ("texture_size", 8192)]
+    return [c for c in cases if any(c == b for b in big) == expensive]
+
+
+def _generate_at(key, value):
+    from pipeline.synthetic_head import SyntheticHeadSettings
+
+    small = {"target_triangles": 2_000, "texture_size": 16}
+    s = SyntheticHeadSettings.from_params({**small, key: value})
+    h = make_synthetic_head(s)
+    assert np.isfinite(h.V).all() and len(h.F) > 0 and h.texture.shape[:2] == (s.texture_size,) * 2
+    for side in ("left", "right"):
+        c = np.asarray(h.ground_truth["eyes"][side]["eyeball_sphere"]["center_mm"])
+        assert np.isfinite(c).all() and h.ground_truth["eyes"][side]["eyelid_margin"]["height_mm"] > 0
+
+
+@pytest.mark.parametrize("key, value", _limits(expensive=False))
+def test_every_value_the_settings_accept_is_generated(key, value):
+    """Issue 22: the settings' limits are the only ones; the generator takes every value they
+    accept (eye_spacing_mm 90 ended in a ValueError traceback, the library stopped at 80)."""
+    _generate_at(key, value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key, value", _limits(expensive=True))
+def test_the_largest_accepted_sizes_are_generated(key, value):
+    _generate_at(key, value)
+
+
+def test_stage_takes_the_widest_eye_spacing_and_refuses_past_it_in_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "head"
+    for spacing, code in ((90, 0), (90.5, 2)):
+        params = tmp_path / "params.yaml"
+        params.write_text(yaml.safe_dump({"synthetic_head": {"eye_spacing_mm": spacing, "target_triangles": 2_000,
+                                                             "texture_size": 16}}))
+        r = subprocess.run([sys.executable, "-m", "stages.synthetic_head", str(out), "--params", str(params),
+                            "--metrics", str(tmp_path / "m.json")], cwd=ROOT, capture_output=True, text=True,
+                           timeout=300)
+        assert r.returncode == code, r.stderr[-2000:]
+        if code:
+            assert r.stderr == f"error: {params}: synthetic_head.eye_spacing_mm must be <= 90 (got 90.5)\n"
+        else:
+            assert (out / "scan.ply").is_file()

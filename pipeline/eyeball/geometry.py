@@ -64,10 +64,13 @@ class EyeballParams(Settings):
     seam_blend_mm: float = setting(1.0, ge=0)         # width of the smooth maximum at the seam
     gap: float = setting(0.5, gt=0)                   # cornea thickness: inner part lies this far inside
     iris_radius: float = setting(5.85, gt=0)          # visible iris diameter 11.7 mm (see below)
-    pupil_radius: float = setting(2.0, gt=0)          # rest pupil
-    pupil_dilated_mm: float = setting(4.0, gt=0)
-    pupil_constricted_mm: float = setting(1.0, gt=0)
-    iris_scale_delta: float = setting(0.10, gt=0, lt=0.5)     # iris_large / iris_small = x(1 +- delta)
+    # pupil radii >= 0.01 mm (human: 0.5-4.5 mm; an eye scaled down tenfold still fits): near
+    # 1e-6 mm the constricted pupil's rings fold over each other and the asset fails validation
+    pupil_radius: float = setting(2.0, ge=0.01)       # rest pupil
+    pupil_dilated_mm: float = setting(4.0, ge=0.01)
+    pupil_constricted_mm: float = setting(1.0, ge=0.01)
+    # >= 1 %: a smaller scale leaves offsets that round to nothing (an empty blend shape)
+    iris_scale_delta: float = setting(0.10, ge=0.01, lt=0.5)  # iris_large / iris_small = x(1 +- delta)
 
     def validate(self) -> None:
         if not self.r1 < self.apex < self.r1 + self.r2:
@@ -83,6 +86,8 @@ class EyeballParams(Settings):
             raise SettingError("iris_radius", "too large for the inner sphere")
         if max(self.pupil_radius, self.pupil_dilated_mm) >= small:
             raise SettingError("pupil_dilated_mm", "pupil (rest/dilated) must stay smaller than the small iris")
+        if self.pupil_dilated_mm <= self.pupil_radius:      # else the shape turns the pupil inside out
+            raise SettingError("pupil_dilated_mm", "must be larger than pupil_radius")
         if self.pupil_constricted_mm >= self.pupil_radius:
             raise SettingError("pupil_constricted_mm", "must be smaller than pupil_radius")
 

@@ -15,10 +15,13 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.geometry.repair import RepairSettings
 from pipeline.io.formats.common import Limits
 from pipeline.io.load import load_mesh_file, load_texture
-from pipeline.io.scan import one_line
+from pipeline.io.scan import DEFAULT_MAX_YAML_BYTES, one_line
 from pipeline.settings import Settings, setting
+
+_MIB = 2**20
 
 
 @dataclass(frozen=True)
@@ -53,35 +56,34 @@ class IngestSettings(Settings):
 
     block: ClassVar[str] = "ingest"
 
-    max_file_mb: float = setting(1024.0, gt=0)
-    max_yaml_bytes: int = setting(65536, ge=1)
-    max_vertices: int = setting(5_000_000, ge=3)
-    max_faces: int = setting(10_000_000, ge=1)
-    max_texture_pixels: int = setting(8192 * 8192, ge=1)
+    # the defaults are the readers' and the repair's own (one definition each)
+    max_file_mb: float = setting(Limits.max_file_bytes / _MIB, gt=0)
+    max_yaml_bytes: int = setting(DEFAULT_MAX_YAML_BYTES, ge=1)
+    max_vertices: int = setting(Limits.max_vertices, ge=3)
+    max_faces: int = setting(Limits.max_faces, ge=1)
+    max_texture_pixels: int = setting(Limits.max_texture_pixels, ge=1)
     head_size_mm: tuple[float, float] = setting((40.0, 1000.0), gt=0, ordered=True)
     eye_separation_mm: tuple[float, float] = setting((30.0, 120.0), gt=0, ordered=True)
     float32_tolerance_mm: float = setting(0.01, gt=0)
     max_hint_distance_mm: float = setting(15.0, gt=0)
-    merge_tolerance_mm: float = setting(1e-4, ge=0)
-    degenerate_area_mm2: float = setting(1e-10, ge=0)
-    max_degenerate_fraction: float = setting(0.1, ge=0, le=1)
-    debris_max_fraction: float = setting(0.01, ge=0, le=1)
-    eye_radius_mm: float = setting(20.0, gt=0)
-    max_eye_region_removed_fraction: float = setting(0.05, ge=0, le=1)
+    merge_tolerance_mm: float = setting(RepairSettings.merge_tolerance_mm, ge=0)
+    degenerate_area_mm2: float = setting(RepairSettings.degenerate_area_mm2, ge=0)
+    max_degenerate_fraction: float = setting(RepairSettings.max_degenerate_fraction, ge=0, le=1)
+    debris_max_fraction: float = setting(RepairSettings.debris_max_fraction, ge=0, le=1)
+    eye_radius_mm: float = setting(RepairSettings.eye_radius_mm, gt=0)
+    max_eye_region_removed_fraction: float = setting(RepairSettings.max_eye_region_removed_fraction, ge=0, le=1)
     flip_inward_winding: bool = True
-    max_json_mb: float = setting(64.0, gt=0)
+    max_json_mb: float = setting(Limits.max_json_bytes / _MIB, gt=0)
     max_memory_mb: float = setting(4096.0, ge=0)
 
     @property
     def limits(self) -> Limits:
-        return Limits(max_file_bytes=int(self.max_file_mb * 2**20), max_vertices=int(self.max_vertices),
+        return Limits(max_file_bytes=int(self.max_file_mb * _MIB), max_vertices=int(self.max_vertices),
                       max_faces=int(self.max_faces), max_texture_pixels=int(self.max_texture_pixels),
-                      max_json_bytes=int(self.max_json_mb * 2**20))
+                      max_json_bytes=int(self.max_json_mb * _MIB))
 
     @property
-    def repair(self):
-        from pipeline.geometry.repair import RepairSettings
-
+    def repair(self) -> RepairSettings:
         return RepairSettings(merge_tolerance_mm=self.merge_tolerance_mm,
                               degenerate_area_mm2=self.degenerate_area_mm2,
                               max_degenerate_fraction=self.max_degenerate_fraction,

@@ -38,22 +38,29 @@ N_EYELID, N_IRIS, N_PUPIL = 12, 8, 8
 N_LANDMARKS = N_EYELID + N_IRIS + N_PUPIL
 
 
-#: Modules of pipeline/render and pipeline/blender that no rendered image depends on: the dataset
-#: planning (which asset an index shows is checked per image by the dataset run) and the other
-#: Blender workers (previews, USD round trip). Editing them must not invalidate renders, and the
-#: render stage's DVC deps (its import closure) do not list them either.
-NOT_RENDERER = frozenset({"dataset.py", "mix.py", "card.py", "plan.py",
-                          "asset_preview.py", "eyeball_preview.py", "usd_roundtrip.py"})
+def renderer_sources(root: Path | None = None) -> list[Path]:
+    """The source files whose change invalidates rendered images: every project file the render
+    stage runs (the import closure of ``stages/render.py``, :func:`pipeline.sources.stage_closure`,
+    the same set dvc.yaml lists as its code deps), sorted. ``root``: the folder holding
+    ``pipeline/`` and ``stages/`` (default: this installation's)."""
+    from pipeline import sources
+
+    root = sources.ROOT if root is None else Path(root)
+    return [root / p for p in sorted(sources.stage_closure("render", root))]
 
 
-def renderer_sources() -> list[Path]:
-    """The source files whose change invalidates rendered images: pipeline/render and
-    pipeline/blender (less :data:`NOT_RENDERER`), and the label, mask and depth writers."""
-    pkg = Path(__file__).resolve().parents[1]
-    files = [p for d in ("render", "blender") for p in sorted((pkg / d).glob("*.py"))
-             if p.name not in NOT_RENDERER]
-    files += [pkg / "io" / n for n in ("labels_file.py", "unityeyes_file.py", "pts_file.py", "seg_file.py")]
-    return files + [pkg / "bake" / "exr.py"]
+def sources_digest(files, root: Path | None = None) -> str:
+    """sha256 over ``files`` (paths relative to ``root`` and their bytes), in sorted order."""
+    import hashlib
+
+    from pipeline import sources
+
+    root = sources.ROOT if root is None else Path(root)
+    h = hashlib.sha256()
+    for p in sorted(files):
+        h.update(Path(p).relative_to(root).as_posix().encode() + b"\0")
+        h.update(Path(p).read_bytes())
+    return h.hexdigest()
 
 
 @dataclass
@@ -134,9 +141,9 @@ class RenderAsset:
 
         The asset layer with all its USD dependencies (the referenced eyeball layer, every
         texture and the files beside them, from ``UsdUtils.ComputeAllDependencies``), rig.npz,
-        and the source of the renderer (``pipeline/render/*.py`` but the dataset orchestration
-        :data:`NOT_RENDERER`, ``pipeline/blender/*.py``, the label, mask and depth writers): a
-        changed input or renderer invalidates the images of a resumable render folder.
+        and the renderer's source (:func:`renderer_sources`, every module the render stage
+        imports): a changed input or renderer invalidates the images of a resumable render
+        folder. The render settings join it in ``pipeline.render.run.config_hash``.
         """
         import hashlib
 
@@ -147,12 +154,12 @@ class RenderAsset:
         files |= {Path(a) for a in assets}
         files |= {q for a in assets for q in Path(a).parent.iterdir()}   # e.g. sclera_bump.png
         files |= {self.usda, self.rig_npz}
-        files |= set(renderer_sources())
         h = hashlib.sha256()
         for p in sorted(files):
             if p.is_file():
                 h.update(p.name.encode())
                 h.update(p.read_bytes())
+        h.update(sources_digest(renderer_sources()).encode())
         return h.hexdigest()
 
 

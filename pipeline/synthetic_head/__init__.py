@@ -63,7 +63,8 @@ EYE_SHAPES = {"round": 0.0, "hooded": 1.0}
 
 @dataclasses.dataclass(frozen=True)
 class SyntheticHeadSettings(Settings):
-    """The ``synthetic_head:`` block of params.yaml (the arguments of :func:`make_synthetic_head`)."""
+    """The ``synthetic_head:`` block of params.yaml (what :func:`make_synthetic_head` takes); its
+    defaults and limits are the generator's: every value accepted here is generated."""
 
     block: ClassVar[str] = "synthetic_head"
 
@@ -78,10 +79,6 @@ class SyntheticHeadSettings(Settings):
     def validate(self) -> None:
         if isinstance(self.eye_shape, float) and not 0.0 <= self.eye_shape <= 1.0:
             raise SettingError("eye_shape", f"must be round, hooded or a number in [0, 1] (got {self.eye_shape:g})")
-
-    def kwargs(self) -> dict:
-        """Keyword arguments of :func:`make_synthetic_head`."""
-        return {k: getattr(self, k) for k in self.keys()}
 
 
 # ----------------------------------------------------------------------------- API
@@ -126,8 +123,6 @@ def _arc_length():
 def grid_shape(target_triangles: int) -> tuple[int, int]:
     """Grid ``(n_y, n_t)`` whose triangle count ``2 (n_y-1)(n_t-1)`` is closest to the target."""
     target_triangles = int(target_triangles)
-    if target_triangles < 200:
-        raise ValueError(f"target_triangles must be >= 200, got {target_triangles}")
     aspect = _arc_length() / (Y_RANGE[1] - Y_RANGE[0])
     cells = target_triangles / 2.0
     ny = max(int(round(np.sqrt(cells / aspect))), 2)
@@ -151,56 +146,33 @@ def _normals(P):
     return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
 
 
-def make_synthetic_head(seed: int = 7, target_triangles: int = 300_000, eye_shape="round",
-                        eye_spacing_mm: float = 63.0, noise_mm: float = 0.0,
-                        texture_size: int = 1024, skin_detail: float = 1.0,
-                        eye_radius_mm=(15.5, 16.8)) -> SyntheticHead:
+def make_synthetic_head(settings: SyntheticHeadSettings | None = None, *, skin_detail: float = 1.0,
+                        **fields) -> SyntheticHead:
     """Generate the procedural test head.
 
     Parameters
     ----------
-    seed : int
-        Drives every shape detail (eyeball radius, cornea, gaze, lid shape, face
-        proportions, skin detail, eye hints).
-    target_triangles : int
-        Approximate triangle count (grid chosen to match within ~1 %), >= 200.
-    eye_shape : {"round", "hooded"} or float
-        Hoodedness in [0, 1]: 0 = round open eye, 1 = hooded (lower upper lid and a
-        skin fold over it).
-    eye_spacing_mm : float
-        Interpupillary distance (distance between eyeball centres), mm.
-    noise_mm : float
-        Scanner noise: Gaussian displacement along vertex normals, this std (0 = off).
-    texture_size : int
-        Side of the square colour texture in pixels.
+    settings : SyntheticHeadSettings, optional
+        The ``synthetic_head:`` block (seed, target_triangles, eye_shape, eye_spacing_mm,
+        noise_mm, texture_size, eye_radius_mm; see its fields). None: its defaults, the same as
+        params.yaml's. Every value it accepts is generated: its checks are the only limits.
     skin_detail : float
-        Scale of the fine skin detail (1 = nominal, 0 = none).
-    eye_radius_mm : (2,) float
-        Range the eyeball radii are drawn from, mm (the opening is ~1.8 radii wide).
+        Scale of the fine skin detail (1 = nominal, 0 = none); not a params.yaml setting.
+    **fields
+        Settings fields that replace the ones of ``settings`` (``seed=3, texture_size=64``),
+        checked by :class:`SyntheticHeadSettings` (a ``SettingError``, a ValueError, names the
+        bad one).
 
     Returns
     -------
     SyntheticHead
     """
-    if isinstance(eye_shape, str):
-        if eye_shape not in EYE_SHAPES:
-            raise ValueError(f"eye_shape must be one of {sorted(EYE_SHAPES)} or a number in [0, 1], "
-                             f"got {eye_shape!r}")
-        hood = EYE_SHAPES[eye_shape]
-    else:
-        hood = float(eye_shape)
-        if not 0.0 <= hood <= 1.0:
-            raise ValueError(f"eye_shape hoodedness must be in [0, 1], got {hood}")
-    if not 40.0 <= float(eye_spacing_mm) <= 80.0:
-        raise ValueError(f"eye_spacing_mm must be in [40, 80], got {eye_spacing_mm}")
-    if not float(noise_mm) >= 0.0:
-        raise ValueError(f"noise_mm must be >= 0, got {noise_mm}")
-    if int(texture_size) < 16:
-        raise ValueError(f"texture_size must be >= 16, got {texture_size}")
-    lo, hi = (float(r) for r in eye_radius_mm)
-    if not 8.0 <= lo <= hi <= 20.0:
-        raise ValueError(f"eye_radius_mm must be an ordered range within [8, 20], got {list(eye_radius_mm)}")
-    seed = int(seed)
+    s = settings if settings is not None else SyntheticHeadSettings()
+    if fields:
+        s = dataclasses.replace(s, **fields)
+    hood = EYE_SHAPES[s.eye_shape] if isinstance(s.eye_shape, str) else float(s.eye_shape)
+    seed, target_triangles, eye_spacing_mm, noise_mm = s.seed, s.target_triangles, s.eye_spacing_mm, s.noise_mm
+    texture_size, (lo, hi) = s.texture_size, s.eye_radius_mm
     model = HeadModel(seed, hood, eye_spacing_mm, skin_detail, (lo, hi))
     ny, nt = grid_shape(target_triangles)
     tv = np.linspace(-T_RANGE, T_RANGE, nt)
