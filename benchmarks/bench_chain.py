@@ -47,7 +47,8 @@ def stage_commands(scan, build, eyeball) -> dict:
     b = Path(build)
     return {
         "ingest": ["stages.ingest", scan, b / "ingest"],
-        "remove_eyeballs": ["stages.remove_eyeballs", b / "ingest", b / "remove_eyeballs"],
+        "remove_eyeballs": ["stages.remove_eyeballs", b / "ingest", b / "remove_eyeballs",
+                            "--prior", ROOT.parent / "shared" / "reference" / "unityeyes_eye_region"],
         "retopo": ["stages.retopo", b / "remove_eyeballs", b / "retopo"],
         "bake": ["stages.bake", b / "retopo", b / "remove_eyeballs", b / "bake"],
         "snap": ["stages.snap", b / "bake", b / "remove_eyeballs", eyeball, b / "snap"],

@@ -6,11 +6,12 @@
 Reads ``ingest/mesh.npz``, ``ingest/scan.json`` (eye hints; its ``folder`` is the scan folder
 a refusal names) and ``ingest/texture.png`` when present; writes ``mesh.npz`` (head with the two
 eye openings, UV/FUV/VC carried), ``eyes.json`` (per eye: center, radius, forward,
-residual_rms_mm, n_inliers, placement, checks, loop_indices, loop_points,
-lateral_canthus_index, texture_fissure, doubts) and copies ``texture.png``. Each doubt (a
-placement that passed its checks but that a measurement says is partly off: a texture-placed
-opening much narrower than the texture's fissure) is also printed to stderr as a warning.
-See pipeline/geometry/remove_eyeballs.py, eye_fit.py, eye_texture.py and eye_checks.py.
+residual_rms_mm, n_inliers, placement (the cues that carried the fit), uncertainty_mm,
+checks, loop_indices, loop_points, lateral_canthus_index, texture_fissure, doubts) and copies
+``texture.png``. ``--prior`` names the eye-region model's folder (used when present). Each
+doubt (an eye placed from little evidence, a failed self-check, a texture-placed opening
+narrower than the texture's fissure) is also printed to stderr as a warning; the eye is still
+published. See pipeline/geometry/eye_place.py, eye_prior.py, remove_eyeballs.py.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.geometry.eye_prior import EyeRegionPrior
 from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import write_eyes
@@ -58,10 +60,15 @@ def main(argv) -> dict:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("ingest", type=Path, help="build/<scan>/ingest")
     parser.add_argument("out", type=Path, help="build/<scan>/remove_eyeballs")
+    parser.add_argument("--prior", type=Path, default=None,
+                        help="folder of the UnityEyes eye-region model (optional: placement goes "
+                             "without that cue when it is absent)")
     args = parser.parse_args(argv)
     st = load_settings(EyeSettings, args.params)
     mesh, hints, texture, source, tex_path = _read(args.ingest)
-    res = remove_eyeballs(mesh, hints, st, source=source, texture=texture)
+    prior = EyeRegionPrior.load(args.prior)
+    res = remove_eyeballs(mesh, hints, st, source=source, texture=texture,
+                          prior=None if prior is None else prior.register)
     for side in ("left", "right"):      # published, but not sure: say so where the user looks
         for doubt in res.eyes[side]["doubts"]:
             print(f"warning: {source}: {side} eye: {doubt}", file=sys.stderr)

@@ -19,10 +19,8 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.fork import fork_call, fork_result
 from pipeline.geometry import eye_checks, meshtopo
-from pipeline.geometry.eye_fit import (EyeMesh, eye_surface_distance, find_eye, local_mesh,
-                                       median_edge_length)
+from pipeline.geometry.eye_fit import EyeMesh, eye_surface_distance, local_mesh, median_edge_length
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import signed_distance
 from pipeline.settings import Settings, setting
@@ -38,39 +36,27 @@ class EyeSettings(Settings):
     block: ClassVar[str] = "remove_eyeballs"
 
     patch_radius_mm: float = setting(22.0, gt=0, le=100)       # surface considered around a hint
-    sample_radius_mm: float = setting(13.0, gt=0, le=100)      # RANSAC samples within this of the hint
+    sample_radius_mm: float = setting(13.0, gt=0, le=100)      # holes within this of a hint are closed for the fit
     radius_range_mm: tuple[float, float] = setting((10.0, 18.0), gt=0, le=100, ordered=True)
     radius_prior_mm: float = setting(12.0, gt=0, le=100)
     radius_prior_sigma_mm: float = setting(3.0, gt=0, le=100)
-    inlier_tol_mm: float = setting(0.3, gt=0, le=10)
-    inside_tol_mm: float = setting(1.5, ge=0, le=20)
-    inside_soft_tol_mm: float = setting(0.5, ge=0, le=20)
-    inside_soft_weight: float = setting(3.0, ge=0, le=1000)
-    inside_fit_margin_mm: float = setting(0.2, ge=-1, le=20)   # < 0: no inside constraint
-    cut_tol_mm: float = setting(0.8, gt=0, le=20)
-    cornea_cap_deg: float = setting(35.0, ge=0, lt=90)
-    ransac_iterations: int = setting(1500, ge=1, le=1_000_000)
-    ransac_refine: int = setting(6, ge=0, le=1000)
-    min_inliers: int = setting(20, ge=4, le=1_000_000)
-    crease_margin_mm: float = setting(0.5, ge=-1, le=20)
-    crease_margin_capped: bool = False
-    fit_iterations: int = setting(4, ge=1, le=100)
-    min_crease_deg: float = setting(20.0, ge=0, le=180)        # lid fold at the cut border; below = closed
-    shared_radius: bool = True
-    shared_radius_max_z: float = setting(3.0, ge=0, le=1000)
-    max_center_hint_distance_mm: float = setting(22.0, gt=0, le=100)
+    min_crease_deg: float = setting(12.0, ge=0, le=180)        # lid fold around the eye surface; below = closed
     texture_fallback: bool = True
     texture_min_contrast: float = setting(3.0, gt=0, le=1000)
     texture_fissure_min_share: float = setting(0.8, gt=0, le=1)  # a texture-placed opening narrower than this share of the texture's fissure is doubted
-    max_fit_rms_mm: float = setting(0.6, gt=0, le=20)
     margin_lift_mm: float = setting(0.6, ge=0, le=20)          # 0 = loop left on the cut
     margin_max_turn_deg: float = setting(60.0, gt=0, le=180)
     margin_on_eye_mm: float = setting(0.3, ge=0, le=20)
-    max_gaze_deg: float = setting(40.0, gt=0, le=90)
     max_hole_perimeter_mm: float = setting(60.0, ge=0, le=1000)  # holes near the hints (an unmeasured pupil) closed for the fit
-    cornea_min_inliers: int = setting(20, ge=4, le=1_000_000)
-    cornea_min_fraction: float = setting(0.45, gt=0, le=1)
     seed: int = setting(0, ge=0)
+    # joint placement (pipeline.geometry.eye_place)
+    place_patch_mm: float = setting(20.0, gt=5, le=60)          # surface the eye model explains around a hint
+    prior_front_sigma_mm: float = setting(4.0, gt=0, le=100)     # the eye-region prior's say on the front of the globe
+    uncertainty_temperature: float = setting(20.0, gt=0, le=1e6) # energy scale of a rival local optimum's weight
+    uncertainty_scale: float = setting(1.0, gt=0, le=100)        # Laplace sigma x this (calibrated on unseen heads)
+    doubt_center_sigma_mm: float = setting(1.0, gt=0, le=100)    # a placement less sure than this is published with a doubt
+    min_open_area_mm2: float = setting(6.0, ge=0, le=1000)       # less visible eye than this: the eye is closed
+    fill_face_ratio: float = setting(12.0, gt=1, le=1e6)         # faces this many times the median area: a scanner's flat fill
 
 
 def order_loop(loop, V, center, forward, side):
@@ -217,13 +203,6 @@ def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5, on_eye
     return float(np.linalg.norm(V2[loop] - start, axis=1).mean())
 
 
-def _radii_agree(fits, st: EyeSettings):
-    """Whether the two eyes' radii are equal within ``shared_radius_max_z`` combined standard errors."""
-    sig = np.hypot(fits["left"].radius_sigma, fits["right"].radius_sigma)
-    return bool(np.isfinite(sig) and abs(fits["left"].radius - fits["right"].radius)
-                <= st.shared_radius_max_z * sig)
-
-
 def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
     """Close the mesh's holes near ``centres`` with a fan around each hole's centroid.
 
@@ -342,49 +321,115 @@ def _holes_inside(F, remove, H=None):
     return int((~kept).sum())
 
 
-def _find_both(mesh, hints, st, per_side: dict, **kwargs) -> dict:
-    """``find_eye`` of both sides, the left one in a forked child while this process fits the right
-    one: the fits are independent (each side seeds its own generator), so the results are those
-    of one after the other, and so is the error when both fail (the left one's)."""
-    left, right = SIDES
-    job = fork_call(find_eye, mesh, hints[left], left, st, **kwargs, **per_side.get(left, {}))
-    try:
-        fit_right = find_eye(mesh, hints[right], right, st, **kwargs, **per_side.get(right, {}))
-    except BaseException:
-        fork_result(job)        # raises the left side's error, when it has one
-        raise
-    return {left: fork_result(job)[0], right: fit_right}
+def _fill_faces(V, F, ratio):
+    """(m,) bool: faces far larger than the scan's own (``ratio`` x the median area): a scanner's
+    flat fill across an opening it could not measure, which says nothing about the eye."""
+    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    return A > ratio * max(float(np.median(A)), 1e-12)
 
 
-def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None):
-    """Fit both eyes; with ``shared_radius`` refit both with their inverse-variance weighted mean
-    radius when both are geometric fits whose radii agree within ``shared_radius_max_z`` standard
-    errors (eyes of one head are usually the same size; a clear difference is kept)."""
+def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: EyeSettings, source, ignore):
+    """The :class:`EyeFit` of one placed eye: the removal region is the eye-labelled surface
+    (faces whose three vertices are eye, and the unmeasured fills inside it), made one simple
+    loop; a closed eye (little eye surface, or no lid fold around it) is a ScanError."""
+    from pipeline.geometry.eye_fit import EyeFit, _clean_region, _crease, _patch
+
+    V, F = mesh.V, mesh.F
+    eye_v = np.zeros(len(V), bool)
+    eye_v[pl.patch.verts[pl.lab]] = True
+    region = eye_v[F].all(axis=1)
+    # flat fills take no side in the cut: they go with the opening when they touch it
+    region |= ignore & eye_v[F].any(axis=1)
+    patch = _patch(mesh, hint, st.patch_radius_mm + 5.0)
+    e = pl.eye
+    front = e.c + e.R * e.n
+    seed = region & (np.linalg.norm(mesh.centroids - front, axis=1)
+                     <= np.min(np.linalg.norm(mesh.centroids[region] - front, axis=1), initial=np.inf)
+                     + max(2.0, 2 * mesh.median_edge)) if region.any() else region
+    region = _clean_region(mesh, region, seed, patch) if region.any() else region
+    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    area = float(A[region & ~ignore].sum())
+    from pipeline.geometry.eye_place import cornea_sphere, surface_residual
+    cornea = cornea_sphere(e)
+    crease = _crease(mesh, region) if region.any() else 0.0
+    if area < st.min_open_area_mm2:
+        raise ScanError(source, f"{side} eye looks closed: {area:.1f} mm2 of eye surface near "
+                                f"{np.round(hint, 2).tolist()} (less than {st.min_open_area_mm2:g})")
+    rv = np.unique(F[region & ~ignore])
+    d, sig, _, _ = surface_residual(V[rv], e)
+    scl = sig <= 0.15 + 1e-9
+    rms = float(np.sqrt(np.mean(d[scl] ** 2))) if scl.any() else float(np.sqrt(np.mean(d ** 2)))
+    if cornea is not None:
+        cornea = {"center": np.asarray(cornea["center"]), "radius": cornea["radius"],
+                  "n_inliers": int((~scl).sum())}
+    return EyeFit(side=side, center=np.asarray(e.c, float), radius=float(e.R),
+                  forward=np.asarray(e.n, float), residual_rms_mm=rms, n_inliers=int(len(rv)),
+                  method="geometry", region=region, cornea=cornea, crease_deg=float(crease),
+                  capped=False, inliers=rv, radius_sigma=pl.sigma_radius_mm)
+
+
+def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None,
+                 prior=None):
+    """Place both eyes jointly (``pipeline.geometry.eye_place``) on the surface around the
+    hints; an eye the geometry cannot place falls back to the colour texture when there is one.
+
+    ``prior``: callable ``(V, F, hint, side) -> {"front", "axis"}`` (the eye-region prior,
+    ``eye_prior.register``) or None. Returns ``(mesh, fits, placements)``: the local
+    :class:`EyeMesh`, per side an :class:`EyeFit` (region on the full mesh) and the
+    :class:`eye_place.Placement` (None for a texture-placed eye)."""
+    from pipeline.geometry import eye_place
+    from pipeline.geometry.eye_texture import fit_texture
+
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     median_edge = median_edge_length(V, F)
-    # Everything a fit reads lies within patch_radius_mm of its hint, plus a few edge rings
-    # (region borders, crease neighbourhoods): fit on that sub-mesh, which keeps the full mesh's
-    # face/vertex order (same random samples, same results) and map regions back.
-    reach = st.patch_radius_mm + 5.0 + 6.0 * median_edge + max(2.0, 1.5 * median_edge)
+    # everything a fit reads lies within the patch of its hint, plus a few edge rings: fit on
+    # that sub-mesh, which keeps the full mesh's face/vertex order, and map regions back
+    reach = max(st.patch_radius_mm, st.place_patch_mm) + 5.0 + 6.0 * median_edge + max(2.0, 1.5 * median_edge)
     centres = [np.asarray(hints[s], float) for s in SIDES]
     Vs, Fs, faces, verts = local_mesh(V, F, centres, reach)
     n_local = len(Fs)
     Vs, Fs, holes, hole_of_face = fill_holes_near(Vs, Fs, centres, st.sample_radius_mm,
                                                   st.max_hole_perimeter_mm)
     mesh = EyeMesh(Vs, Fs, median_edge=median_edge)
+    ignore = (hole_of_face >= 0) | _fill_faces(Vs, Fs, st.fill_face_ratio)
     sub_arrays = {k: (np.asarray(mesh_arrays[k])[faces] if k == "FUV" else mesh_arrays[k])
                   for k in ("UV", "FUV") if k in mesh_arrays}
     if holes and "FUV" in sub_arrays:   # fan faces take the texture corners of a rim face
         rim = np.array([np.flatnonzero(np.isin(Fs[:n_local], loop).any(axis=1))[0] for loop in holes])
         sub_arrays["FUV"] = np.concatenate([sub_arrays["FUV"],
                                             sub_arrays["FUV"][rim[hole_of_face[n_local:]]]])
-    fits = _find_both(mesh, hints, st, {}, source=source, mesh_arrays=sub_arrays, texture=texture)
-    if st.shared_radius and all(fits[s].method == "geometry" for s in SIDES) and _radii_agree(fits, st):
-        w = np.array([1.0 / max(fits[s].radius_sigma, 1e-3) ** 2 for s in SIDES])
-        r = float(np.average([fits[s].radius for s in SIDES], weights=w))
-        fits = _find_both(mesh, hints, st, {s: {"fixed_radius": r, "capped": fits[s].capped} for s in SIDES},
-                          source=source, mesh_arrays=sub_arrays, texture=texture)
+    front = None
+    if prior is not None:
+        front = {}
+        for s in SIDES:
+            try:
+                front[s] = {**prior(Vs, Fs, hints[s], s), "sigma": st.prior_front_sigma_mm}
+            except (ValueError, np.linalg.LinAlgError):     # the model did not register here
+                front[s] = None
+    placements = eye_place.place_eyes(
+        Vs, Fs, hints, patch_radius_mm=st.place_patch_mm, radius_range=tuple(st.radius_range_mm),
+        radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
+        prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
+        temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
+        min_fold_deg=st.min_crease_deg)
+    fits = {}
+    for s in SIDES:
+        err = None
+        if placements[s] is not None:
+            try:
+                fits[s] = _fit_from_placement(mesh, placements[s], hints[s], s, st, source, ignore)
+                continue
+            except ScanError as exc:
+                err = exc
+        else:
+            err = ScanError(source, f"{s} eye looks closed: no eye surface ringed by a lid fold "
+                                    f"near the hint {np.round(hints[s], 2).tolist()}")
+        has_tex = texture is not None and "UV" in sub_arrays and "FUV" in sub_arrays
+        if not (st.texture_fallback and has_tex):
+            raise err
+        fits[s] = fit_texture(mesh, sub_arrays, texture, hints[s], s, st, source)
+        placements[s] = None
     for fit in fits.values():       # back to full-mesh ids
         region = np.zeros(len(F), bool)
         region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
@@ -392,7 +437,7 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
         if fit.inliers is not None:
             inl = np.asarray(fit.inliers, dtype=np.int64)
             fit.inliers = verts[inl[inl < len(verts)]]
-    return mesh, fits
+    return mesh, fits, placements
 
 
 def _fissure_doubts(V, F, mesh_arrays, texture, hint, fit, loop_points, st: EyeSettings):
@@ -417,22 +462,35 @@ def _fissure_doubts(V, F, mesh_arrays, texture, hint, fit, loop_points, st: EyeS
     return record, doubts
 
 
-def _refuse_unsure(eyes: dict, source):
-    """One line naming every failed self-check (``eye_checks``): an eye placed wrongly would
-    otherwise pass silently into every later stage."""
-    bad = [(s, k) for s in SIDES for k in eye_checks.failed(eyes[s]["checks"])]
-    if not bad:
-        return
-    pair = [k for s, k in bad if k == "radii_agree"][:1]
-    per_eye = [f"{s} eye: " + eye_checks.describe(k, eyes[s]["checks"][k]) for s, k in bad
-               if k != "radii_agree"]
-    both = [eye_checks.describe(k, eyes["left"]["checks"][k]) for k in pair]
-    raise ScanError(source, "not sure of the eyeball placement: " + "; ".join(per_eye + both)
-                    + " (see the remove_eyeballs self-checks in the README)")
+def _placement_record(pl, fit):
+    """What carried the fit and how sure it is: ``placement`` (cue names), ``uncertainty_mm``
+    (calibrated 1-sigma: RMS of the 3-D centre error, and of the radius), ``cue_shares``."""
+    if pl is None:      # placed from the colour texture with the radius prior
+        return {"placement": [fit.method, "radius_prior"], "uncertainty_mm": None, "cue_shares": None}
+    return {"placement": list(pl.cues),
+            "uncertainty_mm": {"center": round(pl.sigma_center_mm, 4),
+                               "radius": round(pl.sigma_radius_mm, 4)},
+            "cue_shares": dict(pl.shares), "anterior_height": round(float(pl.eye.ha), 4),
+            "limbus_half_angle_deg": round(float(pl.eye.tl), 3),
+            "rival_placements": [{"center": np.round(c, 4).tolist(), "radius": round(float(r), 4),
+                                  "energy_above": round(float(de), 2)} for c, r, de in pl.modes[1:]]}
+
+
+def _placement_doubts(eye: dict, st: EyeSettings) -> list:
+    """Sentences for what the placement is not sure of: little evidence (a wide calibrated
+    uncertainty) and every failed self-check. The eye is still published."""
+    out = []
+    unc = eye.get("uncertainty_mm")
+    if unc is not None and unc["center"] > st.doubt_center_sigma_mm:
+        out.append(f"placed from little evidence ({', '.join(eye['placement']) or 'priors only'}): "
+                   f"centre +-{unc['center']:.1f} mm, radius +-{unc['radius']:.1f} mm (1 sigma)")
+    for k in eye_checks.failed(eye["checks"]):
+        out.append("self-check " + k + ": " + eye_checks.describe(k, eye["checks"][k]))
+    return out
 
 
 def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = None, *,
-                    source="mesh", texture=None) -> RemovalResult:
+                    source="mesh", texture=None, prior=None) -> RemovalResult:
     """Fit both eyes and cut the scanned eyeball surface out of the head mesh.
 
     Parameters
@@ -447,6 +505,8 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         File named in error messages.
     texture : (h, w, 3) uint8, optional
         Colour texture (used when geometry alone cannot find the eye).
+    prior : callable, optional
+        The eye-region prior (``eye_prior.EyeRegionPrior.register``), or None.
 
     Returns
     -------
@@ -457,7 +517,8 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
     st = st or EyeSettings()
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
-    mesh, fits = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture)
+    mesh, fits, placements = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture,
+                                          prior=prior)
     if (fits["left"].region & fits["right"].region).any():
         raise ScanError(source, "the two eye regions overlap (hints too close or wrong)")
     H_in = meshtopo.boundary_halfedges(F)
@@ -536,7 +597,7 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
             "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
             "residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
             "method": fit.method,
-            "placement": "surface" if fit.method == "geometry" else fit.method,
+            **_placement_record(placements[s], fit),
             "checks": checks[s],
             "cornea": None if fit.cornea is None else {
                 "center": np.asarray(fit.cornea["center"]).tolist(),
@@ -559,10 +620,14 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
     for s in SIDES:
         eyes[s]["checks"].update(pair)
-        metrics[s]["placement"] = eyes[s]["placement"]
+        metrics[s]["placement"] = "+".join(eyes[s]["placement"])
         metrics[s]["checks_failed"] = eye_checks.failed(eyes[s]["checks"])
         metrics[s].update({f"check_{k}": c["value"] for k, c in eyes[s]["checks"].items()})
-    _refuse_unsure(eyes, source)
+        eyes[s]["doubts"] = _placement_doubts(eyes[s], st) + eyes[s]["doubts"]
+        metrics[s]["doubts"] = len(eyes[s]["doubts"])
+        unc = eyes[s]["uncertainty_mm"]
+        if unc is not None:
+            metrics[s].update({"sigma_center_mm": unc["center"], "sigma_radius_mm": unc["radius"]})
     if n_loops_out != loops_in - absorbed + 2:
         raise ScanError(source, f"cutting the eyeballs gave {n_loops_out} boundary loops, expected "
                                 f"{loops_in} - {absorbed} holes in the openings + 2")
