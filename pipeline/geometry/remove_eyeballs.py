@@ -23,6 +23,8 @@ from pipeline.fork import fork_call, fork_result
 from pipeline.geometry import eye_checks, meshtopo
 from pipeline.geometry.eye_fit import (EyeMesh, eye_surface_distance, find_eye, local_mesh,
                                        median_edge_length)
+from pipeline.geometry.eye_texture import MARGIN_OFF
+from pipeline.geometry.fissure_cut import move_loop_onto, openings_at_fissures
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import signed_distance
 from pipeline.settings import Settings, setting
@@ -455,9 +457,12 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         ``eyes`` (eyes.json content), ``fits`` (EyeFit per side), ``metrics``.
     """
     st = st or EyeSettings()
+    mesh, fits = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture)
+    # an eye placed from its texture is cut along the fissure the photograph shows: the faces
+    # near that outline are split first (pipeline/geometry/fissure_cut.py)
+    mesh_arrays, fits = openings_at_fissures(mesh_arrays, fits)
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
-    mesh, fits = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture)
     if (fits["left"].region & fits["right"].region).any():
         raise ScanError(source, "the two eye regions overlap (hints too close or wrong)")
     H_in = meshtopo.boundary_halfedges(F)
@@ -520,15 +525,21 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
             moved[s] = _move_to_lift_off(V, F, V2, F2n, old_ids, loop, fit, st.margin_lift_mm,
                                          np.cos(np.radians(st.margin_max_turn_deg)),
                                          st.margin_on_eye_mm)
+        elif getattr(fit, "fissure", None) is not None:   # the cut's loop onto the fissure itself
+            moved[s] = move_loop_onto(V2, F2n, loop, fit.fissure)
         try:
             loop, lat = order_loop(loop, V2, fit.center, fit.forward, s)
         except ValueError:      # eye_basis: a gaze straight up or down has no pitch axis
             raise ScanError(source, f"{s} eye: the fitted gaze {np.round(fit.forward, 3).tolist()} "
                                     f"is vertical; not an eye") from None
+        # an eye placed from its texture cuts away the scan's coarse stand-in for the eye (the
+        # photographed eye): only the head that stays must lie outside the eyeball
         checks[s] = eye_checks.check_eye(
-            V, F, fit.center, fit.radius, fit.forward, V2[loop], lim, fit.residual_rms_mm,
+            V, F if fit.method == "geometry" else F[~fit.region], fit.center, fit.radius,
+            fit.forward, V2[loop], lim, fit.residual_rms_mm,
             eye_points=V[np.unique(F[fit.region])] if fit.method == "geometry" else None,
-            cornea=fit.cornea)
+            cornea=fit.cornea, lateral_index=lat,
+            standoff_mm=0.0 if fit.method == "geometry" else MARGIN_OFF[0])
         fissure, doubts = None, []
         if fit.method == "texture" and texture is not None:
             fissure, doubts = _fissure_doubts(V, F, mesh_arrays, texture, hints[s], fit, V2[loop], st)
