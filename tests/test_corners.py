@@ -130,8 +130,20 @@ def test_the_strip_closes_the_corner_manifold_and_inside_the_eye(snapped):
         assert not np.isin(e.loop[0], bnd)
     car = out["caruncle_faces"]
     assert len(car) == metrics["caruncle_faces"] > 0 and car.min() >= m0
-    # the strip faces are the caruncle (only medial corners were lifted)
-    assert len(car) == len(F) - m0
+    # the caruncle: the medial strips' faces up to CARUNCLE_MM along the lids from the canthus
+    # (only medial corners were lifted); the strip beyond is the lid's inside
+    assert set(car.tolist()) <= set(range(m0, len(F)))
+    for e in frames:
+        P = V[e.loop]
+        arc = np.full(len(P), np.inf)
+        for order in (np.arange(len(P)), np.r_[0, np.arange(len(P) - 1, 0, -1)]):
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P[order], axis=0), axis=1))])
+            arc[order] = np.minimum(arc[order], s)
+        pos = {int(v): k for k, v in enumerate(e.loop)}
+        mine = [f for f in car if any(int(v) in pos for v in F[f])]
+        assert mine
+        for f in mine:
+            assert max(arc[pos[int(v)]] for v in F[f] if int(v) in pos) <= cn.CARUNCLE_MM + 1e-9
 
 
 def test_nothing_changes_when_every_corner_rests_on_the_eye():
@@ -195,6 +207,14 @@ def test_rig_turns_the_strip_with_its_corner_and_keeps_it_inside(snapped):
         # the off-globe corner keeps its canthus's gain
         off = ~e.on_eye
         np.testing.assert_allclose(f.theta_down[e.loop[off]], f.theta_down[e.loop[0]])
+    # eyelid landmarks 0 and 6 are the loop's ends: the canthi, the medial one off the globe
+    from pipeline.rig.landmarks import eyelid_landmarks
+
+    for e in E:
+        lm = eyelid_landmarks(V, e)
+        np.testing.assert_array_equal(lm.points[0], V[e.loop[0]])
+        np.testing.assert_array_equal(lm.points[6], V[e.loop[e.lateral_index]])
+        assert np.linalg.norm(lm.points[0] - e.center) - R > 3.5
     res = sweep_check(V, F, E, rig.shapes, np.arange(-25.0, 25.1, 2.5))
     assert res["flipped_faces"] == 0
     assert res["max_gap_mm"] < 0.05 and res["max_penetration_mm"] < 0.05

@@ -33,6 +33,10 @@ MARGIN_OFF_GLOBE_MM = 2.1
 CORNER_MAX_SHARE = 0.35
 
 
+#: How far along the lids from the medial canthus the caruncle reaches (the fissure's end to the
+#: lid margin's medial end, 15.2 - 10.8 mm from the gaze axis in UnityEyes' registered regions):
+#: a medial strip beyond it is the inside of the lid, skin.
+CARUNCLE_MM = 4.4
 #: The caruncle's look in the asset (``Materials/Caruncle``, linear RGB, and its roughness): moist
 #: pink mucosa, glossier than skin, no texture.
 CARUNCLE_DIFFUSE = (0.72, 0.34, 0.33)
@@ -170,8 +174,9 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
     -------
     dict
         ``V``, ``F`` (strip faces appended), ``UV``, ``FUV`` (when given), ``strip`` ((k, 2)
-        int64: inner vertex, its loop vertex), ``medial_faces`` / ``lateral_faces`` (face ids of
-        each strip).
+        int64: inner vertex, its loop vertex), ``medial_faces`` (the medial strip's faces within
+        ``CARUNCLE_MM`` of the canthus along the lids: the caruncle; beyond, the inside of the lid)
+        and ``lateral_faces`` (the lateral strip's).
     """
     V = np.asarray(V, float)
     F = np.asarray(F, np.int64)
@@ -214,7 +219,18 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
         a = loop[np.array(seq[:-1])]
         b = loop[np.array(seq[1:])]
         sense = _loop_edge_faces(F, a, b)
-        faces = []
+        faces, near = [], []
+        # arc length of each loop vertex from the canthus, along its lid: the caruncle takes the
+        # medial end of the fissure only (CARUNCLE_MM), the strip beyond it is the lid's inside
+        arc = {}
+        for lid in ((1, 1), (-1, -1)):
+            j, acc = 0, 0.0
+            for _ in range(L // 2):
+                nxt = (j + lid[0]) % L
+                acc += float(np.linalg.norm(V[loop[nxt]] - V[loop[j]]))
+                arc[nxt] = min(arc.get(nxt, np.inf), acc)
+                j = nxt
+        arc[0] = 0.0
         for i in range(len(seq) - 1):
             ja, jb = seq[i], seq[i + 1]
             pa, pb = int(loop[ja]), int(loop[jb])
@@ -229,12 +245,14 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
                 tri = [(pb, pa, qb)]
             for t in tri:
                 faces.append(t if sense[i] >= 0 else t[::-1])
+                near.append(max(arc[seq[i]], arc[seq[i + 1]]) <= CARUNCLE_MM)
         first = len(F) + len(newF)
         for t in faces:
             newF.append(t)
             if UV is not None:
                 newFUV.append([uv_of[v] if v < nv else nuv + (v - nv) for v in t])
-        out[f"{name}_faces"] = np.arange(first, first + len(faces), dtype=np.int64)
+        ids = np.arange(first, first + len(faces), dtype=np.int64)
+        out[f"{name}_faces"] = ids[np.asarray(near, bool)] if name == "medial" else ids
     if not newF:
         return out
     out["V"] = np.concatenate([V, np.asarray(newV)])
