@@ -148,8 +148,8 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
     Each loop vertex ``p`` of a run that stands off the eye gets an inner vertex ``q`` on the ray
     from the eye centre through it, ``depth_mm`` inside the sphere (deep enough to hide in the
     eye's opaque sclera, under its clear shell); consecutive loop vertices and their inner
-    vertices make two triangles, and at each end of the run the first loop vertex that rests on
-    the eye closes it with one. The strip uses each loop edge the other way round from the skin
+    vertices make two triangles; the strip takes in ``pad`` loop vertices resting on the eye at
+    each end of the run and closes with one triangle to the next. The strip uses each loop edge the other way round from the skin
     face beside it, so the mesh stays manifold and consistently oriented. Texture coordinates of
     an inner vertex are those of its loop vertex (the strip shows the colour of the lid margin).
 
@@ -195,6 +195,17 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
                 uv_of.setdefault(v, t)
     nv, nuv = len(V), 0 if UV is None else len(out["UV"])
     off = np.linalg.norm(V[loop] - c, axis=1) - radius
+    # arc length of each loop vertex from the medial canthus along its lid: the caruncle takes
+    # the medial end of the fissure only (CARUNCLE_MM), a strip beyond it is the lid's inside
+    arc = np.full(L, np.inf)
+    for step in (1, -1):
+        j, acc = 0, 0.0
+        arc[0] = 0.0
+        for _ in range(L // 2):
+            nxt = (j + step) % L
+            acc += float(np.linalg.norm(V[loop[nxt]] - V[loop[j]]))
+            arc[nxt] = min(arc[nxt], acc)
+            j = nxt
     for name in ("medial", "lateral"):
         pos = getattr(runs, name)
         if len(pos) == 0 or off[pos].max() <= min_gap_mm:
@@ -220,17 +231,6 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
         b = loop[np.array(seq[1:])]
         sense = _loop_edge_faces(F, a, b)
         faces, near = [], []
-        # arc length of each loop vertex from the canthus, along its lid: the caruncle takes the
-        # medial end of the fissure only (CARUNCLE_MM), the strip beyond it is the lid's inside
-        arc = {}
-        for lid in ((1, 1), (-1, -1)):
-            j, acc = 0, 0.0
-            for _ in range(L // 2):
-                nxt = (j + lid[0]) % L
-                acc += float(np.linalg.norm(V[loop[nxt]] - V[loop[j]]))
-                arc[nxt] = min(arc.get(nxt, np.inf), acc)
-                j = nxt
-        arc[0] = 0.0
         for i in range(len(seq) - 1):
             ja, jb = seq[i], seq[i + 1]
             pa, pb = int(loop[ja]), int(loop[jb])
