@@ -19,7 +19,7 @@ import numpy as np
 
 from pipeline.fork import fork_call, fork_result
 from pipeline.io.atomic import atomic_dir
-from pipeline.io.eyes_file import lateral_canthus_index, read_eyes, write_eyes
+from pipeline.io.eyes_file import read_eyes, write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.usd.eyeball import read_eyeball_params
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
@@ -49,8 +49,8 @@ def main(argv) -> dict:
     for s, e in records.items():  # loop fields now refer to the snapped mesh
         loop = np.asarray(out[f"loop_{s}"], np.int64)
         doc[s] = {**e.doc, "loop_indices": loop.tolist(), "loop_points": out["V"][loop].tolist(),
-                  "lateral_canthus_index": lateral_canthus_index(out["V"][loop], e.center,
-                                                                 e.forward, s),
+                  "lateral_canthus_index": sn.lateral_position(
+                      mesh, s, out["V"][loop], sn.PlacedEye(e.center, e.radius, e.forward)),
                   "snap": dict(reports[s])}
     with atomic_dir(args.out) as tmp:
         save_mesh(tmp / "mesh.npz", **out)

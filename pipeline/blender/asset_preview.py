@@ -183,7 +183,7 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 180, sam
     t_bpy = time.perf_counter() - t_start
     from PIL import Image, ImageDraw
 
-    from pipeline.blender.materials import setup_eyeball_materials, skin_material
+    from pipeline.blender.materials import eye_region_materials, setup_eyeball_materials
     from pipeline.blender.scene import add_inbetween_keys, bundled_hdri, evaluated_vertices, find_image, import_usd
     from pipeline.io.rig_file import read_rig_arrays
     from pipeline.rig import lids
@@ -212,10 +212,8 @@ def render_sheet(asset: Path, rig_npz: Path, out_png: Path, size: int = 180, sam
     # materials
     color = find_image([skin], "Skin", "color")
     disp = find_image([skin], "Skin", "displacement")
-    for slot in skin.material_slots:
-        if slot.material is not None:
-            skin_material(slot.material, color, disp, displacement_method="BUMP",
-                          subsurface_method=opts["subsurface_method"], **SKIN_BSDF)
+    eye_region_materials(skin, color, disp, displacement_method="BUMP",
+                         subsurface_method=opts["subsurface_method"], **SKIN_BSDF)
     eyes = [o for o in objs if o is not skin]
     iris = find_image(eyes, "Iris", "iris_")
     sclera = find_image(eyes, "Sclera", "sclera_")

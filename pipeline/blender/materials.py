@@ -206,6 +206,45 @@ def skin_material(mat, color_image, disp_image, displacement_method=None, subsur
     return {"mat": mat, "nt": nt, "disp": d, "out": out}
 
 
+def caruncle_material(mat, subsurface_method=None, **bsdf_inputs) -> dict:
+    """Caruncle: the asset's moist pink (``pipeline.geometry.corners.CARUNCLE_DIFFUSE``), glossier than
+    the skin, with the skin's subsurface scattering (``bsdf_inputs``, e.g. the render worker's
+    ``SKIN_BSDF``); no texture, no displacement. Returns the dict of :func:`skin_material`."""
+    from pipeline.geometry.corners import CARUNCLE_DIFFUSE, CARUNCLE_ROUGHNESS
+
+    nt, out = new_tree(mat)
+    b = principled(nt, **{**bsdf_inputs, "Base Color": (*CARUNCLE_DIFFUSE, 1.0),
+                          "Roughness": CARUNCLE_ROUGHNESS})
+    if subsurface_method is not None:
+        try:
+            b.subsurface_method = subsurface_method
+        except (AttributeError, TypeError):
+            pass
+    nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
+    return {"mat": mat, "nt": nt, "disp": None, "out": out}
+
+
+def is_caruncle(mat) -> bool:
+    """Whether a material of the EyeRegion mesh is the asset's caruncle (``Materials/Caruncle``)."""
+    return mat is not None and mat.name.split(".")[0] == "Caruncle"
+
+
+def eye_region_materials(skin_obj, color_image, disp_image, displacement_method=None,
+                         subsurface_method=None, **bsdf_inputs) -> list:
+    """Set up every material slot of the EyeRegion mesh: the caruncle subset's with
+    :func:`caruncle_material`, the others with :func:`skin_material`; returns their dicts."""
+    out = []
+    for slot in skin_obj.material_slots:
+        if slot.material is None:
+            continue
+        if is_caruncle(slot.material):
+            out.append(caruncle_material(slot.material, subsurface_method, **bsdf_inputs))
+        else:
+            out.append(skin_material(slot.material, color_image, disp_image, displacement_method,
+                                     subsurface_method, **bsdf_inputs))
+    return out
+
+
 def thin_coat(mat) -> None:
     """Sclera tear film as a thin clear coat: Fresnel mix of a sharp glossy reflection and
     straight transmission (no refraction), keeping the bump of the asset's coat.

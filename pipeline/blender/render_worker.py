@@ -96,8 +96,8 @@ import numpy as np
 
 from pipeline.blender.film import render_passes, write_film_png
 from pipeline.blender.lashes import LASHES, add_lash_objects, lash_curves
-from pipeline.blender.materials import (CORNEA_IOR, eyelash_material, set_tint, setup_eyeball_materials,
-                                        skin_material, thin_coat)
+from pipeline.blender.materials import (CORNEA_IOR, eye_region_materials, eyelash_material, set_tint,
+                                        setup_eyeball_materials, thin_coat)
 from pipeline.blender.seg_passes import SegPasses
 from pipeline.blender.scene import add_inbetween_keys, evaluated_vertices, find_image, import_usd
 from pipeline.blender.world import EnvironmentWorld
@@ -263,11 +263,7 @@ class Worker:
         # materials: skin
         color = find_image([self.skin], "Skin", "color")
         disp = find_image([self.skin], "Skin", "displacement")
-        self.skin_mats = []
-        for slot in self.skin.material_slots:
-            if slot.material is not None:
-                self.skin_mats.append(skin_material(slot.material, color, disp, subsurface_method="BURLEY",
-                                                    **SKIN_BSDF))
+        self.skin_mats = eye_region_materials(self.skin, color, disp, subsurface_method="BURLEY", **SKIN_BSDF)
         self.skin_detail = None
         # materials: eyes (textures of all variants loaded once)
         tex_dir = eb_path.parent / "textures"

@@ -7,7 +7,7 @@ documented once in :mod:`pipeline.render.seg`. Here:
   :data:`pipeline.render.seg.AOV_CHANNELS` on the view layer, sets the pass alpha threshold to
   0 (the first surface the camera ray meets ends the data passes, a transparent coat too) and
   adds an AOV output to every material: a constant class for skin (caruncle by the distance
-  attribute), iris, pupil, sclera and lashes; for the cornea and sclera coat the
+  attribute), the asset's caruncle subset, iris, pupil, sclera and lashes; for the cornea and sclera coat the
   "what lies behind" nodes (:func:`_behind_nodes`) whose plane uniforms are returned.
 * :func:`set_eye_planes` sets those uniforms per image from the evaluated pupil and iris rings.
 * :func:`coverage_and_depth` takes the per-class coverages and the Z pass from the render's
@@ -146,8 +146,12 @@ def setup_passes(bpy, scene, skin, skin_rest_mm, medial_vertices, eyes: dict, la
     attr = skin.data.attributes.get(CANTHUS_ATTRIBUTE) or skin.data.attributes.new(CANTHUS_ATTRIBUTE, "FLOAT",
                                                                                   "POINT")
     attr.data.foreach_set("value", dist)
+    from pipeline.blender.materials import is_caruncle
+
     for slot in skin.material_slots:
-        if slot.material is not None:
+        if is_caruncle(slot.material):
+            _aov(slot.material.node_tree, {CARUNCLE: 1.0})     # the corner strip's caruncle subset
+        elif slot.material is not None:
             _skin_nodes(slot.material)
     _aov(lash_material.node_tree, {LASHES: 1.0})
     uniforms = {}

@@ -10,10 +10,15 @@ around them, so each fit is checked against it (``check_eye``, ``check_pair``):
   sphere is too large or too far forward (within ``cone_depth_mm`` inside the corneal cone,
   where a scanner that sees the iris through the cornea leaves a recessed disc).
 - ``radius_in_range``: the radius lies in the anatomical range.
-- ``opening_fits``: the opening loop (a chord of the eyeball at its widest) is not wider than
-  the eyeball's diameter.
-- ``loop_on_sphere``: the eyelid loop lies on the eyeball, sclera or fitted cornea (the margin
-  is where lid meets eye).
+- ``opening_fits``: the lids' part of the opening loop (a chord of the eyeball at its widest) is
+  not wider than the eyeball's diameter.
+- ``loop_on_sphere``: the lids' part of the eyelid loop lies on the eyeball, sclera or fitted
+  cornea (the margin is where lid meets eye).
+
+Both leave the corners out: the loop runs from canthus to canthus, and where the lids leave the
+globe near a canthus (anatomy: the medial fissure corner lies 3-7 mm off it) a run from that
+canthus standing farther off than a lid margin can is a corner
+(:func:`pipeline.geometry.corners.corner_weights`, at most ``corner_max_share`` of each lid).
 - ``opening_convex``: the loop, seen along the gaze, fills ``min_convex_fill`` of its convex
   hull (eyelid margins are convex; a notch or a tongue of scanned eyeball left on a lid is not).
 - ``cornea_shows``: every eye has a cornea, so the scanned eye surface around the gaze axis
@@ -32,6 +37,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+
+from pipeline.geometry.corners import CORNER_MAX_SHARE, MARGIN_OFF_GLOBE_MM, corner_weights
 
 
 @dataclass(frozen=True)
@@ -53,6 +60,8 @@ class CheckLimits:
     min_points: int = 8              # per part, else the cornea check has too little to say
     max_radius_diff_mm: float = 2.0  # between the two eyes of one head (axial lengths rarely
                                      # differ by 2 mm; the procedural head draws up to 1.7 mm)
+    corner_off_globe_mm: float = MARGIN_OFF_GLOBE_MM  # a loop run from a canthus farther off is a corner
+    corner_max_share: float = CORNER_MAX_SHARE        # of each lid, at most
 
 
 def limits_for(median_edge_mm: float, radius_range_mm=(10.0, 18.0)) -> CheckLimits:
@@ -147,7 +156,7 @@ def cornea_standoff(eye_points, center, radius, forward, lim: CheckLimits):
 
 
 def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=0.0,
-              eye_points=None, cornea=None) -> dict:
+              eye_points=None, cornea=None, lateral_index=None, standoff_mm=0.0) -> dict:
     """The per-eye checks: ``{name: {"value": float, "limit": ..., "ok": bool}}``.
 
     Parameters
@@ -169,16 +178,32 @@ def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=
     cornea : dict, optional
         ``{"center": (3,), "radius": r}`` of a fitted corneal sphere: the loop may lie on it
         (a lid margin resting on the cornea).
+    lateral_index : int, optional
+        Position of the lateral canthus in a loop ordered medial canthus first: corner runs
+        (module doc) are then left out of ``opening_fits`` and ``loop_on_sphere``, and the lids
+        may span the chord of a sphere ``corner_off_globe_mm`` larger (a lid margin rests up to
+        that far off the globe).
+    standoff_mm : float
+        How far off the globe the loop is expected: 0 for a cut on the eye surface, the lid
+        margin's mean standoff for an outline of the visible fissure (a texture placement);
+        ``loop_on_sphere`` measures the loop's distance from that.
     """
     center = np.asarray(center, float)
     forward = np.asarray(forward, float)
     L = np.asarray(loop_points, float)
-    width = float(np.max(np.linalg.norm(L[:, None] - L[None], axis=2))) if len(L) > 1 else 0.0
     off = np.linalg.norm(L - center, axis=1) - radius
     if cornea is not None:
         off = np.minimum(off, np.linalg.norm(L - np.asarray(cornea["center"], float), axis=1)
                          - float(cornea["radius"]))
-    off = np.abs(off)
+    lids = np.ones(len(L), bool)
+    if lateral_index is not None and len(L) >= 3:
+        lids = corner_weights(L, off, lateral_index, lim.corner_off_globe_mm,
+                              lim.corner_max_share).on_eye
+    Ll = L[lids]
+    width = float(np.max(np.linalg.norm(Ll[:, None] - Ll[None], axis=2))) if len(Ll) > 1 else 0.0
+    off = np.abs(off[lids] - standoff_mm)
+    max_ratio = lim.max_width_ratio * (1.0 + (lim.corner_off_globe_mm / radius if lateral_index is not None
+                                              else 0.0))
     ins = inside_area(V, F, center, radius, forward, L.mean(axis=0), lim, rms)
     fill, allow = convex_fill(L, center, forward, max(0.1 * lim.edge_mm, 1e-9)) \
         if len(L) >= 3 else (0.0, 0.0)
@@ -189,13 +214,14 @@ def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=
                    "ok": ins <= lim.max_inside_area_mm2},
         "radius_in_range": {"value": round(float(radius), 4), "limit": [lo, hi],
                             "ok": bool(lo <= radius <= hi)},
-        "opening_fits": {"value": round(width / (2 * radius), 4), "limit": lim.max_width_ratio,
-                         "ok": width <= lim.max_width_ratio * 2 * radius},
+        "opening_fits": {"value": round(width / (2 * radius), 4), "limit": round(max_ratio, 4),
+                         "ok": width <= max_ratio * 2 * radius},
         "opening_convex": {"value": round(fill, 4), "limit": round(min_fill, 4),
                            "ok": fill >= min_fill},
         "loop_on_sphere": {"value": round(float(np.percentile(off, 90)), 4),
                            "limit": round(lim.max_loop_off_mm, 3),
-                           "ok": float(np.percentile(off, 90)) <= lim.max_loop_off_mm},
+                           "ok": float(np.percentile(off, 90)) <= lim.max_loop_off_mm,
+                           "corner_vertices": int((~lids).sum())},
     }
     if eye_points is not None:
         st = cornea_standoff(eye_points, center, radius, forward, lim)

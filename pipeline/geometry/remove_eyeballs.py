@@ -1,14 +1,16 @@
-"""Stage ``remove_eyeballs``: fit both scanned eyeballs, check them, cut them out of the head.
+"""Stage ``remove_eyeballs``: place both eyes, check them, cut the scanned eyes out of the head.
 
-Per eye the sphere, corneal bulge and removal region come from ``pipeline.geometry.eye_fit``
-(``find_eye``); this module runs both eyes on a local sub-mesh (``fit_eye_pair``: holes near
-the eyes closed for the fit and given to the opening, radius shared when both fits agree),
-cuts the regions out leaving one simple loop per opening, moves each loop vertex to where the
-uncut surface lifts off the fitted eye by ``margin_lift_mm`` (projected onto the eye, the
-margin between the last eyeball vertex and the first lid vertex; flip-guarded; loop vertices
-on a reconstruction-filled crease keep the cut), orders each loop from the medial canthus over
-the upper lid, and runs the self-checks of ``pipeline.geometry.eye_checks``: a failed check
-refuses the scan with one line instead of passing a wrong eyeball on.
+Both eyes are placed together on a local sub-mesh (``fit_eye_pair``: holes near the eyes closed
+for the fit and given to the opening, a scanner's flat fills marked as no evidence) by
+``pipeline.geometry.eye_place`` (a MAP fit of an eye model from every cue the scan keeps, with a
+calibrated uncertainty); an eye the geometry cannot place is placed from the colour texture
+(``eye_texture``, coarse scans), cut along the fissure the photograph shows. The regions are cut
+out leaving one simple loop per opening; each loop vertex moves to where the uncut surface lifts
+off the placed eye by ``margin_lift_mm`` (projected onto the eye; flip-guarded; loop vertices on
+a reconstruction-filled crease keep the cut); loops are ordered from the medial canthus over the
+upper lid; the self-checks of ``pipeline.geometry.eye_checks`` are recorded. Only what cannot be
+an asset is refused (a closed eye, nothing eye-like near a hint, a cut that leaves no simple
+loop); an eye placed from little evidence, or failing a self-check, is published with a doubt.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.geometry import eye_checks, meshtopo
 from pipeline.geometry.eye_fit import EyeMesh, eye_surface_distance, local_mesh, median_edge_length
+from pipeline.geometry.eye_texture import MARGIN_OFF
+from pipeline.geometry.fissure_cut import move_loop_onto, openings_at_fissures
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import signed_distance
 from pipeline.settings import Settings, setting
@@ -515,10 +519,13 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         ``eyes`` (eyes.json content), ``fits`` (EyeFit per side), ``metrics``.
     """
     st = st or EyeSettings()
-    V = np.asarray(mesh_arrays["V"], dtype=np.float64)
-    F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     mesh, fits, placements = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture,
                                           prior=prior)
+    # an eye placed from its texture is cut along the fissure the photograph shows: the faces
+    # near that outline are split first (pipeline/geometry/fissure_cut.py)
+    mesh_arrays, fits = openings_at_fissures(mesh_arrays, fits)
+    V = np.asarray(mesh_arrays["V"], dtype=np.float64)
+    F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     if (fits["left"].region & fits["right"].region).any():
         raise ScanError(source, "the two eye regions overlap (hints too close or wrong)")
     H_in = meshtopo.boundary_halfedges(F)
@@ -581,15 +588,21 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
             moved[s] = _move_to_lift_off(V, F, V2, F2n, old_ids, loop, fit, st.margin_lift_mm,
                                          np.cos(np.radians(st.margin_max_turn_deg)),
                                          st.margin_on_eye_mm)
+        elif getattr(fit, "fissure", None) is not None:   # the cut's loop onto the fissure itself
+            moved[s] = move_loop_onto(V2, F2n, loop, fit.fissure)
         try:
             loop, lat = order_loop(loop, V2, fit.center, fit.forward, s)
         except ValueError:      # eye_basis: a gaze straight up or down has no pitch axis
             raise ScanError(source, f"{s} eye: the fitted gaze {np.round(fit.forward, 3).tolist()} "
                                     f"is vertical; not an eye") from None
+        # an eye placed from its texture cuts away the scan's coarse stand-in for the eye (the
+        # photographed eye): only the head that stays must lie outside the eyeball
         checks[s] = eye_checks.check_eye(
-            V, F, fit.center, fit.radius, fit.forward, V2[loop], lim, fit.residual_rms_mm,
+            V, F if fit.method == "geometry" else F[~fit.region], fit.center, fit.radius,
+            fit.forward, V2[loop], lim, fit.residual_rms_mm,
             eye_points=V[np.unique(F[fit.region])] if fit.method == "geometry" else None,
-            cornea=fit.cornea)
+            cornea=fit.cornea, lateral_index=lat,
+            standoff_mm=0.0 if fit.method == "geometry" else MARGIN_OFF[0])
         fissure, doubts = None, []
         if fit.method == "texture" and texture is not None:
             fissure, doubts = _fissure_doubts(V, F, mesh_arrays, texture, hints[s], fit, V2[loop], st)

@@ -51,6 +51,7 @@ from pipeline.geometry.eyelid_loop import (canthus_apex, orient_and_place, polyl
                                           project_to_polyline, resample_loop, smooth_margin)
 from pipeline.geometry.flips import (collapse_flipped, count_flipped, flip_slivers, mirror_flipped,
                                      reference_face_normals, relax, repair_flips, untangle)
+from pipeline.geometry.mesh_clean import clean_mesh
 from pipeline.geometry.mesh_edit import TriMesh
 from pipeline.settings import Settings, setting
 
@@ -150,56 +151,6 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
 
 
 # ----------------------------------------------------------------------------- cleaning
-
-def clean_mesh(V, F, area_tol=1e-12):
-    """Remove degenerate and duplicate faces, non-manifold extras and unreferenced vertices.
-
-    Faces beyond the second one on an edge are dropped (smallest first kept out),
-    then only the largest connected component... is *not* enforced here.
-
-    Returns
-    -------
-    V (n', 3), F (m', 3)
-    """
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    rep = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])
-    area = 0.5 * np.linalg.norm(mc.face_normals(V, F, normalize=False), axis=1)
-    F = F[~rep & (area > area_tol)]
-    _, first = np.unique(np.sort(F, axis=1), axis=0, return_index=True)
-    F = F[np.sort(first)]
-    for _ in range(5):
-        n = len(V)
-        he = mc.edges_of(F)
-        und = np.sort(he, axis=1)
-        ukey = und[:, 0] * n + und[:, 1]
-        _, inv, cnt = np.unique(ukey, return_inverse=True, return_counts=True)
-        dkey = he[:, 0] * n + he[:, 1]
-        _, dinv, dcnt = np.unique(dkey, return_inverse=True, return_counts=True)
-        bad_he = (cnt[inv] > 2) | (dcnt[dinv] > 1)
-        if not bad_he.any():
-            break
-        bad_face = bad_he.reshape(-1, 3).any(axis=1)
-        # drop the bad faces with the smallest area; one pass removes the worst offenders
-        idx = np.flatnonzero(bad_face)
-        area = 0.5 * np.linalg.norm(mc.face_normals(V, F[idx], normalize=False), axis=1)
-        drop = idx[np.argsort(area)[: max(1, len(idx) // 2)]]
-        F = np.delete(F, drop, axis=0)
-    for _ in range(10):
-        # boundary vertices with two outgoing boundary edges (pinched boundary): drop their faces
-        n = len(V)
-        he = mc.edges_of(F)
-        key = he[:, 0] * n + he[:, 1]
-        bnd = he[~np.isin(key, he[:, 1] * n + he[:, 0])]
-        pinched = np.bincount(bnd[:, 0], minlength=n) > 1
-        if not pinched.any():
-            break
-        F = F[~pinched[F].any(axis=1)]
-    used = np.unique(F)
-    remap = -np.ones(len(V), dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return V[used], remap[F]
-
 
 def largest_components(V, F, min_share=0.0, keep_faces_with=None):
     """Keep the largest connected component (and any containing ``keep_faces_with`` vertices)."""

@@ -29,6 +29,8 @@ import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
 from pipeline.geometry import meshtopo
+from pipeline.geometry.corners import (CORNER_MAX_SHARE, MARGIN_OFF_GLOBE_MM, CornerRuns, close_corners,
+                                       corner_weights)
 from pipeline.geometry.flips import untangle
 from pipeline.settings import Settings, setting
 
@@ -52,6 +54,13 @@ class SnapSettings(Settings):
     max_relax_iterations: int = setting(200, ge=0, le=100000)
     graze_slack_mm: float = setting(0.25, ge=0, le=100)
     min_area_fraction: float = setting(0.25, ge=0, le=1)  # falloff-zone faces keep this share of their rest area
+    # corners off the globe (pipeline/geometry/corners.py): a lid margin rests 0.35-2.1 mm off the
+    # eye (UnityEyes' eight registered eye regions); a run of the loop from a canthus standing
+    # farther off is a corner: the snap fades to 0 toward that canthus over the run
+    corner_off_globe_mm: float = setting(MARGIN_OFF_GLOBE_MM, ge=0, le=50)
+    corner_max_share: float = setting(CORNER_MAX_SHARE, gt=0, le=0.5)  # of each lid's arc, at most, per corner run
+    close_corners: bool = True                            # strip of faces from an off-globe corner into the eye (caruncle medially)
+    strip_depth_mm: float = setting(0.8, gt=0, le=5)      # its inner edge this far inside the sphere: under the eye's 0.5 mm clear shell
 
 
 @dataclass
@@ -145,7 +154,7 @@ def smoothstep_falloff(dist, radius):
     return x * x * (3.0 - 2.0 * x)
 
 
-def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=None):
+def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=None, weight=None):
     """Snap one eyelid loop (and its falloff zone) onto the eye.
 
     Parameters
@@ -158,6 +167,9 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
     st : SnapSettings
     graph : scipy.sparse matrix, optional
         Edge-length graph of (V, F).
+    weight : (L,) float64, optional
+        Share of its way onto the eye each loop vertex goes (corners off the globe,
+        :func:`pipeline.geometry.corners.corner_weights`); None = all of it.
 
     Returns
     -------
@@ -185,6 +197,8 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
     if st.clearance_mm:
         _, Nq, _ = eye.closest(target)
         target = target + st.clearance_mm * Nq
+    if weight is not None:
+        target = P + np.asarray(weight, float)[:, None] * (target - P)
     delta = target - P
     G = edge_graph(V, F) if graph is None else graph
     dist, _, src = dijkstra(G, directed=False, indices=loop, min_only=True,
@@ -260,8 +274,12 @@ def rotated(eye: PlacedEye, pitch_deg, yaw_deg) -> PlacedEye:
     return PlacedEye(eye.center, eye.radius, f / np.linalg.norm(f), eye.params)
 
 
-def margin_report(V, loop, eye: PlacedEye, st: SnapSettings, n_steps=5):
+def margin_report(V, loop, eye: PlacedEye, st: SnapSettings, n_steps=5, on_eye=None):
     """Gap/penetration of the margin at rest and over the anatomical rotation range.
+
+    ``on_eye`` (L,) bool: the loop vertices snapped onto the eye (the corners off the globe are
+    not, :mod:`pipeline.geometry.corners`); gaps are measured on them, and on the edges between
+    two of them, while nothing of the loop may lie inside the eye. None = the whole loop.
 
     Returns
     -------
@@ -272,44 +290,61 @@ def margin_report(V, loop, eye: PlacedEye, st: SnapSettings, n_steps=5):
         ``meets_cornea`` (True when some rotation moves the surface under a margin vertex by
         more than 0.01 mm, i.e. the corneal bulge reaches the margin).
     """
+    on = np.ones(len(loop), bool) if on_eye is None else np.asarray(on_eye, bool)
     P = V[loop]
     d = eye.signed_distance(P)
     mids = 0.5 * (P + np.roll(P, -1, axis=0))
-    dm = eye.signed_distance(mids)
+    dm = eye.signed_distance(mids[on & np.roll(on, -1)]) if (on & np.roll(on, -1)).any() else np.zeros(1)
     gmax, imax, cornea = 0.0, 0.0, False
     base = d
     for pitch in np.linspace(-st.max_pitch_deg, st.max_pitch_deg, n_steps):
         for yaw in np.linspace(-st.max_yaw_deg, st.max_yaw_deg, n_steps):
             dr = rotated(eye, pitch, yaw).signed_distance(P)
-            gmax = max(gmax, float(dr.max()))
+            gmax = max(gmax, float(dr[on].max(initial=0.0)))
             imax = max(imax, float(-dr.min()))
-            if np.abs(dr - base).max() > 0.01:  # the corneal bulge (not the sphere) under the margin
+            if np.abs(dr - base)[on].max(initial=0.0) > 0.01:  # the corneal bulge (not the sphere) under the margin
                 cornea = True
-    return {"gap_max_mm": float(np.abs(d).max()), "inside_max_mm": float(max(0.0, -d.min())),
+    return {"gap_max_mm": float(np.abs(d[on]).max(initial=0.0)), "inside_max_mm": float(max(0.0, -d.min())),
             "edge_midpoint_min_mm": float(dm.min()),
             "rotated_gap_max_mm": gmax, "rotated_inside_max_mm": imax, "meets_cornea": cornea}
 
 
+def _snap_side(V_in, V0, F, loop, eye: PlacedEye, st: SnapSettings, G, lateral_index=None):
+    """One eye's snap of ``V_in`` (n, 3): (snapped (n, 3), margin report, metrics, moved
+    vertices, corner runs).
 
-def _snap_side(V_in, V0, F, loop, eye: PlacedEye, st: SnapSettings, G):
-    """One eye's snap of ``V_in`` (n, 3): (snapped (n, 3), margin report, metrics).
-
-    ``V0`` (n, 3) is the unsnapped mesh, from which ``max_move_mm`` is measured.
+    ``V0`` (n, 3) is the unsnapped mesh, from which ``max_move_mm`` is measured. Corner runs
+    (:func:`pipeline.geometry.corners.corner_weights`) keep their canthus off the eye.
     """
-    Vs, info = snap_loop(V_in, F, loop, eye, st, graph=G)
+    if lateral_index is None:        # the loop point farthest toward either side of the eye
+        from pipeline.geometry.frame import eye_basis
+
+        x = (V_in[loop] - eye.center) @ eye_basis(eye.forward)[0]
+        lateral_index = int(np.argmax(np.abs(x - x[0])))
+    off = eye.signed_distance(V_in[loop])
+    if 0 < lateral_index < len(loop):
+        runs = corner_weights(V_in[loop], off, lateral_index, st.corner_off_globe_mm, st.corner_max_share)
+    else:                            # a loop without two canthi (not ordered from one): no corners
+        runs = CornerRuns(np.ones(len(loop)), np.zeros(0, np.int64), np.zeros(0, np.int64))
+    Vs, info = snap_loop(V_in, F, loop, eye, st, graph=G,
+                         weight=None if runs.on_eye.all() else runs.weight)
     moved = info["moved"]
     far = info["falloff_distance"] > st.falloff_mm
     moved_far = int((np.linalg.norm(Vs - V_in, axis=1)[far] > 0).sum())
-    rep = margin_report(Vs, loop, eye, st)
+    rep = margin_report(Vs, loop, eye, st, on_eye=runs.on_eye)
     d_zone = eye.signed_distance(Vs[moved])
+    d_loop = eye.signed_distance(Vs[loop])
     metrics = {"loop_length": int(len(loop)), "moved_vertices": int(len(moved)),
                "grazing_fallbacks": info["grazing"], "pushed_out": info["pushed_out"],
                "relax_iterations": info["relax_iterations"],
                "moved_outside_falloff": moved_far,
                "zone_inside_max_mm": float(max(0.0, -d_zone.min())),
                "max_move_mm": float(np.linalg.norm(Vs[moved] - V0[moved], axis=1).max()),
+               "corner_vertices": int((~runs.on_eye).sum()),
+               "medial_canthus_off_mm": float(d_loop[0]),
+               "lateral_canthus_off_mm": float(d_loop[lateral_index]),
                **rep}
-    return Vs, rep, metrics, moved
+    return Vs, rep, metrics, moved, runs
 
 
 def _independent(G, F, moved, V0, V_first):
@@ -372,16 +407,19 @@ def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz
         loops[s] = loop
     G = edge_graph(V, F) if graph is None else graph
     placed = {s: PlacedEye(*eyes[s], params) for s in SIDES}
+    lateral = {s: lateral_position(mesh, s, V[loops[s]], placed[s]) for s in SIDES}
     first, second = SIDES
-    job = fork_call(_snap_side, V, V, F, loops[first], placed[first], st, G)
-    V2nd, rep2, met2, moved2 = _snap_side(V, V, F, loops[second], placed[second], st, G)
-    (V1st, rep1, met1, _), _ = fork_result(job)
+    job = fork_call(_snap_side, V, V, F, loops[first], placed[first], st, G, lateral[first])
+    V2nd, rep2, met2, moved2, runs2 = _snap_side(V, V, F, loops[second], placed[second], st, G,
+                                                 lateral[second])
+    (V1st, rep1, met1, _, runs1), _ = fork_result(job)
     if _independent(G, F, moved2, V, V1st):
         V2 = V1st.copy()
         changed = (V2nd != V).any(axis=1)
         V2[changed] = V2nd[changed]
     else:
-        V2, rep2, met2, _ = _snap_side(V1st, V, F, loops[second], placed[second], st, G)
+        V2, rep2, met2, _, runs2 = _snap_side(V1st, V, F, loops[second], placed[second], st, G,
+                                              lateral[second])
     reports = {first: rep1, second: rep2}
     metrics = {first: met1, second: met2}
     out = dict(mesh)
@@ -391,4 +429,52 @@ def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz
     metrics["gap_max_mm"] = max(metrics[s]["gap_max_mm"] for s in SIDES)
     metrics["inside_max_mm"] = max(max(metrics[s]["inside_max_mm"], metrics[s]["zone_inside_max_mm"])
                                    for s in SIDES)
+    runs = {first: runs1, second: runs2}
+    for s in SIDES:
+        out[f"loop_snap_{s}"] = runs[s].weight
+    out = _close_all_corners(out, loops, runs, placed, st)
+    for s in SIDES:
+        metrics[s]["strip_vertices"] = int(len(out[f"corner_strip_{s}"]))
+    metrics["caruncle_faces"] = int(len(out["caruncle_faces"]))
+    metrics["edge_manifold_closed"] = meshtopo.is_edge_manifold(out["F"])
     return out, reports, metrics
+
+
+def lateral_position(mesh: dict, side: str, P, eye: PlacedEye) -> int:
+    """Position of the lateral canthus in ``loop_<side>``: retopo's ``lateral_index_<side>``, else
+    the loop point farthest toward the eye's lateral side."""
+    from pipeline.io.eyes_file import lateral_canthus_index
+
+    key = f"lateral_index_{side}"
+    if key in mesh:
+        return int(np.asarray(mesh[key]).ravel()[0])
+    return lateral_canthus_index(P, eye.center, eye.forward, side)
+
+
+def _close_all_corners(mesh: dict, loops: dict, runs: dict, placed: dict, st: SnapSettings) -> dict:
+    """Both eyes' corner strips (:func:`pipeline.geometry.corners.close_corners`) appended to the
+    mesh: ``corner_strip_<side>`` (k, 2) [inner vertex, loop vertex] and ``caruncle_faces`` (the
+    medial strips' faces, for the caruncle material) are added (empty when every corner rests on
+    the eye); texture coordinates, vertex colours and polygons follow the new faces."""
+    out = dict(mesh)
+    caruncle = []
+    for s in SIDES:
+        out[f"corner_strip_{s}"] = np.zeros((0, 2), np.int64)
+        if not st.close_corners or runs[s].on_eye.all():
+            continue
+        nV, nF = len(out["V"]), len(out["F"])
+        res = close_corners(out["V"], out["F"], loops[s], runs[s], placed[s].center, placed[s].radius,
+                            st.strip_depth_mm, out.get("UV"), out.get("FUV"))
+        new_faces = res["F"][nF:]
+        out["V"], out["F"] = res["V"], res["F"]
+        if "UV" in res:
+            out["UV"], out["FUV"] = res["UV"], res["FUV"]
+        if "VC" in out:
+            out["VC"] = np.concatenate([out["VC"], out["VC"][res["strip"][:, 1]]])
+        if "poly_counts" in out:
+            out["poly_counts"] = np.concatenate([out["poly_counts"], np.full(len(new_faces), 3, np.int64)])
+            out["poly_indices"] = np.concatenate([out["poly_indices"], new_faces.ravel()])
+        out[f"corner_strip_{s}"] = res["strip"]
+        caruncle.append(res["medial_faces"])
+    out["caruncle_faces"] = np.concatenate(caruncle) if caruncle else np.zeros(0, np.int64)
+    return out

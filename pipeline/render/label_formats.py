@@ -51,8 +51,9 @@ right eye is the mirror image (GazeML flips right eyes before its network).
 * **interior margin**, 16 points on our posed lid loop (the skin/eyeball seam). UnityEyes'
   ``interior_margin_idxs`` start at vertex 12 where the upper and lower margins meet beside the
   caruncle, run over the upper lid to the lateral canthus (index 8, GazeML's ``right_corner``) and
-  back along the lower lid. Our lids meet at the medial canthus itself (no caruncle mesh), so the
-  caruncle gets the medial :data:`CARUNCLE_FRACTION` of each lid's arc length (UnityEyes' loop of
+  back along the lower lid. Our lids meet at the medial canthus itself (landmark 0, the fissure's
+  end past the caruncle), so the caruncle gets the medial :data:`CARUNCLE_FRACTION` of each lid's
+  arc length (UnityEyes' loop of
   the opening, ``EyeRegionTopology.loops[0]``, gives the caruncle 2 of the 10 edges of each lid
   branch): points 1-7 lie on the upper lid at ``c + (1 - c) k / 8`` of its arc length from the
   medial canthus (k = 1..7), 8 is the lateral canthus (our landmark 6), 15-9 on the lower lid
@@ -62,8 +63,9 @@ right eye is the mirror image (GazeML flips right eyes before its network).
   ``caruncle_idxs = {28, 27, 25, 32, 31, 30, 33}``: 33 (last) is the medial canthus (our
   landmark 0); 32 / 30 lie on the upper / lower lid at ``c / 2``, 25 / 28 at ``c``; 27 and 31 are
   the midpoints of 25-28 and 32-30 cast onto the eyeball (UnityEyes moves them with the
-  neighbouring margin vertices). No caruncle is modelled or rendered: the points mark where it
-  would be.
+  neighbouring margin vertices). The asset models a caruncle only where the medial corner
+  stands off the globe (the strip closing it, pipeline/geometry/corners.py); the points follow
+  the rule above either way.
 * **iris**, 32 points on the iris boundary circle (through our 8 iris landmarks, which are
   vertices of that ring): UnityEyes' ``iris_idxs`` start at the medial side and go over the top
   (its sample JSON: ``iris_2d[1]`` is above ``iris_2d[0]``, which is the leftmost of a left eye),

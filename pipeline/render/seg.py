@@ -20,10 +20,11 @@ are coverages (filtered over the pixel like the image); a pixel's class is the c
 largest coverage, background where no surface covers half of it
 (:func:`classes_from_coverage`).
 
-Caruncle / inner corner (6): our meshes have no caruncle geometry, so the class marks the skin
-within :data:`CARUNCLE_RADIUS_MM` of the medial canthus (vertex 0 of the lid loop of each eye)
-on the rest mesh -- a per-vertex distance attribute, interpolated over the faces, that moves
-with the lids.
+Caruncle / inner corner (6): the asset's caruncle faces (``Materials/Caruncle``: the strip that
+closes a medial corner standing off the globe, pipeline/geometry/corners.py), and the skin within
+:data:`CARUNCLE_RADIUS_MM` of the medial canthus (vertex 0 of the lid loop of each eye) on the
+rest mesh -- a per-vertex distance attribute, interpolated over the faces, that moves with the
+lids (a corner resting on the eye has no caruncle faces).
 
 Depth (``NNNNNN_depth.exr``, one float32 channel ``Z``): z-depth in camera mm, the distance
 along the optical axis from the label's camera origin (``camera.position_head_mm``) to the
@@ -40,8 +41,8 @@ from __future__ import annotations
 import numpy as np
 
 RULE = ("class of the first surface the camera ray meets, iris and pupil as seen through the cornea "
-        "(the cornea's shader refracts the ray onto the posed pupil and iris discs); caruncle = skin within "
-        "2.5 mm of the medial canthus; majority coverage per pixel, background below half; "
+        "(the cornea's shader refracts the ray onto the posed pupil and iris discs); caruncle = the asset's "
+        "caruncle faces and skin within 2.5 mm of the medial canthus; majority coverage per pixel, background below half; "
         "pipeline/render/seg.py")
 DEPTH_CONVENTION = ("z-depth along the optical axis from the label camera's origin (camera.position_head_mm) "
                     "to the first surface the camera ray meets (the cornea over the iris), = -z of that "

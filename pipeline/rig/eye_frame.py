@@ -32,6 +32,12 @@ class EyeFrame:
         Eyelid-margin vertex indices: medial canthus first, upper lid, lateral canthus, lower lid.
     lateral_index : int
         Position of the lateral canthus in ``loop``.
+    on_eye : (L,) bool or None
+        Loop vertices the snap put on the eyeball; the others are corners that stand off the
+        globe (``loop_snap_<side>`` < 1, :mod:`pipeline.geometry.corners`). None = all.
+    strip : (k, 2) int64 or None
+        The corner strip closing the gap between those corners and the eye: its inner vertices
+        (inside the eyeball) and the loop vertex each hangs from (``corner_strip_<side>``).
     """
 
     side: str
@@ -41,6 +47,18 @@ class EyeFrame:
     loop: np.ndarray
     lateral_index: int
     profile: object = None
+    on_eye: np.ndarray | None = None
+    strip: np.ndarray | None = None
+
+    @property
+    def margin(self) -> np.ndarray:
+        """(k,) int64 loop vertices that rest on the eyeball (the whole loop without corners)."""
+        return self.loop if self.on_eye is None else self.loop[self.on_eye]
+
+    @property
+    def strip_inner(self) -> np.ndarray:
+        """(k,) int64 the corner strip's inner vertices (none without a strip)."""
+        return np.zeros(0, np.int64) if self.strip is None else self.strip[:, 0]
 
     def basis(self) -> np.ndarray:
         """(3, 3) rows ``e_x`` (horizontal, toward head +X), ``e_y`` (up), ``e_z`` (forward)."""
@@ -154,6 +172,31 @@ def _lateral_index_for_loop(e: dict, mesh: dict, side: str, V, loop, c, f) -> in
     return find_lateral_canthus(V[loop], c, f, side)
 
 
+def _corner_arrays(mesh: dict, side: str, loop, n_vertices: int, mesh_source):
+    """(on_eye (L,) bool or None, strip (k, 2) int64 or None) of one eye from the snap stage's
+    ``loop_snap_<side>`` and ``corner_strip_<side>``, validated."""
+    from pipeline.errors import ScanError
+
+    on_eye = strip = None
+    key = f"loop_snap_{side}"
+    if key in mesh:
+        w = np.asarray(mesh[key], dtype=np.float64).ravel()
+        if len(w) != len(loop) or not np.isfinite(w).all():
+            raise ScanError(mesh_source, f"{key} must hold one finite weight per loop vertex")
+        on_eye = w >= 1.0
+        if on_eye.sum() < len(loop) // 2:
+            raise ScanError(mesh_source, f"{key}: fewer than half the {side} loop rests on the eye")
+    key = f"corner_strip_{side}"
+    if key in mesh and len(mesh[key]):
+        strip = np.asarray(mesh[key])
+        if strip.ndim != 2 or strip.shape[1] != 2 or strip.dtype.kind not in "iu" \
+                or strip.min() < 0 or strip.max() >= n_vertices or not np.isin(strip[:, 1], loop).all():
+            raise ScanError(mesh_source, f"{key} must be (k, 2) vertex pairs: an inner vertex and "
+                                         f"a vertex of loop_{side}")
+        strip = strip.astype(np.int64)
+    return on_eye, strip
+
+
 def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="mesh.npz",
                max_rest_gap_mm: float = 0.5, profile=None) -> list[EyeFrame]:
     """Validated :class:`EyeFrame` per eye from the snap stage's eyes.json and mesh arrays.
@@ -252,13 +295,16 @@ def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="
         if Q[1:li, 1].mean() <= Q[li + 1:, 1].mean():
             raise ScanError(mesh_source, f"{key} runs over the lower lid first; the upper lid "
                                          f"must come first")
+        on_eye, strip = _corner_arrays(mesh, side, loop, len(V), mesh_source)
         frame = EyeFrame(side=side, center=c, radius=r, forward=f, loop=loop, lateral_index=li,
-                         profile=profile)
-        d = frame.surface_distance(V[loop], 0.0)
+                         profile=profile, on_eye=on_eye, strip=strip)
+        d = frame.surface_distance(V[frame.margin], 0.0)
         if np.max(np.abs(d)) > max_rest_gap_mm:
             what = "sphere" if profile is None else "surface"
             raise ScanError(mesh_source, f"{side} eyelid margin is up to {np.max(np.abs(d)):.3g} mm "
                                          f"off the eyeball {what} (limit {max_rest_gap_mm:g} mm); "
                                          f"the snap stage must put it on the eyeball")
+        if np.min(frame.surface_distance(V[loop], 0.0)) < -max_rest_gap_mm:
+            raise ScanError(mesh_source, f"{side} eyelid corner lies inside the eyeball")
         out.append(frame)
     return out

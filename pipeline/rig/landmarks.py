@@ -4,7 +4,10 @@
   even arc length along each lid. Order (:data:`EYELID_ORDER`):
   0 = medial (inner) canthus, 1..5 = along the upper lid from medial to lateral,
   6 = lateral (outer) canthus, 7..11 = along the lower lid from lateral back to
-  medial. The upper lid (loop from medial to lateral canthus) is split into six
+  medial. 0 and 6 are the true corners, the two ends of the opening's loop (vertex 0 and the
+  lateral canthus of ``loop_<side>``): where the lids meet, the medial one past the caruncle.
+  Near them the loop may stand off the eyeball (pipeline/geometry/corners.py); the landmarks
+  stay on the loop, so they follow the lids there too. The upper lid (loop from medial to lateral canthus) is split into six
   equal-length arcs, and so is the lower lid.
   Each landmark is a point on one margin edge ``(a, b, t)``: ``(1 - t) V[a] + t V[b]``.
   The landmarks form a separate closed curve that carries the same blend shapes

@@ -49,6 +49,10 @@ from pipeline.rig.eye_frame import EyeFrame, rotate_about_axis
 from pipeline.rig.lids import SHAPE_DOWN, SHAPE_UP, BlendShape, LidParams, evaluate_shapes, lid_weights
 
 
+#: Exponent of the lids' ramp beside a corner that stands off the globe (:func:`lid_angle_field`).
+OFF_GLOBE_RAMP_EXPONENT = 2.0
+
+
 def canthus_taper(u, width: float = 0.35, exponent: float = 1.0,
                   lateral_width: float | None = None) -> np.ndarray:
     """The ramp of the lid gain at horizontal position ``u`` (0 medial, 1 lateral canthus).
@@ -209,9 +213,23 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
     x = (V[loop] - eye.center) @ B[0]
     x0, x1 = x[0], x[li]
     u = np.clip((x - x0) / (x1 - x0), 0.0, 1.0) if abs(x1 - x0) > 1e-9 else np.zeros(L)
-    ramp = canthus_taper(u, params.canthus_width, params.canthus_exponent,
-                         params.lateral_canthus_width)
+    # Corners off the globe (snap left them there, eye.on_eye False) keep their canthus's gain:
+    # the lids ramp up from where they meet the eye (the caruncle and the corner skin barely
+    # follow the gaze, and a ramp across a corner standing millimetres off the eye shears the
+    # faces between it and the eye).
+    ut, exponent = u, params.canthus_exponent
+    off = np.zeros(L, bool) if eye.on_eye is None else ~np.asarray(eye.on_eye, bool)
+    if off.any():
+        um = max(u[off & (u < 0.5)].max(initial=0.0), 0.0)
+        ul = min(u[off & (u >= 0.5)].min(initial=1.0), 1.0)
+        ut = np.clip((u - um) / max(ul - um, 1e-9), 0.0, 1.0)
+        # and start flat: a ramp as steep as the capture's (exponent < 1, infinite slope) turns
+        # the first lid vertex beside such a corner millimetres past it, and the strip closing the
+        # corner folds
+        exponent = max(exponent, OFF_GLOBE_RAMP_EXPONENT)
+    ramp = canthus_taper(ut, params.canthus_width, exponent, params.lateral_canthus_width)
     ramp[[0, li]] = 0.0
+    ramp[off] = 0.0
     # which canthus's ramp a point is on: the medial one up to where the two ramps meet
     wm, wl = params.canthus_width, params.lateral_canthus_width
     medial = u <= (wm / (wm + wl) if wm + wl > 0 else 0.5)
@@ -399,12 +417,14 @@ def follow_surface(P, eye: EyeFrame, pitch_deg: float, rest_clearance,
 
 def near_eye_skin(V, shapes, eyes) -> dict:
     """Moved skin near each eye: ``side -> (k,) int64`` indices of the vertices some shape
-    moves, excluding every eyelid margin, within two eyeball radii of that eye's centre."""
+    moves, excluding every eyelid margin and corner strip, within two eyeball radii of that eye's
+    centre."""
     moved = np.zeros(len(V), bool)
     for s in shapes:
         moved[s.point_indices] = True
     for e in eyes:
         moved[e.loop] = False
+        moved[e.strip_inner] = False     # inside the eye by design (corner strips)
     return {e.side: np.flatnonzero(moved & (np.linalg.norm(V - e.center, axis=1) < 2.0 * e.radius))
             for e in eyes}
 
@@ -417,6 +437,9 @@ class _SurfaceFollow:
         self.eyes_all = list(eyes)
         self.follow_mm = float(params.surface_follow_mm)
         self.rest = {e.side: e.surface_distance(V, 0.0) for e in self.eyes}
+        for rest in self.rest.values():     # corner strips turn with their lid, never pushed
+            for e in eyes:
+                rest[e.strip_inner] = np.inf
 
     def apply(self, P, eye: EyeFrame, pitch_deg: float) -> np.ndarray:
         """Posed points ``P`` pushed off the pitched eyeball surface of one eye."""
@@ -436,7 +459,7 @@ class _SurfaceFollow:
         for e in all_eyes:
             sel = skin[e.side]
             near[e.side] = (sel, np.minimum(e.surface_distance(V[sel], 0.0), 0.0),
-                            e.surface_distance(V[e.loop], 0.0))
+                            e.surface_distance(V[e.margin], 0.0))
         worst = 0.0
         for j in range(n_seg):
             for sign in (1.0, -1.0):
@@ -444,7 +467,7 @@ class _SurfaceFollow:
                 P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch))
                 for e in all_eyes:
                     sel, floor, d0 = near[e.side]
-                    worst = max(worst, float(np.abs(e.surface_distance(P[e.loop], p) - d0).max()))
+                    worst = max(worst, float(np.abs(e.surface_distance(P[e.margin], p) - d0).max()))
                     if len(sel):
                         worst = max(worst, float(np.max(floor - e.surface_distance(P[sel], p))))
         return worst
@@ -483,8 +506,21 @@ def build_lid_shapes(V, F, eyes, params: LidParams | None = None) -> LidRig:
     """
     params = params or LidParams()
     V = np.asarray(V, dtype=np.float64)
-    G = _edge_graph(V, mesh_edges(F))
-    fields = {e.side: lid_angle_field(V, F, e, params, graph=G) for e in eyes}
+    F = np.asarray(F, dtype=np.int64)
+    # corner strips (inside the eye at one edge) take no part in the skin's fields: each strip
+    # vertex turns exactly with the loop vertex it hangs from, so it stays inside the eye
+    inner = np.zeros(len(V), bool)
+    for e in eyes:
+        inner[e.strip_inner] = True
+    F_skin = F[~inner[F].any(axis=1)]
+    G = _edge_graph(V, mesh_edges(F_skin))
+    fields = {e.side: lid_angle_field(V, F_skin, e, params, graph=G) for e in eyes}
+    for e in eyes:
+        if e.strip is not None:
+            f = fields[e.side]
+            q, p = e.strip[:, 0], e.strip[:, 1]
+            f.theta_up[q], f.theta_down[q] = f.theta_up[p], f.theta_down[p]
+            f.distance[q], f.falloff[q] = 0.0, 1.0
     n_seg, sag = 1, 0.0
     for e in eyes:
         w = V - e.center

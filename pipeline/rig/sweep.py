@@ -110,7 +110,10 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         ``max_skin_sink_mm`` (largest decrease of that clearance by posing), and with
         ``corneas`` (``side -> (centre (3,), radius)``) ``max_cornea_intrusion_mm`` /
         ``rest_cornea_intrusion_mm`` (:func:`cornea_intrusion` of the margin),
-        ``worst_pitch_deg`` for the gap/penetration, and ``n_pitches``.
+        ``worst_pitch_deg`` for the gap/penetration, and ``n_pitches``. The margin is the loop
+        without its corners off the globe (``EyeFrame.margin``); with corner strips,
+        ``strip_max_mm`` is the largest distance of a strip's inner edge outside the pitched eye
+        surface (negative: it stays inside).
         With ``fork`` the first half of the pitches runs in a forked child (the same result).
     """
     V = np.asarray(V, float)
@@ -133,7 +136,7 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         if len(sel):
             res["rest_min_skin_clearance_mm"] = min(res["rest_min_skin_clearance_mm"],
                                                     float(near_skin[e.side][1].min()))
-    rest = max(float(np.max(np.abs(e.surface_distance(V[e.loop], 0.0)))) for e in eyes)
+    rest = max(float(np.max(np.abs(e.surface_distance(V[e.margin], 0.0)))) for e in eyes)
     res["rest_max_abs_mm"] = rest
     pitches = list(pitches_deg)
     args = (V, F, eyes, shapes, max_pitch_deg, corneas, n0, check_faces, near_skin)
@@ -156,6 +159,8 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         if "max_cornea_intrusion_mm" in part:
             res["max_cornea_intrusion_mm"] = max(res.get("max_cornea_intrusion_mm", 0.0),
                                                  part["max_cornea_intrusion_mm"])
+        if "strip_max_mm" in part:
+            res["strip_max_mm"] = max(res.get("strip_max_mm", -math.inf), part["strip_max_mm"])
         if "rest_cornea_intrusion_mm" in part:
             res["rest_cornea_intrusion_mm"] = max(res.get("rest_cornea_intrusion_mm", -math.inf),
                                                   part["rest_cornea_intrusion_mm"])
@@ -179,14 +184,14 @@ def _sweep_pitches(pitches_deg, V, F, eyes, shapes, max_pitch_deg, corneas, n0, 
     for p in pitches_deg:
         P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch_deg))
         for e in eyes:
-            d = e.surface_distance(P[e.loop], p)
+            d = e.surface_distance(P[e.margin], p)
             gap, pen = float(max(d.max(), 0.0)), float(max(-d.min(), 0.0))
             res["max_gap_mm"] = max(res["max_gap_mm"], gap)
             res["max_penetration_mm"] = max(res["max_penetration_mm"], pen)
             if max(gap, pen) > worst:
                 worst, res["worst_pitch_deg"] = max(gap, pen), float(p)
             if corneas and e.side in corneas:
-                cin = cornea_intrusion(P[e.loop], e, *corneas[e.side], p)
+                cin = cornea_intrusion(P[e.margin], e, *corneas[e.side], p)
                 res["max_cornea_intrusion_mm"] = max(res.get("max_cornea_intrusion_mm", 0.0),
                                                      float(cin.max()))
                 if p == 0:          # the worse of the two eyes, like every other measure
@@ -195,6 +200,9 @@ def _sweep_pitches(pitches_deg, V, F, eyes, shapes, max_pitch_deg, corneas, n0, 
             op = lid_opening(P, e)
             if np.isfinite(op).any():
                 res["min_opening_mm"] = min(res["min_opening_mm"], float(np.nanmin(op)))
+            if e.strip is not None:     # a corner strip's inner edge stays inside the eye
+                res["strip_max_mm"] = max(res.get("strip_max_mm", -math.inf),
+                                          float(e.surface_distance(P[e.strip_inner], p).max()))
             sel, rest_clear = near_skin[e.side]
             if len(sel):
                 ds = e.surface_distance(P[sel], p)

@@ -21,6 +21,10 @@ head frame, metersPerUnit 0.001, upAxis Y, +Z out of the face)::
                                   copied from the eyeball) + rel eyerig:landmarks:mesh -> Inner
         Materials/Skin            UsdPreviewSurface: diffuse = textures/color.png,
                                   displacement = textures/displacement.exr (scale 1: mm = stage units)
+        Materials/Caruncle        UsdPreviewSurface, moist pink: bound to the EyeRegion's GeomSubset
+                                  "caruncle" (the strip closing the medial corner where the lids
+                                  stand off the eye, pipeline/geometry/corners.py); absent when
+                                  every corner rests on the eye
 
 Eyes and joints: UsdSkel does not move child prims of joints, so each eye's meshes are
 skinned rigidly (constant ``jointIndices``/``jointWeights``) to their eye joint. The joint's
@@ -109,6 +113,30 @@ def _skin_material(stage, path, color_tex: str | None, disp_tex: str | None):
     return mat
 
 
+def _caruncle_subset(stage, path: str, mesh, faces, n_faces: int, skin) -> None:
+    """Bind the caruncle material to the mesh faces ``faces`` and the skin to the rest: two
+    GeomSubsets (family materialBind, a partition of the faces). The mesh keeps its own binding
+    to the skin for viewers without subsets; Blender's importer reads only the subsets once
+    there are any, so the skin gets one too."""
+    from pxr import UsdGeom, UsdShade, Vt
+
+    from pipeline.geometry.corners import CARUNCLE_DIFFUSE, CARUNCLE_ROUGHNESS
+    from pipeline.usd import stage as su
+
+    mat, _, _ = su.preview_material(stage, path, diffuse=CARUNCLE_DIFFUSE, roughness=CARUNCLE_ROUGHNESS)
+    api = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
+    car = np.unique(np.asarray(faces, np.int64))
+    rest = np.setdiff1d(np.arange(n_faces), car)
+    for name, idx, m, doc in (("skin", rest, skin, "the skin: every face but the caruncle's"),
+                              ("caruncle", car, mat, "the caruncle: faces closing the medial corner "
+                                                     "between the lids and the eye "
+                                                     "(pipeline/geometry/corners.py)")):
+        subset = api.CreateMaterialBindSubset(name, Vt.IntArray([int(f) for f in idx]), UsdGeom.Tokens.face)
+        subset.GetPrim().SetDocumentation(doc)
+        su.bind_material(subset.GetPrim(), m)
+    api.SetMaterialBindSubsetsFamilyType(UsdGeom.Tokens.partition)
+
+
 def _nul_free(value, key: str = "eyerig") -> None:
     """Refuse (ValueError) a NUL character in any string of ``value``: USD would cut the string there."""
     if isinstance(value, str):
@@ -182,7 +210,7 @@ def _place_eye(prim, model, radius: float, eyeball_ref: str) -> None:
 def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves: dict, eyes: dict,
                      eyeball_ref: str, color_tex: str | None = "./textures/color.png",
                      disp_tex: str | None = "./textures/displacement.exr",
-                     metadata: dict | None = None) -> Path:
+                     metadata: dict | None = None, caruncle_faces=None) -> Path:
     """Write the per-scan asset's root layer to ``path`` (textures and the eyeball must exist).
 
     Parameters
@@ -196,6 +224,7 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
                              the fitted radius (see the module docstring)
     eyeball_ref : str        asset path of eyeball.usda relative to this layer (``../eyeball/eyeball.usda``)
     metadata : dict          stored as customData["eyerig"] on the default prim
+    caruncle_faces : (k,) int, optional  faces of F given the caruncle material (none: no subset)
 
     Returns
     -------
@@ -258,6 +287,8 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     su.write_blend_shapes(mesh, shapes, _shape_inbetweens(shapes))
     skin = _skin_material(stage, rp + "/Materials/Skin", color_tex, disp_tex)
     su.bind_material(mesh.GetPrim(), skin)
+    if caruncle_faces is not None and len(caruncle_faces):
+        _caruncle_subset(stage, rp + "/Materials/Caruncle", mesh, caruncle_faces, len(F), skin)
 
     # eyes: placed at the fitted radius, rigid skinning to their joints
     model = _eyeball_model(probe, eyeball_ref)

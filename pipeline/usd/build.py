@@ -54,6 +54,10 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
         raise ScanError(mesh_path, "has non-finite vertex coordinates")
     if F.size and (F.min() < 0 or F.max() >= len(V)):
         raise ScanError(mesh_path, "face indices out of range")
+    caruncle = np.asarray(mesh.get("caruncle_faces", np.zeros(0, np.int64)))
+    if caruncle.ndim != 1 or caruncle.dtype.kind not in "iu" or \
+            (caruncle.size and (caruncle.min() < 0 or caruncle.max() >= len(F))):
+        raise ScanError(mesh_path, "caruncle_faces must be face indices of F")
     r = read_rig(rig, n_vertices=len(V), against=str(mesh_path))
     eyes = {}
     for side, e in r.eyes.items():        # the values as stored (the asset metadata repeats them)
@@ -61,7 +65,8 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
         eyes[side]["doubts"] = list(e.doc.get("doubts") or [])
     maps = read_bake(bake)
     scan = _json(ingest / "scan.json")
-    return {"V": V, "F": F, "UV": mesh["UV"], "FUV": mesh["FUV"], "shapes": r.npz.shapes,
+    return {"V": V, "F": F, "UV": mesh["UV"], "FUV": mesh["FUV"], "caruncle": caruncle.astype(np.int64),
+            "shapes": r.npz.shapes,
             "curves": r.npz.curves, "max_pitch_deg": r.max_pitch_deg, "eyes": eyes, "scan": scan,
             "color": maps.color, "displacement": maps.displacement,
             "eyeball": _need(eyeball / "eyeball.usda")}
@@ -96,7 +101,8 @@ def build(inp: dict, out_dir: Path, name: str, all_params: dict, package: bool =
     try:
         usda = write_scan_asset(out_dir / f"{name}.usda", name=name, V=inp["V"], F=inp["F"], UV=inp["UV"],
                                 FUV=inp["FUV"], shapes=inp["shapes"], landmark_curves=inp["curves"],
-                                eyes=inp["eyes"], eyeball_ref=ref.as_posix(), metadata=meta)
+                                eyes=inp["eyes"], eyeball_ref=ref.as_posix(), metadata=meta,
+                                caruncle_faces=inp.get("caruncle"))
     except ValueError as exc:
         raise ScanError(inp["eyeball"], str(exc)) from None
     t_write = time.perf_counter() - t0
@@ -118,6 +124,7 @@ def build(inp: dict, out_dir: Path, name: str, all_params: dict, package: bool =
             raise ScanError(usdz, f"package is incomplete ({len(bad)} error(s)): {bad[0]}")
         t_pkg = time.perf_counter() - t0
     return {"n_vertices": int(len(inp["V"])), "n_faces": int(len(inp["F"])),
+            "caruncle_faces": int(len(inp.get("caruncle", ()))),
             "n_shapes": len(inp["shapes"]), "validation_errors": 0,
             "write_s": round(t_write, 4), "validate_s": round(t_val, 4), "usdz_s": round(t_pkg, 4)}
 

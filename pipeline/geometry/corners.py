@@ -1,0 +1,264 @@
+"""Eyelid corners off the globe: where the lids leave the eyeball, and the strip that closes the gap.
+
+Anatomy (``../shared/reference/unityeyes_eye_region``, eight SynthesEyes eye regions registered
+to their eyeballs): along the lids the margin rests 0.35-2.1 mm outside the 12 mm globe; the
+corners do not. The medial end of the fissure (past the caruncle) lies 3.0-7.4 mm off the globe,
+8.6 +- 0.7 mm in front of the eye centre; the lateral corner 1.2-1.7 mm off it. So where the loop
+stands off the eye by more than a lid margin can (``off_globe_mm``, 2.1), a run of it that starts
+at a canthus is a corner: the snap fades out toward that canthus (:func:`corner_weights`), and
+what stays open between the lid and the eye is closed by a strip of faces from the loop into the
+eye (:func:`close_corners`): the caruncle at the medial corner, corner skin at the lateral one.
+
+A run is measured from each canthus along both lids while the loop stands off more than
+``off_globe_mm``; it may cover at most ``max_share`` of each lid's arc (beyond that the loop is a
+lid, whatever the distance says: a mid-lid far off the eye is a placement error, which the
+``remove_eyeballs`` self-checks see). Inside a run the snap weight is a smoothstep of the arc
+length from the canthus over the run's length (0 at the canthus, which keeps its place, 1 where
+the lid meets the eye), so the snapped margin leaves the eye smoothly, whatever the distances.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+#: How far off the globe a lid margin rests at most (UnityEyes' eight registered eye regions:
+#: 1.56-2.07 mm, mean interior margin 1.1 mm); a loop run from a canthus standing farther off is
+#: a corner. The nearest the medial fissure corner comes to the globe there is 3.05 mm.
+MARGIN_OFF_GLOBE_MM = 2.1
+#: A corner run covers at most this share of each lid's arc (the caruncle takes the medial
+#: 0.16 of the fissure's width, (15.2 - 10.8) / 27.8 mm, so this leaves room for a coarse loop).
+CORNER_MAX_SHARE = 0.35
+
+
+#: How far along the lids from the medial canthus the caruncle reaches (the fissure's end to the
+#: lid margin's medial end, 15.2 - 10.8 mm from the gaze axis in UnityEyes' registered regions):
+#: a medial strip beyond it is the inside of the lid, skin.
+CARUNCLE_MM = 4.4
+#: The caruncle's look in the asset (``Materials/Caruncle``, linear RGB, and its roughness): moist
+#: pink mucosa, glossier than skin, no texture.
+CARUNCLE_DIFFUSE = (0.72, 0.34, 0.33)
+CARUNCLE_ROUGHNESS = 0.3
+
+
+def _smoothstep(x):
+    x = np.clip(np.asarray(x, float), 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+@dataclass
+class CornerRuns:
+    """The corner parts of one eyelid loop.
+
+    Attributes
+    ----------
+    weight : (L,) float64
+        Snap weight of each loop vertex: 1 on the lids, fading to 0 at a canthus that stands off
+        the eye.
+    medial, lateral : (k,) int64
+        Loop positions of each corner run in loop order (empty when that canthus rests on the
+        eye); the canthus is among them.
+    """
+
+    weight: np.ndarray
+    medial: np.ndarray
+    lateral: np.ndarray
+
+    @property
+    def on_eye(self) -> np.ndarray:
+        """(L,) bool: loop vertices snapped fully onto the eye."""
+        return self.weight >= 1.0
+
+
+def _arc(P):
+    """Arc length along an open polyline (k, 3) from its first point, (k,)."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+
+
+def corner_weights(P, off, lateral_index: int, off_globe_mm: float = MARGIN_OFF_GLOBE_MM,
+                   max_share: float = CORNER_MAX_SHARE) -> CornerRuns:
+    """Snap weights of a loop whose corners may stand off the eye (module doc).
+
+    Parameters
+    ----------
+    P : (L, 3) float64
+        Loop points, medial canthus first, upper lid first.
+    off : (L,) float64
+        Distance of each point outside the eye (mm; negative inside).
+    lateral_index : int
+        Position of the lateral canthus.
+    off_globe_mm : float
+        A lid stands at most this far off the globe; farther, from a canthus on, is a corner.
+    max_share : float
+        Largest share of a lid's arc length a corner run may cover.
+
+    Returns
+    -------
+    CornerRuns
+    """
+    P = np.asarray(P, float)
+    off = np.asarray(off, float)
+    L, li = len(P), int(lateral_index)
+    if not 0 < li < L:
+        raise ValueError(f"lateral canthus position {li} outside the loop of {L}")
+    upper = np.arange(0, li + 1)                         # medial -> lateral
+    lower = np.concatenate([np.arange(li, L), [0]])      # lateral -> medial
+    w = np.ones(L)
+    runs = {}
+    for name, k in (("medial", 0), ("lateral", li)):
+        if off[k] <= off_globe_mm:
+            runs[name] = np.zeros(0, np.int64)
+            continue
+        members = [k]
+        for lid in (upper, lower):
+            seq = lid if lid[0] == k else lid[::-1]      # from this canthus along the lid
+            s = _arc(P[seq])
+            cap = max_share * s[-1]
+            end = 1
+            while end < len(seq) - 1 and off[seq[end]] > off_globe_mm and s[end] < cap:
+                end += 1
+            # the lid meets the eye at seq[end]: the weight rises over the arc up to it
+            span = max(s[end], 1e-9)
+            for j in range(1, end):
+                w[seq[j]] = min(w[seq[j]], float(_smoothstep(s[j] / span)))
+                members.append(int(seq[j]))
+        w[k] = 0.0
+        runs[name] = np.array(sorted(set(members), key=lambda j: (j - k) % L if name == "medial"
+                                     else j), np.int64)
+    return CornerRuns(weight=w, medial=runs["medial"], lateral=runs["lateral"])
+
+
+def _loop_edge_faces(F, a, b):
+    """For each loop edge (a[i], b[i]): +1 when a face holds the directed edge a -> b, -1 when
+    it holds b -> a (the strip face then runs the other way), 0 when no face holds it."""
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    n = int(max(F.max(), np.max(a), np.max(b))) + 1
+    key = set((E[:, 0] * n + E[:, 1]).tolist())
+    fwd = np.array([int(x) * n + int(y) in key for x, y in zip(a, b)])
+    bwd = np.array([int(y) * n + int(x) in key for x, y in zip(a, b)])
+    return np.where(fwd, 1, np.where(bwd, -1, 0))
+
+
+def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm: float,
+                  UV=None, FUV=None, min_gap_mm: float = 1e-3, pad: int = 1):
+    """Close the gap between the corner runs of a snapped loop and the eye with strips of faces.
+
+    Each loop vertex ``p`` of a run that stands off the eye gets an inner vertex ``q`` on the ray
+    from the eye centre through it, ``depth_mm`` inside the sphere (deep enough to hide in the
+    eye's opaque sclera, under its clear shell); consecutive loop vertices and their inner
+    vertices make two triangles; the strip takes in ``pad`` loop vertices resting on the eye at
+    each end of the run and closes with one triangle to the next. The strip uses each loop edge the other way round from the skin
+    face beside it, so the mesh stays manifold and consistently oriented. Texture coordinates of
+    an inner vertex are those of its loop vertex (the strip shows the colour of the lid margin).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    loop : (L,) int64
+    runs : CornerRuns
+    center : (3,) float64
+    radius : float
+        The eye's sphere radius, mm.
+    depth_mm : float
+    UV : (t, 2) float64, optional
+    FUV : (m, 3) int64, optional
+    min_gap_mm : float
+        A run whose loop vertices all lie closer to the sphere than this needs no strip.
+    pad : int
+        Loop vertices resting on the eye that the strip takes in at each end of a run.
+
+    Returns
+    -------
+    dict
+        ``V``, ``F`` (strip faces appended), ``UV``, ``FUV`` (when given), ``strip`` ((k, 2)
+        int64: inner vertex, its loop vertex), ``medial_faces`` (the medial strip's faces within
+        ``CARUNCLE_MM`` of the canthus along the lids: the caruncle; beyond, the inside of the lid)
+        and ``lateral_faces`` (the lateral strip's).
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F, np.int64)
+    loop = np.asarray(loop, np.int64)
+    c = np.asarray(center, float)
+    L = len(loop)
+    out = {"V": V, "F": F, "strip": np.zeros((0, 2), np.int64),
+           "medial_faces": np.zeros(0, np.int64), "lateral_faces": np.zeros(0, np.int64)}
+    if UV is not None:
+        out["UV"], out["FUV"] = np.asarray(UV, float), np.asarray(FUV, np.int64)
+    newV, newF, newFUV, newUV, strip = [], [], [], [], []
+    uv_of = {}
+    if UV is not None:
+        for f, fu in zip(F.tolist(), np.asarray(FUV).tolist()):
+            for v, t in zip(f, fu):
+                uv_of.setdefault(v, t)
+    nv, nuv = len(V), 0 if UV is None else len(out["UV"])
+    off = np.linalg.norm(V[loop] - c, axis=1) - radius
+    # arc length of each loop vertex from the medial canthus along its lid: the caruncle takes
+    # the medial end of the fissure only (CARUNCLE_MM), a strip beyond it is the lid's inside
+    arc = np.full(L, np.inf)
+    for step in (1, -1):
+        j, acc = 0, 0.0
+        arc[0] = 0.0
+        for _ in range(L // 2):
+            nxt = (j + step) % L
+            acc += float(np.linalg.norm(V[loop[nxt]] - V[loop[j]]))
+            arc[nxt] = min(arc[nxt], acc)
+            j = nxt
+    for name in ("medial", "lateral"):
+        pos = getattr(runs, name)
+        if len(pos) == 0 or off[pos].max() <= min_gap_mm:
+            continue
+        # the run in loop order, one contiguous stretch (the medial one wraps past position 0;
+        # a run covers at most max_share of each lid, so never half the loop)
+        order = np.sort(pos) if name == "lateral" else np.array(sorted(pos, key=lambda j: (j + L // 2) % L))
+        # one loop vertex that rests on the eye joins each end: the strip ends in a quad, not in
+        # a sliver from the last corner vertex (where the lid's motion changes fastest) to the eye
+        order = np.concatenate([[(order[0] - k) % L for k in range(pad, 0, -1)], order,
+                                [(order[-1] + k) % L for k in range(1, pad + 1)]]).astype(np.int64)
+        inner = {}
+        for j in order:
+            p = V[loop[j]]
+            d = (p - c) / max(np.linalg.norm(p - c), 1e-12)
+            inner[int(j)] = nv + len(newV)
+            newV.append(c + (radius - depth_mm) * d)
+            strip.append((inner[int(j)], int(loop[j])))
+            if UV is not None:
+                newUV.append(out["UV"][uv_of[int(loop[j])]])
+        seq = [int((order[0] - 1) % L)] + [int(j) for j in order] + [int((order[-1] + 1) % L)]
+        a = loop[np.array(seq[:-1])]
+        b = loop[np.array(seq[1:])]
+        sense = _loop_edge_faces(F, a, b)
+        faces, near = [], []
+        for i in range(len(seq) - 1):
+            ja, jb = seq[i], seq[i + 1]
+            pa, pb = int(loop[ja]), int(loop[jb])
+            qa, qb = inner.get(ja), inner.get(jb)
+            # the skin holds pa -> pb (sense +1): the strip runs pb -> pa
+            tri = []
+            if qa is not None and qb is not None:
+                tri = [(pb, pa, qa), (pb, qa, qb)]
+            elif qa is not None:
+                tri = [(pb, pa, qa)]
+            elif qb is not None:
+                tri = [(pb, pa, qb)]
+            for t in tri:
+                faces.append(t if sense[i] >= 0 else t[::-1])
+                near.append(max(arc[seq[i]], arc[seq[i + 1]]) <= CARUNCLE_MM)
+        first = len(F) + len(newF)
+        for t in faces:
+            newF.append(t)
+            if UV is not None:
+                newFUV.append([uv_of[v] if v < nv else nuv + (v - nv) for v in t])
+        ids = np.arange(first, first + len(faces), dtype=np.int64)
+        out[f"{name}_faces"] = ids[np.asarray(near, bool)] if name == "medial" else ids
+    if not newF:
+        return out
+    out["V"] = np.concatenate([V, np.asarray(newV)])
+    out["F"] = np.concatenate([F, np.asarray(newF, np.int64)])
+    out["strip"] = np.asarray(strip, np.int64)
+    if UV is not None:
+        out["UV"] = np.concatenate([out["UV"], np.asarray(newUV, float).reshape(-1, 2)])
+        out["FUV"] = np.concatenate([out["FUV"], np.asarray(newFUV, np.int64).reshape(-1, 3)])
+    return out

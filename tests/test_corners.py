@@ -1,0 +1,239 @@
+"""Corners off the globe (pipeline/geometry/corners.py): the snap's fade toward a canthus that
+stands off the eye, the strip that closes the gap, the self-checks and the rig around them.
+
+The meshes are the rig tests' constructed eye regions (a margin ring on a 12 mm eyeball, skin
+rings around it) with the medial corner lifted off the globe as a real one is (the caruncle's end
+lies 3-7 mm off it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.eyeball.geometry import EyeballParams
+from pipeline.geometry import corners as cn
+from pipeline.geometry import eye_checks, meshtopo
+from pipeline.geometry import snap as sn
+from pipeline.rig.eye_frame import eye_frames
+from pipeline.rig.lid_shapes import build_lid_shapes
+from pipeline.rig.sweep import sweep_check
+from test_rig import two_eye_region
+
+R = 12.0
+
+
+def lifted_region(lift_mm=4.0, reach=5, lateral_lift_mm=0.0):
+    """The rig tests' two-eye region with each medial corner lifted ``lift_mm`` off the globe
+    (radially, fading over ``reach`` loop vertices each way and over the skin rings) and, with
+    ``lateral_lift_mm``, the lateral corner too. Returns (mesh dict, eyes dict, frames)."""
+    V, F, frames = two_eye_region(R)
+    V = V.copy()
+    n_loop = len(frames[0].loop)
+    for e in frames:
+        c = e.center
+        base = int(e.loop[0])
+        for corner, lift in ((0, lift_mm), (e.lateral_index, lateral_lift_mm)):
+            if lift <= 0:
+                continue
+            for k in range(-reach, reach + 1):
+                w = 0.5 * (1 + np.cos(np.pi * k / (reach + 1)))
+                i = (corner + k) % n_loop
+                for ring in range(4):     # the ring and the skin just outside it follow
+                    v = base + ring * n_loop + i
+                    d = V[v] - c
+                    V[v] += lift * w * (1 - ring / 4) * d / np.linalg.norm(d)
+    mesh = {"V": V, "F": F, "loop_left": frames[0].loop, "loop_right": frames[1].loop,
+            "lateral_index_left": np.array([frames[0].lateral_index]),
+            "lateral_index_right": np.array([frames[1].lateral_index])}
+    eyes = {e.side: (e.center, e.radius, e.forward) for e in frames}
+    return mesh, eyes, frames
+
+
+@pytest.fixture(scope="module")
+def snapped():
+    mesh, eyes, frames = lifted_region()
+    out, reports, metrics = sn.snap_mesh(mesh, eyes, EyeballParams(), sn.SnapSettings())
+    return mesh, eyes, frames, out, metrics
+
+
+def test_corner_weights_fade_toward_an_off_globe_canthus():
+    mesh, eyes, frames = lifted_region()
+    e = frames[0]
+    P = mesh["V"][e.loop]
+    off = np.linalg.norm(P - e.center, axis=1) - R
+    runs = cn.corner_weights(P, off, e.lateral_index)
+    assert runs.weight[0] == 0.0 and len(runs.lateral) == 0
+    # 0 at the canthus, rising along both lids to 1 where the lid meets the eye
+    up, down = runs.weight[:8], runs.weight[::-1][:7]
+    assert np.all(np.diff(up) >= 0) and np.all(np.diff(np.concatenate([[0.0], down])) >= 0)
+    assert up[-1] == 1.0 and down[-1] == 1.0
+    assert set(runs.medial.tolist()) == set(np.flatnonzero(runs.weight < 1).tolist())
+    # every vertex of a run stands farther off than a lid margin can
+    assert off[runs.medial].min() > cn.MARGIN_OFF_GLOBE_MM
+    # nothing off the globe: no run, every weight 1
+    P0 = frames[1].center + R * (P - e.center) / np.linalg.norm(P - e.center, axis=1)[:, None]
+    none = cn.corner_weights(P0, np.zeros(len(P0)), e.lateral_index)
+    assert none.on_eye.all() and len(none.medial) == len(none.lateral) == 0
+
+
+def test_a_run_never_covers_more_than_its_share_of_a_lid():
+    _, _, frames = lifted_region()
+    e = frames[0]
+    V = two_eye_region(R)[0]
+    P = V[e.loop]
+    off = np.full(len(P), 5.0)                  # everything far off: a placement error, not corners
+    share = 0.2
+    runs = cn.corner_weights(P, off, e.lateral_index, max_share=share)
+    li = e.lateral_index
+    for lid in (np.arange(0, li + 1), np.concatenate([np.arange(li, len(P)), [0]])):
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P[lid], axis=0), axis=1))])
+        from_corner = np.minimum(s, s[-1] - s)
+        assert runs.weight[lid][from_corner >= share * s[-1]].min() == 1.0
+        assert runs.weight[lid][from_corner < share * s[-1]].max() < 1.0
+
+
+def test_snap_leaves_the_canthus_off_the_globe_and_the_lids_on_it(snapped):
+    mesh, eyes, frames, out, metrics = snapped
+    for e in frames:
+        s = e.side
+        P0, P1 = mesh["V"][e.loop], out["V"][e.loop]
+        w = out[f"loop_snap_{s}"]
+        assert np.array_equal(P1[0], P0[0])                       # the canthus keeps its place
+        d = sn.PlacedEye(e.center, R, e.forward, EyeballParams()).signed_distance(P1)
+        assert np.abs(d[w >= 1]).max() < 1e-6                     # the lids rest on the eye
+        assert d[0] > 3.5 and np.all(d[w < 1] > 0)                # the corner stands off it
+        assert metrics[s]["corner_vertices"] == int((w < 1).sum()) > 0
+    assert metrics["gap_max_mm"] < 1e-6 and metrics["flipped_faces"] == 0
+
+
+def test_the_strip_closes_the_corner_manifold_and_inside_the_eye(snapped):
+    mesh, eyes, frames, out, metrics = snapped
+    V, F = out["V"], out["F"]
+    n0, m0 = len(mesh["V"]), len(mesh["F"])
+    assert meshtopo.is_edge_manifold(F) and metrics["edge_manifold_closed"]
+    # consistently oriented: no directed edge twice
+    he = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    assert len(np.unique(he, axis=0)) == len(he)
+    for e in frames:
+        strip = out[f"corner_strip_{e.side}"]
+        assert len(strip) > 0 and strip[:, 0].min() >= n0
+        q = V[strip[:, 0]]
+        depth = R - np.linalg.norm(q - e.center, axis=1)
+        np.testing.assert_allclose(depth, sn.SnapSettings().strip_depth_mm, atol=1e-9)
+        # each inner vertex lies on the ray from the centre through its loop vertex
+        u = (V[strip[:, 1]] - e.center) / np.linalg.norm(V[strip[:, 1]] - e.center, axis=1)[:, None]
+        np.testing.assert_allclose((q - e.center) / np.linalg.norm(q - e.center, axis=1)[:, None], u, atol=1e-12)
+        # the loop edges of the corner are no longer boundary: the opening's boundary there is
+        # the strip's inner edge, inside the eye
+        bnd = np.unique(meshtopo.boundary_halfedges(F))
+        assert not np.isin(e.loop[0], bnd)
+    car = out["caruncle_faces"]
+    assert len(car) == metrics["caruncle_faces"] > 0 and car.min() >= m0
+    # the caruncle: the medial strips' faces up to CARUNCLE_MM along the lids from the canthus
+    # (only medial corners were lifted); the strip beyond is the lid's inside
+    assert set(car.tolist()) <= set(range(m0, len(F)))
+    for e in frames:
+        P = V[e.loop]
+        arc = np.full(len(P), np.inf)
+        for order in (np.arange(len(P)), np.r_[0, np.arange(len(P) - 1, 0, -1)]):
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P[order], axis=0), axis=1))])
+            arc[order] = np.minimum(arc[order], s)
+        pos = {int(v): k for k, v in enumerate(e.loop)}
+        mine = [f for f in car if any(int(v) in pos for v in F[f])]
+        assert mine
+        for f in mine:
+            assert max(arc[pos[int(v)]] for v in F[f] if int(v) in pos) <= cn.CARUNCLE_MM + 1e-9
+
+
+def test_nothing_changes_when_every_corner_rests_on_the_eye():
+    V, F, frames = two_eye_region(R)
+    mesh = {"V": V, "F": F, "loop_left": frames[0].loop, "loop_right": frames[1].loop}
+    eyes = {e.side: (e.center, e.radius, e.forward) for e in frames}
+    out, _, metrics = sn.snap_mesh(mesh, eyes, EyeballParams(), sn.SnapSettings())
+    assert np.array_equal(out["F"], F) and len(out["V"]) == len(V)
+    assert len(out["caruncle_faces"]) == 0 and all(len(out[f"corner_strip_{s}"]) == 0 for s in sn.SIDES)
+    assert all(out[f"loop_snap_{s}"].min() == 1.0 for s in sn.SIDES)
+
+
+def test_strip_carries_texture_coordinates():
+    mesh, eyes, _ = lifted_region()
+    V, F = mesh["V"], mesh["F"]
+    mesh = dict(mesh, UV=V[:, :2] * 0.01, FUV=F.copy())
+    out, _, _ = sn.snap_mesh(mesh, eyes, EyeballParams(), sn.SnapSettings())
+    assert len(out["FUV"]) == len(out["F"]) and out["FUV"].max() < len(out["UV"])
+    for s in sn.SIDES:
+        strip = out[f"corner_strip_{s}"]
+        new = np.flatnonzero(np.isin(out["F"], strip[:, 0]).any(axis=1))
+        for f in new:   # an inner vertex shows the texel of the loop vertex it hangs from
+            for k in range(3):
+                v = out["F"][f, k]
+                if v in strip[:, 0]:
+                    p = strip[strip[:, 0] == v, 1][0]
+                    np.testing.assert_allclose(out["UV"][out["FUV"][f, k]], mesh["UV"][p])
+
+
+def test_checks_leave_the_corners_out(snapped):
+    mesh, eyes, frames, out, metrics = snapped
+    e = frames[0]
+    L = mesh["V"][e.loop]
+    lim = eye_checks.limits_for(0.5)
+    V, F = mesh["V"], mesh["F"]
+    plain = eye_checks.check_eye(V, F, e.center, R, e.forward, L, lim)
+    corners = eye_checks.check_eye(V, F, e.center, R, e.forward, L, lim, lateral_index=e.lateral_index)
+    assert not plain["loop_on_sphere"]["ok"]            # the whole loop: the corner is far off
+    assert corners["loop_on_sphere"]["ok"]              # the lids: the lifted ones within a margin's reach
+    assert corners["loop_on_sphere"]["corner_vertices"] > 0
+    # a lid far off the eye (a wrong sphere) is still seen: it is no corner
+    L2 = L.copy()
+    mid = e.lateral_index // 2
+    L2[mid - 2:mid + 3] += 3.0 * (L2[mid - 2:mid + 3] - e.center) / R
+    bad = eye_checks.check_eye(V, F, e.center, R, e.forward, L2, lim, lateral_index=e.lateral_index)
+    assert not bad["loop_on_sphere"]["ok"]
+
+
+def test_rig_turns_the_strip_with_its_corner_and_keeps_it_inside(snapped):
+    mesh, eyes, frames, out, metrics = snapped
+    doc = {e.side: {"center": e.center.tolist(), "radius": R, "forward": e.forward.tolist()} for e in frames}
+    E = eye_frames(doc, out, profile=EyeballParams())
+    assert all(e.strip is not None and (~e.on_eye).sum() > 0 for e in E)
+    V, F = out["V"], out["F"]
+    rig = build_lid_shapes(V, F, E)
+    for e in E:
+        f = rig.fields[e.side]
+        q, p = e.strip[:, 0], e.strip[:, 1]
+        np.testing.assert_array_equal(f.theta_up[q], f.theta_up[p])
+        np.testing.assert_array_equal(f.theta_down[q], f.theta_down[p])
+        # the off-globe corner keeps its canthus's gain
+        off = ~e.on_eye
+        np.testing.assert_allclose(f.theta_down[e.loop[off]], f.theta_down[e.loop[0]])
+    # eyelid landmarks 0 and 6 are the loop's ends: the canthi, the medial one off the globe
+    from pipeline.rig.landmarks import eyelid_landmarks
+
+    for e in E:
+        lm = eyelid_landmarks(V, e)
+        np.testing.assert_array_equal(lm.points[0], V[e.loop[0]])
+        np.testing.assert_array_equal(lm.points[6], V[e.loop[e.lateral_index]])
+        assert np.linalg.norm(lm.points[0] - e.center) - R > 3.5
+    res = sweep_check(V, F, E, rig.shapes, np.arange(-25.0, 25.1, 2.5))
+    assert res["flipped_faces"] == 0
+    assert res["max_gap_mm"] < 0.05 and res["max_penetration_mm"] < 0.05
+    assert res["strip_max_mm"] < -0.5                     # the inner edge stays inside the eye
+    assert res["min_skin_clearance_mm"] > -0.03
+
+
+def test_rig_refuses_a_margin_off_the_eye_that_is_no_corner(snapped):
+    from pipeline.errors import ScanError
+
+    mesh, eyes, frames, out, metrics = snapped
+    doc = {e.side: {"center": e.center.tolist(), "radius": R, "forward": e.forward.tolist()} for e in frames}
+    bad = dict(out)
+    bad["V"] = out["V"].copy()
+    e = frames[0]
+    mid = e.lateral_index // 2
+    bad["V"][e.loop[mid]] += 2.0 * (bad["V"][e.loop[mid]] - e.center) / R
+    with pytest.raises(ScanError, match="off the eyeball"):
+        eye_frames(doc, bad, profile=EyeballParams())
+    wrong = dict(out, loop_snap_left=np.ones(3))
+    with pytest.raises(ScanError, match="one finite weight per loop vertex"):
+        eye_frames(doc, wrong, profile=EyeballParams())
