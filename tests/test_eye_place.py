@@ -1,0 +1,122 @@
+"""eye_place: the eye model, the segmentation and the joint MAP placement on known heads;
+eye_prior: the eye-region model registered to a surface made from it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import extra_scans_dir
+from pipeline.geometry import eye_place as ep
+from test_remove_eyeballs import make_head
+
+
+def test_cap_height_known_answers():
+    """The anterior cap meets the sclera at the limbus, stands ha * 0.1 R at the axis, and
+    sinks below the sclera for a recessed iris."""
+    R, tl = 12.0, 30.0
+    ca = np.cos(np.radians([0.0, 10.0, 29.9, 30.1, 60.0]))
+    h = ep.cap_height(ca, R, 1.0, tl)
+    assert h[0] == pytest.approx(ep.APEX_FRACTION * R, abs=1e-9)
+    assert h[1] > 0 and abs(h[2]) < 0.02 and h[3] == 0.0 and h[4] == 0.0
+    assert ep.cap_height(ca[:1], R, -0.5, tl)[0] == pytest.approx(-0.5 * ep.APEX_FRACTION * R, abs=1e-9)
+    # the cap's sphere passes through the limbus circle and the apex
+    e = ep.Eye(np.zeros(3), R, np.array([0.0, 0.0, 1.0]), 1.0, tl)
+    cs = ep.cornea_sphere(e)
+    limbus = R * np.array([np.sin(np.radians(tl)), 0.0, np.cos(np.radians(tl))])
+    apex = np.array([0.0, 0.0, R * (1 + ep.APEX_FRACTION)])
+    for q in (limbus, apex):
+        assert np.linalg.norm(q - cs["center"]) == pytest.approx(cs["radius"], abs=1e-9)
+    assert ep.cornea_sphere(ep.Eye(np.zeros(3), R, e.n, -0.3, tl)) is None
+
+
+def test_mirror_and_midplane():
+    mesh, hints, gt = make_head(0.7, seed=4)
+    V = mesh["V"].copy()
+    V[:, 0] += 1.7                      # the face's midplane at x = 1.7
+    h = {s: p + [1.7, 0, 0] for s, p in hints.items()}
+    assert ep.midplane_x(V, h) == pytest.approx(1.7, abs=0.1)
+    assert np.allclose(ep.mirror(ep.mirror([3.0, 1.0, 2.0], 1.7), 1.7), [3.0, 1.0, 2.0])
+
+
+def test_segmentation_at_the_true_eye_is_the_opening():
+    """Under the true eye the graph cut labels the opening's eye surface as eye and the lids as
+    skin, and a lid fold rings it."""
+    mesh, hints, gt = make_head(0.5, seed=5)
+    p = ep.build_patch(mesh["V"], mesh["F"], hints["left"], 20.0)
+    e = ep.Eye(gt["left"]["center"], gt["left"]["radius"], np.array([0.0, 0.0, 1.0]), 1.2, 33.0)
+    lab, _ = ep.segment(p, e)
+    x, y = p.V[:, 0] - gt["left"]["center"][0], p.V[:, 1]
+    inside = (np.abs(x) < 10.0) & (np.abs(y) < 2.0)        # well inside the almond opening
+    outside = (np.abs(y) > 8.0) | (np.abs(x) > 15.0)        # lid and skin
+    assert lab[inside].mean() > 0.95 and lab[outside].mean() < 0.02
+    assert ep.fold_deg(p, lab) > 30.0
+
+
+@pytest.mark.parametrize("seed,noise", [(0, 0.0), (1, 0.03)])
+def test_both_eyes_placed_within_their_uncertainty(seed, noise):
+    mesh, hints, gt = make_head(0.5, seed=seed, noise=noise)
+    res = ep.place_eyes(mesh["V"], mesh["F"], hints, patch_radius_mm=20.0, radius_range=(10.0, 18.0),
+                        radius_prior=(12.0, 3.0), seed=0)
+    for s in ("left", "right"):
+        pl = res[s]
+        err = np.linalg.norm(pl.eye.c - gt[s]["center"])
+        assert err < 0.3 and abs(pl.eye.R - gt[s]["radius"]) < 0.3, (s, err, pl.eye.R)
+        assert np.degrees(np.arccos(pl.eye.n @ [0.0, 0.0, 1.0])) < 3.0
+        assert pl.eye.ha > 0.5          # the corneal bulge is there
+        assert err <= 2.0 * pl.sigma_center_mm + 0.05
+        assert "sclera" in pl.cues and "cornea_or_iris" in pl.cues
+
+
+def test_closed_eyes_have_no_placement():
+    """A smooth lid over each eye: no eye surface is ringed by a lid fold."""
+    mesh, hints, _ = make_head(0.7, closed=True)
+    res = ep.place_eyes(mesh["V"], mesh["F"], hints, patch_radius_mm=20.0, radius_range=(10.0, 18.0),
+                        radius_prior=(12.0, 3.0), min_fold_deg=12.0)
+    assert res["left"] is None and res["right"] is None
+
+
+def _prior_dir():
+    base = extra_scans_dir()
+    if base is None:
+        pytest.skip("EYERIG_EXTRA_SCANS is not set")
+    d = base.parent / "reference" / "unityeyes_eye_region"
+    if not (d / "mesh_mean.txt").is_file():
+        pytest.skip(f"the eye-region model is not beside {base}")
+    return d
+
+
+def test_prior_absent_is_none(tmp_path):
+    from pipeline.geometry.eye_prior import EyeRegionPrior
+
+    assert EyeRegionPrior.load(tmp_path) is None and EyeRegionPrior.load(None) is None
+
+
+def test_prior_registers_its_own_mean_shape():
+    """A surface made from the model's mean shape, moved to a known place in the head frame:
+    registration finds its globe's front within 0.5 mm and its axis within 3 deg."""
+    import pymeshlab
+
+    from pipeline.geometry.eye_prior import EyeRegionPrior, to_head
+
+    d = _prior_dir()
+    prior = EyeRegionPrior.load(d)
+    ms = pymeshlab.MeshSet()
+    ms.load_new_mesh(str(d / "eye_region.3ds"))
+    F = np.asarray(ms.current_mesh().face_matrix(), dtype=np.int64)
+    Vm = np.asarray(ms.current_mesh().vertex_matrix(), dtype=np.float64)
+    if len(Vm) != 229:
+        pytest.skip("eye_region.3ds does not hold the 229-vertex topology")
+    # dense enough to fit against: subdivide the coarse region twice
+    ms.clear()
+    ms.add_mesh(pymeshlab.Mesh(to_head(prior.mean, "left"), F.astype(np.int32)))
+    ms.meshing_surface_subdivision_midpoint(iterations=2)
+    V = np.asarray(ms.current_mesh().vertex_matrix(), dtype=np.float64)
+    Fd = np.asarray(ms.current_mesh().face_matrix(), dtype=np.int64)
+    shift = np.array([30.0, 35.0, 80.0])
+    V = V + shift
+    hint = shift + [0.0, 0.0, 12.0] + [1.0, -1.0, 0.5]
+    r = prior.register(V, Fd, hint, "left")
+    assert np.linalg.norm(r["front"] - (shift + [0.0, 0.0, 12.05])) < 0.5
+    assert np.degrees(np.arccos(np.clip(r["axis"] @ [0.0, 0.0, 1.0], -1, 1))) < 3.0
+    assert abs(r["scale"] - 1.0) < 0.05
