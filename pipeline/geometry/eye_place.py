@@ -549,6 +549,8 @@ class Placement:
     shares: dict
     modes: list
     fold_deg: float = 0.0
+    profile: tuple = None      # (radii, energy above the placement's) of radius_profile
+    sigma_laplace_mm: tuple = (0.0, 0.0)   # the Laplace part of (sigma_center, sigma_radius)
 
 
 CUE_NAMES = {"sclera": "sclera", "anterior": "cornea_or_iris", "skin": "skin",
@@ -629,6 +631,7 @@ def _placement(p, modes, joint, temperature, sigma_scale, profile=None):
         cov, ci, ri, shares = m0.fit.cov, [0, 1, 2], 3, m0.fit.shares[0]
     var_c = float(np.trace(cov[np.ix_(ci, ci)])) * sigma_scale ** 2
     var_r = float(cov[ri, ri]) * sigma_scale ** 2
+    lap = (float(np.sqrt(var_c)), float(np.sqrt(var_r)))
     # other local optima, weighted by their energy: a second explanation nearly as good widens
     # the uncertainty by how far away it lies
     e0 = min(m.energy for m in modes)
@@ -645,6 +648,7 @@ def _placement(p, modes, joint, temperature, sigma_scale, profile=None):
         var_c += float(np.sum(w * np.sum((centres - m0.eye.c) ** 2, axis=1)))
     cues = sorted((CUE_NAMES.get(k, k) for k, v in shares.items() if v >= 0.05),
                   key=lambda k: -shares.get({v: kk for kk, v in CUE_NAMES.items()}.get(k, k), 0))
+    prof = None if profile is None else (profile[0], profile[1] - m0.energy)
     return Placement(m0.eye, m0.lab, p, float(np.sqrt(var_c)), float(np.sqrt(var_r)), cues,
                      {CUE_NAMES.get(k, k): round(v, 4) for k, v in shares.items()},
-                     [(m.eye.c, m.eye.R, m.energy - e0) for m in modes], m0.fold_deg)
+                     [(m.eye.c, m.eye.R, m.energy - e0) for m in modes], m0.fold_deg, prof, lap)

@@ -56,8 +56,8 @@ class EyeSettings(Settings):
     # joint placement (pipeline.geometry.eye_place)
     place_patch_mm: float = setting(20.0, gt=5, le=60)          # surface the eye model explains around a hint
     prior_front_sigma_mm: float = setting(4.0, gt=0, le=100)     # the eye-region prior's say on the front of the globe
-    uncertainty_temperature: float = setting(20.0, gt=0, le=1e6) # energy scale of a rival local optimum's weight
-    uncertainty_scale: float = setting(1.0, gt=0, le=100)        # Laplace sigma x this (calibrated on unseen heads)
+    uncertainty_temperature: float = setting(5.0, gt=0, le=1e6)  # energy scale of a rival local optimum's weight
+    uncertainty_scale: float = setting(3.0, gt=0, le=100)        # Laplace sigma x this (calibrated on unseen heads)
     doubt_center_sigma_mm: float = setting(1.0, gt=0, le=100)    # a placement less sure than this is published with a doubt
     min_open_area_mm2: float = setting(6.0, ge=0, le=1000)       # less visible eye than this: the eye is closed
     fill_face_ratio: float = setting(12.0, gt=1, le=1e6)         # faces this many times the median area: a scanner's flat fill
@@ -476,6 +476,12 @@ def _placement_record(pl, fit):
                                "radius": round(pl.sigma_radius_mm, 4)},
             "cue_shares": dict(pl.shares), "anterior_height": round(float(pl.eye.ha), 4),
             "limbus_half_angle_deg": round(float(pl.eye.tl), 3),
+            "lid_fold_deg": round(float(pl.fold_deg), 2),
+            "uncertainty_laplace_mm": {"center": round(pl.sigma_laplace_mm[0], 4),
+                                       "radius": round(pl.sigma_laplace_mm[1], 4)},
+            "radius_profile": None if pl.profile is None else {
+                "radius": [round(float(r), 3) for r in pl.profile[0]],
+                "energy_above": [round(float(e), 2) for e in pl.profile[1]]},
             "rival_placements": [{"center": np.round(c, 4).tolist(), "radius": round(float(r), 4),
                                   "energy_above": round(float(de), 2)} for c, r, de in pl.modes[1:]]}
 
