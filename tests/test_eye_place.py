@@ -30,6 +30,39 @@ def test_cap_height_known_answers():
     assert ep.cornea_sphere(ep.Eye(np.zeros(3), R, e.n, -0.3, tl)) is None
 
 
+def test_anterior_ring_known_answers():
+    """The ring (the iris seen through a clear cornea) adds nothing on the axis and at the
+    limbus and ``hb * APEX_FRACTION * R`` half-way out (s^2 = 1/2)."""
+    R, tl, hb = 14.0, 30.0, 0.5
+    th = np.radians([0.0, tl / np.sqrt(2.0), tl - 1e-6, tl + 1.0])
+    ring = ep.cap_height(np.cos(th), R, 0.0, tl, hb) - ep.cap_height(np.cos(th), R, 0.0, tl)
+    assert ring[0] == pytest.approx(0.0, abs=1e-9) and abs(ring[2]) < 1e-4 and ring[3] == 0.0
+    assert ring[1] == pytest.approx(hb * ep.APEX_FRACTION * R, rel=1e-6)
+
+
+def test_fit_recovers_a_ring_shaped_anterior():
+    """Points on an eye whose anterior is a low ring: the least squares finds the ring and the
+    sphere (a plain cap would bias the radius)."""
+    rng = np.random.default_rng(3)
+    c, R, n = np.array([0.0, 0.0, 0.0]), 15.0, np.array([0.0, 0.0, 1.0])
+    truth = ep.Eye(c, R, n, 0.15, 29.0, 0.45)
+    # a fissure-shaped window of the globe's front: 24 x 10 mm
+    xy = rng.uniform([-12.0, -5.0], [12.0, 5.0], (4000, 2))
+    xy = xy[(xy[:, 0] / 12.0) ** 2 + (xy[:, 1] / 5.0) ** 2 < 1.0]
+    u = np.c_[xy / R, np.sqrt(1.0 - (xy ** 2).sum(axis=1) / R ** 2)]
+    h = ep.cap_height(u @ n, R, truth.ha, truth.tl, truth.hb)
+    P = c + u * (R + h)[:, None] + rng.normal(0.0, 0.02, (len(u), 1)) * u
+    F = np.zeros((0, 3), np.int64)
+    p = ep.Patch(P, F, np.full(len(P), 0.1), u, np.zeros((0, 2), np.int64), np.zeros(0), P.mean(axis=0),
+                 np.arange(len(P)), np.zeros(0, np.int64))
+    lab = np.ones(len(P), bool)
+    e = ep.Eye(c + [0.3, -0.2, -0.8], R - 0.8, ep.unit(n + [0.05, 0.0, 0.0]), 0.5, 31.0, 0.0)
+    for _ in range(3):
+        e = ep.fit_eyes([p], [lab], [e], [ep.Cues(radius_prior=(12.0, 3.0))], (10.0, 18.0)).eyes[0]
+    assert np.linalg.norm(e.c - c) < 0.15 and abs(e.R - R) < 0.15
+    assert e.hb == pytest.approx(truth.hb, abs=0.1) and e.tl == pytest.approx(truth.tl, abs=1.0)
+
+
 def test_mirror_and_midplane():
     mesh, hints, gt = make_head(0.7, seed=4)
     V = mesh["V"].copy()

@@ -2,10 +2,12 @@
 
 The eye model (per eye): a sclera sphere (centre ``c``, radius ``R``) and, around the gaze
 ``n``, an anterior cap: a sphere through the limbus circle (half-angle ``tl`` off the axis, so
-the limbus scales with the globe: 29 +- 1.5 deg in people, 30-34 in ICT-FaceKit's eyes) and an
-apex ``ha * APEX_FRACTION * R`` above the sclera. ``ha`` = 1 is a scanned cornea (the human
-apex stands 1.0 mm above a 12 mm sclera), 0.3-0.7 the iris seen through a transparent
-cornea, < 0 a recessed iris.
+the limbus scales with the globe: 29 +- 1.5 deg in people, 27-33 in ICT-FaceKit's eyes) and an
+apex ``ha * APEX_FRACTION * R`` above the sclera, plus a ring ``hb`` that stands highest half-way
+between axis and limbus. ``ha`` = 1 is a scanned cornea (the human apex stands 1.0 mm above a
+12 mm sclera), < 0 a recessed iris; the iris seen through a transparent cornea is a low ring
+(``ha`` ~ 0.1-0.3, ``hb`` ~ 0.3-0.5: the pupil lies deeper than the iris around it). Without
+the ring, that shape biased the radius by about 1 mm.
 
 Cues and how they enter (each one optional; none is required):
 
@@ -43,6 +45,9 @@ TAU_INSIDE = 0.35       # mm: skin may lie this far inside the globe (noise) bef
 SKIN_SPREAD_MM = 10.0   # skin near the eye: anywhere within this of the globe, uniform
 APEX_FRACTION = 0.1     # corneal apex above the sclera sphere, in units of R (people 0.08, ICT 0.13)
 HA_RANGE = (-1.0, 1.6)  # anterior height: recessed iris .. a prominent cornea
+HB_RANGE = (-1.0, 1.6)  # anterior ring: the iris seen through a clear cornea stands highest off the axis
+HB_SIGMA = 1.0          # weak prior on the ring (0 = a plain cap)
+NP = 8                  # parameters per eye besides the radius: c (3), gaze (2), ha, tl, hb
 LIMBUS_DEG = (30.5, 2.0)        # prior on the limbus half-angle, deg (people 29 +- 1.5, ICT 30-34)
 LIMBUS_RANGE = (24.0, 37.0)
 CUT_LAMBDA = 2.0        # graph-cut cost per mm of an eye/skin border on smooth skin
@@ -137,6 +142,7 @@ class Eye:
     n: np.ndarray
     ha: float = 0.5
     tl: float = LIMBUS_DEG[0]
+    hb: float = 0.0
 
 
 def _cap(R, ha, tl):
@@ -149,13 +155,18 @@ def _cap(R, ha, tl):
     return z0, apex - z0
 
 
-def cap_height(cos_alpha, R, ha, tl):
+def cap_height(cos_alpha, R, ha, tl, hb=0.0):
     """Height (mm) of the anterior cap above the sclera sphere along the rays at ``cos_alpha``
-    from the axis (0 outside the limbus; negative for a recessed iris), (n,)."""
+    from the axis (0 outside the limbus; negative for a recessed iris), (n,): the sphere
+    through the limbus circle and the apex, plus a ring ``hb * APEX_FRACTION * R * 4 s^2
+    (1 - s^2)`` (``s`` = angle / ``tl``) peaking half-way out: the iris seen through a clear
+    cornea stands off the sclera most between pupil and limbus."""
     ca = np.clip(cos_alpha, -1.0, 1.0)
     z0, r = _cap(R, ha, tl)
     t = z0 * ca + np.sqrt(np.maximum(r * r - z0 * z0 * (1.0 - ca * ca), 0.0))
-    return np.where(ca > np.cos(np.radians(tl)), t - R, 0.0)
+    s2 = (np.arccos(ca) / np.radians(tl)) ** 2
+    ring = hb * APEX_FRACTION * R * 4.0 * s2 * (1.0 - s2)
+    return np.where(ca > np.cos(np.radians(tl)), t - R + ring, 0.0)
 
 
 def cornea_sphere(e: Eye):
@@ -174,7 +185,7 @@ def surface_residual(P, e: Eye):
     w = P - e.c
     nw = np.maximum(np.linalg.norm(w, axis=1), 1e-9)
     ca = (w @ e.n) / nw
-    h = cap_height(ca, e.R, e.ha, e.tl)
+    h = cap_height(ca, e.R, e.ha, e.tl, e.hb)
     ant = ca > np.cos(np.radians(e.tl))
     return nw - e.R - h, np.where(ant, SIG_ANTERIOR, SIG_SCLERA), nw - e.R, w / nw[:, None]
 
@@ -284,6 +295,7 @@ def _blocks(p: Patch, lab, e: Eye, cues: Cues, anterior=None):
         out["prior"] = (e.c + e.R * cues.axis - cues.front) / cues.front_sigma
     out["radius_prior"] = np.array([(e.R - cues.radius_prior[0]) / cues.radius_prior[1]])
     out["limbus_prior"] = np.array([(e.tl - LIMBUS_DEG[0]) / LIMBUS_DEG[1]])
+    out["ring_prior"] = np.array([e.hb / HB_SIGMA])
     return out
 
 
@@ -309,9 +321,10 @@ def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm
     def unpack(x):
         out = []
         for i in range(k):
-            b = nR + 7 * i
+            b = nR + NP * i
             R = fixed_radius if nR == 0 else x[0 if nR == 1 else i]
-            out.append(Eye(x[b:b + 3], float(R), _vec(x[b + 3:b + 5]), float(x[b + 5]), float(x[b + 6])))
+            out.append(Eye(x[b:b + 3], float(R), _vec(x[b + 3:b + 5]), float(x[b + 5]), float(x[b + 6]),
+                           float(x[b + 7])))
         return out
 
     # which eye vertices are anterior is decided once per fit, so the blocks keep their sizes
@@ -335,9 +348,10 @@ def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm
         lo += [radius_range[0]] * nR
         hi += [radius_range[1]] * nR
     for e in eyes:
-        x0 += list(e.c) + list(_angles(e.n)) + [e.ha, e.tl]
-        lo += list(np.asarray(e.c) - 15.0) + [0.0, -np.pi - 1.0, HA_RANGE[0], LIMBUS_RANGE[0]]
-        hi += list(np.asarray(e.c) + 15.0) + [np.radians(60.0), np.pi + 1.0, HA_RANGE[1], LIMBUS_RANGE[1]]
+        x0 += list(e.c) + list(_angles(e.n)) + [e.ha, e.tl, e.hb]
+        lo += list(np.asarray(e.c) - 15.0) + [0.0, -np.pi - 1.0, HA_RANGE[0], LIMBUS_RANGE[0], HB_RANGE[0]]
+        hi += list(np.asarray(e.c) + 15.0) + [np.radians(60.0), np.pi + 1.0, HA_RANGE[1], LIMBUS_RANGE[1],
+                                              HB_RANGE[1]]
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     x0 = np.clip(np.asarray(x0, float), lo + 1e-6, hi - 1e-6)
     res = least_squares(f, x0, loss="soft_l1", f_scale=2.0, max_nfev=max_nfev, bounds=(lo, hi))
@@ -345,7 +359,7 @@ def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm
     # Laplace approximation on (c, R) of every eye: Jacobian by central differences
     cols = []
     for i in range(k):
-        b = nR + 7 * i
+        b = nR + NP * i
         cols.append([b, b + 1, b + 2, (0 if nR == 1 else i) if nR else None])
     J_full = _jacobian_blocks(blocks, res.x)
     cov, shares = _laplace(J_full, res.x, cols, nR, k)
@@ -495,7 +509,7 @@ def refine(p: Patch, e: Eye, cues: Cues, radius_range, iters=3) -> Mode:
     lab, energy = segment(p, e)
     energy += 0.5 * float(np.sum(np.concatenate(
         [v for k, v in _blocks(p, lab, e, cues).items()
-         if k in ("prior", "radius_prior", "limbus_prior")]) ** 2))
+         if k in PRIOR_BLOCKS]) ** 2))
     return Mode(e, lab, energy, fit, fold_deg(p, lab))
 
 
@@ -553,9 +567,10 @@ class Placement:
     sigma_laplace_mm: tuple = (0.0, 0.0)   # the Laplace part of (sigma_center, sigma_radius)
 
 
+PRIOR_BLOCKS = ("prior", "radius_prior", "limbus_prior", "ring_prior")
 CUE_NAMES = {"sclera": "sclera", "anterior": "cornea_or_iris", "skin": "skin",
              "prior": "eye_region_prior", "radius_prior": "radius_prior", "pair": "pair",
-             "limbus_prior": "limbus_prior"}
+             "limbus_prior": "limbus_prior", "ring_prior": "ring_prior"}
 
 
 def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prior=None,
@@ -609,14 +624,14 @@ def radius_profile(p: Patch, e: Eye, cues: Cues, radii, iters=2):
     front = e.c + e.R * e.n
     E, C = [], []
     for R in radii:
-        x = Eye(front - R * e.n, float(R), e.n, e.ha, e.tl)
+        x = Eye(front - R * e.n, float(R), e.n, e.ha, e.tl, e.hb)
         for _ in range(iters):
             lab, _ = segment(p, x)
             x = fit_eyes([p], [lab], [x], [cues], (R, R), fixed_radius=float(R), max_nfev=20).eyes[0]
         lab, energy = segment(p, x)
         energy += 0.5 * float(np.sum(np.concatenate(
             [v for k, v in _blocks(p, lab, x, cues).items()
-             if k in ("prior", "radius_prior", "limbus_prior")]) ** 2))
+             if k in PRIOR_BLOCKS]) ** 2))
         E.append(energy)
         C.append(x.c)
     return np.asarray(radii, float), np.asarray(E), np.asarray(C)

@@ -475,6 +475,7 @@ def _placement_record(pl, fit):
             "uncertainty_mm": {"center": round(pl.sigma_center_mm, 4),
                                "radius": round(pl.sigma_radius_mm, 4)},
             "cue_shares": dict(pl.shares), "anterior_height": round(float(pl.eye.ha), 4),
+            "anterior_ring": round(float(pl.eye.hb), 4),
             "limbus_half_angle_deg": round(float(pl.eye.tl), 3),
             "lid_fold_deg": round(float(pl.fold_deg), 2),
             "uncertainty_laplace_mm": {"center": round(pl.sigma_laplace_mm[0], 4),
