@@ -3,9 +3,10 @@
 One fast case per failure mode found on heads the pipeline was never tuned on (the full
 variety is ``benchmarks/bench_unseen_scans.py``): a too-small sphere through the cornea of an
 up-looking eye, a down-looking eye, an opening the scanner filled with flat triangles, hints
-moved 5 mm, and a fully blinked head. Each must either place both eyes within 1 mm of the truth
-with every self-check passing, or exit 2 with one line naming the scan folder and write nothing;
-the blinked head must be refused as closed. Needs ``EYERIG_EXTRA_SCANS`` (ICT-FaceKit and
+moved 5 mm, and a fully blinked head. Each eye must either be placed within 1 mm of the truth
+(centre and radius) with every self-check passing, or say that it is not sure: published with a
+doubt on that eye and a ``warning:`` line naming the scan folder and the eye, or the scan refused
+(exit 2, one line naming the folder, nothing written). The blinked head must be refused as closed. Needs ``EYERIG_EXTRA_SCANS`` (ICT-FaceKit and
 ``../tools/scanify`` beside it); skips cleanly without.
 """
 
@@ -98,6 +99,11 @@ def test_right_or_not_sure(scanify, tmp_path, name):
     truth = json.loads((scan / "ground_truth.json").read_text())["eyes"]
     for side in ("left", "right"):
         e, g = eyes[side], truth[side]["eyeball_sphere"]
-        assert all(c["ok"] for c in e["checks"].values())
-        assert np.linalg.norm(np.array(e["center"]) - g["center_mm"]) <= 1.0, side
-        assert abs(e["radius"] - g["radius_mm"]) <= 1.0, side
+        right = all(c["ok"] for c in e["checks"].values()) \
+            and np.linalg.norm(np.array(e["center"]) - g["center_mm"]) <= 1.0 \
+            and abs(e["radius"] - g["radius_mm"]) <= 1.0
+        if right:
+            continue
+        # not right: it must say so, in eyes.json and on stderr, naming the scan and the eye
+        assert e["doubts"], (side, e["center"], g["center_mm"], e["radius"], g["radius_mm"])
+        assert any(ln.startswith(f"warning: {scan}: {side} eye: ") for ln in lines), lines

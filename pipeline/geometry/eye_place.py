@@ -40,7 +40,8 @@ from pipeline.geometry.spherefit import sphere_from_normals
 
 SIDES = ("left", "right")
 SIG_SCLERA = 0.15       # mm: scanner noise on the exposed sclera
-SIG_ANTERIOR = 0.30     # mm: the anterior cap (dome .. iris through the cornea) is less regular
+SIG_ANTERIOR = 0.15     # mm: as the sclera; a looser cap made a small sphere through the cornea
+                        # (every vertex at the tighter scale) likelier than the true globe
 TAU_INSIDE = 0.35       # mm: skin may lie this far inside the globe (noise) before it is impossible
 SKIN_SPREAD_MM = 10.0   # skin near the eye: anywhere within this of the globe, uniform
 APEX_FRACTION = 0.1     # corneal apex above the sclera sphere, in units of R (people 0.08, ICT 0.13)
@@ -179,20 +180,21 @@ def cornea_sphere(e: Eye):
 
 
 def surface_residual(P, e: Eye):
-    """Signed distance (mm) of ``P`` (n, 3) off the eye model, the residual scale of each
-    point (sclera or anterior), the plain distance off the sclera sphere, and unit directions
-    from the centre."""
+    """Signed distance (mm) of ``P`` (n, 3) off the eye model, whether each point lies on the
+    anterior cap (inside the limbus), the plain distance off the sclera sphere, and unit
+    directions from the centre."""
     w = P - e.c
     nw = np.maximum(np.linalg.norm(w, axis=1), 1e-9)
     ca = (w @ e.n) / nw
     h = cap_height(ca, e.R, e.ha, e.tl, e.hb)
     ant = ca > np.cos(np.radians(e.tl))
-    return nw - e.R - h, np.where(ant, SIG_ANTERIOR, SIG_SCLERA), nw - e.R, w / nw[:, None]
+    return nw - e.R - h, ant, nw - e.R, w / nw[:, None]
 
 
 def unary_costs(p: Patch, e: Eye):
     """Area-weighted negative log-likelihoods of each vertex as eye and as skin, (n,), (n,)."""
-    d, sig, dsph, u = surface_residual(p.V, e)
+    d, ant, dsph, u = surface_residual(p.V, e)
+    sig = np.where(ant, SIG_ANTERIOR, SIG_SCLERA)
     eye = 0.5 * (d / sig) ** 2 + np.log(sig * np.sqrt(2.0 * np.pi))
     eye = np.where((u * p.N).sum(axis=1) > 0.5, np.minimum(eye, 30.0), 30.0)   # eye faces outward
     skin = np.log(SKIN_SPREAD_MM) + np.where(dsph < -TAU_INSIDE,
@@ -284,10 +286,10 @@ class Cues:
 def _blocks(p: Patch, lab, e: Eye, cues: Cues, anterior=None):
     """Residual blocks (name -> array) of one eye; ``anterior`` (n,) bool fixes which eye
     vertices count as anterior (default: where the eye's dome stands off the sclera)."""
-    d, sig, dsph, _ = surface_residual(p.V, e)
+    d, ant, dsph, _ = surface_residual(p.V, e)
     sa = np.sqrt(p.A)
     if anterior is None:
-        anterior = sig > SIG_SCLERA
+        anterior = ant
     out = {"sclera": sa[lab & ~anterior] * d[lab & ~anterior] / SIG_SCLERA,
            "anterior": sa[lab & anterior] * d[lab & anterior] / SIG_ANTERIOR,
            "skin": sa[~lab] * np.minimum(dsph[~lab] + TAU_INSIDE, 0.0) / SIG_SCLERA}
@@ -328,7 +330,7 @@ def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm
         return out
 
     # which eye vertices are anterior is decided once per fit, so the blocks keep their sizes
-    ant = [surface_residual(patches[i].V, eyes[i])[1] > SIG_SCLERA for i in range(k)]
+    ant = [surface_residual(patches[i].V, eyes[i])[1] for i in range(k)]
 
     def blocks(x):
         es = unpack(x)
@@ -573,6 +575,17 @@ CUE_NAMES = {"sclera": "sclera", "anterior": "cornea_or_iris", "skin": "skin",
              "limbus_prior": "limbus_prior", "ring_prior": "ring_prior"}
 
 
+RANGE_EDGE_MM = 0.05    # a radius this close to a bound of the range rests on it
+
+
+def _inside_range(R, radius_range):
+    """Whether ``R`` lies inside the radius range, off its bounds. A fit that presses against
+    a bound wants a globe no eye has: a sphere laid over a closed lid, a cheek or a filled
+    opening (on 33 unseen ICT heads every optimum at 18 mm was 5.9-13.7 mm off, most with a
+    confident 0.4-0.9 mm uncertainty), not an eye."""
+    return radius_range[0] + RANGE_EDGE_MM < R < radius_range[1] - RANGE_EDGE_MM
+
+
 def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prior=None,
                ignore=None, seed=0, temperature=20.0, sigma_scale=1.0, shared_radius_z=2.5,
                sym_sigma_mm=1.0, min_fold_deg=20.0):
@@ -589,8 +602,8 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
                        front_sigma=4.0 if pr is None else pr["sigma"], radius_prior=radius_prior)
         found = [refine(patches[s], h, cues[s], radius_range)
                  for h in hypotheses(patches[s], cues[s], radius_range, rng, min_fold_deg=min_fold_deg)]
-        modes[s] = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()),
-                          key=lambda m: m.energy)
+        modes[s] = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()
+                           and _inside_range(m.eye.R, radius_range)), key=lambda m: m.energy)
     if not all(modes[s] for s in SIDES):
         return {s: None if not modes[s] else _placement(patches[s], modes[s], None, temperature,
                                                         sigma_scale) for s in SIDES}

@@ -61,6 +61,7 @@ class EyeSettings(Settings):
     doubt_center_sigma_mm: float = setting(1.0, gt=0, le=100)    # a placement less sure than this is published with a doubt
     min_open_area_mm2: float = setting(6.0, ge=0, le=1000)       # less visible eye than this: the eye is closed
     fill_face_ratio: float = setting(12.0, gt=1, le=1e6)         # faces this many times the median area: a scanner's flat fill
+    min_eye_vertices: int = setting(40, ge=0, le=100000)         # fewer scan vertices on the eye surface: too coarse to place from geometry
 
 
 def order_loop(loop, V, center, forward, side):
@@ -357,11 +358,17 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: EyeSettings, source, 
     cornea = cornea_sphere(e)
     crease = _crease(mesh, region) if region.any() else 0.0
     if area < st.min_open_area_mm2:
-        raise ScanError(source, f"{side} eye looks closed: {area:.1f} mm2 of eye surface near "
+        raise ScanError(source, f"{side} eye looks closed (or too little of the eyeball shows to place "
+                                f"it): {area:.1f} mm2 of eye surface near "
                                 f"{np.round(hint, 2).tolist()} (less than {st.min_open_area_mm2:g})")
+    n_eye = int(np.count_nonzero(pl.lab))
+    if n_eye < st.min_eye_vertices:     # a coarse scan (james: 3 mm faces) cannot show a cornea
+        raise ScanError(source, f"{side} eye: too little of the eyeball shows to place it from the "
+                                f"geometry: {n_eye} scan vertices on the eye surface near "
+                                f"{np.round(hint, 2).tolist()} (fewer than {st.min_eye_vertices})")
     rv = np.unique(F[region & ~ignore])
-    d, sig, _, _ = surface_residual(V[rv], e)
-    scl = sig <= 0.15 + 1e-9
+    d, ant, _, _ = surface_residual(V[rv], e)
+    scl = ~ant
     rms = float(np.sqrt(np.mean(d[scl] ** 2))) if scl.any() else float(np.sqrt(np.mean(d ** 2)))
     if cornea is not None:
         cornea = {"center": np.asarray(cornea["center"]), "radius": cornea["radius"],
@@ -427,7 +434,8 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
             except ScanError as exc:
                 err = exc
         else:
-            err = ScanError(source, f"{s} eye looks closed: no eye surface ringed by a lid fold "
+            err = ScanError(source, f"{s} eye looks closed (or too little of the eyeball shows to place "
+                                    f"it): no eye surface ringed by a lid fold "
                                     f"near the hint {np.round(hints[s], 2).tolist()}")
         has_tex = texture is not None and "UV" in sub_arrays and "FUV" in sub_arrays
         if not (st.texture_fallback and has_tex):
