@@ -4,10 +4,11 @@
         [--set all|dev|heldout] [--results benchmarks/results]
 
 For every open-eyed ``--ideal-eyes`` ICT-FaceKit case of ``bench_unseen_scans``, dev and held out
-(scans generated there with ``--generate-only``; filled openings have no sclera left to fit), the sphere is fitted to the scan vertices that the truth says are exposed
-sclera: labelled eyeball by scanify's ``--write-labels``, more than 33 deg from the true gaze (outside
-the limbus, about 27-28 deg, with a seam margin), and more than ``margin`` mm from any skin vertex
-(away from the lid fillet). The fit is a robust (soft-L1, 0.1 mm) geometric sphere fit started
+(scans generated there with ``--generate-only``; filled openings have no sclera left to fit),
+the sphere is fitted to the scan vertices that the truth says are exposed sclera: labelled
+eyeball by scanify's ``--write-labels``, more than 33 deg from the true gaze (outside the limbus,
+about 27-28 deg, with a seam margin), and more than ``margin`` mm from any skin vertex (away from
+the lid fillet). The fit is a robust (soft-L1, 0.1 mm) geometric sphere fit started
 0.9 mm off the truth. No pipeline code takes part: the segmentation, the gaze and the start come
 from the truth, so no eye finder that reads the scanned eye surface can be expected to do better on
 these scans. Writes ``<results>/unseen_oracle.json``: the summary over all cases, per set and per

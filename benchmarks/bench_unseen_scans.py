@@ -2,7 +2,7 @@
 
     .venv/bin/python -m benchmarks.bench_unseen_scans [--set all|dev|heldout] [--only NAME|FAMILY ...]
         [--work benchmarks/out/unseen] [--scanify ../shared/tools/scanify/scanify.py]
-        [--ict ../shared/scans/ict_facekit] [--generate-only] [--stop-after rig|usd|...]
+        [--ict ../shared/scans/ict_facekit] [--generate-only] [--stop-after usd|rig|...]
         [--pictures DIR] [--results benchmarks/results] [--out unseen_scans] [--markdown]
 
 Cases (``benchmarks.unseen.cases``): a ``dev`` set to develop on and a ``heldout`` set (new identity
@@ -12,16 +12,19 @@ off, exaggerated identities, ICT's non-spherical eyes, real-scanner imitations),
 with flat triangles, full blinks (must be refused as closed) and procedural heads. Scans are made
 once into ``--work`` (git-ignored) and reused.
 
-Each case runs ``ingest -> remove_eyeballs -> retopo -> bake -> snap -> rig`` (``--stop-after usd``:
-also the asset) as dvc.yaml does (subprocesses, with ./params.yaml except ``BENCH_PARAMS``: a
-512 px bake, no previews, no usdz; nothing eye-related is changed). Per eye it measures the
-placement, what a camera would see, the lid margin and canthi and the stated uncertainty against
-the truth (``benchmarks.unseen.metrics``), and judges the rows by issue 21's bounds per family and per
-set (``benchmarks.unseen.report``). ``--pictures DIR`` takes the given cases to the asset with its
-preview and renders a few labelled images of each (``PICTURE_RENDER``) into ``DIR``:
-``<case>_preview.png``, ``<case>_renders.png`` and ``previews.png`` (all previews). Writes ``<results>/<out>.json`` (summary per set,
-rows with a ``set`` field) and ``<out>.csv`` (per family, a DVC plot); ``--markdown`` prints the
-README tables from the JSON (the oracle column from ``unseen_oracle.json`` beside it).
+Each case runs ``ingest -> remove_eyeballs -> retopo -> bake -> snap -> rig -> usd`` (or up to
+``--stop-after``; an outcome ``asset`` means every stage run passed) as dvc.yaml does
+(subprocesses, with ./params.yaml except ``BENCH_PARAMS``: a 512 px bake, no previews, no usdz;
+nothing eye-related is changed). Per eye it measures the placement, what a camera would see, the
+lid margin and canthi and the stated uncertainty against the truth (``benchmarks.unseen.metrics``),
+and judges the rows by issue 21's bounds per family and per set (``benchmarks.unseen.report``).
+Held-out cases print no per-case figures (``--show-heldout`` does): they are for the summary.
+
+``--pictures DIR`` takes the given cases to the asset with its preview and renders a few labelled
+images of each (``PICTURE_RENDER``) into ``DIR``: ``<case>_preview.png``, ``<case>_renders.png``
+and ``previews.png`` (all previews). Writes ``<results>/<out>.json`` (summary per set, rows with a
+``set`` field) and ``<out>.csv`` (per family, a DVC plot); ``--markdown`` prints the README tables
+from the JSON (the oracle column from ``unseen_oracle.json`` beside it).
 """
 
 from __future__ import annotations
@@ -61,7 +64,7 @@ def asset_dir(eyeball: Path, case: str) -> Path:
     return eyeball.parent / f"{case}_asset"
 
 
-def run_chain(folder: Path, build: Path, eyeball: Path, params: Path, stop_after="rig"):
+def run_chain(folder: Path, build: Path, eyeball: Path, params: Path, stop_after="usd"):
     """Run the stages as dvc.yaml does; per stage exit code, stderr's last line and wall time."""
     from benchmarks.bench_chain import stage_commands
 
@@ -237,7 +240,8 @@ def main():
     ap.add_argument("--set", default="all", choices=("all",) + SETS, dest="set_name")
     ap.add_argument("--only", nargs="*", default=None, help="case names or families")
     ap.add_argument("--generate-only", action="store_true")
-    ap.add_argument("--stop-after", default="rig", choices=STAGES)
+    ap.add_argument("--stop-after", default="usd", choices=STAGES,
+                    help="last stage (default usd: an outcome 'asset' is a validated USD asset)")
     ap.add_argument("--pictures", default=None, type=Path,
                     help="take the cases to the asset and write previews and render sheets here")
     ap.add_argument("--results", default=str(RESULTS), type=Path, help="folder of the results files")

@@ -87,7 +87,8 @@ def test_open_eyes_are_placed(scans, tmp_path, name):
         e, g = eyes[side], truth[side]["eyeball_sphere"]
         err = float(np.linalg.norm(np.asarray(e["center"]) - g["center_mm"]))
         assert err <= PLACE_MM, f"{side} centre {err:.2f} mm off"
-        assert abs(e["radius"] - g["radius_mm"]) <= PLACE_MM, f"{side} radius {e['radius'] - g['radius_mm']:+.2f} mm"
+        dr = e["radius"] - g["radius_mm"]
+        assert abs(dr) <= PLACE_MM, f"{side} radius {dr:+.2f} mm off"
         placement = e.get("placement")
         assert placement and isinstance(placement, list) and all(isinstance(p, str) for p in placement), \
             f"{side}: placement must name the cues that carried the fit, got {placement!r}"

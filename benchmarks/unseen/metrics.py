@@ -11,6 +11,8 @@ What each figure compares (mm, head frame):
   against the placed sclera sphere alone, ``asset`` against the eye as the asset builds it (the
   parametric eye placed by ``pipeline.eyeball.geometry.placed_params`` at the rig's centre,
   radius and forward, as the usd stage authors it; ``pipeline.geometry.snap.PlacedEye``).
+  ``visible_rms_floor_mm`` is the ``asset`` figure with the eye placed exactly at the truth: what
+  the asset's eye model costs by itself (a human-sized cornea on ICT-FaceKit's larger one).
 - ``margin_mean_mm``: the asset's lid margin after ``snap`` (``snap/eyes.json`` ``loop_points``:
   the eye-region mesh's opening loop, which the rig's eyelid landmarks are sampled from) against
   the true margin polyline: mean distance from the asset's loop (resampled every 0.25 mm) to the
@@ -208,25 +210,45 @@ def remnant(folder: Path, build: Path, eyes: dict):
     return out
 
 
+def _eyeball_params(eyeball: Path):
+    if not (eyeball / "eyeball.usda").is_file():
+        return None
+    from pipeline.usd.eyeball import read_eyeball_params
+    return read_eyeball_params(eyeball)
+
+
+def visible_floor(truth: dict, eyeball: Path) -> dict:
+    """Per side, ``visible_rms_mm`` of the asset's eye placed exactly at the truth (centre, radius,
+    gaze): what the asset's eye model alone costs (its cornea keeps human size, placed_params),
+    whatever the placement. None without the eyeball asset."""
+    params = _eyeball_params(eyeball)
+    out = {}
+    for s in SIDES:
+        g = truth[s]
+        c, r = g["eyeball_sphere"]["center_mm"], g["eyeball_sphere"]["radius_mm"]
+        exact = {"center": c, "radius": r}
+        out[s] = placement_metrics(exact, g, true_visible_surface(g), (c, r, g["gaze_direction"]),
+                                   params)["visible_rms_mm"]
+    return out
+
+
 def eye_rows(folder: Path, build: Path, eyeball: Path) -> dict:
-    """Per side, every measurement the build so far allows (empty when no eye was placed)."""
+    """Per side, every measurement the build so far allows (no side when no eye was placed), and
+    ``visible_rms_floor_mm`` (truth only, every case)."""
+    truth = json.loads((folder / "ground_truth.json").read_text())["eyes"]
+    out = {"visible_rms_floor_mm": visible_floor(truth, eyeball)}
     eyes_p = build / "remove_eyeballs" / "eyes.json"
     if not eyes_p.is_file():
-        return {}
-    truth = json.loads((folder / "ground_truth.json").read_text())["eyes"]
+        return out
     eyes = {s: e.doc for s, e in read_eyes(eyes_p).items()}
     rig = None
     if (build / "rig" / "rig.json").is_file():
         from pipeline.io.rig_file import read_rig
         rig = read_rig(build / "rig")
-    params = None
-    if (eyeball / "eyeball.usda").is_file():
-        from pipeline.usd.eyeball import read_eyeball_params
-        params = read_eyeball_params(eyeball)
+    params = _eyeball_params(eyeball)
     snap_p = build / "snap" / "eyes.json"
     snapped = {s: e.doc for s, e in read_eyes(snap_p).items()} if snap_p.is_file() else {}
     rem = remnant(folder, build, eyes)
-    out = {}
     for s in SIDES:
         e, g = eyes[s], truth[s]
         # the asset places the eye where the rig says (the usd stage reads rig.json's eyes)
