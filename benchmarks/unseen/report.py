@@ -27,6 +27,8 @@ stopped before (``--stop-after``) is "not measured", neither met nor failed.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 SIDES = ("left", "right")
@@ -41,13 +43,22 @@ CALIBRATION_FRACTION = 0.90
 SILENT_MM = 2.0
 
 
+# "left eye looks closed", "is closed", "closed eyes": not "boundary edges do not form closed loops"
+CLOSED = re.compile(r"\b(looks?|is|are|appears?|seems?)\s+closed\b|\bclosed\s+eye", re.IGNORECASE)
+
+
+def says_closed(message: str) -> bool:
+    """Whether a refusal line says the eye is closed."""
+    return bool(CLOSED.search(message or ""))
+
+
 def outcome(row) -> str:
     """``asset`` (every stage run passed), ``closed`` (refused as closed), ``unsure`` (a self-check
     refused it) or ``failed`` (any other refusal: no eyeball found, cut topology, a later stage)."""
     if not row["failed_stage"]:
         return "asset"
     msg = row["stages"][row["failed_stage"]]["message"]
-    if "closed" in msg:
+    if says_closed(msg):
         return "closed"
     if "not sure" in msg:
         return "unsure"
