@@ -207,3 +207,16 @@ def test_refusals_that_say_closed():
     assert says_closed("error: raw_scans/x: both eyes are closed")
     assert not says_closed("error: raw_scans/x: right eye: the cut left a non-simple boundary "
                            "(boundary edges do not form closed loops)")
+
+
+def test_true_corners_belong_to_the_lids_not_the_turned_eye():
+    """An eye turned 30 deg inward (scanify rotates the eyeball, not the lids) keeps its corners."""
+    from benchmarks.unseen.metrics import true_canthi
+
+    g = _truth_eye("left")
+    a = np.radians(-30.0)                       # the left eye turned toward the nose (-X)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    turned = {**g, "gaze_direction": (R @ [0.0, 0.0, 1.0]).tolist()}
+    rest = true_canthi(g, "left")
+    assert np.allclose(true_canthi(turned, "left", R.tolist())[1], rest[1])
+    assert not np.allclose(true_canthi(turned, "left")[1], rest[1])   # what the gaze frame would pick

@@ -20,9 +20,10 @@ What each figure compares (mm, head frame):
   opening is close to the truth one way, not the other).
 - ``canthus_medial_mm`` / ``canthus_lateral_mm``: eyelid landmarks 0 and 6 of ``rig.npz`` at rest
   (weight 0) against the true corners: margin index 0 (the medial canthus by the truth's
-  definition) and the margin point farthest lateral in the true eye frame (the truth's own
-  ``lateral_canthus_index`` where it gives one; ``truth_order_ok`` records whether the two agree
-  and the upper lid runs above the lower).
+  definition) and the margin point farthest lateral in the true eye's rest frame (the rule
+  ``eyes.json`` uses for its own loops). ``truth_order_ok``: that point is the truth's own
+  ``lateral_canthus_index`` or its neighbour, index 0 is the most medial point (within 1 mm) and
+  the upper lid runs above the lower.
 - ``convex_fill`` / ``remnant_mm2``: the cut's opening loop area over its convex hull's, and the
   scanned eyeball surface (scanify's labels) left on the head outside a 1 mm band along the loop.
 - calibration: ``within_2sigma`` = centre error <= 2 x the stated 1-sigma ``uncertainty_mm.center``
@@ -85,19 +86,29 @@ def true_visible_surface(truth_eye: dict, step: float = GRID_MM) -> np.ndarray:
     return c1 + Q[keep] @ B[:2] + front[keep, None] * B[2]
 
 
-def true_canthi(truth_eye: dict, side: str) -> tuple[np.ndarray, np.ndarray, bool]:
-    """(medial (3,), lateral (3,), ordering agrees) of the true margin; see the module docstring."""
+def rest_forward(truth_eye: dict, rotation=None) -> np.ndarray:
+    """The eye's forward at rest: the true gaze with scanify's rigid eye rotation (``source.
+    eye_rotation.<side>.rotation_matrix``, None: none) undone. The canthi belong to the lids, which
+    do not turn with the eye: an eye looking 30 deg in would otherwise move the "farthest lateral"
+    margin point 3 mm along the lid."""
+    g = np.asarray(truth_eye["gaze_direction"], float)
+    return g if rotation is None else np.asarray(rotation, float).T @ g
+
+
+def true_canthi(truth_eye: dict, side: str, rotation=None) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(medial (3,), lateral (3,), ordering agrees) of the true margin, in the eye's rest frame
+    (:func:`rest_forward`); see the module docstring."""
     margin = np.asarray(truth_eye["eyelid_margin"]["points_mm"], float)
     c = np.asarray(truth_eye["eyeball_sphere"]["center_mm"], float)
-    g = truth_eye["gaze_direction"]
-    far = lateral_canthus_index(margin, c, g, side)
-    lat = truth_eye["eyelid_margin"].get("lateral_canthus_index", far)
+    g = rest_forward(truth_eye, rotation)
+    lat = lateral_canthus_index(margin, c, g, side)
+    own = truth_eye["eyelid_margin"].get("lateral_canthus_index", lat)
     B = eye_basis(g)
     xy = (margin - c) @ B[:2].T
     medial_x = -xy[:, 0] if side == "left" else xy[:, 0]   # left eye: medial is head -X
     upper, lower = xy[1:lat, 1], xy[lat + 1:, 1]
-    ok = bool(0 < lat < len(margin) - 1
-              and np.linalg.norm(margin[lat] - margin[far]) <= 1.0
+    # the truth's own corner (ICT: a fixed vertex) may be the farthest point's neighbour
+    ok = bool(0 < lat < len(margin) - 1 and abs(lat - own) <= 1
               and medial_x.max() - medial_x[0] <= 1.0
               and len(upper) and len(lower) and upper.mean() > lower.mean())
     return margin[0], margin[lat], ok
@@ -168,9 +179,9 @@ def margin_metrics(loop_points, g: dict) -> dict:
             "margin_max_mm": round(float(max(to_truth.max(), to_asset.max())), 4)}
 
 
-def canthus_metrics(landmarks, g: dict, side: str) -> dict:
+def canthus_metrics(landmarks, g: dict, side: str, rotation=None) -> dict:
     """Eyelid landmarks 0 and 6 (rest) against the true corners."""
-    med, lat, ok = true_canthi(g, side)
+    med, lat, ok = true_canthi(g, side, rotation)
     L = np.asarray(landmarks, float)
     return {"canthus_medial_mm": round(float(np.linalg.norm(L[0] - med)), 4),
             "canthus_lateral_mm": round(float(np.linalg.norm(L[6] - lat)), 4),
@@ -235,7 +246,10 @@ def visible_floor(truth: dict, eyeball: Path) -> dict:
 def eye_rows(folder: Path, build: Path, eyeball: Path) -> dict:
     """Per side, every measurement the build so far allows (no side when no eye was placed), and
     ``visible_rms_floor_mm`` (truth only, every case)."""
-    truth = json.loads((folder / "ground_truth.json").read_text())["eyes"]
+    doc = json.loads((folder / "ground_truth.json").read_text())
+    truth = doc["eyes"]
+    rotations = {s: r.get("rotation_matrix") for s, r in
+                 ((doc.get("source") or {}).get("eye_rotation") or {}).items() if isinstance(r, dict)}
     out = {"visible_rms_floor_mm": visible_floor(truth, eyeball)}
     eyes_p = build / "remove_eyeballs" / "eyes.json"
     if not eyes_p.is_file():
@@ -262,6 +276,6 @@ def eye_rows(folder: Path, build: Path, eyeball: Path) -> dict:
         if s in snapped and snapped[s].get("loop_points"):
             row.update(margin_metrics(snapped[s]["loop_points"], g))
         if rig is not None and s in rig.npz.curves:
-            row.update(canthus_metrics(rig.npz.curves[s][0], g, s))
+            row.update(canthus_metrics(rig.npz.curves[s][0], g, s, rotations.get(s)))
         out[s] = row
     return out
