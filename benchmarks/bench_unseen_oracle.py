@@ -1,26 +1,30 @@
 """How well could any fit to the scanned sclera place the eyeball? An oracle bound on the unseen scans.
 
     .venv/bin/python -m benchmarks.bench_unseen_oracle [--work benchmarks/out/unseen] [--margin-mm 0 0.5 1]
+        [--set all|dev|heldout] [--results benchmarks/results]
 
-For every ``--ideal-eyes`` ICT-FaceKit case of ``bench_unseen_scans`` (scans generated there with
-``--generate-only``), the sphere is fitted to the scan vertices that the truth says are exposed
-sclera: labelled eyeball by scanify's ``--write-labels``, more than 33 deg from the true gaze (outside
-the limbus, about 27-28 deg, with a seam margin), and more than ``margin`` mm from any skin vertex
-(away from the lid fillet). The fit is a robust (soft-L1, 0.1 mm) geometric sphere fit started
+For every open-eyed ``--ideal-eyes`` ICT-FaceKit case of ``bench_unseen_scans``, dev and held out
+(scans generated there with ``--generate-only``; filled openings have no sclera left to fit),
+the sphere is fitted to the scan vertices that the truth says are exposed sclera: labelled
+eyeball by scanify's ``--write-labels``, more than 33 deg from the true gaze (outside the limbus,
+about 27-28 deg, with a seam margin), and more than ``margin`` mm from any skin vertex (away from
+the lid fillet). The fit is a robust (soft-L1, 0.1 mm) geometric sphere fit started
 0.9 mm off the truth. No pipeline code takes part: the segmentation, the gaze and the start come
 from the truth, so no eye finder that reads the scanned eye surface can be expected to do better on
-these scans. Writes ``benchmarks/results/unseen_oracle.json``.
+these scans. Writes ``<results>/unseen_oracle.json``: the summary over all cases, per set and per
+family (``bench_unseen_scans --markdown`` puts the per-family figures beside its own).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.bench_unseen_scans import CASES, PLACE_MAX_MM, PLACE_MM, RESULTS, ROOT, SIDES
+from benchmarks.bench_unseen_scans import PLACE_MAX_MM, PLACE_MM, RESULTS, ROOT, SETS, SIDES, select
 
 CONE_DEG = 33.0
 
@@ -84,6 +88,8 @@ def summary(rows, margins) -> dict:
                 if e[key]["center_error_mm"] is not None else np.inf
                 for r in rows.values() for e in (r["left"], r["right"])]
         errs = np.array(errs)
+        if not len(errs):
+            continue
         out[key] = {"eyes": int(len(errs)),
                     f"within_{PLACE_MM}mm": int((errs <= PLACE_MM).sum()),
                     f"within_{PLACE_MAX_MM}mm": int((errs <= PLACE_MAX_MM).sum()),
@@ -97,21 +103,31 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", default=str(ROOT / "benchmarks" / "out" / "unseen"))
     ap.add_argument("--margin-mm", type=float, nargs="+", default=[0.0, 0.5, 1.0])
+    ap.add_argument("--set", default="all", choices=("all",) + SETS, dest="set_name")
+    ap.add_argument("--results", default=str(RESULTS), type=Path)
     a = ap.parse_args()
-    rows = {}
-    for case in CASES:
+    rows, missing = {}, []
+    for case in select(a.set_name):
         if case["kind"] != "scanify" or not case.get("ideal", True) or case["expect"] != "asset":
             continue
         folder = Path(a.work) / "scans" / case["name"]
-        if not (folder / "scan_labels.npy").is_file():
-            raise SystemExit(f"{folder}: not generated; run python -m benchmarks.bench_unseen_scans "
-                             f"--generate-only first")
-        rows[case["name"]] = {"family": case["family"], **evaluate(folder, a.margin_mm)}
+        if not (folder / "scan_labels.npy").is_file():   # listed in the results, never silent
+            missing.append(case["name"])
+            print(f"{folder}: not generated (skipped; python -m benchmarks.bench_unseen_scans "
+                  f"--generate-only makes it)", file=sys.stderr)
+            continue
+        rows[case["name"]] = {"family": case["family"], "set": case["set"],
+                              **evaluate(folder, a.margin_mm)}
         print(case["name"], json.dumps({s: rows[case["name"]][s] for s in SIDES}), flush=True)
-    res = {"cone_deg": CONE_DEG, "summary": summary(rows, a.margin_mm), "cases": rows}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "unseen_oracle.json").write_text(json.dumps(res, indent=1) + "\n")
-    print(json.dumps(res["summary"], indent=1))
+    res = {"cone_deg": CONE_DEG, "summary": summary(rows, a.margin_mm),
+           "sets": {s: summary({k: r for k, r in rows.items() if r["set"] == s}, a.margin_mm)
+                    for s in SETS},
+           "families": {f: summary({k: r for k, r in rows.items() if r["family"] == f}, a.margin_mm)
+                        for f in dict.fromkeys(r["family"] for r in rows.values())},
+           "cases": rows, "not_generated": missing}
+    a.results.mkdir(parents=True, exist_ok=True)
+    (a.results / "unseen_oracle.json").write_text(json.dumps(res, indent=1) + "\n")
+    print(json.dumps({"all": res["summary"], **res["sets"]}, indent=1))
 
 
 if __name__ == "__main__":

@@ -1,13 +1,20 @@
-"""Unseen scan-like heads (scanify, 60k faces): remove_eyeballs is right or says it is not sure.
+"""Unseen scan-like heads (scanify, about 100k faces): each eye is right or says it is not sure.
 
-One fast case per failure mode found on heads the pipeline was never tuned on (the full
-variety is ``benchmarks/bench_unseen_scans.py``): a too-small sphere through the cornea of an
-up-looking eye, a down-looking eye, an opening the scanner filled with flat triangles, hints
-moved 5 mm, and a fully blinked head. Each eye must either be placed within 1 mm of the truth
-(centre and radius) with every self-check passing, or say that it is not sure: published with a
-doubt on that eye and a ``warning:`` line naming the scan folder and the eye, or the scan refused
-(exit 2, one line naming the folder, nothing written). The blinked head must be refused as closed. Needs ``EYERIG_EXTRA_SCANS`` (ICT-FaceKit and
-``../tools/scanify`` beside it); skips cleanly without.
+Issue 21's fast cases, one per way a head nobody tuned on has gone wrong (the full variety is
+``benchmarks/bench_unseen_scans.py``): ICT-FaceKit heads looking down, squinting and wide, an
+opening the scanner filled with flat triangles, hints moved 5 mm, and a full blink. An open eye
+is either right (centre and radius within 1 mm of the truth, every self-check passing) or the
+stage says it is not sure of it: published with a doubt on that eye and a ``warning:`` line
+naming the scan folder and the eye, or the scan refused in one line that does not call it
+simply closed. A published eye names the cues that carried it and states an uncertainty. The
+blink must be refused as closed with one line naming the scan folder, and nothing written.
+(Issue 21's target, every open eye within 1 mm, is the benchmark's figure, not met: see
+docs/remove_eyeballs.md.) Identity seeds come from the benchmark's dev set (never the held-out
+one). Needs ``EYERIG_EXTRA_SCANS`` (ICT-FaceKit and ``../tools/scanify`` beside it); skips
+cleanly without. Each scan is made once per test session (about a minute each).
+
+The benchmark's instrument (``benchmarks/unseen/metrics.py``) is checked here too, fast, on
+an eye whose answers are known.
 """
 
 from __future__ import annotations
@@ -23,51 +30,39 @@ import pytest
 from conftest import ROOT, extra_scans_dir
 from pipeline.io.eyes_file import read_eyes
 
-pytestmark = pytest.mark.slow
+FACES = 100_000
+PLACE_MM = 1.0
 
-CASES = {
-    # name: (scanify arguments, expected)
-    "small_sphere_up": (["--identity-seed", "37", "--expression", "eyeLookUp"], "placed or unsure"),
-    "down_gaze": (["--identity-seed", "42", "--expression", "eyeLookDown"], "placed or unsure"),
-    "filled_opening": (["--identity-seed", "44"], "placed or unsure"),
-    "hints_5mm": (["--identity-seed", "31", "--hint-offset", "5", "--seed", "7"], "placed or unsure"),
-    "blink": (["--identity-seed", "41", "--expression", "eyeBlink=1"], "closed"),
-}
+
+def _cases():
+    from benchmarks.unseen.cases import _filled, _sc
+
+    return {c["name"]: c for c in (
+        _sc("t_id42_down", "expression", 42, faces=FACES, expr=["eyeLookDown"]),
+        _sc("t_id86_squint", "expression", 86, faces=FACES, expr=["eyeSquint"]),
+        _sc("t_id93_wide", "expression", 93, faces=FACES, expr=["eyeWide"]),
+        _filled("t_filled_id44", 44, faces=FACES),
+        _sc("t_id31_hint5", "hint_5mm", 31, faces=FACES, hint_offset=5.0, seed=7),
+        {**_sc("t_id41_blink", "blink", 41, faces=FACES, expr=["eyeBlink=1"]), "expect": "closed"},
+    )}
+
+
+OPEN = ["t_id42_down", "t_id86_squint", "t_id93_wide", "t_filled_id44", "t_id31_hint5"]
 
 
 @pytest.fixture(scope="module")
-def scanify():
+def scans(tmp_path_factory):
+    """``scans(name)`` -> the scan folder of that case, made on first use in this module."""
     base = extra_scans_dir()
     if base is None:
         pytest.skip("EYERIG_EXTRA_SCANS is not set")
     tool, ict = base.parent / "tools" / "scanify" / "scanify.py", base / "ict_facekit"
     if not tool.is_file() or not (ict / "ict_shape_modes.npz").is_file():
         pytest.skip(f"scanify or ICT-FaceKit not found beside {base}")
-    return tool, ict
+    from benchmarks.unseen.cases import generate
 
-
-def _scan(scanify, name, folder: Path) -> Path:
-    tool, ict = scanify
-    args, _ = CASES[name]
-    src = folder / (name + "_src" if name == "filled_opening" else name)
-    subprocess.run([sys.executable, str(tool), "--ict-dir", str(ict), "--out", str(src),
-                    "--faces", "60000", "--ideal-eyes", "--write-labels", *args],
-                   check=True, capture_output=True)
-    if name != "filled_opening":
-        return src
-    import trimesh
-
-    from benchmarks.bench_unseen_scans import _ply_write, fill_openings
-
-    m = trimesh.load(src / "scan.ply", process=False, maintain_order=True)
-    V, F, _ = fill_openings(np.asarray(m.vertices, float), np.asarray(m.faces, np.int64),
-                            np.load(src / "scan_labels.npy"))
-    out = folder / name
-    out.mkdir()
-    _ply_write(out / "scan.ply", V, F)
-    for f in ("scan.yaml", "ground_truth.json"):
-        (out / f).write_bytes((src / f).read_bytes())
-    return out
+    work, cases = tmp_path_factory.mktemp("unseen"), _cases()
+    return lambda name: generate(cases[name], work, tool, ict)
 
 
 def _run(*args):
@@ -75,35 +70,161 @@ def _run(*args):
                           cwd=ROOT, capture_output=True, text=True)
 
 
-@pytest.mark.parametrize("name", list(CASES))
-def test_right_or_not_sure(scanify, tmp_path, name):
-    scan = _scan(scanify, name, tmp_path)
-    build = tmp_path / "build"
+def _place(scan: Path, build: Path):
     r = _run("stages.ingest", scan, build / "ingest")
     assert r.returncode == 0, r.stderr
-    r = _run("stages.remove_eyeballs", build / "ingest", build / "remove_eyeballs")
+    return _run("stages.remove_eyeballs", build / "ingest", build / "remove_eyeballs")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", OPEN)
+def test_open_eyes_are_right_or_not_sure(scans, tmp_path, name):
+    scan = scans(name)
+    r = _place(scan, tmp_path)
     lines = r.stderr.strip().splitlines()
-    expected = CASES[name][1]
     if r.returncode == 2:
         assert len(lines) == 1 and lines[0].startswith(f"error: {scan}: "), lines
-        assert "Traceback" not in r.stderr and not (build / "remove_eyeballs").exists()
-        if expected == "closed":
-            assert "closed" in lines[0]
-        else:   # open eyes are never called simply closed
-            assert "not sure" in lines[0] or "too little of the eyeball shows" in lines[0] \
-                or "no eyeball surface" in lines[0], lines[0]
+        assert "Traceback" not in r.stderr and not (tmp_path / "remove_eyeballs").exists()
+        assert "too little of the eyeball shows" in lines[0] or "not sure" in lines[0], lines[0]
         return
     assert r.returncode == 0, r.stderr
-    assert expected != "closed", "a blinked head got eyes"
-    eyes = {s: e.doc for s, e in read_eyes(build / "remove_eyeballs" / "eyes.json").items()}
+    eyes = {s: e.doc for s, e in read_eyes(tmp_path / "remove_eyeballs" / "eyes.json").items()}
     truth = json.loads((scan / "ground_truth.json").read_text())["eyes"]
     for side in ("left", "right"):
         e, g = eyes[side], truth[side]["eyeball_sphere"]
-        right = all(c["ok"] for c in e["checks"].values()) \
-            and np.linalg.norm(np.array(e["center"]) - g["center_mm"]) <= 1.0 \
-            and abs(e["radius"] - g["radius_mm"]) <= 1.0
-        if right:
+        placement = e.get("placement")
+        assert placement and isinstance(placement, list) and all(isinstance(p, str) for p in placement), \
+            f"{side}: placement must name the cues that carried the fit, got {placement!r}"
+        unc = e.get("uncertainty_mm")
+        assert isinstance(unc, dict) and all(np.isfinite(unc.get(k, np.nan)) and unc[k] > 0
+                                             for k in ("center", "radius")), \
+            f"{side}: no stated 1-sigma uncertainty (centre, radius): {unc!r}"
+        err = float(np.linalg.norm(np.asarray(e["center"]) - g["center_mm"]))
+        dr = e["radius"] - g["radius_mm"]
+        if err <= PLACE_MM and abs(dr) <= PLACE_MM and all(c["ok"] for c in e["checks"].values()):
             continue
         # not right: it must say so, in eyes.json and on stderr, naming the scan and the eye
-        assert e["doubts"], (side, e["center"], g["center_mm"], e["radius"], g["radius_mm"])
+        assert e["doubts"], f"{side} centre {err:.2f} mm, radius {dr:+.2f} mm off and not doubted"
         assert any(ln.startswith(f"warning: {scan}: {side} eye: ") for ln in lines), lines
+
+
+@pytest.mark.slow
+def test_blink_is_refused_as_closed(scans, tmp_path):
+    scan = scans("t_id41_blink")
+    r = _run("stages.ingest", scan, tmp_path / "ingest")      # either stage may see it closed
+    out = tmp_path / "ingest"
+    if r.returncode == 0:
+        r = _run("stages.remove_eyeballs", tmp_path / "ingest", tmp_path / "remove_eyeballs")
+        out = tmp_path / "remove_eyeballs"
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2, f"a blinked head was not refused (exit {r.returncode}): {r.stderr[-500:]}"
+    assert len(lines) == 1 and lines[0].startswith(f"error: {scan}: "), lines
+    from benchmarks.unseen.report import says_closed
+
+    assert says_closed(lines[0]), lines[0]
+    assert "Traceback" not in r.stderr and not out.exists()
+
+
+# ----------------------------------------------------------------------------- the instrument
+def _truth_eye(side="left"):
+    """A 12 mm eye at the origin looking +Z with an 8 mm cornea, and a 24 x 10 mm elliptic
+    opening in front of it (medial corner first, upper lid, lateral corner, lower lid)."""
+    sgn = 1.0 if side == "left" else -1.0          # the left eye's lateral side is head +X
+    t = np.linspace(0.0, 2 * np.pi, 48, endpoint=False)
+    x, y = -sgn * 12.0 * np.cos(t), 5.0 * np.sin(t)
+    z = np.sqrt(np.maximum(12.0 ** 2 - x ** 2 - y ** 2, 0.0))
+    return {"eyeball_sphere": {"center_mm": [0.0, 0.0, 0.0], "radius_mm": 12.0},
+            "cornea_sphere": {"center_mm": [0.0, 0.0, 5.5], "radius_mm": 8.0},
+            "gaze_direction": [0.0, 0.0, 1.0],
+            "eyelid_margin": {"points_mm": np.stack([x, y, z], 1).tolist()}}
+
+
+def test_visible_surface_lies_on_the_true_eye_inside_the_opening():
+    from benchmarks.unseen.metrics import true_visible_surface
+
+    g = _truth_eye()
+    P = true_visible_surface(g, step=0.5)
+    r_ball = np.linalg.norm(P, axis=1)
+    r_cornea = np.linalg.norm(P - [0, 0, 5.5], axis=1)
+    on_ball, on_cornea = np.abs(r_ball - 12.0) < 1e-9, np.abs(r_cornea - 8.0) < 1e-9
+    assert (on_ball | on_cornea).all()                      # on the outer envelope ...
+    assert (r_ball[on_cornea] >= 12.0 - 1e-9).all() and (r_cornea[on_ball] >= 8.0 - 1e-9).all()
+    assert on_ball.any() and on_cornea.any()                 # ... both parts show
+    assert ((P[:, 0] / 12.0) ** 2 + (P[:, 1] / 5.0) ** 2 <= 1.0 + 1e-9).all()   # inside the opening
+    assert abs(len(P) * 0.25 - np.pi * 12.0 * 5.0) < 0.05 * np.pi * 60.0         # and all of it
+
+
+def test_placement_figures_against_a_known_eye():
+    from benchmarks.unseen.metrics import placement_metrics, true_visible_surface
+
+    g = _truth_eye()
+    P = true_visible_surface(g, step=0.5)
+    e = {"center": [0.3, 0.0, -0.4], "radius": 12.2, "forward": [0, 0, 1], "placement": "surface",
+         "uncertainty_mm": {"center": 0.2, "radius": 0.3}, "doubts": []}
+    m = placement_metrics(e, g, P, ([0.0, 0.0, 0.0], 12.0, [0.0, 0.0, 1.0]), None)
+    assert m["center_error_mm"] == pytest.approx(0.5) and m["radius_error_mm"] == pytest.approx(0.2)
+    assert m["placement"] == ["surface"] and m["doubted"] is False
+    assert m["within_2sigma"] is False and m["radius_within_2sigma"] is True   # 0.5 > 2 x 0.2
+    assert m["visible_rms_mm"] is None                     # no eyeball params: no asset figure
+    m = placement_metrics({**e, "uncertainty_mm": None, "placement": ["sclera", "margin"],
+                           "doubts": ["little sclera"]}, g, P, (e["center"], 12.2, [0, 0, 1]), None)
+    assert m["within_2sigma"] is None and m["placement"] == ["sclera", "margin"] and m["doubted"]
+    exact = placement_metrics({**e, "center": [0, 0, 0], "radius": 12.0}, g, P,
+                              ([0, 0, 0], 12.0, [0, 0, 1]), None)
+    assert exact["visible_rms_sclera_mm"] > 0.5            # the sphere alone misses the cornea
+
+
+def test_asset_eye_figure_reuses_the_placed_eye():
+    """The asset figure measures the eye the usd stage builds: placed_params' eye, here with the
+    truth's own cornea, so the truth placed exactly is 0 and a 0.3 mm shift is about 0.3."""
+    from benchmarks.unseen.metrics import placement_metrics, true_visible_surface
+    from pipeline.eyeball.geometry import EyeballParams
+
+    g = _truth_eye()
+    P = true_visible_surface(g, step=0.5)
+    p = EyeballParams(r1=12.0, r2=8.0, apex=13.5, seam_blend_mm=0.0)
+    e = {"center": [0, 0, 0], "radius": 12.0, "forward": [0, 0, 1]}
+    assert placement_metrics(e, g, P, ([0, 0, 0], 12.0, [0, 0, 1]), p)["visible_rms_mm"] < 1e-3
+    shifted = placement_metrics(e, g, P, ([0, 0, 0.3], 12.0, [0, 0, 1]), p)["visible_rms_mm"]
+    assert 0.2 < shifted <= 0.3 + 1e-3
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_margin_and_canthi_against_a_known_opening(side):
+    from benchmarks.unseen.metrics import canthus_metrics, margin_metrics, true_canthi
+
+    g = _truth_eye(side)
+    M = np.asarray(g["eyelid_margin"]["points_mm"])
+    med, lat, ok = true_canthi(g, side)
+    assert ok and np.allclose(med, M[0]) and np.allclose(lat, M[24])
+    m = margin_metrics(M, g)
+    assert m["margin_mean_mm"] < 1e-9 and m["margin_symmetric_mm"] < 1e-9
+    # the upper lid there and back: on the truth one way, far from its lower lid the other
+    half = margin_metrics(np.vstack([M[:25], M[23:0:-1]]), g)
+    assert half["margin_mean_mm"] < 0.05 and half["margin_symmetric_mm"] > 1.0
+    L = np.zeros((12, 3))
+    L[0], L[6] = M[0] + [0, 0, 1.0], M[24]
+    c = canthus_metrics(L, g, side)
+    assert c["canthus_medial_mm"] == pytest.approx(1.0) and c["canthus_lateral_mm"] < 1e-9
+
+
+def test_refusals_that_say_closed():
+    from benchmarks.unseen.report import says_closed
+
+    assert says_closed("error: raw_scans/x: left eye looks closed, or too little of the eyeball shows")
+    assert says_closed("error: raw_scans/x: both eyes are closed")
+    assert not says_closed("error: raw_scans/x: right eye: the cut left a non-simple boundary "
+                           "(boundary edges do not form closed loops)")
+
+
+def test_true_corners_belong_to_the_lids_not_the_turned_eye():
+    """An eye turned 30 deg inward (scanify rotates the eyeball, not the lids) keeps its corners."""
+    from benchmarks.unseen.metrics import true_canthi
+
+    g = _truth_eye("left")
+    a = np.radians(-30.0)                       # the left eye turned toward the nose (-X)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    turned = {**g, "gaze_direction": (R @ [0.0, 0.0, 1.0]).tolist()}
+    rest = true_canthi(g, "left")
+    assert np.allclose(true_canthi(turned, "left", R.tolist())[1], rest[1])
+    assert not np.allclose(true_canthi(turned, "left")[1], rest[1])   # what the gaze frame would pick
