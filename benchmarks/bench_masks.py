@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.blender.render_worker import Worker
+from pipeline.io import seg_file as sf
 from pipeline.io.seg_file import read_depth, read_seg
 from pipeline.render import labels as lb
-from pipeline.render import seg as sg
 from pipeline.render import shard as sh
 from pipeline.render import visibility as vis
 from pipeline.render.asset import load_render_asset
@@ -85,7 +85,7 @@ def main(argv=None) -> int:
             k_lm = 12 + j
             if app[j] is None or not v["visible"][k_lm]:
                 continue
-            mask = segm == sg.PUPIL if j >= 8 else np.isin(segm, (sg.IRIS, sg.PUPIL))
+            mask = segm == sf.PUPIL if j >= 8 else np.isin(segm, (sf.IRIS, sf.PUPIL))
             d = vis.boundary_distance_px(app[j], mask)
             (dist_pupil if j >= 8 else dist_iris).append(d)
         rows.append({"index": smp.index, "identical_image": same,

@@ -25,9 +25,10 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry.ingest import IngestSettings, ingest_scan
-from pipeline.io.atomic import atomic_dir, write_json
+from pipeline.io.atomic import atomic_dir
 from pipeline.io.meshfile import save_mesh
 from pipeline.io.scan import one_line
+from pipeline.io.scan_file import write_scan_record
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
@@ -84,8 +85,7 @@ def main(argv, bound: bool = False) -> dict:
                     (tmp / "texture.png").write_bytes(result.texture_png_bytes)
                 elif result.texture is not None:
                     result.texture.save(tmp / "texture.png", format="PNG", compress_level=3)
-                # later stages name the scan folder, not build/, when the scan is at fault
-                write_json(tmp / "scan.json", {**result.scan, "folder": str(args.scan_dir)})
+                write_scan_record(tmp / "scan.json", result.scan, args.scan_dir)
     except MemoryError:
         raise ScanError(args.scan_dir, f"ran out of memory (ingest is bounded to {settings.max_memory_mb:g} MiB, "
                                        "ingest.max_memory_mb); a file in the folder is over the limits") from None

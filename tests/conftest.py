@@ -325,7 +325,8 @@ def make_inputs(root: Path, n_x: int = 23, n_y: int = 11, name: str = "tiny",
                                     "eyes": {s: dict(e, joint=f"eye_{s}", surface={"parametric_eye": {"r1": R1}})
                                              for s, e in EYES.items()}})
     (dirs["ingest"] / "scan.json").write_text(json.dumps(
-        {"name": name, "source_sha256": "ab" * 32, "licence": licence}))
+        {"name": name, "source_sha256": "ab" * 32, "licence": licence,
+         "eyes": {s: {"hint": e["center"]} for s, e in EYES.items()}}))
     write_bake(dirs["bake"], {"V": V, "F": F, "UV": UV, "FUV": F.copy()},
                np.linspace(-0.2, 0.2, 256).reshape(16, 16), None, np.full((16, 16, 3), 180, np.uint8),
                resolution=16, falloff_mm=2.0, colour_source="flat test colour")

@@ -14,7 +14,7 @@ from PIL import Image
 
 from conftest import face_patch
 from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_error, subdivide_displaced
-from pipeline.bake.exr import preview_16bit, read_exr, write_exr
+from pipeline.io.exr import preview_16bit, read_exr, write_exr
 from pipeline.bake.uv import dilate, rasterize, sample_bilinear, unwrap
 from pipeline.io.bake_file import read_bake, read_displacement
 from pipeline.io.eyes_file import write_eyes

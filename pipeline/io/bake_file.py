@@ -80,7 +80,7 @@ def write_bake(folder, mesh: dict, displacement, mask, color, *, resolution: int
     """
     from PIL import Image
 
-    from pipeline.bake.exr import preview_16bit, write_exr
+    from pipeline.io.exr import preview_16bit, write_exr
     from pipeline.io.meshfile import save_mesh
 
     from concurrent.futures import ThreadPoolExecutor
@@ -150,7 +150,7 @@ def read_displacement(path, channel: str = "Y") -> np.ndarray:
     ScanError
         Missing, not decodable, no such channel, not 2-D, or non-finite texels.
     """
-    from pipeline.bake.exr import read_exr
+    from pipeline.io.exr import read_exr
 
     path = Path(path)
     if not path.is_file():

@@ -215,7 +215,7 @@ def masks_info(out: Path) -> dict | None:
     """What ``dataset.json`` says of the segmentation masks: None when image 0 has none."""
     if not (Path(out) / SEG_FILE.replace("NNNNNN", "000000")).is_file():
         return None
-    from pipeline.render.seg import CLASSES          # the masks' class table (written with them)
+    from pipeline.io.seg_file import CLASSES          # the masks' class table (written with them)
 
     return {"file": SEG_FILE, "format": "8-bit indexed PNG (mode P), one class id per pixel",
             "classes": {str(i): name for i, (name, _) in sorted(CLASSES.items())}}

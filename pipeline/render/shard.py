@@ -188,8 +188,9 @@ def apparent_landmarks(job: dict) -> dict:
 def add_masks(label: dict, spec: dict, extra: dict | None) -> None:
     """Add the mask and depth files and the landmarks' visibility (pipeline/render/visibility.py,
     from the worker's seg PNG and depth EXR) to ``label``."""
-    from pipeline.render import seg as sg
+    from pipeline.io.seg_file import DEPTH_CONVENTION, classes_text
     from pipeline.render import visibility as vis
+    from pipeline.render.seg import RULE
 
     w, h = int(spec["width"]), int(spec["height"])
     seg = read_seg(spec["seg_png"], (w, h))
@@ -198,9 +199,9 @@ def add_masks(label: dict, spec: dict, extra: dict | None) -> None:
     v = vis.landmark_visibility(lm["px"], (extra or {}).get("apparent_px"),
                                 -np.asarray(lm["camera_mm"], float)[:, 2], seg, depth, label["camera"]["mm_per_px"])
     label["landmarks"] = dict(lm, visible=v["visible"], occlusion=v["occlusion"], visibility_rule=vis.RULE)
-    label["seg"] = {"file": Path(spec["seg_png"]).name, "classes": sg.classes_text(), "rule": sg.RULE}
+    label["seg"] = {"file": Path(spec["seg_png"]).name, "classes": classes_text(), "rule": RULE}
     label["depth"] = {"file": Path(spec["depth_exr"]).name, "units": "mm", "channel": "Z",
-                      "convention": sg.DEPTH_CONVENTION}
+                      "convention": DEPTH_CONVENTION}
 
 
 def done(out_dir, index: int) -> bool:

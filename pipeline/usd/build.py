@@ -23,6 +23,7 @@ from pipeline.io.bake_file import read_bake
 from pipeline.io.meshfile import read_stage_mesh
 from pipeline.io.png import strip_png_metadata
 from pipeline.io.rig_file import read_rig
+from pipeline.io.scan_file import read_scan_record
 from pipeline.io.scratch import run_child
 from pipeline.rig import lids
 
@@ -33,13 +34,6 @@ def _need(path: Path) -> Path:
     if not path.is_file():
         raise ScanError(path, "not found")
     return path
-
-
-def _json(path: Path) -> dict:
-    try:
-        return json.loads(_need(path).read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ScanError(path, f"is not valid JSON ({exc.__class__.__name__})") from None
 
 
 def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) -> dict:
@@ -60,7 +54,7 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
         eyes[side] = {k: e.doc[k] for k in ("center", "radius", "forward")}
         eyes[side]["doubts"] = list(e.doc.get("doubts") or [])
     maps = read_bake(bake)
-    scan = _json(ingest / "scan.json")
+    scan = read_scan_record(ingest)
     return {"V": V, "F": F, "UV": mesh["UV"], "FUV": mesh["FUV"], "shapes": r.npz.shapes,
             "curves": r.npz.curves, "max_pitch_deg": r.max_pitch_deg, "eyes": eyes, "scan": scan,
             "color": maps.color, "displacement": maps.displacement,
@@ -78,9 +72,9 @@ def build(inp: dict, out_dir: Path, name: str, all_params: dict, package: bool =
     # out_dir is a sibling of the final folder (atomic_dir), so the relative path is the same
     ref = Path(os.path.relpath(inp["eyeball"].resolve(), out_dir.resolve()))
     meta = {
-        "scan": inp["scan"].get("name", name),
-        "source_sha256": str(inp["scan"].get("source_sha256", "")),
-        "licence": str(inp["scan"].get("licence", "")),
+        "scan": inp["scan"].name if inp["scan"].name is not None else name,
+        "source_sha256": inp["scan"].source_sha256,
+        "licence": inp["scan"].licence,
         "pipeline_version": pipeline.__version__,
         "units": "mm", "frame": "head frame: +Y up, +Z out of the face, +X subject's left",
         "weight_rule": lids.weight_rule(inp["max_pitch_deg"]),
