@@ -87,9 +87,10 @@ def generic_contrast(asset, params: dict, n: int) -> dict:
     """The loader on labels of the generic framing at the preset's size (no render)."""
     from pipeline.render import label_formats as lf
     from pipeline.render import labels as lb
+    from pipeline.render.settings import RenderSettings
     from pipeline.render import sampling as sp
 
-    s = sp.RenderSettings.from_params({**params, "preset": "generic", "width": 512, "height": 384,
+    s = RenderSettings.from_params({**params, "preset": "generic", "width": 512, "height": 384,
                                        "eyes": ["left"], "label_formats": FORMATS, "n_images": n})
     rows = []
     for i in range(n):
@@ -150,7 +151,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     asset_dir = args.asset or ROOT / "rigged_assets" / args.scan
     rig_dir = args.rig or ROOT / "build" / args.scan / "rig"
-    from pipeline.render.sampling import PRESETS
+    from pipeline.render.settings import PRESETS
 
     # params.yaml's render block without the keys the preset fills (as the README says to switch)
     params = {k: v for k, v in yaml.safe_load((ROOT / "params.yaml").read_text())["render"].items()

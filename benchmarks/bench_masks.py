@@ -35,7 +35,8 @@ from pipeline.render import labels as lb
 from pipeline.render import shard as sh
 from pipeline.render import visibility as vis
 from pipeline.render.asset import load_render_asset
-from pipeline.render.sampling import RenderSettings, make_sample
+from pipeline.render.sampling import make_sample
+from pipeline.render.settings import RenderSettings
 
 
 def main(argv=None) -> int:

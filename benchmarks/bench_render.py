@@ -76,12 +76,13 @@ def _stage(scan: str, out: Path, params: Path, n: int, workers: int | None = Non
 
 def bench_memory(scan: str, n: int, csv_path: Path) -> dict:
     from pipeline.render import asset as ra
+    from pipeline.render.settings import RenderSettings
     from pipeline.render import sampling as sp
     from pipeline.render.shard import BlenderProcess
     from stages._common import load_params
 
     asset = ra.load_render_asset(ROOT / "rigged_assets" / scan, ROOT / "build" / scan / "rig")
-    s = sp.RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
+    s = RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
     rows = []
     with tempfile.TemporaryDirectory() as td:
         t0 = time.perf_counter()

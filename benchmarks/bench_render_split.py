@@ -77,6 +77,7 @@ def client_side(asset, settings, specs_labels, out: Path) -> dict:
     from pipeline.io.png import strip_png_metadata
     from pipeline.render import label_formats as lf
     from pipeline.render import labels as lb
+    from pipeline.render.settings import RenderSettings
     from pipeline.render import sampling as sp
     from pipeline.render import shard as sh
 
@@ -135,7 +136,7 @@ def main(argv=None) -> int:
     if not (rig_dir / "rig.npz").is_file():
         raise SystemExit(f"error: {rig_dir / 'rig.npz'}: missing (run `dvc repro usd@{args.scan}` first)")
     asset = ra.load_render_asset(asset_dir, rig_dir)
-    settings = sp.RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
+    settings = RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
     threads = run_options(settings, ROOT / "renders" / args.scan)["threads"]
     load0 = os.getloadavg()[0]
     rows = {v: [] for v in VARIANTS}

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.geometry.ingest import IngestSettings, ingest_scan
+from pipeline.ingest.ingest import IngestSettings, ingest_scan
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.meshfile import save_mesh
 from pipeline.io.scan import one_line
@@ -46,7 +46,7 @@ def bound_memory(max_mb: float) -> None:
     from PIL import Image
 
     import pipeline.geometry.frame  # noqa: F401
-    import pipeline.geometry.repair  # noqa: F401
+    import pipeline.ingest.repair  # noqa: F401
 
     Image.init()
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)

@@ -38,7 +38,7 @@ def main(argv) -> dict:
 
     from pipeline.render.asset import load_render_asset
     from pipeline.render.run import check_render_out, render_scan
-    from pipeline.render.sampling import RenderSettings
+    from pipeline.render.settings import RenderSettings
     from pipeline.render.shard import dashboard_text
 
     check_render_out(args.out)            # someone else's folder: refused before any work

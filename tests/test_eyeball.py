@@ -458,7 +458,7 @@ def _eyeball_limits(expensive: bool):
 
 def _build_at(tmp_path, key, value):
     from pipeline.settings import SettingsError
-    from stages.eyeball import build_asset
+    from pipeline.usd.eyeball_asset import build_eyeball_asset as build_asset
 
     small = {"resolution": "low", "iris_texture_px": 16, "sclera_texture_px": [16, 16], "preview": False}
     raw = dict(small)

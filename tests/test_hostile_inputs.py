@@ -144,7 +144,7 @@ def test_usd_metadata_refuses_nul():
 
 
 def test_repair_ignores_zero_area_faces_in_eye_damage_but_not_real_faces():
-    from pipeline.geometry.repair import RepairSettings, repair_mesh
+    from pipeline.ingest.repair import RepairSettings, repair_mesh
 
     V, F, hints = head_mesh()
     near = F[(np.linalg.norm(V - hints["left"], axis=1) <= 20.0)[F].any(axis=1)]

@@ -290,7 +290,7 @@ def test_synthetic_head_if_present(tmp_path):
 # ---------------------------------------------------------------------------- library pieces
 
 def test_closest_point_matches_dense_sampling():
-    from pipeline.geometry.repair import closest_point_on_triangles, point_surface_distance
+    from pipeline.ingest.repair import closest_point_on_triangles, point_surface_distance
 
     rng = np.random.default_rng(3)
     A, B, C = (rng.normal(0, 1, (200, 3)) for _ in range(3))
@@ -382,7 +382,7 @@ def test_obj_fast_parser_agrees_with_line_parser(name, lines, fast):
 
 
 def test_edge_stats_counts():
-    from pipeline.geometry.repair import edge_stats
+    from pipeline.ingest.repair import edge_stats
 
     F = np.array([[0, 1, 2], [0, 2, 3]])                  # two triangles, consistent, 4 boundary edges
     assert edge_stats(F, 4) == {"edges": 5, "boundary": 4, "non_manifold": 0, "inconsistent_winding": 0}

@@ -28,6 +28,8 @@ from pipeline.render import asset as ra
 from pipeline.render import label_formats as lf
 from pipeline.render import labels as lb
 from pipeline.render import run as rr
+from pipeline.render import camera as cam
+from pipeline.render.settings import RenderSettings
 from pipeline.render import sampling as sp
 from pipeline.settings import SettingsError
 
@@ -43,7 +45,7 @@ def tiny(tmp_path_factory):
 
 
 def _settings(**kw):
-    return sp.RenderSettings.from_params({"preset": "unityeyes", "label_formats": ALL, **kw})
+    return RenderSettings.from_params({"preset": "unityeyes", "label_formats": ALL, **kw})
 
 
 def _samples(tiny, s, n):
@@ -79,9 +81,9 @@ def test_unityeyes_preset_and_label_formats_settings():
     assert (s.width, s.height, s.eyes, s.center_jitter_mm, s.camera_distance_mm) == (512, 384, ("left",), 0.0, 100.0)
     assert s.iris_distance_px == lf.GAZEML_EYEBALL_RADIUS_PX and s.label_formats == tuple(ALL)
     assert s.hashed()["label_formats"] == ALL                      # a format change re-renders
-    d = sp.RenderSettings.from_params({})
+    d = RenderSettings.from_params({})
     assert d.label_formats == ("eyerig",) and d.iris_distance_px is None
-    assert sp.RenderSettings.from_params({"preset": "unityeyes", "width": 640, "height": 480}).width == 640
+    assert RenderSettings.from_params({"preset": "unityeyes", "width": 640, "height": 480}).width == 640
 
 
 @pytest.mark.parametrize("formats, message", [
@@ -92,7 +94,7 @@ def test_unityeyes_preset_and_label_formats_settings():
 ])
 def test_bad_label_formats_are_one_line(formats, message):
     with pytest.raises(SettingsError) as ei:
-        sp.RenderSettings.from_params({"label_formats": formats})
+        RenderSettings.from_params({"label_formats": formats})
     assert message in str(ei.value) and "\n" not in str(ei.value)
 
 
@@ -100,7 +102,7 @@ def test_unityeyes_framing_refuses_a_framing_shift():
     """params.yaml lists center_jitter_mm: 1.0, which would override the preset's 0 and move the
     eyeball off the image centre that GazeML assumes: refused, saying what to do."""
     with pytest.raises(SettingsError) as ei:
-        sp.RenderSettings.from_params({"preset": "unityeyes", "center_jitter_mm": 1.0})
+        RenderSettings.from_params({"preset": "unityeyes", "center_jitter_mm": 1.0})
     msg = str(ei.value)
     assert "render.center_jitter_mm must be 0 with iris_distance_px" in msg and "\n" not in msg
 
@@ -189,14 +191,14 @@ def test_lid_points_follow_unityeyes_topology(tiny):
 
 
 def test_head_pose_is_the_cameras_unity_euler_angles():
-    front = sp.look_at([0, 0, 100.0], [0, 0, 0], [0, 1, 0])
+    front = cam.look_at([0, 0, 100.0], [0, 0, 0], [0, 1, 0])
     np.testing.assert_allclose(lf.head_pose(front), [0, 180, 0], atol=1e-9)
     t = math.radians(10)
-    above = sp.look_at([0, 100 * math.sin(t), 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])
+    above = cam.look_at([0, 100 * math.sin(t), 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])
     np.testing.assert_allclose(lf.head_pose(above), [10, 180, 0], atol=1e-9)       # Unity: +x pitches down
-    left = sp.look_at([100 * math.sin(t), 0, 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])  # on the subject's left
+    left = cam.look_at([100 * math.sin(t), 0, 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])  # on the subject's left
     np.testing.assert_allclose(lf.head_pose(left), [0, 170, 0], atol=1e-9)         # Unity's -X side
-    below = sp.look_at([0, -100 * math.sin(t), 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])
+    below = cam.look_at([0, -100 * math.sin(t), 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])
     np.testing.assert_allclose(lf.head_pose(below), [350, 180, 0], atol=1e-9)      # [0, 360)
     assert lf.cs_vec(lf.head_pose(front)) == "(0.0000, 180.0000, 0.0000)"
     assert lf.cs_vec([-1e-7, 2.5, -3.25]) == "(0.0000, 2.5000, -3.2500)"
@@ -246,7 +248,7 @@ def test_gazeml_loader_recovers_our_iris_centre_and_gaze(tiny, side):
 def test_without_the_preset_gazeml_misplaces_the_iris(tiny):
     """The generic framing (eye off-centre by the jitter, another scale) breaks the loader's
     assumptions: its iris centre lands pixels away from ours; the gaze still agrees."""
-    s = sp.RenderSettings.from_params({"label_formats": ALL, "width": 512, "height": 384, "eyes": ["left"],
+    s = RenderSettings.from_params({"label_formats": ALL, "width": 512, "height": 384, "eyes": ["left"],
                                        "camera_polar_max_deg": 10})
     worst = 0.0
     for smp, label, job in _samples(tiny, s, 8):

@@ -147,7 +147,7 @@ def rendered(tmp_path_factory):
     from test_render_worker import Worker, build_small_synthetic_asset
 
     from pipeline.render.asset import load_render_asset
-    from pipeline.render.sampling import RenderSettings
+    from pipeline.render.settings import RenderSettings
 
     root = tmp_path_factory.mktemp("masks")
     paths = build_small_synthetic_asset(root)
@@ -247,7 +247,7 @@ def _polygon_distance(q, poly) -> float:
 
 @pytest.mark.blender
 def test_visibility_on_a_posed_lid(rendered):
-    from pipeline.render.sampling import point_in_polygon
+    from pipeline.render.camera import point_in_polygon
 
     front = rendered["front"]
     assert all(front["vis"]["visible"][:12]), front["vis"]["occlusion"][:12]   # the visible margin

@@ -269,7 +269,7 @@ def _gt_errors(folder, res):
 
 
 def test_ict_neutral(extra_scan):
-    from pipeline.geometry.ingest import IngestSettings, ingest_scan
+    from pipeline.ingest.ingest import IngestSettings, ingest_scan
 
     folder = extra_scan("ict_neutral")
     r = ingest_scan(folder, IngestSettings())
@@ -287,7 +287,7 @@ def test_ict_neutral(extra_scan):
 def test_james_texture_fallback(extra_scan):
     from PIL import Image
 
-    from pipeline.geometry.ingest import IngestSettings, ingest_scan
+    from pipeline.ingest.ingest import IngestSettings, ingest_scan
 
     folder = extra_scan("james")
     r = ingest_scan(folder, IngestSettings())

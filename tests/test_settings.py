@@ -100,7 +100,7 @@ def test_direct_construction_is_checked_too():
 def test_the_real_blocks_refuse_bad_values():
     from pipeline.bake.bake import BakeSettings
     from pipeline.eyeball.geometry import EyeballSettings
-    from pipeline.render.sampling import RenderSettings
+    from pipeline.render.settings import RenderSettings
     from pipeline.rig.lids import RigSettings
     from pipeline.synthetic_head import SyntheticHeadSettings
 
@@ -230,8 +230,8 @@ def test_every_block_takes_its_limits_and_refuses_past_them_in_one_line(block):
 
 def test_library_defaults_are_the_settings_defaults():
     """One definition per default: the ingest block's are the readers' limits and the repair's."""
-    from pipeline.geometry.ingest import IngestSettings
-    from pipeline.geometry.repair import RepairSettings
+    from pipeline.ingest.ingest import IngestSettings
+    from pipeline.ingest.repair import RepairSettings
     from pipeline.io.formats.common import Limits
     from pipeline.io.scan import DEFAULT_MAX_YAML_BYTES
 

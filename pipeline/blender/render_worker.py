@@ -102,7 +102,7 @@ from pipeline.blender.seg_passes import SegPasses
 from pipeline.blender.scene import add_inbetween_keys, evaluated_vertices, find_image, import_usd
 from pipeline.blender.world import EnvironmentWorld
 from pipeline.eyeball.textures import IRIS_COLORS, SCLERA_TINTS, VEINS  # the asset's variants (no bpy)
-from pipeline.geometry.frame import quat_to_matrix
+from pipeline.render.camera import quat_to_matrix
 
 REPLY_PREFIX = "@@render@@ "
 CAMERA_PULLBACK_M = 0.25

@@ -159,21 +159,3 @@ def check_eye_layout(left, right, path, separation_mm=(30.0, 120.0)) -> float:
         raise ScanError(path, "the left eye hint lies on the subject's right (-X) in the head frame: "
                               "forward_axis sign is wrong, the scan is mirrored, or left/right hints are swapped")
     return dist
-
-
-def quat_to_matrix(q) -> np.ndarray:
-    """(3, 3) rotation of a quaternion ``(w, x, y, z)`` (normalised first).
-
-    Raises
-    ------
-    ValueError
-        Not 4 finite numbers, or the zero quaternion.
-    """
-    q = np.asarray(q, float)
-    n = np.linalg.norm(q) if q.shape == (4,) else float("nan")
-    if not np.isfinite(n) or n < 1e-9:
-        raise ValueError(f"bad quaternion {q.tolist()}")
-    w, x, y, z = q / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])

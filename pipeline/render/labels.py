@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from pipeline.render import camera as cam
+from pipeline.render.settings import RenderSettings
 from pipeline.render import sampling as sp
 from pipeline.rig.landmarks import EYELID_ORDER
 
@@ -39,13 +41,13 @@ def ring_radius(P) -> float:
 TIMING_KEYS = ("render_s", "total_s", "render_cpu_s", "total_cpu_s", "passes_s")
 
 
-def make_label(smp: sp.Sample, settings: sp.RenderSettings, scan: str, reply: dict | None = None) -> dict:
+def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict | None = None) -> dict:
     """The label dict of one image (``reply`` = the worker's reply, adds the render facts)."""
     spec = smp.spec
     W2C = np.asarray(smp.camera["world_to_camera"], float)
     R = W2C[:3, :3]
-    P = sp.projection_matrix(smp.camera["ortho_scale_mm"], settings.width, settings.height)
-    ow, oh = sp.ortho_size(smp.camera["ortho_scale_mm"], settings.width, settings.height)
+    P = cam.projection_matrix(smp.camera["ortho_scale_mm"], settings.width, settings.height)
+    ow, oh = cam.ortho_size(smp.camera["ortho_scale_mm"], settings.width, settings.height)
     view = -R[2]                               # camera viewing direction in the head frame
     g = smp.gaze[smp.side]
     g_cam = R @ g["vector_head"]
@@ -126,9 +128,9 @@ APPARENT_ORDER = ("16 points: the iris (8) and pupil (8) landmarks, in the order
                   "pipeline/render/refraction.py")
 
 
-def apparent_job(smp: sp.Sample, eye, settings: sp.RenderSettings) -> dict:
+def apparent_job(smp: sp.Sample, eye, settings: RenderSettings) -> dict:
     """What :func:`pipeline.render.shard.apparent_landmarks` needs (computed while Blender renders)."""
-    from pipeline.geometry.frame import quat_to_matrix
+    from pipeline.render.camera import quat_to_matrix
 
     R = quat_to_matrix(smp.spec["eye_rotation"][smp.side])
     return {"points_head": smp.landmarks_head[12:28].tolist(),

@@ -125,7 +125,7 @@ def folder_state(out: Path) -> str:
 
 #: Why a folder in each state is refused, by the kind of folder a command writes.
 _REFUSED = {
-    "render": {"dataset": "holds a dataset of python -m pipeline.render.dataset, not a scan's renders: "
+    "render": {"dataset": "holds a dataset of python -m stages.dataset, not a scan's renders: "
                           "use another folder",
                "other": "exists, is not empty and holds no renders (no render config.json): "
                         "use a new or empty folder"},
@@ -275,7 +275,7 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
     Parameters
     ----------
     asset : pipeline.render.asset.RenderAsset
-    settings : pipeline.render.sampling.RenderSettings
+    settings : pipeline.render.settings.RenderSettings
     out : path            ``renders/<scan>``
     source : path         what a sampling failure names (the asset folder)
     scheduler : str, optional

@@ -176,11 +176,11 @@ def apparent_landmarks(job: dict) -> dict:
     """Label fields of the iris/pupil landmarks as seen through the cornea (see labels.apparent_job)."""
     from pipeline.eyeball.geometry import EyeballParams
     from pipeline.render import refraction as rf
-    from pipeline.render import sampling as sp
+    from pipeline.render import camera as cam
 
     xy = rf.apparent_projection(job["points_head"], job["world_to_camera"], job["model_to_head"],
                                 EyeballParams.from_dict(job["eyeball_params"]), job["ior"])
-    px = sp.project(np.c_[xy, np.zeros(len(xy))], job["ortho_scale_mm"], job["width"], job["height"])
+    px = cam.project(np.c_[xy, np.zeros(len(xy))], job["ortho_scale_mm"], job["width"], job["height"])
     px = [None if not np.all(np.isfinite(p)) else [float(p[0]), float(p[1])] for p in px]
     return {"apparent_px": px, "apparent_order": job["order"]}
 
