@@ -77,15 +77,16 @@ def summary(rows: list, n: int) -> dict:
 
 
 def _center_px(asset, label) -> list:
-    from pipeline.render import label_formats as lf
+    from pipeline.render.formats import unityeyes as uef
 
-    x, y, _ = lf.unity_screen([asset.eyes[label["gaze"]["eye"]].center], label)[0]
+    x, y, _ = uef.unity_screen([asset.eyes[label["gaze"]["eye"]].center], label)[0]
     return [float(x), float(label["image"]["height"] - y)]
 
 
 def generic_contrast(asset, params: dict, n: int) -> dict:
     """The loader on labels of the generic framing at the preset's size (no render)."""
-    from pipeline.render import label_formats as lf
+    from pipeline.render import formats as lf
+    from pipeline.render.formats import unityeyes as uef
     from pipeline.render import labels as lb
     from pipeline.render.settings import RenderSettings
     from pipeline.render import sampling as sp
@@ -96,7 +97,7 @@ def generic_contrast(asset, params: dict, n: int) -> dict:
     for i in range(n):
         smp = sp.make_sample(asset, s, i, "/x.png")
         label = json.loads(json.dumps(lb.make_label(smp, s, asset.name)))
-        doc = lf.unityeyes_document(label, lf.format_job(asset, smp, s.label_formats)["unityeyes"])
+        doc = uef.unityeyes_document(label, lf.format_job(asset, smp, s.label_formats)["unityeyes"])
         rows.append(compare(label, doc, s.height, s.width, _center_px(asset, label)))
     return summary(rows, n)
 

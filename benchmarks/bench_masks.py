@@ -24,6 +24,7 @@ import json
 import tempfile
 import time
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -58,11 +59,11 @@ def main(argv=None) -> int:
     w = Worker(asset.usda, asset.rig_npz, threads=args.threads)
 
     def render(smp, masks: bool, tag: str) -> dict:
-        spec = dict(smp.spec, png=str(tmp / f"{smp.index:06d}_{tag}.png"))
+        spec = replace(smp.spec, png=str(tmp / f"{smp.index:06d}_{tag}.png"))
         if masks:
-            spec.update(seg_png=str(tmp / f"{smp.index:06d}_seg.png"), depth_exr=str(tmp / f"{smp.index:06d}_depth.exr"))
+            spec = spec.with_masks(tmp / f"{smp.index:06d}_seg.png", tmp / f"{smp.index:06d}_depth.exr")
         r = w.render(spec)
-        return {**r, "png": spec["png"]}
+        return {**r, "png": spec.png}
 
     samples = [make_sample(asset, s, i, tmp / "x.png") for i in range(args.n)]
     render(samples[0], False, "warm")

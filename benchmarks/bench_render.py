@@ -92,7 +92,7 @@ def bench_memory(scan: str, n: int, csv_path: Path) -> dict:
         try:
             for i in range(n):
                 smp = sp.make_sample(asset, s, i, Path(td) / f"{i % 4}.png")
-                spec = dict(smp.spec, samples=1)        # the denoiser's cost and memory do not depend on samples
+                spec = dict(smp.spec.to_dict(), samples=1)        # the denoiser's cost and memory do not depend on samples
                 r = bp.render(spec)
                 if not r.get("ok"):
                     raise SystemExit(f"image {i} failed: {r.get('error')}")

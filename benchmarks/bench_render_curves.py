@@ -72,7 +72,7 @@ def main(argv=None) -> int:
             specs = []
             for i in range(args.images + 1):
                 smp = sp.make_sample(asset, settings, i, td / f"{i:06d}.png")
-                specs.append(dict(smp.spec, seg_png=str(td / seg_name(i)), depth_exr=str(td / depth_name(i))))
+                specs.append(dict(smp.spec.to_dict(), seg_png=str(td / seg_name(i)), depth_exr=str(td / depth_name(i))))
             half = (args.images + 1) // 2
             for part in (specs[1:1 + half], specs[1 + half:]):     # A B C ... A B C: load drifts alike
                 for kind, key, over in variants:

@@ -165,7 +165,7 @@ def rendered(tmp_path_factory):
         from pipeline.render.sampling import make_sample
 
         smp = make_sample(asset, s, index, out / f"{name}.png", overrides, reject=reject)
-        spec = dict(smp.spec)
+        spec = smp.spec.to_dict()
         if masks:
             spec.update(seg_png=str(out / f"{name}_seg.png"), depth_exr=str(out / f"{name}_depth.exr"))
         rep = w.send(spec)

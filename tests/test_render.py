@@ -301,7 +301,7 @@ def test_extreme_images_are_not_black_or_blank(tiny, tmp_path):
         for k in range(len(EXTREMES)):
             png = tmp_path / f"x{k}.png"
             _, smp = _extreme_sample(tiny, k, str(png))
-            spec = dict(smp.spec, width=32, height=24, samples=1, denoise=False)
+            spec = dict(smp.spec.to_dict(), width=32, height=24, samples=1, denoise=False)
             reply = bp.render(spec, timeout_s=300)
             assert reply["ok"], reply
             assert reply["landmark_check_mm"] < 0.01
@@ -439,7 +439,7 @@ def test_sampling_streams_for_any_n_images(tiny, tmp_path, monkeypatch):
                                tiny["asset_dir"])
     first = next(shards)
     assert calls == list(range(16)) and 1 <= len(first) <= s.shard_size
-    assert len({spec["lighting"]["hdri"] for spec, _ in first}) == 1
+    assert len({spec.lighting.hdri for spec, _ in first}) == 1
     rest = [next(shards) for _ in range(3)]
     assert len(calls) <= 32 and all(len(x) <= s.shard_size for x in rest)
     huge = _params(tmp_path, "huge.yaml", n_images="1e9")

@@ -50,7 +50,7 @@ from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json, write_text
 from pipeline.io.labels_file import SCHEMA as LABEL_SCHEMA
 from pipeline.io.labels_file import label_name, read_index, read_label
-from pipeline.render import mix
+from pipeline.render import formats, mix
 from pipeline.render import plan as pl
 from pipeline.render import run as rr
 from pipeline.render.plan import SCHEMA
@@ -58,17 +58,6 @@ from pipeline.render.plan import SCHEMA
 INFO, CARD, TIMINGS = pl.OWN_FILES
 #: ``rigged_assets/eyeball`` holds the eyeball every asset references, not a head: skipped.
 SHARED_EYEBALL = "eyeball"
-#: What each per-image file holds (by its name with the index as NNNNNN); a file of another
-#: label format is listed as such (render.label_formats).
-IMAGE_FILES = {
-    "NNNNNN.png": "image NNNNNN (global index, 6 digits), 8-bit RGB",
-    "NNNNNN.json": "its label (see the label schema below); written last, it marks the image done",
-    "NNNNNN.pts": "the 28 landmarks as a 300-W .pts file (pixels)",
-    "unityeyes/NNNNNN.json": "the label in UnityEyes' JSON format (GazeML reads unityeyes/ as it is)",
-    "unityeyes/NNNNNN.jpg": "the image as a JPEG, beside its UnityEyes label",
-    "NNNNNN_seg.png": "segmentation mask: 8-bit indexed PNG, one class id per pixel (classes below)",
-    "NNNNNN_depth.exr": "z-depth in camera mm, float32 EXR channel Z (inf where nothing is seen)",
-}
 SEG_FILE = "NNNNNN_seg.png"
 FILES = {
     "index.jsonl": "one line per image, every index 0..n-1 once: index, png, json, asset, asset_id, eye, "
@@ -197,14 +186,11 @@ def _tagged(shards, a: DatasetAsset):
 
 
 def image_files(out: Path) -> dict:
-    """``{"NNNNNN<rest>": what it holds}`` for the files image 0 has, in the folder and its
-    sub-folders (every image has the same files)."""
-    out = Path(out)
+    """``{"NNNNNN<rest>": what it holds}`` for the files image 0 has (every image has the same
+    files), described by the label writers (pipeline/render/formats)."""
     names = sorted(p.relative_to(out).as_posix().replace("000000", "NNNNNN", 1)
-                   for d in (out, *(q for q in out.iterdir() if q.is_dir() and not q.name.startswith(".")))
-                   for p in d.glob("000000[._]*") if p.is_file())
-    return {k: IMAGE_FILES.get(k, "a per-image file of another label format (render.label_formats)")
-            for k in names}
+                   for i, p in formats.image_files(out) if i == 0)
+    return {k: formats.describe(k) for k in names}
 
 
 def masks_info(out: Path) -> dict | None:

@@ -11,12 +11,14 @@ positive = toward the subject's left (head frame) / toward image right (camera f
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 
 import numpy as np
 
 from pipeline.render import camera as cam
 from pipeline.render.settings import RenderSettings
 from pipeline.render import sampling as sp
+from pipeline.render.asset import ring_radius
 from pipeline.rig.landmarks import EYELID_ORDER
 
 LANDMARK_ORDER = ("28 landmarks of the imaged eye: 0-11 eyelid (" + EYELID_ORDER + "); 12-19 iris "
@@ -29,12 +31,6 @@ def _angles(v) -> dict:
     v = np.asarray(v, float) / np.linalg.norm(v)
     return {"pitch_deg": math.degrees(math.asin(max(-1.0, min(1.0, v[1])))),
             "yaw_deg": math.degrees(math.atan2(v[0], v[2]))}
-
-
-def ring_radius(P) -> float:
-    """Mean distance of points (k, d) from their centroid: the radius of a ring of landmarks."""
-    P = np.asarray(P, float)
-    return float(np.mean(np.linalg.norm(P - P.mean(0), axis=1)))
 
 
 #: Worker reply fields that measure time, not the image: kept out of the labels.
@@ -97,22 +93,22 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
                  "limits_deg": {"pitch": settings.max_pitch_deg, "yaw": settings.max_yaw_deg},
                  "rotation_rule": "Listing's law from the rest forward: minimal rotation forward -> gaze"},
         "eyes": eyes,
-        "eyelids": {"pitch_deg": smp.lid_pitch_deg, "weights": spec["lid_weights"],
+        "eyelids": {"pitch_deg": smp.lid_pitch_deg, "weights": spec.lid_weights,
                     "rule": "pipeline.rig.lids.lid_weights(mean lid pitch of both eyes)"},
         "landmarks": {"order": LANDMARK_ORDER, "eye": smp.side,
                       "px": smp.landmarks_px.tolist(),
                       "camera_mm": smp.landmarks_cam.tolist(),
                       "head_mm": lm_h.tolist(),
                       "pupil_center_px": list(map(float, smp.pupil_center_px))},
-        "eye_configuration": {"iris_color": spec["eyeball"]["iris_color"],
-                              "sclera_tint": spec["eyeball"]["sclera_tint"],
-                              "veins": spec["eyeball"]["veins"],
-                              "blend": spec["eyeball"]["blend"],
+        "eye_configuration": {"iris_color": spec.eyeball.iris_color,
+                              "sclera_tint": spec.eyeball.sclera_tint,
+                              "veins": spec.eyeball.veins,
+                              "blend": spec.eyeball.blend,
                               "pupil_radius_mm": ring_radius(lm_h[20:28]),
                               "iris_radius_mm": ring_radius(lm_h[12:20])},
-        "lighting": dict(spec["lighting"]),
-        "render": {"engine": "cycles", "samples": spec["samples"], "denoise": spec["denoise"],
-                   "cycles_seed": spec["cycles_seed"], "skin_detail": spec["skin_detail"]},
+        "lighting": asdict(spec.lighting),
+        "render": {"engine": "cycles", "samples": spec.quality.samples, "denoise": spec.quality.denoise,
+                   "cycles_seed": spec.quality.cycles_seed, "skin_detail": spec.quality.skin_detail},
     }
     if reply is not None:
         label["landmark_check_mm"] = reply.get("landmark_check_mm")
@@ -132,7 +128,7 @@ def apparent_job(smp: sp.Sample, eye, settings: RenderSettings) -> dict:
     """What :func:`pipeline.render.shard.apparent_landmarks` needs (computed while Blender renders)."""
     from pipeline.render.camera import quat_to_matrix
 
-    R = quat_to_matrix(smp.spec["eye_rotation"][smp.side])
+    R = quat_to_matrix(smp.spec.eye_rotation[smp.side])
     return {"points_head": smp.landmarks_head[12:28].tolist(),
             "world_to_camera": np.asarray(smp.camera["world_to_camera"]).tolist(),
             "model_to_head": eye.model_to_head(R).tolist(), "eyeball_params": dict(eye.eyeball_params),

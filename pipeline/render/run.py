@@ -30,6 +30,7 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_file, write_json
 from pipeline.io.labels_file import index_line, label_name, read_label
+from pipeline.render.formats import format_job, image_files
 
 # Cycles given one thread still keeps a second one busy (about a quarter of an image's CPU
 # time wasted), so two Blenders sharing two cores are slower than one Blender using both:
@@ -79,22 +80,6 @@ def read_config(out: Path) -> dict | None:
     except (OSError, json.JSONDecodeError, UnicodeDecodeError):
         return None
     return doc if isinstance(doc, dict) else None
-
-
-def image_files(out: Path):
-    """``(index, path)`` of every file of a numbered image: ``NNNNNN.png/.json``, the mask and
-    depth map ``NNNNNN_seg.png`` / ``NNNNNN_depth.exr`` (pipeline/io/seg_file.py), the 300-W
-    ``NNNNNN.pts`` and the UnityEyes pair ``unityeyes/NNNNNN.json/.jpg``
-    (pipeline/render/label_formats.py)."""
-    from pipeline.render.label_formats import UNITYEYES_DIR
-
-    for folder, suffixes in ((out, (".png", ".json", ".exr", ".pts")), (out / UNITYEYES_DIR, (".json", ".jpg"))):
-        if not folder.is_dir():
-            continue
-        for p in folder.iterdir():
-            stem = p.name.split(".")[0].removesuffix("_seg").removesuffix("_depth")
-            if p.suffix in suffixes and stem.isdigit() and len(stem) == 6:
-                yield int(stem), p
 
 
 #: Files a run rebuilds from the labels at its end (removed first, so a killed run leaves none stale).
@@ -156,7 +141,7 @@ def doomed_files(out: Path, keep) -> list[Path]:
     ``i`` unless ``keep(i)`` and its label exists (an image without its label is unfinished), and
     :data:`DERIVED_FILES`. Only names a render writes; nothing else in ``out``."""
     out = Path(out)
-    files = list(image_files(out)) if out.is_dir() else []
+    files = list(image_files(out)) if out.is_dir() else []   # every format's files (pipeline/render/formats)
     gone = [p for i, p in files if not (keep(i) and (out / label_name(i)).is_file())]
     return gone + [out / n for n in DERIVED_FILES if (out / n).is_file()]
 
@@ -179,7 +164,6 @@ def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict
     """Shards of ``(spec, label)`` pairs, sampled lazily ``window`` images at a time (memory stays
     flat for any n_images): within a window, one HDRI per shard, at most ``shard_size`` images.
     A sample that cannot be drawn is a ScanError naming ``source``."""
-    from pipeline.render import label_formats as lf
     from pipeline.render import labels as lb
     from pipeline.render import sampling as sp
 
@@ -198,10 +182,10 @@ def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict
             label = lb.make_label(smp, settings, asset.name)
             if asset.eyes[smp.side].eyeball_params:
                 label["_apparent_job"] = lb.apparent_job(smp, asset.eyes[smp.side], settings)
-            formats = lf.format_job(asset, smp, settings.label_formats)
+            formats = format_job(asset, smp, settings.label_formats)
             if formats is not None:                  # unityeyes / pts files (written before the label)
                 label["_formats"] = formats
-            by_hdri.setdefault(smp.spec["lighting"]["hdri"], []).append((smp.spec, label))
+            by_hdri.setdefault(smp.spec.lighting.hdri, []).append((smp.spec, label))
         stats["sampling_s"] += time.perf_counter() - t0
         k = settings.shard_size
         for _, grp in sorted(by_hdri.items()):

@@ -58,6 +58,7 @@ from pipeline.render import asset as ra
 from pipeline.render.camera import (direction_from_angles, eye_angles, look_at, matrix_to_quat, ortho_size, point_in_polygon,
                                      project, rotation_between, to_camera)
 from pipeline.render.settings import RenderSettings
+from pipeline.render.spec import CameraSpec, EyeConfiguration, Lighting, Quality, RenderSpec
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 
@@ -88,7 +89,7 @@ class Sample:
 
     index: int
     attempts: int
-    spec: dict
+    spec: RenderSpec
     side: str
     camera: dict            # world_to_camera (4,4), ortho_scale_mm, position_mm, polar/azimuth
     gaze: dict              # per side: vector, pitch/yaw in eye frame, clipped flag, offsets
@@ -203,20 +204,16 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
     poly_px = project(to_camera(ra.posed_lid_polygon(asset, side, lw), W2C),
                       d["ortho_scale_mm"], s.width, s.height)
     mm_per_px = ortho_size(d["ortho_scale_mm"], s.width, s.height)[0] / s.width
-    spec = {
-        "index": int(index), "png": str(png), "width": int(s.width), "height": int(s.height),
-        "samples": int(s.samples), "denoise": bool(s.denoise), "cycles_seed": d["cycles_seed"],
-        "eye": side,
-        "camera": {"world_to_camera": W2C.tolist(), "ortho_scale_mm": d["ortho_scale_mm"]},
-        "eye_rotation": {sd: gaze[sd]["rotation_wxyz"] for sd in ra.SIDES},
-        "lid_weights": {k: float(v) for k, v in lw.items()},
-        "eyeball": {"iris_color": d["iris_color"], "sclera_tint": d["sclera_tint"], "veins": d["veins"],
-                    "blend": blend},
-        "lighting": {"hdri": d["hdri"], "rotation_deg": d["hdri_rotation_deg"], "strength": d["strength"]},
-        "skin_detail": choose_skin_detail(mm_per_px, asset.displacement_amplitude_mm,
-                                          asset.skin_faces_edge_mm),
-        "landmarks_head_mm": L_head.tolist(),
-    }
+    spec = RenderSpec(
+        index=int(index), png=str(png), width=int(s.width), height=int(s.height), eye=side,
+        camera=CameraSpec(W2C.tolist(), d["ortho_scale_mm"]),
+        eye_rotation={sd: gaze[sd]["rotation_wxyz"] for sd in ra.SIDES},
+        lid_weights={k: float(v) for k, v in lw.items()},
+        eyeball=EyeConfiguration(d["iris_color"], d["sclera_tint"], d["veins"], blend),
+        lighting=Lighting(d["hdri"], d["hdri_rotation_deg"], d["strength"]),
+        quality=Quality(int(s.samples), bool(s.denoise), d["cycles_seed"],
+                        choose_skin_detail(mm_per_px, asset.displacement_amplitude_mm, asset.skin_faces_edge_mm)),
+        landmarks_head_mm=L_head.tolist())
     camera = {"world_to_camera": W2C, "ortho_scale_mm": d["ortho_scale_mm"], "position_mm": pos,
               "polar_deg": d["polar_deg"], "azimuth_deg": d["azimuth_deg"],
               "distance_mm": float(s.camera_distance_mm), "jitter_mm": [float(x) for x in d["jitter"]],

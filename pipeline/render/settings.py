@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
+from pipeline.render.formats import NAMES as LABEL_FORMATS
+from pipeline.render.formats import REQUIRED as REQUIRED_FORMAT
 from pipeline.settings import SettingError, Settings, setting
 
 HDRIS = ("city.exr", "courtyard.exr", "forest.exr", "interior.exr", "night.exr", "studio.exr",
@@ -23,7 +25,7 @@ PRESETS = {
     "targeted": {"camera_polar_max_deg": 5.0, "gaze_offset_max_deg": 10.0, "gaze_step_deg": 5.0},
     # framed as UnityEyes frames its images, so that GazeML's UnityEyes loader (eyeball centre at the
     # image centre, iris centre 71.7593 px from it along the gaze) holds; see
-    # pipeline/render/label_formats.py. UnityEyes' recommended 512 x 384, its left eye, its camera
+    # pipeline/render/formats/unityeyes.py. UnityEyes' recommended 512 x 384, its left eye, its camera
     # 10 units (cm) from the eyeball centre looking at it (no shift), GazeML's |head pitch|, |yaw| <= 20
     "unityeyes": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 30.0, "gaze_step_deg": 1.0,
                   "width": 512, "height": 384, "eyes": ("left",), "center_jitter_mm": 0.0,
@@ -91,10 +93,9 @@ class RenderSettings(Settings):
     # framing for GazeML's UnityEyes loader: the orthographic scale of each image puts the iris
     # centre this many pixels from the eyeball centre (ortho_scale_mm is then not used)
     iris_distance_px: float | None = setting(None, gt=0, le=100_000)
-    # label files per image: eyerig (NNNNNN.json, always), unityeyes (unityeyes/NNNNNN.json + .jpg),
-    # pts (NNNNNN.pts, 300-W); pipeline/render/label_formats.py
-    label_formats: tuple[Literal["eyerig", "unityeyes", "pts"], ...] = setting(("eyerig",), min_len=1,
-                                                                                max_len=3)
+    # label files per image, one module each in pipeline/render/formats/ (eyerig: NNNNNN.json, always)
+    label_formats: tuple[Literal[LABEL_FORMATS], ...] = setting((REQUIRED_FORMAT,), min_len=1,
+                                                               max_len=len(LABEL_FORMATS))
     # per image also NNNNNN_seg.png, NNNNNN_depth.exr and landmark visibility, from the same render's
     # passes (pipeline/render/seg.py, visibility.py)
     masks: bool = True
@@ -142,9 +143,9 @@ class RenderSettings(Settings):
                                                    "image centre for the eyeball centre); with preset unityeyes, "
                                                    "drop the explicit center_jitter_mm, width, height, eyes and "
                                                    f"camera_distance_mm or set them (got {self.center_jitter_mm:g})")
-        if "eyerig" not in self.label_formats or len(set(self.label_formats)) < len(self.label_formats):
-            raise SettingError("label_formats", "must list eyerig (its label marks an image done) and each "
-                                                f"format once (got {list(self.label_formats)})")
+        if REQUIRED_FORMAT not in self.label_formats or len(set(self.label_formats)) < len(self.label_formats):
+            raise SettingError("label_formats", f"must list {REQUIRED_FORMAT} (its label marks an image done) and "
+                                                f"each format once (got {list(self.label_formats)})")
 
     def hashed(self) -> dict:
         """The settings that change images or labels (not n_images: sample i ignores it; not how to run)."""
