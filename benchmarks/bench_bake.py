@@ -63,7 +63,7 @@ def main(argv=None):
             t0 = time.perf_counter()
             b = bake_maps(low.V, low.F, low.loops, dense, texture, BakeSettings(resolution=res), UV=UV, FUV=FUV)
             times.append(time.perf_counter() - t0)
-            ray.append(b.metrics["timings_s"]["raycast_s"])
+            ray.append(b.timings_s["raycast_s"])
         e = reconstruction_error(low.V, low.F, UV, FUV, b.displacement, dense["V"], dense["F"], levels=2)
         row = {"resolution": res, "texels": b.metrics["texels"],
                "unwrap_s": round(statistics.median(tu), 4), "time_s": round(statistics.median(times), 4),

@@ -11,35 +11,24 @@ worker subprocess. Settings: the ``eyeball:`` block of params.yaml.
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 from pipeline.eyeball import geometry as geo
 from pipeline.io.atomic import atomic_dir
-from pipeline.io.png import strip_png_metadata
 from pipeline.usd.eyeball_asset import build_eyeball_asset, render_eyeball_preview
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
-def main(argv) -> dict:
-    import json
-    import tempfile
-
+def main(argv):
     ap = stage_parser(__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="output folder (rigged_assets/eyeball)")
     args = ap.parse_args(argv)
     settings = load_settings(geo.EyeballSettings, args.params)   # checked before anything is written
     with atomic_dir(args.out) as tmp:
-        metrics = build_eyeball_asset(tmp, settings)
+        result = build_eyeball_asset(tmp, settings)
         if settings.preview:
-            with tempfile.TemporaryDirectory() as td:
-                tj = Path(td) / "preview.json"
-                t = time.perf_counter()
-                render_eyeball_preview(tmp, settings, tj)
-                strip_png_metadata(tmp / "preview.png")     # Blender's time/text chunks: same pixels, same bytes
-                metrics["preview"] = json.loads(tj.read_text())
-                metrics["preview"]["wall_s"] = round(time.perf_counter() - t, 3)
-    return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
+            result += render_eyeball_preview(tmp, settings)
+    return result.at(args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

@@ -29,6 +29,7 @@ from pipeline.io.atomic import atomic_dir
 from pipeline.io.meshfile import save_mesh
 from pipeline.io.scan import one_line
 from pipeline.io.scan_file import write_scan_record
+from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
@@ -65,7 +66,7 @@ def quiet_library_logs() -> None:
         logging.getLogger(name).addHandler(logging.NullHandler())
 
 
-def main(argv, bound: bool = False) -> dict:
+def main(argv, bound: bool = False) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0], scan_arg="scan_dir")
     parser.add_argument("scan_dir", help="raw_scans/<name>: scan.yaml + mesh [+ texture]")
     parser.add_argument("out_dir", help="build/<name>/ingest")
@@ -91,7 +92,7 @@ def main(argv, bound: bool = False) -> dict:
                                        "ingest.max_memory_mb); a file in the folder is over the limits") from None
     except OverflowError as exc:
         raise ScanError(args.scan_dir, f"a number in the scan is too large ({one_line(exc)[:80]})") from None
-    return {"_path": args.metrics or default_metrics_path(out), **result.metrics}
+    return StageResult(result.metrics).at(args.metrics or default_metrics_path(out))   # all determined by the scan
 
 
 if __name__ == "__main__":

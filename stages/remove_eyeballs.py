@@ -27,6 +27,7 @@ from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.io.scan_file import read_scan_record
+from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
@@ -45,7 +46,7 @@ def _read(ingest: Path):
     return mesh, scan.hints, texture, scan.folder or str(mesh_path), tex_path
 
 
-def main(argv) -> dict:
+def main(argv) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("ingest", type=Path, help="build/<scan>/ingest")
     parser.add_argument("out", type=Path, help="build/<scan>/remove_eyeballs")
@@ -61,7 +62,7 @@ def main(argv) -> dict:
         write_eyes(tmp / "eyes.json", res.eyes)
         if texture is not None:
             shutil.copyfile(tex_path, tmp / "texture.png")
-    return {"_path": args.metrics or default_metrics_path(args.out), **res.metrics}
+    return StageResult.from_mixed(res.metrics, args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

@@ -4,8 +4,8 @@ DESIGN.md: "A package imports only packages below it: io at the bottom, then geo
 shared models, then the stage packages in DAG order, then blender. A test holds this; there are
 no cycles." Read bottom up, the floors are:
 
-0. the tools every floor may use: ``errors`` (the one expected-error type), ``kernels``,
-   ``fork`` (the process helper) and ``sources``;
+0. the tools every floor may use: ``errors`` (the one expected-error type), ``results`` (a
+   stage's metrics and timings), ``kernels``, ``fork`` (the process helper) and ``sources``;
 1. ``settings``, the settings base, and the package face ``pipeline/__init__.py`` (its version;
    it pins the numeric kernels);
 2. ``io``, the ground floor of products: file formats, atomic writes, one typed reader/writer
@@ -33,7 +33,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 FLOORS = [
-    {"errors", "kernels", "fork", "sources"},
+    {"errors", "results", "kernels", "fork", "sources"},
     {"settings", "__init__"},
     {"io"},
     {"geometry"},

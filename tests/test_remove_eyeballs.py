@@ -199,7 +199,7 @@ def test_stage_writes_outputs(tmp_path):
     (ing / "scan.json").write_text(json.dumps(
         {"name": "t", "eyes": {s: {"hint": h.tolist()} for s, h in hints.items()}}))
     out = tmp_path / "remove_eyeballs"
-    metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"])
+    metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"]).metrics
     assert metrics["boundary_loops_out"] == 3
     eyes = {s: e.doc for s, e in read_eyes(out / "eyes.json").items()}
     m = load_mesh(out / "mesh.npz")

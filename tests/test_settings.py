@@ -137,23 +137,24 @@ def test_timings_go_beside_the_metrics_not_into_them(tmp_path):
     import json
     import time
 
-    from stages._common import read_stage_metrics, run_stage, split_timings, timings_path
+    from pipeline.results import StageResult
+    from stages._common import read_stage_metrics, run_stage, timings_path
 
-    res, tim = split_timings({"n": 3, "write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0,
-                              "timings_s": {"a_s": 1}, "preview": {"size": 8, "wall_s": 3.0},
-                              "peak_memory_mib": 5, "mesh": {"manifold": True}})
-    assert res == {"n": 3, "preview": {"size": 8}, "mesh": {"manifold": True}}
-    assert tim == {"write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0, "timings_s": {"a_s": 1},
-                   "preview": {"wall_s": 3.0}, "peak_memory_mib": 5}
+    split = StageResult.from_mixed({"n": 3, "write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0,
+                                    "timings_s": {"a_s": 1}, "preview": {"size": 8, "wall_s": 3.0},
+                                    "peak_memory_mib": 5, "mesh": {"manifold": True}})
+    assert split.metrics == {"n": 3, "preview": {"size": 8}, "mesh": {"manifold": True}}
+    assert split.timings == {"write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0, "timings_s": {"a_s": 1},
+                             "preview": {"wall_s": 3.0}, "peak_memory_mib": 5}
     path = tmp_path / "build" / "x" / "stage.metrics.json"
     assert timings_path(path) == tmp_path / "build" / "x" / "stage.timings.json"
 
-    def main(argv):
-        return {"_path": path, "accuracy_mm": 0.5, "fit_s": 1.25, "_run": {"skipped_done": 2}}
+    def main(argv):          # by type: a metric with an "s" word stays a metric
+        return StageResult({"accuracy_mm": 0.5, "n_s_shaped": 1}, {"fit_s": 1.25, "skipped_done": 2}, path)
 
     cpu_before = time.process_time()
     assert run_stage(main, []) == 0
-    assert json.loads(path.read_text()) == {"accuracy_mm": 0.5}
+    assert json.loads(path.read_text()) == {"accuracy_mm": 0.5, "n_s_shaped": 1}
     t = json.loads(timings_path(path).read_text())
     assert t["fit_s"] == 1.25 and t["skipped_done"] == 2 and t["wall_time_s"] >= 0 and t["peak_memory_mib"] > 0
     assert t["cpu_time_s"] >= cpu_before > 0        # this process's CPU from its start, children added

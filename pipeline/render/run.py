@@ -31,6 +31,7 @@ from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_file, write_json
 from pipeline.io.labels_file import index_line, label_name, read_label
 from pipeline.render.formats import format_job, image_files
+from pipeline.results import StageResult
 
 # Cycles given one thread still keeps a second one busy (about a quarter of an image's CPU
 # time wasted), so two Blenders sharing two cores are slower than one Blender using both:
@@ -253,7 +254,7 @@ def index_and_sheet(out: Path, n: int, n_sheet: int) -> dict:
 
 
 def render_scan(asset, settings, out, source, scheduler: str | None = None, progress: bool = True,
-                on_dashboard=None) -> dict:
+                on_dashboard=None) -> StageResult:
     """Render ``settings.n_images`` labelled images of ``asset`` into ``out`` (resuming).
 
     Parameters
@@ -271,7 +272,7 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
 
     Returns
     -------
-    dict  the stage metrics (what this run measured under ``"_run"`` and ``*_s`` keys)
+    StageResult  what the renders are (metrics) and what this run measured (timings)
 
     Raises
     ------
@@ -316,19 +317,18 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
 
     wall = time.perf_counter() - t0
     rs, cpu = np.asarray(res.render_s), np.asarray(res.cpu_s)
-    return {"n_images": n,
-            "_run": {"rendered": res.n, "skipped_done": n - res.n,     # this run, not the renders
-                     "stale_config": prep["stale_config"], "removed_files": prep["removed_files"],
-                     "workers": run["workers"], "scheduler": scheduler or "LocalCluster",
-                     "threads_per_blender": threads, "shards": stats["shards"],
-                     "blender_starts": int(sum(v.get("starts", 0) for v in run["blender"].values()))},
-            "sampling_s": round(stats["sampling_s"], 3), "render_wall_s": round(t_render, 3),
-            "s_per_image": round(t_render / res.n, 4) if res.n else None,
-            "images_per_s": round(res.n / t_render, 4) if res.n and t_render > 0 else None,
-            "render_s_median": round(float(np.median(rs)), 4) if rs.size else None,
-            "blender_cpu_s_per_image_median": round(float(np.median(cpu)), 4) if cpu.size else None,
-            "worker_rss_max_mib": res.rss_max,
-            "landmark_check_max_mm": summary.pop("landmark_check_max_mm"),
-            **summary,
-            "samples": settings.samples, "size": [settings.width, settings.height],
-            "preset": settings.preset, "seed": settings.seed, "stage_wall_s": round(wall, 3)}
+    metrics = {"n_images": n, "landmark_check_max_mm": summary.pop("landmark_check_max_mm"), **summary,
+               "samples": settings.samples, "size": [settings.width, settings.height],
+               "preset": settings.preset, "seed": settings.seed}
+    timings = {"rendered": res.n, "skipped_done": n - res.n,     # this run, not the renders
+               "stale_config": prep["stale_config"], "removed_files": prep["removed_files"],
+               "workers": run["workers"], "scheduler": scheduler or "LocalCluster",
+               "threads_per_blender": threads, "shards": stats["shards"],
+               "blender_starts": int(sum(v.get("starts", 0) for v in run["blender"].values())),
+               "sampling_s": round(stats["sampling_s"], 3), "render_wall_s": round(t_render, 3),
+               "s_per_image": round(t_render / res.n, 4) if res.n else None,
+               "images_per_s": round(res.n / t_render, 4) if res.n and t_render > 0 else None,
+               "render_s_median": round(float(np.median(rs)), 4) if rs.size else None,
+               "blender_cpu_s_per_image_median": round(float(np.median(cpu)), 4) if cpu.size else None,
+               "worker_rss_max_mib": res.rss_max, "stage_wall_s": round(wall, 3)}
+    return StageResult(metrics, timings)

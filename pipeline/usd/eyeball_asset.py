@@ -14,12 +14,13 @@ import time
 from pathlib import Path
 
 from pipeline.eyeball import geometry as geo
+from pipeline.results import StageResult
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def build_eyeball_asset(folder: Path, settings: geo.EyeballSettings) -> dict:
-    """Write eyeball.usda + textures into ``folder``; returns metrics (no preview).
+def build_eyeball_asset(folder: Path, settings: geo.EyeballSettings) -> StageResult:
+    """Write eyeball.usda + textures into ``folder``, validated (no preview).
 
     ``settings``: the ``eyeball:`` block (EyeballSettings or its raw mapping)."""
     if not isinstance(settings, geo.EyeballSettings):
@@ -51,21 +52,38 @@ def build_eyeball_asset(folder: Path, settings: geo.EyeballSettings) -> dict:
     if report["errors"]:
         raise RuntimeError("eyeball asset failed validation:\n  " + "\n  ".join(report["errors"]))
     seam = seam_dihedral_report(p, eye.resolution)
-    return {"resolution": eye.resolution.__dict__, **eye.stats(),
-            "geometry_s": round(t_geo, 4), "textures_s": round(t_tex, 4), "usd_write_s": round(t_usd, 4),
-            "validate_s": round(t_val, 4), "validation_errors": len(report["errors"]),
-            "validation_warnings": len(report["warnings"]),
-            "seam_dihedral_deg": round(seam["seam_max_deg"], 3),
-            "max_dihedral_elsewhere_deg": round(max(seam["cornea_max_deg"], seam["sclera_max_deg"]), 3)}
+    metrics = {"resolution": eye.resolution.__dict__, **eye.stats(), "validation_errors": len(report["errors"]),
+               "validation_warnings": len(report["warnings"]),
+               "seam_dihedral_deg": round(seam["seam_max_deg"], 3),
+               "max_dihedral_elsewhere_deg": round(max(seam["cornea_max_deg"], seam["sclera_max_deg"]), 3)}
+    return StageResult(metrics, {"geometry_s": round(t_geo, 4), "textures_s": round(t_tex, 4),
+                                 "usd_write_s": round(t_usd, 4), "validate_s": round(t_val, 4)})
 
 
-def render_eyeball_preview(folder: Path, settings: geo.EyeballSettings, timings: Path) -> None:
-    """Run the Blender preview worker (subprocess) on the asset in ``folder``."""
-    cmd = [sys.executable, "-m", "pipeline.blender.eyeball_preview", str(folder / "eyeball.usda"),
-           str(folder / "preview.png"), "--size", str(settings.preview_px),
-           "--samples", str(settings.preview_samples), "--json", str(timings)]
+#: What the preview worker reports that measures its run, not the sheet.
+PREVIEW_TIMINGS = ("setup_s", "render_s_per_tile_median", "render_s_total")
+
+
+def render_eyeball_preview(folder: Path, settings: geo.EyeballSettings) -> StageResult:
+    """Render ``folder/preview.png`` of the asset in ``folder`` with the Blender preview worker
+    (a subprocess); the sheet's facts under ``preview`` in the metrics, its times in the timings."""
+    import json
+    import tempfile
+
+    from pipeline.io.png import strip_png_metadata
     from pipeline.io.scratch import run_child
 
-    res = run_child(cmd, capture_output=True, text=True, cwd=ROOT)
-    if res.returncode != 0:
-        raise RuntimeError("preview render failed:\n" + res.stdout[-2000:] + res.stderr[-2000:])
+    t = time.perf_counter()
+    with tempfile.TemporaryDirectory() as td:
+        report = Path(td) / "preview.json"
+        cmd = [sys.executable, "-m", "pipeline.blender.eyeball_preview", str(folder / "eyeball.usda"),
+               str(folder / "preview.png"), "--size", str(settings.preview_px),
+               "--samples", str(settings.preview_samples), "--json", str(report)]
+        res = run_child(cmd, capture_output=True, text=True, cwd=ROOT)
+        if res.returncode != 0:
+            raise RuntimeError("preview render failed:\n" + res.stdout[-2000:] + res.stderr[-2000:])
+        info = json.loads(report.read_text())
+    strip_png_metadata(folder / "preview.png")     # Blender's time/text chunks: same pixels, same bytes
+    sheet = {k: v for k, v in info.items() if k not in PREVIEW_TIMINGS}
+    times = {k: info[k] for k in PREVIEW_TIMINGS if k in info}
+    return StageResult({"preview": sheet}, {"preview": {**times, "wall_s": round(time.perf_counter() - t, 3)}})
