@@ -29,6 +29,7 @@ import numpy as np
 from pipeline.bake.raycast import DenseScene, cast_both_ways
 from pipeline.bake.uv import dilation_sources, rasterize, sample_bilinear, unwrap
 from pipeline.geometry import mesh_checks as mc
+from pipeline.geometry.ramps import smoothstep
 from pipeline.settings import Settings, setting
 
 
@@ -56,12 +57,6 @@ class BakeResult:
     mask: np.ndarray          # (H, W) bool, texels covered by the atlas
     metrics: dict             # what the inputs determine (bake_metrics)
     timings_s: dict = field(default_factory=dict)   # seconds per step
-
-
-def smoothstep(x):
-    """C1 ramp: 0 at x <= 0, 1 at x >= 1."""
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
 
 
 def distance_to_polylines(P, loops, step=0.05):
@@ -270,7 +265,7 @@ def falloff_weights(V, F, P, face, loops, falloff_mm):
         elen = np.linalg.norm(V[F] - np.roll(V[F], 1, axis=1), axis=2).max(axis=1)
         near_face = dv[F].min(axis=1) <= falloff_mm + elen
         sel = near_face[face]
-        w[sel] = smoothstep(distance_to_polylines(P[sel], lp) / falloff_mm)
+        w[sel] = smoothstep(0.0, 1.0, distance_to_polylines(P[sel], lp) / falloff_mm)
     return w
 
 

@@ -132,15 +132,10 @@ def read_depth(path, size: tuple[int, int] | None = None) -> np.ndarray:
     ------
     ScanError  missing, not an EXR with channel ``Z``, NaN or non-positive values, another size.
     """
-    from pipeline.io.exr import read_exr
+    from pipeline.io.exr import read_exr_product
 
     path = Path(path)
-    if not path.is_file():
-        raise ScanError(path, "not found")
-    try:
-        a = read_exr(path, DEPTH_CHANNEL)
-    except Exception as exc:  # noqa: BLE001 -- OpenEXR raises several types for unreadable files
-        raise ScanError(path, f"is not a depth EXR with channel {DEPTH_CHANNEL!r} ({type(exc).__name__})") from None
+    a = read_exr_product(path, DEPTH_CHANNEL, f"is not a depth EXR with channel {DEPTH_CHANNEL!r}")
     if a.ndim != 2 or np.isnan(a).any() or (a <= 0).any():
         raise ScanError(path, "depth must be positive mm (inf where nothing is seen), no NaN")
     if size is not None and (a.shape[1], a.shape[0]) != tuple(size):
