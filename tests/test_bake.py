@@ -12,7 +12,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from conftest import face_patch
+from fixtures import face_patch
 from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_error, subdivide_displaced
 from pipeline.io.exr import preview_16bit, read_exr, write_exr
 from pipeline.bake.uv import dilate, rasterize, sample_bilinear, unwrap

@@ -1,7 +1,7 @@
 """``python -m stages.dataset``: several assets mixed by weight in one resumable render;
 the dataset card; ``examples/load_dataset.py``.
 
-Two tiny assets (conftest.make_render_asset, different names and licences) render 24 x 16 px
+Two tiny assets (fixtures.make_render_asset, different names and licences) render 24 x 16 px
 images at 1 sample. The mix is tested exactly: counts come from largest-remainder allocation,
 so every asset gets its quota rounded up or down, never a sampled count.
 """
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import make_render_asset
+from fixtures import make_render_asset
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.render import labels as lb
 from pipeline.render import mix

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from conftest import head_mesh, write_ply, write_sidecar
+from fixtures import head_mesh, write_ply, write_sidecar
 from pipeline.errors import ScanError
 from pipeline.geometry.frame import (UNITS_TO_MM, axis_vector, check_eye_layout, check_float32, check_head_size,
                                      from_head_frame, scan_to_head_rotation, to_head_frame)

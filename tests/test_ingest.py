@@ -1,6 +1,6 @@
 """Stage ingest: good inputs in every format, repairs, real scans.
 
-The scan-folder builders (a head-sized ellipsoid with two eye bumps) live in ``conftest.py``.
+The scan-folder builders (a head-sized ellipsoid with two eye bumps) live in tests/fixtures/scans.py.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import (ROOT, head_mesh, ingest, make_scan, sphere_uv, write_obj, write_ply, write_png,
+from fixtures import (ROOT, head_mesh, ingest, make_scan, sphere_uv, write_obj, write_ply, write_png,
                       write_sidecar)
 from pipeline.io.meshfile import load_mesh
 

@@ -2,7 +2,7 @@
 GazeML's loader (tests/gazeml_unityeyes.py), 300-W .pts, the ``unityeyes`` preset's framing,
 and ``render.label_formats`` validation.
 
-Labels come from the small constructed asset of conftest.make_render_asset, sampled without
+Labels come from the small constructed asset of fixtures.make_render_asset, sampled without
 Blender; one Blender test runs the stage with every format on two images.
 """
 
@@ -19,7 +19,7 @@ import pytest
 from PIL import Image
 
 import gazeml_unityeyes as gz
-from conftest import make_render_asset
+from fixtures import make_render_asset
 from pipeline.errors import ScanError
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.io.pts_file import pts_name, pts_text, read_pts, write_pts

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import make_two_assets
+from fixtures import make_two_assets
 from pipeline.errors import ScanError
 from pipeline.render import dataset as ds
 from pipeline.render import mix

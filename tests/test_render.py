@@ -1,7 +1,7 @@
 """Stage ``render``: sampling, labels, pupil-in-lid rule, resumable sharded rendering.
 
-The asset is built in a fixture (conftest.make_render_asset) from the small constructed scan of
-conftest.make_inputs (a flat skin grid with the eyeballs poking through it), with 16-vertex lid
+The asset is built in a fixture (fixtures.make_render_asset) from the small constructed scan of
+fixtures.make_inputs (a flat skin grid with the eyeballs poking through it), with 16-vertex lid
 loops and eyelid landmark edges added to its rig.npz. Pure-Python parts are tested directly;
 Blender renders only a few tiny images (24 x 16 px, 1 sample).
 """
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conftest import EYES, make_render_asset
+from fixtures import EYES, make_render_asset
 from pipeline.errors import ScanError
 from pipeline.render.camera import quat_to_matrix
 from pipeline.io.labels_file import read_index, read_label

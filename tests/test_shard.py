@@ -19,7 +19,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from conftest import make_two_assets
+from fixtures import make_two_assets
 from pipeline.io.labels_file import read_index
 
 ROOT = Path(__file__).resolve().parents[1]

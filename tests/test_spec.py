@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import make_render_asset
+from fixtures import make_render_asset
 from pipeline.render import sampling as sp
 from pipeline.render.asset import load_render_asset
 from pipeline.render.settings import RenderSettings
