@@ -15,11 +15,11 @@ Writes ``benchmarks/results/bake.json`` and ``benchmarks/results/bake.csv``
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import statistics
 import time
 from pathlib import Path
+
+from benchmarks.results_files import write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,7 +63,7 @@ def main(argv=None):
             t0 = time.perf_counter()
             b = bake_maps(low.V, low.F, low.loops, dense, texture, BakeSettings(resolution=res), UV=UV, FUV=FUV)
             times.append(time.perf_counter() - t0)
-            ray.append(b.metrics["timings_s"]["raycast_s"])
+            ray.append(b.timings_s["raycast_s"])
         e = reconstruction_error(low.V, low.F, UV, FUV, b.displacement, dense["V"], dense["F"], levels=2)
         row = {"resolution": res, "texels": b.metrics["texels"],
                "unwrap_s": round(statistics.median(tu), 4), "time_s": round(statistics.median(times), 4),
@@ -78,16 +78,9 @@ def main(argv=None):
               f"{row['unwrap_s']:.2f} s)  error {row['mean_without_mm']:.4f} -> {row['mean_with_mm']:.4f} mm "
               f"({100 * row['mean_error_removed']:.0f} % removed)  missed {row['missed_texel_fraction']:.4%}",
               flush=True)
-    out = ROOT / "benchmarks" / "results"
-    out.mkdir(parents=True, exist_ok=True)
     summary = {"input": str(folder), "input_faces": int(len(dense["F"])), "runs": args.runs,
                "lowpoly_polygons": low.metrics["polygons"], "retopo_s": round(t_retopo, 3), "rows": rows}
-    (out / "bake.json").write_text(json.dumps(summary, indent=1) + "\n")
-    with open(out / "bake.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"wrote {out / 'bake.json'} and bake.csv")
+    write_results("bake", summary, rows)
     return summary
 
 

@@ -36,27 +36,18 @@ import numpy as np
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.eyes_file import read_eyes
 from stages._common import read_stage_metrics
+from tests.fixtures.chain import stage_commands as chain_commands
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGES = ("ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "usd")
+STAGES = tuple(chain_commands("scan", "build", "eyeball", "asset"))    # ingest .. usd, dvc.yaml's order
 
 
 def stage_commands(scan, build, eyeball) -> dict:
     """``python -m`` arguments of each per-scan stage up to ``usd``, as dvc.yaml runs them
-    (without ``--metrics`` / ``--params``), for a scan folder, a build folder and an eyeball asset."""
-    b = Path(build)
-    return {
-        "ingest": ["stages.ingest", scan, b / "ingest"],
-        "remove_eyeballs": ["stages.remove_eyeballs", b / "ingest", b / "remove_eyeballs",
-                            "--prior", ROOT.parent / "shared" / "reference" / "unityeyes_eye_region"],
-        "retopo": ["stages.retopo", b / "remove_eyeballs", b / "retopo"],
-        "bake": ["stages.bake", b / "retopo", b / "remove_eyeballs", b / "bake"],
-        "snap": ["stages.snap", b / "bake", b / "remove_eyeballs", eyeball, b / "snap"],
-        "rig": ["stages.rig", b / "snap", b / "rig", "--eyeball", eyeball],
-        # the asset beside the eyeball, as rigged_assets/ holds them (usdz packs the eyeball with it)
-        "usd": ["stages.usd", b / "snap", b / "bake", b / "rig", b / "ingest", eyeball,
-                Path(eyeball).parent / f"{Path(scan).name}_asset"],
-    }
+    (without ``--metrics`` / ``--params``; tests/fixtures/chain.py reads them from dvc.yaml), for a
+    scan folder, a build folder and an eyeball asset; the asset goes beside the eyeball, as
+    rigged_assets/ holds them (usdz packs the eyeball with it)."""
+    return chain_commands(scan, build, eyeball, Path(eyeball).parent / f"{Path(scan).name}_asset")
 
 
 def timed_run(cmd, cwd=ROOT):

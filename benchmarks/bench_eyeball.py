@@ -63,11 +63,11 @@ def main(argv=None) -> int:
                          "usda_bytes": path.stat().st_size})
     t_tex = _median_time(lambda: tex.texture_set(0), max(1, args.repeats // 2))
     # The whole asset as the stage writes it (geometry, textures, USD, validation; no preview).
-    from stages.eyeball import build_asset
+    from pipeline.usd.eyeball_asset import build_eyeball_asset
 
     def whole():
         with tempfile.TemporaryDirectory() as td:
-            build_asset(Path(td), {"resolution": "full"})
+            build_eyeball_asset(Path(td), {"resolution": "full"})
 
     t_whole = _median_time(whole, max(3, args.repeats // 2))
     result = {"repeats": args.repeats, "target_build_full_s": 2.0, "resolutions": rows,

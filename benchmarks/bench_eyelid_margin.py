@@ -148,7 +148,7 @@ def main():
     ap.add_argument("--scans", required=True, help="folder holding ict_neutral")
     ap.add_argument("--out", default="eyelid_margin_ict.json")
     args = ap.parse_args()
-    from pipeline.geometry.ingest import IngestSettings, ingest_scan
+    from pipeline.ingest.ingest import IngestSettings, ingest_scan
 
     folder = Path(args.scans) / "ict_neutral"
     gt = json.loads((folder / "ground_truth.json").read_text())["eyes"]

@@ -77,25 +77,27 @@ def summary(rows: list, n: int) -> dict:
 
 
 def _center_px(asset, label) -> list:
-    from pipeline.render import label_formats as lf
+    from pipeline.render.formats import unityeyes as uef
 
-    x, y, _ = lf.unity_screen([asset.eyes[label["gaze"]["eye"]].center], label)[0]
+    x, y, _ = uef.unity_screen([asset.eyes[label["gaze"]["eye"]].center], label)[0]
     return [float(x), float(label["image"]["height"] - y)]
 
 
 def generic_contrast(asset, params: dict, n: int) -> dict:
     """The loader on labels of the generic framing at the preset's size (no render)."""
-    from pipeline.render import label_formats as lf
+    from pipeline.render import formats as lf
+    from pipeline.render.formats import unityeyes as uef
     from pipeline.render import labels as lb
+    from pipeline.render.settings import RenderSettings
     from pipeline.render import sampling as sp
 
-    s = sp.RenderSettings.from_params({**params, "preset": "generic", "width": 512, "height": 384,
+    s = RenderSettings.from_params({**params, "preset": "generic", "width": 512, "height": 384,
                                        "eyes": ["left"], "label_formats": FORMATS, "n_images": n})
     rows = []
     for i in range(n):
         smp = sp.make_sample(asset, s, i, "/x.png")
         label = json.loads(json.dumps(lb.make_label(smp, s, asset.name)))
-        doc = lf.unityeyes_document(label, lf.format_job(asset, smp, s.label_formats)["unityeyes"])
+        doc = uef.unityeyes_document(label, lf.format_job(asset, smp, s.label_formats)["unityeyes"])
         rows.append(compare(label, doc, s.height, s.width, _center_px(asset, label)))
     return summary(rows, n)
 
@@ -150,7 +152,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     asset_dir = args.asset or ROOT / "rigged_assets" / args.scan
     rig_dir = args.rig or ROOT / "build" / args.scan / "rig"
-    from pipeline.render.sampling import PRESETS
+    from pipeline.render.settings import PRESETS
 
     # params.yaml's render block without the keys the preset fills (as the README says to switch)
     params = {k: v for k, v in yaml.safe_load((ROOT / "params.yaml").read_text())["render"].items()

@@ -24,18 +24,20 @@ import json
 import tempfile
 import time
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.blender.render_worker import Worker
+from pipeline.io import seg_file as sf
 from pipeline.io.seg_file import read_depth, read_seg
 from pipeline.render import labels as lb
-from pipeline.render import seg as sg
 from pipeline.render import shard as sh
 from pipeline.render import visibility as vis
 from pipeline.render.asset import load_render_asset
-from pipeline.render.sampling import RenderSettings, make_sample
+from pipeline.render.sampling import make_sample
+from pipeline.render.settings import RenderSettings
 
 
 def main(argv=None) -> int:
@@ -57,11 +59,11 @@ def main(argv=None) -> int:
     w = Worker(asset.usda, asset.rig_npz, threads=args.threads)
 
     def render(smp, masks: bool, tag: str) -> dict:
-        spec = dict(smp.spec, png=str(tmp / f"{smp.index:06d}_{tag}.png"))
+        spec = replace(smp.spec, png=str(tmp / f"{smp.index:06d}_{tag}.png"))
         if masks:
-            spec.update(seg_png=str(tmp / f"{smp.index:06d}_seg.png"), depth_exr=str(tmp / f"{smp.index:06d}_depth.exr"))
+            spec = spec.with_masks(tmp / f"{smp.index:06d}_seg.png", tmp / f"{smp.index:06d}_depth.exr")
         r = w.render(spec)
-        return {**r, "png": spec["png"]}
+        return {**r, "png": spec.png}
 
     samples = [make_sample(asset, s, i, tmp / "x.png") for i in range(args.n)]
     render(samples[0], False, "warm")
@@ -85,7 +87,7 @@ def main(argv=None) -> int:
             k_lm = 12 + j
             if app[j] is None or not v["visible"][k_lm]:
                 continue
-            mask = segm == sg.PUPIL if j >= 8 else np.isin(segm, (sg.IRIS, sg.PUPIL))
+            mask = segm == sf.PUPIL if j >= 8 else np.isin(segm, (sf.IRIS, sf.PUPIL))
             d = vis.boundary_distance_px(app[j], mask)
             (dist_pupil if j >= 8 else dist_iris).append(d)
         rows.append({"index": smp.index, "identical_image": same,

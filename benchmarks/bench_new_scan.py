@@ -16,7 +16,7 @@ scan's ingest, remove_eyeballs, retopo, bake, snap, rig, usd (asset preview incl
 The head is procedural (``make_synthetic_head`` with ``--seed``, not the home scan's seed 7) or,
 with ``--source scanify``, an ICT-FaceKit identity from scanify (``../shared/tools/scanify``,
 about a minute to generate; remove_eyeballs' self-checks still refuse unseen ICT-FaceKit heads,
-README "Unseen scans", so that run stops there with DVC's error); generating it is not timed,
+docs/remove_eyeballs.md "Unseen scans", so that run stops there with DVC's error); generating it is not timed,
 and the head is kept beside the clone for later runs with ``--clone``. Per stage the result has the wall
 time between DVC's ``Running stage`` lines (DVC's own hashing and lock writing included) and
 the stage's own ``wall_time_s`` and ``cpu_time_s`` (build/<scan>/<stage>.timings.json; the CPU

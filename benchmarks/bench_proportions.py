@@ -73,12 +73,13 @@ def stats(rows: list[dict]) -> dict:
 
 
 def sampled(asset, settings, n: int) -> list[dict]:
+    from pipeline.render import camera as cam
     from pipeline.render import sampling as sp
 
     rows = []
     for i in range(n):
         smp = sp.make_sample(asset, settings, i, sp.png_name(i))
-        ow, _ = sp.ortho_size(smp.camera["ortho_scale_mm"], settings.width, settings.height)
+        ow, _ = cam.ortho_size(smp.camera["ortho_scale_mm"], settings.width, settings.height)
         rows.append(measure(smp.landmarks_px, ow / settings.width))
     return rows
 
@@ -173,7 +174,7 @@ def main(argv=None) -> int:
     import yaml
 
     from pipeline.render.asset import load_render_asset
-    from pipeline.render.sampling import RenderSettings
+    from pipeline.render.settings import RenderSettings
 
     params = yaml.safe_load(args.params.read_text(encoding="utf-8")) or {}
     settings = RenderSettings.from_params(params.get("render"), source=str(args.params))

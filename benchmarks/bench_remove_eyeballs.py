@@ -84,7 +84,7 @@ def sweep(args):
         print(f"{row['case']:<28} {row['triangles']:>7}  {row['time_s']:5.1f} s  "
               f"L: {_fmt(row['left'])}   R: {_fmt(row['right'])}", flush=True)
     if args.scans:
-        from pipeline.geometry.ingest import IngestSettings, ingest_scan
+        from pipeline.ingest.ingest import IngestSettings, ingest_scan
 
         for name in ("ict_neutral",):
             folder = Path(args.scans) / name

@@ -76,12 +76,13 @@ def _stage(scan: str, out: Path, params: Path, n: int, workers: int | None = Non
 
 def bench_memory(scan: str, n: int, csv_path: Path) -> dict:
     from pipeline.render import asset as ra
+    from pipeline.render.settings import RenderSettings
     from pipeline.render import sampling as sp
     from pipeline.render.shard import BlenderProcess
     from stages._common import load_params
 
     asset = ra.load_render_asset(ROOT / "rigged_assets" / scan, ROOT / "build" / scan / "rig")
-    s = sp.RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
+    s = RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
     rows = []
     with tempfile.TemporaryDirectory() as td:
         t0 = time.perf_counter()
@@ -91,7 +92,7 @@ def bench_memory(scan: str, n: int, csv_path: Path) -> dict:
         try:
             for i in range(n):
                 smp = sp.make_sample(asset, s, i, Path(td) / f"{i % 4}.png")
-                spec = dict(smp.spec, samples=1)        # the denoiser's cost and memory do not depend on samples
+                spec = dict(smp.spec.to_dict(), samples=1)        # the denoiser's cost and memory do not depend on samples
                 r = bp.render(spec)
                 if not r.get("ok"):
                     raise SystemExit(f"image {i} failed: {r.get('error')}")

@@ -44,6 +44,7 @@ SUBDIVISIONS = (0, 1, 2)
 def main(argv=None) -> int:
     from pipeline.io.seg_file import depth_name, seg_name
     from pipeline.render import asset as ra
+    from pipeline.render.settings import RenderSettings
     from pipeline.render import sampling as sp
     from pipeline.render.run import run_options
     from pipeline.render.shard import BlenderProcess
@@ -57,7 +58,7 @@ def main(argv=None) -> int:
     if not (rig_dir / "rig.npz").is_file():
         raise SystemExit(f"error: {rig_dir / 'rig.npz'}: missing (run `dvc repro usd@{args.scan}` first)")
     asset = ra.load_render_asset(ROOT / "rigged_assets" / args.scan, rig_dir)
-    settings = sp.RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
+    settings = RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
     threads = run_options(settings, ROOT / "renders" / args.scan)["threads"]
     variants = [("size", (w, h), {"width": w, "height": h, "skin_subdivision": 0}) for w, h in SIZES]
     variants += [("polygons", lv, {"width": settings.width, "height": settings.height, "skin_subdivision": lv})
@@ -71,7 +72,7 @@ def main(argv=None) -> int:
             specs = []
             for i in range(args.images + 1):
                 smp = sp.make_sample(asset, settings, i, td / f"{i:06d}.png")
-                specs.append(dict(smp.spec, seg_png=str(td / seg_name(i)), depth_exr=str(td / depth_name(i))))
+                specs.append(dict(smp.spec.to_dict(), seg_png=str(td / seg_name(i)), depth_exr=str(td / depth_name(i))))
             half = (args.images + 1) // 2
             for part in (specs[1:1 + half], specs[1 + half:]):     # A B C ... A B C: load drifts alike
                 for kind, key, over in variants:

@@ -75,10 +75,11 @@ def client_side(asset, settings, specs_labels, out: Path) -> dict:
     """CPU seconds per image of the stage's own Python: main process and dask worker."""
     from pipeline.io.labels_file import label_name, write_label
     from pipeline.io.png import strip_png_metadata
-    from pipeline.render import label_formats as lf
+    from pipeline.render import formats as lf
     from pipeline.render import labels as lb
     from pipeline.render import sampling as sp
     from pipeline.render import shard as sh
+    from pipeline.render.spec import RenderSpec
 
     n = len(specs_labels)
     t = time.process_time()
@@ -94,8 +95,9 @@ def client_side(asset, settings, specs_labels, out: Path) -> dict:
         extra = sh.apparent_landmarks(job)
         t_app += time.process_time() - t
         lab = dict(label, landmark_check_mm=1e-5)
+        typed = RenderSpec.from_dict(spec)
         t = time.process_time()
-        sh.add_masks(lab, spec, extra)
+        sh.add_masks(lab, typed, extra)
         t_mask += time.process_time() - t
         t = time.process_time()
         png = out / "copy.png"
@@ -124,6 +126,7 @@ def main(argv=None) -> int:
     from pipeline.render import labels as lb
     from pipeline.render import sampling as sp
     from pipeline.render.run import run_options
+    from pipeline.render.settings import RenderSettings
     from pipeline.render.shard import BlenderProcess
     from stages._common import load_params
 
@@ -135,7 +138,7 @@ def main(argv=None) -> int:
     if not (rig_dir / "rig.npz").is_file():
         raise SystemExit(f"error: {rig_dir / 'rig.npz'}: missing (run `dvc repro usd@{args.scan}` first)")
     asset = ra.load_render_asset(asset_dir, rig_dir)
-    settings = sp.RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
+    settings = RenderSettings.from_dict(load_params("render", ROOT / "params.yaml"))
     threads = run_options(settings, ROOT / "renders" / args.scan)["threads"]
     load0 = os.getloadavg()[0]
     rows = {v: [] for v in VARIANTS}
@@ -148,7 +151,7 @@ def main(argv=None) -> int:
         try:
             for i in range(args.images):
                 smp = sp.make_sample(asset, settings, i, td / f"{i:06d}.png")
-                spec = dict(smp.spec, seg_png=str(td / seg_name(i)), depth_exr=str(td / depth_name(i)))
+                spec = dict(smp.spec.to_dict(), seg_png=str(td / seg_name(i)), depth_exr=str(td / depth_name(i)))
                 for name, make in VARIANTS.items():
                     r = bp.render(make(spec))
                     if not r.get("ok"):

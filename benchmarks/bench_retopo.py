@@ -15,8 +15,6 @@ x = polygons, y = mean_mm or time_s, grouped by method).
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import platform
 import statistics
 import subprocess
@@ -24,6 +22,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from benchmarks.results_files import write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -99,19 +99,12 @@ def main(argv=None):
                   f"mean {row['mean_mm']:.4f} mm  p95 {row['lowpoly_to_scan_p95_mm']:.3f}/"
                   f"{row['scan_to_lowpoly_p95_mm']:.3f} mm  min-angle p5 {row['min_angle_p5_deg']:.1f} deg  "
                   f"flipped {row['flipped_faces']}", flush=True)
-    out = ROOT / "benchmarks" / "results"
-    out.mkdir(parents=True, exist_ok=True)
     summary = {"input": str(folder) if args.input else f"synthetic_head seed 7, {args.triangles} triangles",
                "input_faces": int(len(mesh["F"])), "runs": args.runs,
                "chain_wall_s": {k: (round(v, 3) if v is not None else None) for k, v in chain.items()},
                "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
                "rows": rows}
-    (out / "retopo.json").write_text(json.dumps(summary, indent=1) + "\n")
-    with open(out / "retopo.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"wrote {out / 'retopo.json'} and retopo.csv")
+    write_results("retopo", summary, rows)
     return summary
 
 

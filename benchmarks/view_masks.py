@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.io.labels_file import read_label
+from pipeline.io import seg_file as sf
 from pipeline.io.seg_file import read_depth, read_seg
-from pipeline.render import seg as sg
 from pipeline.render.visibility import positions
 
 COLOURS = [(60, 230, 90)] * 12 + [(60, 220, 255)] * 8 + [(255, 230, 40)] * 8
@@ -49,7 +49,7 @@ def row(folder: Path, index: int, scale: int):
     img = Image.open(folder / lab.doc["image"]["file"]).convert("RGB").resize(big, Image.NEAREST)
     seg = read_seg(folder / lab.doc["seg"]["file"], size)
     segimg = Image.fromarray(seg, "P")
-    segimg.putpalette(sg.palette())
+    segimg.putpalette(sf.palette())
     segimg = segimg.convert("RGB").resize(big, Image.NEAREST)
     depth = read_depth(folder / lab.doc["depth"]["file"], size)
     fin = np.isfinite(depth)
@@ -83,7 +83,7 @@ def main(argv=None) -> int:
             sheet.paste(t, (x, y + cap))
             d.text((x, y), f"{i:06d} {name}", fill=(230, 230, 230))
     x, y = pad, sheet.size[1] - legend + 2
-    for k, (name, rgb) in sg.CLASSES.items():
+    for k, (name, rgb) in sf.CLASSES.items():
         d.rectangle([x, y + 2, x + 10, y + 12], fill=rgb, outline=(200, 200, 200))
         d.text((x + 14, y + 1), f"{k} {name}", fill=(230, 230, 230))
         x += 14 + 7 * len(f"{k} {name}") + 10

@@ -2,7 +2,7 @@
 
     python examples/load_dataset.py DIR [--limit N]
 
-DIR is what ``python -m pipeline.render.dataset ... --out DIR`` wrote. Everything needed is in
+DIR is what ``python -m stages.dataset ... --out DIR`` wrote. Everything needed is in
 the folder itself: ``dataset.json`` (image size, the assets and their ids), ``index.jsonl``
 (one line per image: its files and asset) and one JSON label per image (schema in DIR/README.md).
 This script imports nothing from eyerig: copy it anywhere.

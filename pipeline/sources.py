@@ -10,8 +10,10 @@ The closure starts at a file and follows, transitively, every import of a ``pipe
 ``stages.*`` module (top-level or inside functions, relative or absolute, ``from`` imports of
 submodules, and the ``__init__.py`` of every package on the way) and every string constant that
 names one: ``-m pipeline.blender.render_worker`` for a Blender worker, ``"pipeline.x:Class"``
-looked up with importlib, ``pipeline/x.py`` paths. It reads the sources with :mod:`ast` and
-imports nothing, so it costs no Blender, pxr or numpy start-up.
+looked up with importlib, ``pipeline/x.py`` paths. A package whose ``__init__.py`` imports the
+modules it finds in its own folder (``pkgutil.iter_modules(__path__)``: the label writers of
+pipeline/render/formats/) brings every module of that folder. It reads the sources with
+:mod:`ast` and imports nothing, so it costs no Blender, pxr or numpy start-up.
 """
 
 from __future__ import annotations
@@ -69,6 +71,16 @@ def imported_files(path: Path, root: Path = ROOT) -> set[Path]:
     return out
 
 
+def _discovers_its_folder(tree: ast.AST) -> bool:
+    """Does a package's ``__init__`` call ``pkgutil.iter_modules(__path__)`` (a plugin folder)?"""
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                and node.func.attr == "iter_modules" and node.args
+                and isinstance(node.args[0], ast.Name) and node.args[0].id == "__path__"):
+            return True
+    return False
+
+
 def _imported_files(path: Path, root: Path) -> set[Path]:
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     pkg = ".".join(path.relative_to(root).with_suffix("").parts[:-1])
@@ -88,6 +100,8 @@ def _imported_files(path: Path, root: Path) -> set[Path]:
             if _NAME.fullmatch(text):
                 names.append(text)
     out = set()
+    if path.name == "__init__.py" and _discovers_its_folder(tree):
+        out.update(p for p in path.parent.glob("*.py") if p != path)
     for n in names:
         if n.split(".")[0].split("/")[0] not in CODE:
             continue

@@ -2,7 +2,8 @@
 
 A stage's ``main`` is wrapped by :func:`run_stage`, which turns
 :class:`pipeline.errors.ScanError` into one line on stderr and exit status 2
-(no traceback), and adds wall time, CPU time and peak memory to the stage's metrics.
+(no traceback), and writes the stage's :class:`pipeline.results.StageResult`: its metrics, and
+its timings with the wall time, CPU time and peak memory added.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import yaml
 
 from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json
+from pipeline.results import StageResult
 
 EXIT_BAD_INPUT = 2
 
@@ -115,30 +117,6 @@ def cpu_time_s() -> float:
     return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
-def is_timing_key(key) -> bool:
-    """A metrics key that measures the run (seconds, MiB): a ``s`` or ``mib`` word in its name
-    (``wall_time_s``, ``render_s_median``, ``images_per_s``, ``peak_memory_mib``)."""
-    return bool({"s", "mib"} & set(str(key).split("_")))
-
-
-def split_timings(metrics: dict) -> tuple[dict, dict]:
-    """``(results, timings)``: ``metrics`` without and with only its timing keys (nested dicts
-    split alike; a timing key's whole value goes to the timings)."""
-    results, timings = {}, {}
-    for k, v in metrics.items():
-        if is_timing_key(k):
-            timings[k] = v
-        elif isinstance(v, dict):
-            r, t = split_timings(v)
-            if r or not t:
-                results[k] = r
-            if t:
-                timings[k] = t
-        else:
-            results[k] = v
-    return results, timings
-
-
 def timings_path(metrics_path) -> Path:
     """``build/<scan>/<stage>.timings.json`` beside ``build/<scan>/<stage>.metrics.json``.
 
@@ -188,15 +166,14 @@ def stage_parser(description: str, scan_arg: str | None = None) -> argparse.Argu
     return parser
 
 
-def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
-    """Run a stage ``main(argv) -> metrics`` with the house error handling.
+def run_stage(main: Callable[[list[str]], StageResult | None], argv=None) -> int:
+    """Run a stage ``main(argv) -> StageResult`` with the house error handling.
 
-    ``main`` returns its metrics dict and the path to write them to under the key
-    ``"_path"``. What the run measured rather than what it made (every key with an ``_s``
-    or ``_mib`` word, anything under ``"_run"``, and the wall time, CPU time and peak memory added
-    here) goes to the timings file beside (:func:`split_timings`, :func:`timings_path`), so
-    the metrics file, a DVC output, has the same bytes for the same inputs. ``main`` runs with its own scratch
-    folder as ``TMPDIR`` (pipeline.io.scratch.stage_scratch), removed when it returns.
+    ``main`` returns its :class:`pipeline.results.StageResult` with the ``path`` of its metrics
+    file (or None: no metrics). The metrics go there, a DVC output with the same bytes for the
+    same inputs; the timings, with the wall time, CPU time and peak memory added here, go to the
+    timings file beside it (:func:`timings_path`). ``main`` runs with its own scratch folder as
+    ``TMPDIR`` (pipeline.io.scratch.stage_scratch), removed when it returns.
     """
     from pipeline.io.scratch import stage_scratch
 
@@ -216,7 +193,7 @@ def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
             remove_stale_siblings(Path(word))
     try:
         with stage_scratch(stage):      # its own TMPDIR (Blender, Dask), removed at exit
-            metrics = main(argv)
+            result = main(argv)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -230,14 +207,11 @@ def run_stage(main: Callable[[list[str]], dict | None], argv=None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
-    if metrics is not None:
-        path = metrics.pop("_path")
-        run = metrics.pop("_run", {})
-        results, timings = split_timings(metrics)
-        timings = {**run, **timings, "wall_time_s": round(time.perf_counter() - t0, 4),
+    if result is not None:
+        timings = {**result.timings, "wall_time_s": round(time.perf_counter() - t0, 4),
                    "cpu_time_s": round(cpu_time_s(), 4), "peak_memory_mib": round(peak_memory_mib(), 1)}
-        write_json(path, results)
-        write_json(timings_path(path), timings)
+        write_json(result.path, result.metrics)
+        write_json(timings_path(result.path), timings)
     return 0
 
 

@@ -18,7 +18,7 @@ from pipeline.io.atomic import atomic_dir
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
-def main(argv) -> dict:
+def main(argv):
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("retopo_dir", type=Path, help="build/<scan>/retopo")
     parser.add_argument("dense_dir", type=Path, help="build/<scan>/remove_eyeballs")
@@ -26,8 +26,8 @@ def main(argv) -> dict:
     args = parser.parse_args(argv)
     settings = load_settings(BakeSettings, args.params)
     with atomic_dir(args.out_dir) as tmp:
-        metrics = bake_scan(args.retopo_dir, args.dense_dir, settings, tmp)
-    return {"_path": args.metrics or default_metrics_path(args.out_dir), **metrics}
+        result = bake_scan(args.retopo_dir, args.dense_dir, settings, tmp)
+    return result.at(args.metrics or default_metrics_path(args.out_dir))
 
 
 if __name__ == "__main__":

@@ -29,14 +29,14 @@ from stages._common import read_params_file, stage_exit, stage_parser
 BLOCKS = {
     "synthetic_head": "pipeline.synthetic_head:SyntheticHeadSettings",
     "eyeball": "pipeline.eyeball.geometry:EyeballSettings",
-    "ingest": "pipeline.geometry.ingest:IngestSettings",
+    "ingest": "pipeline.ingest.ingest:IngestSettings",
     "remove_eyeballs": "pipeline.geometry.remove_eyeballs:EyeSettings",
     "retopo": "pipeline.geometry.retopo:RetopoSettings",
     "bake": "pipeline.bake.bake:BakeSettings",
     "snap": "pipeline.geometry.snap:SnapSettings",
     "rig": "pipeline.rig.lids:RigSettings",
     "usd": "pipeline.usd.asset:UsdSettings",
-    "render": "pipeline.render.sampling:RenderSettings",
+    "render": "pipeline.render.settings:RenderSettings",
 }
 OK_TEXT = "params.yaml checked: scan names safe, every block valid\n"
 

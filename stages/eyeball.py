@@ -2,7 +2,7 @@
 
     python -m stages.eyeball rigged_assets/eyeball --metrics build/eyeball.metrics.json
 
-Builds the eyeball (pipeline/eyeball), writes ``eyeball.usda`` and
+Builds the eyeball (pipeline/eyeball; the asset: pipeline/usd/eyeball_asset.py), writes ``eyeball.usda`` and
 ``textures/*.png`` (4 iris colours, 2 veins layers, sclera bump height + normal map), validates the asset
 (pipeline/usd/validate.py; any error fails the stage), and, unless
 ``preview: false``, renders ``preview.png`` (Cycles contact sheet) in a Blender
@@ -11,87 +11,24 @@ worker subprocess. Settings: the ``eyeball:`` block of params.yaml.
 
 from __future__ import annotations
 
-import sys
-import time
 from pathlib import Path
 
-from PIL import Image
-
 from pipeline.eyeball import geometry as geo
-from pipeline.eyeball import textures as tex
-from pipeline.eyeball.checks import seam_dihedral_report
 from pipeline.io.atomic import atomic_dir
-from pipeline.io.png import strip_png_metadata
-from pipeline.io.scratch import run_child
+from pipeline.usd.eyeball_asset import build_eyeball_asset, render_eyeball_preview
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
-def build_asset(folder: Path, settings: geo.EyeballSettings) -> dict:
-    """Write eyeball.usda + textures into ``folder``; returns metrics (no preview).
-
-    ``settings``: the ``eyeball:`` block (EyeballSettings or its raw mapping)."""
-    if not isinstance(settings, geo.EyeballSettings):
-        settings = geo.EyeballSettings.from_params(settings)
-    from pipeline.usd.eyeball import write_eyeball_usd
-    from pipeline.usd.validate import validate_stage_report
-
-    t0 = time.perf_counter()
-    p = settings.geometry
-    eye = geo.build_eyeball(p, settings.resolution)
-    t_geo = time.perf_counter() - t0
-    t1 = time.perf_counter()
-    (folder / "textures").mkdir(parents=True, exist_ok=True)
-    images = tex.texture_set(settings.texture_seed, settings.iris_texture_px, settings.sclera_texture_px,
-                             p, eye.resolution)
-    for name, img in images.items():
-        Image.fromarray(img).save(folder / "textures" / name, optimize=False, compress_level=3)
-    t_tex = time.perf_counter() - t1
-    t2 = time.perf_counter()
-    usda = write_eyeball_usd(eye, folder / "eyeball.usda")
-    t_usd = time.perf_counter() - t2
-    t3 = time.perf_counter()
-    report = validate_stage_report(usda)
-    t_val = time.perf_counter() - t3
-    if report["errors"]:
-        raise RuntimeError("eyeball asset failed validation:\n  " + "\n  ".join(report["errors"]))
-    seam = seam_dihedral_report(p, eye.resolution)
-    return {"resolution": eye.resolution.__dict__, **eye.stats(),
-            "geometry_s": round(t_geo, 4), "textures_s": round(t_tex, 4), "usd_write_s": round(t_usd, 4),
-            "validate_s": round(t_val, 4), "validation_errors": len(report["errors"]),
-            "validation_warnings": len(report["warnings"]),
-            "seam_dihedral_deg": round(seam["seam_max_deg"], 3),
-            "max_dihedral_elsewhere_deg": round(max(seam["cornea_max_deg"], seam["sclera_max_deg"]), 3)}
-
-
-def render_preview(folder: Path, settings: geo.EyeballSettings, timings: Path) -> None:
-    """Run the Blender preview worker (subprocess) on the asset in ``folder``."""
-    cmd = [sys.executable, "-m", "pipeline.blender.eyeball_preview", str(folder / "eyeball.usda"),
-           str(folder / "preview.png"), "--size", str(settings.preview_px),
-           "--samples", str(settings.preview_samples), "--json", str(timings)]
-    res = run_child(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
-    if res.returncode != 0:
-        raise RuntimeError("preview render failed:\n" + res.stdout[-2000:] + res.stderr[-2000:])
-
-
-def main(argv) -> dict:
-    import json
-    import tempfile
-
+def main(argv):
     ap = stage_parser(__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="output folder (rigged_assets/eyeball)")
     args = ap.parse_args(argv)
     settings = load_settings(geo.EyeballSettings, args.params)   # checked before anything is written
     with atomic_dir(args.out) as tmp:
-        metrics = build_asset(tmp, settings)
+        result = build_eyeball_asset(tmp, settings)
         if settings.preview:
-            with tempfile.TemporaryDirectory() as td:
-                tj = Path(td) / "preview.json"
-                t = time.perf_counter()
-                render_preview(tmp, settings, tj)
-                strip_png_metadata(tmp / "preview.png")     # Blender's time/text chunks: same pixels, same bytes
-                metrics["preview"] = json.loads(tj.read_text())
-                metrics["preview"]["wall_s"] = round(time.perf_counter() - t, 3)
-    return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
+            result += render_eyeball_preview(tmp, settings)
+    return result.at(args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

@@ -24,10 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.geometry.ingest import IngestSettings, ingest_scan
-from pipeline.io.atomic import atomic_dir, write_json
+from pipeline.ingest.ingest import IngestSettings, ingest_scan
+from pipeline.io.atomic import atomic_dir
 from pipeline.io.meshfile import save_mesh
 from pipeline.io.scan import one_line
+from pipeline.io.scan_file import write_scan_record
+from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
@@ -45,7 +47,7 @@ def bound_memory(max_mb: float) -> None:
     from PIL import Image
 
     import pipeline.geometry.frame  # noqa: F401
-    import pipeline.geometry.repair  # noqa: F401
+    import pipeline.ingest.repair  # noqa: F401
 
     Image.init()
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
@@ -64,7 +66,7 @@ def quiet_library_logs() -> None:
         logging.getLogger(name).addHandler(logging.NullHandler())
 
 
-def main(argv, bound: bool = False) -> dict:
+def main(argv, bound: bool = False) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0], scan_arg="scan_dir")
     parser.add_argument("scan_dir", help="raw_scans/<name>: scan.yaml + mesh [+ texture]")
     parser.add_argument("out_dir", help="build/<name>/ingest")
@@ -84,14 +86,13 @@ def main(argv, bound: bool = False) -> dict:
                     (tmp / "texture.png").write_bytes(result.texture_png_bytes)
                 elif result.texture is not None:
                     result.texture.save(tmp / "texture.png", format="PNG", compress_level=3)
-                # later stages name the scan folder, not build/, when the scan is at fault
-                write_json(tmp / "scan.json", {**result.scan, "folder": str(args.scan_dir)})
+                write_scan_record(tmp / "scan.json", result.scan, args.scan_dir)
     except MemoryError:
         raise ScanError(args.scan_dir, f"ran out of memory (ingest is bounded to {settings.max_memory_mb:g} MiB, "
                                        "ingest.max_memory_mb); a file in the folder is over the limits") from None
     except OverflowError as exc:
         raise ScanError(args.scan_dir, f"a number in the scan is too large ({one_line(exc)[:80]})") from None
-    return {"_path": args.metrics or default_metrics_path(out), **result.metrics}
+    return StageResult(result.metrics).at(args.metrics or default_metrics_path(out))   # all determined by the scan
 
 
 if __name__ == "__main__":

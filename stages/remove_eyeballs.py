@@ -16,7 +16,6 @@ published. See pipeline/geometry/eye_place.py, eye_prior.py, remove_eyeballs.py.
 
 from __future__ import annotations
 
-import json
 import shutil
 import sys
 from pathlib import Path
@@ -29,34 +28,27 @@ from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
+from pipeline.io.scan_file import read_scan_record
+from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
 def _read(ingest: Path):
-    mesh_path, scan_path = ingest / "mesh.npz", ingest / "scan.json"
-    for p in (mesh_path, scan_path):
-        if not p.is_file():
-            raise ScanError(p, "not found")
+    mesh_path = ingest / "mesh.npz"
+    if not mesh_path.is_file():
+        raise ScanError(mesh_path, "not found")
+    scan = read_scan_record(ingest / "scan.json")
     mesh = read_stage_mesh(mesh_path)
-    try:
-        scan = json.loads(scan_path.read_text(encoding="utf-8"))
-        hints = {s: np.asarray(scan["eyes"][s]["hint"], dtype=np.float64).reshape(3)
-                 for s in ("left", "right")}
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ScanError(scan_path, f"has no valid eye hints ({type(exc).__name__})") from None
-    if not all(np.isfinite(h).all() for h in hints.values()):
-        raise ScanError(scan_path, "eye hints are not finite")
-    folder = scan.get("folder") if isinstance(scan.get("folder"), str) else None
     texture = None
     tex_path = ingest / "texture.png"
     if tex_path.is_file():
         from PIL import Image
         with Image.open(tex_path) as im:
             texture = np.asarray(im.convert("RGB"))
-    return mesh, hints, texture, folder or str(mesh_path), tex_path
+    return mesh, scan.hints, texture, scan.folder or str(mesh_path), tex_path
 
 
-def main(argv) -> dict:
+def main(argv) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("ingest", type=Path, help="build/<scan>/ingest")
     parser.add_argument("out", type=Path, help="build/<scan>/remove_eyeballs")
@@ -77,7 +69,7 @@ def main(argv) -> dict:
         write_eyes(tmp / "eyes.json", res.eyes)
         if texture is not None:
             shutil.copyfile(tex_path, tmp / "texture.png")
-    return {"_path": args.metrics or default_metrics_path(args.out), **res.metrics}
+    return StageResult.from_mixed(res.metrics, args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

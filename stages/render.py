@@ -23,7 +23,7 @@ from pathlib import Path
 from stages._common import default_metrics_path, load_params, stage_exit, stage_parser
 
 
-def main(argv) -> dict:
+def main(argv):
     ap = stage_parser(__doc__.splitlines()[0])
     ap.add_argument("asset", type=Path, help="rigged_assets/<scan> (holds <scan>.usda)")
     ap.add_argument("rig", type=Path, help="build/<scan>/rig (rig.npz + rig.json)")
@@ -38,7 +38,7 @@ def main(argv) -> dict:
 
     from pipeline.render.asset import load_render_asset
     from pipeline.render.run import check_render_out, render_scan
-    from pipeline.render.sampling import RenderSettings
+    from pipeline.render.settings import RenderSettings
     from pipeline.render.shard import dashboard_text
 
     check_render_out(args.out)            # someone else's folder: refused before any work
@@ -53,13 +53,13 @@ def main(argv) -> dict:
     def dashboard(url):
         print(dashboard_text(url), file=sys.stderr)
 
-    metrics = render_scan(asset, settings, args.out, source=args.asset, scheduler=args.scheduler,
-                          progress=not args.no_progress, on_dashboard=dashboard if args.dashboard else None)
-    run = metrics["_run"]
+    result = render_scan(asset, settings, args.out, source=args.asset, scheduler=args.scheduler,
+                         progress=not args.no_progress, on_dashboard=dashboard if args.dashboard else None)
+    run = result.timings
     if run["stale_config"] and run["removed_files"]:
         print(f"note: {args.out}: the render config changed: {run['removed_files']} files of the "
               "earlier renders were removed", file=sys.stderr)
-    return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
+    return result.at(args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

@@ -19,10 +19,11 @@ from pipeline.geometry.retopo import RetopoSettings, retopologize
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import read_eye_loops
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
+from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
-def main(argv) -> dict:
+def main(argv) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("in_dir", help="build/<scan>/remove_eyeballs")
     parser.add_argument("out_dir", help="build/<scan>/retopo")
@@ -47,7 +48,7 @@ def main(argv) -> dict:
         arrays.update(poly_counts=result.poly_counts, poly_indices=result.poly_indices)
     with atomic_dir(out) as tmp:
         save_mesh(tmp / "mesh.npz", **arrays)
-    return {"_path": args.metrics or default_metrics_path(out), **result.metrics}
+    return StageResult.from_mixed(result.metrics, args.metrics or default_metrics_path(out))
 
 
 if __name__ == "__main__":

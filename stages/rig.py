@@ -19,6 +19,7 @@ from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import read_stage_mesh
 from pipeline.io.rig_file import write_rig
 from pipeline.usd.eyeball import read_eyeball_params
+from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
@@ -29,7 +30,7 @@ def _read_inputs(snap: Path):
     return mesh, eyes, mesh_path, eyes_path
 
 
-def main(argv) -> dict:
+def main(argv) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("snap", type=Path, help="build/<scan>/snap")
     parser.add_argument("out", type=Path, help="build/<scan>/rig")
@@ -49,7 +50,7 @@ def main(argv) -> dict:
     arrays, doc, metrics = build_rig(mesh, eyes, params, mesh_path, eyes_path, profile)
     with atomic_dir(args.out) as tmp:
         write_rig(tmp, arrays, doc)
-    return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
+    return StageResult.from_mixed(metrics, args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

@@ -22,10 +22,11 @@ from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import read_eyes, write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.usd.eyeball import read_eyeball_params
+from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
-def main(argv) -> dict:
+def main(argv) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("bake", type=Path, help="build/<scan>/bake (mesh.npz with loop_left/right)")
     parser.add_argument("remove_eyeballs", type=Path, help="build/<scan>/remove_eyeballs (eyes.json)")
@@ -55,7 +56,7 @@ def main(argv) -> dict:
     with atomic_dir(args.out) as tmp:
         save_mesh(tmp / "mesh.npz", **out)
         write_eyes(tmp / "eyes.json", doc)
-    return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
+    return StageResult.from_mixed(metrics, args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

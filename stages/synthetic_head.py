@@ -14,11 +14,12 @@ import time
 from pathlib import Path
 
 from pipeline.io.atomic import atomic_dir
+from pipeline.results import StageResult
 from pipeline.synthetic_head import SyntheticHeadSettings, make_synthetic_head, write_scan_folder
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
-def main(argv) -> dict:
+def main(argv) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0], scan_arg="out_dir")
     parser.add_argument("out_dir", help="scan folder to write (replaced atomically)")
     args = parser.parse_args(argv)
@@ -32,13 +33,10 @@ def main(argv) -> dict:
     t2 = time.perf_counter()
     gt = head.ground_truth
     metrics = {
-        "_path": args.metrics or default_metrics_path(out),
         "n_vertices": int(len(head.V)),
         "n_faces": int(len(head.F)),
         "target_triangles": settings.target_triangles,
         "texture_size": settings.texture_size,
-        "generate_s": round(t1 - t0, 4),
-        "write_s": round(t2 - t1, 4),
         "skin_detail_amplitude_mm": gt["skin_detail_amplitude_mm"],
     }
     for side, eye in gt["eyes"].items():
@@ -46,7 +44,8 @@ def main(argv) -> dict:
         margin = eye["eyelid_margin"]
         metrics[f"{side}_margin_to_sphere_max_mm"] = margin["distance_to_eyeball_sphere_mm"]["max"]
         metrics[f"{side}_opening_height_mm"] = margin["height_mm"]
-    return metrics
+    timings = {"generate_s": round(t1 - t0, 4), "write_s": round(t2 - t1, 4)}
+    return StageResult(metrics, timings, Path(args.metrics or default_metrics_path(out)))
 
 
 if __name__ == "__main__":

@@ -33,7 +33,7 @@ def _all_params(path) -> dict:
     return out
 
 
-def main(argv) -> dict:
+def main(argv):
     parser = stage_parser(__doc__.splitlines()[0], scan_arg="out")
     for a in ("snap", "bake", "rig", "ingest", "eyeball", "out"):
         parser.add_argument(a, type=Path)
@@ -44,13 +44,11 @@ def main(argv) -> dict:
     inp = read_inputs(args.snap, args.bake, args.rig, args.ingest, args.eyeball)
     name = scan_folder_name(args.out)
     with atomic_dir(args.out) as tmp:
-        metrics = build(inp, Path(tmp), name, _all_params(args.params),
-                        package=settings.usdz)
+        result = build(inp, Path(tmp), name, _all_params(args.params), package=settings.usdz)
         if settings.preview:
-            metrics.update(render_preview(Path(tmp) / f"{name}.usda", args.rig / "rig.npz",
-                                          Path(tmp) / "preview.png", settings.preview_px,
-                                          settings.preview_samples))
-    return {"_path": args.metrics or default_metrics_path(args.out), **metrics}
+            result += render_preview(Path(tmp) / f"{name}.usda", args.rig / "rig.npz", Path(tmp) / "preview.png",
+                                     settings.preview_px, settings.preview_samples)
+    return result.at(args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conftest import make_inputs, usd_argv
+from fixtures import make_inputs, usd_argv
 from pipeline.blender.asset_preview import LABEL_H, PAD, TILE_ASPECT, sheet_size, tile_boxes
 from stages import usd as usd_stage
 from stages._common import read_stage_metrics, run_stage

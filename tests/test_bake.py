@@ -12,9 +12,9 @@ import pytest
 import trimesh
 from PIL import Image
 
-from conftest import face_patch
+from fixtures import face_patch
 from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_error, subdivide_displaced
-from pipeline.bake.exr import preview_16bit, read_exr, write_exr
+from pipeline.io.exr import preview_16bit, read_exr, write_exr
 from pipeline.bake.uv import dilate, rasterize, sample_bilinear, unwrap
 from pipeline.io.bake_file import read_bake, read_displacement
 from pipeline.io.eyes_file import write_eyes
@@ -199,30 +199,36 @@ def test_falloff_zero_at_loop_and_padding():
     assert m.sum() > b.mask.sum() and np.all(img[m] == 1.0)
 
 
-def test_forked_weights_and_padding_give_the_same_maps(monkeypatch):
-    # bake_maps makes the falloff weights and padding in a forked child while it casts rays;
-    # made in this process instead (the fork's fallback), the maps are the same to the bit
-    import pipeline.bake.bake as bk
+def test_stage_steps_side_by_side_give_the_algorithms_bytes(tmp_path, monkeypatch):
+    """bake_scan runs bake_maps' steps with the independent ones in forked children
+    (pipeline/fork.py); switched off (EYERIG_SERIAL=1) every file it writes is the same bytes,
+    and its maps are bake_maps' own."""
+    from pipeline.bake.build import bake_scan
 
     Vd, Fd = bumpy_sphere(5)
     V, F = smooth_sphere(3)
     front = np.argsort(-V[:, 2])[:6]
-    s = BakeSettings(resolution=256, falloff_mm=3.0, max_distance_mm=2.0, padding_texels=4)
-    UV, FUV = unwrap(V, F, 256, 2)
-    forked = bake_maps(V, F, {"left": front}, {"V": Vd, "F": Fd}, None, s, UV=UV, FUV=FUV)
-    calls = []
-
-    def here(fn, *args, **kwargs):
-        calls.append(fn.__name__)
-        return fn(*args, **kwargs)
-
-    monkeypatch.setattr(bk, "fork_call", here)
-    monkeypatch.setattr(bk, "fork_result", lambda value: (value, 0.0))
-    local = bake_maps(V, F, {"left": front}, {"V": Vd, "F": Fd}, None, s, UV=UV, FUV=FUV)
-    assert calls == ["_weights_and_padding"]
-    assert np.array_equal(forked.displacement, local.displacement)
-    assert np.array_equal(forked.mask, local.mask)
-    assert (np.abs(local.displacement[local.mask]) < 1e-6).mean() < 0.9      # not an empty bake
+    low, dense = tmp_path / "retopo", tmp_path / "dense"
+    low.mkdir()
+    dense.mkdir()
+    back = np.argsort(V[:, 2])[:6]
+    save_mesh(low / "mesh.npz", V=V, F=F, loop_left=front, loop_right=back)
+    save_mesh(dense / "mesh.npz", V=Vd, F=Fd, VC=(np.abs(Vd) * 40 % 255).astype(np.uint8))
+    s = BakeSettings(resolution=128, falloff_mm=3.0, max_distance_mm=2.0, padding_texels=4, metric_samples=2000)
+    outs = {}
+    for serial in ("0", "1"):
+        monkeypatch.setenv("EYERIG_SERIAL", serial)
+        out = tmp_path / f"bake{serial}"
+        out.mkdir()
+        outs[serial] = (bake_scan(low, dense, s, out), {p.name: p.read_bytes() for p in out.iterdir()})
+    (a, fa), (b, fb) = outs["0"], outs["1"]
+    assert a.metrics == b.metrics and fa == fb and len(fa) >= 4
+    assert "timings_s" in a.timings and not any("time" in k for k in a.metrics)
+    m = load_mesh(tmp_path / "bake0" / "mesh.npz")
+    ref = bake_maps(V, F, {"left": front, "right": back}, {"V": Vd, "F": Fd, "VC": load_mesh(dense / "mesh.npz")["VC"]},
+                    None, s, UV=m["UV"], FUV=m["FUV"])
+    assert np.array_equal(ref.displacement, read_displacement(read_bake(tmp_path / "bake0").displacement))
+    assert (np.abs(ref.displacement[ref.mask]) < 1e-6).mean() < 0.9      # not an empty bake
 
 
 def test_sample_bilinear_pixel_centres():

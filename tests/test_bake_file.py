@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pipeline.bake.exr import write_exr
+from pipeline.io.exr import write_exr
 from pipeline.errors import ScanError
 from pipeline.io.bake_file import SCHEMA, read_bake, read_displacement, write_bake
 

@@ -60,7 +60,7 @@ def test_iris_diameter_is_the_major_axis_of_a_tilted_circle():
 
 
 def test_james_annotated_corners(extra_scan):
-    # the widths quoted in the README (Known gaps: eye proportions on the real scans)
+    # the widths quoted in docs/known-gaps.md (eye proportions on the real scans)
     c = truth_corners(extra_scan("james"))
     width = {s: float(np.linalg.norm(c[s]["medial"] - c[s]["lateral"])) for s in ("left", "right")}
     assert width["left"] == pytest.approx(31.30, abs=0.01)

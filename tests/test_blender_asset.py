@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import EYES, make_inputs, usd_argv
+from fixtures import EYES, make_inputs, usd_argv, usd_roundtrip
 from stages import usd as usd_stage
 from stages._common import run_stage
 
@@ -33,14 +30,7 @@ def imported(tmp_path_factory):
     usda = inp["out"] / "tiny.usda"
     res = {}
     for key, pose in (("rest", None), ("posed", {"eye_left": [1, 0, 0, POSE_DEG]})):
-        out = root / f"{key}.npz"
-        cmd = [sys.executable, "-m", "pipeline.blender.usd_roundtrip", str(usda), str(out)]
-        if pose:
-            cmd.append(json.dumps(pose))
-        r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
-        assert r.returncode == 0, r.stderr[-2000:]
-        data = dict(np.load(out))
-        res[key] = (data, json.loads(str(data["meta"])))
+        res[key] = usd_roundtrip(usda, root / f"{key}.npz", pose)
     return inp, res
 
 

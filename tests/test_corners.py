@@ -18,7 +18,7 @@ from pipeline.geometry import snap as sn
 from pipeline.rig.eye_frame import eye_frames
 from pipeline.rig.lid_shapes import build_lid_shapes
 from pipeline.rig.sweep import sweep_check
-from test_rig import two_eye_region
+from fixtures.rig import two_eye_region
 
 R = 12.0
 

@@ -1,7 +1,7 @@
-"""``python -m pipeline.render.dataset``: several assets mixed by weight in one resumable render;
+"""``python -m stages.dataset``: several assets mixed by weight in one resumable render;
 the dataset card; ``examples/load_dataset.py``.
 
-Two tiny assets (conftest.make_render_asset, different names and licences) render 24 x 16 px
+Two tiny assets (fixtures.make_render_asset, different names and licences) render 24 x 16 px
 images at 1 sample. The mix is tested exactly: counts come from largest-remainder allocation,
 so every asset gets its quota rounded up or down, never a sampled count.
 """
@@ -23,11 +23,11 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import make_render_asset
+from fixtures import make_render_asset
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.render import labels as lb
 from pipeline.render import mix
-from pipeline.render.sampling import MAX_IMAGES
+from pipeline.render.settings import MAX_IMAGES
 
 ROOT = Path(__file__).resolve().parents[1]
 LOADER = ROOT / "examples" / "load_dataset.py"
@@ -98,7 +98,7 @@ def two(tmp_path_factory):
 
 
 def _cmd(two, out, *extra, n=6, assets=None):
-    return [sys.executable, "-m", "pipeline.render.dataset", "--assets",
+    return [sys.executable, "-m", "stages.dataset", "--assets",
             *map(str, two["assets"] if assets is None else assets), "--n", str(n), "--out", str(out),
             "--params", str(two["params"]), "--no-progress", *extra]
 
@@ -124,7 +124,7 @@ def test_bad_inputs_exit_2_with_one_line_and_nothing_written(two, tmp_path):
         (_cmd(two, out, "--weights", "1", "-1"), "--weights: weight 2 must be a finite number > 0"),
         (_cmd(two, out, "--preset", "nope"), "render.preset must be one of"),
         (_cmd(two, out, assets=[two["assets"][0], two["assets"][0]]), "asset name 'alpha' is also the name of"),
-        ([sys.executable, "-m", "pipeline.render.dataset", "--assets", str(two["assets"][0]), "--n", "6"],
+        ([sys.executable, "-m", "stages.dataset", "--assets", str(two["assets"][0]), "--n", "6"],
          "the following arguments are required: --out"),
     ]
     for cmd, message in cases:

@@ -68,12 +68,12 @@ def test_every_stage_lists_its_import_closure():
 def test_the_closure_follows_function_imports_strings_and_workers():
     render = import_closure("render")
     assert "pipeline/blender/render_worker.py" in render           # -m pipeline.blender.render_worker
-    assert "pipeline/render/sampling.py" in render                 # imported inside main()
+    assert "pipeline/render/settings.py" in render                 # imported inside main()
     assert "stages/_common.py" in render and "pipeline/__init__.py" in render
     usd = import_closure("usd")
     assert "pipeline/blender/asset_preview.py" in usd and "pipeline/usd/validate.py" in usd
     assert "pipeline/settings.py" in import_closure("check_params")
-    assert "pipeline/render/sampling.py" in import_closure("check_params")   # "module:Class" strings
+    assert "pipeline/render/settings.py" in import_closure("check_params")   # "module:Class" strings
     assert covered("pipeline/usd/stage.py", ["pipeline/usd"]) and not covered("pipeline/usdx.py", ["pipeline/usd"])
     assert "pipeline/rig" in compact({f"pipeline/rig/{f.name}" for f in (ROOT / "pipeline/rig").glob("*.py")})
 
@@ -109,7 +109,8 @@ def test_editing_any_module_the_render_stage_runs_changes_the_render_fingerprint
     import numpy as np
 
     from pipeline.render import asset as ra
-    from pipeline.render import run, sampling
+    from pipeline.render import run
+    from pipeline.render.settings import RenderSettings
 
     copy = _copy_code(tmp_path / "code")
     monkeypatch.setattr(sources, "ROOT", copy)
@@ -122,7 +123,7 @@ def test_editing_any_module_the_render_stage_runs_changes_the_render_fingerprint
     closure = sorted(import_closure("render"))
     assert len(closure) > 40
     before = asset.fingerprint()
-    for rel in closure + ["pipeline/render/dataset.py"]:
+    for rel in closure + ["pipeline/render/dataset.py", "stages/dataset.py"]:
         f = copy / rel
         text = f.read_bytes()
         f.write_bytes(text + b"\n# edited\n")
@@ -133,7 +134,7 @@ def test_editing_any_module_the_render_stage_runs_changes_the_render_fingerprint
         assert changed == (rel in closure), rel
     assert asset.fingerprint() == before
     # the settings are the config hash's other half
-    s0, s1 = sampling.RenderSettings.from_dict({}), sampling.RenderSettings.from_dict({"seed": 1})
+    s0, s1 = RenderSettings.from_dict({}), RenderSettings.from_dict({"seed": 1})
     assert run.config_hash(s0, before) != run.config_hash(s1, before)
 
 

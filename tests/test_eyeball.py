@@ -458,7 +458,7 @@ def _eyeball_limits(expensive: bool):
 
 def _build_at(tmp_path, key, value):
     from pipeline.settings import SettingsError
-    from stages.eyeball import build_asset
+    from pipeline.usd.eyeball_asset import build_eyeball_asset
 
     small = {"resolution": "low", "iris_texture_px": 16, "sclera_texture_px": [16, 16], "preview": False}
     raw = dict(small)
@@ -471,7 +471,7 @@ def _build_at(tmp_path, key, value):
     except SettingsError as exc:           # a limit that collides with another default: one line
         assert "\n" not in str(exc)
         return
-    build_asset(tmp_path, s)              # builds, writes and validates (an error raises)
+    build_eyeball_asset(tmp_path, s)              # builds, writes and validates (an error raises)
     assert (tmp_path / "eyeball.usda").is_file()
 
 

@@ -7,11 +7,11 @@ import itertools
 import numpy as np
 import pytest
 
-from conftest import head_mesh, write_ply, write_sidecar
+from fixtures import head_mesh, write_ply, write_sidecar
 from pipeline.errors import ScanError
 from pipeline.geometry.frame import (UNITS_TO_MM, axis_vector, check_eye_layout, check_float32, check_head_size,
                                      from_head_frame, scan_to_head_rotation, to_head_frame)
-from pipeline.geometry.ingest import IngestSettings, ingest_scan
+from pipeline.ingest.ingest import IngestSettings, ingest_scan
 
 AXES = ["+X", "-X", "+Y", "-Y", "+Z", "-Z"]
 PAIRS = [(u, f) for u, f in itertools.product(AXES, AXES) if u[1] != f[1]]

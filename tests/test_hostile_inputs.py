@@ -17,9 +17,8 @@ import numpy as np
 import pytest
 import yaml
 
-from benchmarks.bench_hostile import (ACCEPTED, CASES, REFUSE_PEAK_MIB, REFUSE_WALL_S, a_obj_blank_padded,
-                                      build_case, run_ingest)
-from conftest import head_mesh, make_scan, write_obj, write_sidecar
+from fixtures import build_case, head_mesh, make_scan, run_ingest, write_obj, write_sidecar
+from fixtures.hostile import ACCEPTED, CASES, REFUSE_PEAK_MIB, REFUSE_WALL_S, a_obj_blank_padded
 from pipeline.errors import ScanError
 from pipeline.io.meshfile import load_mesh
 
@@ -144,7 +143,7 @@ def test_usd_metadata_refuses_nul():
 
 
 def test_repair_ignores_zero_area_faces_in_eye_damage_but_not_real_faces():
-    from pipeline.geometry.repair import RepairSettings, repair_mesh
+    from pipeline.ingest.repair import RepairSettings, repair_mesh
 
     V, F, hints = head_mesh()
     near = F[(np.linalg.norm(V - hints["left"], axis=1) <= 20.0)[F].any(axis=1)]
@@ -163,7 +162,7 @@ def test_repair_ignores_zero_area_faces_in_eye_damage_but_not_real_faces():
     ({"max_vertice": 10}, "ingest.max_vertice is an unknown key"),
 ])
 def test_bad_ingest_params_one_line(tmp_path, capsys, params, problem):
-    from conftest import ingest
+    from fixtures import ingest
 
     make_scan(tmp_path / "scan")
     path = tmp_path / "p.yaml"

@@ -1,6 +1,6 @@
 """Stage ingest: good inputs in every format, repairs, real scans.
 
-The scan-folder builders (a head-sized ellipsoid with two eye bumps) live in ``conftest.py``.
+The scan-folder builders (a head-sized ellipsoid with two eye bumps) live in tests/fixtures/scans.py.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import (ROOT, head_mesh, ingest, make_scan, sphere_uv, write_obj, write_ply, write_png,
+from fixtures import (ROOT, head_mesh, ingest, make_scan, sphere_uv, write_obj, write_ply, write_png,
                       write_sidecar)
 from pipeline.io.meshfile import load_mesh
 
@@ -290,7 +290,7 @@ def test_synthetic_head_if_present(tmp_path):
 # ---------------------------------------------------------------------------- library pieces
 
 def test_closest_point_matches_dense_sampling():
-    from pipeline.geometry.repair import closest_point_on_triangles, point_surface_distance
+    from pipeline.ingest.repair import closest_point_on_triangles, point_surface_distance
 
     rng = np.random.default_rng(3)
     A, B, C = (rng.normal(0, 1, (200, 3)) for _ in range(3))
@@ -382,7 +382,7 @@ def test_obj_fast_parser_agrees_with_line_parser(name, lines, fast):
 
 
 def test_edge_stats_counts():
-    from pipeline.geometry.repair import edge_stats
+    from pipeline.ingest.repair import edge_stats
 
     F = np.array([[0, 1, 2], [0, 2, 3]])                  # two triangles, consistent, 4 boundary edges
     assert edge_stats(F, 4) == {"edges": 5, "boundary": 4, "non_manifold": 0, "inconsistent_winding": 0}

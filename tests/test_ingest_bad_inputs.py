@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import (ROOT, edit_yaml, head_mesh, ingest, make_scan, png_header_only, sphere_uv, write_obj, write_ply,
+from fixtures import (ROOT, edit_yaml, head_mesh, ingest, make_scan, png_header_only, sphere_uv, write_obj, write_ply,
                       write_png, write_sidecar)
 
 

@@ -1,8 +1,8 @@
-"""Label formats (pipeline/render/label_formats.py): UnityEyes JSON read by a transcription of
+"""Label formats (pipeline/render/formats/): UnityEyes JSON read by a transcription of
 GazeML's loader (tests/gazeml_unityeyes.py), 300-W .pts, the ``unityeyes`` preset's framing,
 and ``render.label_formats`` validation.
 
-Labels come from the small constructed asset of conftest.make_render_asset, sampled without
+Labels come from the small constructed asset of fixtures.make_render_asset, sampled without
 Blender; one Blender test runs the stage with every format on two images.
 """
 
@@ -19,16 +19,20 @@ import pytest
 from PIL import Image
 
 import gazeml_unityeyes as gz
-from conftest import make_render_asset
+from fixtures import make_render_asset
 from pipeline.errors import ScanError
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.io.pts_file import pts_name, pts_text, read_pts, write_pts
 from pipeline.io.unityeyes_file import read_unityeyes, write_unityeyes
 from pipeline.render import asset as ra
-from pipeline.render import label_formats as lf
+from pipeline.render import camera as cam
+from pipeline.render import formats as lf
 from pipeline.render import labels as lb
 from pipeline.render import run as rr
 from pipeline.render import sampling as sp
+from pipeline.render.formats import pts as pts_format
+from pipeline.render.formats import unityeyes as uef
+from pipeline.render.settings import RenderSettings
 from pipeline.settings import SettingsError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,7 +47,7 @@ def tiny(tmp_path_factory):
 
 
 def _settings(**kw):
-    return sp.RenderSettings.from_params({"preset": "unityeyes", "label_formats": ALL, **kw})
+    return RenderSettings.from_params({"preset": "unityeyes", "label_formats": ALL, **kw})
 
 
 def _samples(tiny, s, n):
@@ -60,7 +64,7 @@ def _stored_doc(tmp_path, label, job, png_size=(8, 8)):
     """The UnityEyes pair written and read back (a stand-in PNG)."""
     png = tmp_path / "img.png"
     Image.new("RGB", png_size, (90, 60, 40)).save(png)
-    paths = write_unityeyes(tmp_path / "unityeyes", label["index"], lf.unityeyes_document(label, job["unityeyes"]),
+    paths = write_unityeyes(tmp_path / "unityeyes", label["index"], uef.unityeyes_document(label, job["unityeyes"]),
                             png)
     assert [p.name for p in paths] == [f"{label['index']:06d}.jpg", f"{label['index']:06d}.json"]
     return read_unityeyes(paths[1])
@@ -77,22 +81,22 @@ def _angle_deg(a, b) -> float:
 def test_unityeyes_preset_and_label_formats_settings():
     s = _settings()
     assert (s.width, s.height, s.eyes, s.center_jitter_mm, s.camera_distance_mm) == (512, 384, ("left",), 0.0, 100.0)
-    assert s.iris_distance_px == lf.GAZEML_EYEBALL_RADIUS_PX and s.label_formats == tuple(ALL)
+    assert s.iris_distance_px == uef.GAZEML_EYEBALL_RADIUS_PX and s.label_formats == tuple(ALL)
     assert s.hashed()["label_formats"] == ALL                      # a format change re-renders
-    d = sp.RenderSettings.from_params({})
+    d = RenderSettings.from_params({})
     assert d.label_formats == ("eyerig",) and d.iris_distance_px is None
-    assert sp.RenderSettings.from_params({"preset": "unityeyes", "width": 640, "height": 480}).width == 640
+    assert RenderSettings.from_params({"preset": "unityeyes", "width": 640, "height": 480}).width == 640
 
 
 @pytest.mark.parametrize("formats, message", [
-    (["eyerig", "coco"], "render.label_formats[1] must be one of 'eyerig', 'unityeyes', 'pts' (got 'coco')"),
+    (["eyerig", "coco"], "render.label_formats[1] must be one of 'eyerig', 'pts', 'unityeyes' (got 'coco')"),
     (["unityeyes"], "render.label_formats must list eyerig"),
     (["eyerig", "pts", "pts"], "each format once"),
     ("eyerig", "render.label_formats must be a list"),
 ])
 def test_bad_label_formats_are_one_line(formats, message):
     with pytest.raises(SettingsError) as ei:
-        sp.RenderSettings.from_params({"label_formats": formats})
+        RenderSettings.from_params({"label_formats": formats})
     assert message in str(ei.value) and "\n" not in str(ei.value)
 
 
@@ -100,7 +104,7 @@ def test_unityeyes_framing_refuses_a_framing_shift():
     """params.yaml lists center_jitter_mm: 1.0, which would override the preset's 0 and move the
     eyeball off the image centre that GazeML assumes: refused, saying what to do."""
     with pytest.raises(SettingsError) as ei:
-        sp.RenderSettings.from_params({"preset": "unityeyes", "center_jitter_mm": 1.0})
+        RenderSettings.from_params({"preset": "unityeyes", "center_jitter_mm": 1.0})
     msg = str(ei.value)
     assert "render.center_jitter_mm must be 0 with iris_distance_px" in msg and "\n" not in msg
 
@@ -140,7 +144,7 @@ def test_unityeyes_points_strings_and_axes(tiny, tmp_path):
         order = [12 + (4 - m) % 8 for m in range(8)]                                  # a left eye
         np.testing.assert_allclose(ue.iris[::4, :2], ours(px[order]), atol=1e-4)
         # the eyeball centre is 10 Unity units (cm) in front of the camera, the iris nearer
-        cen = lf.unity_screen([tiny["asset"].eyes[smp.side].center], label)[0]
+        cen = uef.unity_screen([tiny["asset"].eyes[smp.side].center], label)[0]
         np.testing.assert_allclose(cen, [s.width / 2, H / 2, 10.0], atol=1e-9)
         assert np.all(ue.iris[:, 2] < 10.0)
         # left-handed camera axes: look_vec = (gx, gy, -gz, 0) of our (OpenGL) camera-frame gaze
@@ -159,11 +163,11 @@ def test_unityeyes_points_strings_and_axes(tiny, tmp_path):
 def test_cast_onto_eyeball():
     c, f = np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.6, 0.8])
     p = c + [4.0, 0.0, 0.0] + 20 * f                      # in front, inside the silhouette
-    q = lf.cast_onto_eyeball(p, c, 12.0, f)
+    q = uef.cast_onto_eyeball(p, c, 12.0, f)
     assert np.linalg.norm(q - c) == pytest.approx(12.0) and (q - c) @ f > 0
     np.testing.assert_allclose(np.cross(q - p, f), 0, atol=1e-12)
     far = c + [13.0, 0.0, 0.0]                             # beside the eye: left where it is
-    np.testing.assert_allclose(lf.cast_onto_eyeball(far, c, 12.0, f), far)
+    np.testing.assert_allclose(uef.cast_onto_eyeball(far, c, 12.0, f), far)
 
 
 def test_lid_points_follow_unityeyes_topology(tiny):
@@ -176,7 +180,7 @@ def test_lid_points_follow_unityeyes_topology(tiny):
         I = np.asarray(job["unityeyes"]["interior_head_mm"])
         C = np.asarray(job["unityeyes"]["caruncle_head_mm"])
         for p, (u, v) in ((I[0], (I[1], I[15])), (C[1], (C[0], C[2])), (C[4], (C[3], C[5]))):
-            np.testing.assert_allclose(p, lf.cast_onto_eyeball((u + v) / 2, eye.center, eye.radius, eye.basis[2]))
+            np.testing.assert_allclose(p, uef.cast_onto_eyeball((u + v) / 2, eye.center, eye.radius, eye.basis[2]))
         np.testing.assert_allclose(C[6], label["landmarks"]["head_mm"][0], atol=1e-5)
         np.testing.assert_allclose(I[8], label["landmarks"]["head_mm"][6], atol=1e-5)
         medial = eye.basis[0] @ (np.asarray(label["landmarks"]["head_mm"][6]) - label["landmarks"]["head_mm"][0])
@@ -184,23 +188,23 @@ def test_lid_points_follow_unityeyes_topology(tiny):
         assert depth[16:].mean() < depth[:16].min()         # the caruncle: medial of the margin
     # the lid loop fallback (a rig without a loop) uses the 12 landmarks
     P = ra.eyelid_points(a, "left", {})
-    Il, Cl = lf.lid_points(P, P, 6, eye.center, eye.radius, eye.basis[2])
+    Il, Cl = uef.lid_points(P, P, 6, eye.center, eye.radius, eye.basis[2])
     np.testing.assert_allclose(Il[8], P[6]) and np.testing.assert_allclose(Cl[6], P[0])
 
 
 def test_head_pose_is_the_cameras_unity_euler_angles():
-    front = sp.look_at([0, 0, 100.0], [0, 0, 0], [0, 1, 0])
-    np.testing.assert_allclose(lf.head_pose(front), [0, 180, 0], atol=1e-9)
+    front = cam.look_at([0, 0, 100.0], [0, 0, 0], [0, 1, 0])
+    np.testing.assert_allclose(uef.head_pose(front), [0, 180, 0], atol=1e-9)
     t = math.radians(10)
-    above = sp.look_at([0, 100 * math.sin(t), 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])
-    np.testing.assert_allclose(lf.head_pose(above), [10, 180, 0], atol=1e-9)       # Unity: +x pitches down
-    left = sp.look_at([100 * math.sin(t), 0, 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])  # on the subject's left
-    np.testing.assert_allclose(lf.head_pose(left), [0, 170, 0], atol=1e-9)         # Unity's -X side
-    below = sp.look_at([0, -100 * math.sin(t), 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])
-    np.testing.assert_allclose(lf.head_pose(below), [350, 180, 0], atol=1e-9)      # [0, 360)
-    assert lf.cs_vec(lf.head_pose(front)) == "(0.0000, 180.0000, 0.0000)"
-    assert lf.cs_vec([-1e-7, 2.5, -3.25]) == "(0.0000, 2.5000, -3.2500)"
-    assert [lf.cs_float(x) for x in (1.0, 0.9058223, 0.0, -0.25)] == ["1", "0.9058223", "0", "-0.25"]
+    above = cam.look_at([0, 100 * math.sin(t), 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])
+    np.testing.assert_allclose(uef.head_pose(above), [10, 180, 0], atol=1e-9)       # Unity: +x pitches down
+    left = cam.look_at([100 * math.sin(t), 0, 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])  # on the subject's left
+    np.testing.assert_allclose(uef.head_pose(left), [0, 170, 0], atol=1e-9)         # Unity's -X side
+    below = cam.look_at([0, -100 * math.sin(t), 100 * math.cos(t)], [0, 0, 0], [0, 1, 0])
+    np.testing.assert_allclose(uef.head_pose(below), [350, 180, 0], atol=1e-9)      # [0, 360)
+    assert uef.cs_vec(uef.head_pose(front)) == "(0.0000, 180.0000, 0.0000)"
+    assert uef.cs_vec([-1e-7, 2.5, -3.25]) == "(0.0000, 2.5000, -3.2500)"
+    assert [uef.cs_float(x) for x in (1.0, 0.9058223, 0.0, -0.25)] == ["1", "0.9058223", "0", "-0.25"]
 
 
 # ------------------------------------------------------------------------------- GazeML
@@ -215,7 +219,7 @@ def _gazeml_errors(label, doc, center):
     ours = np.asarray(label["landmarks"]["px"])[12:20].mean(axis=0)
     iris = float(np.linalg.norm(e["iris_centre"] - ours))
     gaze = _angle_deg(gz.gaze_to_camera(e["gaze"]), label["gaze"]["vector_camera"])
-    x, y, _ = lf.unity_screen([center], label)[0]
+    x, y, _ = uef.unity_screen([center], label)[0]
     cen = float(np.linalg.norm(e["eyeball_centre"] - [x, H - y]))
     return iris, gaze, cen, e
 
@@ -225,7 +229,7 @@ def test_gazeml_loader_recovers_our_iris_centre_and_gaze(tiny, side):
     s = _settings(eyes=[side], n_images=24)
     kept = 0
     for smp, label, job in _samples(tiny, s, 24):
-        doc = json.loads(json.dumps(lf.unityeyes_document(label, job["unityeyes"])))
+        doc = json.loads(json.dumps(uef.unityeyes_document(label, job["unityeyes"])))
         r = _gazeml_errors(label, doc, tiny["asset"].eyes[side].center)
         if r is None:           # GazeML's |head pitch|, |yaw| <= 20 filter (this eye turns 5 deg out)
             continue
@@ -246,11 +250,11 @@ def test_gazeml_loader_recovers_our_iris_centre_and_gaze(tiny, side):
 def test_without_the_preset_gazeml_misplaces_the_iris(tiny):
     """The generic framing (eye off-centre by the jitter, another scale) breaks the loader's
     assumptions: its iris centre lands pixels away from ours; the gaze still agrees."""
-    s = sp.RenderSettings.from_params({"label_formats": ALL, "width": 512, "height": 384, "eyes": ["left"],
+    s = RenderSettings.from_params({"label_formats": ALL, "width": 512, "height": 384, "eyes": ["left"],
                                        "camera_polar_max_deg": 10})
     worst = 0.0
     for smp, label, job in _samples(tiny, s, 8):
-        r = _gazeml_errors(label, lf.unityeyes_document(label, job["unityeyes"]), tiny["asset"].eyes["left"].center)
+        r = _gazeml_errors(label, uef.unityeyes_document(label, job["unityeyes"]), tiny["asset"].eyes["left"].center)
         if r is not None:
             worst = max(worst, r[0])
             assert r[1] < 0.01
@@ -263,7 +267,7 @@ def test_pts_files_hold_the_28_landmarks_one_based(tiny, tmp_path):
     s = _settings()
     for smp, label, job in _samples(tiny, s, 3):
         p = tmp_path / pts_name(label["index"])
-        write_pts(p, lf.pts_points(label))
+        write_pts(p, pts_format.pts_points(label))
         lines = p.read_text().splitlines()
         assert lines[:3] == ["version: 1", "n_points:  28", "{"] and lines[-1] == "}" and len(lines) == 32
         np.testing.assert_allclose(read_pts(p) - 0.5, label["landmarks"]["px"], atol=1e-6)
@@ -279,7 +283,7 @@ def test_pts_files_hold_the_28_landmarks_one_based(tiny, tmp_path):
 def test_unityeyes_reader_refuses_bad_documents(tiny, tmp_path):
     s = _settings()
     _, label, job = _samples(tiny, s, 1)[0]
-    doc = lf.unityeyes_document(label, job["unityeyes"])
+    doc = uef.unityeyes_document(label, job["unityeyes"])
     p = tmp_path / "000000.json"
     for key, value, msg in (("iris_2d", doc["iris_2d"][:31], "iris_2d must hold 32 points"),
                             ("head_pose", "(1, 2)", "head_pose must be a string"),
@@ -291,7 +295,7 @@ def test_unityeyes_reader_refuses_bad_documents(tiny, tmp_path):
 
 def test_stale_and_unfinished_format_files_are_removed(tmp_path):
     out = tmp_path / "out"
-    (out / lf.UNITYEYES_DIR).mkdir(parents=True)
+    (out / uef.UNITYEYES_DIR).mkdir(parents=True)
     for i in range(3):
         for name in (f"{i:06d}.png", f"{i:06d}.json", f"{i:06d}.pts", f"unityeyes/{i:06d}.json",
                      f"unityeyes/{i:06d}.jpg"):

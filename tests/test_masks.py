@@ -15,6 +15,7 @@ import pytest
 from PIL import Image
 
 from pipeline.errors import ScanError
+from pipeline.io import seg_file as sf
 from pipeline.io.seg_file import read_depth, read_seg, write_depth, write_seg
 from pipeline.render import seg as sg
 from pipeline.render import visibility as vis
@@ -28,13 +29,13 @@ def test_seg_png_round_trip_with_palette(tmp_path):
     seg = np.arange(7, dtype=np.uint8)[np.arange(W * H).reshape(H, W) % 7]
     write_seg(tmp_path / "a.png", seg)
     with Image.open(tmp_path / "a.png") as im:
-        assert im.mode == "P" and im.getpalette()[:21] == sg.palette()[:21]
+        assert im.mode == "P" and im.getpalette()[:21] == sf.palette()[:21]
     np.testing.assert_array_equal(read_seg(tmp_path / "a.png", (W, H)), seg)
     write_seg(tmp_path / "b.png", seg)
     assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()
     Image.fromarray(seg).save(tmp_path / "grey.png")                       # not indexed
     other = Image.fromarray(seg, "P")
-    other.putpalette([255 - v for v in sg.palette()])
+    other.putpalette([255 - v for v in sf.palette()])
     other.save(tmp_path / "pal.png")
     for name, size, words in (("grey.png", None, "indexed"), ("pal.png", None, "palette"),
                               ("a.png", (W, H + 1), "px"), ("none.png", None, "not found")):
@@ -58,10 +59,10 @@ def test_depth_exr_round_trip(tmp_path):
 
 def test_classes_from_coverage_majority_and_background():
     z = np.zeros((1, 4))
-    cov = {sg.SKIN: np.array([[0.6, 0.2, 0.0, 0.3]]), sg.IRIS: np.array([[0.4, 0.7, 0.3, 0.3]]),
-           sg.PUPIL: z}
-    np.testing.assert_array_equal(sg.classes_from_coverage(cov), [[sg.SKIN, sg.IRIS, sg.BACKGROUND, sg.SKIN]])
-    assert sg.classes_text().startswith("0 background, 1 skin, 2 sclera, 3 iris, 4 pupil, 5 eyelashes, 6 caruncle")
+    cov = {sf.SKIN: np.array([[0.6, 0.2, 0.0, 0.3]]), sf.IRIS: np.array([[0.4, 0.7, 0.3, 0.3]]),
+           sf.PUPIL: z}
+    np.testing.assert_array_equal(sg.classes_from_coverage(cov), [[sf.SKIN, sf.IRIS, sf.BACKGROUND, sf.SKIN]])
+    assert sf.classes_text().startswith("0 background, 1 skin, 2 sclera, 3 iris, 4 pupil, 5 eyelashes, 6 caruncle")
 
 
 def test_depth_from_cycles_z():
@@ -71,13 +72,13 @@ def test_depth_from_cycles_z():
 
 def _scene():
     """Left half skin (lid, 195 mm), right half sclera (200 mm), a pupil disc, lashes in a band."""
-    seg = np.full((H, W), sg.SCLERA, np.uint8)
-    seg[:, :60] = sg.SKIN
+    seg = np.full((H, W), sf.SCLERA, np.uint8)
+    seg[:, :60] = sf.SKIN
     depth = np.full((H, W), 200.0)
     depth[:, :60] = 195.0
     yy, xx = np.mgrid[0:H, 0:W] + 0.5
-    seg[(xx - 90) ** 2 + (yy - 40) ** 2 < 10 ** 2] = sg.PUPIL
-    seg[:5, 60:] = sg.LASHES
+    seg[(xx - 90) ** 2 + (yy - 40) ** 2 < 10 ** 2] = sf.PUPIL
+    seg[:5, 60:] = sf.LASHES
     depth[:5, 60:] = 190.0
     return seg, depth
 
@@ -101,8 +102,8 @@ def test_visibility_rule_on_a_constructed_scene():
     assert v["visible"][4]
     assert v["visible"][20] and v["occlusion"][21] == "lid"
     assert v["occlusion"][12] == "eye"     # an iris landmark amid the pupil: not on its own surface
-    assert vis.boundary_distance_px([100.0, 40.0], seg == sg.PUPIL) < 1.0
-    assert vis.boundary_distance_px([90.0, 40.0], seg == sg.PUPIL) > 9.0
+    assert vis.boundary_distance_px([100.0, 40.0], seg == sf.PUPIL) < 1.0
+    assert vis.boundary_distance_px([90.0, 40.0], seg == sf.PUPIL) > 9.0
 
 
 def test_labels_reader_checks_visibility(tmp_path):
@@ -146,7 +147,7 @@ def rendered(tmp_path_factory):
     from test_render_worker import Worker, build_small_synthetic_asset
 
     from pipeline.render.asset import load_render_asset
-    from pipeline.render.sampling import RenderSettings
+    from pipeline.render.settings import RenderSettings
 
     root = tmp_path_factory.mktemp("masks")
     paths = build_small_synthetic_asset(root)
@@ -164,7 +165,7 @@ def rendered(tmp_path_factory):
         from pipeline.render.sampling import make_sample
 
         smp = make_sample(asset, s, index, out / f"{name}.png", overrides, reject=reject)
-        spec = dict(smp.spec)
+        spec = smp.spec.to_dict()
         if masks:
             spec.update(seg_png=str(out / f"{name}_seg.png"), depth_exr=str(out / f"{name}_depth.exr"))
         rep = w.send(spec)
@@ -202,10 +203,10 @@ def test_masks_and_depth_come_from_the_same_render(rendered):
         r = rendered[name]
         seg, depth = r["seg"], r["depth"]
         present = set(np.unique(seg).tolist())
-        assert {sg.SKIN, sg.SCLERA, sg.IRIS, sg.PUPIL} <= present, (name, present)
+        assert {sf.SKIN, sf.SCLERA, sf.IRIS, sf.PUPIL} <= present, (name, present)
         smp = r["smp"]
         dist = smp.camera["distance_mm"]
-        fin = seg != sg.BACKGROUND
+        fin = seg != sf.BACKGROUND
         assert np.all(np.isfinite(depth[fin]))
         assert dist - 60 < depth[fin].min() and depth[fin].max() < dist + 30       # camera mm, plausible
         # depth at the visible eyelid landmarks = their own camera depth (the eyeball beside the seam)
@@ -216,7 +217,7 @@ def test_masks_and_depth_come_from_the_same_render(rendered):
                 assert np.min(np.abs(near - (-smp.landmarks_cam[k, 2]))) < 1.5, (name, k)
     # the pupil is dark in the image where the mask says pupil
     lum = np.asarray(Image.open(a["png"]).convert("L"), float)
-    assert lum[a["seg"] == sg.PUPIL].mean() < 0.5 * lum[a["seg"] == sg.SCLERA].mean()
+    assert lum[a["seg"] == sf.PUPIL].mean() < 0.5 * lum[a["seg"] == sf.SCLERA].mean()
 
 
 @pytest.mark.blender
@@ -224,7 +225,7 @@ def test_apparent_pupil_landmarks_lie_on_the_pupil_mask_boundary(rendered):
     n = 0
     for name in ("front", "random", "down"):
         r = rendered[name]
-        pupil = r["seg"] == sg.PUPIL
+        pupil = r["seg"] == sf.PUPIL
         for j in range(8):
             q = r["apparent"][8 + j]
             if q is None or not r["vis"]["visible"][20 + j]:
@@ -246,7 +247,7 @@ def _polygon_distance(q, poly) -> float:
 
 @pytest.mark.blender
 def test_visibility_on_a_posed_lid(rendered):
-    from pipeline.render.sampling import point_in_polygon
+    from pipeline.render.camera import point_in_polygon
 
     front = rendered["front"]
     assert all(front["vis"]["visible"][:12]), front["vis"]["occlusion"][:12]   # the visible margin

@@ -69,7 +69,7 @@ def test_every_stage_and_the_dataset_command_run_from_a_clone_under_odd_folders(
     assert [row["index"] for row in read_index(clone / "renders" / SCAN / "index.jsonl")] == [0, 1]
 
     out = clone / "renders" / "out dir" / ".set é"
-    r = subprocess.run([sys.executable, "-m", "pipeline.render.dataset", "--assets", str(clone / "rigged_assets" / SCAN),
+    r = subprocess.run([sys.executable, "-m", "stages.dataset", "--assets", str(clone / "rigged_assets" / SCAN),
                         "--n", "2", "--out", str(out), "--no-progress"], cwd=clone, env=env, capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0 and r.stderr == "", r.stderr

@@ -15,13 +15,13 @@ from pathlib import Path
 
 import pytest
 
-from conftest import make_two_assets
+from fixtures import make_two_assets
 from pipeline.errors import ScanError
 from pipeline.render import dataset as ds
 from pipeline.render import mix
 from pipeline.render import plan as pl
 from pipeline.render import run as rr
-from pipeline.render.sampling import RenderSettings
+from pipeline.render.settings import RenderSettings
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2}
@@ -59,7 +59,7 @@ def _snapshot(out: Path) -> dict:
 
 
 def _cmd(two, out, *extra, n=8):
-    return [sys.executable, "-m", "pipeline.render.dataset", "--assets", *map(str, two["assets"]),
+    return [sys.executable, "-m", "stages.dataset", "--assets", *map(str, two["assets"]),
             "--n", str(n), "--out", str(out), "--params", str(two["params"]), "--no-progress", *extra]
 
 
@@ -85,7 +85,7 @@ def test_another_plan_is_refused_naming_what_differs_and_nothing_is_touched(two,
             assert "--overwrite replaces it (" in r.stderr and "files go" in r.stderr
         assert _snapshot(out) == before
     # one asset fewer
-    r = _run([sys.executable, "-m", "pipeline.render.dataset", "--assets", str(two["assets"][0]), "--n", "8",
+    r = _run([sys.executable, "-m", "stages.dataset", "--assets", str(two["assets"][0]), "--n", "8",
               "--out", str(out), "--params", str(two["params"]), "--no-progress"])
     assert r.returncode == 2 and "(assets alpha, beta -> alpha)" in r.stderr and _snapshot(out) == before
 
@@ -149,7 +149,7 @@ def test_folder_states_keep_renders_and_datasets_apart(two, tmp_path):
     assert rr.folder_state(render) == "render" and rr.folder_state(dataset) == "dataset"
     with pytest.raises(ScanError, match="holds a scan's renders"):
         pl.check_out(render)
-    with pytest.raises(ScanError, match="holds a dataset of python -m pipeline.render.dataset"):
+    with pytest.raises(ScanError, match="holds a dataset of python -m stages.dataset"):
         rr.check_render_out(dataset)
     with pytest.raises(ScanError, match="holds no renders"):
         rr.check_render_out(hidden)

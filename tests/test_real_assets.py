@@ -18,15 +18,13 @@ low-resolution eyeball, no previews, no usdz), written to a temporary params fil
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from conftest import extra_scans_dir
+from fixtures import extra_scans_dir, stage_commands, usd_roundtrip
 from pipeline.io.rig_file import read_rig
 from stages._common import run_stage
 
@@ -61,37 +59,20 @@ def chain_root(tmp_path_factory):
 
 
 def build_chain(root: Path, params: Path, eyeball: Path, raw: Path, name: str) -> dict:
-    """ingest -> remove_eyeballs -> retopo -> bake -> snap -> rig -> usd for one scan folder."""
-    from stages import bake, ingest, remove_eyeballs, retopo, rig, snap, usd
+    """ingest -> remove_eyeballs -> retopo -> bake -> snap -> rig -> usd for one scan folder, each
+    stage's command as dvc.yaml has it (fixtures.stage_commands), run in this process."""
+    import importlib
 
     b = root / "build" / name
     out = root / "rigged_assets" / name
-
-    def run(stage, inputs, dest, *extra):
-        metrics = b / f"{stage.__name__.split('.')[-1]}.metrics.json"
-        argv = [str(p) for p in inputs] + [str(dest), *extra, "--metrics", str(metrics),
-                                           "--params", str(params)]
-        assert run_stage(stage.main, argv) == 0, f"{stage.__name__} failed on {name}"
-        return json.loads(metrics.read_text())
-
-    m = {"ingest": run(ingest, [raw], b / "ingest")}
-    m["remove_eyeballs"] = run(remove_eyeballs, [b / "ingest"], b / "remove_eyeballs")
-    m["retopo"] = run(retopo, [b / "remove_eyeballs"], b / "retopo")
-    m["bake"] = run(bake, [b / "retopo", b / "remove_eyeballs"], b / "bake")
-    m["snap"] = run(snap, [b / "bake", b / "remove_eyeballs", eyeball], b / "snap")
-    m["rig"] = run(rig, [b / "snap"], b / "rig", "--eyeball", str(eyeball))
-    m["usd"] = run(usd, [b / "snap", b / "bake", b / "rig", b / "ingest", eyeball], out)
+    m = {}
+    for stage, cmd in stage_commands(raw, b, eyeball, out).items():
+        metrics = b / f"{stage}.metrics.json"
+        main = importlib.import_module(cmd[0]).main
+        assert run_stage(main, cmd[1:] + ["--metrics", str(metrics), "--params", str(params)]) == 0, \
+            f"{stage} failed on {name}"
+        m[stage] = json.loads(metrics.read_text())
     return {"name": name, "build": b, "usda": out / f"{name}.usda", "metrics": m}
-
-
-def _roundtrip(usda: Path, out: Path, pose: dict | None = None):
-    cmd = [sys.executable, "-m", "pipeline.blender.usd_roundtrip", str(usda), str(out)]
-    if pose:
-        cmd.append(json.dumps(pose))
-    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-2000:]
-    data = dict(np.load(out))
-    return data, json.loads(str(data["meta"]))
 
 
 def _build(chain_root, raw: Path, name: str) -> dict:
@@ -147,7 +128,7 @@ def blender_import(chain_root):
     def get(asset: dict):
         name = asset["name"]
         if name not in done:
-            done[name] = _roundtrip(asset["usda"], root / f"{name}.npz", {"eye_left": [1, 0, 0, POSE_DEG]})
+            done[name] = usd_roundtrip(asset["usda"], root / f"{name}.npz", {"eye_left": [1, 0, 0, POSE_DEG]})
         return done[name]
 
     return get

@@ -209,7 +209,7 @@ def test_stage_writes_outputs(tmp_path):
     (ing / "scan.json").write_text(json.dumps(
         {"name": "t", "eyes": {s: {"hint": h.tolist()} for s, h in hints.items()}}))
     out = tmp_path / "remove_eyeballs"
-    metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"])
+    metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"]).metrics
     assert metrics["boundary_loops_out"] == 3
     eyes = {s: e.doc for s, e in read_eyes(out / "eyes.json").items()}
     m = load_mesh(out / "mesh.npz")
@@ -279,7 +279,7 @@ def _gt_errors(folder, res):
 
 
 def test_ict_neutral(extra_scan):
-    from pipeline.geometry.ingest import IngestSettings, ingest_scan
+    from pipeline.ingest.ingest import IngestSettings, ingest_scan
 
     folder = extra_scan("ict_neutral")
     r = ingest_scan(folder, IngestSettings())
@@ -304,7 +304,7 @@ def test_ict_neutral(extra_scan):
 def test_james_texture_fallback(extra_scan):
     from PIL import Image
 
-    from pipeline.geometry.ingest import IngestSettings, ingest_scan
+    from pipeline.ingest.ingest import IngestSettings, ingest_scan
 
     folder = extra_scan("james")
     r = ingest_scan(folder, IngestSettings())

@@ -1,7 +1,7 @@
 """Stage ``render``: sampling, labels, pupil-in-lid rule, resumable sharded rendering.
 
-The asset is built in a fixture (conftest.make_render_asset) from the small constructed scan of
-conftest.make_inputs (a flat skin grid with the eyeballs poking through it), with 16-vertex lid
+The asset is built in a fixture (fixtures.make_render_asset) from the small constructed scan of
+fixtures.make_inputs (a flat skin grid with the eyeballs poking through it), with 16-vertex lid
 loops and eyelid landmark edges added to its rig.npz. Pure-Python parts are tested directly;
 Blender renders only a few tiny images (24 x 16 px, 1 sample).
 """
@@ -20,14 +20,16 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conftest import EYES, make_render_asset
+from fixtures import EYES, make_render_asset
 from pipeline.errors import ScanError
-from pipeline.geometry.frame import quat_to_matrix
+from pipeline.render.camera import quat_to_matrix
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.io.rig_file import read_rig, write_rig
 from pipeline.render import asset as ra
 from pipeline.render import labels as lb
 from pipeline.render import run as rr
+from pipeline.render import camera as cam
+from pipeline.render.settings import RenderSettings
 from pipeline.render import sampling as sp
 from pipeline.rig import lids
 from stages._common import read_stage_metrics
@@ -44,8 +46,8 @@ def tiny(tmp_path_factory):
 
 
 def _settings(**kw):
-    return sp.RenderSettings.from_dict({**{k: v for k, v in TINY.items()
-                                           if k in sp.RenderSettings.__dataclass_fields__}, **kw})
+    return RenderSettings.from_dict({**{k: v for k, v in TINY.items()
+                                           if k in RenderSettings.__dataclass_fields__}, **kw})
 
 
 def _params(root: Path, name: str, **kw) -> Path:
@@ -108,17 +110,17 @@ def test_projection_of_stored_3d_landmarks_reproduces_stored_2d(tiny):
 
 def test_projection_convention_of_an_orthographic_camera():
     # image 120 x 80, 30 mm wide: a point 7.5 mm right and 5 mm up of the axis
-    uv = sp.project([[7.5, 5.0, -100.0], [0.0, 0.0, -5.0]], 30.0, 120, 80)
+    uv = cam.project([[7.5, 5.0, -100.0], [0.0, 0.0, -5.0]], 30.0, 120, 80)
     np.testing.assert_allclose(uv, [[90.0, 20.0], [60.0, 40.0]])
-    M = sp.look_at([0, 0, 100.0], [0, 0, 0], [0, 1, 0])
-    np.testing.assert_allclose(sp.to_camera([[1.0, 2.0, 3.0]], M), [[1.0, 2.0, -97.0]])
+    M = cam.look_at([0, 0, 100.0], [0, 0, 0], [0, 1, 0])
+    np.testing.assert_allclose(cam.to_camera([[1.0, 2.0, 3.0]], M), [[1.0, 2.0, -97.0]])
 
 
 def test_pupil_in_lid_rule_constructed_cases(tiny):
     square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
-    assert sp.point_in_polygon([5, 5], square) and not sp.point_in_polygon([15, 5], square)
+    assert cam.point_in_polygon([5, 5], square) and not cam.point_in_polygon([15, 5], square)
     notch = np.array([[0, 0], [10, 0], [10, 10], [5, 4], [0, 10]], float)      # concave (V notch on top)
-    assert sp.point_in_polygon([5, 2], notch) and not sp.point_in_polygon([5, 7], notch)
+    assert cam.point_in_polygon([5, 2], notch) and not cam.point_in_polygon([5, 7], notch)
     # a sample pinned so that the camera grazes the (flat) lid ring from the lateral side (70 deg)
     # while the eye turns 35 deg laterally: the projected pupil centre leaves the foreshortened
     # lid polygon, so every (pinned) attempt is rejected
@@ -126,12 +128,12 @@ def test_pupil_in_lid_rule_constructed_cases(tiny):
     bad = {"side": "left", "polar_deg": 70.0, "azimuth_deg": 0.0, "gaze_pitch_deg": 0.0,
            "gaze_yaw_deg": 35.0, "jitter": np.zeros(2)}
     smp = sp.make_sample(a, s, 0, "/tmp/x.png", overrides=bad, reject=False)
-    assert not sp.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
+    assert not cam.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
     with pytest.raises(sp.RejectionError, match="sample 0: pupil outside the eyelid polygon"):
         sp.make_sample(a, s, 0, "/tmp/x.png", overrides=bad)
     good = dict(bad, polar_deg=0.0, gaze_yaw_deg=0.0)
     smp = sp.make_sample(a, s, 0, "/tmp/x.png", overrides=good)
-    assert smp.attempts == 1 and sp.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
+    assert smp.attempts == 1 and cam.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
 
 
 def test_rejected_attempts_are_redrawn_and_counted(tiny):
@@ -141,9 +143,9 @@ def test_rejected_attempts_are_redrawn_and_counted(tiny):
     assert max(att) > 1
     for i, n in enumerate(att):
         smp = sp.make_sample(tiny["asset"], s, i, "/tmp/x.png")
-        assert smp.attempts == n and sp.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
+        assert smp.attempts == n and cam.point_in_polygon(smp.pupil_center_px, smp.lid_polygon_px)
         # the rule holds on the 12 eyelid landmarks of the label itself
-        assert sp.point_in_polygon(smp.pupil_center_px, smp.landmarks_px[:12])
+        assert cam.point_in_polygon(smp.pupil_center_px, smp.landmarks_px[:12])
         for k in range(n - 1):     # every earlier attempt was rejected
             prev = sp.pose_sample(tiny["asset"], s, i, k, "/tmp/x.png")
             assert not sp.pupil_in_lids(prev)
@@ -227,7 +229,7 @@ def test_refraction_through_the_cornea(tiny):
     p = EyeballParams.from_dict(eye.eyeball_params)
     W = smp.camera["world_to_camera"]
     pts = np.concatenate([smp.landmarks_head[20:28], ra.pupil_center(a, "left", {}, np.eye(3))[None]])
-    straight = sp.to_camera(pts, W)[:, :2]
+    straight = cam.to_camera(pts, W)[:, :2]
     # no refraction (n = 1): the apparent position is the straight projection
     np.testing.assert_allclose(rf.apparent_projection(pts, W, A, p, ior=1.0), straight, atol=1e-5)
     # the cornea: the pupil centre on the optical axis stays put, the pupil ring looks larger
@@ -246,15 +248,15 @@ def test_skin_detail_rule():
 
 
 def test_settings_presets_and_validation():
-    assert sp.RenderSettings.from_dict({"preset": "targeted"}).camera_polar_max_deg == 5.0
-    assert sp.RenderSettings.from_dict({"preset": "targeted", "gaze_step_deg": 2}).gaze_step_deg == 2
+    assert RenderSettings.from_dict({"preset": "targeted"}).camera_polar_max_deg == 5.0
+    assert RenderSettings.from_dict({"preset": "targeted", "gaze_step_deg": 2}).gaze_step_deg == 2
     np.testing.assert_array_equal(sp.offset_grid(45, 10), [-40, -30, -20, -10, 0, 10, 20, 30, 40])
     for bad, message in (({"preset": "nope"}, r"render\.preset must be one of generic, targeted"),
                          ({"width": 40, "height": 80}, r"render\.width must be >= height"),
                          ({"eyes": ["middle"]}, r"render\.eyes\[0\] must be one of 'left', 'right'"),
                          ({"samples": 0}, r"render\.samples must be >= 1")):
         with pytest.raises(ValueError, match=message):
-            sp.RenderSettings.from_dict(bad)
+            RenderSettings.from_dict(bad)
 
 
 def test_fingerprint_covers_the_referenced_eyeball_and_its_textures(tiny):
@@ -299,7 +301,7 @@ def test_extreme_images_are_not_black_or_blank(tiny, tmp_path):
         for k in range(len(EXTREMES)):
             png = tmp_path / f"x{k}.png"
             _, smp = _extreme_sample(tiny, k, str(png))
-            spec = dict(smp.spec, width=32, height=24, samples=1, denoise=False)
+            spec = dict(smp.spec.to_dict(), width=32, height=24, samples=1, denoise=False)
             reply = bp.render(spec, timeout_s=300)
             assert reply["ok"], reply
             assert reply["landmark_check_mm"] < 0.01
@@ -437,7 +439,7 @@ def test_sampling_streams_for_any_n_images(tiny, tmp_path, monkeypatch):
                                tiny["asset_dir"])
     first = next(shards)
     assert calls == list(range(16)) and 1 <= len(first) <= s.shard_size
-    assert len({spec["lighting"]["hdri"] for spec, _ in first}) == 1
+    assert len({spec.lighting.hdri for spec, _ in first}) == 1
     rest = [next(shards) for _ in range(3)]
     assert len(calls) <= 32 and all(len(x) <= s.shard_size for x in rest)
     huge = _params(tmp_path, "huge.yaml", n_images="1e9")

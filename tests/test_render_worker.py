@@ -23,7 +23,7 @@ from PIL import Image
 
 from pipeline.blender.lashes import LASH_POINTS, LASHES, lash_curves
 from pipeline.blender.render_worker import REPLY_PREFIX, camera_to_head
-from pipeline.geometry.frame import quat_to_matrix
+from pipeline.render.camera import quat_to_matrix
 from pipeline.io.rig_file import read_rig
 from pipeline.rig import lids
 

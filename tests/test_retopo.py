@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import face_patch
+from fixtures import face_patch
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.eyelid_loop import project_to_polyline
 from pipeline.geometry.flips import count_flipped

@@ -100,7 +100,7 @@ def test_direct_construction_is_checked_too():
 def test_the_real_blocks_refuse_bad_values():
     from pipeline.bake.bake import BakeSettings
     from pipeline.eyeball.geometry import EyeballSettings
-    from pipeline.render.sampling import RenderSettings
+    from pipeline.render.settings import RenderSettings
     from pipeline.rig.lids import RigSettings
     from pipeline.synthetic_head import SyntheticHeadSettings
 
@@ -137,23 +137,24 @@ def test_timings_go_beside_the_metrics_not_into_them(tmp_path):
     import json
     import time
 
-    from stages._common import read_stage_metrics, run_stage, split_timings, timings_path
+    from pipeline.results import StageResult
+    from stages._common import read_stage_metrics, run_stage, timings_path
 
-    res, tim = split_timings({"n": 3, "write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0,
-                              "timings_s": {"a_s": 1}, "preview": {"size": 8, "wall_s": 3.0},
-                              "peak_memory_mib": 5, "mesh": {"manifold": True}})
-    assert res == {"n": 3, "preview": {"size": 8}, "mesh": {"manifold": True}}
-    assert tim == {"write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0, "timings_s": {"a_s": 1},
-                   "preview": {"wall_s": 3.0}, "peak_memory_mib": 5}
+    split = StageResult.from_mixed({"n": 3, "write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0,
+                                    "timings_s": {"a_s": 1}, "preview": {"size": 8, "wall_s": 3.0},
+                                    "peak_memory_mib": 5, "mesh": {"manifold": True}})
+    assert split.metrics == {"n": 3, "preview": {"size": 8}, "mesh": {"manifold": True}}
+    assert split.timings == {"write_s": 0.2, "render_s_median": 0.4, "images_per_s": 2.0, "timings_s": {"a_s": 1},
+                             "preview": {"wall_s": 3.0}, "peak_memory_mib": 5}
     path = tmp_path / "build" / "x" / "stage.metrics.json"
     assert timings_path(path) == tmp_path / "build" / "x" / "stage.timings.json"
 
-    def main(argv):
-        return {"_path": path, "accuracy_mm": 0.5, "fit_s": 1.25, "_run": {"skipped_done": 2}}
+    def main(argv):          # by type: a metric with an "s" word stays a metric
+        return StageResult({"accuracy_mm": 0.5, "n_s_shaped": 1}, {"fit_s": 1.25, "skipped_done": 2}, path)
 
     cpu_before = time.process_time()
     assert run_stage(main, []) == 0
-    assert json.loads(path.read_text()) == {"accuracy_mm": 0.5}
+    assert json.loads(path.read_text()) == {"accuracy_mm": 0.5, "n_s_shaped": 1}
     t = json.loads(timings_path(path).read_text())
     assert t["fit_s"] == 1.25 and t["skipped_done"] == 2 and t["wall_time_s"] >= 0 and t["peak_memory_mib"] > 0
     assert t["cpu_time_s"] >= cpu_before > 0        # this process's CPU from its start, children added
@@ -230,8 +231,8 @@ def test_every_block_takes_its_limits_and_refuses_past_them_in_one_line(block):
 
 def test_library_defaults_are_the_settings_defaults():
     """One definition per default: the ingest block's are the readers' limits and the repair's."""
-    from pipeline.geometry.ingest import IngestSettings
-    from pipeline.geometry.repair import RepairSettings
+    from pipeline.ingest.ingest import IngestSettings
+    from pipeline.ingest.repair import RepairSettings
     from pipeline.io.formats.common import Limits
     from pipeline.io.scan import DEFAULT_MAX_YAML_BYTES
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from conftest import make_two_assets
+from fixtures import make_two_assets
 from pipeline.io.labels_file import read_index
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,7 +50,7 @@ def two(tmp_path_factory):
 
 
 def _cmd(two, out, *extra, n=6):
-    return [sys.executable, "-m", "pipeline.render.dataset", "--assets", *map(str, two["assets"]), "--n", str(n),
+    return [sys.executable, "-m", "stages.dataset", "--assets", *map(str, two["assets"]), "--n", str(n),
             "--out", str(out), "--params", str(two["params"]), "--no-progress", *extra]
 
 

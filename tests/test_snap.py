@@ -120,7 +120,7 @@ def test_stage(tmp_path):
     bake, rem, eb = _write_inputs(tmp_path)
     out = tmp_path / "snap"
     m = main([str(bake), str(rem), str(eb), str(out), "--metrics", str(tmp_path / "m.json"),
-              "--params", "none.yaml"])
+              "--params", "none.yaml"]).metrics
     assert m["gap_max_mm"] <= 0.05 and m["inside_max_mm"] <= 0.05
     assert m["flipped_faces"] == 0 and m["edge_manifold"]
     mesh = load_mesh(out / "mesh.npz")

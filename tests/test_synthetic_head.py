@@ -325,10 +325,11 @@ def test_stage_writes_folder_and_metrics(tmp_path):
     params.write_text(yaml.safe_dump({"synthetic_head": {"seed": 11, "target_triangles": 20_000,
                                                          "texture_size": 64, "noise_mm": 0.02}}))
     out = tmp_path / "raw_scans" / "synthetic_head"
-    metrics = main([str(out), "--params", str(params), "--metrics", str(tmp_path / "m.json")])
+    result = main([str(out), "--params", str(params), "--metrics", str(tmp_path / "m.json")])
+    metrics = result.metrics
     assert (out / "scan.ply").is_file() and (out / "ground_truth.json").is_file()
     assert abs(metrics["n_faces"] - 20_000) < 400 and metrics["texture_size"] == 64
-    assert str(metrics["_path"]).endswith("m.json")
+    assert str(result.path).endswith("m.json") and set(result.timings) == {"generate_s", "write_s"}
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]   # no temp left
 
 

@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-from conftest import EYES, R1, make_inputs, usd_argv
+from fixtures import EYES, R1, make_inputs, usd_argv
 from pipeline.geometry.frame import eye_basis
 from pipeline.io.rig_file import read_rig, write_rig
 from pipeline.rig import lids

@@ -21,15 +21,15 @@ smoothing offset.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
 
 from pipeline.bake.raycast import DenseScene, cast_both_ways
 from pipeline.bake.uv import dilation_sources, rasterize, sample_bilinear, unwrap
-from pipeline.fork import fork_call, fork_result
 from pipeline.geometry import mesh_checks as mc
+from pipeline.geometry.ramps import smoothstep
 from pipeline.settings import Settings, setting
 
 
@@ -55,13 +55,8 @@ class BakeResult:
     displacement: np.ndarray  # (H, W) float32, mm along the normal, padded
     color: np.ndarray | None  # (H, W, 3) uint8, padded
     mask: np.ndarray          # (H, W) bool, texels covered by the atlas
-    metrics: dict
-
-
-def smoothstep(x):
-    """C1 ramp: 0 at x <= 0, 1 at x >= 1."""
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
+    metrics: dict             # what the inputs determine (bake_metrics)
+    timings_s: dict = field(default_factory=dict)   # seconds per step
 
 
 def distance_to_polylines(P, loops, step=0.05):
@@ -113,9 +108,104 @@ def dense_scene(V, dense: dict, settings: BakeSettings = BakeSettings()) -> Dens
     return scene
 
 
+@dataclass
+class Texels:
+    """The texels of a UV atlas on the low-poly mesh: atlas ``rows``, ``cols`` (k,), the
+    ``face`` (k,) and barycentric ``bary`` (k, 3) each lies in, its surface point ``P`` and
+    interpolated unit normal ``N`` (k, 3), and the covered ``mask`` (res, res)."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+    P: np.ndarray
+    N: np.ndarray
+    mask: np.ndarray
+
+
+def atlas_texels(V, F, UV, FUV, res: int) -> Texels:
+    """Rasterize the atlas: every texel's point and normal on the flat low-poly surface."""
+    rows, cols, face, bary = rasterize(UV, FUV, res, res)
+    VN = mc.vertex_normals(V, F)
+    PN = _interpolate(bary, np.hstack([V, VN]), F[face])     # position and normal in one pass
+    P, N = PN[:, :3], PN[:, 3:]
+    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+    mask = np.zeros((res, res), dtype=bool)
+    mask[rows, cols] = True
+    return Texels(rows, cols, face, bary, P, N, mask)
+
+
+def cast_texels(scene: DenseScene, tx: Texels, s: BakeSettings):
+    """Signed displacement (k,) along each texel's normal to the scan, the scan face (k,) and
+    barycentrics (k, 3) it hits, and how many texels missed both ways (the closest point on the
+    scan stands in for those)."""
+    dV, dF = scene.V, scene.F
+    disp, hface, hbary = cast_both_ways(scene, tx.P, tx.N, s.max_distance_mm)
+    miss = np.isnan(disp)
+    n_miss = int(miss.sum())
+    if n_miss:
+        _, cf, C = mc.closest_points(tx.P[miss], dV, dF)
+        disp[miss] = np.einsum("ij,ij->i", C - tx.P[miss], tx.N[miss])
+        hface[miss] = cf
+        hbary[miss] = _barycentric(C, dV[dF[cf]])
+    return disp, scene.face_ids[hface], hbary, n_miss       # back to the scan's own face indices
+
+
+def texel_weights(V, F, tx: Texels, loops, s: BakeSettings):
+    """The texels' displacement weights (:func:`falloff_weights`) and the atlas padding
+    (:func:`~pipeline.bake.uv.dilation_sources`): they need the texels only, not the rays."""
+    return falloff_weights(V, F, tx.P, tx.face, loops, s.falloff_mm), dilation_sources(tx.mask, s.padding_texels)
+
+
+def displacement_map(tx: Texels, disp, weights, res: int):
+    """The padded (res, res) float32 displacement map and the weighted displacements (k,)."""
+    w, (grow, sy, sx) = weights
+    disp_w = disp * w
+    dimg = np.zeros((res, res), dtype=np.float32)
+    dimg[tx.rows, tx.cols] = disp_w
+    dimg[grow] = dimg[sy, sx]
+    return dimg, disp_w
+
+
+def colour_map(tx: Texels, dense: dict, texture, hface, hbary, weights, res: int):
+    """The padded (res, res, 3) uint8 colour map from the scan at the texels' hits, or None
+    (a scan without texture or vertex colours)."""
+    _, (grow, sy, sx) = weights
+    col = _dense_colour(dense, texture, hface, hbary)
+    if col is None:
+        return None
+    cimg = np.zeros((res, res, 3), dtype=np.uint8)
+    cimg[tx.rows, tx.cols] = np.clip(np.round(col), 0, 255).astype(np.uint8)
+    cimg[grow] = cimg[sy, sx]
+    return cimg
+
+
+def bake_metrics(tx: Texels, disp_w, n_miss: int, colour: str | None, res: int) -> dict:
+    """What the inputs determine of a bake (the stage's metrics)."""
+    return {
+        "resolution": res,
+        "texels": int(len(tx.rows)),
+        "atlas_coverage": float(len(tx.rows) / (res * res)),
+        "missed_texels": n_miss,
+        "missed_texel_fraction": float(n_miss / max(len(tx.rows), 1)),
+        "displacement_mm": {"min": float(disp_w.min()), "max": float(disp_w.max()),
+                            "mean_abs": float(np.abs(disp_w).mean())},
+        "colour": colour,
+    }
+
+
+def colour_source(dense: dict, texture, cimg) -> str | None:
+    """Where the colour map came from: ``texture``, ``vertex_colours`` or None."""
+    if cimg is None:
+        return None
+    return "texture" if texture is not None and "UV" in dense else "vertex_colours"
+
+
 def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = BakeSettings(),
-              UV=None, FUV=None, scene: DenseScene | None = None, on_displacement=None) -> BakeResult:
-    """UV-unwrap the low-poly mesh and bake displacement and colour from the dense scan.
+              UV=None, FUV=None, scene: DenseScene | None = None) -> BakeResult:
+    """UV-unwrap the low-poly mesh and bake displacement and colour from the dense scan, one step
+    after the other (the bake stage runs the same steps with the independent ones side by side:
+    pipeline/bake/build.py).
 
     Parameters
     ----------
@@ -128,82 +218,39 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     texture : (h, w, 3|4) uint8 array or None
     UV, FUV : optional existing atlas (skips xatlas)
     scene : optional :func:`dense_scene` of ``V`` and ``dense`` with these settings, already built
-    on_displacement : optional callable ``(UV, FUV, displacement)``, called as soon as the padded
-        displacement map is final, before the colour map (bake_scan starts the accuracy metric there)
 
     Returns
     -------
     BakeResult
     """
     s = settings
-    t0 = time.perf_counter()
-    timings = {}
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
+    t = {}
+    t0 = time.perf_counter()
     if UV is None:
         UV, FUV = unwrap(V, F, s.resolution, s.uv_padding_texels)
-    timings["unwrap_s"] = time.perf_counter() - t0
+    t["unwrap_s"] = time.perf_counter() - t0
     res = int(s.resolution)
-
     t1 = time.perf_counter()
-    rows, cols, face, bary = rasterize(UV, FUV, res, res)
-    VN = mc.vertex_normals(V, F)
-    PN = _interpolate(bary, np.hstack([V, VN]), F[face])     # position and normal in one pass
-    P, N = PN[:, :3], PN[:, 3:]
-    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
-    timings["rasterize_s"] = time.perf_counter() - t1
-
-    mask = np.zeros((res, res), dtype=bool)
-    mask[rows, cols] = True
-    # the falloff weights and the padding need the texels only, not the rays: a forked child
-    # makes them while this process casts the rays
-    texel_job = fork_call(_weights_and_padding, V, F, P, face, list(loops.values()), mask, s)
+    tx = atlas_texels(V, F, UV, FUV, res)
+    t["rasterize_s"] = time.perf_counter() - t1
     t2 = time.perf_counter()
-    if scene is None:
-        scene = dense_scene(V, dense, s)
-    dV, dF, near_faces = scene.V, scene.F, scene.face_ids
-    timings["scene_s"] = time.perf_counter() - t2
+    weights = texel_weights(V, F, tx, list(loops.values()), s)
+    t["weights_padding_s"] = time.perf_counter() - t2
     t3 = time.perf_counter()
-    disp, hface, hbary = cast_both_ways(scene, P, N, s.max_distance_mm)
-    timings["raycast_s"] = time.perf_counter() - t3
-    miss = np.isnan(disp)
-    n_miss = int(miss.sum())
-    if n_miss:
-        _, cf, C = mc.closest_points(P[miss], dV, dF)
-        disp[miss] = np.einsum("ij,ij->i", C - P[miss], N[miss])
-        hface[miss] = cf
-        hbary[miss] = _barycentric(C, dV[dF[cf]])
-    hface = near_faces[hface]                      # back to the scan's own face indices
-
+    scene = scene if scene is not None else dense_scene(V, dense, s)
+    t["scene_s"] = time.perf_counter() - t3
     t4 = time.perf_counter()
-    (w, (grow, sy, sx)), timings["weights_padding_s"] = fork_result(texel_job)
-    disp_w = disp * w
-    dimg = np.zeros((res, res), dtype=np.float32)
-    dimg[rows, cols] = disp_w
-    dimg[grow] = dimg[sy, sx]
-    if on_displacement is not None:
-        on_displacement(UV, FUV, dimg)
-    col = _dense_colour(dense, texture, hface, hbary)
-    cimg = None
-    if col is not None:
-        cimg = np.zeros((res, res, 3), dtype=np.uint8)
-        cimg[rows, cols] = np.clip(np.round(col), 0, 255).astype(np.uint8)
-        cimg[grow] = cimg[sy, sx]
-    timings["maps_s"] = time.perf_counter() - t4
-    timings["total_s"] = time.perf_counter() - t0
-    metrics = {
-        "resolution": res,
-        "texels": int(len(rows)),
-        "atlas_coverage": float(len(rows) / (res * res)),
-        "missed_texels": n_miss,
-        "missed_texel_fraction": float(n_miss / max(len(rows), 1)),
-        "displacement_mm": {"min": float(disp_w.min()), "max": float(disp_w.max()),
-                            "mean_abs": float(np.abs(disp_w).mean())},
-        "colour": None if col is None else ("texture" if texture is not None and "UV" in dense else "vertex_colours"),
-        "timings_s": {k: round(v, 4) for k, v in timings.items()},
-        "time_s": round(timings["total_s"], 4),
-    }
-    return BakeResult(UV, FUV, dimg, cimg, mask, metrics)
+    disp, hface, hbary, n_miss = cast_texels(scene, tx, s)
+    t["raycast_s"] = time.perf_counter() - t4
+    t5 = time.perf_counter()
+    dimg, disp_w = displacement_map(tx, disp, weights, res)
+    cimg = colour_map(tx, dense, texture, hface, hbary, weights, res)
+    t["maps_s"] = time.perf_counter() - t5
+    t["total_s"] = time.perf_counter() - t0
+    metrics = bake_metrics(tx, disp_w, n_miss, colour_source(dense, texture, cimg), res)
+    return BakeResult(UV, FUV, dimg, cimg, tx.mask, metrics, {k: round(v, 4) for k, v in t.items()})
 
 
 def falloff_weights(V, F, P, face, loops, falloff_mm):
@@ -218,13 +265,8 @@ def falloff_weights(V, F, P, face, loops, falloff_mm):
         elen = np.linalg.norm(V[F] - np.roll(V[F], 1, axis=1), axis=2).max(axis=1)
         near_face = dv[F].min(axis=1) <= falloff_mm + elen
         sel = near_face[face]
-        w[sel] = smoothstep(distance_to_polylines(P[sel], lp) / falloff_mm)
+        w[sel] = smoothstep(0.0, 1.0, distance_to_polylines(P[sel], lp) / falloff_mm)
     return w
-
-
-def _weights_and_padding(V, F, P, face, loops, mask, s: BakeSettings):
-    """:func:`falloff_weights` and :func:`~pipeline.bake.uv.dilation_sources` of ``mask``."""
-    return falloff_weights(V, F, P, face, loops, s.falloff_mm), dilation_sources(mask, s.padding_texels)
 
 
 def _interpolate(bary, X, corners):

@@ -1,10 +1,12 @@
 """The bake stage's work: read the low-poly mesh and the dense scan, unwrap, bake, write the
 bake product (pipeline/io/bake_file.py) and measure the reconstruction error.
 
-The machine has 2 cores, so independent steps overlap in forked children (pipeline/fork.py):
-the xatlas unwrap (which holds the GIL) runs while the dense scan and its texture load, the
+The steps are the algorithm's (pipeline/bake/bake.py); independent ones run side by side through
+the process helper (pipeline/fork.py, ``EYERIG_SERIAL=1`` turns it off, with the same bytes):
+the xatlas unwrap (which holds the GIL) while the dense scan and its texture load, the
 UV-independent half of the accuracy metric runs and the Embree scene of the scan is built; the
-UV-dependent half runs while the colour map is made and the maps are written.
+texels' falloff weights and padding while the rays are cast; the UV-dependent half of the
+metric while the colour map is made and the maps are written.
 """
 
 from __future__ import annotations
@@ -14,12 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.bake.bake import BakeSettings, bake_maps, dense_scene, reconstruction_baseline, reconstruction_error
+from pipeline.bake.bake import (BakeSettings, atlas_texels, bake_metrics, cast_texels, colour_map, colour_source,
+                                dense_scene, displacement_map, reconstruction_baseline, reconstruction_error,
+                                texel_weights)
 from pipeline.bake.uv import unwrap
 from pipeline.errors import ScanError
 from pipeline.fork import fork_call, fork_result
 from pipeline.io.bake_file import write_bake
 from pipeline.io.meshfile import read_stage_mesh
+from pipeline.results import StageResult
 
 
 def _texture(path: Path):
@@ -35,48 +40,60 @@ def _texture(path: Path):
         raise ScanError(path, f"cannot read texture ({exc})") from None
 
 
-def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> dict:
+def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageResult:
     """Bake ``retopo_dir/mesh.npz`` (V, F, loop_left, loop_right) against the dense scan
     ``dense_dir/mesh.npz`` (+ ``texture.png``) and write the bake product into ``out_dir``
-    (an existing, empty folder: the stage's atomic output). Returns the metrics.
+    (an existing, empty folder: the stage's atomic output). The steps are
+    :func:`pipeline.bake.bake.bake_maps`'s, the independent ones side by side (module doc).
 
     Raises
     ------
     ScanError
         A missing or incomplete input mesh, an unreadable texture.
     """
+    s = settings
     retopo_dir, dense_dir, out_dir = Path(retopo_dir), Path(dense_dir), Path(out_dir)
     low = read_stage_mesh(retopo_dir / "mesh.npz", required=("V", "F", "loop_left", "loop_right"))
-    # the xatlas unwrap (holds the GIL) runs in a forked child while the scan and texture load
-    uv_job = fork_call(unwrap, low["V"], low["F"], settings.resolution, settings.uv_padding_texels)
+    V, F = np.asarray(low["V"], dtype=np.float64), np.asarray(low["F"], dtype=np.int64)
+    t = {}
+    t0 = time.perf_counter()
+    # the xatlas unwrap (holds the GIL) runs beside: loading the scan and its texture, the
+    # UV-independent half of the accuracy metric and the ray-casting BVH
+    uv_job = fork_call(unwrap, V, F, s.resolution, s.uv_padding_texels)
     dense = read_stage_mesh(dense_dir / "mesh.npz")
     texture = _texture(dense_dir / "texture.png")
     loops = {"left": low["loop_left"], "right": low["loop_right"]}
-    # while the child unwraps: the UV-independent half of the accuracy metric
-    t0 = time.perf_counter()
-    baseline = reconstruction_baseline(low["V"], low["F"], dense["V"], dense["F"],
-                                       levels=settings.subdivision_levels, n_samples=settings.metric_samples)
-    baseline_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    scene = dense_scene(low["V"], dense, settings)        # and the ray-casting BVH
-    scene_s = time.perf_counter() - t0
-    (UV, FUV), unwrap_s = fork_result(uv_job)
-    jobs = []
-
-    def start_metric(UV, FUV, displacement):
-        # the accuracy metric runs in a child while the colour map is made and the maps are written
-        jobs.append(fork_call(reconstruction_error, low["V"], low["F"], UV, FUV, displacement,
-                              dense["V"], dense["F"], levels=settings.subdivision_levels,
-                              n_samples=settings.metric_samples, baseline=baseline))
-
-    result = bake_maps(low["V"], low["F"], loops, dense, texture, settings, UV=UV, FUV=FUV, scene=scene,
-                       on_displacement=start_metric)
-    result.metrics["timings_s"]["unwrap_s"] = round(unwrap_s, 4)   # child process, overlapped with loading
-    result.metrics["timings_s"]["scene_s"] = round(scene_s, 4)     # while the child unwraps
-    mesh = {**{k: v for k, v in low.items() if k not in ("UV", "FUV")}, "UV": result.UV, "FUV": result.FUV}
-    write_bake(out_dir, mesh, result.displacement, result.mask, result.color,
-               resolution=settings.resolution, falloff_mm=settings.falloff_mm,
-               colour_source=result.metrics["colour"])
-    err, recon_s = fork_result(jobs[0])
-    result.metrics["timings_s"]["reconstruction_error_s"] = round(baseline_s + recon_s, 4)
-    return {**result.metrics, "reconstruction": err}
+    t1 = time.perf_counter()
+    baseline = reconstruction_baseline(V, F, dense["V"], dense["F"], levels=s.subdivision_levels,
+                                       n_samples=s.metric_samples)
+    baseline_s = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    scene = dense_scene(V, dense, s)
+    t["scene_s"] = time.perf_counter() - t1
+    (UV, FUV), t["unwrap_s"] = fork_result(uv_job)
+    res = int(s.resolution)
+    t1 = time.perf_counter()
+    tx = atlas_texels(V, F, UV, FUV, res)
+    t["rasterize_s"] = time.perf_counter() - t1
+    # the falloff weights and the padding need the texels only: beside the ray casting
+    weights_job = fork_call(texel_weights, V, F, tx, list(loops.values()), s)
+    t1 = time.perf_counter()
+    disp, hface, hbary, n_miss = cast_texels(scene, tx, s)
+    t["raycast_s"] = time.perf_counter() - t1
+    weights, t["weights_padding_s"] = fork_result(weights_job)
+    t1 = time.perf_counter()
+    dimg, disp_w = displacement_map(tx, disp, weights, res)
+    # the accuracy metric needs the final displacement map: beside the colour map and the writes
+    error_job = fork_call(reconstruction_error, V, F, UV, FUV, dimg, dense["V"], dense["F"],
+                          levels=s.subdivision_levels, n_samples=s.metric_samples, baseline=baseline)
+    cimg = colour_map(tx, dense, texture, hface, hbary, weights, res)
+    t["maps_s"] = time.perf_counter() - t1
+    colour = colour_source(dense, texture, cimg)
+    mesh = {**{k: v for k, v in low.items() if k not in ("UV", "FUV")}, "UV": UV, "FUV": FUV}
+    write_bake(out_dir, mesh, dimg, tx.mask, cimg, resolution=res, falloff_mm=s.falloff_mm, colour_source=colour)
+    t["total_s"] = time.perf_counter() - t0
+    err, recon_s = fork_result(error_job)
+    t["reconstruction_error_s"] = baseline_s + recon_s
+    timings = {k: round(v, 4) for k, v in t.items()}
+    return StageResult({**bake_metrics(tx, disp_w, n_miss, colour, res), "reconstruction": err},
+                       {"timings_s": timings, "time_s": timings["total_s"]})

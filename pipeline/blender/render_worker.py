@@ -85,7 +85,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
+from dataclasses import asdict
 import os
 import re
 import sys
@@ -102,13 +102,11 @@ from pipeline.blender.seg_passes import SegPasses
 from pipeline.blender.scene import add_inbetween_keys, evaluated_vertices, find_image, import_usd
 from pipeline.blender.world import EnvironmentWorld
 from pipeline.eyeball.textures import IRIS_COLORS, SCLERA_TINTS, VEINS  # the asset's variants (no bpy)
-from pipeline.geometry.frame import quat_to_matrix
+from pipeline.render.camera import quat_to_matrix
+from pipeline.render.spec import EYE_BLENDS, SIDES, CameraSpec, RenderSpec
 
 REPLY_PREFIX = "@@render@@ "
 CAMERA_PULLBACK_M = 0.25
-SIDES = ("left", "right")
-EYE_BLENDS = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
-SKIN_DETAIL = ("displacement", "bump", "none")
 ADAPTIVE_THRESHOLD = 0.02
 WORLD_MAP_RESOLUTION = 256
 DENOISERS = ("worker", "cycles")  # the worker's own persistent OIDN filters (default) | Cycles' per render
@@ -417,24 +415,11 @@ class Worker:
         for o, base in self.roots.items():
             o.matrix_world = Matrix((self.Rw @ base).tolist())
 
-    def _set_eyes(self, spec: dict) -> None:
+    def _set_eyes(self, spec: RenderSpec) -> None:
         from mathutils import Matrix
 
-        rot = spec["eye_rotation"]
-        eb = spec["eyeball"]
-        if eb["iris_color"] not in IRIS_COLORS:
-            raise ValueError(f"eyeball.iris_color {eb['iris_color']!r} not in {IRIS_COLORS}")
-        if eb["sclera_tint"] not in SCLERA_TINTS:
-            raise ValueError(f"eyeball.sclera_tint {eb['sclera_tint']!r} not in {tuple(SCLERA_TINTS)}")
-        if eb["veins"] not in VEINS:
-            raise ValueError(f"eyeball.veins {eb['veins']!r} not in {VEINS}")
-        blend = eb.get("blend", {})
-        bad = set(blend) - set(EYE_BLENDS)
-        if bad:
-            raise ValueError(f"eyeball.blend: unknown shapes {sorted(bad)}")
-        for k, v in blend.items():
-            if not (0.0 <= float(v) <= 1.0):
-                raise ValueError(f"eyeball.blend.{k} = {v} outside [0, 1]")
+        rot, eb = spec.eye_rotation, spec.eyeball
+        blend = eb.blend
         for side in SIDES:
             e = self.eyes[side]
             q = quat_to_matrix(rot[side])
@@ -442,33 +427,27 @@ class Worker:
             e["bone"].rotation_quaternion = Matrix(local.tolist()).to_quaternion()
             for k in EYE_BLENDS:
                 e["keys"][k].value = float(blend.get(k, 0.0))
-            variant = (eb["iris_color"], eb["sclera_tint"], eb["veins"])
+            variant = (eb.iris_color, eb.sclera_tint, eb.veins)
             if self.eye_variant.get(side) != variant:
                 h = e["handles"]
-                h["iris_tex"].image = self.iris_images[eb["iris_color"]]
-                h["sclera_tex"].image = self.sclera_images[eb["veins"]]
-                set_tint(h, SCLERA_TINTS[eb["sclera_tint"]])
+                h["iris_tex"].image = self.iris_images[eb.iris_color]
+                h["sclera_tex"].image = self.sclera_images[eb.veins]
+                set_tint(h, SCLERA_TINTS[eb.sclera_tint])
                 self.eye_variant[side] = variant
 
     def _set_lids(self, cw: dict) -> None:
-        for k in ("lids_up", "lids_down"):
-            v = float(cw.get(k, 0.0))
-            if not (0.0 <= v <= 1.0):
-                raise ValueError(f"lid_weights.{k} = {v} outside [0, 1]")
-        bad = set(cw) - {s.name for s in self.shapes}
+        bad = set(cw) - {s.name for s in self.shapes}       # the values were checked with the spec
         if bad:
             raise ValueError(f"lid_weights: unknown channels {sorted(bad)}")
         flat = self.lids.flat_shape_weights(self.shapes, {k: float(v) for k, v in cw.items()})
         for kb in self.skin_keys:
             kb.value = flat.get(kb.name, 0.0)
 
-    def _set_camera(self, cam: dict, width: int, height: int) -> None:
+    def _set_camera(self, cam: CameraSpec, width: int, height: int) -> None:
         from mathutils import Matrix
 
-        C = camera_to_head(cam["world_to_camera"])
-        scale = float(cam["ortho_scale_mm"])
-        if not (math.isfinite(scale) and scale > 0):
-            raise ValueError("camera.ortho_scale_mm must be > 0")
+        C = camera_to_head(cam.world_to_camera)
+        scale = float(cam.ortho_scale_mm)
         R = self.H_rot @ C[:3, :3]
         loc = self.H[:3, :3] @ C[:3, 3] + self.H[:3, 3] + R[:, 2] * CAMERA_PULLBACK_M
         Mw = np.eye(4)
@@ -504,65 +483,50 @@ class Worker:
         inner = self._evaluated_head_mm(e["inner"], dg)
         return np.concatenate([lid, inner[self.eb_landmarks["iris"]], inner[self.eb_landmarks["pupil"]]])
 
-    def render(self, spec: dict) -> dict:
+    def render(self, spec: RenderSpec) -> dict:
         bpy = self.bpy
         t0, c0 = time.perf_counter(), time.process_time()
-        png = Path(spec["png"])
-        if not png.is_absolute() or png.suffix.lower() != ".png":
-            raise ValueError(f"png {str(png)!r}: an absolute .png path")
-        if not png.parent.is_dir():
-            raise ValueError(f"png {str(png)!r}: folder does not exist")
-        width, height = int(spec["width"]), int(spec["height"])
-        if not (1 <= width <= 8192 and 1 <= height <= 8192):
-            raise ValueError(f"image size {width}x{height} out of range")
-        samples = int(spec["samples"])
-        if not 1 <= samples <= 1 << 16:
-            raise ValueError(f"samples {samples} out of range")
-        side = spec["eye"]
-        if side not in SIDES:
-            raise ValueError(f"eye {side!r} not in {SIDES}")
-        detail = spec.get("skin_detail", "bump")
-        if detail not in SKIN_DETAIL:
-            raise ValueError(f"skin_detail {detail!r} not in {SKIN_DETAIL}")
-        outs = {k: Path(spec[k]) for k in ("seg_png", "depth_exr") if spec.get(k)}
-        if any(not p.is_absolute() or not p.parent.is_dir() for p in outs.values()):
-            raise ValueError("seg_png / depth_exr: absolute paths in an existing folder")
-        lm_in = np.asarray(spec["landmarks_head_mm"], float)
-        if lm_in.shape != (28, 3) or not np.all(np.isfinite(lm_in)):
-            raise ValueError(f"landmarks_head_mm must be 28 x 3 finite numbers, got shape {lm_in.shape}")
+        png = Path(spec.png)                # the values were checked when the spec was read
+        outs = {k: Path(p) for k, p in (("seg_png", spec.seg_png), ("depth_exr", spec.depth_exr)) if p}
+        if any(not p.parent.is_dir() for p in [png, *outs.values()]):
+            raise ValueError(f"png / seg_png / depth_exr {str(png)!r}: the folder does not exist")
+        width, height, side = spec.width, spec.height, spec.eye
+        lm_in = np.asarray(spec.landmarks_head_mm, float)
+        over = spec.quality.overrides         # tests and benchmarks: this image only
         t_in = time.perf_counter()
-        self._set_hdri(spec["lighting"])
+        self._set_hdri(asdict(spec.lighting))
         self._set_eyes(spec)
-        self._set_lids(spec["lid_weights"])
-        self._set_camera(spec["camera"], width, height)
-        self._set_skin_detail(detail)
-        self._set_skin_subdivision(int(spec.get("skin_subdivision", 0)))
+        self._set_lids(spec.lid_weights)
+        self._set_camera(spec.camera, width, height)
+        self._set_skin_detail(spec.quality.skin_detail)
+        self._set_skin_subdivision(int(over.get("skin_subdivision", 0)))
         c = self.scene.cycles
-        c.samples = samples
-        denoise = bool(spec.get("denoise", True))
-        denoiser = spec.get("denoiser", "worker")
+        c.samples = spec.quality.samples
+        denoise = spec.quality.denoise
+        denoiser = over.get("denoiser", "worker")
         if denoiser not in DENOISERS:
             raise ValueError(f"denoiser {denoiser!r} not in {DENOISERS}")
         own = denoiser == "worker" and self.oidn is not None     # the worker's film and OIDN, else Blender's
-        prefilter = str(spec.get("denoise_prefilter", DENOISE_PREFILTER))
+        prefilter = str(over.get("denoise_prefilter", DENOISE_PREFILTER))
         c.use_denoising = denoise and self.has_denoiser and not own
-        c.seed = int(spec.get("cycles_seed", 0)) & 0x7FFFFFFF
-        c.use_adaptive_sampling = bool(spec.get("adaptive_sampling", True))
-        c.adaptive_threshold = float(spec.get("adaptive_threshold", ADAPTIVE_THRESHOLD))
+        c.seed = spec.quality.cycles_seed & 0x7FFFFFFF
+        c.use_adaptive_sampling = bool(over.get("adaptive_sampling", True))
+        c.adaptive_threshold = float(over.get("adaptive_threshold", ADAPTIVE_THRESHOLD))
         for k, v in LIGHT_PATHS.items():
-            setattr(c, k, int(spec.get(k, v)))
+            setattr(c, k, int(over.get(k, v)))
         c.denoising_prefilter = prefilter
-        for k, v in spec.get("cycles", {}).items():       # benchmarks: any scene.cycles property, this image only
+        cycles = over.get("cycles", {})
+        for k, v in cycles.items():       # benchmarks: any scene.cycles property, this image only
             if k not in self.cycles_saved:
                 self.cycles_saved[k] = getattr(c, k)
             setattr(c, k, v)
-        for k in [k for k in self.cycles_saved if k not in spec.get("cycles", {})]:
+        for k in [k for k in self.cycles_saved if k not in cycles]:
             setattr(c, k, self.cycles_saved.pop(k))
         self.bpy.context.view_layer.update()
         polygons = (len(self.skin.evaluated_get(self.bpy.context.evaluated_depsgraph_get()).data.polygons)
-                    if "skin_subdivision" in spec else None)
+                    if "skin_subdivision" in over else None)
         t_pose = time.perf_counter()
-        measured = self._lashes_and_landmarks(side, bool(spec.get("lashes", True)))
+        measured = self._lashes_and_landmarks(side, bool(over.get("lashes", True)))
         check = float(np.linalg.norm(measured - lm_in, axis=1).max())
         t_lash = time.perf_counter()
         if outs:
@@ -585,7 +549,7 @@ class Worker:
         if outs:
             self.seg.after_render(outs.get("seg_png"), outs.get("depth_exr"), passes)
         passes_s = time.perf_counter() - t2
-        return {"index": spec.get("index"), "ok": True, "render_s": round(t_render, 4),
+        return {"index": spec.index, "ok": True, "render_s": round(t_render, 4),
                 "render_cpu_s": round(c_render, 4), "total_s": round(time.perf_counter() - t0, 4),
                 "total_cpu_s": round(time.process_time() - c0, 4), "rss_mib": rss_mib(),
                 "passes_s": round(passes_s, 4), "denoise_s": round(t_den, 4), "denoise_cpu_s": round(c_den, 4),
@@ -620,13 +584,11 @@ def main(argv=None) -> int:
             continue
         index = None
         try:
-            spec = json.loads(line)
-            if not isinstance(spec, dict):
-                raise ValueError("a spec must be a JSON object")
-            if spec.get("quit"):
+            doc = json.loads(line)
+            if isinstance(doc, dict) and doc.get("quit"):
                 break
-            index = spec.get("index")
-            _reply(w.render(spec))
+            index = doc.get("index") if isinstance(doc, dict) else None
+            _reply(w.render(RenderSpec.from_dict(doc)))
         except Exception as exc:  # noqa: BLE001 -- any bad spec: report it and carry on
             _reply({"index": index, "ok": False, "error": f"{type(exc).__name__}: {exc}"})
     return 0

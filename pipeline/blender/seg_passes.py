@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.render.seg import AOV_CHANNELS, CARUNCLE, CARUNCLE_RADIUS_MM, IRIS, LASHES, PUPIL, SCLERA, SKIN
+from pipeline.io.seg_file import CARUNCLE, IRIS, LASHES, PUPIL, SCLERA, SKIN
+from pipeline.render.seg import AOV_CHANNELS, CARUNCLE_RADIUS_MM
 
 CANTHUS_ATTRIBUTE = "eyerig_canthus_mm"
 

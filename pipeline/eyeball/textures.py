@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.eyeball.geometry import IRIS_TEXTURE_IRIS_FRACTION, IRIS_TEXTURE_PUPIL_FRACTION
+from pipeline.geometry.ramps import smoothstep
 
 IRIS_COLORS = ("amber", "blue", "brown", "grey")
 SCLERA_TINTS = {"white": (1.0, 1.0, 1.0), "pink": (1.0, 0.84, 0.82), "yellow": (1.0, 0.94, 0.74)}
@@ -62,11 +63,6 @@ def _sample_polar(grid, ang, t):
     g = grid
     return ((g[x0, y0] * (1 - fx) + g[x1, y0] * fx) * (1 - fy)
             + (g[x0, y0 + 1] * (1 - fx) + g[x1, y0 + 1] * fx) * fy)
-
-
-def _smoothstep(a, b, x):
-    t = np.clip((x - a) / (b - a), 0, 1)
-    return t * t * (3 - 2 * t)
 
 
 def iris_texture(color: str, size: int = 512, seed: int = 0) -> np.ndarray:
@@ -108,7 +104,7 @@ def iris_texture(color: str, size: int = 512, seed: int = 0) -> np.ndarray:
     wav = _smooth_noise(rng, (96, 4), (2.5, 1), wrap_axes=(0,))
     t_col = 0.33 + 0.035 * _sample_polar(wav, ang, np.zeros_like(t))
     ridge = np.exp(-((t - t_col) / 0.035) ** 2)
-    pupillary = 1 - _smoothstep(t_col - 0.08, t_col + 0.06, t)
+    pupillary = 1 - smoothstep(t_col - 0.08, t_col + 0.06, t)
 
     col = dark[None, None] * (1 - fibre[..., None]) + light[None, None] * fibre[..., None]
     # pupillary zone tint
@@ -145,7 +141,7 @@ def iris_texture(color: str, size: int = 512, seed: int = 0) -> np.ndarray:
         col *= 1 - 0.25 * ring[..., None]
 
     # limbal ring and pupillary ruff
-    limb = _smoothstep(0.78, 1.0, t)
+    limb = smoothstep(0.78, 1.0, t)
     col = col * (1 - 0.85 * limb[..., None]) + limbal[None, None] * 0.85 * limb[..., None]
     ruff = np.exp(-(np.clip(t, 0, None) / 0.035) ** 2) * (t >= 0)
     col = col * (1 - 0.5 * ruff[..., None])
@@ -153,9 +149,9 @@ def iris_texture(color: str, size: int = 512, seed: int = 0) -> np.ndarray:
     grain = _smooth_noise(rng, (size, size), 0.7)
     col *= (1 + 0.05 * grain)[..., None]
     # pupil (soft 1 px edge) and outside the iris (limbal colour)
-    pm = _smoothstep(fp - 1.5 / size, fp + 0.5 / size, r)
+    pm = smoothstep(fp - 1.5 / size, fp + 0.5 / size, r)
     col = col * pm[..., None]
-    outside = _smoothstep(fi, fi + 2.0 / size, r)
+    outside = smoothstep(fi, fi + 2.0 / size, r)
     col = col * (1 - outside[..., None]) + limbal[None, None] * outside[..., None]
     img = np.clip(col, 0, 1).astype(np.float32)
     return np.flipud(img)  # row 0 = top = v 1

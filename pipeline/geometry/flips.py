@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
+from pipeline.geometry import meshtopo
 from pipeline.geometry.mesh_edit import TriMesh
 
 
@@ -257,7 +258,7 @@ def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, m
         return order[starts[v]:starts[v + 1]] // 3
 
     def bad_faces():
-        n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+        n = meshtopo.triangle_cross(V, F)
         return np.flatnonzero(np.einsum("ij,ij->i", n, R) <= need)
 
     for _ in range(rounds):

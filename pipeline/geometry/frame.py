@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import ScanError
+# the eye frame is part of eyes.json's convention (what its forward means), so io defines it
+from pipeline.io.eyes_file import eye_basis  # noqa: F401
 
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 _AXIS = {"X": 0, "Y": 1, "Z": 2}
@@ -157,40 +159,3 @@ def check_eye_layout(left, right, path, separation_mm=(30.0, 120.0)) -> float:
         raise ScanError(path, "the left eye hint lies on the subject's right (-X) in the head frame: "
                               "forward_axis sign is wrong, the scan is mirrored, or left/right hints are swapped")
     return dist
-
-
-def eye_basis(forward) -> np.ndarray:
-    """Orthonormal eye frame from a forward direction and head +Y.
-
-    Returns
-    -------
-    (3, 3) float64
-        Rows ``e_x = normalize(Y x f)`` (toward head +X), ``e_y = f x e_x`` (up), ``e_z = f``.
-    """
-    f = np.asarray(forward, dtype=np.float64)
-    f = f / np.linalg.norm(f)
-    ex = np.cross([0.0, 1.0, 0.0], f)
-    n = np.linalg.norm(ex)
-    if n < 1e-6:
-        raise ValueError("forward direction is vertical; pitch axis undefined")
-    ex /= n
-    ey = np.cross(f, ex)
-    return np.stack([ex, ey, f])
-
-
-def quat_to_matrix(q) -> np.ndarray:
-    """(3, 3) rotation of a quaternion ``(w, x, y, z)`` (normalised first).
-
-    Raises
-    ------
-    ValueError
-        Not 4 finite numbers, or the zero quaternion.
-    """
-    q = np.asarray(q, float)
-    n = np.linalg.norm(q) if q.shape == (4,) else float("nan")
-    if not np.isfinite(n) or n < 1e-9:
-        raise ValueError(f"bad quaternion {q.tolist()}")
-    w, x, y, z = q / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])

@@ -122,7 +122,7 @@ def check_mesh(V, F, area_tol=1e-10) -> MeshReport:
     sf = np.sort(F, axis=1)
     _, fcount = np.unique(sf, axis=0, return_counts=True)
     rep = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])
-    area = 0.5 * np.linalg.norm(face_normals(V, F, normalize=False), axis=1)
+    area = meshtopo.face_areas(V, F)
     try:
         nb = len(boundary_loops(F))
         nm_vert_boundary = 0
@@ -206,7 +206,7 @@ def sample_surface(V, F, n, seed=0):
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     rng = np.random.default_rng(seed)
-    area = 0.5 * np.linalg.norm(face_normals(V, F, normalize=False), axis=1)
+    area = meshtopo.face_areas(V, F)
     cdf = np.cumsum(area)
     fi = np.minimum(np.searchsorted(cdf, rng.random(n) * cdf[-1]), len(F) - 1)
     r1 = np.sqrt(rng.random(n))

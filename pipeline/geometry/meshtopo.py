@@ -1,4 +1,5 @@
-"""Small triangle-mesh topology helpers (face adjacency, boundary loops, manifold checks)."""
+"""Triangle-mesh helpers: normals and areas, face adjacency and components, boundary loops,
+manifold checks."""
 
 from __future__ import annotations
 
@@ -58,6 +59,25 @@ def face_components(n_faces, pairs, mask=None):
     G = coo_matrix((np.ones(len(p)), (p[:, 0], p[:, 1])), shape=(n_faces, n_faces))
     _, labels = connected_components(G, directed=False)
     return labels.astype(np.int64)
+
+
+def face_components_by_vertex(F, n_vertices: int):
+    """Connected components of faces sharing a vertex (:func:`face_components`: sharing an edge).
+
+    Returns
+    -------
+    n : int
+    labels : (m,) int64
+        Component of each face.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.concatenate([F[:, 0], F[:, 1]])
+    cols = np.concatenate([F[:, 1], F[:, 2]])
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n_vertices, n_vertices))
+    n, vlabels = connected_components(graph, directed=False)
+    return n, vlabels[F[:, 0]].astype(np.int64)
 
 
 def boundary_halfedges(F, face_order: bool = False):
@@ -148,12 +168,38 @@ def is_edge_manifold(F) -> bool:
     return not bool((und[2:] == und[:-2]).any())   # sorted: 3 equal keys = an edge with > 2 faces
 
 
+# Triangle normals and areas, the one place (measured on a 164k-vertex, 328k-face sphere, loaded
+# 2-core machine: np.cross 97 ms, the components below 69 ms, the same bits; np.add.at 68 ms,
+# one bincount per axis 36 ms, the same bits: both add in face order, corner 0 first. libigl's
+# per_vertex_normals takes 29 ms but sums in another order: its normals differ in the last bit,
+# which would change the bake's maps and every product after them, so it is not used.)
+
+def _cross_components(V, F):
+    """x, y, z components (m,) of ``(v1 - v0) x (v2 - v0)`` of every face."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    a = V[F[:, 0]]
+    ab, ac = V[F[:, 1]] - a, V[F[:, 2]] - a
+    return (ab[:, 1] * ac[:, 2] - ab[:, 2] * ac[:, 1],
+            ab[:, 2] * ac[:, 0] - ab[:, 0] * ac[:, 2],
+            ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+
+
+def triangle_cross(V, F):
+    """(m, 3) ``(v1 - v0) x (v2 - v0)`` of every face: the normal times twice the area."""
+    return np.stack(_cross_components(V, F), axis=1)
+
+
+def face_areas(V, F):
+    """(m,) triangle areas (from the components: a norm along a length-3 axis is slow in numpy)."""
+    cx, cy, cz = _cross_components(V, F)
+    return 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
+
+
 def face_normals(V, F, normalize=True):
     """(m, 3) face normals: unit (zero for degenerate faces), or with ``normalize=False`` the
     plain cross products (length twice the face area)."""
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    N = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    N = triangle_cross(V, F)
     if not normalize:
         return N
     L = np.linalg.norm(N, axis=1, keepdims=True)
@@ -162,11 +208,9 @@ def face_normals(V, F, normalize=True):
 
 def vertex_normals(V, F):
     """Area-weighted unit vertex normals (n, 3) (zero for unreferenced vertices)."""
-    V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
-    N = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    VN = np.zeros_like(V, dtype=np.float64)
-    for k in range(3):
-        np.add.at(VN, F[:, k], N)
+    corner = F.T.ravel()                   # every face's corner 0, then corner 1, then corner 2
+    VN = np.stack([np.bincount(corner, np.tile(c, 3), minlength=len(V)) for c in _cross_components(V, F)],
+                  axis=1)
     L = np.linalg.norm(VN, axis=1, keepdims=True)
     return np.divide(VN, L, out=np.zeros_like(VN), where=L > 0)

@@ -80,7 +80,7 @@ def write_bake(folder, mesh: dict, displacement, mask, color, *, resolution: int
     """
     from PIL import Image
 
-    from pipeline.bake.exr import preview_16bit, write_exr
+    from pipeline.io.exr import preview_16bit, write_exr
     from pipeline.io.meshfile import save_mesh
 
     from concurrent.futures import ThreadPoolExecutor
@@ -150,15 +150,10 @@ def read_displacement(path, channel: str = "Y") -> np.ndarray:
     ScanError
         Missing, not decodable, no such channel, not 2-D, or non-finite texels.
     """
-    from pipeline.bake.exr import read_exr
+    from pipeline.io.exr import read_exr_product
 
     path = Path(path)
-    if not path.is_file():
-        raise ScanError(path, "not found")
-    try:
-        d = read_exr(path, channel)
-    except Exception as exc:  # noqa: BLE001 -- any decoder failure is a bad input
-        raise ScanError(path, f"cannot read displacement map ({exc})") from None
+    d = read_exr_product(path, channel, "cannot read displacement map")
     if d.ndim != 2 or d.size == 0:
         raise ScanError(path, f"displacement map must be one (H, W) channel (got shape {d.shape})")
     if not np.isfinite(d).all():

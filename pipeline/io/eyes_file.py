@@ -64,6 +64,27 @@ class EyeRecord:
         return list(self.doc.get("doubts") or [])
 
 
+def eye_basis(forward) -> np.ndarray:
+    """Orthonormal eye frame from a forward direction and head +Y: the frame in which an
+    ``eyes.json`` record's loop is read (its lateral canthus, :func:`lateral_canthus_index`)
+    and every later stage poses the eye (re-exported by pipeline/geometry/frame.py).
+
+    Returns
+    -------
+    (3, 3) float64
+        Rows ``e_x = normalize(Y x f)`` (toward head +X), ``e_y = f x e_x`` (up), ``e_z = f``.
+    """
+    f = np.asarray(forward, dtype=np.float64)
+    f = f / np.linalg.norm(f)
+    ex = np.cross([0.0, 1.0, 0.0], f)
+    n = np.linalg.norm(ex)
+    if n < 1e-6:
+        raise ValueError("forward direction is vertical; pitch axis undefined")
+    ex /= n
+    ey = np.cross(f, ex)
+    return np.stack([ex, ey, f])
+
+
 def lateral_canthus_index(points, center, forward, side: str) -> int:
     """Position of the lateral canthus in a loop: the point farthest toward the eye's lateral
     side (head +X for the left eye, -X for the right) in the eye frame of ``forward``.
@@ -76,8 +97,6 @@ def lateral_canthus_index(points, center, forward, side: str) -> int:
     forward : (3,) float64
     side : str
     """
-    from pipeline.geometry.frame import eye_basis
-
     x = (np.asarray(points, float) - center) @ eye_basis(forward)[0]
     return int(np.argmax(x if side == "left" else -x))
 

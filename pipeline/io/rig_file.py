@@ -14,7 +14,7 @@ Written by the ``rig`` stage, read by ``usd`` (blend shapes, landmark curves, ey
      "shapes": [...], "landmarks": {...}, "npz_layout": {...}, ...}
 
 ``rig.npz`` (layout in ``rig.json["npz_layout"]``, conversions in
-:func:`pipeline.rig.lids.shapes_to_arrays`): ``shape_names`` and per shape
+:func:`pipeline.io.blend_shapes.shapes_to_arrays`): ``shape_names`` and per shape
 ``<name>.point_indices/.offsets/.inbetween_weights/.inbetween_offsets``; per eye
 ``landmarks.<side>.points`` (12, 3), optional ``landmarks.<side>.edge`` (12, 2) and
 ``.t`` (12,), the landmark curve's shapes under the ``landmarks.<side>.`` prefix, and
@@ -36,6 +36,7 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.io import docfile as df
 from pipeline.io.atomic import write_json
+from pipeline.io.blend_shapes import shapes_from_arrays
 
 SCHEMA = 1
 SIDES = ("left", "right")
@@ -75,7 +76,7 @@ class RigArrays:
     ----------
     path : Path
     arrays : dict of str -> ndarray     every array as stored
-    shapes : list of pipeline.rig.lids.BlendShape   the lid shapes
+    shapes : list of pipeline.io.blend_shapes.BlendShape   the lid shapes
     curves : dict side -> (points (12, 3) float64, list of BlendShape)   eyelid landmark curves
     """
 
@@ -116,8 +117,6 @@ def write_rig(folder, arrays: dict, doc: dict) -> None:
 
 def _shapes(arrays: dict, path: Path, prefix: str, n_points: int | None, against: str):
     """The blend shapes stored under ``prefix``, each array checked as stored (dtype, shape)."""
-    from pipeline.rig import lids
-
     what = "lid" if not prefix else prefix.rstrip(".")
     key = f"{prefix}shape_names"
     if key not in arrays:
@@ -139,7 +138,7 @@ def _shapes(arrays: dict, path: Path, prefix: str, n_points: int | None, against
         if np.any((w <= 0) | (w >= 1)) or np.any(np.diff(w) <= 0):
             raise ScanError(path, f"{pre}.inbetween_weights must increase inside (0, 1)")
         df.indices_within(pi, n_points, path, f"shape {pre}", against)
-    return lids.shapes_from_arrays(arrays, prefix=prefix)
+    return shapes_from_arrays(arrays, prefix=prefix)
 
 
 def read_rig_arrays(path, n_vertices: int | None = None, against: str = "the mesh") -> RigArrays:

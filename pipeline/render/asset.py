@@ -356,6 +356,12 @@ def inner_points(eye: EyeAsset, blend: dict, rotation, indices) -> np.ndarray:
     return eye.center + (rest - eye.center) @ np.asarray(rotation, np.float64).T
 
 
+def ring_radius(P) -> float:
+    """Mean distance of points (k, d) from their centroid: the radius of a ring of landmarks."""
+    P = np.asarray(P, float)
+    return float(np.mean(np.linalg.norm(P - P.mean(0), axis=1)))
+
+
 def eyelid_points(asset: RenderAsset, side: str, lid_weights: dict) -> np.ndarray:
     """(12, 3) posed eyelid landmarks of one eye (see the module docstring)."""
     eye = asset.eyes[side]

@@ -1,9 +1,7 @@
 """Datasets across many identities: one resumable, sharded render over several rigged assets.
 
-    python -m pipeline.render.dataset --assets rigged_assets/* --n 10000 --preset generic --out DIR \\
-        [--weights 2 1 1] [--rigs build/a/rig ...] [--seed S] [--params params.yaml] \\
-        [--set KEY=VALUE ...] [--workers N] [--scheduler ADDRESS] [--no-progress] [--dashboard] \\
-        [--overwrite | --resume]
+The library of the dataset command (``python -m stages.dataset``, stages/dataset.py, which reads
+the settings and says what happens); here nothing reads params.yaml or prints.
 
 Image ``i`` (global index ``0..n-1``) shows asset ``assign(n, weights, seed)[i]``
 (pipeline/render/mix.py: exact counts by largest remainder, interleaved by the seed) and is
@@ -31,19 +29,17 @@ nor a dataset is refused, ``--overwrite`` or not. Settings come from the ``rende
 ``--params`` (image size, samples, ranges, label formats, workers, ...); ``--set KEY=VALUE``,
 ``--n``, ``--preset`` and ``--seed`` override it.
 
-Bad input (a missing or invalid asset or rig, ``--n`` out of range, a weight count that does
-not match, an output folder that is not a dataset or holds another plan) ends with one line
-and exit 2 before anything is written.
+Bad input (a missing or invalid asset or rig, a weight count that does not match, an output
+folder that is not a dataset or holds another plan) is a ScanError raised before anything is
+written.
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
 import shutil
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,25 +50,14 @@ from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json, write_text
 from pipeline.io.labels_file import SCHEMA as LABEL_SCHEMA
 from pipeline.io.labels_file import label_name, read_index, read_label
-from pipeline.render import mix
+from pipeline.render import formats, mix
 from pipeline.render import plan as pl
 from pipeline.render import run as rr
-from pipeline.render.plan import SCHEMA, check_out
+from pipeline.render.plan import SCHEMA
 
 INFO, CARD, TIMINGS = pl.OWN_FILES
 #: ``rigged_assets/eyeball`` holds the eyeball every asset references, not a head: skipped.
 SHARED_EYEBALL = "eyeball"
-#: What each per-image file holds (by its name with the index as NNNNNN); a file of another
-#: label format is listed as such (render.label_formats).
-IMAGE_FILES = {
-    "NNNNNN.png": "image NNNNNN (global index, 6 digits), 8-bit RGB",
-    "NNNNNN.json": "its label (see the label schema below); written last, it marks the image done",
-    "NNNNNN.pts": "the 28 landmarks as a 300-W .pts file (pixels)",
-    "unityeyes/NNNNNN.json": "the label in UnityEyes' JSON format (GazeML reads unityeyes/ as it is)",
-    "unityeyes/NNNNNN.jpg": "the image as a JPEG, beside its UnityEyes label",
-    "NNNNNN_seg.png": "segmentation mask: 8-bit indexed PNG, one class id per pixel (classes below)",
-    "NNNNNN_depth.exr": "z-depth in camera mm, float32 EXR channel Z (inf where nothing is seen)",
-}
 SEG_FILE = "NNNNNN_seg.png"
 FILES = {
     "index.jsonl": "one line per image, every index 0..n-1 once: index, png, json, asset, asset_id, eye, "
@@ -201,21 +186,18 @@ def _tagged(shards, a: DatasetAsset):
 
 
 def image_files(out: Path) -> dict:
-    """``{"NNNNNN<rest>": what it holds}`` for the files image 0 has, in the folder and its
-    sub-folders (every image has the same files)."""
-    out = Path(out)
+    """``{"NNNNNN<rest>": what it holds}`` for the files image 0 has (every image has the same
+    files), described by the label writers (pipeline/render/formats)."""
     names = sorted(p.relative_to(out).as_posix().replace("000000", "NNNNNN", 1)
-                   for d in (out, *(q for q in out.iterdir() if q.is_dir() and not q.name.startswith(".")))
-                   for p in d.glob("000000[._]*") if p.is_file())
-    return {k: IMAGE_FILES.get(k, "a per-image file of another label format (render.label_formats)")
-            for k in names}
+                   for i, p in formats.image_files(out) if i == 0)
+    return {k: formats.describe(k) for k in names}
 
 
 def masks_info(out: Path) -> dict | None:
     """What ``dataset.json`` says of the segmentation masks: None when image 0 has none."""
     if not (Path(out) / SEG_FILE.replace("NNNNNN", "000000")).is_file():
         return None
-    from pipeline.render.seg import CLASSES          # the masks' class table (written with them)
+    from pipeline.io.seg_file import CLASSES          # the masks' class table (written with them)
 
     return {"file": SEG_FILE, "format": "8-bit indexed PNG (mode P), one class id per pixel",
             "classes": {str(i): name for i, (name, _) in sorted(CLASSES.items())}}
@@ -271,7 +253,7 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
     Parameters
     ----------
     assets : list of DatasetAsset   (:func:`load_assets`)
-    settings : pipeline.render.sampling.RenderSettings   (its n_images is not used)
+    settings : pipeline.render.settings.RenderSettings   (its n_images is not used)
     n : int                          images in the dataset
     out : path                       the dataset folder (new, empty or an earlier dataset)
     scheduler : str, optional        a dask scheduler address (default: a LocalCluster)
@@ -334,119 +316,3 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
                "wall_s": round(wall, 3)}
     write_json(out / TIMINGS, timings)
     return timings
-
-
-# --------------------------------------------------------------------------------- command line
-
-class _Parser(argparse.ArgumentParser):
-    """argparse whose usage errors are one line and exit 2, like every bad input."""
-
-    def error(self, message):
-        self.exit(2, f"error: {self.prog}: {message}\n")
-
-
-def _settings(args):
-    import yaml
-
-    from pipeline.render.sampling import MAX_IMAGES, RenderSettings
-
-    if not 1 <= args.n <= MAX_IMAGES:
-        raise ScanError("--n", f"must be between 1 and {MAX_IMAGES} (got {args.n})")
-    params = {}
-    p = Path(args.params)
-    if p.is_file():
-        try:
-            doc = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-            raise ScanError(p, f"cannot be read as YAML ({type(exc).__name__})") from None
-        params = dict((doc.get("render") if isinstance(doc, dict) else None) or {})
-    elif args.params != "params.yaml":
-        raise ScanError(p, "params file not found")
-    for item in args.set or ():
-        key, eq, value = item.partition("=")
-        if not eq or not key:
-            raise ScanError("--set", f"{item!r} is not KEY=VALUE")
-        try:
-            params[key] = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise ScanError("--set", f"{key}: {value!r} is not a YAML value") from None
-    params["n_images"] = args.n
-    for key in ("preset", "seed", "workers"):
-        if getattr(args, key) is not None:
-            params[key] = getattr(args, key)
-    if args.no_progress:
-        params["progress"] = False
-    return RenderSettings.from_params(params, source=args.params)
-
-
-def main(argv=None) -> int:
-    ap = _Parser(prog="python -m pipeline.render.dataset", description=__doc__.splitlines()[0])
-    ap.add_argument("--assets", nargs="+", required=True, help="rigged_assets/<scan> folders (rigged_assets/* "
-                                                               "works: the shared eyeball is skipped)")
-    ap.add_argument("--n", type=int, required=True, help="images in the dataset")
-    ap.add_argument("--out", type=Path, required=True, help="the dataset folder (new, empty or earlier dataset)")
-    ap.add_argument("--weights", nargs="+", default=None, help="one weight per asset (default: equal)")
-    ap.add_argument("--rigs", nargs="+", default=None, help="build/<scan>/rig per asset (default: beside it)")
-    ap.add_argument("--preset", default=None, help="render preset (default: the params' render.preset)")
-    ap.add_argument("--seed", type=int, default=None, help="default: the params' render.seed")
-    ap.add_argument("--params", default="params.yaml", help="its render: block gives the settings")
-    ap.add_argument("--set", nargs="+", default=None, metavar="KEY=VALUE",
-                    help="override render settings (YAML values), e.g. width=240 height=160 samples=32")
-    ap.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes")
-    ap.add_argument("--scheduler", default=None, help="dask scheduler address (default: a LocalCluster)")
-    ap.add_argument("--no-progress", action="store_true")
-    ap.add_argument("--dashboard", action="store_true",
-                    help="serve the LocalCluster's dask dashboard on 127.0.0.1 (a free port, printed)")
-    how = ap.add_mutually_exclusive_group()
-    how.add_argument("--overwrite", action="store_true",
-                     help="replace a dataset of another plan in --out (its images the new plan shares are kept)")
-    how.add_argument("--resume", action="store_true", help="only continue the dataset of this plan in --out")
-    args = ap.parse_args(argv)
-
-    from pipeline.io.scratch import stage_scratch
-    from pipeline.render import shard as sh
-
-    try:
-        settings = _settings(args)
-        pairs, skipped = asset_inputs(args.assets, args.rigs)
-        check_out(args.out)
-        for f in skipped:
-            print(f"note: skipped {f} (the shared eyeball, not a head)", file=sys.stderr)
-        assets = load_assets(pairs, args.weights, settings)
-        for a in assets:                      # rendered all the same; the card lists them too
-            for d in a.doubts():
-                print(f"warning: {a.folder}: {d}", file=sys.stderr)
-        assign = mix.assign(args.n, [a.weight for a in assets], settings.seed)
-        fp = pl.inspect_dataset(args.out, assets, assign, settings)
-        err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
-        if err is not None:
-            raise err
-        if args.overwrite and fp.state == "new":
-            print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
-        elif args.overwrite:
-            what = "; ".join(fp.differences) or "the same plan"
-            print(f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {args.out} go ({what})",
-                  file=sys.stderr)
-
-        def dashboard(url):
-            print(sh.dashboard_text(url), file=sys.stderr)
-
-        with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
-            m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
-                               progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume,
-                               on_dashboard=dashboard if args.dashboard else None)
-    except ScanError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("error: interrupted (a re-run resumes)", file=sys.stderr)
-        return 130
-    rate = f", {m['images_per_s']:.2f} images/s" if m["images_per_s"] else ""
-    print(f"{args.out}: {m['n_images']} images of {len(assets)} assets ({m['rendered']} rendered, "
-          f"{m['skipped_done']} kept{rate}, {m['wall_s']:.1f} s)")
-    return 0
-
-
-if __name__ == "__main__":
-    os.environ.setdefault("PYTHONHASHSEED", "0")
-    raise SystemExit(main())

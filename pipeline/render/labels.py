@@ -11,10 +11,14 @@ positive = toward the subject's left (head frame) / toward image right (camera f
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 
 import numpy as np
 
+from pipeline.render import camera as cam
+from pipeline.render.settings import RenderSettings
 from pipeline.render import sampling as sp
+from pipeline.render.asset import ring_radius
 from pipeline.rig.landmarks import EYELID_ORDER
 
 LANDMARK_ORDER = ("28 landmarks of the imaged eye: 0-11 eyelid (" + EYELID_ORDER + "); 12-19 iris "
@@ -29,23 +33,17 @@ def _angles(v) -> dict:
             "yaw_deg": math.degrees(math.atan2(v[0], v[2]))}
 
 
-def ring_radius(P) -> float:
-    """Mean distance of points (k, d) from their centroid: the radius of a ring of landmarks."""
-    P = np.asarray(P, float)
-    return float(np.mean(np.linalg.norm(P - P.mean(0), axis=1)))
-
-
 #: Worker reply fields that measure time, not the image: kept out of the labels.
 TIMING_KEYS = ("render_s", "total_s", "render_cpu_s", "total_cpu_s", "passes_s")
 
 
-def make_label(smp: sp.Sample, settings: sp.RenderSettings, scan: str, reply: dict | None = None) -> dict:
+def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict | None = None) -> dict:
     """The label dict of one image (``reply`` = the worker's reply, adds the render facts)."""
     spec = smp.spec
     W2C = np.asarray(smp.camera["world_to_camera"], float)
     R = W2C[:3, :3]
-    P = sp.projection_matrix(smp.camera["ortho_scale_mm"], settings.width, settings.height)
-    ow, oh = sp.ortho_size(smp.camera["ortho_scale_mm"], settings.width, settings.height)
+    P = cam.projection_matrix(smp.camera["ortho_scale_mm"], settings.width, settings.height)
+    ow, oh = cam.ortho_size(smp.camera["ortho_scale_mm"], settings.width, settings.height)
     view = -R[2]                               # camera viewing direction in the head frame
     g = smp.gaze[smp.side]
     g_cam = R @ g["vector_head"]
@@ -95,22 +93,22 @@ def make_label(smp: sp.Sample, settings: sp.RenderSettings, scan: str, reply: di
                  "limits_deg": {"pitch": settings.max_pitch_deg, "yaw": settings.max_yaw_deg},
                  "rotation_rule": "Listing's law from the rest forward: minimal rotation forward -> gaze"},
         "eyes": eyes,
-        "eyelids": {"pitch_deg": smp.lid_pitch_deg, "weights": spec["lid_weights"],
+        "eyelids": {"pitch_deg": smp.lid_pitch_deg, "weights": spec.lid_weights,
                     "rule": "pipeline.rig.lids.lid_weights(mean lid pitch of both eyes)"},
         "landmarks": {"order": LANDMARK_ORDER, "eye": smp.side,
                       "px": smp.landmarks_px.tolist(),
                       "camera_mm": smp.landmarks_cam.tolist(),
                       "head_mm": lm_h.tolist(),
                       "pupil_center_px": list(map(float, smp.pupil_center_px))},
-        "eye_configuration": {"iris_color": spec["eyeball"]["iris_color"],
-                              "sclera_tint": spec["eyeball"]["sclera_tint"],
-                              "veins": spec["eyeball"]["veins"],
-                              "blend": spec["eyeball"]["blend"],
+        "eye_configuration": {"iris_color": spec.eyeball.iris_color,
+                              "sclera_tint": spec.eyeball.sclera_tint,
+                              "veins": spec.eyeball.veins,
+                              "blend": spec.eyeball.blend,
                               "pupil_radius_mm": ring_radius(lm_h[20:28]),
                               "iris_radius_mm": ring_radius(lm_h[12:20])},
-        "lighting": dict(spec["lighting"]),
-        "render": {"engine": "cycles", "samples": spec["samples"], "denoise": spec["denoise"],
-                   "cycles_seed": spec["cycles_seed"], "skin_detail": spec["skin_detail"]},
+        "lighting": asdict(spec.lighting),
+        "render": {"engine": "cycles", "samples": spec.quality.samples, "denoise": spec.quality.denoise,
+                   "cycles_seed": spec.quality.cycles_seed, "skin_detail": spec.quality.skin_detail},
     }
     if reply is not None:
         label["landmark_check_mm"] = reply.get("landmark_check_mm")
@@ -126,11 +124,11 @@ APPARENT_ORDER = ("16 points: the iris (8) and pupil (8) landmarks, in the order
                   "pipeline/render/refraction.py")
 
 
-def apparent_job(smp: sp.Sample, eye, settings: sp.RenderSettings) -> dict:
+def apparent_job(smp: sp.Sample, eye, settings: RenderSettings) -> dict:
     """What :func:`pipeline.render.shard.apparent_landmarks` needs (computed while Blender renders)."""
-    from pipeline.geometry.frame import quat_to_matrix
+    from pipeline.render.camera import quat_to_matrix
 
-    R = quat_to_matrix(smp.spec["eye_rotation"][smp.side])
+    R = quat_to_matrix(smp.spec.eye_rotation[smp.side])
     return {"points_head": smp.landmarks_head[12:28].tolist(),
             "world_to_camera": np.asarray(smp.camera["world_to_camera"]).tolist(),
             "model_to_head": eye.model_to_head(R).tolist(), "eyeball_params": dict(eye.eyeball_params),

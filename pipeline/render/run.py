@@ -30,6 +30,8 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_file, write_json
 from pipeline.io.labels_file import index_line, label_name, read_label
+from pipeline.render.formats import format_job, image_files
+from pipeline.results import StageResult
 
 # Cycles given one thread still keeps a second one busy (about a quarter of an image's CPU
 # time wasted), so two Blenders sharing two cores are slower than one Blender using both:
@@ -81,22 +83,6 @@ def read_config(out: Path) -> dict | None:
     return doc if isinstance(doc, dict) else None
 
 
-def image_files(out: Path):
-    """``(index, path)`` of every file of a numbered image: ``NNNNNN.png/.json``, the mask and
-    depth map ``NNNNNN_seg.png`` / ``NNNNNN_depth.exr`` (pipeline/io/seg_file.py), the 300-W
-    ``NNNNNN.pts`` and the UnityEyes pair ``unityeyes/NNNNNN.json/.jpg``
-    (pipeline/render/label_formats.py)."""
-    from pipeline.render.label_formats import UNITYEYES_DIR
-
-    for folder, suffixes in ((out, (".png", ".json", ".exr", ".pts")), (out / UNITYEYES_DIR, (".json", ".jpg"))):
-        if not folder.is_dir():
-            continue
-        for p in folder.iterdir():
-            stem = p.name.split(".")[0].removesuffix("_seg").removesuffix("_depth")
-            if p.suffix in suffixes and stem.isdigit() and len(stem) == 6:
-                yield int(stem), p
-
-
 #: Files a run rebuilds from the labels at its end (removed first, so a killed run leaves none stale).
 DERIVED_FILES = ("index.jsonl", "contact_sheet.png")
 
@@ -125,7 +111,7 @@ def folder_state(out: Path) -> str:
 
 #: Why a folder in each state is refused, by the kind of folder a command writes.
 _REFUSED = {
-    "render": {"dataset": "holds a dataset of python -m pipeline.render.dataset, not a scan's renders: "
+    "render": {"dataset": "holds a dataset of python -m stages.dataset, not a scan's renders: "
                           "use another folder",
                "other": "exists, is not empty and holds no renders (no render config.json): "
                         "use a new or empty folder"},
@@ -156,7 +142,7 @@ def doomed_files(out: Path, keep) -> list[Path]:
     ``i`` unless ``keep(i)`` and its label exists (an image without its label is unfinished), and
     :data:`DERIVED_FILES`. Only names a render writes; nothing else in ``out``."""
     out = Path(out)
-    files = list(image_files(out)) if out.is_dir() else []
+    files = list(image_files(out)) if out.is_dir() else []   # every format's files (pipeline/render/formats)
     gone = [p for i, p in files if not (keep(i) and (out / label_name(i)).is_file())]
     return gone + [out / n for n in DERIVED_FILES if (out / n).is_file()]
 
@@ -179,7 +165,6 @@ def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict
     """Shards of ``(spec, label)`` pairs, sampled lazily ``window`` images at a time (memory stays
     flat for any n_images): within a window, one HDRI per shard, at most ``shard_size`` images.
     A sample that cannot be drawn is a ScanError naming ``source``."""
-    from pipeline.render import label_formats as lf
     from pipeline.render import labels as lb
     from pipeline.render import sampling as sp
 
@@ -198,10 +183,10 @@ def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict
             label = lb.make_label(smp, settings, asset.name)
             if asset.eyes[smp.side].eyeball_params:
                 label["_apparent_job"] = lb.apparent_job(smp, asset.eyes[smp.side], settings)
-            formats = lf.format_job(asset, smp, settings.label_formats)
+            formats = format_job(asset, smp, settings.label_formats)
             if formats is not None:                  # unityeyes / pts files (written before the label)
                 label["_formats"] = formats
-            by_hdri.setdefault(smp.spec["lighting"]["hdri"], []).append((smp.spec, label))
+            by_hdri.setdefault(smp.spec.lighting.hdri, []).append((smp.spec, label))
         stats["sampling_s"] += time.perf_counter() - t0
         k = settings.shard_size
         for _, grp in sorted(by_hdri.items()):
@@ -269,13 +254,13 @@ def index_and_sheet(out: Path, n: int, n_sheet: int) -> dict:
 
 
 def render_scan(asset, settings, out, source, scheduler: str | None = None, progress: bool = True,
-                on_dashboard=None) -> dict:
+                on_dashboard=None) -> StageResult:
     """Render ``settings.n_images`` labelled images of ``asset`` into ``out`` (resuming).
 
     Parameters
     ----------
     asset : pipeline.render.asset.RenderAsset
-    settings : pipeline.render.sampling.RenderSettings
+    settings : pipeline.render.settings.RenderSettings
     out : path            ``renders/<scan>``
     source : path         what a sampling failure names (the asset folder)
     scheduler : str, optional
@@ -287,7 +272,7 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
 
     Returns
     -------
-    dict  the stage metrics (what this run measured under ``"_run"`` and ``*_s`` keys)
+    StageResult  what the renders are (metrics) and what this run measured (timings)
 
     Raises
     ------
@@ -332,19 +317,18 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
 
     wall = time.perf_counter() - t0
     rs, cpu = np.asarray(res.render_s), np.asarray(res.cpu_s)
-    return {"n_images": n,
-            "_run": {"rendered": res.n, "skipped_done": n - res.n,     # this run, not the renders
-                     "stale_config": prep["stale_config"], "removed_files": prep["removed_files"],
-                     "workers": run["workers"], "scheduler": scheduler or "LocalCluster",
-                     "threads_per_blender": threads, "shards": stats["shards"],
-                     "blender_starts": int(sum(v.get("starts", 0) for v in run["blender"].values()))},
-            "sampling_s": round(stats["sampling_s"], 3), "render_wall_s": round(t_render, 3),
-            "s_per_image": round(t_render / res.n, 4) if res.n else None,
-            "images_per_s": round(res.n / t_render, 4) if res.n and t_render > 0 else None,
-            "render_s_median": round(float(np.median(rs)), 4) if rs.size else None,
-            "blender_cpu_s_per_image_median": round(float(np.median(cpu)), 4) if cpu.size else None,
-            "worker_rss_max_mib": res.rss_max,
-            "landmark_check_max_mm": summary.pop("landmark_check_max_mm"),
-            **summary,
-            "samples": settings.samples, "size": [settings.width, settings.height],
-            "preset": settings.preset, "seed": settings.seed, "stage_wall_s": round(wall, 3)}
+    metrics = {"n_images": n, "landmark_check_max_mm": summary.pop("landmark_check_max_mm"), **summary,
+               "samples": settings.samples, "size": [settings.width, settings.height],
+               "preset": settings.preset, "seed": settings.seed}
+    timings = {"rendered": res.n, "skipped_done": n - res.n,     # this run, not the renders
+               "stale_config": prep["stale_config"], "removed_files": prep["removed_files"],
+               "workers": run["workers"], "scheduler": scheduler or "LocalCluster",
+               "threads_per_blender": threads, "shards": stats["shards"],
+               "blender_starts": int(sum(v.get("starts", 0) for v in run["blender"].values())),
+               "sampling_s": round(stats["sampling_s"], 3), "render_wall_s": round(t_render, 3),
+               "s_per_image": round(t_render / res.n, 4) if res.n else None,
+               "images_per_s": round(res.n / t_render, 4) if res.n and t_render > 0 else None,
+               "render_s_median": round(float(np.median(rs)), 4) if rs.size else None,
+               "blender_cpu_s_per_image_median": round(float(np.median(cpu)), 4) if cpu.size else None,
+               "worker_rss_max_mib": res.rss_max, "stage_wall_s": round(wall, 3)}
+    return StageResult(metrics, timings)

@@ -1,9 +1,8 @@
 """Segmentation classes and depth of a render, from its own passes (no bpy).
 
-One table, :data:`CLASSES`, names the class ids of ``NNNNNN_seg.png`` for every user: the
-Blender worker (:mod:`pipeline.blender.seg_passes` writes one coverage AOV channel per class),
-the label writer, the visibility rule (:mod:`pipeline.render.visibility`), tests, the README
-and the dataset card.
+The class table (:data:`pipeline.io.seg_file.CLASSES`) and the mask and depth files belong to
+io; this module holds how a render decides them: the Blender worker
+(:mod:`pipeline.blender.seg_passes` writes one coverage AOV channel per class) and the rule below.
 
 How a pixel gets its class: every material writes its class as a coverage value (1 in its
 class's channel of two colour AOVs, :data:`AOV_CHANNELS`) at the first surface the camera
@@ -40,43 +39,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.io.seg_file import BACKGROUND, CARUNCLE, CLASSES, IRIS, LASHES, PUPIL, SCLERA, SKIN
+
 RULE = ("class of the first surface the camera ray meets, iris and pupil as seen through the cornea "
         "(the cornea's shader refracts the ray onto the posed pupil and iris discs); caruncle = the asset's "
         "caruncle faces and skin within 2.5 mm of the medial canthus; majority coverage per pixel, background below half; "
         "pipeline/render/seg.py")
-DEPTH_CONVENTION = ("z-depth along the optical axis from the label camera's origin (camera.position_head_mm) "
-                    "to the first surface the camera ray meets (the cornea over the iris), = -z of that "
-                    "point in the label's camera frame; inf where nothing is seen; first sample of each pixel")
-#: id -> (name, palette RGB). The seg PNG is indexed (mode "P") with this palette.
-CLASSES = {
-    0: ("background", (0, 0, 0)),
-    1: ("skin", (230, 170, 140)),
-    2: ("sclera", (255, 255, 255)),
-    3: ("iris", (40, 110, 220)),
-    4: ("pupil", (250, 40, 40)),
-    5: ("eyelashes", (90, 50, 20)),
-    6: ("caruncle", (250, 120, 200)),
-}
-NAMES = {name: i for i, (name, _) in CLASSES.items()}
-BACKGROUND, SKIN, SCLERA, IRIS, PUPIL, LASHES, CARUNCLE = range(7)
 #: The two colour AOVs the materials write: class id of each (R, G, B) channel.
 AOV_CHANNELS = {"eyerig_seg_a": (SKIN, SCLERA, IRIS), "eyerig_seg_b": (PUPIL, LASHES, CARUNCLE)}
 CARUNCLE_RADIUS_MM = 2.5
 #: A pixel whose covered fraction is below this is background.
 MIN_COVERAGE = 0.5
-
-
-def palette() -> list[int]:
-    """The seg PNG's palette: 256 RGB triples, flattened (unused entries black)."""
-    pal = [0] * (256 * 3)
-    for i, (_, rgb) in CLASSES.items():
-        pal[3 * i:3 * i + 3] = rgb
-    return pal
-
-
-def classes_text() -> str:
-    """``"0 background, 1 skin, ..."`` (labels, README, dataset card)."""
-    return ", ".join(f"{i} {name}" for i, (name, _) in CLASSES.items())
 
 
 def classes_from_coverage(coverage: dict) -> np.ndarray:

@@ -1,7 +1,7 @@
 """Render shards through ``dask.distributed`` with one persistent Blender process per dask worker.
 
 * :class:`BlenderProcess` runs ``python -m pipeline.blender.render_worker ASSET RIG`` as a
-  subprocess (JSON spec lines on stdin, ``@@render@@``-prefixed reply lines on stdout, Blender's
+  subprocess (one :class:`pipeline.render.spec.RenderSpec` a JSON line on stdin, ``@@render@@``-prefixed reply lines on stdout, Blender's
   chatter on stderr goes to a log file). It dies with its parent (``PR_SET_PDEATHSIG``) and
   on stdin EOF.
 * :func:`render_shard` is the dask task: it takes the shard's ``(spec, label)`` pairs (one
@@ -10,8 +10,8 @@
   image whose label is not yet on disk, moves the PNG from ``.tmp/`` into place and writes
   ``NNNNNN.json`` last (atomically): a file pair with its JSON is a finished image, so a
   killed worker loses at most its in-flight image and a resumed run skips finished ones. The
-  other label formats of ``render.label_formats`` (UnityEyes pair, 300-W ``.pts``;
-  pipeline/render/label_formats.py) are written just before that JSON.
+  other label formats of ``render.label_formats`` (pipeline/render/formats/) are written just
+  before that JSON.
 * :func:`run_shards` submits the shards to a ``LocalCluster(n_workers, threads_per_worker=1)``
   (one worker: a thread of this process; more: processes) or, given a scheduler address, to
   that cluster (``Client(address)``) -- the same code path -- and shows a tqdm progress bar
@@ -32,11 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.io.labels_file import label_name, write_label
 from pipeline.io.png import strip_png_metadata
 from pipeline.io.seg_file import depth_name, read_depth, read_seg, seg_name
 from pipeline.io.scratch import die_with_parent
-from pipeline.render.label_formats import write_formats
+from pipeline.render.formats import write_formats
+from pipeline.render.spec import RenderSpec
 
 REPLY_PREFIX = "@@render@@ "
 ROOT = Path(__file__).resolve().parents[2]
@@ -97,10 +97,13 @@ class BlenderProcess:
     def alive(self) -> bool:
         return self.proc.poll() is None
 
-    def send(self, spec: dict) -> None:
-        """Send one spec (the reply is read with :meth:`receive`)."""
+    def send(self, spec: RenderSpec | dict) -> None:
+        """Send one spec (the reply is read with :meth:`receive`); a mapping in the wire layout
+        is read as a :class:`RenderSpec` first (a bad one raises ValueError here)."""
+        if not isinstance(spec, RenderSpec):
+            spec = RenderSpec.from_dict(spec)
         try:
-            self.proc.stdin.write((json.dumps(spec) + "\n").encode())
+            self.proc.stdin.write((spec.to_json() + "\n").encode())
             self.proc.stdin.flush()
         except (BrokenPipeError, OSError) as exc:
             raise WorkerDied(f"Blender worker is gone ({exc})") from None
@@ -110,7 +113,7 @@ class BlenderProcess:
         self.rendered += 1
         return reply
 
-    def render(self, spec: dict, timeout_s: float = 600.0) -> dict:
+    def render(self, spec: RenderSpec | dict, timeout_s: float = 600.0) -> dict:
         """Send one spec, wait for its reply."""
         self.send(spec)
         return self.receive(timeout_s)
@@ -176,31 +179,32 @@ def apparent_landmarks(job: dict) -> dict:
     """Label fields of the iris/pupil landmarks as seen through the cornea (see labels.apparent_job)."""
     from pipeline.eyeball.geometry import EyeballParams
     from pipeline.render import refraction as rf
-    from pipeline.render import sampling as sp
+    from pipeline.render import camera as cam
 
     xy = rf.apparent_projection(job["points_head"], job["world_to_camera"], job["model_to_head"],
                                 EyeballParams.from_dict(job["eyeball_params"]), job["ior"])
-    px = sp.project(np.c_[xy, np.zeros(len(xy))], job["ortho_scale_mm"], job["width"], job["height"])
+    px = cam.project(np.c_[xy, np.zeros(len(xy))], job["ortho_scale_mm"], job["width"], job["height"])
     px = [None if not np.all(np.isfinite(p)) else [float(p[0]), float(p[1])] for p in px]
     return {"apparent_px": px, "apparent_order": job["order"]}
 
 
-def add_masks(label: dict, spec: dict, extra: dict | None) -> None:
+def add_masks(label: dict, spec: RenderSpec, extra: dict | None) -> None:
     """Add the mask and depth files and the landmarks' visibility (pipeline/render/visibility.py,
     from the worker's seg PNG and depth EXR) to ``label``."""
-    from pipeline.render import seg as sg
+    from pipeline.io.seg_file import DEPTH_CONVENTION, classes_text
     from pipeline.render import visibility as vis
+    from pipeline.render.seg import RULE
 
-    w, h = int(spec["width"]), int(spec["height"])
-    seg = read_seg(spec["seg_png"], (w, h))
-    depth = read_depth(spec["depth_exr"], (w, h))
+    w, h = spec.width, spec.height
+    seg = read_seg(spec.seg_png, (w, h))
+    depth = read_depth(spec.depth_exr, (w, h))
     lm = label["landmarks"]
     v = vis.landmark_visibility(lm["px"], (extra or {}).get("apparent_px"),
                                 -np.asarray(lm["camera_mm"], float)[:, 2], seg, depth, label["camera"]["mm_per_px"])
     label["landmarks"] = dict(lm, visible=v["visible"], occlusion=v["occlusion"], visibility_rule=vis.RULE)
-    label["seg"] = {"file": Path(spec["seg_png"]).name, "classes": sg.classes_text(), "rule": sg.RULE}
-    label["depth"] = {"file": Path(spec["depth_exr"]).name, "units": "mm", "channel": "Z",
-                      "convention": sg.DEPTH_CONVENTION}
+    label["seg"] = {"file": Path(spec.seg_png).name, "classes": classes_text(), "rule": RULE}
+    label["depth"] = {"file": Path(spec.depth_exr).name, "units": "mm", "channel": "Z",
+                      "convention": DEPTH_CONVENTION}
 
 
 def done(out_dir, index: int) -> bool:
@@ -224,7 +228,7 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
     results = []
     jobs = []
     for spec, label in items:
-        i = int(spec["index"])
+        i = spec.index
         if done(out, i):
             results.append({"index": i, "ok": True, "skipped": True})
             continue
@@ -232,8 +236,8 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
         job = label.pop("_apparent_job", None)
         formats = label.pop("_formats", None)
         if opts.get("masks"):             # seg mask + depth map from the same render (into .tmp/)
-            tmp = Path(spec["png"]).parent
-            spec = {**spec, "seg_png": str(tmp / seg_name(i)), "depth_exr": str(tmp / depth_name(i))}
+            tmp = Path(spec.png).parent
+            spec = spec.with_masks(tmp / seg_name(i), tmp / depth_name(i))
         jobs.append((i, spec, label, job, formats))
     sent = False                          # jobs[k]'s spec already sent to the live Blender
     try:
@@ -268,7 +272,7 @@ def render_shard(items, asset, rig, out_dir, opts: dict) -> list[dict]:
     return results
 
 
-def _finish(out: Path, i: int, spec: dict, label: dict, extra, formats, reply: dict, tol: float,
+def _finish(out: Path, i: int, spec: RenderSpec, label: dict, extra, formats, reply: dict, tol: float,
             opts: dict) -> dict:
     """Check one image's reply and, when it passes, move its files into ``out`` and write its
     label files (the eyerig JSON last). Returns the image's result."""
@@ -294,14 +298,12 @@ def _finish(out: Path, i: int, spec: dict, label: dict, extra, formats, reply: d
         except ScanError as exc:          # the worker's seg / depth file is unusable
             res.update(ok=False, error=f"masks: {exc}")
             return res
-    strip_png_metadata(spec["png"])        # Blender's Date/Time/RenderTime text chunks
-    os.replace(spec["png"], out / f"{i:06d}.png")
-    for k in ("seg_png", "depth_exr"):
-        if k in spec:
-            os.replace(spec[k], out / Path(spec[k]).name)
-    if formats is not None:                 # unityeyes / pts, before the label (= done)
-        write_formats(out, i, label, formats, out / f"{i:06d}.png")
-    write_label(out / label_name(i), label)
+    strip_png_metadata(spec.png)           # Blender's Date/Time/RenderTime text chunks
+    os.replace(spec.png, out / f"{i:06d}.png")
+    for p in (spec.seg_png, spec.depth_exr):
+        if p is not None:
+            os.replace(p, out / Path(p).name)
+    write_formats(out, i, label, formats, out / f"{i:06d}.png")     # the eyerig label last (= done)
     return res
 
 

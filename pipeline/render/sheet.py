@@ -5,7 +5,7 @@ the eyelid polygon (12 landmarks, green, canthi larger), the iris (cyan) and pup
 landmarks (straight projection, circles) and where they appear through the cornea (magenta
 dots, ``apparent_px``), and the gaze direction in the camera frame as a red line from the pupil centre
 (length proportional to the gaze's in-image component). With ``render.masks`` the label names
-a seg mask: the tile then shows the mask (its palette, pipeline/render/seg.py) beside the image,
+a seg mask: the tile then shows the mask (its palette, pipeline/io/seg_file.py) beside the image,
 and each landmark is drawn where it is seen (through the cornea for iris and pupil) as a filled
 dot when visible or a red cross when occluded (``landmarks.visible``). Caption: index, eye, gaze
 pitch/yaw in the camera frame.

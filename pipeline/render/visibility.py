@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 
-from pipeline.render.seg import BACKGROUND, CARUNCLE, IRIS, LASHES, PUPIL, SCLERA, SKIN
+from pipeline.io.seg_file import BACKGROUND, CARUNCLE, IRIS, LASHES, PUPIL, SCLERA, SKIN
 
 RULE = ("visible when a pixel centre within 1.5 px of the landmark (eyelid: its projection; iris, pupil: "
         "apparent_px through the cornea) shows its surface: eyelid = skin/caruncle/eye classes no nearer than "

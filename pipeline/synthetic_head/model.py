@@ -10,6 +10,8 @@ import dataclasses
 
 import numpy as np
 
+from pipeline.geometry.ramps import smoothstep
+
 # base curve (superellipse in x-z) and domain
 _A_MM = 75.0          # half width of the head at the base curve
 _B_MM = 92.0          # base curve front (forehead) z
@@ -28,11 +30,6 @@ def _smax(a, b, k):
     """Polynomial smooth maximum: ``max(a, b)`` where ``|a - b| >= k``, rounded inside."""
     h = np.maximum(k - np.abs(a - b), 0.0) / k
     return np.maximum(a, b) + h * h * k * 0.25
-
-
-def smoothstep(e0, e1, x):
-    s = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
-    return s * s * (3.0 - 2.0 * s)
 
 
 def _gauss(x, s):

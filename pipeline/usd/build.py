@@ -13,6 +13,7 @@ import shutil
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,9 @@ from pipeline.io.bake_file import read_bake
 from pipeline.io.meshfile import read_stage_mesh
 from pipeline.io.png import strip_png_metadata
 from pipeline.io.rig_file import read_rig
+from pipeline.io.scan_file import ScanRecord, read_scan_record
 from pipeline.io.scratch import run_child
+from pipeline.results import StageResult
 from pipeline.rig import lids
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,14 +38,50 @@ def _need(path: Path) -> Path:
     return path
 
 
-def _json(path: Path) -> dict:
-    try:
-        return json.loads(_need(path).read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ScanError(path, f"is not valid JSON ({exc.__class__.__name__})") from None
+@dataclass
+class UsdInputs:
+    """Everything the scan's asset is made of, read and checked (:func:`read_inputs`).
+
+    Attributes
+    ----------
+    V : (n, 3) float64, F : (m, 3) int64
+        The sealed eye-region mesh (snap), head frame mm.
+    UV : (k, 2) float64, FUV : (m, 3) int64
+        Its atlas (bake).
+    shapes : list of BlendShape
+        The lid blend shapes (rig).
+    curves : dict side -> ((12, 3) float64, list of BlendShape)
+        The eyelid landmark curves and their shapes (rig).
+    max_pitch_deg : float
+        The pitch-to-weight rule's limit (rig).
+    eyes : dict side -> {"center", "radius", "forward", "doubts"}
+        The rig's eyes as stored (the asset's metadata repeats them).
+    scan : ScanRecord
+        ingest's record: name, source hash, licence.
+    color, displacement : Path
+        The baked maps.
+    eyeball : Path
+        ``rigged_assets/eyeball/eyeball.usda``, which the asset references.
+    caruncle : (c,) int64
+        Faces of ``F`` that take the caruncle material (snap's corner strips; may be empty).
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    UV: np.ndarray
+    FUV: np.ndarray
+    shapes: list
+    curves: dict
+    max_pitch_deg: float
+    eyes: dict
+    scan: ScanRecord
+    color: Path
+    displacement: Path
+    eyeball: Path
+    caruncle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
-def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) -> dict:
+def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) -> UsdInputs:
     """Load and check everything the asset needs (ScanError on a missing/inconsistent input)."""
     mesh_path = snap / "mesh.npz"
     mesh = read_stage_mesh(mesh_path, required=())
@@ -64,47 +103,47 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
         eyes[side] = {k: e.doc[k] for k in ("center", "radius", "forward")}
         eyes[side]["doubts"] = list(e.doc.get("doubts") or [])
     maps = read_bake(bake)
-    scan = _json(ingest / "scan.json")
-    return {"V": V, "F": F, "UV": mesh["UV"], "FUV": mesh["FUV"], "caruncle": caruncle.astype(np.int64),
-            "shapes": r.npz.shapes,
-            "curves": r.npz.curves, "max_pitch_deg": r.max_pitch_deg, "eyes": eyes, "scan": scan,
-            "color": maps.color, "displacement": maps.displacement,
-            "eyeball": _need(eyeball / "eyeball.usda")}
+    scan = read_scan_record(ingest)
+    return UsdInputs(V=V, F=F, UV=mesh["UV"], FUV=mesh["FUV"], shapes=r.npz.shapes, curves=r.npz.curves,
+                     max_pitch_deg=r.max_pitch_deg, eyes=eyes, scan=scan, color=maps.color,
+                     displacement=maps.displacement, eyeball=_need(eyeball / "eyeball.usda"),
+                     caruncle=caruncle.astype(np.int64))
 
 
-def build(inp: dict, out_dir: Path, name: str, all_params: dict, package: bool = True) -> dict:
-    """Write the asset into ``out_dir`` (an empty folder beside rigged_assets/eyeball); returns metrics."""
+def build(inp: UsdInputs, out_dir: Path, name: str, all_params: dict, package: bool = True) -> StageResult:
+    """Write the asset into ``out_dir`` (an empty folder beside rigged_assets/eyeball), validate
+    it and package it."""
     from pipeline.usd.asset import DISPLACEMENT_DOC, check_package, package_usdz, write_scan_asset
     from pipeline.usd.validate import validate_stage
 
     (out_dir / "textures").mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(inp["color"], out_dir / "textures" / "color.png")
-    shutil.copyfile(inp["displacement"], out_dir / "textures" / "displacement.exr")
+    shutil.copyfile(inp.color, out_dir / "textures" / "color.png")
+    shutil.copyfile(inp.displacement, out_dir / "textures" / "displacement.exr")
     # out_dir is a sibling of the final folder (atomic_dir), so the relative path is the same
-    ref = Path(os.path.relpath(inp["eyeball"].resolve(), out_dir.resolve()))
+    ref = Path(os.path.relpath(inp.eyeball.resolve(), out_dir.resolve()))
     meta = {
-        "scan": inp["scan"].get("name", name),
-        "source_sha256": str(inp["scan"].get("source_sha256", "")),
-        "licence": str(inp["scan"].get("licence", "")),
+        "scan": inp.scan.name if inp.scan.name is not None else name,
+        "source_sha256": inp.scan.source_sha256,
+        "licence": inp.scan.licence,
         "pipeline_version": pipeline.__version__,
         "units": "mm", "frame": "head frame: +Y up, +Z out of the face, +X subject's left",
-        "weight_rule": lids.weight_rule(inp["max_pitch_deg"]),
+        "weight_rule": lids.weight_rule(inp.max_pitch_deg),
         "eyes": {s: {"joint": f"head/eye_{s}", "center_mm": list(map(float, e["center"])),
                      "radius_mm": float(e["radius"]), "forward": list(map(float, e["forward"])),
                      # USD cannot type an empty list: no key means nothing doubted
                      **({"doubts": list(e["doubts"])} if e.get("doubts") else {})}
-                 for s, e in inp["eyes"].items()},
+                 for s, e in inp.eyes.items()},
         "displacement": DISPLACEMENT_DOC,
         "params": json.loads(json.dumps(all_params)),
     }
     t0 = time.perf_counter()
     try:
-        usda = write_scan_asset(out_dir / f"{name}.usda", name=name, V=inp["V"], F=inp["F"], UV=inp["UV"],
-                                FUV=inp["FUV"], shapes=inp["shapes"], landmark_curves=inp["curves"],
-                                eyes=inp["eyes"], eyeball_ref=ref.as_posix(), metadata=meta,
-                                caruncle_faces=inp.get("caruncle"))
+        usda = write_scan_asset(out_dir / f"{name}.usda", name=name, V=inp.V, F=inp.F, UV=inp.UV,
+                                FUV=inp.FUV, shapes=inp.shapes, landmark_curves=inp.curves,
+                                eyes=inp.eyes, eyeball_ref=ref.as_posix(), metadata=meta,
+                                caruncle_faces=inp.caruncle)
     except ValueError as exc:
-        raise ScanError(inp["eyeball"], str(exc)) from None
+        raise ScanError(inp.eyeball, str(exc)) from None
     t_write = time.perf_counter() - t0
     t0 = time.perf_counter()
     errors = validate_stage(usda)
@@ -123,14 +162,14 @@ def build(inp: dict, out_dir: Path, name: str, all_params: dict, package: bool =
         if bad:
             raise ScanError(usdz, f"package is incomplete ({len(bad)} error(s)): {bad[0]}")
         t_pkg = time.perf_counter() - t0
-    return {"n_vertices": int(len(inp["V"])), "n_faces": int(len(inp["F"])),
-            "caruncle_faces": int(len(inp.get("caruncle", ()))),
-            "n_shapes": len(inp["shapes"]), "validation_errors": 0,
-            "write_s": round(t_write, 4), "validate_s": round(t_val, 4), "usdz_s": round(t_pkg, 4)}
+    return StageResult({"n_vertices": int(len(inp.V)), "n_faces": int(len(inp.F)),
+                        "caruncle_faces": int(len(inp.caruncle)), "n_shapes": len(inp.shapes),
+                        "validation_errors": 0},
+                       {"write_s": round(t_write, 4), "validate_s": round(t_val, 4), "usdz_s": round(t_pkg, 4)})
 
 
-def render_preview(usda: Path, rig_npz: Path, out_png: Path, size: int, samples: int) -> dict:
-    """Run the Blender contact-sheet worker (subprocess); returns its JSON report + ``preview_s``."""
+def render_preview(usda: Path, rig_npz: Path, out_png: Path, size: int, samples: int) -> StageResult:
+    """Run the Blender contact-sheet worker (subprocess); its report, and how long it took."""
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as td:
         info_path = Path(td) / "preview.json"
@@ -143,8 +182,7 @@ def render_preview(usda: Path, rig_npz: Path, out_png: Path, size: int, samples:
             raise ScanError(usda, f"the asset preview render failed ({last[0][:200]})")
         strip_png_metadata(out_png)          # Blender's time/text chunks: same pixels, same bytes
         info = json.loads(info_path.read_text(encoding="utf-8"))
-    return {"preview_s": round(time.perf_counter() - t0, 3),
-            "preview_render_s": info.get("render_s_total"),
-            "preview_px": info.get("sheet_px"), "preview_samples": info.get("samples"),
-            "preview_lid_max_error_mm": max(info.get("lid_max_error_mm", {0: 0.0}).values()),
-            "preview_gaze_pitch_deg": info.get("gaze_pitch_measured_deg")}
+    return StageResult({"preview_px": info.get("sheet_px"), "preview_samples": info.get("samples"),
+                        "preview_lid_max_error_mm": max(info.get("lid_max_error_mm", {0: 0.0}).values()),
+                        "preview_gaze_pitch_deg": info.get("gaze_pitch_measured_deg")},
+                       {"preview_s": round(time.perf_counter() - t0, 3), "preview_render_s": info.get("render_s_total")})

@@ -103,27 +103,21 @@ def write_eyeball_usd(eye: geo.Eyeball, path, defaults: dict | None = None) -> P
 
     # variant sets (opinions on the texture shaders live only inside the variants)
     vsets = root.GetVariantSets()
-    vs = vsets.AddVariantSet("irisColor")
-    for c in IRIS_COLORS:
-        vs.AddVariant(c)
-        vs.SetVariantSelection(c)
-        with vs.GetVariantEditContext():
-            iris_tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath("./" + tex["iris"][c]))
-    vs.SetVariantSelection(sel["irisColor"])
-    vs = vsets.AddVariantSet("scleraTint")
-    for name, rgb in SCLERA_TINTS.items():
-        vs.AddVariant(name)
-        vs.SetVariantSelection(name)
-        with vs.GetVariantEditContext():
-            sclera_tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*rgb, 1.0))
-    vs.SetVariantSelection(sel["scleraTint"])
-    vs = vsets.AddVariantSet("veins")
-    for v in VEINS:
-        vs.AddVariant(v)
-        vs.SetVariantSelection(v)
-        with vs.GetVariantEditContext():
-            sclera_tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath("./" + tex["sclera"][v]))
-    vs.SetVariantSelection(sel["veins"])
+    asset = Sdf.ValueTypeNames.Asset
+    variants = {   # variant set -> {variant: (shader, its input, type, value)}
+        "irisColor": {c: (iris_tex, "file", asset, Sdf.AssetPath("./" + tex["iris"][c])) for c in IRIS_COLORS},
+        "scleraTint": {n: (sclera_tex, "scale", Sdf.ValueTypeNames.Float4, Gf.Vec4f(*rgb, 1.0))
+                       for n, rgb in SCLERA_TINTS.items()},
+        "veins": {v: (sclera_tex, "file", asset, Sdf.AssetPath("./" + tex["sclera"][v])) for v in VEINS},
+    }
+    for set_name, options in variants.items():
+        vs = vsets.AddVariantSet(set_name)
+        for name, (shader, key, kind, value) in options.items():
+            vs.AddVariant(name)
+            vs.SetVariantSelection(name)
+            with vs.GetVariantEditContext():
+                shader.CreateInput(key, kind).Set(value)
+        vs.SetVariantSelection(sel[set_name])
 
     p = eye.params
     r = eye.resolution

@@ -25,6 +25,8 @@ import math
 
 import numpy as np
 
+from pipeline.geometry.meshtopo import triangle_cross
+
 
 def _open(path_or_stage):
     from pxr import Usd
@@ -119,7 +121,7 @@ def _polygon_normals(P, counts, idx, fan=None):
     """(nfaces, 3) area-weighted normals of polygons (fan sums; exact for planar polygons).
     ``fan``: :func:`_fan_triangles` of ``counts, idx``, when the caller reuses it."""
     face, a, b, c = _fan_triangles(counts, idx) if fan is None else fan
-    T = np.cross(P[b] - P[a], P[c] - P[a])
+    T = triangle_cross(P, np.stack([a, b, c], axis=1))
     # bincount adds each face's triangles in order from 0.0, as np.add.at did: the same bits
     n = len(counts)
     return np.stack([np.bincount(face, T[:, j], minlength=n) for j in range(3)], axis=1)

@@ -3,7 +3,7 @@ repair what is safe to repair (:func:`ingest_scan`).
 
 The mesh and texture readers are in :mod:`pipeline.io.load` (formats in :mod:`pipeline.io.formats`);
 the head frame and its checks in :mod:`pipeline.geometry.frame`; the repairs in
-:mod:`pipeline.geometry.repair`.
+:mod:`pipeline.ingest.repair`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.geometry.repair import RepairSettings
+from pipeline.ingest.repair import RepairSettings
 from pipeline.io.formats.common import Limits
 from pipeline.io.load import load_mesh_file, load_texture
 from pipeline.io.scan import DEFAULT_MAX_YAML_BYTES, one_line
@@ -43,7 +43,7 @@ class IngestSettings(Settings):
         Largest distance from an eye hint to the mesh surface, mm.
     merge_tolerance_mm, degenerate_area_mm2, max_degenerate_fraction, debris_max_fraction,
     eye_radius_mm, max_eye_region_removed_fraction
-        See :class:`pipeline.geometry.repair.RepairSettings`.
+        See :class:`pipeline.ingest.repair.RepairSettings`.
     flip_inward_winding : bool
         Flip all faces when the faces around the eyes point backward (inward winding);
         when False such a scan is refused.
@@ -161,7 +161,8 @@ def ingest_scan(folder, settings: IngestSettings = IngestSettings()) -> IngestRe
 
 
 def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
-    from pipeline.geometry import frame, repair
+    from pipeline.geometry import frame
+    from pipeline.ingest import repair
 
     limits = settings.limits
     loaded = load_mesh_file(spec.mesh, spec.folder, limits)

@@ -1,6 +1,9 @@
-"""Single-channel float32 OpenEXR read/write (OpenEXR >= 3 python API) and 16-bit PNG previews."""
+"""Single-channel float32 OpenEXR read/write (OpenEXR >= 3 python API) and 16-bit PNG previews:
+the codec of the EXR products (the bake's displacement map, a render's depth map)."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -26,6 +29,20 @@ def read_exr(path, channel="Y"):
         if channel not in ch:
             raise ValueError(f"{path}: no channel {channel!r} (has {sorted(ch)})")
         return np.array(ch[channel].pixels, dtype=np.float32)
+
+
+def read_exr_product(path, channel: str, unreadable: str):
+    """One channel of an EXR product as (H, W) float32, or a ScanError naming ``path``: missing,
+    or not decodable with that channel (``unreadable``, then the decoder's complaint)."""
+    from pipeline.errors import ScanError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ScanError(path, "not found")
+    try:
+        return read_exr(path, channel)
+    except Exception as exc:  # noqa: BLE001 -- OpenEXR raises several types for unreadable files
+        raise ScanError(path, f"{unreadable} ({type(exc).__name__}: {exc})") from None
 
 
 def preview_16bit(img, mask=None):

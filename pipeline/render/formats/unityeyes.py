@@ -1,10 +1,6 @@
-"""Label formats besides our own label (``render.label_formats``): UnityEyes JSON and 300-W ``.pts``.
+"""Label format ``unityeyes``: UnityEyes JSON + JPEG pairs that GazeML reads unchanged.
 
-``eyerig`` is our label (pipeline/render/labels.py, ``NNNNNN.json``), always written, last. The
-others are built here from it (and, for UnityEyes, from lid points the sampler adds) and written
-by their io modules before it, so a finished image has all its files.
-
-**unityeyes** (``unityeyes/NNNNNN.json`` + ``unityeyes/NNNNNN.jpg``; pipeline/io/unityeyes_file.py).
+``unityeyes/NNNNNN.json`` + ``unityeyes/NNNNNN.jpg`` (written by pipeline/io/unityeyes_file.py).
 UnityEyes (Wood et al., ETRA 2016) writes ``imgs/N.jpg`` + ``imgs/N.json``; GazeML
 (swook/GazeML ``src/datasources/unityeyes.py``) and its forks read a folder of such pairs, so
 ``renders/<scan>/unityeyes/`` is a folder GazeML reads unchanged. Conventions, each from
@@ -71,22 +67,19 @@ right eye is the mirror image (GazeML flips right eyes before its network).
   (its sample JSON: ``iris_2d[1]`` is above ``iris_2d[0]``, which is the leftmost of a left eye),
   11.25 deg apart. GazeML takes ``iris_2d[::4]``; those are our 8 iris landmarks exactly:
   ``iris_2d[4 m]`` = landmark ``12 + (4 - m) % 8`` of a left eye, ``12 + m`` of a right eye.
-
-**pts** (``NNNNNN.pts``; pipeline/io/pts_file.py): the 28 landmarks in our order (0-11 eyelid,
-12-19 iris, 20-27 pupil) in the 300-W / iBUG format, whose coordinates are 1-based (the centre of
-the top-left pixel is (1, 1); menpo, from the same group, subtracts 1 on reading): our pixel
-coordinates + 0.5.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
-from pipeline.render.labels import ring_radius
+from pipeline.io.unityeyes_file import write_unityeyes
+from pipeline.render import asset as ra
 
-FORMATS = ("eyerig", "unityeyes", "pts")
+NAME = "unityeyes"
 #: Folder of the UnityEyes pairs inside a render folder.
 UNITYEYES_DIR = "unityeyes"
 #: GazeML's fixed eyeball radius in pixels (``original_eyeball_radius`` of its UnityEyes loader).
@@ -96,6 +89,8 @@ CARUNCLE_FRACTION = 0.2
 N_INTERIOR, N_CARUNCLE, N_IRIS_2D = 16, 7, 32
 #: Unity units (cm) per millimetre.
 UNITY_PER_MM = 0.1
+FILES = {f"{UNITYEYES_DIR}/NNNNNN.json": "the label in UnityEyes' JSON format (GazeML reads unityeyes/ as it is)",
+         f"{UNITYEYES_DIR}/NNNNNN.jpg": "the image as a JPEG, beside its UnityEyes label"}
 
 
 # ------------------------------------------------------------------------------ lid points (3D)
@@ -161,16 +156,14 @@ def lid_points(loop_rest, loop_posed, lateral_index: int, center, radius: float,
     return interior, caruncle
 
 
-def unityeyes_job(asset, smp) -> dict:
+def job(asset, smp) -> dict:
     """What the UnityEyes writer needs beyond the label: the posed lid points of the imaged eye.
 
     From the asset's lid loop (``loop_<side>`` of rig.npz; the lateral canthus is the loop vertex
     of eyelid landmark 6); a rig without a loop uses the 12 eyelid landmarks as the loop.
     """
-    from pipeline.render import asset as ra
-
     eye = asset.eyes[smp.side]
-    lw = smp.spec["lid_weights"]
+    lw = smp.spec.lid_weights
     if eye.loop is not None and eye.lm_edge is not None:
         loop = np.asarray(eye.loop)
         li = int(np.flatnonzero(loop == eye.lm_edge[6, 0])[0])
@@ -179,9 +172,9 @@ def unityeyes_job(asset, smp) -> dict:
         li, rest, posed = 6, ra.eyelid_points(asset, smp.side, {}), ra.eyelid_points(asset, smp.side, lw)
     interior, caruncle = lid_points(rest, posed, li, eye.center, eye.radius, eye.basis[2])
     iris_rest = ra.inner_points(eye, {}, np.eye(3), eye.iris)
-    iris = ra.inner_points(eye, smp.spec["eyeball"]["blend"], np.eye(3), eye.iris)
+    iris = ra.inner_points(eye, smp.spec.eyeball.blend, np.eye(3), eye.iris)
     return {"interior_head_mm": interior.tolist(), "caruncle_head_mm": caruncle.tolist(),
-            "iris_size": float(ring_radius(iris) / ring_radius(iris_rest))}
+            "iris_size": float(ra.ring_radius(iris) / ra.ring_radius(iris_rest))}
 
 
 # --------------------------------------------------------------------------- UnityEyes document
@@ -250,7 +243,7 @@ def unityeyes_document(label: dict, job: dict) -> dict:
     Parameters
     ----------
     label : dict   our label (:func:`pipeline.render.labels.make_label`, or as read back)
-    job : dict     :func:`unityeyes_job` of the same sample
+    job : dict     :func:`job` of the same sample
     """
     lm_head = np.asarray(label["landmarks"]["head_mm"], float)
     side = label["gaze"]["eye"]
@@ -282,41 +275,6 @@ def unityeyes_document(label: dict, job: dict) -> dict:
     }
 
 
-# ----------------------------------------------------------------------------------------- 300-W
-
-def pts_points(label: dict) -> np.ndarray:
-    """(28, 2) the landmarks in 300-W's 1-based pixel coordinates (ours + 0.5)."""
-    return np.asarray(label["landmarks"]["px"], float) + 0.5
-
-
-# ---------------------------------------------------------------------------------------- output
-
-def format_job(asset, smp, formats) -> dict | None:
-    """What :func:`write_formats` needs beyond the label (None when only eyerig is written)."""
-    extra = [f for f in formats if f != "eyerig"]
-    if not extra:
-        return None
-    job = {"formats": extra}
-    if "unityeyes" in extra:
-        job["unityeyes"] = unityeyes_job(asset, smp)
-    return job
-
-
-def write_formats(out_dir, index: int, label: dict, job: dict | None, png) -> list:
-    """Write the other formats of image ``index`` (call before its eyerig label). Returns the paths."""
-    from pathlib import Path
-
-    from pipeline.io.pts_file import pts_name, write_pts
-    from pipeline.io.unityeyes_file import write_unityeyes
-
-    out = Path(out_dir)
-    written = []
-    for fmt in (job or {}).get("formats", ()):
-        if fmt == "unityeyes":
-            written += write_unityeyes(out / UNITYEYES_DIR, index, unityeyes_document(label, job["unityeyes"]),
-                                       png)
-        elif fmt == "pts":
-            p = out / pts_name(index)
-            write_pts(p, pts_points(label))
-            written.append(p)
-    return written
+def write(out_dir, index: int, label: dict, job: dict, png) -> list[Path]:
+    """Write the UnityEyes pair of image ``index`` into ``out_dir/unityeyes/``; the paths."""
+    return write_unityeyes(Path(out_dir) / UNITYEYES_DIR, index, unityeyes_document(label, job), png)

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.geometry import meshtopo
 
 
 @dataclass(frozen=True)
@@ -116,15 +117,8 @@ def _blockwise(fn, F, dtype=np.float64) -> np.ndarray:
 
 
 def face_areas(V, F) -> np.ndarray:
-    """Triangle areas, shape (m,)."""
-    def areas(Fb):
-        a = V[Fb[:, 0]]
-        ab, ac = V[Fb[:, 1]] - a, V[Fb[:, 2]] - a
-        cx = ab[:, 1] * ac[:, 2] - ab[:, 2] * ac[:, 1]
-        cy = ab[:, 2] * ac[:, 0] - ab[:, 0] * ac[:, 2]
-        cz = ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0]
-        return 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
-    return _blockwise(areas, F)
+    """Triangle areas, shape (m,), a block of faces at a time (an untrusted mesh at the limits)."""
+    return _blockwise(lambda Fb: meshtopo.face_areas(V, Fb), F)
 
 
 def _unique_rows(q):
@@ -151,25 +145,6 @@ def duplicate_face_mask(F) -> np.ndarray:
     mask = np.ones(len(F), dtype=bool)
     mask[first] = False
     return mask
-
-
-def face_components(F, n_vertices: int):
-    """Connected components of faces sharing vertices.
-
-    Returns
-    -------
-    n : int
-    labels : (m,) int64
-        Component of each face.
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    rows = np.concatenate([F[:, 0], F[:, 1]])
-    cols = np.concatenate([F[:, 1], F[:, 2]])
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n_vertices, n_vertices))
-    n, vlabels = connected_components(graph, directed=False)
-    return n, vlabels[F[:, 0]].astype(np.int64)
 
 
 def closest_point_on_triangles(A, B, C, p) -> np.ndarray:
@@ -298,7 +273,7 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
     idx = np.flatnonzero(alive)
     if len(idx) == 0:
         raise ScanError(path, "no faces left after removing degenerate and duplicate faces")
-    n_comp, labels = face_components(F1[idx], len(V1))
+    n_comp, labels = meshtopo.face_components_by_vertex(F1[idx], len(V1))
     sizes = np.bincount(labels, minlength=n_comp)
     small = (sizes < settings.debris_max_fraction * len(idx)) & (np.arange(n_comp) != np.argmax(sizes))
     near = np.zeros(n_comp, dtype=bool)
@@ -385,6 +360,4 @@ def _faces_near(V, F, p, radius: float) -> np.ndarray:
 
 def mean_normal_near(V, F, p, radius: float) -> np.ndarray:
     """Area-weighted mean face normal (unnormalised) of faces with a vertex within ``radius`` of ``p``."""
-    Fn = F[_faces_near(V, F, p, radius)]
-    a, b, c = V[Fn[:, 0]], V[Fn[:, 1]], V[Fn[:, 2]]
-    return 0.5 * np.cross(b - a, c - a).sum(axis=0)
+    return 0.5 * meshtopo.triangle_cross(V, F[_faces_near(V, F, p, radius)]).sum(axis=0)

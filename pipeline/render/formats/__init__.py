@@ -1,0 +1,111 @@
+"""The label writers: one module per format, the only place a format is named.
+
+A format module in this folder defines
+
+* ``NAME``: the word ``render.label_formats`` lists;
+* ``FILES``: ``{file name with NNNNNN for the index: what it holds}``, every file it writes per
+  image (relative to the render or dataset folder);
+* ``job(asset, smp)``: what its writer needs beyond the label, computed when the sample is drawn
+  (``None``: nothing);
+* ``write(out_dir, index, label, job, png)``: writes image ``index``'s files and returns their
+  paths.
+
+Everything else derives from :data:`FORMATS`: the formats ``render.label_formats`` accepts
+(pipeline/render/settings.py), the file table of the dataset card (:func:`describe`), the files a
+resumed or re-planned render may remove (:func:`image_files`) and what a finished image writes
+(:func:`write_formats`). Adding a format is adding its module here. ``eyerig`` is required and
+written last: its label marks an image done.
+
+The modules are found by listing this folder (:func:`_discover`), and pipeline/sources.py counts
+every module of it in the code of whatever imports the package (dvc deps, render fingerprint).
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from pathlib import Path
+
+#: The format every render writes, last.
+REQUIRED = "eyerig"
+#: Per-image files that belong to no format: the image, and the masks (``render.masks``,
+#: written by the Blender worker; pipeline/io/seg_file.py).
+IMAGE_FILES = {
+    "NNNNNN.png": "image NNNNNN (global index, 6 digits), 8-bit RGB",
+    "NNNNNN_seg.png": "segmentation mask: 8-bit indexed PNG, one class id per pixel (classes below)",
+    "NNNNNN_depth.exr": "z-depth in camera mm, float32 EXR channel Z (inf where nothing is seen)",
+}
+INDEX = "NNNNNN"
+
+
+def _discover() -> dict:
+    """``{NAME: module}`` of every module in this folder: ``eyerig`` first, then by name."""
+    mods = {}
+    for info in pkgutil.iter_modules(__path__):
+        if not info.name.startswith("_"):
+            m = importlib.import_module(f"{__name__}.{info.name}")
+            mods[m.NAME] = m
+    return {k: mods[k] for k in sorted(mods, key=lambda k: (k != REQUIRED, k))}
+
+
+FORMATS = _discover()
+NAMES = tuple(FORMATS)
+
+
+def file_table() -> dict:
+    """Every per-image file a render may write (any format) -> what it holds."""
+    out = dict(IMAGE_FILES)
+    for m in FORMATS.values():
+        out.update(m.FILES)
+    return out
+
+
+def describe(name: str) -> str:
+    """What the per-image file ``name`` (``NNNNNN`` for the index) holds."""
+    return file_table().get(name, "a per-image file of another label format (render.label_formats)")
+
+
+def image_files(out: Path):
+    """``(index, path)`` of every file of a numbered image in the render folder ``out``, of any
+    format (a folder may hold files of an earlier run with other formats): the names of
+    :func:`file_table` with six digits for ``NNNNNN``, nothing else."""
+    out = Path(out)
+    by_folder: dict = {}
+    for name in file_table():
+        folder, _, base = name.rpartition("/")
+        pre, _, post = base.partition(INDEX)
+        by_folder.setdefault(folder, set()).add((pre, post))
+    for folder, forms in sorted(by_folder.items()):
+        d = out / folder if folder else out
+        if not d.is_dir():
+            continue
+        for p in d.iterdir():
+            for pre, post in forms:
+                if p.name.startswith(pre) and p.name.endswith(post):
+                    stem = p.name[len(pre):len(p.name) - len(post)]
+                    if len(stem) == 6 and stem.isdigit():
+                        yield int(stem), p
+                        break
+
+
+def format_job(asset, smp, formats) -> dict | None:
+    """What :func:`write_formats` needs beyond the label for ``formats`` (None when only the
+    required label is written)."""
+    extra = [f for f in formats if f != REQUIRED]
+    if not extra:
+        return None
+    job = {"formats": extra}
+    for f in extra:
+        j = FORMATS[f].job(asset, smp)
+        if j is not None:
+            job[f] = j
+    return job
+
+
+def write_formats(out_dir, index: int, label: dict, job: dict | None, png) -> list:
+    """Write every format of image ``index``: the others in the order the settings list them,
+    then the required label (it marks the image done). Returns the paths."""
+    written = []
+    for f in (job or {}).get("formats", ()):
+        written += FORMATS[f].write(out_dir, index, label, (job or {}).get(f), png)
+    return written + FORMATS[REQUIRED].write(out_dir, index, label, None, png)

@@ -1,0 +1,154 @@
+"""The ``render:`` block of params.yaml: what to render (sampling ranges, image size, quality,
+label formats, masks), the presets that fill it, and how to run (workers, shards; not hashed).
+
+:class:`RenderSettings` is read by the render stage and the dataset command; the sampler
+(pipeline/render/sampling.py) draws every image from it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+from pipeline.render.formats import NAMES as LABEL_FORMATS
+from pipeline.render.formats import REQUIRED as REQUIRED_FORMAT
+from pipeline.settings import SettingError, Settings, setting
+
+HDRIS = ("city.exr", "courtyard.exr", "forest.exr", "interior.exr", "night.exr", "studio.exr",
+         "sunrise.exr", "sunset.exr")
+
+PRESETS = {
+    # paper: ~40 deg of head-pose (viewpoint) variation, gaze up to 45 deg from eye contact in
+    # 10 deg steps
+    "generic": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 45.0, "gaze_step_deg": 10.0},
+    # paper's laptop setting: 10 deg pose, 20 deg gaze variation
+    "targeted": {"camera_polar_max_deg": 5.0, "gaze_offset_max_deg": 10.0, "gaze_step_deg": 5.0},
+    # framed as UnityEyes frames its images, so that GazeML's UnityEyes loader (eyeball centre at the
+    # image centre, iris centre 71.7593 px from it along the gaze) holds; see
+    # pipeline/render/formats/unityeyes.py. UnityEyes' recommended 512 x 384, its left eye, its camera
+    # 10 units (cm) from the eyeball centre looking at it (no shift), GazeML's |head pitch|, |yaw| <= 20
+    "unityeyes": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 30.0, "gaze_step_deg": 1.0,
+                  "width": 512, "height": 384, "eyes": ("left",), "center_jitter_mm": 0.0,
+                  "camera_distance_mm": 100.0, "iris_distance_px": 71.7593},
+}
+
+
+_GENERIC = PRESETS["generic"]
+
+
+@dataclass(frozen=True)
+class RenderPreset(Settings):
+    """One entry of ``render.presets``: pose and gaze ranges (and, for a preset that names them,
+    image size, eyes and framing) filled in by ``render.preset``; only the keys the entry names."""
+
+    camera_polar_max_deg: float = setting(_GENERIC["camera_polar_max_deg"], ge=0, lt=80)
+    gaze_offset_max_deg: float = setting(_GENERIC["gaze_offset_max_deg"], ge=0, le=90)
+    gaze_step_deg: float = setting(_GENERIC["gaze_step_deg"], gt=0, le=90)
+    width: int = setting(120, ge=8, le=8192)
+    height: int = setting(80, ge=8, le=8192)
+    eyes: tuple[Literal["left", "right"], ...] = setting(("left", "right"), min_len=1, max_len=2)
+    center_jitter_mm: float = setting(1.0, ge=0, le=100)
+    camera_distance_mm: float = setting(200.0, gt=0, le=100_000)
+    iris_distance_px: float | None = setting(None, gt=0, le=100_000)
+
+
+#: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
+RUN_KEYS = ("workers", "scheduler", "shard_size", "threads", "tile_size", "sheet_images", "image_timeout_s",
+            "progress", "connect_timeout_s")
+#: Image files are named NNNNNN.png: at most a million images per scan.
+MAX_IMAGES = 1_000_000
+
+
+@dataclass(frozen=True)
+class RenderSettings(Settings):
+    """The ``render:`` block of params.yaml (sampling, render and run settings).
+
+    ``preset`` fills ``camera_polar_max_deg``, ``gaze_offset_max_deg`` and ``gaze_step_deg``
+    from ``presets`` (built-in :data:`PRESETS`, entries replaced by the block's own); explicit
+    keys override the preset.
+    """
+
+    block: ClassVar[str] = "render"
+
+    preset: str = "generic"
+    n_images: int = setting(16, ge=0, le=MAX_IMAGES)     # sample i = f(seed, i)
+    seed: int = setting(0, ge=0, le=2**63 - 1)
+    width: int = setting(120, ge=8, le=8192)
+    height: int = setting(80, ge=8, le=8192)
+    samples: int = setting(10, ge=1, le=65536)          # Cycles samples per pixel
+    denoise: bool = True
+    eyes: tuple[Literal["left", "right"], ...] = setting(("left", "right"), min_len=1, max_len=2)
+    camera_polar_max_deg: float = setting(_GENERIC["camera_polar_max_deg"], ge=0, lt=80)   # the preset's
+    gaze_offset_max_deg: float = setting(_GENERIC["gaze_offset_max_deg"], ge=0, le=90)
+    gaze_step_deg: float = setting(_GENERIC["gaze_step_deg"], gt=0, le=90)
+    max_pitch_deg: float = setting(25.0, ge=0, le=90)
+    max_yaw_deg: float = setting(35.0, ge=0, le=90)
+    ortho_scale_mm: tuple[float, float] = setting((30.0, 36.0), gt=0, le=1000, ordered=True)
+    center_jitter_mm: float = setting(1.0, ge=0, le=100)
+    camera_distance_mm: float = setting(200.0, gt=0, le=100_000)
+    strength: tuple[float, float] = setting((0.6, 1.6), ge=0, le=1000, ordered=True)
+    hdris: tuple[str, ...] = setting(HDRIS, min_len=1, max_len=1000)
+    max_attempts: int = setting(100, ge=1, le=100_000)
+    landmark_tolerance_mm: float = setting(0.01, gt=0, le=10)
+    # framing for GazeML's UnityEyes loader: the orthographic scale of each image puts the iris
+    # centre this many pixels from the eyeball centre (ortho_scale_mm is then not used)
+    iris_distance_px: float | None = setting(None, gt=0, le=100_000)
+    # label files per image, one module each in pipeline/render/formats/ (eyerig: NNNNNN.json, always)
+    label_formats: tuple[Literal[LABEL_FORMATS], ...] = setting((REQUIRED_FORMAT,), min_len=1,
+                                                               max_len=len(LABEL_FORMATS))
+    # per image also NNNNNN_seg.png, NNNNNN_depth.exr and landmark visibility, from the same render's
+    # passes (pipeline/render/seg.py, visibility.py)
+    masks: bool = True
+    presets: dict[str, RenderPreset] = setting(
+        default_factory=lambda: {k: RenderPreset(**v) for k, v in PRESETS.items()})
+    # how to run (RUN_KEYS: not part of the config hash)
+    workers: int = setting(0, ge=0, le=1024)            # LocalCluster worker processes (0 = auto)
+    scheduler: str | None = None                        # dask scheduler address instead of a LocalCluster
+    shard_size: int = setting(8, ge=1, le=100_000)      # images per dask task
+    threads: int = setting(0, ge=0, le=1024)            # Cycles threads per Blender (0 = cores / workers)
+    tile_size: int | None = setting(None, ge=8, le=8192)
+    sheet_images: int = setting(16, ge=0, le=1024)      # tiles on contact_sheet.png
+    image_timeout_s: float = setting(600.0, gt=0, le=86_400)
+    progress: bool = True
+    connect_timeout_s: float = setting(10.0, gt=0, le=3600)
+
+    @classmethod
+    def prepare(cls, params: dict) -> dict:
+        """Fill the preset's values (explicit keys win); ``presets`` entries replace built-in ones."""
+        presets = {k: dict(v) for k, v in PRESETS.items()}
+        own = params.get("presets")
+        if own is not None and not isinstance(own, dict):
+            raise SettingError("presets", "must be a mapping of preset name -> settings")
+        presets.update(own or {})
+        name = params.get("preset", "generic")
+        if not isinstance(name, str) or name not in presets:
+            raise SettingError("preset", f"must be one of {', '.join(sorted(map(str, presets)))} (got {name!r})")
+        chosen = RenderPreset._build(presets[name], prefix=f"presets.{name}")   # its own key in errors
+        fill = {k: getattr(chosen, k) for k in RenderPreset.keys() if k in presets[name]}
+        return {**fill, **params, "presets": presets}
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "RenderSettings":
+        """Same as :meth:`from_params` (kept for callers of the old name)."""
+        return cls.from_params(d)
+
+    def validate(self) -> None:
+        if self.width < self.height:
+            raise SettingError("width", f"must be >= height (orthographic scale = image width; got "
+                                        f"{self.width} x {self.height})")
+        if any(not h.endswith(".exr") for h in self.hdris):
+            raise SettingError("hdris", "must be a list of .exr names")
+        if self.iris_distance_px is not None and self.center_jitter_mm != 0:
+            raise SettingError("center_jitter_mm", "must be 0 with iris_distance_px (GazeML's loader takes the "
+                                                   "image centre for the eyeball centre); with preset unityeyes, "
+                                                   "drop the explicit center_jitter_mm, width, height, eyes and "
+                                                   f"camera_distance_mm or set them (got {self.center_jitter_mm:g})")
+        if REQUIRED_FORMAT not in self.label_formats or len(set(self.label_formats)) < len(self.label_formats):
+            raise SettingError("label_formats", f"must list {REQUIRED_FORMAT} (its label marks an image done) and "
+                                                f"each format once (got {list(self.label_formats)})")
+
+    def hashed(self) -> dict:
+        """The settings that change images or labels (not n_images: sample i ignores it; not how to run)."""
+        skip = {"n_images", "presets", *RUN_KEYS}
+        d = {k: getattr(self, k) for k in self.keys() if k not in skip}
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}

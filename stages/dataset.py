@@ -1,0 +1,134 @@
+"""The dataset command: labelled images of several rigged assets, mixed by weight, in one folder.
+
+    python -m stages.dataset --assets rigged_assets/* --n 10000 --preset generic --out DIR \\
+        [--weights 2 1 1] [--rigs build/a/rig ...] [--seed S] [--params params.yaml] \\
+        [--set KEY=VALUE ...] [--workers N] [--scheduler ADDRESS] [--no-progress] [--dashboard] \\
+        [--overwrite | --resume]
+
+Not a DVC stage (its output folder is the user's), but a script like them: it reads the
+``render:`` block of ``--params`` (``--set KEY=VALUE``, ``--n``, ``--preset``, ``--seed`` and
+``--workers`` override it), checks the assets and the output folder, says what it skips,
+doubts and removes, and calls the library (pipeline/render/dataset.py: the plan, the folder,
+the files, the card). Bad input (a missing or invalid asset or rig, ``--n`` out of range, a
+weight count that does not match, an output folder that is not a dataset or holds another plan)
+ends with one line and exit 2 before anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from pipeline.errors import ScanError
+from pipeline.io.scratch import stage_scratch
+from pipeline.render import mix
+from pipeline.render import plan as pl
+from pipeline.render.dataset import asset_inputs, load_assets, render_dataset
+from pipeline.render.settings import MAX_IMAGES, RenderSettings
+from pipeline.render.shard import dashboard_text
+from stages._common import load_params
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line and exit 2, like every bad input."""
+
+    def error(self, message):
+        self.exit(2, f"error: {self.prog}: {message}\n")
+
+
+def _settings(args) -> RenderSettings:
+    """The ``render:`` block of ``--params`` with the command line's overrides."""
+    import yaml
+
+    if not 1 <= args.n <= MAX_IMAGES:
+        raise ScanError("--n", f"must be between 1 and {MAX_IMAGES} (got {args.n})")
+    if args.params != "params.yaml" and not Path(args.params).is_file():
+        raise ScanError(args.params, "params file not found")
+    params = load_params("render", args.params)      # {} without a params.yaml
+    for item in args.set or ():
+        key, eq, value = item.partition("=")
+        if not eq or not key:
+            raise ScanError("--set", f"{item!r} is not KEY=VALUE")
+        try:
+            params[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ScanError("--set", f"{key}: {value!r} is not a YAML value") from None
+    params["n_images"] = args.n
+    for key in ("preset", "seed", "workers"):
+        if getattr(args, key) is not None:
+            params[key] = getattr(args, key)
+    if args.no_progress:
+        params["progress"] = False
+    return RenderSettings.from_params(params, source=args.params)
+
+
+def main(argv=None) -> int:
+    ap = _Parser(prog="python -m stages.dataset", description=__doc__.splitlines()[0])
+    ap.add_argument("--assets", nargs="+", required=True, help="rigged_assets/<scan> folders (rigged_assets/* "
+                                                               "works: the shared eyeball is skipped)")
+    ap.add_argument("--n", type=int, required=True, help="images in the dataset")
+    ap.add_argument("--out", type=Path, required=True, help="the dataset folder (new, empty or earlier dataset)")
+    ap.add_argument("--weights", nargs="+", default=None, help="one weight per asset (default: equal)")
+    ap.add_argument("--rigs", nargs="+", default=None, help="build/<scan>/rig per asset (default: beside it)")
+    ap.add_argument("--preset", default=None, help="render preset (default: the params' render.preset)")
+    ap.add_argument("--seed", type=int, default=None, help="default: the params' render.seed")
+    ap.add_argument("--params", default="params.yaml", help="its render: block gives the settings")
+    ap.add_argument("--set", nargs="+", default=None, metavar="KEY=VALUE",
+                    help="override render settings (YAML values), e.g. width=240 height=160 samples=32")
+    ap.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes")
+    ap.add_argument("--scheduler", default=None, help="dask scheduler address (default: a LocalCluster)")
+    ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--dashboard", action="store_true",
+                    help="serve the LocalCluster's dask dashboard on 127.0.0.1 (a free port, printed)")
+    how = ap.add_mutually_exclusive_group()
+    how.add_argument("--overwrite", action="store_true",
+                     help="replace a dataset of another plan in --out (its images the new plan shares are kept)")
+    how.add_argument("--resume", action="store_true", help="only continue the dataset of this plan in --out")
+    args = ap.parse_args(argv)
+
+    try:
+        settings = _settings(args)
+        pairs, skipped = asset_inputs(args.assets, args.rigs)
+        pl.check_out(args.out)
+        for f in skipped:
+            print(f"note: skipped {f} (the shared eyeball, not a head)", file=sys.stderr)
+        assets = load_assets(pairs, args.weights, settings)
+        for a in assets:                      # rendered all the same; the card lists them too
+            for d in a.doubts():
+                print(f"warning: {a.folder}: {d}", file=sys.stderr)
+        assign = mix.assign(args.n, [a.weight for a in assets], settings.seed)
+        fp = pl.inspect_dataset(args.out, assets, assign, settings)
+        err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
+        if err is not None:
+            raise err
+        if args.overwrite and fp.state == "new":
+            print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
+        elif args.overwrite:
+            what = "; ".join(fp.differences) or "the same plan"
+            print(f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {args.out} go ({what})",
+                  file=sys.stderr)
+
+        def dashboard(url):
+            print(dashboard_text(url), file=sys.stderr)
+
+        with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
+            m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
+                               progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume,
+                               on_dashboard=dashboard if args.dashboard else None)
+    except ScanError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("error: interrupted (a re-run resumes)", file=sys.stderr)
+        return 130
+    rate = f", {m['images_per_s']:.2f} images/s" if m["images_per_s"] else ""
+    print(f"{args.out}: {m['n_images']} images of {len(assets)} assets ({m['rendered']} rendered, "
+          f"{m['skipped_done']} kept{rate}, {m['wall_s']:.1f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("PYTHONHASHSEED", "0")
+    raise SystemExit(main())
