@@ -100,7 +100,7 @@ def corner_masks(tmp_path_factory):
             view["jitter"] = np.asarray(smp.landmarks_cam[0][:2], float)
             png = root / f"{variant}_{name}.png"
             smp = make_sample(render_asset, s, 0, png, view, reject=False)
-            spec = dict(smp.spec, seg_png=str(root / f"{variant}_{name}_seg.png"),
+            spec = dict(smp.spec.to_dict(), seg_png=str(root / f"{variant}_{name}_seg.png"),
                         depth_exr=str(root / f"{variant}_{name}_depth.exr"))
             rep = w.send(spec)
             assert rep["ok"] is True, rep

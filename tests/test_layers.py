@@ -50,16 +50,23 @@ WAITING = {
     "pipeline/geometry/eye_fit.py": "remove_eyeballs",
     "pipeline/geometry/eye_texture.py": "remove_eyeballs",
     "pipeline/geometry/eye_checks.py": "remove_eyeballs",
+    "pipeline/geometry/eye_place.py": "remove_eyeballs",
+    "pipeline/geometry/eye_prior.py": "remove_eyeballs",
+    "pipeline/geometry/fissure.py": "remove_eyeballs",
+    "pipeline/geometry/fissure_cut.py": "remove_eyeballs",
     "pipeline/geometry/eyelid_loop.py": "retopo",
     "pipeline/geometry/eye_rings.py": "retopo",
     "pipeline/geometry/retopo.py": "retopo",
     "pipeline/geometry/snap.py": "snap",
 }
 
-#: Import cycles between modules that are known and wait for the same work: eye_fit, eye_texture
-#: and remove_eyeballs import each other (behind TYPE_CHECKING and function-level imports).
+#: Import cycles between modules that are known and wait for the same work: eye_fit, eye_texture,
+#: the fissure modules and remove_eyeballs import each other (behind TYPE_CHECKING and
+#: function-level imports).
 KNOWN_CYCLES = [{"pipeline.geometry.eye_fit", "pipeline.geometry.eye_texture",
-                 "pipeline.geometry.remove_eyeballs"}]
+                 "pipeline.geometry.remove_eyeballs"},
+                {"pipeline.geometry.eye_texture", "pipeline.geometry.fissure",
+                 "pipeline.geometry.fissure_cut", "pipeline.geometry.remove_eyeballs"}]
 
 
 def module_name(path: Path) -> str:
