@@ -75,6 +75,7 @@ BENCHMARKS = (
               needs=("scans", "scanify")),
     Benchmark("view_eye_sections", needs=("unseen_work",)),
     Benchmark("bench_unseen_oracle", needs=("unseen_work",)),
+    Benchmark("bench_placement", args=("--set", "all", "--skip-missing"), needs=("unseen_work",)),
     Benchmark("bench_usd", needs=("synthetic_build",)),
     # the README's figures come from the three home scans and six procedural heads (its command)
     Benchmark("bench_margin_smoothness", args=(str(SYNTH_BUILD), "--out", str(
