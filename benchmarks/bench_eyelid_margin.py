@@ -31,7 +31,7 @@ import yaml
 
 from benchmarks.bench_remove_eyeballs import eye_errors
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.geometry.remove_eyeballs import SIDES, EyeSettings, remove_eyeballs
+from pipeline.remove_eyeballs.remove_eyeballs import SIDES, EyeSettings, remove_eyeballs
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

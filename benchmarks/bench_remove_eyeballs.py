@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
+from pipeline.remove_eyeballs.remove_eyeballs import EyeSettings, remove_eyeballs
 from pipeline.synthetic_head import make_synthetic_head
 
 BOUND_MM = 0.5

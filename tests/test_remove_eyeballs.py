@@ -9,12 +9,12 @@ import pytest
 
 from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
-from pipeline.geometry.eye_fit import eye_surface_distance
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
 from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
+from pipeline.remove_eyeballs.eye_fit import eye_surface_distance
+from pipeline.remove_eyeballs.remove_eyeballs import EyeSettings, remove_eyeballs
 
 R_EYE = 12.0
 CX = 30.0
@@ -326,8 +326,8 @@ def test_james_texture_fallback(extra_scan):
     # no photographed eye left on the lids: nothing of the kept surface lies, seen from the front,
     # inside the hexagon of the six annotated eyelid points (inside the true fissure), beyond a
     # sliver at a canthus.
-    from pipeline.geometry.fissure import points_in_polygon
     from pipeline.geometry.frame import eye_basis
+    from pipeline.remove_eyeballs.fissure import points_in_polygon
 
     L = np.load(folder / "james_landmarks68.npy")
     groups = json.loads((folder / "james_landmarks68_groups.json").read_text())
@@ -422,7 +422,7 @@ def test_holes_inside_counts_only_holes_whose_every_edge_is_removed():
     """A grid with two holes (one quad cut out each): a cut that covers a hole's whole rim absorbs
     it, a cut through part of its rim does not; the outer border is a loop too and counts only
     when every face along it goes."""
-    from pipeline.geometry.remove_eyeballs import _holes_inside
+    from pipeline.remove_eyeballs.remove_eyeballs import _holes_inside
 
     n = 12
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
@@ -451,9 +451,9 @@ def test_texture_fissure_reads_the_painted_opening():
     that width is not doubted, one shrunk to 60 % is, with both widths in the sentence."""
     from types import SimpleNamespace
 
-    from pipeline.geometry.eye_texture import texture_fissure
     from pipeline.geometry.frame import eye_basis
-    from pipeline.geometry.remove_eyeballs import _fissure_doubts
+    from pipeline.remove_eyeballs.eye_texture import texture_fissure
+    from pipeline.remove_eyeballs.remove_eyeballs import _fissure_doubts
     from pipeline.synthetic_head import make_synthetic_head
 
     h = make_synthetic_head(seed=3, target_triangles=60_000, texture_size=1024, noise_mm=0.0)
@@ -479,7 +479,7 @@ def test_texture_fissure_reads_the_painted_opening():
 
 def test_texture_fissure_without_skin_around_reads_nothing():
     """A texture that is one colour everywhere has no fissure (nothing differs from the skin)."""
-    from pipeline.geometry.eye_texture import texture_fissure
+    from pipeline.remove_eyeballs.eye_texture import texture_fissure
     from pipeline.synthetic_head import make_synthetic_head
 
     h = make_synthetic_head(seed=3, target_triangles=20_000, texture_size=16, noise_mm=0.0)
