@@ -28,7 +28,7 @@ from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.io.scan_file import read_scan_record
 from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
-from pipeline.remove_eyeballs.remove_eyeballs import EyeSettings, remove_eyeballs
+from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings, remove_eyeballs
 from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
@@ -56,7 +56,7 @@ def main(argv) -> StageResult:
                         help="folder of the UnityEyes eye-region model (optional: placement goes "
                              "without that cue when it is absent)")
     args = parser.parse_args(argv)
-    st = load_settings(EyeSettings, args.params)
+    st = load_settings(RemoveEyeballsSettings, args.params)
     mesh, hints, texture, source, tex_path = _read(args.ingest)
     prior = EyeRegionPrior.load(args.prior)
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture,

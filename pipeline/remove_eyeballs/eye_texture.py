@@ -28,7 +28,7 @@ from pipeline.geometry.spherefit import signed_distance
 from pipeline.remove_eyeballs.eye_fit import EyeFit, EyeMesh, _crease, _patch, _unit
 
 if TYPE_CHECKING:
-    from pipeline.remove_eyeballs.remove_eyeballs import EyeSettings
+    from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings
 
 
 def _texels(texture, uv) -> np.ndarray:
@@ -222,7 +222,7 @@ def place_from_fissure(outline, lateral: int, radius: float, start_forward, fixe
     return c, f, float(r), float(np.sqrt(np.mean(d ** 2))) if len(d) else 0.0
 
 
-def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: EyeSettings, source,
+def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: RemoveEyeballsSettings, source,
                 fixed_radius=None, n_outline=96):
     """Eye opening from the colour texture (coarse scans): the fissure's outline from canthus to
     canthus (:mod:`pipeline.remove_eyeballs.fissure`, seen along the head's forward axis), the eye

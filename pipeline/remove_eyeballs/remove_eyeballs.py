@@ -34,7 +34,7 @@ SIDES = ("left", "right")
 
 
 @dataclass
-class EyeSettings(Settings):
+class RemoveEyeballsSettings(Settings):
     """Parameters of eye finding and removal (``remove_eyeballs:`` block of params.yaml); the
     defaults are here, values are checked by pipeline.settings."""
 
@@ -334,7 +334,7 @@ def _fill_faces(V, F, ratio):
     return A > ratio * max(float(np.median(A)), 1e-12)
 
 
-def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: EyeSettings, source, ignore):
+def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: RemoveEyeballsSettings, source, ignore):
     """The :class:`EyeFit` of one placed eye: the removal region is the eye-labelled surface
     (faces whose three vertices are eye, and the unmeasured fills inside it), made one simple
     loop; a closed eye (little eye surface, or no lid fold around it) is a ScanError."""
@@ -380,7 +380,7 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: EyeSettings, source, 
                   capped=False, inliers=rv, radius_sigma=pl.sigma_radius_mm)
 
 
-def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None,
+def fit_eye_pair(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source="mesh", texture=None,
                  prior=None):
     """Place both eyes jointly (``pipeline.remove_eyeballs.eye_place``) on the surface around the
     hints; an eye the geometry cannot place falls back to the colour texture when there is one.
@@ -453,7 +453,7 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
     return mesh, fits, placements
 
 
-def _fissure_doubts(V, F, mesh_arrays, texture, hint, fit, loop_points, st: EyeSettings):
+def _fissure_doubts(V, F, mesh_arrays, texture, hint, fit, loop_points, st: RemoveEyeballsSettings):
     """A texture-placed eye's opening against the fissure its texture shows.
 
     Returns ``(record, doubts)``: the fissure's and the loop's widths along the eye (mm) and a
@@ -496,7 +496,7 @@ def _placement_record(pl, fit):
                                   "energy_above": round(float(de), 2)} for c, r, de in pl.modes[1:]]}
 
 
-def _placement_doubts(eye: dict, st: EyeSettings) -> list:
+def _placement_doubts(eye: dict, st: RemoveEyeballsSettings) -> list:
     """Sentences for what the placement is not sure of: little evidence (a wide calibrated
     uncertainty) and every failed self-check. The eye is still published."""
     out = []
@@ -509,7 +509,7 @@ def _placement_doubts(eye: dict, st: EyeSettings) -> list:
     return out
 
 
-def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = None, *,
+def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings | None = None, *,
                     source="mesh", texture=None, prior=None) -> RemovalResult:
     """Fit both eyes and cut the scanned eyeball surface out of the head mesh.
 
@@ -520,7 +520,7 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         and other per-face/per-vertex arrays (carried through).
     hints : dict
         ``{"left": (3,), "right": (3,)}`` eye hints, head frame mm.
-    st : EyeSettings
+    st : RemoveEyeballsSettings
     source : str
         File named in error messages.
     texture : (h, w, 3) uint8, optional
@@ -534,7 +534,7 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         ``mesh`` (arrays with the eyeball faces removed and vertices re-indexed),
         ``eyes`` (eyes.json content), ``fits`` (EyeFit per side), ``metrics``.
     """
-    st = st or EyeSettings()
+    st = st or RemoveEyeballsSettings()
     mesh, fits, placements = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture,
                                           prior=prior)
     # an eye placed from its texture is cut along the fissure the photograph shows: the faces
