@@ -38,9 +38,9 @@ def main(argv=None):
     from benchmarks.bench_retopo import prepare_input
     from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_error
     from pipeline.bake.uv import unwrap
-    from pipeline.geometry.retopo import RetopoSettings, retopologize
     from pipeline.io.meshfile import load_mesh
     from pipeline.io.eyes_file import read_eye_loops
+    from pipeline.retopo.retopo import RetopoSettings, retopologize
 
     folder = Path(args.input) if args.input else prepare_input(args.triangles)[0]
     dense = load_mesh(folder / "mesh.npz")

@@ -31,7 +31,7 @@ import yaml
 
 from benchmarks.bench_remove_eyeballs import eye_errors
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.geometry.remove_eyeballs import SIDES, EyeSettings, remove_eyeballs
+from pipeline.remove_eyeballs.remove_eyeballs import SIDES, RemoveEyeballsSettings, remove_eyeballs
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -155,7 +155,7 @@ def main():
     r = ingest_scan(folder, IngestSettings())
     hints = {s: r.scan["eyes"][s]["hint"] for s in SIDES}
     params = yaml.safe_load((ROOT / "params.yaml").read_text())["remove_eyeballs"]
-    res = remove_eyeballs(r.mesh, hints, EyeSettings.from_params(params), source="ict_neutral")
+    res = remove_eyeballs(r.mesh, hints, RemoveEyeballsSettings.from_params(params), source="ict_neutral")
     V, F = np.asarray(r.mesh["V"], float), np.asarray(r.mesh["F"], np.int64)
     shifts = np.arange(0.0, 3.01, 0.25)
     rows = {}

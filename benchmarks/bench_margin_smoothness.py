@@ -10,11 +10,11 @@ former loop), retopo's library call and snap's (onto the eyeball of
 ``BUILD_DIR/../../{rigged_assets/eyeball,eyeball}``; bake is skipped: snap reads V, F and the
 loops only):
 
-- ``jag_p95_mm``: p95 of :func:`pipeline.geometry.eyelid_loop.margin_jag` (distance of each
+- ``jag_p95_mm``: p95 of :func:`pipeline.retopo.eyelid_loop.margin_jag` (distance of each
   loop vertex to the mean of itself and its +-1, +-2 neighbours, 6 vertices either side of
   each canthus left out) for ``cut`` (remove_eyeballs' loop), ``retopo`` and ``snap``;
   and ``truth_floor`` (the true margin resampled like retopo's loop: what a smooth lid scores);
-- ``teeth_p95_mm``: p95 of :func:`~pipeline.geometry.eyelid_loop.margin_teeth` (distance to
+- ``teeth_p95_mm``: p95 of :func:`~pipeline.retopo.eyelid_loop.margin_teeth` (distance to
   the cubic through the +-1, +-2 neighbours: 0 on a smooth curve whatever its curvature, 2.67 a
   on a zigzag of amplitude a), retopo and snap;
 - ``spacing_mm``: the mean loop edge of the retopo loop;
@@ -38,13 +38,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.geometry import snap as sn
-from pipeline.geometry.eyelid_loop import margin_jag, margin_teeth, polyline_arclength
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.geometry.retopo import RetopoSettings, retopologize
 from pipeline.io.atomic import write_json
 from pipeline.io.eyes_file import read_eye_loops, read_eyes
 from pipeline.io.meshfile import read_stage_mesh
+from pipeline.retopo.eyelid_loop import margin_jag, margin_teeth, polyline_arclength
+from pipeline.retopo.retopo import RetopoSettings, retopologize
+from pipeline.snap import snap as sn
 from pipeline.usd.eyeball import read_eyeball_params
 from stages._common import load_settings
 

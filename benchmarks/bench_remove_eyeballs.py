@@ -24,11 +24,11 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
+from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings, remove_eyeballs
 from pipeline.synthetic_head import make_synthetic_head
 
 BOUND_MM = 0.5
-SETTINGS = EyeSettings()
+SETTINGS = RemoveEyeballsSettings()
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
@@ -122,11 +122,11 @@ def main():
     ap.add_argument("--scans", default=None, help="folder holding ict_neutral (sweep only)")
     ap.add_argument("--out", default=None, help="result file name under benchmarks/results/")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                    help="EyeSettings overrides (YAML values), e.g. shared_radius=false")
+                    help="RemoveEyeballsSettings overrides (YAML values), e.g. shared_radius=false")
     args = ap.parse_args()
     import yaml
     global SETTINGS
-    SETTINGS = EyeSettings.from_params({k: yaml.safe_load(v) for k, v in (a.split("=", 1) for a in args.set)})
+    SETTINGS = RemoveEyeballsSettings.from_params({k: yaml.safe_load(v) for k, v in (a.split("=", 1) for a in args.set)})
     if args.sweep:
         args.triangles = args.triangles or [100_000, 150_000, 350_000]
         sweep(args)

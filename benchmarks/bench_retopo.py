@@ -62,9 +62,9 @@ def main(argv=None):
     ap.add_argument("--input", default=None, help="a remove_eyeballs folder instead of the synthetic head")
     args = ap.parse_args(argv)
 
-    from pipeline.geometry.retopo import RetopoSettings, retopologize
     from pipeline.io.meshfile import load_mesh
     from pipeline.io.eyes_file import read_eye_loops
+    from pipeline.retopo.retopo import RetopoSettings, retopologize
 
     if args.input:
         folder, chain = Path(args.input), {}

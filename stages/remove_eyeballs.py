@@ -11,7 +11,7 @@ checks, loop_indices, loop_points, lateral_canthus_index, texture_fissure, doubt
 ``texture.png``. ``--prior`` names the eye-region model's folder (used when present). Each
 doubt (an eye placed from little evidence, a failed self-check, a texture-placed opening
 narrower than the texture's fissure) is also printed to stderr as a warning; the eye is still
-published. See pipeline/geometry/eye_place.py, eye_prior.py, remove_eyeballs.py.
+published. See pipeline/remove_eyeballs/eye_place.py, eye_prior.py, remove_eyeballs.py.
 """
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.geometry.eye_prior import EyeRegionPrior
-from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.io.scan_file import read_scan_record
+from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
+from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings, remove_eyeballs
 from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
@@ -56,7 +56,7 @@ def main(argv) -> StageResult:
                         help="folder of the UnityEyes eye-region model (optional: placement goes "
                              "without that cue when it is absent)")
     args = parser.parse_args(argv)
-    st = load_settings(EyeSettings, args.params)
+    st = load_settings(RemoveEyeballsSettings, args.params)
     mesh, hints, texture, source, tex_path = _read(args.ingest)
     prior = EyeRegionPrior.load(args.prior)
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture,

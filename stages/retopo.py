@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.geometry.retopo import RetopoSettings, retopologize
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import read_eye_loops
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.results import StageResult
+from pipeline.retopo.retopo import RetopoSettings, retopologize
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 

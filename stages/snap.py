@@ -8,7 +8,7 @@ Reads ``bake/mesh.npz`` (V, F, loop_left, loop_right, UV/FUV...), ``remove_eyeba
 ``eyeball/eyeball.usda`` (customData eyerig.params: r1, r2, apex, seam_blend_mm). Writes
 ``snap/mesh.npz`` (same arrays, V snapped) and ``snap/eyes.json`` (carried over; the loop
 fields re-point at the snapped mesh's loops; pipeline/io/eyes_file.py). See
-pipeline/geometry/snap.py (``snap_mesh``).
+pipeline/snap/snap.py (``snap_mesh``).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def main(argv) -> StageResult:
     # pxr's import and the read (0.1 s) run in a child beside this process's scipy imports and
     # reading; a failed read is rerun here, so its error is the reader's own
     params_job = fork_call(read_eyeball_params, args.eyeball)
-    from pipeline.geometry import snap as sn    # imports scipy: after the fork, beside the child
+    from pipeline.snap import snap as sn    # imports scipy: after the fork, beside the child
 
     st = load_settings(sn.SnapSettings, args.params)
     mesh_path = args.bake / "mesh.npz"

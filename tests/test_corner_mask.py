@@ -36,7 +36,7 @@ def lift_medial_corners(mesh: dict, eyes: dict, lift_mm=4.0, reach_mm=5.0) -> di
     distance, smoothstep) moved ``lift_mm`` radially off its eye."""
     from scipy.sparse.csgraph import dijkstra
 
-    from pipeline.geometry.snap import edge_graph, smoothstep_falloff
+    from pipeline.snap.snap import edge_graph, smoothstep_falloff
 
     V = np.asarray(mesh["V"], float).copy()
     G = edge_graph(V, np.asarray(mesh["F"], np.int64))

@@ -13,11 +13,12 @@ import pytest
 
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import corners as cn
-from pipeline.geometry import eye_checks, meshtopo
-from pipeline.geometry import snap as sn
+from pipeline.geometry import meshtopo
+from pipeline.remove_eyeballs import eye_checks
 from pipeline.rig.eye_frame import eye_frames
 from pipeline.rig.lid_shapes import build_lid_shapes
 from pipeline.rig.sweep import sweep_check
+from pipeline.snap import snap as sn
 from fixtures.rig import two_eye_region
 
 R = 12.0

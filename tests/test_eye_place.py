@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import extra_scans_dir
-from pipeline.geometry import eye_place as ep
+from pipeline.remove_eyeballs import eye_place as ep
 from test_remove_eyeballs import make_head
 
 
@@ -120,7 +120,7 @@ def _prior_dir():
 
 
 def test_prior_absent_is_none(tmp_path):
-    from pipeline.geometry.eye_prior import EyeRegionPrior
+    from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
 
     assert EyeRegionPrior.load(tmp_path) is None and EyeRegionPrior.load(None) is None
 
@@ -130,7 +130,7 @@ def test_prior_registers_its_own_mean_shape():
     registration finds its globe's front within 0.5 mm and its axis within 3 deg."""
     import pymeshlab
 
-    from pipeline.geometry.eye_prior import EyeRegionPrior, to_head
+    from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior, to_head
 
     d = _prior_dir()
     prior = EyeRegionPrior.load(d)

@@ -1,5 +1,5 @@
-"""The fissure a texture shows (pipeline/geometry/fissure.py), the eye placed behind it
-(eye_texture.place_from_fissure) and the cut along it (pipeline/geometry/fissure_cut.py), on
+"""The fissure a texture shows (pipeline/remove_eyeballs/fissure.py), the eye placed behind it
+(eye_texture.place_from_fissure) and the cut along it (pipeline/remove_eyeballs/fissure_cut.py), on
 constructed inputs with known answers."""
 
 from __future__ import annotations
@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.geometry import eye_texture as et
-from pipeline.geometry import fissure as fs
-from pipeline.geometry import fissure_cut as fc
 from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis
-from pipeline.geometry.retopo import subdivide_midpoint
+from pipeline.remove_eyeballs import eye_texture as et
+from pipeline.remove_eyeballs import fissure as fs
+from pipeline.remove_eyeballs import fissure_cut as fc
+from pipeline.retopo.retopo import subdivide_midpoint
 
 
 def _map_of(theta, cell=0.25, radius=22.0, noise=0.0, seed=0):

@@ -20,9 +20,6 @@ A package may import its own modules and any package on a lower floor, never one
 floor or above. Imports are read with :mod:`ast`, wherever they stand (inside functions and
 ``TYPE_CHECKING`` blocks too: a lazy import is still a dependency). A module run by name as a
 subprocess (``-m pipeline.blender.render_worker``) is not an import, and nothing here counts it.
-
-Files of a stage that still live in ``geometry/`` (:data:`WAITING`) are held to their stage's
-floor, where they are going.
 """
 
 from __future__ import annotations
@@ -43,30 +40,13 @@ FLOORS = [
 ]
 FLOOR = {pkg: k for k, names in enumerate(FLOORS) for pkg in names}
 
-#: Stage modules still in geometry/, by the stage package they belong to (their move waits for
-#: the eye-placement work that edits them).
-WAITING = {
-    "pipeline/geometry/remove_eyeballs.py": "remove_eyeballs",
-    "pipeline/geometry/eye_fit.py": "remove_eyeballs",
-    "pipeline/geometry/eye_texture.py": "remove_eyeballs",
-    "pipeline/geometry/eye_checks.py": "remove_eyeballs",
-    "pipeline/geometry/eye_place.py": "remove_eyeballs",
-    "pipeline/geometry/eye_prior.py": "remove_eyeballs",
-    "pipeline/geometry/fissure.py": "remove_eyeballs",
-    "pipeline/geometry/fissure_cut.py": "remove_eyeballs",
-    "pipeline/geometry/eyelid_loop.py": "retopo",
-    "pipeline/geometry/eye_rings.py": "retopo",
-    "pipeline/geometry/retopo.py": "retopo",
-    "pipeline/geometry/snap.py": "snap",
-}
-
-#: Import cycles between modules that are known and wait for the same work: eye_fit, eye_texture,
-#: the fissure modules and remove_eyeballs import each other (behind TYPE_CHECKING and
+#: Import cycles between modules that are known: inside the remove_eyeballs package, eye_fit,
+#: eye_texture, the fissure modules and remove_eyeballs import each other (behind TYPE_CHECKING and
 #: function-level imports).
-KNOWN_CYCLES = [{"pipeline.geometry.eye_fit", "pipeline.geometry.eye_texture",
-                 "pipeline.geometry.remove_eyeballs"},
-                {"pipeline.geometry.eye_texture", "pipeline.geometry.fissure",
-                 "pipeline.geometry.fissure_cut", "pipeline.geometry.remove_eyeballs"}]
+KNOWN_CYCLES = [{"pipeline.remove_eyeballs.eye_fit", "pipeline.remove_eyeballs.eye_texture",
+                 "pipeline.remove_eyeballs.remove_eyeballs"},
+                {"pipeline.remove_eyeballs.eye_texture", "pipeline.remove_eyeballs.fissure",
+                 "pipeline.remove_eyeballs.fissure_cut", "pipeline.remove_eyeballs.remove_eyeballs"}]
 
 
 def module_name(path: Path) -> str:
@@ -100,12 +80,7 @@ def module_files() -> dict[str, Path]:
 
 def package_of(name: str, files: dict) -> str:
     """The floor-bearing package of module ``name``: ``pipeline.io.x`` -> ``io``,
-    ``pipeline.errors`` -> ``errors``, a :data:`WAITING` file -> its stage."""
-    f = files.get(name)
-    if f is not None:
-        rel = f.relative_to(ROOT).as_posix()
-        if rel in WAITING:
-            return WAITING[rel]
+    ``pipeline.errors`` -> ``errors``."""
     parts = name.split(".")
     return "__init__" if len(parts) == 1 else parts[1]
 

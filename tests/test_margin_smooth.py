@@ -4,8 +4,8 @@ curve, the canthi stay exactly where they were, and margin_jag scores the differ
 import numpy as np
 import pytest
 
-from pipeline.geometry.eyelid_loop import margin_jag, margin_teeth, smooth_margin
 from pipeline.geometry.mesh_checks import closed_polyline_distance
+from pipeline.retopo.eyelid_loop import margin_jag, margin_teeth, smooth_margin
 
 R = 12.0
 

@@ -1,11 +1,11 @@
-"""Cleaning a decimated mesh without opening holes (pipeline/geometry/mesh_clean.py)."""
+"""Cleaning a decimated mesh without opening holes (pipeline/retopo/mesh_clean.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from pipeline.geometry import meshtopo
-from pipeline.geometry.mesh_clean import clean_mesh
+from pipeline.retopo.mesh_clean import clean_mesh
 
 
 def test_a_collinear_cap_is_flipped_not_dropped():

@@ -9,12 +9,12 @@ import pytest
 
 from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
-from pipeline.geometry.eye_fit import eye_surface_distance
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.geometry.remove_eyeballs import EyeSettings, remove_eyeballs
 from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
+from pipeline.remove_eyeballs.eye_fit import eye_surface_distance
+from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings, remove_eyeballs
 
 R_EYE = 12.0
 CX = 30.0
@@ -82,7 +82,7 @@ def make_head(step=0.5, closed=False, seed=0, noise=0.0, radii=(R_EYE, R_EYE), c
 @pytest.mark.parametrize("step,seed,noise", [(0.5, 0, 0.0), (0.4, 1, 0.03), (0.7, 2, 0.05)])
 def test_ground_truth_and_topology(step, seed, noise):
     mesh, hints, gt = make_head(step, seed=seed, noise=noise)
-    res = remove_eyeballs(mesh, hints, EyeSettings())
+    res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
     out = res.mesh
     # topology: one new simple loop per eye, edge-manifold; only the eyelid-loop vertices moved
     # (onto the fitted eyeball, where the lids lift off it), every other vertex unchanged
@@ -128,7 +128,7 @@ def test_ground_truth_and_topology(step, seed, noise):
 def test_different_eye_sizes_are_kept():
     """Radius sharing only when both fits agree: a 12 mm and a 13 mm eye keep their radii."""
     mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 13.0))
-    res = remove_eyeballs(mesh, hints, EyeSettings())
+    res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
     for s in ("left", "right"):
         assert abs(res.eyes[s]["radius"] - gt[s]["radius"]) <= 0.3, (s, res.eyes[s]["radius"])
         assert np.linalg.norm(np.array(res.eyes[s]["center"]) - gt[s]["center"]) <= 0.5
@@ -145,7 +145,7 @@ def test_an_unmeasured_pupil_hole_is_part_of_the_opening():
         hole |= np.linalg.norm(c[:, :2] - gt[s]["center"][:2], axis=1) < 1.5
     holed = {"V": V, "F": F[~hole], "UV": mesh["UV"], "FUV": mesh["FUV"][~hole]}
     assert meshtopo.boundary_component_count(holed["F"]) == 3        # outer border + 2 holes
-    res = remove_eyeballs(holed, hints, EyeSettings())
+    res = remove_eyeballs(holed, hints, RemoveEyeballsSettings())
     assert res.metrics["boundary_loops_out"] == 3                   # outer border + 2 openings
     for s in ("left", "right"):
         assert np.linalg.norm(np.array(res.eyes[s]["center"]) - gt[s]["center"]) <= 0.5
@@ -156,7 +156,7 @@ def test_eyes_of_unequal_size_beyond_anatomy_are_published_with_a_doubt():
     """12 and 15 mm eyes in one head: the fits may be right, but no head has them. The asset
     is still made; each eye carries a doubt naming the failed check."""
     mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 15.0))
-    res = remove_eyeballs(mesh, hints, EyeSettings(), source="unequal.npz")
+    res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings(), source="unequal.npz")
     for s in ("left", "right"):
         assert abs(res.eyes[s]["radius"] - gt[s]["radius"]) <= 0.5
         assert any(d.startswith("self-check radii_agree: the two eyes' radii differ by 2.")
@@ -166,13 +166,13 @@ def test_eyes_of_unequal_size_beyond_anatomy_are_published_with_a_doubt():
 
 def test_eyes_json_records_placement_and_checks():
     mesh, hints, gt = make_head(0.5, seed=1, noise=0.02)
-    res = remove_eyeballs(mesh, hints, EyeSettings())
+    res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
     for s in ("left", "right"):
         e = res.eyes[s]
         # the whole eye shows: the sclera and the cornea carried the fit
         assert {"sclera", "cornea_or_iris"} <= set(e["placement"]), e["placement"]
         assert abs(sum(e["cue_shares"].values()) - 1.0) < 1e-3
-        unc, st = e["uncertainty_mm"], EyeSettings()
+        unc, st = e["uncertainty_mm"], RemoveEyeballsSettings()
         # a clean eye showing sclera and cornea is sure enough not to be doubted
         assert 0 < unc["center"] < st.doubt_center_sigma_mm and 0 < unc["radius"] < st.doubt_center_sigma_mm
         err = np.linalg.norm(np.array(e["center"]) - gt[s]["center"])
@@ -188,13 +188,13 @@ def test_no_eye_near_hint_fails():
     mesh, hints, _ = make_head(0.7)
     hints["left"] = np.array([0.0, 15.0, 4.0])  # flat forehead-like area between the eyes
     with pytest.raises(ScanError, match="left eye"):
-        remove_eyeballs(mesh, hints, EyeSettings(), source="flat.npz")
+        remove_eyeballs(mesh, hints, RemoveEyeballsSettings(), source="flat.npz")
 
 
 def test_closed_eyes_fail():
     mesh, hints, _ = make_head(0.7, closed=True)
     with pytest.raises(ScanError) as exc:
-        remove_eyeballs(mesh, hints, EyeSettings(texture_fallback=False), source="closed.npz")
+        remove_eyeballs(mesh, hints, RemoveEyeballsSettings(texture_fallback=False), source="closed.npz")
     msg = str(exc.value)
     assert "closed.npz" in msg and "\n" not in msg and ("closed" in msg or "no eyeball" in msg)
 
@@ -284,7 +284,7 @@ def test_ict_neutral(extra_scan):
     folder = extra_scan("ict_neutral")
     r = ingest_scan(folder, IngestSettings())
     hints = {s: r.scan["eyes"][s]["hint"] for s in ("left", "right")}
-    res = remove_eyeballs(r.mesh, hints, EyeSettings(), source="scan.ply")
+    res = remove_eyeballs(r.mesh, hints, RemoveEyeballsSettings(), source="scan.ply")
     assert res.metrics["edge_manifold_out"]
     gt = json.loads((folder / "ground_truth.json").read_text())["eyes"]
     for s, ((cerr, rerr), loop_d) in _gt_errors(folder, res).items():
@@ -314,7 +314,7 @@ def test_james_texture_fallback(extra_scan):
         tex = Image.open(io.BytesIO(r.texture_png_bytes))
     tex = np.asarray(tex.convert("RGB"))
     hints = {s: r.scan["eyes"][s]["hint"] for s in ("left", "right")}
-    res = remove_eyeballs(r.mesh, hints, EyeSettings(), source="james.obj", texture=tex)
+    res = remove_eyeballs(r.mesh, hints, RemoveEyeballsSettings(), source="james.obj", texture=tex)
     assert res.metrics["boundary_loops_out"] == res.metrics["boundary_loops_in"] + 2
     for s in ("left", "right"):
         e = res.eyes[s]
@@ -326,8 +326,8 @@ def test_james_texture_fallback(extra_scan):
     # no photographed eye left on the lids: nothing of the kept surface lies, seen from the front,
     # inside the hexagon of the six annotated eyelid points (inside the true fissure), beyond a
     # sliver at a canthus.
-    from pipeline.geometry.fissure import points_in_polygon
     from pipeline.geometry.frame import eye_basis
+    from pipeline.remove_eyeballs.fissure import points_in_polygon
 
     L = np.load(folder / "james_landmarks68.npy")
     groups = json.loads((folder / "james_landmarks68_groups.json").read_text())
@@ -375,7 +375,7 @@ def test_synthetic_head_ground_truth(seed, triangles, noise, shape):
     h = make_synthetic_head(seed=seed, target_triangles=triangles, noise_mm=noise, eye_shape=shape,
                             texture_size=16)
     res = remove_eyeballs({"V": h.V, "F": h.F}, {s: np.asarray(h.hints[s]) for s in ("left", "right")},
-                          EyeSettings(), source="synthetic")
+                          RemoveEyeballsSettings(), source="synthetic")
     assert res.metrics["boundary_loops_out"] == res.metrics["boundary_loops_in"] + 2
     assert res.metrics["edge_manifold_out"]
     for s in ("left", "right"):
@@ -422,7 +422,7 @@ def test_holes_inside_counts_only_holes_whose_every_edge_is_removed():
     """A grid with two holes (one quad cut out each): a cut that covers a hole's whole rim absorbs
     it, a cut through part of its rim does not; the outer border is a loop too and counts only
     when every face along it goes."""
-    from pipeline.geometry.remove_eyeballs import _holes_inside
+    from pipeline.remove_eyeballs.remove_eyeballs import _holes_inside
 
     n = 12
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
@@ -451,9 +451,9 @@ def test_texture_fissure_reads_the_painted_opening():
     that width is not doubted, one shrunk to 60 % is, with both widths in the sentence."""
     from types import SimpleNamespace
 
-    from pipeline.geometry.eye_texture import texture_fissure
     from pipeline.geometry.frame import eye_basis
-    from pipeline.geometry.remove_eyeballs import _fissure_doubts
+    from pipeline.remove_eyeballs.eye_texture import texture_fissure
+    from pipeline.remove_eyeballs.remove_eyeballs import _fissure_doubts
     from pipeline.synthetic_head import make_synthetic_head
 
     h = make_synthetic_head(seed=3, target_triangles=60_000, texture_size=1024, noise_mm=0.0)
@@ -469,17 +469,17 @@ def test_texture_fissure_reads_the_painted_opening():
         # corners, and the grid adds up to a cell at each end
         assert true_w - 1.0 <= fis["width_mm"] <= true_w + 3.5, (s, fis, true_w)
         fit = SimpleNamespace(center=np.asarray(g["eyeball_sphere"]["center_mm"], float), forward=fwd)
-        rec, doubts = _fissure_doubts(h.V, h.F, arrays, h.texture, h.hints[s], fit, margin, EyeSettings())
+        rec, doubts = _fissure_doubts(h.V, h.F, arrays, h.texture, h.hints[s], fit, margin, RemoveEyeballsSettings())
         assert doubts == [] and abs(rec["loop_width_mm"] - true_w) < 1e-9
         rec, doubts = _fissure_doubts(h.V, h.F, arrays, h.texture, h.hints[s], fit,
-                                      _shrunk_about_centroid(margin, 0.6), EyeSettings())
+                                      _shrunk_about_centroid(margin, 0.6), RemoveEyeballsSettings())
         assert len(doubts) == 1 and f"{0.6 * true_w:.1f} mm wide" in doubts[0], doubts
         assert f"{fis['width_mm']:.1f} mm" in doubts[0]
 
 
 def test_texture_fissure_without_skin_around_reads_nothing():
     """A texture that is one colour everywhere has no fissure (nothing differs from the skin)."""
-    from pipeline.geometry.eye_texture import texture_fissure
+    from pipeline.remove_eyeballs.eye_texture import texture_fissure
     from pipeline.synthetic_head import make_synthetic_head
 
     h = make_synthetic_head(seed=3, target_triangles=20_000, texture_size=16, noise_mm=0.0)

@@ -11,11 +11,11 @@ import pytest
 
 from fixtures import face_patch
 from pipeline.geometry import mesh_checks as mc
-from pipeline.geometry.eyelid_loop import project_to_polyline
 from pipeline.geometry.flips import count_flipped
-from pipeline.geometry.retopo import RetopoSettings, clean_mesh, retopologize
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
+from pipeline.retopo.eyelid_loop import project_to_polyline
+from pipeline.retopo.retopo import RetopoSettings, clean_mesh, retopologize
 from stages._common import read_stage_metrics
 
 
@@ -239,7 +239,7 @@ def test_eye_rings_off_is_the_plain_result(patch):
 
 def test_both_canthi_are_loop_targets():
     # an almond with sharp corners, medial canthus first, upper lid first; 40 loop vertices
-    from pipeline.geometry.eyelid_loop import orient_and_place, polyline_arclength
+    from pipeline.retopo.eyelid_loop import orient_and_place, polyline_arclength
 
     u = np.linspace(0.0, 1.0, 61)
     x = -14.0 + 28.0 * u
@@ -289,7 +289,7 @@ def _almond(n=121, round_mm=0.0):
 
 
 def test_canthus_apex_finds_the_corners_a_rounded_loop_cut_off():
-    from pipeline.geometry.eyelid_loop import canthus_apex
+    from pipeline.retopo.eyelid_loop import canthus_apex
 
     sharp, lat0 = _almond()
     P, lat = _almond(round_mm=1.0)
@@ -309,7 +309,7 @@ def test_canthus_apex_finds_the_corners_a_rounded_loop_cut_off():
 
 
 def test_canthus_apex_keeps_what_it_is_unsure_of():
-    from pipeline.geometry.eyelid_loop import canthus_apex
+    from pipeline.retopo.eyelid_loop import canthus_apex
 
     P, lat = _almond(round_mm=1.0)
     # too far beyond: not trusted

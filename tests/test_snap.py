@@ -7,10 +7,10 @@ import pytest
 
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import meshtopo
-from pipeline.geometry import snap as sn
 from pipeline.geometry.flips import untangle
 from pipeline.io.eyes_file import read_eyes, write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
+from pipeline.snap import snap as sn
 
 CENTER = np.array([31.0, 2.0, 70.0])
 R = 12.5
@@ -216,7 +216,7 @@ def test_snap_untangles_a_fan_of_slivers_at_the_margin():
 
 
 def test_midpoint_subdivision_keeps_the_surface():
-    from pipeline.geometry import retopo as rt
+    from pipeline.retopo import retopo as rt
 
     V, F, loop = lid_ring(0.3, n_rings=4)
     V2, F2 = rt.subdivide_midpoint(V, F)

@@ -333,7 +333,7 @@ def generate(case, work: Path, scanify: Path, ict: Path) -> Path:
 
 def _synthetic_labels(head):
     """Per vertex: 1/2 where the procedural head's surface is its eyeball (within 0.08 mm), else 0."""
-    from pipeline.geometry.eye_fit import eye_surface_distance
+    from pipeline.remove_eyeballs.eye_fit import eye_surface_distance
     labels = np.zeros(len(head.V), np.uint8)
     for lab, s in ((1, "left"), (2, "right")):
         g = head.ground_truth["eyes"][s]

@@ -10,7 +10,7 @@ What each figure compares (mm, head frame):
   the true gaze). Each sample's distance to the placed eye, RMS over the samples: ``sclera``
   against the placed sclera sphere alone, ``asset`` against the eye as the asset builds it (the
   parametric eye placed by ``pipeline.eyeball.geometry.placed_params`` at the rig's centre,
-  radius and forward, as the usd stage authors it; ``pipeline.geometry.snap.PlacedEye``).
+  radius and forward, as the usd stage authors it; ``pipeline.snap.snap.PlacedEye``).
   ``visible_rms_floor_mm`` is the ``asset`` figure with the eye placed exactly at the truth: what
   the asset's eye model costs by itself (a human-sized cornea on ICT-FaceKit's larger one).
 - ``margin_mean_mm``: the asset's lid margin after ``snap`` (``snap/eyes.json`` ``loop_points``:
@@ -37,10 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.geometry.eye_checks import convex_fill
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.eyes_file import lateral_canthus_index, read_eyes
+from pipeline.remove_eyeballs.eye_checks import convex_fill
 
 SIDES = ("left", "right")
 GRID_MM = 0.2          # visible-surface sampling step in the image plane of the true gaze
@@ -138,7 +138,7 @@ def placement_metrics(e: dict, g: dict, visible: np.ndarray, asset_eye, params) 
     """Centre/radius error, visible RMS and calibration of one placed eye (``eyes.json`` entry
     ``e``) against its truth ``g``. ``asset_eye``: (centre, radius, forward) the asset places the
     eye at (the rig's), ``params``: the eyeball asset's EyeballParams (None: skip the asset RMS)."""
-    from pipeline.geometry.snap import PlacedEye
+    from pipeline.snap.snap import PlacedEye
 
     c, r = np.asarray(e["center"], float), float(e["radius"])
     err = float(np.linalg.norm(c - g["eyeball_sphere"]["center_mm"]))

@@ -1,6 +1,4 @@
 """Shared mesh helpers: triangles and the mesh graph (meshtopo, mesh_checks, mesh_edit, flips),
-sphere fits (spherefit) and frames (frame).
-
-Also, until they move into their stage packages: the remove_eyeballs modules (remove_eyeballs,
-eye_fit, eye_texture, eye_checks), retopo's (retopo, eyelid_loop, eye_rings) and snap's (snap).
+sphere fits (spherefit), frames (frame), smooth ramps (ramps) and the eye corners off the globe
+(corners: remove_eyeballs' checks and snap share them).
 """

@@ -1,7 +1,7 @@
 """A tiny editable triangle mesh for local edits: edge collapses, boundary-edge splits and edge flips.
 
 Python dicts, for the few hundred edits of the retopology's loop resampling and flip repairs
-(:mod:`pipeline.geometry.eyelid_loop`, :mod:`pipeline.geometry.flips`).
+(:mod:`pipeline.retopo.eyelid_loop`, :mod:`pipeline.geometry.flips`).
 """
 
 from __future__ import annotations

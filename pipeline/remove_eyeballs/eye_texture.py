@@ -1,13 +1,13 @@
 """Texture fallback of the eye fit: the opening from the colour texture, for scans too coarse to show
-the eyeball geometrically (``james``). ``pipeline.geometry.eye_fit.find_eye`` calls it when the
+the eyeball geometrically (``james``). ``pipeline.remove_eyeballs.eye_fit.find_eye`` calls it when the
 geometric fit fails and the scan has a texture (:func:`fit_texture`): the palpebral fissure the
 photograph shows, from canthus to canthus, seen along the head's forward axis
-(:mod:`pipeline.geometry.fissure`: an almond fitted to how eye-like each texel's colour is), is
+(:mod:`pipeline.remove_eyeballs.fissure`: an almond fitted to how eye-like each texel's colour is), is
 lifted onto the scan surface; the eye is placed behind it by the anatomy of the corners and the
 lid margin around a globe of the prior radius (:func:`place_from_fissure`). The corners lie off
 that globe, as real ones do (:mod:`pipeline.geometry.corners`). ``remove_eyeballs`` then refines
 the scan's faces along the outline and cuts the opening there
-(:mod:`pipeline.geometry.fissure_cut`), so the photographed eye leaves the lids with it.
+(:mod:`pipeline.remove_eyeballs.fissure_cut`), so the photographed eye leaves the lids with it.
 
 :func:`texture_fissure` measures the fissure's extent independently (every texel that differs
 from the skin, a connected blob at the hint; it reads 2-2.5 mm wide, lashes included), so that
@@ -23,12 +23,12 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
-from pipeline.geometry.eye_fit import EyeFit, EyeMesh, _crease, _patch, _unit
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import signed_distance
+from pipeline.remove_eyeballs.eye_fit import EyeFit, EyeMesh, _crease, _patch, _unit
 
 if TYPE_CHECKING:
-    from pipeline.geometry.remove_eyeballs import EyeSettings
+    from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings
 
 
 def _texels(texture, uv) -> np.ndarray:
@@ -131,7 +131,7 @@ class TextureEyeFit(EyeFit):
     """An eye placed from the fissure its texture shows. ``fissure``: ``outline`` (k, 3) the
     opening on the scan surface (medial canthus first, upper lid first, lateral canthus at
     ``lateral``), ``outline_2d`` (k, 2) the same seen along ``view`` in the plane ``basis``
-    through ``hint``, ``theta`` the almond's parameters (:mod:`pipeline.geometry.fissure`)."""
+    through ``hint``, ``theta`` the almond's parameters (:mod:`pipeline.remove_eyeballs.fissure`)."""
 
     fissure: dict | None = field(default=None, repr=False)
 
@@ -222,13 +222,13 @@ def place_from_fissure(outline, lateral: int, radius: float, start_forward, fixe
     return c, f, float(r), float(np.sqrt(np.mean(d ** 2))) if len(d) else 0.0
 
 
-def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: EyeSettings, source,
+def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: RemoveEyeballsSettings, source,
                 fixed_radius=None, n_outline=96):
     """Eye opening from the colour texture (coarse scans): the fissure's outline from canthus to
-    canthus (:mod:`pipeline.geometry.fissure`, seen along the head's forward axis), the eye
+    canthus (:mod:`pipeline.remove_eyeballs.fissure`, seen along the head's forward axis), the eye
     placed behind it by the anatomy (:func:`place_from_fissure`, radius: the prior or
     ``fixed_radius``)."""
-    from pipeline.geometry import fissure as fs
+    from pipeline.remove_eyeballs import fissure as fs
 
     V, F = mesh.V, mesh.F
     view = np.array([0.0, 0.0, 1.0])          # the head frame's forward axis

@@ -2,13 +2,13 @@
 
 Both eyes are placed together on a local sub-mesh (``fit_eye_pair``: holes near the eyes closed
 for the fit and given to the opening, a scanner's flat fills marked as no evidence) by
-``pipeline.geometry.eye_place`` (a MAP fit of an eye model from every cue the scan keeps, with a
+``pipeline.remove_eyeballs.eye_place`` (a MAP fit of an eye model from every cue the scan keeps, with a
 calibrated uncertainty); an eye the geometry cannot place is placed from the colour texture
 (``eye_texture``, coarse scans), cut along the fissure the photograph shows. The regions are cut
 out leaving one simple loop per opening; each loop vertex moves to where the uncut surface lifts
 off the placed eye by ``margin_lift_mm`` (projected onto the eye; flip-guarded; loop vertices on
 a reconstruction-filled crease keep the cut); loops are ordered from the medial canthus over the
-upper lid; the self-checks of ``pipeline.geometry.eye_checks`` are recorded. Only what cannot be
+upper lid; the self-checks of ``pipeline.remove_eyeballs.eye_checks`` are recorded. Only what cannot be
 an asset is refused (a closed eye, nothing eye-like near a hint, a cut that leaves no simple
 loop); an eye placed from little evidence, or failing a self-check, is published with a doubt.
 """
@@ -21,19 +21,20 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.errors import ScanError
-from pipeline.geometry import eye_checks, meshtopo
-from pipeline.geometry.eye_fit import EyeMesh, eye_surface_distance, local_mesh, median_edge_length
-from pipeline.geometry.eye_texture import MARGIN_OFF
-from pipeline.geometry.fissure_cut import move_loop_onto, openings_at_fissures
+from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import signed_distance
+from pipeline.remove_eyeballs import eye_checks
+from pipeline.remove_eyeballs.eye_fit import EyeMesh, eye_surface_distance, local_mesh, median_edge_length
+from pipeline.remove_eyeballs.eye_texture import MARGIN_OFF
+from pipeline.remove_eyeballs.fissure_cut import move_loop_onto, openings_at_fissures
 from pipeline.settings import Settings, setting
 
 SIDES = ("left", "right")
 
 
 @dataclass
-class EyeSettings(Settings):
+class RemoveEyeballsSettings(Settings):
     """Parameters of eye finding and removal (``remove_eyeballs:`` block of params.yaml); the
     defaults are here, values are checked by pipeline.settings."""
 
@@ -53,7 +54,7 @@ class EyeSettings(Settings):
     margin_on_eye_mm: float = setting(0.3, ge=0, le=20)
     max_hole_perimeter_mm: float = setting(60.0, ge=0, le=1000)  # holes near the hints (an unmeasured pupil) closed for the fit
     seed: int = setting(0, ge=0)
-    # joint placement (pipeline.geometry.eye_place)
+    # joint placement (pipeline.remove_eyeballs.eye_place)
     place_patch_mm: float = setting(20.0, gt=5, le=60)          # surface the eye model explains around a hint
     prior_front_sigma_mm: float = setting(4.0, gt=0, le=100)     # the eye-region prior's say on the front of the globe
     uncertainty_temperature: float = setting(5.0, gt=0, le=1e6)  # energy scale of a rival local optimum's weight
@@ -333,11 +334,11 @@ def _fill_faces(V, F, ratio):
     return A > ratio * max(float(np.median(A)), 1e-12)
 
 
-def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: EyeSettings, source, ignore):
+def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: RemoveEyeballsSettings, source, ignore):
     """The :class:`EyeFit` of one placed eye: the removal region is the eye-labelled surface
     (faces whose three vertices are eye, and the unmeasured fills inside it), made one simple
     loop; a closed eye (little eye surface, or no lid fold around it) is a ScanError."""
-    from pipeline.geometry.eye_fit import EyeFit, _clean_region, _crease, _patch
+    from pipeline.remove_eyeballs.eye_fit import EyeFit, _clean_region, _crease, _patch
 
     V, F = mesh.V, mesh.F
     eye_v = np.zeros(len(V), bool)
@@ -354,7 +355,7 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: EyeSettings, source, 
     region = _clean_region(mesh, region, seed, patch) if region.any() else region
     A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
     area = float(A[region & ~ignore].sum())
-    from pipeline.geometry.eye_place import cornea_sphere, surface_residual
+    from pipeline.remove_eyeballs.eye_place import cornea_sphere, surface_residual
     cornea = cornea_sphere(e)
     crease = _crease(mesh, region) if region.any() else 0.0
     if area < st.min_open_area_mm2:
@@ -379,17 +380,17 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: EyeSettings, source, 
                   capped=False, inliers=rv, radius_sigma=pl.sigma_radius_mm)
 
 
-def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", texture=None,
+def fit_eye_pair(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source="mesh", texture=None,
                  prior=None):
-    """Place both eyes jointly (``pipeline.geometry.eye_place``) on the surface around the
+    """Place both eyes jointly (``pipeline.remove_eyeballs.eye_place``) on the surface around the
     hints; an eye the geometry cannot place falls back to the colour texture when there is one.
 
     ``prior``: callable ``(V, F, hint, side) -> {"front", "axis"}`` (the eye-region prior,
     ``eye_prior.register``) or None. Returns ``(mesh, fits, placements)``: the local
     :class:`EyeMesh`, per side an :class:`EyeFit` (region on the full mesh) and the
     :class:`eye_place.Placement` (None for a texture-placed eye)."""
-    from pipeline.geometry import eye_place
-    from pipeline.geometry.eye_texture import fit_texture
+    from pipeline.remove_eyeballs import eye_place
+    from pipeline.remove_eyeballs.eye_texture import fit_texture
 
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
@@ -452,14 +453,14 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: EyeSettings, *, source="mesh", te
     return mesh, fits, placements
 
 
-def _fissure_doubts(V, F, mesh_arrays, texture, hint, fit, loop_points, st: EyeSettings):
+def _fissure_doubts(V, F, mesh_arrays, texture, hint, fit, loop_points, st: RemoveEyeballsSettings):
     """A texture-placed eye's opening against the fissure its texture shows.
 
     Returns ``(record, doubts)``: the fissure's and the loop's widths along the eye (mm) and a
     list holding one sentence when the loop spans less than ``texture_fissure_min_share`` of
     the fissure (its canthi, eyelid landmarks 0 and 6, then lie far inside the true corners)."""
-    from pipeline.geometry.eye_texture import texture_fissure
     from pipeline.geometry.frame import eye_basis
+    from pipeline.remove_eyeballs.eye_texture import texture_fissure
 
     fis = texture_fissure(V, F, mesh_arrays["UV"], mesh_arrays["FUV"], texture, hint, fit.forward,
                           radius_mm=st.patch_radius_mm, min_contrast=st.texture_min_contrast)
@@ -495,7 +496,7 @@ def _placement_record(pl, fit):
                                   "energy_above": round(float(de), 2)} for c, r, de in pl.modes[1:]]}
 
 
-def _placement_doubts(eye: dict, st: EyeSettings) -> list:
+def _placement_doubts(eye: dict, st: RemoveEyeballsSettings) -> list:
     """Sentences for what the placement is not sure of: little evidence (a wide calibrated
     uncertainty) and every failed self-check. The eye is still published."""
     out = []
@@ -508,7 +509,7 @@ def _placement_doubts(eye: dict, st: EyeSettings) -> list:
     return out
 
 
-def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = None, *,
+def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings | None = None, *,
                     source="mesh", texture=None, prior=None) -> RemovalResult:
     """Fit both eyes and cut the scanned eyeball surface out of the head mesh.
 
@@ -519,7 +520,7 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         and other per-face/per-vertex arrays (carried through).
     hints : dict
         ``{"left": (3,), "right": (3,)}`` eye hints, head frame mm.
-    st : EyeSettings
+    st : RemoveEyeballsSettings
     source : str
         File named in error messages.
     texture : (h, w, 3) uint8, optional
@@ -533,11 +534,11 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: EyeSettings | None = Non
         ``mesh`` (arrays with the eyeball faces removed and vertices re-indexed),
         ``eyes`` (eyes.json content), ``fits`` (EyeFit per side), ``metrics``.
     """
-    st = st or EyeSettings()
+    st = st or RemoveEyeballsSettings()
     mesh, fits, placements = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture,
                                           prior=prior)
     # an eye placed from its texture is cut along the fissure the photograph shows: the faces
-    # near that outline are split first (pipeline/geometry/fissure_cut.py)
+    # near that outline are split first (pipeline/remove_eyeballs/fissure_cut.py)
     mesh_arrays, fits = openings_at_fissures(mesh_arrays, fits)
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)

@@ -46,13 +46,13 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
-from pipeline.geometry.eye_rings import add_eye_rings
-from pipeline.geometry.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
+from pipeline.retopo.eye_rings import add_eye_rings
+from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
                                           project_to_polyline, resample_loop, smooth_margin)
 from pipeline.geometry.flips import (collapse_flipped, count_flipped, flip_slivers, mirror_flipped,
                                      reference_face_normals, relax, repair_flips, untangle)
-from pipeline.geometry.mesh_clean import clean_mesh
 from pipeline.geometry.mesh_edit import TriMesh
+from pipeline.retopo.mesh_clean import clean_mesh
 from pipeline.settings import Settings, setting
 
 METHODS = ("quadric", "isotropic")
