@@ -358,3 +358,33 @@ def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, m
         if not changed:
             break
     return V, np.array(sorted(moved), dtype=np.int64)
+
+
+def move_guarded(V, F, loop, target, min_cos=0.5, min_area_ratio=0.1, halvings=4):
+    """Move ``V[loop]`` (in place) toward ``target`` (k, 3) without folding the faces around it.
+
+    A face touching the loop must keep its normal within ``acos(min_cos)`` of where it was and
+    at least ``min_area_ratio`` of its area; the move of each loop vertex of a face that does
+    not is halved, ``halvings`` tries in all, after which the whole move is dropped. Returns
+    the mean move, mm."""
+    loop = np.asarray(loop)
+    start = V[loop].copy()
+    Fa = F[np.isin(F, loop).any(axis=1)]
+
+    def normals(X):
+        return np.cross(X[Fa[:, 1]] - X[Fa[:, 0]], X[Fa[:, 2]] - X[Fa[:, 0]])
+
+    N0 = normals(V)
+    A0 = np.linalg.norm(N0, axis=1)
+    frac = np.ones(len(loop))
+    for _ in range(halvings):
+        V[loop] = start + frac[:, None] * (target - start)
+        N1 = normals(V)
+        A1 = np.linalg.norm(N1, axis=1)
+        bad = ((N0 * N1).sum(axis=1) < min_cos * A0 * A1) | (A1 < min_area_ratio * A0)
+        if not bad.any():
+            break
+        frac[np.isin(loop, Fa[bad])] *= 0.5
+    else:
+        V[loop] = start
+    return float(np.linalg.norm(V[loop] - start, axis=1).mean())

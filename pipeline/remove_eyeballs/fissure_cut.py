@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.geometry.flips import move_guarded
 from pipeline.remove_eyeballs.fissure import points_in_polygon
 
 
@@ -200,27 +201,7 @@ def move_loop_onto(V, F, loop, fissure: dict, min_cos: float = 0.5) -> float:
     for corner in (0, int(fissure["lateral"])):
         i = int(np.argmin(np.linalg.norm(q - Q2[corner], axis=1)))
         target[i] = V3[corner]
-    start = V[loop].copy()
-    faces = np.flatnonzero(np.isin(F, loop).any(axis=1))
-    Fa = F[faces]
-
-    def normals(X):
-        return np.cross(X[Fa[:, 1]] - X[Fa[:, 0]], X[Fa[:, 2]] - X[Fa[:, 0]])
-
-    N0 = normals(V)
-    A0 = np.linalg.norm(N0, axis=1)
-    frac = np.ones(len(loop))
-    for _ in range(4):
-        V[loop] = start + frac[:, None] * (target - start)
-        N1 = normals(V)
-        bad = ((N0 * N1).sum(axis=1) < min_cos * A0 * np.linalg.norm(N1, axis=1)) | \
-              (np.linalg.norm(N1, axis=1) < 0.05 * A0)
-        if not bad.any():
-            break
-        frac[np.isin(loop, Fa[bad])] *= 0.5
-    else:
-        V[loop] = start
-    return float(np.linalg.norm(V[loop] - start, axis=1).mean())
+    return move_guarded(V, F, loop, target, min_cos, min_area_ratio=0.05)
 
 
 def openings_at_fissures(arrays: dict, fits: dict, edge_mm: float = 0.8):

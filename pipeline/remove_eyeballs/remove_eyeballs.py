@@ -22,6 +22,7 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
+from pipeline.geometry.flips import move_guarded
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import signed_distance
 from pipeline.remove_eyeballs import eye_checks
@@ -183,30 +184,7 @@ def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5, on_eye
     # loop there would fold the lid rim
     on = np.abs(h[loop_old]) <= on_eye
     target = np.where(on[:, None], _project_to_eye(target, fit.center, fit.radius, fit.cornea), L)
-    start = V2[loop].copy()
-    faces = np.flatnonzero(np.isin(F2, loop).any(axis=1))
-    Fa = F2[faces]
-
-    def normals(X):
-        return np.cross(X[Fa[:, 1]] - X[Fa[:, 0]], X[Fa[:, 2]] - X[Fa[:, 0]])
-
-    N0 = normals(V2)
-    A0 = np.linalg.norm(N0, axis=1)
-    frac = np.ones(len(loop))
-    for _ in range(4):
-        V2[loop] = start + frac[:, None] * (target - start)
-        N1 = normals(V2)
-        A1 = np.linalg.norm(N1, axis=1)
-        bad = ((N0 * N1).sum(axis=1) < min_cos * A0 * A1) | (A1 < 0.1 * A0)
-        if not bad.any():
-            break
-        hit = np.isin(loop, Fa[bad])
-        frac[hit] *= 0.5
-    else:
-        V2[loop] = start
-        N1 = normals(V2)
-        frac[:] = 0.0
-    return float(np.linalg.norm(V2[loop] - start, axis=1).mean())
+    return move_guarded(V2, F2, loop, target, min_cos, min_area_ratio=0.1)
 
 
 def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
