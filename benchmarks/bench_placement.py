@@ -102,6 +102,7 @@ def main(argv=None):
         res = place(folder, a.work / "placement" / case["name"])
         o = {"case": case["name"], "family": case["family"], "expect": case.get("expect", "asset")}
         if "refused" in res:
+            res["refused"] = res["refused"].replace(f"{a.work}/", "")      # no machine's paths in results
             o.update(refused=res["refused"], closed=says_closed(res["refused"]))
             print(f"{case['name']:28s} refused: {res['refused'][:110]}", flush=True)
         else:
