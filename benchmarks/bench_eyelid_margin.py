@@ -31,7 +31,8 @@ import yaml
 
 from benchmarks.bench_remove_eyeballs import eye_errors
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.remove_eyeballs.remove_eyeballs import SIDES, RemoveEyeballsSettings, remove_eyeballs
+from pipeline.remove_eyeballs.remove_eyeballs import SIDES, remove_eyeballs
+from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

@@ -24,7 +24,8 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings, remove_eyeballs
+from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
+from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 from pipeline.synthetic_head import make_synthetic_head
 
 BOUND_MM = 0.5

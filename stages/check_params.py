@@ -30,7 +30,7 @@ BLOCKS = {
     "synthetic_head": "pipeline.synthetic_head:SyntheticHeadSettings",
     "eyeball": "pipeline.eyeball.geometry:EyeballSettings",
     "ingest": "pipeline.ingest.ingest:IngestSettings",
-    "remove_eyeballs": "pipeline.remove_eyeballs.remove_eyeballs:RemoveEyeballsSettings",
+    "remove_eyeballs": "pipeline.remove_eyeballs.settings:RemoveEyeballsSettings",
     "retopo": "pipeline.retopo.retopo:RetopoSettings",
     "bake": "pipeline.bake.bake:BakeSettings",
     "snap": "pipeline.snap.snap:SnapSettings",

@@ -28,7 +28,8 @@ from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.io.scan_file import read_scan_record
 from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
-from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings, remove_eyeballs
+from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
+from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 from pipeline.results import StageResult
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 

@@ -40,13 +40,8 @@ FLOORS = [
 ]
 FLOOR = {pkg: k for k, names in enumerate(FLOORS) for pkg in names}
 
-#: Import cycles between modules that are known: inside the remove_eyeballs package, eye_fit,
-#: eye_texture, the fissure modules and remove_eyeballs import each other (behind TYPE_CHECKING and
-#: function-level imports).
-KNOWN_CYCLES = [{"pipeline.remove_eyeballs.eye_fit", "pipeline.remove_eyeballs.eye_texture",
-                 "pipeline.remove_eyeballs.remove_eyeballs"},
-                {"pipeline.remove_eyeballs.eye_texture", "pipeline.remove_eyeballs.fissure",
-                 "pipeline.remove_eyeballs.fissure_cut", "pipeline.remove_eyeballs.remove_eyeballs"}]
+#: Import cycles between modules that are known (none).
+KNOWN_CYCLES: list = []
 
 
 def module_name(path: Path) -> str:

@@ -14,7 +14,8 @@ from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 from pipeline.remove_eyeballs.eye_fit import eye_surface_distance
-from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings, remove_eyeballs
+from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
+from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 
 R_EYE = 12.0
 CX = 30.0

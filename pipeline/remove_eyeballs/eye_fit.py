@@ -52,7 +52,7 @@ class EyeFit:
     radius_sigma: float = float("inf")
 
 
-def _unit(v):
+def unit_vector(v):
     v = np.asarray(v, dtype=np.float64)
     return v / np.linalg.norm(v)
 
@@ -103,7 +103,7 @@ def local_mesh(V, F, hints, radius):
     return V[verts], Fs.reshape(-1, 3).astype(np.int64), faces, verts
 
 
-def _patch(mesh: EyeMesh, hint, radius):
+def patch_faces(mesh: EyeMesh, hint, radius):
     """Faces within ``radius`` of the hint, connected to the face nearest it: (m,) bool."""
     d = np.linalg.norm(mesh.centroids - hint, axis=1)
     near = d < radius
@@ -114,7 +114,7 @@ def _patch(mesh: EyeMesh, hint, radius):
     return near & (labels == labels[f0])
 
 
-def _crease(mesh: EyeMesh, region, dist=None, radius_mm=2.0):
+def lid_crease_deg(mesh: EyeMesh, region, dist=None, radius_mm=2.0):
     """How sharply the surface folds at the border of ``region``, degrees.
 
     Median over border vertices of the angle between the mean normal of region faces and
@@ -148,7 +148,7 @@ def _crease(mesh: EyeMesh, region, dist=None, radius_mm=2.0):
     return float(np.median(angles)) if angles else 0.0
 
 
-def _clean_region(mesh: EyeMesh, region, keep_seed, local=None, max_iter=30):
+def clean_region(mesh: EyeMesh, region, keep_seed, local=None, max_iter=30):
     """Make ``region``'s border one simple loop: keep the seeded component, fill islands,
     close notches, remove spikes, dissolve bow-tie vertices."""
     F = mesh.F

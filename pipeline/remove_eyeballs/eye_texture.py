@@ -25,54 +25,11 @@ from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import signed_distance
-from pipeline.remove_eyeballs.eye_fit import EyeFit, EyeMesh, _crease, _patch, _unit
+from pipeline.remove_eyeballs.eye_fit import EyeFit, EyeMesh, lid_crease_deg, patch_faces, unit_vector
+from pipeline.remove_eyeballs.texels import colour_z, surface_texels
 
 if TYPE_CHECKING:
-    from pipeline.remove_eyeballs.remove_eyeballs import RemoveEyeballsSettings
-
-
-def _texels(texture, uv) -> np.ndarray:
-    """(..., 3) float64 sRGB of the nearest texel at each UV (..., 2) (origin bottom-left,
-    wrapped into [0, 1))."""
-    H, W = texture.shape[:2]
-    px = np.clip((uv[..., 0] % 1.0) * W, 0, W - 1).astype(np.int64)
-    py = np.clip((1.0 - uv[..., 1] % 1.0) * H, 0, H - 1).astype(np.int64)
-    return texture[py, px, :3].astype(np.float64)
-
-
-def _colour_z(col, ring):
-    """Robust z-score (k,) of each sRGB colour from the skin statistics of ``col[ring]``: brightness
-    and red / blue chromaticity, scaled by their MAD (floored, so that an evenly lit skin does not
-    make every shade an outlier)."""
-    lum = col.mean(axis=1)
-    chroma = col / np.maximum(col.sum(axis=1, keepdims=True), 1.0)
-    feat = np.column_stack([lum / 255.0, chroma[:, 0], chroma[:, 2]])
-    mu = np.median(feat[ring], axis=0)
-    mad = 1.4826 * np.median(np.abs(feat[ring] - mu), axis=0) + np.array([0.02, 0.005, 0.005])
-    return np.sqrt((((feat - mu) / mad) ** 2).sum(axis=1))
-
-
-def surface_texels(V, F, UV, FUV, texture, faces, step_mm=0.25):
-    """Points on ``faces`` about every ``step_mm`` and the texture colour there.
-
-    Returns
-    -------
-    points : (k, 3) float64
-    colours : (k, 3) float64, sRGB 0..255 (nearest texel)
-    """
-    A = np.asarray(V, np.float64)[np.asarray(F, np.int64)[faces]]
-    T = np.asarray(UV, np.float64)[np.asarray(FUV, np.int64)[faces]]
-    longest = np.linalg.norm(A - np.roll(A, 1, axis=1), axis=2).max(axis=1)
-    n_div = np.maximum(1, np.ceil(longest / step_mm)).astype(np.int64)
-    points, colours = [np.zeros((0, 3))], [np.zeros((0, 3))]
-    for n in np.unique(n_div):
-        sel = n_div == n
-        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
-        tri = (i + j) <= n
-        bary = np.stack([i[tri], j[tri], n - i[tri] - j[tri]], axis=1) / n
-        points.append(np.einsum("sk,fkd->fsd", bary, A[sel]).reshape(-1, 3))
-        colours.append(_texels(texture, np.einsum("sk,fkd->fsd", bary, T[sel]).reshape(-1, 2)))
-    return np.concatenate(points), np.concatenate(colours)
+    from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 
 
 def texture_fissure(V, F, UV, FUV, texture, hint, forward, *, radius_mm=22.0, skin_from_mm=18.0,
@@ -107,7 +64,7 @@ def texture_fissure(V, F, UV, FUV, texture, hint, forward, *, radius_mm=22.0, sk
     ring = dq > skin_from_mm
     if ring.sum() < 50:
         return {"width_mm": 0.0, "height_mm": 0.0, "cells": 0}
-    eye = _colour_z(col, ring) > min_contrast
+    eye = colour_z(col, ring) > min_contrast
     n = int(np.ceil(2.0 * radius_mm / cell_mm)) + 1
     ij = np.clip(((q + radius_mm) / cell_mm).astype(np.int64), 0, n - 1)
     votes = np.zeros((n, n))
@@ -186,17 +143,17 @@ def place_from_fissure(outline, lateral: int, radius: float, start_forward, fixe
     P = np.asarray(outline, np.float64)
     k = len(P)
     M, Lc = P[0], P[lateral]
-    x = (P - M) @ _unit(Lc - M) / max(np.linalg.norm(Lc - M), 1e-9)
+    x = (P - M) @ unit_vector(Lc - M) / max(np.linalg.norm(Lc - M), 1e-9)
     lids = (x > 0.2) & (x < 0.95)
     lids[[0, lateral]] = False
     Pl = P[lids]
-    f0 = _unit(start_forward)
-    e1 = _unit(np.cross(f0, [0.0, 1.0, 0.0]) if abs(f0[1]) < 0.9 else np.cross(f0, [1.0, 0.0, 0.0]))
+    f0 = unit_vector(start_forward)
+    e1 = unit_vector(np.cross(f0, [0.0, 1.0, 0.0]) if abs(f0[1]) < 0.9 else np.cross(f0, [1.0, 0.0, 0.0]))
     e2 = np.cross(f0, e1)
     w_lid = 1.0 / np.sqrt(max(len(Pl), 1) / LID_OBSERVATIONS)
 
     def unpack(z):
-        f = _unit(f0 + z[3] * e1 + z[4] * e2)
+        f = unit_vector(f0 + z[3] * e1 + z[4] * e2)
         return z[:3], f, (radius if fixed_radius else radius + z[5])
 
     def res(z):
@@ -249,7 +206,7 @@ def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: RemoveEyeba
     lateral = int(np.flatnonzero(good)[:lateral + 1].size - 1)
     r0 = st.radius_prior_mm if fixed_radius is None else fixed_radius
     c, forward, r0, rms = place_from_fissure(P, lateral, r0, view, fixed_radius=fixed_radius is not None)
-    patch = _patch(mesh, hint, st.patch_radius_mm)
+    patch = patch_faces(mesh, hint, st.patch_radius_mm)
     front = (meshtopo.face_normals(V, F) @ view) > 0
     region = patch & front & fs.points_in_polygon((mesh.centroids - hint) @ cmap.basis.T, Q)
     if region.sum() < 2:
@@ -261,6 +218,6 @@ def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: RemoveEyeba
     dd[pv] = signed_distance(V[pv], c, r0)
     return TextureEyeFit(side=side, center=c, radius=float(r0), forward=forward, residual_rms_mm=rms,
                          n_inliers=int(len(P)), method="texture", region=region,
-                         crease_deg=_crease(mesh, region, dd), inliers=rv,
+                         crease_deg=lid_crease_deg(mesh, region, dd), inliers=rv,
                          fissure={"outline": P, "outline_2d": Q, "lateral": lateral, "hint": np.asarray(hint, float),
                                   "view": view, "basis": cmap.basis, "theta": theta})

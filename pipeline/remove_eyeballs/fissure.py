@@ -92,7 +92,7 @@ def eye_colour_map(V, F, UV, FUV, texture, hint, view, *, radius_mm=22.0, skin_f
                    core_mm=6.0, cell_mm=0.25, min_contrast=3.0, clip=6.0) -> ColourMap | None:
     """The eye-likeness map around ``hint`` (module doc, step 1); None when the texture shows too
     little skin or too little eye to learn both colours."""
-    from pipeline.remove_eyeballs.eye_texture import _colour_z, surface_texels
+    from pipeline.remove_eyeballs.texels import colour_z, surface_texels
 
     V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64)
@@ -107,7 +107,7 @@ def eye_colour_map(V, F, UV, FUV, texture, hint, view, *, radius_mm=22.0, skin_f
     keep = r < radius_mm
     q, col, r = q[keep], col[keep], r[keep]
     ring = r > skin_from_mm
-    core = (_colour_z(col, ring) > min_contrast) & (r < core_mm) if ring.sum() >= 50 else ring & False
+    core = (colour_z(col, ring) > min_contrast) & (r < core_mm) if ring.sum() >= 50 else ring & False
     if ring.sum() < 50 or core.sum() < 50:
         return None
     lum = col.mean(axis=1)

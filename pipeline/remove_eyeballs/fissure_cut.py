@@ -209,7 +209,7 @@ def openings_at_fissures(arrays: dict, fits: dict, edge_mm: float = 0.8):
     eye's removal region on it: the faces inside its outline (one piece, no islands: the region
     cleaning of :mod:`pipeline.remove_eyeballs.eye_fit`), or for an eye placed from geometry its region
     carried to the refined faces. Returns ``(arrays, fits)``; without a fissure, the input."""
-    from pipeline.remove_eyeballs.eye_fit import EyeMesh, _clean_region
+    from pipeline.remove_eyeballs.eye_fit import EyeMesh, clean_region
 
     outlines = [f.fissure for f in fits.values() if getattr(f, "fissure", None) is not None]
     if not outlines:
@@ -225,5 +225,5 @@ def openings_at_fissures(arrays: dict, fits: dict, edge_mm: float = 0.8):
         mesh = mesh or EyeMesh(V, F)
         inside = region_inside(V, F, fis)
         near = np.linalg.norm(mesh.centroids - fis["hint"], axis=1) < 30.0
-        fit.region = _clean_region(mesh, inside, inside, near)
+        fit.region = clean_region(mesh, inside, inside, near)
     return out, fits

@@ -16,7 +16,6 @@ loop); an eye placed from little evidence, or failing a self-check, is published
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 
@@ -29,41 +28,9 @@ from pipeline.remove_eyeballs import eye_checks
 from pipeline.remove_eyeballs.eye_fit import EyeMesh, eye_surface_distance, local_mesh, median_edge_length
 from pipeline.remove_eyeballs.eye_texture import MARGIN_OFF
 from pipeline.remove_eyeballs.fissure_cut import move_loop_onto, openings_at_fissures
-from pipeline.settings import Settings, setting
+from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 
 SIDES = ("left", "right")
-
-
-@dataclass
-class RemoveEyeballsSettings(Settings):
-    """Parameters of eye finding and removal (``remove_eyeballs:`` block of params.yaml); the
-    defaults are here, values are checked by pipeline.settings."""
-
-    block: ClassVar[str] = "remove_eyeballs"
-
-    patch_radius_mm: float = setting(22.0, gt=0, le=100)       # surface considered around a hint
-    sample_radius_mm: float = setting(13.0, gt=0, le=100)      # holes within this of a hint are closed for the fit
-    radius_range_mm: tuple[float, float] = setting((10.0, 18.0), gt=0, le=100, ordered=True)
-    radius_prior_mm: float = setting(12.0, gt=0, le=100)
-    radius_prior_sigma_mm: float = setting(3.0, gt=0, le=100)
-    min_crease_deg: float = setting(12.0, ge=0, le=180)        # lid fold around the eye surface; below = closed
-    texture_fallback: bool = True
-    texture_min_contrast: float = setting(3.0, gt=0, le=1000)
-    texture_fissure_min_share: float = setting(0.8, gt=0, le=1)  # a texture-placed opening narrower than this share of the texture's fissure is doubted
-    margin_lift_mm: float = setting(0.6, ge=0, le=20)          # 0 = loop left on the cut
-    margin_max_turn_deg: float = setting(60.0, gt=0, le=180)
-    margin_on_eye_mm: float = setting(0.3, ge=0, le=20)
-    max_hole_perimeter_mm: float = setting(60.0, ge=0, le=1000)  # holes near the hints (an unmeasured pupil) closed for the fit
-    seed: int = setting(0, ge=0)
-    # joint placement (pipeline.remove_eyeballs.eye_place)
-    place_patch_mm: float = setting(20.0, gt=5, le=60)          # surface the eye model explains around a hint
-    prior_front_sigma_mm: float = setting(4.0, gt=0, le=100)     # the eye-region prior's say on the front of the globe
-    uncertainty_temperature: float = setting(5.0, gt=0, le=1e6)  # energy scale of a rival local optimum's weight
-    uncertainty_scale: float = setting(3.0, gt=0, le=100)        # Laplace sigma x this (calibrated on unseen heads)
-    doubt_center_sigma_mm: float = setting(1.0, gt=0, le=100)    # a placement less sure than this is published with a doubt
-    min_open_area_mm2: float = setting(6.0, ge=0, le=1000)       # less visible eye than this: the eye is closed
-    fill_face_ratio: float = setting(12.0, gt=1, le=1e6)         # faces this many times the median area: a scanner's flat fill
-    min_eye_vertices: int = setting(40, ge=0, le=100000)         # fewer scan vertices on the eye surface: too coarse to place from geometry
 
 
 def order_loop(loop, V, center, forward, side):
@@ -316,7 +283,7 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: RemoveEyeballsSetting
     """The :class:`EyeFit` of one placed eye: the removal region is the eye-labelled surface
     (faces whose three vertices are eye, and the unmeasured fills inside it), made one simple
     loop; a closed eye (little eye surface, or no lid fold around it) is a ScanError."""
-    from pipeline.remove_eyeballs.eye_fit import EyeFit, _clean_region, _crease, _patch
+    from pipeline.remove_eyeballs.eye_fit import EyeFit, clean_region, lid_crease_deg, patch_faces
 
     V, F = mesh.V, mesh.F
     eye_v = np.zeros(len(V), bool)
@@ -324,18 +291,18 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: RemoveEyeballsSetting
     region = eye_v[F].all(axis=1)
     # flat fills take no side in the cut: they go with the opening when they touch it
     region |= ignore & eye_v[F].any(axis=1)
-    patch = _patch(mesh, hint, st.patch_radius_mm + 5.0)
+    patch = patch_faces(mesh, hint, st.patch_radius_mm + 5.0)
     e = pl.eye
     front = e.c + e.R * e.n
     seed = region & (np.linalg.norm(mesh.centroids - front, axis=1)
                      <= np.min(np.linalg.norm(mesh.centroids[region] - front, axis=1), initial=np.inf)
                      + max(2.0, 2 * mesh.median_edge)) if region.any() else region
-    region = _clean_region(mesh, region, seed, patch) if region.any() else region
+    region = clean_region(mesh, region, seed, patch) if region.any() else region
     A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
     area = float(A[region & ~ignore].sum())
     from pipeline.remove_eyeballs.eye_place import cornea_sphere, surface_residual
     cornea = cornea_sphere(e)
-    crease = _crease(mesh, region) if region.any() else 0.0
+    crease = lid_crease_deg(mesh, region) if region.any() else 0.0
     if area < st.min_open_area_mm2:
         raise ScanError(source, f"{side} eye looks closed (or too little of the eyeball shows to place "
                                 f"it): {area:.1f} mm2 of eye surface near "

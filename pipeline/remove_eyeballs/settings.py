@@ -1,0 +1,40 @@
+"""The settings of stage remove_eyeballs (``remove_eyeballs:`` block of params.yaml)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from pipeline.settings import Settings, setting
+
+
+@dataclass
+class RemoveEyeballsSettings(Settings):
+    """Parameters of eye finding and removal (``remove_eyeballs:`` block of params.yaml); the
+    defaults are here, values are checked by pipeline.settings."""
+
+    block: ClassVar[str] = "remove_eyeballs"
+
+    patch_radius_mm: float = setting(22.0, gt=0, le=100)       # surface considered around a hint
+    sample_radius_mm: float = setting(13.0, gt=0, le=100)      # holes within this of a hint are closed for the fit
+    radius_range_mm: tuple[float, float] = setting((10.0, 18.0), gt=0, le=100, ordered=True)
+    radius_prior_mm: float = setting(12.0, gt=0, le=100)
+    radius_prior_sigma_mm: float = setting(3.0, gt=0, le=100)
+    min_crease_deg: float = setting(12.0, ge=0, le=180)        # lid fold around the eye surface; below = closed
+    texture_fallback: bool = True
+    texture_min_contrast: float = setting(3.0, gt=0, le=1000)
+    texture_fissure_min_share: float = setting(0.8, gt=0, le=1)  # a texture-placed opening narrower than this share of the texture's fissure is doubted
+    margin_lift_mm: float = setting(0.6, ge=0, le=20)          # 0 = loop left on the cut
+    margin_max_turn_deg: float = setting(60.0, gt=0, le=180)
+    margin_on_eye_mm: float = setting(0.3, ge=0, le=20)
+    max_hole_perimeter_mm: float = setting(60.0, ge=0, le=1000)  # holes near the hints (an unmeasured pupil) closed for the fit
+    seed: int = setting(0, ge=0)
+    # joint placement (pipeline.remove_eyeballs.eye_place)
+    place_patch_mm: float = setting(20.0, gt=5, le=60)          # surface the eye model explains around a hint
+    prior_front_sigma_mm: float = setting(4.0, gt=0, le=100)     # the eye-region prior's say on the front of the globe
+    uncertainty_temperature: float = setting(5.0, gt=0, le=1e6)  # energy scale of a rival local optimum's weight
+    uncertainty_scale: float = setting(3.0, gt=0, le=100)        # Laplace sigma x this (calibrated on unseen heads)
+    doubt_center_sigma_mm: float = setting(1.0, gt=0, le=100)    # a placement less sure than this is published with a doubt
+    min_open_area_mm2: float = setting(6.0, ge=0, le=1000)       # less visible eye than this: the eye is closed
+    fill_face_ratio: float = setting(12.0, gt=1, le=1e6)         # faces this many times the median area: a scanner's flat fill
+    min_eye_vertices: int = setting(40, ge=0, le=100000)         # fewer scan vertices on the eye surface: too coarse to place from geometry
