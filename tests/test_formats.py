@@ -11,9 +11,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pipeline.render import formats
 from pipeline.render.settings import RenderSettings
+from pipeline.settings import SettingsError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -37,10 +39,44 @@ def write(out_dir, index, label, job, png):
 
 
 def test_every_format_module_has_the_interface():
-    assert formats.NAMES[0] == formats.REQUIRED == "eyerig" and set(formats.NAMES) >= {"unityeyes", "pts"}
+    assert formats.NAMES[0] == formats.REQUIRED == "eyerig"
+    assert set(formats.NAMES) >= {"unityeyes", "pts", "coco", "webdataset"}
     for name, m in formats.FORMATS.items():
         assert m.NAME == name and callable(m.job) and callable(m.write)
-        assert m.FILES and all("NNNNNN" in f for f in m.FILES), name
+        dataset_files = getattr(m, "DATASET_FILES", {})
+        assert m.FILES or dataset_files, name
+        assert all("NNNNNN" in f for f in m.FILES), name
+        assert bool(dataset_files) == callable(getattr(m, "finish", None)), name   # files <=> who writes them
+
+
+def test_dataset_files_are_found_and_removed_with_the_derived_files(tmp_path):
+    """Dataset-level files (coco.json, shards) are found by name, and every run removes them first."""
+    from pipeline.render import run as rr
+
+    names = ["coco.json", "shards/shard-000000.tar", "shards/shard-000012.tar"]
+    others = ["coco.jsonl", "shards/shard-00001.tar", "shards/shard-000001.tar.gz", "shards/x.tar", "shard-000000.tar"]
+    for n in names + others:
+        (tmp_path / n).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / n).write_text("x")
+    found = sorted(p.relative_to(tmp_path).as_posix() for _, p in formats.dataset_files(tmp_path))
+    assert found == sorted(names)
+    assert set(formats.dataset_table(tmp_path)) == {"coco.json", "shards/shard-SSSSSS.tar"}
+    doomed = {p.relative_to(tmp_path).as_posix() for p in rr.doomed_files(tmp_path, lambda i: True)}
+    assert doomed == set(names)
+
+
+def test_finish_runs_the_listed_formats_only(tmp_path, monkeypatch):
+    called = []
+    for name in ("coco", "webdataset"):
+        monkeypatch.setattr(formats.FORMATS[name], "finish", lambda out, n, s, name=name: called.append((name, n)) or [])
+    formats.finish_formats(tmp_path, 4, RenderSettings.from_params({"label_formats": ["eyerig", "webdataset"]}))
+    assert called == [("webdataset", 4)]
+
+
+def test_a_format_that_reads_masks_needs_them():
+    with pytest.raises(SettingsError, match="render.masks must be true for label format coco"):
+        RenderSettings.from_params({"label_formats": ["eyerig", "coco"], "masks": False})
+    RenderSettings.from_params({"label_formats": ["eyerig", "webdataset"], "masks": False})
 
 
 def test_settings_accept_exactly_the_registered_formats():

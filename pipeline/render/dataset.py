@@ -190,7 +190,7 @@ def image_files(out: Path) -> dict:
     files), described by the label writers (pipeline/render/formats)."""
     names = sorted(p.relative_to(out).as_posix().replace("000000", "NNNNNN", 1)
                    for i, p in formats.image_files(out) if i == 0)
-    return {k: formats.describe(k) for k in names}
+    return {**{k: formats.describe(k) for k in names}, **formats.dataset_table(out)}
 
 
 def masks_info(out: Path) -> dict | None:
@@ -300,6 +300,7 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
 
     summary = rr.index_and_sheet(out, n, min(n, settings.sheet_images))
     counts = _check_index(out, assets, assign)
+    formats.finish_formats(out, n, settings)         # coco.json, webdataset shards (pipeline/render/formats)
     info = dataset_info(out, assets, counts, settings, n)
     write_json(out / INFO, info)
     write_text(out / CARD, dataset_card(info, read_label(out / label_name(0)).doc))

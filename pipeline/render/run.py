@@ -30,7 +30,7 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.io.atomic import atomic_file, write_json
 from pipeline.io.labels_file import index_line, label_name, read_label
-from pipeline.render.formats import format_job, image_files
+from pipeline.render.formats import dataset_files, finish_formats, format_job, image_files
 from pipeline.results import StageResult
 
 # Cycles given one thread still keeps a second one busy (about a quarter of an image's CPU
@@ -144,7 +144,7 @@ def doomed_files(out: Path, keep) -> list[Path]:
     out = Path(out)
     files = list(image_files(out)) if out.is_dir() else []   # every format's files (pipeline/render/formats)
     gone = [p for i, p in files if not (keep(i) and (out / label_name(i)).is_file())]
-    return gone + [out / n for n in DERIVED_FILES if (out / n).is_file()]
+    return gone + [out / n for n in DERIVED_FILES if (out / n).is_file()] + [p for _, p in dataset_files(out)]
 
 
 def prepare_out(out: Path, chash: str, n_images: int) -> dict:
@@ -313,6 +313,7 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
                              f"{f['index']}: {f.get('error')}")
 
     summary = index_and_sheet(out, n, min(n, settings.sheet_images))
+    finish_formats(out, n, settings)                 # coco.json, webdataset shards (pipeline/render/formats)
     shutil.rmtree(out / ".tmp", ignore_errors=True)
 
     wall = time.perf_counter() - t0

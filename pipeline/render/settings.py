@@ -12,6 +12,7 @@ from typing import ClassVar, Literal
 
 from pipeline.render.formats import NAMES as LABEL_FORMATS
 from pipeline.render.formats import REQUIRED as REQUIRED_FORMAT
+from pipeline.render.formats import needs_masks
 from pipeline.settings import SettingError, Settings, setting
 
 HDRIS = ("city.exr", "courtyard.exr", "forest.exr", "interior.exr", "night.exr", "studio.exr",
@@ -53,7 +54,7 @@ class RenderPreset(Settings):
 
 
 #: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
-RUN_KEYS = ("workers", "scheduler", "shard_size", "threads", "tile_size", "sheet_images", "image_timeout_s",
+RUN_KEYS = ("workers", "scheduler", "shard_size", "threads", "tile_size", "sheet_images", "tar_images", "image_timeout_s",
             "progress", "connect_timeout_s")
 #: Image files are named NNNNNN.png: at most a million images per scan.
 MAX_IMAGES = 1_000_000
@@ -108,6 +109,7 @@ class RenderSettings(Settings):
     threads: int = setting(0, ge=0, le=1024)            # Cycles threads per Blender (0 = cores / workers)
     tile_size: int | None = setting(None, ge=8, le=8192)
     sheet_images: int = setting(16, ge=0, le=1024)      # tiles on contact_sheet.png
+    tar_images: int = setting(1000, ge=1, le=MAX_IMAGES)  # images per shard of label format webdataset
     image_timeout_s: float = setting(600.0, gt=0, le=86_400)
     progress: bool = True
     connect_timeout_s: float = setting(10.0, gt=0, le=3600)
@@ -146,6 +148,9 @@ class RenderSettings(Settings):
         if REQUIRED_FORMAT not in self.label_formats or len(set(self.label_formats)) < len(self.label_formats):
             raise SettingError("label_formats", f"must list {REQUIRED_FORMAT} (its label marks an image done) and "
                                                 f"each format once (got {list(self.label_formats)})")
+        if not self.masks and needs_masks(self.label_formats):
+            raise SettingError("masks", f"must be true for label format {', '.join(needs_masks(self.label_formats))} "
+                                        "(it reads the masks and landmark visibility)")
 
     def hashed(self) -> dict:
         """The settings that change images or labels (not n_images: sample i ignores it; not how to run)."""

@@ -10,10 +10,21 @@ A format module in this folder defines
 * ``write(out_dir, index, label, job, png)``: writes image ``index``'s files and returns their
   paths.
 
+and may define (a format of one file per dataset, or one per group of images)
+
+* ``DATASET_FILES``: ``{file name with SSSSSS for a 6-digit number: what it holds}``, the files it
+  writes per render or dataset folder (``FILES`` may then be empty);
+* ``finish(out_dir, n, settings)``: writes them from the finished images ``0..n-1`` (and whatever
+  ``write`` left per image) at the end of every run, and returns their paths. A run removes them
+  first (:func:`dataset_files`, pipeline/render/run.py ``doomed_files``), so a killed run leaves
+  none stale, and they are rebuilt from files on disk, so they do not depend on the order the
+  images finished in;
+* ``NEEDS_MASKS = True``: it reads the segmentation masks and visibility (``render.masks``).
+
 Everything else derives from :data:`FORMATS`: the formats ``render.label_formats`` accepts
 (pipeline/render/settings.py), the file table of the dataset card (:func:`describe`), the files a
-resumed or re-planned render may remove (:func:`image_files`) and what a finished image writes
-(:func:`write_formats`). Adding a format is adding its module here. ``eyerig`` is required and
+resumed or re-planned render may remove (:func:`image_files`, :func:`dataset_files`), what a finished
+image writes (:func:`write_formats`) and what a finished run writes (:func:`finish_formats`). Adding a format is adding its module here. ``eyerig`` is required and
 written last: its label marks an image done.
 
 The modules are found by listing this folder (:func:`_discover`), and pipeline/sources.py counts
@@ -36,6 +47,8 @@ IMAGE_FILES = {
     "NNNNNN_depth.exr": "z-depth in camera mm, float32 EXR channel Z (inf where nothing is seen)",
 }
 INDEX = "NNNNNN"
+#: The number in a dataset-level file name (a shard's, pipeline/render/formats/webdataset.py).
+NUMBER = "SSSSSS"
 
 
 def _discover() -> dict:
@@ -60,9 +73,61 @@ def file_table() -> dict:
     return out
 
 
+def dataset_file_table() -> dict:
+    """Every dataset-level file a render may write (any format) -> what it holds."""
+    out = {}
+    for m in FORMATS.values():
+        out.update(getattr(m, "DATASET_FILES", {}))
+    return out
+
+
+def _matches(name: str, pattern: str) -> bool:
+    """Is ``name`` the file name ``pattern`` with six digits for ``SSSSSS``?"""
+    if NUMBER not in pattern:
+        return name == pattern
+    pre, _, post = pattern.partition(NUMBER)
+    return (len(name) == len(pre) + 6 + len(post) and name.startswith(pre) and name.endswith(post)
+            and name[len(pre):len(pre) + 6].isdigit())
+
+
+def dataset_files(out: Path):
+    """``(pattern, path)`` of every dataset-level file of any format in the folder ``out``
+    (names of :func:`dataset_file_table` with six digits for ``SSSSSS``), nothing else."""
+    out = Path(out)
+    for pattern in sorted(dataset_file_table()):
+        folder, _, base = pattern.rpartition("/")
+        d = out / folder if folder else out
+        if d.is_dir():
+            for p in sorted(d.iterdir()):
+                if p.is_file() and _matches(p.name, base):
+                    yield pattern, p
+
+
+def dataset_table(out: Path) -> dict:
+    """``{pattern: what it holds}`` of the dataset-level files present in ``out`` (the card)."""
+    table = dataset_file_table()
+    return {k: table[k] for k in sorted({k for k, _ in dataset_files(out)})}
+
+
+def needs_masks(formats) -> list[str]:
+    """The formats of ``formats`` that read the masks (``NEEDS_MASKS``)."""
+    return [f for f in formats if getattr(FORMATS[f], "NEEDS_MASKS", False)]
+
+
+def finish_formats(out_dir, n: int, settings) -> list:
+    """Write the dataset-level files of every format ``settings.label_formats`` lists that has a
+    ``finish``, from the finished images ``0..n-1`` of ``out_dir``. Returns the paths."""
+    written = []
+    for f in settings.label_formats:
+        finish = getattr(FORMATS[f], "finish", None)
+        if finish is not None:
+            written += finish(Path(out_dir), int(n), settings)
+    return written
+
+
 def describe(name: str) -> str:
     """What the per-image file ``name`` (``NNNNNN`` for the index) holds."""
-    return file_table().get(name, "a per-image file of another label format (render.label_formats)")
+    return {**dataset_file_table(), **file_table()}.get(name, "a per-image file of another label format (render.label_formats)")
 
 
 def image_files(out: Path):
