@@ -5,7 +5,9 @@
 DIR is what ``python -m stages.dataset ... --out DIR`` wrote. Everything needed is in
 the folder itself: ``dataset.json`` (image size, the assets and their ids), ``index.jsonl``
 (one line per image: its files and asset) and one JSON label per image (schema in DIR/README.md).
-This script imports nothing from eyerig: copy it anywhere.
+This script imports nothing from eyerig: copy it anywhere. It reads everything at once; for
+training, examples/torch_dataset.py reads the same items lazily. Depth maps need OpenEXR
+(``pip install OpenEXR``, >= 3); without it ``depth`` is None.
 
 Printed: the shape of every array, images per asset, and two consistency checks made from the
 labels alone (3D landmarks projected with the stored camera onto the stored pixels; unit gaze
@@ -37,12 +39,19 @@ def load_dataset(root, limit: int | None = None) -> dict:
         gaze : (N, 3) float32                unit gaze vector of the imaged eye, camera frame
                                              (+X right, +Y up, the camera looks down -Z)
         gaze_angles : (N, 2) float32         its (pitch, yaw) in degrees (up, toward image right)
+        visibility : (N, 28) bool            landmark seen in the image (label landmarks.visible;
+                                             all True when the dataset has no masks: unknown)
+        head_rotation : (N, 3, 3) float32    head frame -> camera frame (head_pose)
+        head_angles : (N, 2) float32         (pitch, yaw) in degrees of the direction from the
+                                             head toward the camera, head frame
         projection : (N, 3, 4) float32       camera mm -> homogeneous pixels
         asset_ids : (N,) int32               index into ``asset_names``
         asset_names : list of str
         eye : (N,) str                       'left' or 'right' (the subject's)
         masks : (N, H, W) uint8 or None      class ids per pixel (names in info["masks"]["classes"]),
                                              when the dataset has masks
+        depth : (N, H, W) float32 or None    camera mm, inf where nothing is seen, when the
+                                             dataset has masks and OpenEXR is installed
         info : dict                          dataset.json
     """
     root = Path(root)
@@ -58,14 +67,24 @@ def load_dataset(root, limit: int | None = None) -> dict:
            "gaze": np.zeros((n, 3), np.float32),
            "gaze_angles": np.zeros((n, 2), np.float32),
            "projection": np.zeros((n, 3, 4), np.float32),
+           "visibility": np.ones((n, 28), bool),
+           "head_rotation": np.zeros((n, 3, 3), np.float32),
+           "head_angles": np.zeros((n, 2), np.float32),
            "asset_ids": np.zeros(n, np.int32),
            "asset_names": [a["name"] for a in sorted(info["assets"], key=lambda a: a["id"])],
            "eye": np.empty(n, "<U5"),
            "masks": None,
+           "depth": None,
            "info": info}
     masks = info.get("masks")                 # {"file", "format", "classes": {id: name}} or null
     if masks:
         out["masks"] = np.zeros((n, h, w), np.uint8)
+    try:
+        import OpenEXR                        # depth maps: optional
+    except ImportError:
+        OpenEXR = None
+    if masks and OpenEXR is not None:
+        out["depth"] = np.zeros((n, h, w), np.float32)
     for k, row in enumerate(rows):
         label = json.loads((root / row["json"]).read_text(encoding="utf-8"))
         with Image.open(root / row["png"]) as im:
@@ -78,6 +97,14 @@ def load_dataset(root, limit: int | None = None) -> dict:
         out["projection"][k] = label["camera"]["projection"]
         out["asset_ids"][k] = label["asset"]["id"]
         out["eye"][k] = label["gaze"]["eye"]
+        if "visible" in lm:
+            out["visibility"][k] = lm["visible"]
+        hp = label["head_pose"]
+        out["head_rotation"][k] = hp["rotation_head_to_camera"]
+        out["head_angles"][k] = (hp["camera_pitch_deg"], hp["camera_yaw_deg"])
+        if out["depth"] is not None and label.get("depth"):    # "NNNNNN_depth.exr", channel Z
+            with OpenEXR.File(str(root / label["depth"]["file"])) as f:
+                out["depth"][k] = f.channels()["Z"].pixels
         if masks:                             # "NNNNNN_seg.png": indexed PNG, the index is the class id
             with Image.open(root / masks["file"].replace("NNNNNN", f"{row['index']:06d}")) as im:
                 out["masks"][k] = np.asarray(im)
@@ -99,7 +126,8 @@ def main(argv=None) -> int:
     ap.add_argument("--limit", type=int, default=None, help="read only the first N images")
     args = ap.parse_args(argv)
     data = load_dataset(args.root, args.limit)
-    for key in ("images", "landmarks", "landmarks_3d", "gaze", "gaze_angles", "asset_ids", "eye", "masks"):
+    for key in ("images", "landmarks", "landmarks_3d", "gaze", "gaze_angles", "visibility", "head_rotation",
+                "head_angles", "asset_ids", "eye", "masks", "depth"):
         v = data[key]
         print(f"{key:13s}", "none" if v is None else f"{v.shape} {v.dtype}")
     counts = np.bincount(data["asset_ids"], minlength=len(data["asset_names"]))
