@@ -68,7 +68,8 @@ def test_dataset_files_are_found_and_removed_with_the_derived_files(tmp_path):
 def test_finish_runs_the_listed_formats_only(tmp_path, monkeypatch):
     called = []
     for name in ("coco", "webdataset"):
-        monkeypatch.setattr(formats.FORMATS[name], "finish", lambda out, n, s, name=name: called.append((name, n)) or [])
+        monkeypatch.setattr(formats.FORMATS[name], "finish",
+                            lambda out, n, s, name=name: called.append((name, n)) or [])
     formats.finish_formats(tmp_path, 4, RenderSettings.from_params({"label_formats": ["eyerig", "webdataset"]}))
     assert called == [("webdataset", 4)]
 

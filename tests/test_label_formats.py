@@ -89,7 +89,8 @@ def test_unityeyes_preset_and_label_formats_settings():
 
 
 @pytest.mark.parametrize("formats, message", [
-    (["eyerig", "coco"], "render.label_formats[1] must be one of 'eyerig', 'pts', 'unityeyes' (got 'coco')"),
+    (["eyerig", "hdf5"], "render.label_formats[1] must be one of 'eyerig', 'coco', 'pts', 'unityeyes', "
+                         "'webdataset' (got 'hdf5')"),
     (["unityeyes"], "render.label_formats must list eyerig"),
     (["eyerig", "pts", "pts"], "each format once"),
     ("eyerig", "render.label_formats must be a list"),
@@ -111,7 +112,7 @@ def test_unityeyes_framing_refuses_a_framing_shift():
 
 def test_stage_refuses_an_unknown_label_format_with_one_line(tmp_path):
     params = tmp_path / "p.yaml"
-    params.write_text("render:\n  label_formats: [eyerig, coco]\n")
+    params.write_text("render:\n  label_formats: [eyerig, hdf5]\n")
     r = subprocess.run([sys.executable, "-m", "stages.render", str(tmp_path / "asset"), str(tmp_path / "rig"),
                         str(tmp_path / "out"), "--params", str(params), "--no-progress"],
                        cwd=ROOT, capture_output=True, text=True, timeout=120)

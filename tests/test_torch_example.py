@@ -74,7 +74,8 @@ def _check_items(folder: Path, got: dict, arrays) -> None:
         np.testing.assert_array_equal(a("landmarks"), np.asarray(label["landmarks"]["px"], np.float32))
         assert a("visibility").dtype == bool and a("visibility").tolist() == label["landmarks"]["visible"]
         np.testing.assert_array_equal(a("gaze"), np.asarray(label["gaze"]["vector_camera"], np.float32))
-        assert np.allclose(a("gaze_pitch_yaw"), [label["gaze"]["camera"]["pitch_deg"], label["gaze"]["camera"]["yaw_deg"]])
+        g = label["gaze"]["camera"]
+        assert np.allclose(a("gaze_pitch_yaw"), [g["pitch_deg"], g["yaw_deg"]])
         R = np.asarray(label["head_pose"]["rotation_head_to_camera"])
         np.testing.assert_allclose(a("head_rotation"), R, atol=1e-6)
         assert np.array_equal(a("mask"), read_seg(folder / f"{k:06d}_seg.png"))

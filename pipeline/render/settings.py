@@ -54,8 +54,8 @@ class RenderPreset(Settings):
 
 
 #: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
-RUN_KEYS = ("workers", "scheduler", "shard_size", "threads", "tile_size", "sheet_images", "tar_images", "image_timeout_s",
-            "progress", "connect_timeout_s")
+RUN_KEYS = ("workers", "scheduler", "shard_size", "threads", "tile_size", "sheet_images", "image_timeout_s",
+            "progress", "connect_timeout_s", "tar_images")
 #: Image files are named NNNNNN.png: at most a million images per scan.
 MAX_IMAGES = 1_000_000
 

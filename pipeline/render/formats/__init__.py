@@ -24,8 +24,9 @@ and may define (a format of one file per dataset, or one per group of images)
 Everything else derives from :data:`FORMATS`: the formats ``render.label_formats`` accepts
 (pipeline/render/settings.py), the file table of the dataset card (:func:`describe`), the files a
 resumed or re-planned render may remove (:func:`image_files`, :func:`dataset_files`), what a finished
-image writes (:func:`write_formats`) and what a finished run writes (:func:`finish_formats`). Adding a format is adding its module here. ``eyerig`` is required and
-written last: its label marks an image done.
+image writes (:func:`write_formats`) and what a finished run writes (:func:`finish_formats`).
+Adding a format is adding its module here. ``eyerig`` is required and written last: its label
+marks an image done.
 
 The modules are found by listing this folder (:func:`_discover`), and pipeline/sources.py counts
 every module of it in the code of whatever imports the package (dvc deps, render fingerprint).
@@ -126,8 +127,9 @@ def finish_formats(out_dir, n: int, settings) -> list:
 
 
 def describe(name: str) -> str:
-    """What the per-image file ``name`` (``NNNNNN`` for the index) holds."""
-    return {**dataset_file_table(), **file_table()}.get(name, "a per-image file of another label format (render.label_formats)")
+    """What the file ``name`` (``NNNNNN`` for the index, ``SSSSSS`` for a number) holds."""
+    return {**dataset_file_table(), **file_table()}.get(
+        name, "a per-image file of another label format (render.label_formats)")
 
 
 def image_files(out: Path):
