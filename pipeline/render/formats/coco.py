@@ -54,7 +54,7 @@ COCO_FILE = "coco.json"
 FILES = {f"{COCO_DIR}/NNNNNN.json": "the image's part of coco.json (its COCO image and annotations); "
                                     "coco.json is assembled from these"}
 DATASET_FILES = {COCO_FILE: "COCO keypoints (category eye: 28 landmarks with visibility v) and the "
-                            "segmentation classes as RLE masks, every image (docs/datasets.md)"}
+                            "segmentation classes as RLE masks, every image (eyerig docs/labels.md)"}
 #: The keypoint category; ids 1-6 are the mask classes.
 EYE_ID = len(CLASSES)
 #: Mask classes that make the ``eye`` annotation's mask: the eyeball seen through the opening.
@@ -172,7 +172,7 @@ def assemble(fragments) -> dict:
         for a in fr["annotations"]:
             anns.append({"id": len(anns) + 1, **a})
     return {"info": {"description": "eyerig eye-region renders: keypoints (category eye) and segmentation "
-                                    "classes; docs/datasets.md", "version": "1"},
+                                    "classes; eyerig docs/labels.md", "version": "1"},
             "licenses": [], "images": images, "annotations": anns, "categories": categories()}
 
 

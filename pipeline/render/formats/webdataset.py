@@ -32,7 +32,7 @@ SHARD_DIR = "shards"
 FILES: dict = {}
 DATASET_FILES = {f"{SHARD_DIR}/shard-SSSSSS.tar": "webdataset tar shard SSSSSS: render.tar_images images, "
                                                  "each as NNNNNN.png, .json, .seg.png, .depth.exr "
-                                                 "(the loose files' bytes; docs/datasets.md)"}
+                                                 "(the loose files' bytes; eyerig docs/labels.md)"}
 #: tar member suffix -> the loose file name of image NNNNNN, in member (sorted) order.
 MEMBERS = {".depth.exr": "{:06d}_depth.exr", ".json": "{:06d}.json", ".png": "{:06d}.png",
            ".seg.png": "{:06d}_seg.png"}
