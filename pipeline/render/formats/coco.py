@@ -59,6 +59,9 @@ DATASET_FILES = {COCO_FILE: "COCO keypoints (category eye: 28 landmarks with vis
 EYE_ID = len(CLASSES)
 #: Mask classes that make the ``eye`` annotation's mask: the eyeball seen through the opening.
 EYE_CLASSES = (SCLERA, IRIS, PUPIL, CARUNCLE)
+#: The landmark order (our label's ``landmarks.order``, in short).
+KEYPOINT_ORDER = ("our 28 landmarks of the imaged eye: 0-11 eyelid (0 medial canthus, 1-5 upper lid, 6 lateral "
+                  "canthus, 7-11 lower lid), 12-19 iris boundary, 20-27 pupil boundary (label landmarks.order)")
 KEYPOINT_NAMES = ([f"eyelid_{k}" for k in range(12)] + [f"iris_{k}" for k in range(8)]
                   + [f"pupil_{k}" for k in range(8)])
 
@@ -73,12 +76,10 @@ SKELETON = _ring(0, 12) + _ring(12, 8) + _ring(20, 8)
 
 def categories() -> list[dict]:
     """COCO ``categories``: the mask classes (ids as in the masks), then ``eye`` with its keypoints."""
-    from pipeline.render.labels import LANDMARK_ORDER
-
     out = [{"id": i, "name": name, "supercategory": "eye_region"} for i, (name, _) in sorted(CLASSES.items())
            if i != 0]
     out.append({"id": EYE_ID, "name": "eye", "supercategory": "eye", "keypoints": KEYPOINT_NAMES,
-                "skeleton": SKELETON, "keypoint_order": LANDMARK_ORDER})
+                "skeleton": SKELETON, "keypoint_order": KEYPOINT_ORDER})
     return out
 
 
