@@ -443,7 +443,13 @@ def test_stage_writes_every_format_and_gazeml_reads_it(tiny, tmp_path):
         if r is not None:
             kept += 1
             assert r[0] < 0.02 and r[1] < 0.01
+            # the label's conventions block says what GazeML reads from the (mirrored) file
+            gml = np.asarray(label["conventions"]["gazeml"]["gaze_pitchyaw_rad"]) * ([1, -1] if side == "right" else 1)
+            np.testing.assert_allclose(r[3]["gaze"], gml, atol=2e-4)
             lo, hi = _crop_box(r[3])
             assert np.all(lo >= 0) and np.all(hi <= [512, 384])
+        c = label["conventions"]["eth_xgaze"]["gaze_pitchyaw_rad"]
+        ang = label["gaze"]["camera"]
+        np.testing.assert_allclose(np.degrees(c), [ang["pitch_deg"], -ang["yaw_deg"]], atol=1e-9)
         assert grey.std() > 2
     assert kept >= 1 and sides == {"left", "right"}           # images 0-3 right eyes, 4 a left eye

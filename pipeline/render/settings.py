@@ -153,12 +153,13 @@ class RenderSettings(Settings):
             framing = (f"iris_distance_px {self.iris_distance_px:g}" if self.iris_distance_px is not None else
                        f"ortho_scale_mm {lo:g}-{hi:g} at {self.width} x {self.height} px with a "
                        f"{self.center_jitter_mm:g} mm shift")
-            raise SettingError("label_formats", f"lists unityeyes, which needs GazeML's framing (eyeball centre at the "
+            raise SettingError("label_formats", "lists unityeyes, which needs GazeML's framing (eyeball centre at the "
                                                 f"image centre, iris centre {GAZEML_EYEBALL_RADIUS_PX} px from it, its "
-                                                f"crop of 1.5 eye widths inside the image): preset {self.preset} frames "
-                                                f"{framing}; use preset unityeyes, or set iris_distance_px: "
+                                                f"crop of 1.5 eye widths inside the image): preset {self.preset} "
+                                                f"frames {framing}; use preset unityeyes, or set iris_distance_px: "
                                                 f"{GAZEML_EYEBALL_RADIUS_PX}, center_jitter_mm: 0 and width x height "
                                                 f">= 512 x 384")
+
     def hashed(self) -> dict:
         """The settings that change images or labels (not n_images: sample i ignores it; not how to run)."""
         skip = {"n_images", "presets", *RUN_KEYS}
