@@ -85,19 +85,18 @@ def _center_px(asset, label) -> list:
 
 def generic_contrast(asset, params: dict, n: int) -> dict:
     """The loader on labels of the generic framing at the preset's size (no render)."""
-    from pipeline.render import formats as lf
     from pipeline.render.formats import unityeyes as uef
     from pipeline.render import labels as lb
     from pipeline.render.settings import RenderSettings
     from pipeline.render import sampling as sp
 
     s = RenderSettings.from_params({**params, "preset": "generic", "width": 512, "height": 384,
-                                       "eyes": ["left"], "label_formats": FORMATS, "n_images": n})
+                                       "eyes": ["left"], "label_formats": ["eyerig"], "n_images": n})   # refused with unityeyes
     rows = []
     for i in range(n):
         smp = sp.make_sample(asset, s, i, "/x.png")
         label = json.loads(json.dumps(lb.make_label(smp, s, asset.name)))
-        doc = uef.unityeyes_document(label, lf.format_job(asset, smp, s.label_formats)["unityeyes"])
+        doc = uef.unityeyes_document(label, uef.points_job(asset, smp))
         rows.append(compare(label, doc, s.height, s.width, _center_px(asset, label)))
     return summary(rows, n)
 

@@ -63,6 +63,19 @@ def pitch_yaw_vector(py) -> np.ndarray:
     return np.array([math.cos(p) * math.sin(y), math.sin(p), math.cos(p) * math.cos(y)])
 
 
+def look_vec_gaze(look_vec) -> np.ndarray:
+    """Step 5 without augmentation: GazeML's trained ``gaze`` (pitch, yaw) of a ``look_vec``
+    (its first 3 numbers, x negated, ``vector_to_pitchyaw``, the yaw folded about pi)."""
+    look = np.array(look_vec, float)[:3]
+    look[0] = -look[0]
+    gaze = pitch_yaw(look)
+    if gaze[1] > 0.0:
+        gaze[1] = math.pi - gaze[1]
+    elif gaze[1] < 0.0:
+        gaze[1] = -(math.pi + gaze[1])
+    return gaze
+
+
 def read_entry(doc: dict, ih: int, iw: int, eye_image_shape=(36, 60), rotation_deg: float = 0.0,
                scale_noise: float = 0.0, translation=(0.0, 0.0)) -> dict | None:
     """What ``preprocess_entry`` derives from one UnityEyes JSON ``doc`` of an ``ih`` x ``iw``

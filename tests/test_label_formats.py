@@ -210,19 +210,38 @@ def test_head_pose_is_the_cameras_unity_euler_angles():
 
 # ------------------------------------------------------------------------------- GazeML
 
+def _mirror(label, side):
+    """(flip, our iris centre px, our gaze) as the UnityEyes export shows them: a right eye mirrored."""
+    W = label["image"]["width"]
+    flip = side == "right"
+    iris = np.asarray(label["landmarks"]["px"])[12:20].mean(axis=0)
+    g = np.asarray(label["gaze"]["vector_camera"], float)
+    if flip:
+        iris, g = np.array([W - iris[0], iris[1]]), g * [-1, 1, 1]
+    return flip, iris, g
+
+
 def _gazeml_errors(label, doc, center):
     """(iris centre px error, gaze deg error, eyeball centre px error, entry) of GazeML's reading
-    of ``doc`` against our label (None when its head-pose filter drops the image)."""
-    H = label["image"]["height"]
-    e = gz.read_entry(doc, H, label["image"]["width"])
+    of ``doc`` against our label (mirrored for a right eye; None when its head-pose filter drops
+    the image)."""
+    H, W = label["image"]["height"], label["image"]["width"]
+    e = gz.read_entry(doc, H, W)
     if e is None:
         return None
-    ours = np.asarray(label["landmarks"]["px"])[12:20].mean(axis=0)
+    flip, ours, g = _mirror(label, label["gaze"]["eye"])
     iris = float(np.linalg.norm(e["iris_centre"] - ours))
-    gaze = _angle_deg(gz.gaze_to_camera(e["gaze"]), label["gaze"]["vector_camera"])
-    x, y, _ = uef.unity_screen([center], label)[0]
+    gaze = _angle_deg(gz.gaze_to_camera(e["gaze"]), g)
+    x, y, _ = uef.unity_screen([center], label, flip)[0]
     cen = float(np.linalg.norm(e["eyeball_centre"] - [x, H - y]))
     return iris, gaze, cen, e
+
+
+def _crop_box(e):
+    """GazeML's crop in the full image: the (60 x 36) eye image's corners through its inverse transform."""
+    A, b = e["transform"][:2, :2], e["transform"][:2, 2]
+    P = np.array([np.linalg.solve(A, np.array([x, y]) - b) for x, y in ((0, 0), (60, 0), (60, 36), (0, 36))])
+    return P.min(axis=0), P.max(axis=0)
 
 
 @pytest.mark.parametrize("side", ["left", "right"])
@@ -238,28 +257,106 @@ def test_gazeml_loader_recovers_our_iris_centre_and_gaze(tiny, side):
         iris, gaze, cen, e = r
         assert iris <= 1.0 and gaze <= 1.0 and cen <= 1e-9, (iris, gaze, cen)
         assert iris < 0.02 and gaze < 0.01                  # only the strings' 4 decimals differ
-        np.testing.assert_allclose(np.asarray(label["landmarks"]["pupil_center_px"]), e["iris_centre"], atol=0.02)
-        # its 18 eye-image landmarks are ours through its crop transform
+        flip, _, _ = _mirror(label, side)
+        pc = np.asarray(label["landmarks"]["pupil_center_px"])
+        np.testing.assert_allclose([s.width - pc[0], pc[1]] if flip else pc, e["iris_centre"], atol=0.02)
+        # its 18 eye-image landmarks are ours through its crop transform (a right eye mirrored, its
+        # caruncle on the image left as a left eye's)
         px = np.asarray(label["landmarks"]["px"])
+        if flip:
+            px = np.c_[s.width - px[:, 0], px[:, 1]]
         order = [12 + (4 - m) % 8 if side == "left" else 12 + m for m in range(8)]
         ours = np.c_[px[order], np.ones(8)] @ e["transform"].T
         np.testing.assert_allclose(e["landmarks"][8:16], ours[:, :2], atol=0.01)
+        assert px[0, 0] < px[6, 0]                         # medial canthus left of the lateral one
         assert e["radius"] == pytest.approx(gz.ORIGINAL_EYEBALL_RADIUS * 60 / e["eye_width"])
+        lo, hi = _crop_box(e)
+        assert np.all(lo >= 0) and np.all(hi <= [s.width, s.height])
     assert kept >= 16
 
 
-def test_without_the_preset_gazeml_misplaces_the_iris(tiny):
-    """The generic framing (eye off-centre by the jitter, another scale) breaks the loader's
-    assumptions: its iris centre lands pixels away from ours; the gaze still agrees."""
-    s = RenderSettings.from_params({"label_formats": ALL, "width": 512, "height": 384, "eyes": ["left"],
-                                       "camera_polar_max_deg": 10})
-    worst = 0.0
-    for smp, label, job in _samples(tiny, s, 8):
-        r = _gazeml_errors(label, uef.unityeyes_document(label, job["unityeyes"]), tiny["asset"].eyes["left"].center)
+@pytest.mark.parametrize("preset", ["generic", "targeted"])
+def test_presets_that_gazeml_cannot_read_refuse_unityeyes_with_one_line(preset):
+    with pytest.raises(SettingsError) as ei:
+        RenderSettings.from_params({"preset": preset, "label_formats": ALL})
+    msg = str(ei.value)
+    assert "\n" not in msg and f"preset {preset} frames ortho_scale_mm 30-36 at 120 x 80 px" in msg
+    assert "use preset unityeyes, or set iris_distance_px: 71.7593, center_jitter_mm: 0" in msg
+    with pytest.raises(SettingsError, match="preset unityeyes frames iris_distance_px 50"):
+        RenderSettings.from_params({"preset": "unityeyes", "iris_distance_px": 50, "label_formats": ALL})
+
+
+def test_why_generic_framing_is_refused(tiny):
+    """The generic framing (eye off-centre by the shift, 30-36 mm across 120 px) breaks the loader's
+    assumptions: its iris centre lands pixels away from ours and its crop is wider than the image."""
+    s = RenderSettings.from_params({"preset": "generic", "eyes": ["left"]})
+    worst, wide = 0.0, 0
+    for i in range(8):
+        smp = sp.make_sample(tiny["asset"], s, i, "/x.png")
+        label = json.loads(json.dumps(lb.make_label(smp, s, "tiny")))
+        r = _gazeml_errors(label, uef.unityeyes_document(label, uef.points_job(tiny["asset"], smp)),
+                           tiny["asset"].eyes["left"].center)
         if r is not None:
             worst = max(worst, r[0])
-            assert r[1] < 0.01
-    assert worst > 5.0
+            assert r[1] < 0.01                              # the gaze still agrees
+            lo, hi = _crop_box(r[3])
+            outside = bool(np.any(lo < 0) or np.any(hi > [s.width, s.height]))
+            wide += outside
+            if outside:                                     # what the writer refuses, one line
+                with pytest.raises(ScanError, match=f"image {i}: label format unityeyes needs GazeML's crop"):
+                    uef.job(tiny["asset"], smp)
+            else:
+                uef.job(tiny["asset"], smp)
+    assert worst > 5.0 and wide >= 1
+
+
+def test_an_image_too_small_for_gazemls_crop_is_refused_when_drawn(tiny):
+    s = _settings(width=200, height=150)
+    smp = sp.make_sample(tiny["asset"], s, 0, "/x.png")
+    with pytest.raises(ScanError) as ei:
+        lf.format_job(tiny["asset"], smp, s.label_formats)
+    msg = str(ei.value)
+    assert "\n" not in msg and "image 0: label format unityeyes needs GazeML's crop (1.5 eye widths" in msg
+    assert "inside the 200 x 150 image; use preset unityeyes" in msg
+
+
+@pytest.mark.parametrize("params", [
+    {"preset": "unityeyes", "eyes": ["left", "right"]},
+    # the generic ranges in GazeML's framing, set by hand
+    {"preset": "generic", "eyes": ["left", "right"], "iris_distance_px": 71.7593, "center_jitter_mm": 0,
+     "width": 512, "height": 384},
+], ids=["unityeyes", "generic_in_gazeml_framing"])
+def test_unityeyes_round_trip_through_files_and_gazeml(tiny, tmp_path, params):
+    """Written (JPEG mirrored for a right eye), read back, read by GazeML's loader: its crop lies in
+    the image, its iris centre and gaze are ours (mirrored) within 0.02 px and 0.01 deg."""
+    s = RenderSettings.from_params({**params, "label_formats": ALL})
+    png = tmp_path / "img.png"
+    pattern = np.zeros((s.height, s.width, 3), np.uint8)
+    pattern[:, : s.width // 4] = 255                          # bright on the left only
+    Image.fromarray(pattern).save(png)
+    sides, kept = set(), 0
+    for smp, label, job in _samples(tiny, s, 16):
+        side = label["gaze"]["eye"]
+        sides.add(side)
+        paths = uef.write(tmp_path, label["index"], label, job["unityeyes"], png)
+        ue = read_unityeyes(paths[1])
+        with Image.open(paths[0]) as im:
+            assert im.size == (s.width, s.height)
+            grey = np.asarray(im.convert("L"), float)
+        bright_left = grey[:, : s.width // 8].mean() > grey[:, -s.width // 8:].mean()
+        assert bright_left == (side == "left")                 # a right eye's JPEG is mirrored
+        assert label["conventions"]["unityeyes"]["mirrored"] == (side == "right")
+        r = _gazeml_errors(label, ue.doc, tiny["asset"].eyes[side].center)
+        if r is None:
+            continue
+        kept += 1
+        iris, gaze, cen, e = r
+        assert iris < 0.02 and gaze < 0.01 and cen < 1e-9, (iris, gaze, cen)
+        lo, hi = _crop_box(e)
+        assert np.all(lo >= 0) and np.all(hi <= [s.width, s.height]), (lo, hi)
+        # the caruncle (medial) on the image left, as in UnityEyes' left eyes
+        assert ue.caruncle[:, 0].mean() < ue.interior[8, 0]
+    assert sides == {"left", "right"} and kept >= 8
 
 
 # ------------------------------------------------------------------------------- 300-W and files
@@ -320,27 +417,40 @@ def test_stage_writes_every_format_and_gazeml_reads_it(tiny, tmp_path):
     out = tmp_path / "renders" / "tiny"
     params = tmp_path / "p.yaml"
     params.write_text(yaml.safe_dump({"render": {
-        "preset": "unityeyes", "label_formats": ALL, "n_images": 2, "samples": 1, "denoise": False,
+        "preset": "unityeyes", "label_formats": ALL, "n_images": 5, "samples": 1, "denoise": False,
+        "eyes": ["left", "right"],
         "workers": 1, "shard_size": 2,
         "progress": False, "connect_timeout_s": 3}}))
     r = subprocess.run([sys.executable, "-m", "stages.render", str(tiny["asset_dir"]), str(tiny["rig_dir"]),
                         str(out), "--metrics", str(tmp_path / "m.json"), "--params", str(params), "--no-progress"],
                        cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
-    assert [x["index"] for x in read_index(out / "index.jsonl")] == [0, 1]
-    kept = 0
-    for i in range(2):
+    assert [x["index"] for x in read_index(out / "index.jsonl")] == [0, 1, 2, 3, 4]
+    kept, sides = 0, set()
+    for i in range(5):
         label = read_label(out / f"{i:06d}.json").doc
+        side = label["gaze"]["eye"]
+        sides.add(side)
         np.testing.assert_allclose(read_pts(out / f"{i:06d}.pts") - 0.5, label["landmarks"]["px"], atol=1e-6)
         ue = read_unityeyes(out / "unityeyes" / f"{i:06d}.json")
         with Image.open(out / "unityeyes" / f"{i:06d}.jpg") as im:
             assert im.format == "JPEG" and im.size == (512, 384)
-            grey = np.asarray(im.convert("L"))
-        e = gz.read_entry(ue.doc, *grey.shape, eye_image_shape=(36, 60))
-        ours = np.asarray(label["landmarks"]["px"])[12:20].mean(axis=0)
-        if e is not None:
+            grey = np.asarray(im.convert("L"), float)
+        with Image.open(out / f"{i:06d}.png") as im:
+            png = np.asarray(im.convert("L"), float)
+        want = png[:, ::-1] if side == "right" else png               # a right eye mirrored
+        assert np.abs(grey - want).mean() < 3 < np.abs(grey - want[:, ::-1]).mean()
+        r = _gazeml_errors(label, ue.doc, tiny["asset"].eyes[side].center)
+        if r is not None:
             kept += 1
-            assert np.linalg.norm(e["iris_centre"] - ours) < 0.02
-            assert _angle_deg(gz.gaze_to_camera(e["gaze"]), label["gaze"]["vector_camera"]) < 0.01
+            assert r[0] < 0.02 and r[1] < 0.01
+            # the label's conventions block says what GazeML reads from the (mirrored) file
+            gml = np.asarray(label["conventions"]["gazeml"]["gaze_pitchyaw_rad"]) * ([1, -1] if side == "right" else 1)
+            np.testing.assert_allclose(r[3]["gaze"], gml, atol=2e-4)
+            lo, hi = _crop_box(r[3])
+            assert np.all(lo >= 0) and np.all(hi <= [512, 384])
+        c = label["conventions"]["eth_xgaze"]["gaze_pitchyaw_rad"]
+        ang = label["gaze"]["camera"]
+        np.testing.assert_allclose(np.degrees(c), [ang["pitch_deg"], -ang["yaw_deg"]], atol=1e-9)
         assert grey.std() > 2
-    assert kept >= 1
+    assert kept >= 1 and sides == {"left", "right"}           # images 0-3 right eyes, 4 a left eye

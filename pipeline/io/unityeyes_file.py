@@ -1,7 +1,7 @@
 """UnityEyes label pairs (``renders/<scan>/unityeyes/NNNNNN.json`` + ``NNNNNN.jpg``): one writer,
 one reader.
 
-The document is built by :func:`pipeline.render.label_formats.unityeyes_document` (its
+The document is built by :func:`pipeline.render.formats.unityeyes.unityeyes_document` (its
 conventions, and where each comes from, are in that module's docstring): UnityEyes' keys only,
 every vector a ``"(x, y, z)"`` string, numbers as strings, so GazeML's loader
 (``src/datasources/unityeyes.py``: every ``*.json`` of a folder with the ``.jpg`` of the same
@@ -37,17 +37,19 @@ def unityeyes_names(index: int) -> tuple[str, str]:
     return f"{int(index):06d}.json", f"{int(index):06d}.jpg"
 
 
-def write_unityeyes(folder, index: int, doc: dict, png) -> list[Path]:
+def write_unityeyes(folder, index: int, doc: dict, png, mirror: bool = False) -> list[Path]:
     """Write the pair of image ``index`` into ``folder`` (created), each atomically: the JPEG of
-    ``png``, then the JSON. Returns both paths."""
-    from PIL import Image
+    ``png`` (``mirror``: flipped left to right, as ``doc``'s points are for a right eye, since
+    UnityEyes renders left eyes only), then the JSON. Returns both paths."""
+    from PIL import Image, ImageOps
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     name_json, name_jpg = unityeyes_names(index)
     buf = io.BytesIO()
     with Image.open(png) as im:
-        im.convert("RGB").save(buf, "JPEG", quality=JPEG_QUALITY)
+        rgb = im.convert("RGB")
+        (ImageOps.mirror(rgb) if mirror else rgb).save(buf, "JPEG", quality=JPEG_QUALITY)
     write_bytes(folder / name_jpg, buf.getvalue())
     write_json(folder / name_json, doc)
     return [folder / name_jpg, folder / name_json]

@@ -16,6 +16,7 @@ from dataclasses import asdict
 import numpy as np
 
 from pipeline.render import camera as cam
+from pipeline.render import conventions as conv
 from pipeline.render.settings import RenderSettings
 from pipeline.render import sampling as sp
 from pipeline.render.asset import ring_radius
@@ -92,6 +93,8 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
                  "clipped": g["clipped"],
                  "limits_deg": {"pitch": settings.max_pitch_deg, "yaw": settings.max_yaw_deg},
                  "rotation_rule": "Listing's law from the rest forward: minimal rotation forward -> gaze"},
+        # the same gaze and head pose as ETH-XGaze, MPIIGaze, GazeML and UnityEyes write them
+        "conventions": conv.conventions(W2C, g_cam, mirror_unityeyes=smp.side == "right"),
         "eyes": eyes,
         "eyelids": {"pitch_deg": smp.lid_pitch_deg, "weights": spec.lid_weights,
                     "rule": "pipeline.rig.lids.lid_weights(mean lid pitch of both eyes)"},

@@ -13,6 +13,7 @@ from typing import ClassVar, Literal
 from pipeline.render.formats import NAMES as LABEL_FORMATS
 from pipeline.render.formats import REQUIRED as REQUIRED_FORMAT
 from pipeline.render.formats import needs_masks
+from pipeline.render.formats.unityeyes import GAZEML_EYEBALL_RADIUS_PX
 from pipeline.settings import SettingError, Settings, setting
 
 HDRIS = ("city.exr", "courtyard.exr", "forest.exr", "interior.exr", "night.exr", "studio.exr",
@@ -30,7 +31,7 @@ PRESETS = {
     # 10 units (cm) from the eyeball centre looking at it (no shift), GazeML's |head pitch|, |yaw| <= 20
     "unityeyes": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 30.0, "gaze_step_deg": 1.0,
                   "width": 512, "height": 384, "eyes": ("left",), "center_jitter_mm": 0.0,
-                  "camera_distance_mm": 100.0, "iris_distance_px": 71.7593},
+                  "camera_distance_mm": 100.0, "iris_distance_px": GAZEML_EYEBALL_RADIUS_PX},
 }
 
 
@@ -151,6 +152,18 @@ class RenderSettings(Settings):
         if not self.masks and needs_masks(self.label_formats):
             raise SettingError("masks", f"must be true for label format {', '.join(needs_masks(self.label_formats))} "
                                         "(it reads the masks and landmark visibility)")
+        # GazeML's loader hard-codes the framing (formats/unityeyes.py): anything else misplaces its iris centre
+        if "unityeyes" in self.label_formats and self.iris_distance_px != GAZEML_EYEBALL_RADIUS_PX:
+            lo, hi = self.ortho_scale_mm
+            framing = (f"iris_distance_px {self.iris_distance_px:g}" if self.iris_distance_px is not None else
+                       f"ortho_scale_mm {lo:g}-{hi:g} at {self.width} x {self.height} px with a "
+                       f"{self.center_jitter_mm:g} mm shift")
+            raise SettingError("label_formats", "lists unityeyes, which needs GazeML's framing (eyeball centre at the "
+                                                f"image centre, iris centre {GAZEML_EYEBALL_RADIUS_PX} px from it, its "
+                                                f"crop of 1.5 eye widths inside the image): preset {self.preset} "
+                                                f"frames {framing}; use preset unityeyes, or set iris_distance_px: "
+                                                f"{GAZEML_EYEBALL_RADIUS_PX}, center_jitter_mm: 0 and width x height "
+                                                f">= 512 x 384")
 
     def hashed(self) -> dict:
         """The settings that change images or labels (not n_images: sample i ignores it; not how to run)."""

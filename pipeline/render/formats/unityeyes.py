@@ -1,5 +1,14 @@
 """Label format ``unityeyes``: UnityEyes JSON + JPEG pairs that GazeML reads unchanged.
 
+Only in GazeML's framing (``iris_distance_px: 71.7593`` and no framing shift: the ``unityeyes``
+preset): its loader takes the image centre for the eyeball centre and puts the iris centre
+71.7593 px from it along the look vector, so any other scale or shift misplaces the iris centre
+(generic framing: 8-14 px median), and it crops 1.5 eye widths around the eye, wider than a
+30-36 mm frame. Settings that list ``unityeyes`` with another framing are refused
+(pipeline/render/settings.py); an image whose GazeML crop leaves the frame is refused when it is
+drawn (:func:`job`). UnityEyes renders the subject's left eye only: a right eye is written
+mirrored (the JPEG, every 2D point, ``look_vec`` x and ``head_pose``), so it reads as a left eye.
+
 ``unityeyes/NNNNNN.json`` + ``unityeyes/NNNNNN.jpg`` (written by pipeline/io/unityeyes_file.py).
 UnityEyes (Wood et al., ETRA 2016) writes ``imgs/N.jpg`` + ``imgs/N.json``; GazeML
 (swook/GazeML ``src/datasources/unityeyes.py``) and its forks read a folder of such pairs, so
@@ -42,7 +51,7 @@ from GazeML's reader:
 
 Point orders are anatomical, as UnityEyes' vertex lists are: for the subject's left eye (the eye
 UnityEyes renders: its caruncle lies at the image left) they read as UnityEyes' do on screen; a
-right eye is the mirror image (GazeML flips right eyes before its network).
+right eye's image and points are mirrored (x -> width - x), so they read the same way.
 
 * **interior margin**, 16 points on our posed lid loop (the skin/eyeball seam). UnityEyes'
   ``interior_margin_idxs`` start at vertex 12 where the upper and lower margins meet beside the
@@ -76,8 +85,11 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.errors import ScanError
 from pipeline.io.unityeyes_file import write_unityeyes
 from pipeline.render import asset as ra
+from pipeline.render import camera as cam
+from pipeline.render import conventions as conv
 
 NAME = "unityeyes"
 #: Folder of the UnityEyes pairs inside a render folder.
@@ -87,10 +99,14 @@ GAZEML_EYEBALL_RADIUS_PX = 71.7593
 #: Share of each lid's arc length, from the medial canthus, given to the caruncle (module doc).
 CARUNCLE_FRACTION = 0.2
 N_INTERIOR, N_CARUNCLE, N_IRIS_2D = 16, 7, 32
+#: GazeML's eye image (height, width): its crop is ``oh / ow`` times as high as wide.
+GAZEML_EYE_IMAGE = (36, 60)
 #: Unity units (cm) per millimetre.
 UNITY_PER_MM = 0.1
-FILES = {f"{UNITYEYES_DIR}/NNNNNN.json": "the label in UnityEyes' JSON format (GazeML reads unityeyes/ as it is)",
-         f"{UNITYEYES_DIR}/NNNNNN.jpg": "the image as a JPEG, beside its UnityEyes label"}
+FILES = {f"{UNITYEYES_DIR}/NNNNNN.json": "the label in UnityEyes' JSON format: GazeML's UnityEyes loader reads "
+                                         "unityeyes/ as it is (preset unityeyes; its iris centre and gaze agree "
+                                         "with ours; right eyes mirrored into left eyes)",
+         f"{UNITYEYES_DIR}/NNNNNN.jpg": "the image as a JPEG, beside its UnityEyes label (a right eye mirrored)"}
 
 
 # ------------------------------------------------------------------------------ lid points (3D)
@@ -156,8 +172,31 @@ def lid_points(loop_rest, loop_posed, lateral_index: int, center, radius: float,
     return interior, caruncle
 
 
-def job(asset, smp) -> dict:
-    """What the UnityEyes writer needs beyond the label: the posed lid points of the imaged eye.
+def gazeml_crop(interior_px, caruncle_px, eye_image=GAZEML_EYE_IMAGE) -> np.ndarray:
+    """(4,) ``x0, y0, x1, y1`` px: the part of the image GazeML's UnityEyes loader crops (no
+    augmentation): 1.5 times the distance from the caruncle's mean to interior point 8 wide,
+    ``oh / ow`` of that high, centred on the interior margin's bounding box. Points (n, 2+) in
+    pixels, either y direction (the box is symmetric about its centre)."""
+    interior = np.asarray(interior_px, float)[:, :2]
+    left, right = np.asarray(caruncle_px, float)[:, :2].mean(axis=0), interior[8]
+    w = 1.5 * abs(left[0] - right[0])
+    h = w * eye_image[0] / eye_image[1]
+    mid = 0.5 * (interior.min(axis=0) + interior.max(axis=0))
+    return np.array([mid[0] - w / 2, mid[1] - h / 2, mid[0] + w / 2, mid[1] + h / 2])
+
+
+def check_crop(interior_px, caruncle_px, width: int, height: int, where, index: int) -> None:
+    """Refuse (one line) an image whose GazeML crop does not lie inside the ``width`` x ``height`` image."""
+    x0, y0, x1, y1 = gazeml_crop(interior_px, caruncle_px)
+    if x0 < 0 or y0 < 0 or x1 > width or y1 > height:
+        raise ScanError(where, f"image {index}: label format unityeyes needs GazeML's crop (1.5 eye widths, "
+                               f"{x1 - x0:.0f} x {y1 - y0:.0f} px at {x0:.0f}..{x1:.0f}, {y0:.0f}..{y1:.0f}) "
+                               f"inside the {width} x {height} image; use preset unityeyes or a larger width and "
+                               f"height")
+
+
+def points_job(asset, smp) -> dict:
+    """The posed lid points of the imaged eye (head mm) and its iris size: :func:`job` unchecked.
 
     From the asset's lid loop (``loop_<side>`` of rig.npz; the lateral canthus is the loop vertex
     of eyelid landmark 6); a rig without a loop uses the 12 eyelid landmarks as the loop.
@@ -177,6 +216,26 @@ def job(asset, smp) -> dict:
             "iris_size": float(ra.ring_radius(iris) / ra.ring_radius(iris_rest))}
 
 
+def job(asset, smp) -> dict:
+    """What the UnityEyes writer needs beyond the label (:func:`points_job`), once GazeML's crop of
+    the image is known to lie inside it.
+
+    Raises
+    ------
+    ScanError  naming the asset and the image when the crop leaves the image (:func:`check_crop`).
+    """
+    j = points_job(asset, smp)
+    W2C, scale = smp.camera["world_to_camera"], smp.camera["ortho_scale_mm"]
+    w, h = smp.spec.width, smp.spec.height
+
+    def px(P):
+        return cam.project(cam.to_camera(P, W2C), scale, w, h)
+
+    check_crop(px(j["interior_head_mm"]), px(j["caruncle_head_mm"]), w, h, getattr(asset, "usda", "asset"),
+               smp.index)
+    return j
+
+
 # --------------------------------------------------------------------------- UnityEyes document
 
 def cs_vec(v, decimals: int = 4) -> str:
@@ -192,33 +251,20 @@ def cs_float(x) -> str:
     return s.replace("e", "E") if "e" in s else s
 
 
-def _euler_zxy(Q) -> np.ndarray:
-    """Unity's ``eulerAngles`` (x, y, z) of a rotation ``Q = Ry(y) Rx(x) Rz(z)``, degrees in [0, 360)."""
-    x = math.degrees(math.asin(max(-1.0, min(1.0, -Q[1, 2]))))
-    y = math.degrees(math.atan2(Q[0, 2], Q[2, 2]))
-    z = math.degrees(math.atan2(Q[1, 0], Q[1, 1]))
-    return np.array([round(a, 4) % 360.0 for a in (x, y, z)])
+#: UnityEyes' ``head_pose`` (pipeline/render/conventions.py).
+head_pose = conv.unityeyes_head_pose
 
 
-#: Our head frame -> Unity's world (x mirrored: Unity's +X is the subject's right).
-HEAD_TO_UNITY = np.diag([-1.0, 1.0, 1.0])
-
-
-def head_pose(world_to_camera) -> np.ndarray:
-    """UnityEyes' ``head_pose``: the camera's Unity ``eulerAngles`` in the head's Unity world (doc)."""
-    R = np.asarray(world_to_camera, float)[:3, :3]          # rows: camera x, y, z (back) in the head
-    Q = HEAD_TO_UNITY @ np.stack([R[0], R[1], -R[2]], axis=1)   # columns: Unity right, up, forward
-    return _euler_zxy(Q)
-
-
-def unity_screen(points_head, label) -> np.ndarray:
-    """(n, 3) ``WorldToScreenPoint`` of head-frame points: x right, y up from the bottom, depth (cm)."""
+def unity_screen(points_head, label, mirror: bool = False) -> np.ndarray:
+    """(n, 3) ``WorldToScreenPoint`` of head-frame points: x right, y up from the bottom, depth (cm);
+    ``mirror``: of the horizontally mirrored image (x -> width - x: x counts from pixel corners)."""
     P = np.asarray(points_head, float)
     W2C = np.asarray(label["camera"]["world_to_camera"], float)
     cam = P @ W2C[:3, :3].T + W2C[:3, 3]
     H = np.concatenate([cam, np.ones((len(P), 1))], 1) @ np.asarray(label["camera"]["projection"], float).T
     uv = H[:, :2] / H[:, 2:]
-    return np.stack([uv[:, 0], label["image"]["height"] - uv[:, 1], -cam[:, 2] * UNITY_PER_MM], axis=1)
+    x = label["image"]["width"] - uv[:, 0] if mirror else uv[:, 0]
+    return np.stack([x, label["image"]["height"] - uv[:, 1], -cam[:, 2] * UNITY_PER_MM], axis=1)
 
 
 def iris_circle(iris_head, side: str, n: int = N_IRIS_2D) -> np.ndarray:
@@ -238,7 +284,8 @@ def iris_circle(iris_head, side: str, n: int = N_IRIS_2D) -> np.ndarray:
 
 
 def unityeyes_document(label: dict, job: dict) -> dict:
-    """The UnityEyes JSON of one image (strings as UnityEyes writes them; module doc).
+    """The UnityEyes JSON of one image (strings as UnityEyes writes them; module doc); a right eye's
+    is that of the mirrored image.
 
     Parameters
     ----------
@@ -251,16 +298,18 @@ def unityeyes_document(label: dict, job: dict) -> dict:
     conf = label["eye_configuration"]
     blend = conf["blend"]
     light = label["lighting"]
+    mirror = side == "right"
+    look = conv.unityeyes_look_vec(g)
 
     def pts(P):
-        return [cs_vec(p) for p in unity_screen(P, label)]
+        return [cs_vec(p) for p in unity_screen(P, label, mirror)]
 
     hdri = str(light["hdri"])
     return {
         "interior_margin_2d": pts(job["interior_head_mm"]),
         "caruncle_2d": pts(job["caruncle_head_mm"]),
         "iris_2d": pts(iris_circle(lm_head[12:20], side)),
-        "eye_details": {"look_vec": cs_vec([g[0], g[1], -g[2], 0.0]),
+        "eye_details": {"look_vec": cs_vec(conv.mirror_look_vec(look) if mirror else look),
                         "pupil_size": cs_float(blend["pupil_dilate"] - blend["pupil_constrict"]),
                         "iris_size": cs_float(job["iris_size"]),
                         "iris_texture": f"eyeball_{conf['iris_color']}"},
@@ -271,10 +320,11 @@ def unityeyes_document(label: dict, job: dict) -> dict:
                              "light_rotation": cs_vec([0.0, 0.0, 0.0], 1),
                              "light_intensity": cs_float(0.0)},
         "eye_region_details": {"pca_shape_coeffs": [], "primary_skin_texture": str(label["scan"])},
-        "head_pose": cs_vec(head_pose(label["camera"]["world_to_camera"])),
+        "head_pose": cs_vec(head_pose(label["camera"]["world_to_camera"], mirror)),
     }
 
 
 def write(out_dir, index: int, label: dict, job: dict, png) -> list[Path]:
-    """Write the UnityEyes pair of image ``index`` into ``out_dir/unityeyes/``; the paths."""
-    return write_unityeyes(Path(out_dir) / UNITYEYES_DIR, index, unityeyes_document(label, job), png)
+    """Write the UnityEyes pair of image ``index`` into ``out_dir/unityeyes/`` (a right eye mirrored); the paths."""
+    return write_unityeyes(Path(out_dir) / UNITYEYES_DIR, index, unityeyes_document(label, job), png,
+                           mirror=label["gaze"]["eye"] == "right")
