@@ -206,7 +206,7 @@ class Progress:
     def __init__(self, total: int, enabled: bool, file=None):
         from tqdm import tqdm
 
-        self.failed = 0
+        self.failed, self.name = 0, None
         self.bar = tqdm(total=total, unit="img", desc="render", disable=not enabled or total == 0,
                         file=file if file is not None else sys.stderr, dynamic_ncols=True, smoothing=0.1)
 
@@ -218,7 +218,8 @@ class Progress:
             if not r.get("skipped") and not r.get("ok"):
                 self.failed += 1
                 self.bar.set_postfix(failed=self.failed, refresh=False)
-            if self.bar.desc != name:
+            if self.name != name:
+                self.name = name
                 self.bar.set_description_str(name, refresh=False)
             self.bar.update(1)
         return result
