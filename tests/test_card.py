@@ -98,6 +98,14 @@ def test_plots_are_pngs_of_the_labels_numbers_and_the_card_quotes_them(labels, t
     assert f"pitch {g.min():+.1f} to {g.max():+.1f} deg" in card
 
 
+def test_a_rerun_deletes_the_card_plots_and_nothing_else(tmp_path):
+    for f in [*rr.CARD_PLOTS, "card/mine.png", "notes.txt"]:
+        (tmp_path / f).parent.mkdir(exist_ok=True)
+        (tmp_path / f).write_bytes(b"x")
+    gone = {p.relative_to(tmp_path).as_posix() for p in rr.doomed_files(tmp_path, lambda i: True)}
+    assert gone == set(rr.CARD_PLOTS)
+
+
 def test_no_visibility_no_visibility_plot(labels, tmp_path):
     bare = [{**d, "landmarks": {k: v for k, v in d["landmarks"].items() if k != "visible"}} for d in labels]
     stats = plots.label_stats(bare, ASSETS + ["unused"])
