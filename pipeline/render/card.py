@@ -6,6 +6,8 @@ the finished index) and one finished label: the conventions come from the label 
 texts (:data:`pipeline.render.labels.FRAMES`, :data:`~pipeline.render.labels.LANDMARK_ORDER`),
 the field list from the label itself, the licences from each asset's ``customData`` (carried
 there from the scan's ``scan.yaml`` by ingest and usd), so the card says what the files hold.
+Its "Plots" section shows ``card/*.png`` and quotes the numbers they draw (``statistics`` in
+``dataset.json``, pipeline/render/plots.py).
 """
 
 from __future__ import annotations
