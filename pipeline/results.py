@@ -1,8 +1,9 @@
 """What a stage reports, in two kinds kept apart by type: :class:`StageResult`.
 
 * ``metrics``: what the inputs determine (sizes, counts, accuracy figures). The stage writes them
-  to ``build/<scan>/<stage>.metrics.json``, a DVC metrics output recorded in ``dvc.lock``, so the
-  same inputs must give the same bytes.
+  to ``build/<scan>/<stage>.metrics.json`` and their headline to ``<stage>.summary.json`` (the DVC
+  metrics, stages/_common.py), DVC outputs recorded in ``dvc.lock``, so the same inputs must give
+  the same bytes.
 * ``timings``: what this run measured (wall and CPU seconds, memory, workers, how much a resumed
   run skipped). They go to ``<stage>.timings.json`` beside it, which DVC does not track.
 

@@ -2,8 +2,9 @@
 
 A stage's ``main`` is wrapped by :func:`run_stage`, which turns
 :class:`pipeline.errors.ScanError` into one line on stderr and exit status 2
-(no traceback), and writes the stage's :class:`pipeline.results.StageResult`: its metrics, and
-its timings with the wall time, CPU time and peak memory added.
+(no traceback), and writes the stage's :class:`pipeline.results.StageResult`: its metrics, its
+headline (:func:`headline`, what ``dvc metrics show`` prints) and its timings with the wall time,
+CPU time and peak memory added.
 """
 
 from __future__ import annotations
@@ -130,6 +131,82 @@ def timings_path(metrics_path) -> Path:
     return p.with_name(p.stem + ".timings.json")
 
 
+def summary_path(metrics_path) -> Path:
+    """``build/<scan>/<stage>.summary.json`` beside ``build/<scan>/<stage>.metrics.json``: the
+    stage's headline (:func:`headline`), the only file dvc.yaml declares as its DVC metrics."""
+    p = Path(metrics_path)
+    if p.name.endswith(".metrics.json"):
+        return p.with_name(p.name[: -len(".metrics.json")] + ".summary.json")
+    return p.with_name(p.stem + ".summary.json")
+
+
+#: The headline of each stage: a few keys shared by every stage, so that ``dvc metrics show``
+#: (one column per key of every metrics file it lists) stays a narrow table: ``faces`` (the mesh
+#: the stage wrote), ``images``, ``err_mm`` (the stage's accuracy figure, the worst of the named
+#: keys) and ``issues`` (what the stage counts as a problem: doubts, failed checks, validation
+#: errors, flipped or non-manifold faces; 0 is clean). Each entry: key -> the metrics' dotted keys
+#: it sums (``err_mm``: takes the largest of). The full metrics stay in ``<stage>.metrics.json``.
+HEADLINES = {
+    "synthetic_head": {"faces": ["n_faces"],
+                       "err_mm": ["left_margin_to_sphere_max_mm", "right_margin_to_sphere_max_mm"]},
+    "eyeball": {"faces": ["outer_polygons", "inner_polygons"], "issues": ["validation_errors"]},
+    "ingest": {"faces": ["faces_out"], "issues": ["edges.non_manifold", "edges.inconsistent_winding"]},
+    "remove_eyeballs": {"faces": ["faces_out"], "err_mm": ["left.residual_rms_mm", "right.residual_rms_mm"],
+                        "issues": ["left.doubts", "right.doubts"]},
+    "retopo": {"faces": ["mesh.n_faces"], "err_mm": ["distance_symmetric_mean_mm"],
+               "issues": ["mesh.nonmanifold_edges", "mesh.inconsistent_edges", "mesh.degenerate_faces",
+                          "flipped_faces"]},
+    "bake": {"err_mm": ["reconstruction.with_displacement.symmetric_mean_mm"]},
+    "snap": {"err_mm": ["gap_max_mm", "inside_max_mm"], "issues": ["flipped_faces"]},
+    "rig": {"faces": ["n_faces"], "err_mm": ["interpolation_error_mm"], "issues": ["sweep_flipped_faces"]},
+    "usd": {"faces": ["n_faces"], "err_mm": ["preview_lid_max_error_mm"], "issues": ["validation_errors"]},
+    "render": {"images": ["n_images"], "err_mm": ["landmark_check_max_mm"]},
+}
+#: What ``err_mm`` is for each stage (docs/layout.md says the same).
+ERR_MM = {
+    "synthetic_head": "the lid margin's largest distance to the eyeball sphere",
+    "remove_eyeballs": "the eyeball sphere fit's residual (RMS, worse eye)",
+    "retopo": "the low-poly mesh's mean distance to the scan (symmetric)",
+    "bake": "the mean distance of the displaced low-poly mesh to the scan (symmetric)",
+    "snap": "the largest gap or overlap between lid margin and eyeball",
+    "rig": "the largest interpolation error of the lid shapes",
+    "usd": "the largest lid error in the published asset's preview",
+    "render": "the largest landmark check error over the images",
+}
+
+
+def _dotted(doc: dict, key: str):
+    for part in key.split("."):
+        if not isinstance(doc, dict) or part not in doc:
+            return None
+        doc = doc[part]
+    return doc
+
+
+def headline(stage: str, metrics: dict) -> dict | None:
+    """The stage's headline (:data:`HEADLINES`) from its metrics; None for a stage without one.
+
+    Values are numbers: sums of the named keys (a list counts its entries, a bool as 0/1), or for
+    ``err_mm`` the largest absolute value rounded to 4 significant digits; a key none of whose
+    sources is in the metrics is left out."""
+    spec = HEADLINES.get(stage)
+    if spec is None:
+        return None
+    out = {}
+    for key, sources in spec.items():
+        vals = [v for v in (_dotted(metrics, k) for k in sources) if v is not None]
+        vals = [len(v) if isinstance(v, (list, tuple)) else v for v in vals]
+        vals = [v for v in vals if isinstance(v, (int, float))]
+        if not vals:
+            continue
+        if key == "err_mm":
+            worst = max(abs(float(v)) for v in vals)
+            out[key] = float(f"{worst:.4g}")
+        else:
+            out[key] = int(sum(vals))
+    return out
+
+
 def read_stage_metrics(metrics_path) -> dict:
     """A stage's metrics file merged with its timings file (when present), as one dict."""
     def merge(a: dict, b: dict) -> dict:
@@ -211,6 +288,9 @@ def run_stage(main: Callable[[list[str]], StageResult | None], argv=None) -> int
         timings = {**result.timings, "wall_time_s": round(time.perf_counter() - t0, 4),
                    "cpu_time_s": round(cpu_time_s(), 4), "peak_memory_mib": round(peak_memory_mib(), 1)}
         write_json(result.path, result.metrics)
+        head = headline(stage, result.metrics)
+        if head is not None:
+            write_json(summary_path(result.path), head)
         write_json(timings_path(result.path), timings)
     return 0
 

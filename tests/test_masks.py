@@ -283,7 +283,7 @@ def test_contact_sheet_shows_the_mask_and_marks_visibility(tmp_path):
     from PIL import Image
 
     from pipeline.io.seg_file import write_seg
-    from pipeline.render.sheet import contact_sheet
+    from pipeline.render.sheet import CAPTION_H, contact_sheet
 
     w, h, scale = 40, 30, 2
     Image.new("RGB", (w, h), (90, 90, 90)).save(tmp_path / "000000.png")
@@ -299,7 +299,7 @@ def test_contact_sheet_shows_the_mask_and_marks_visibility(tmp_path):
     sheet = np.asarray(Image.open(tmp_path / "sheet.png").convert("RGB")).astype(int)
     assert W >= 2 * w * scale                            # the mask panel beside the image
     x0 = 4 + w * scale + 4                               # PAD, tile, PAD: the mask panel's left edge
-    y0 = 4 + 14                                          # PAD + caption
+    y0 = 4 + CAPTION_H                                   # PAD + caption
     vis = sheet[y0 + 3 * scale, x0 + 17 * scale]         # landmark 3 at (17, 3) px: occluded, a red cross
     ok = sheet[y0 + 15 * scale, x0 + 7 * scale]          # landmark 15 at (7, 15) px: visible, a white dot
     assert vis[0] > 200 and vis[1] < 80 and ok.min() > 200

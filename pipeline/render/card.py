@@ -6,6 +6,8 @@ the finished index) and one finished label: the conventions come from the label 
 texts (:data:`pipeline.render.labels.FRAMES`, :data:`~pipeline.render.labels.LANDMARK_ORDER`),
 the field list from the label itself, the licences from each asset's ``customData`` (carried
 there from the scan's ``scan.yaml`` by ingest and usd), so the card says what the files hold.
+Its "Plots" section shows ``card/*.png`` and quotes the numbers they draw (``statistics`` in
+``dataset.json``, pipeline/render/plots.py).
 """
 
 from __future__ import annotations
@@ -110,6 +112,7 @@ def dataset_card(info: dict, label: dict) -> str:
                   if a["source_sha256"] else "-") for a in assets]),
         "",
         *_doubts(assets),
+        *_plots(info),
         "## Licences",
         "",
         "Each image shows one asset, built from a scan; the scan's licence, carried from its "
@@ -158,6 +161,39 @@ def dataset_card(info: dict, label: dict) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _range(h: dict) -> str:
+    return f"{h['min']:+.1f} to {h['max']:+.1f} deg, mean {h['mean']:+.1f}"
+
+
+def _plots(info) -> list[str]:
+    """The card's "Plots" section: the PNGs under ``card/`` (pipeline/render/plots.py) with the
+    numbers they draw, and the contact sheet."""
+    st, files = info.get("statistics"), info.get("plots") or []
+    if not st:
+        return []
+    g, h = st["gaze_camera_deg"], st["head_pose_deg"]
+    out = ["## Plots", "",
+           f"Drawn from the {st['n_images']} finished labels; `dataset.json` (`statistics`) holds the "
+           "numbers: histogram bin edges and counts, images per asset, visibility per landmark.", "",
+           f"- Gaze in the camera frame (`gaze.camera`, pitch + = up, yaw + = toward image right): pitch "
+           f"{_range(g['pitch'])}; yaw {_range(g['yaw'])}.",
+           f"- Head pose relative to the camera (`head_pose.camera_pitch_deg` / `camera_yaw_deg`, the "
+           f"direction from the head to the camera; pitch + = camera above, yaw + = toward the subject's "
+           f"left): pitch {_range(h['pitch'])}; yaw {_range(h['yaw'])}.",
+           "- Images per asset: " + ", ".join(f"`{k}` {v}" for k, v in st["images_per_asset"].items()) + ".",
+           ""]
+    out += [f"![{f.rsplit('/', 1)[-1][:-4].replace('_', ' ')}]({f})" for f in files] + [""]
+    share = st.get("landmark_visible_share")
+    if share is not None:
+        out += ["Share of images in which each landmark is visible (`landmarks.visible`), by index:", "",
+                *_table(["landmarks", *[str(k) for k in range(7)]],
+                        [(f"{r}-{r + 6}", *[f"{share[k]:.3f}" for k in range(r, r + 7)])
+                         for r in range(0, 28, 7)]), ""]
+    out += ["The contact sheet (the first images, each tile captioned with its index and asset, "
+            "landmarks and gaze drawn on):", "", "![contact sheet](contact_sheet.png)", ""]
+    return out
 
 
 def _masks_text(masks) -> str:

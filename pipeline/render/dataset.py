@@ -14,8 +14,9 @@ when its JSON exists. Each label carries ``"asset": {"name", "id"}``.
 
 DIR holds ``NNNNNN.png`` + ``NNNNNN.json``; ``config.json`` (written first: the plan and the
 hashes a resumed run compares); at the end ``index.jsonl`` (every index once, with its asset),
-``contact_sheet.png``, ``dataset.json`` (the machine-readable description), ``README.md`` (the
-dataset card, pipeline/render/card.py) and ``timings.json`` (what the last run measured).
+``contact_sheet.png``, ``dataset.json`` (the machine-readable description), ``card/*.png`` (the
+card's plots, pipeline/render/plots.py), ``README.md`` (the dataset card, pipeline/render/card.py)
+and ``timings.json`` (what the last run measured). One progress bar covers the whole run.
 
 The folder (pipeline/render/plan.py): a re-run of the same plan (the number of images, seed,
 assets, weights, render settings and each asset's config hash: render settings, asset files and
@@ -50,7 +51,7 @@ from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json, write_text
 from pipeline.io.labels_file import SCHEMA as LABEL_SCHEMA
 from pipeline.io.labels_file import label_name, read_index, read_label
-from pipeline.render import formats, mix
+from pipeline.render import formats, mix, plots
 from pipeline.render import plan as pl
 from pipeline.render import run as rr
 from pipeline.render.plan import SCHEMA
@@ -64,7 +65,8 @@ FILES = {
                    "gaze_camera_deg, landmark_check_mm",
     "dataset.json": "this card as data: image size, assets (id, name, weight, count, licence), "
                     "conventions, settings",
-    "contact_sheet.png": "the first images with their landmarks drawn",
+    "contact_sheet.png": "the first images with their landmarks drawn, each tile naming its asset",
+    "card/*.png": "the card's plots: " + "; ".join(f"`{k}` {v}" for k, v in plots.PLOTS.items()),
     "config.json": "the plan and hashes a resumed run compares (not data)",
     "timings.json": "what the last run measured (not data)",
     "README.md": "this card",
@@ -278,30 +280,38 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
     res = rr.Results()
     stats = {"sampling_s": 0.0, "shards": 0}
     per_asset, starts, t_render = {}, 0, 0.0
-    for a in assets:
-        pending = [int(i) for i in np.flatnonzero(assign == a.id) if not sh.done(out, int(i))]
-        per_asset[a.name] = {"pending": len(pending)}
-        if not pending:
-            continue
-        t1, s0 = time.perf_counter(), stats["sampling_s"]
-        shards = _tagged(rr.pending_shards(a.asset, settings, out, pending, how["window"], stats, a.folder), a)
-        run = sh.run_shards(shards, a.asset.usda, a.asset.rig_npz, out.resolve(), how["opts"],
-                            workers=how["workers"], scheduler=how["scheduler"],
-                            progress=progress and settings.progress, connect_timeout_s=settings.connect_timeout_s,
-                            total=len(pending), on_result=res, on_dashboard=on_dashboard)
-        dt = time.perf_counter() - t1 - (stats["sampling_s"] - s0)
-        t_render += dt
-        starts += int(sum(v.get("starts", 0) for v in run["blender"].values()))
-        per_asset[a.name]["render_wall_s"] = round(dt, 3)
-        if res.failed:
-            f = res.first_failure
-            raise ScanError(out, f"{res.failed} of {res.n} images failed; first: image "
-                                 f"{f['index']} ({a.name}): {f.get('error')}")
+    todo = {a.id: [int(i) for i in np.flatnonzero(assign == a.id) if not sh.done(out, int(i))] for a in assets}
+    bar = rr.Progress(sum(map(len, todo.values())), progress and settings.progress)   # one bar, all assets
+    try:
+        for a in assets:
+            pending = todo[a.id]
+            per_asset[a.name] = {"pending": len(pending)}
+            if not pending:
+                continue
+            t1, s0 = time.perf_counter(), stats["sampling_s"]
+            shards = _tagged(rr.pending_shards(a.asset, settings, out, pending, how["window"], stats, a.folder), a)
+            run = sh.run_shards(shards, a.asset.usda, a.asset.rig_npz, out.resolve(), how["opts"],
+                                workers=how["workers"], scheduler=how["scheduler"], progress=False,
+                                connect_timeout_s=settings.connect_timeout_s, total=len(pending),
+                                on_result=bar.of(a.name, res), on_dashboard=on_dashboard)
+            dt = time.perf_counter() - t1 - (stats["sampling_s"] - s0)
+            t_render += dt
+            starts += int(sum(v.get("starts", 0) for v in run["blender"].values()))
+            per_asset[a.name]["render_wall_s"] = round(dt, 3)
+            if res.failed:
+                f = res.first_failure
+                raise ScanError(out, f"{res.failed} of {res.n} images failed; first: image "
+                                     f"{f['index']} ({a.name}): {f.get('error')}")
+    finally:
+        bar.close()
 
     summary = rr.index_and_sheet(out, n, min(n, settings.sheet_images))
     counts = _check_index(out, assets, assign)
     formats.finish_formats(out, n, settings)         # coco.json, webdataset shards (pipeline/render/formats)
     info = dataset_info(out, assets, counts, settings, n)
+    info["statistics"] = plots.label_stats((read_label(out / label_name(i)).doc for i in range(n)),
+                                           [a.name for a in assets])
+    info["plots"] = plots.write_plots(out, info["statistics"])
     write_json(out / INFO, info)
     write_text(out / CARD, dataset_card(info, read_label(out / label_name(0)).doc))
     shutil.rmtree(out / ".tmp", ignore_errors=True)

@@ -20,6 +20,7 @@ import hashlib
 import json
 import os
 import shutil
+import sys
 import time
 from array import array
 from collections import Counter
@@ -83,8 +84,10 @@ def read_config(out: Path) -> dict | None:
     return doc if isinstance(doc, dict) else None
 
 
+#: The dataset card's plots (pipeline/render/plots.py draws them at the end of a dataset run).
+CARD_PLOTS = ("card/gaze.png", "card/head_pose.png", "card/assets.png", "card/visibility.png")
 #: Files a run rebuilds from the labels at its end (removed first, so a killed run leaves none stale).
-DERIVED_FILES = ("index.jsonl", "contact_sheet.png")
+DERIVED_FILES = ("index.jsonl", "contact_sheet.png") + CARD_PLOTS
 
 
 def folder_state(out: Path) -> str:
@@ -195,6 +198,36 @@ def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict
                 yield grp[j:j + k]
 
 
+class Progress:
+    """One tqdm bar (on stderr) over all the images a run renders, whatever the asset: its
+    description names the asset of the latest finished image, its postfix the failures so far.
+    Disabled (silent) when ``enabled`` is false or there is nothing to render."""
+
+    def __init__(self, total: int, enabled: bool, file=None):
+        from tqdm import tqdm
+
+        self.failed, self.name = 0, None
+        self.bar = tqdm(total=total, unit="img", desc="render", disable=not enabled or total == 0,
+                        file=file if file is not None else sys.stderr, dynamic_ncols=True, smoothing=0.1)
+
+    def of(self, name: str, on_result):
+        """The ``on_result`` callback of pipeline/render/shard.py ``run_shards`` for asset ``name``:
+        calls ``on_result`` and advances the bar."""
+        def result(r: dict) -> None:
+            on_result(r)
+            if not r.get("skipped") and not r.get("ok"):
+                self.failed += 1
+                self.bar.set_postfix(failed=self.failed, refresh=False)
+            if self.name != name:
+                self.name = name
+                self.bar.set_description_str(name, refresh=False)
+            self.bar.update(1)
+        return result
+
+    def close(self) -> None:
+        self.bar.close()
+
+
 class Results:
     """Per-image results of the run, aggregated as they come (no list of every image)."""
 
@@ -302,10 +335,13 @@ def render_scan(asset, settings, out, source, scheduler: str | None = None, prog
     res = Results()
     run = {"workers": 0, "blender": {}}
     if n_pending:
-        run = sh.run_shards(shards, asset.usda, asset.rig_npz, out.resolve(), opts, workers=workers,
-                            scheduler=scheduler, progress=progress and settings.progress,
-                            connect_timeout_s=settings.connect_timeout_s, total=n_pending, on_result=res,
-                            on_dashboard=on_dashboard)
+        bar = Progress(n_pending, progress and settings.progress)
+        try:
+            run = sh.run_shards(shards, asset.usda, asset.rig_npz, out.resolve(), opts, workers=workers,
+                                scheduler=scheduler, progress=False, connect_timeout_s=settings.connect_timeout_s,
+                                total=n_pending, on_result=bar.of(asset.name, res), on_dashboard=on_dashboard)
+        finally:
+            bar.close()
     t_render = time.perf_counter() - t1 - stats["sampling_s"]
     if res.failed:
         f = res.first_failure

@@ -7,8 +7,9 @@ dots, ``apparent_px``), and the gaze direction in the camera frame as a red line
 (length proportional to the gaze's in-image component). With ``render.masks`` the label names
 a seg mask: the tile then shows the mask (its palette, pipeline/io/seg_file.py) beside the image,
 and each landmark is drawn where it is seen (through the cornea for iris and pupil) as a filled
-dot when visible or a red cross when occluded (``landmarks.visible``). Caption: index, eye, gaze
-pitch/yaw in the camera frame.
+dot when visible or a red cross when occluded (``landmarks.visible``). Caption, two lines: the
+asset the image shows (``asset.name`` of a dataset label, else ``scan``), then the index, eye and
+gaze pitch/yaw in the camera frame; a column is widened to its longest caption so names stay whole.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-PAD, CAPTION_H = 4, 14
+PAD, CAPTION_H = 4, 28
+NAME_PT, INFO_PT = 12, 10        # Pillow's bundled font (FreeType), pixel sizes of the two caption lines
 
 
 def _tile(png: Path, label: dict, scale: int):
@@ -76,17 +78,33 @@ def _with_mask(img, seg_png: Path, label: dict, scale: int):
     return both
 
 
+def asset_name(label: dict) -> str:
+    """The asset an image shows: ``asset.name`` (a dataset's label), else ``scan`` (a render's)."""
+    a = label.get("asset")
+    return str(a["name"]) if isinstance(a, dict) and a.get("name") else str(label.get("scan", "?"))
+
+
+def _caption(label: dict) -> tuple[str, str]:
+    gc = label["gaze"]["camera"]
+    return (asset_name(label),
+            f"#{label['index']} {label['gaze']['eye']}, gaze {gc['pitch_deg']:+.0f}/{gc['yaw_deg']:+.0f}")
+
+
 def contact_sheet(items, out_png, scale: int = 2, columns: int | None = None) -> tuple[int, int]:
     """Write a grid of ``(png_path, label_dict)`` tiles to ``out_png``; returns its (w, h).
 
     ``columns`` defaults to 4 (2 when the tiles carry their masks, which doubles their width)."""
-    from PIL import Image, ImageDraw
+    from PIL import Image, ImageDraw, ImageFont
 
     items = list(items)
     if not items:
         raise ValueError("no images for the contact sheet")
     tiles = [(_tile(Path(p), lab, scale), lab) for p, lab in items]
-    tw = max(t.size[0] for t, _ in tiles)
+    name_font, info_font = ImageFont.load_default(NAME_PT), ImageFont.load_default(INFO_PT)
+    captions = [_caption(lab) for _, lab in tiles]
+    tw = max(max(t.size[0] for t, _ in tiles),
+             max(max(name_font.getlength(a), info_font.getlength(b)) for a, b in captions) + 2)
+    tw = int(math.ceil(tw))
     th = max(t.size[1] for t, _ in tiles)
     if columns is None:
         columns = 2 if any("seg" in lab for _, lab in tiles) else 4
@@ -99,9 +117,9 @@ def contact_sheet(items, out_png, scale: int = 2, columns: int | None = None) ->
     for k, (t, lab) in enumerate(tiles):
         x = PAD + (k % cols) * (tw + PAD)
         y = PAD + (k // cols) * (th + CAPTION_H + PAD)
-        gc = lab["gaze"]["camera"]
-        draw.text((x + 1, y + 1), f"#{lab['index']} {lab['gaze']['eye']}, gaze {gc['pitch_deg']:+.0f}/"
-                                  f"{gc['yaw_deg']:+.0f}", fill=(225, 225, 225))
+        name, info = captions[k]
+        draw.text((x + 1, y + 1), name, fill=(255, 255, 255), font=name_font)
+        draw.text((x + 1, y + 2 + NAME_PT), info, fill=(200, 200, 200), font=info_font)
         sheet.paste(t, (x, y + CAPTION_H))
     out_png = Path(out_png)
     tmp = out_png.with_name(f".{out_png.stem}.tmp{out_png.suffix}")

@@ -1,0 +1,170 @@
+"""The dataset card's plots (``DIR/card/*.png``) and the label statistics they draw.
+
+:func:`label_stats` reads what the plots show from the finished labels: gaze pitch / yaw in the
+camera frame (our convention, ``gaze.camera``: pitch + = up, yaw + = toward image right), the head
+pose relative to the camera (``head_pose.camera_pitch_deg`` / ``camera_yaw_deg``: the head-frame
+direction from the head toward the camera; pitch + = camera above, yaw + = toward the subject's
+left), images per asset and the share of images in which each of the 28 landmarks is visible
+(``landmarks.visible``; None when the labels carry no visibility). ``dataset.json`` keeps these
+numbers (``statistics``), so the card's text and the plots say the same.
+
+:func:`write_plots` draws them with matplotlib's Agg canvas (no pyplot, no global backend, the
+default style whatever the user's matplotlibrc says, no ``Software`` tag in the PNG), so the same
+labels give the same bytes.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+
+from pipeline.io.atomic import write_bytes
+from pipeline.render.run import CARD_PLOTS
+
+#: What each of the card's plots shows (their paths: pipeline/render/run.py CARD_PLOTS, the files a
+#: run deletes and rewrites).
+PLOTS = {
+    "gaze.png": "histograms of the gaze pitch and yaw in the camera frame",
+    "head_pose.png": "histograms of the head pose relative to the camera",
+    "assets.png": "images per asset",
+    "visibility.png": "share of images in which each landmark is visible",
+}
+BIN_DEG = 5.0
+#: Short names of the 28 landmarks (pipeline/render/labels.py LANDMARK_ORDER) for the plot's axis.
+LANDMARK_NAMES = (["medial canthus"] + [f"upper lid {k}" for k in range(1, 6)] + ["lateral canthus"]
+                  + [f"lower lid {k}" for k in range(1, 6)] + [f"iris {k}" for k in range(8)]
+                  + [f"pupil {k}" for k in range(8)])
+
+
+def _hist(values) -> dict:
+    """Counts over bins of :data:`BIN_DEG` degrees aligned to multiples of it (edges (k+1,), counts (k,))."""
+    v = np.asarray(values, float)
+    lo = math.floor(v.min() / BIN_DEG) * BIN_DEG
+    hi = max(math.ceil(v.max() / BIN_DEG) * BIN_DEG, lo + BIN_DEG)
+    if hi == v.max():                       # np.histogram's last bin is closed: keep it a full bin
+        hi += BIN_DEG
+    edges = np.arange(lo, hi + BIN_DEG / 2, BIN_DEG)
+    counts, _ = np.histogram(v, edges)
+    return {"edges": [float(e) for e in edges], "counts": [int(c) for c in counts],
+            "min": round(float(v.min()), 4), "max": round(float(v.max()), 4),
+            "mean": round(float(v.mean()), 4)}
+
+
+def label_stats(labels, asset_names) -> dict:
+    """What the card's plots show, from every label of the dataset.
+
+    Parameters
+    ----------
+    labels : iterable of dict   the label documents (``asset.name`` names each image's asset)
+    asset_names : list of str   every asset of the plan, in ``--assets`` order (an asset with no
+                                image still gets its 0)
+
+    Returns
+    -------
+    dict  ``gaze_camera_deg`` and ``head_pose_deg`` (``pitch`` / ``yaw``: :func:`_hist`),
+          ``images_per_asset`` {name: n}, ``landmark_visible_share`` (28 floats, 4 decimals, or
+          None without visibility), ``n_images``
+    """
+    gp, gy, hp, hy = [], [], [], []
+    per_asset = {name: 0 for name in asset_names}
+    visible, n_vis, n = np.zeros(28, np.int64), 0, 0
+    for d in labels:
+        n += 1
+        g = d["gaze"]["camera"]
+        gp.append(g["pitch_deg"])
+        gy.append(g["yaw_deg"])
+        hp.append(d["head_pose"]["camera_pitch_deg"])
+        hy.append(d["head_pose"]["camera_yaw_deg"])
+        name = (d.get("asset") or {}).get("name", d.get("scan"))
+        per_asset[name] = per_asset.get(name, 0) + 1
+        vis = d["landmarks"].get("visible")
+        if vis is not None:
+            visible += np.asarray(vis, bool)
+            n_vis += 1
+    if n == 0:
+        raise ValueError("no labels to plot")
+    share = [round(float(v) / n, 4) for v in visible] if n_vis == n else None
+    return {"n_images": n,
+            "gaze_camera_deg": {"pitch": _hist(gp), "yaw": _hist(gy)},
+            "head_pose_deg": {"pitch": _hist(hp), "yaw": _hist(hy)},
+            "images_per_asset": per_asset,
+            "landmark_visible_share": share}
+
+
+def _bars(ax, h: dict, xlabel: str, color: str) -> None:
+    e = np.asarray(h["edges"])
+    ax.bar(e[:-1], h["counts"], width=np.diff(e), align="edge", color=color, edgecolor="white", linewidth=0.5)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("images")
+    ax.grid(axis="y", alpha=0.3)
+
+
+def _save(fig, path) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, metadata={"Software": None})
+    write_bytes(path, buf.getvalue())
+
+
+def _pair(path, title: str, a: dict, b: dict, xa: str, xb: str, color: str) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 3.4), layout="constrained")
+    axs = fig.subplots(1, 2)
+    _bars(axs[0], a, xa, color)
+    _bars(axs[1], b, xb, color)
+    fig.suptitle(title)
+    _save(fig, path)
+
+
+def write_plots(out, stats: dict) -> list:
+    """Draw the card's plots of ``stats`` (:func:`label_stats`) into the folder ``out`` (a Path);
+    returns their paths relative to it (run.py ``CARD_PLOTS``; no ``visibility.png`` without
+    visibility)."""
+    import matplotlib.style
+    from matplotlib.figure import Figure
+
+    path = {p.rsplit("/", 1)[-1]: out / p for p in CARD_PLOTS}
+    path["gaze.png"].parent.mkdir(parents=True, exist_ok=True)
+    n = stats["n_images"]
+    with matplotlib.style.context("default"):
+        g, h = stats["gaze_camera_deg"], stats["head_pose_deg"]
+        _pair(path["gaze.png"], f"Gaze in the camera frame ({n} images; (0, 0) looks at the camera)",
+              g["pitch"], g["yaw"], "gaze pitch (deg, + = up)", "gaze yaw (deg, + = toward image right)",
+              "tab:red")
+        _pair(path["head_pose.png"], "Head pose relative to the camera (direction from the head to the camera)",
+              h["pitch"], h["yaw"], "camera pitch (deg, + = camera above the head's level)",
+              "camera yaw (deg, + = toward the subject's left)", "tab:blue")
+
+        per = stats["images_per_asset"]
+        fig = Figure(figsize=(7, 0.9 + 0.32 * len(per)), layout="constrained")
+        ax = fig.subplots()
+        names = list(per)
+        ax.barh(range(len(names)), [per[k] for k in names], color="tab:green")
+        ax.set_yticks(range(len(names)), names)
+        ax.invert_yaxis()                     # --assets order, top down
+        for k, name in enumerate(names):
+            ax.annotate(str(per[name]), (per[name], k), xytext=(3, 0), textcoords="offset points",
+                        va="center", fontsize=8)
+        ax.set_xlabel("images")
+        ax.set_title(f"Images per asset ({n} in all)")
+        ax.margins(x=0.12)
+        _save(fig, path["assets.png"])
+
+        share = stats["landmark_visible_share"]
+        if share is not None:
+            fig = Figure(figsize=(9, 3.6), layout="constrained")
+            ax = fig.subplots()
+            cols = ["tab:green"] * 12 + ["tab:cyan"] * 8 + ["goldenrod"] * 8
+            ax.bar(range(28), [100 * s for s in share], color=cols)
+            ax.set_xticks(range(28), [f"{k} {LANDMARK_NAMES[k]}" for k in range(28)], rotation=90, fontsize=7)
+            ax.set_ylim(0, 100)
+            ax.set_ylabel("visible in % of images")
+            ax.set_title("Landmark visibility (green: eyelid 0-11, cyan: iris 12-19, yellow: pupil 20-27)")
+            ax.grid(axis="y", alpha=0.3)
+            _save(fig, path["visibility.png"])
+    return [p for p in CARD_PLOTS if share is not None or not p.endswith("/visibility.png")]
