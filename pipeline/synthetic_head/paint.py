@@ -63,8 +63,11 @@ def _paint(model, t, y, base=None):
     col = col * (1 - 0.25 * red[:, None]) + np.array([190.0, 80.0, 80.0]) * 0.25 * red[:, None]
     # melanin lies above the blood in the skin: it filters the redness too (not the hair or eyes)
     tone_now = getattr(model, "skin_tone", None)
+    brow_rgb = np.array([60.0, 42.0, 32.0])
     if tone_now is not None and tone_now != SKIN_TONE_BASE:
         col = col * melanin_transmittance(tone_now)[None, :]
+        # hair darkens with the skin, less steeply (else the brows vanish on dark skin)
+        brow_rgb = brow_rgb * np.sqrt(melanin_transmittance(tone_now))
     crease = np.clip(-f["detail"] / 0.3, 0, 1)
     col *= (1.0 - 0.35 * crease)[:, None]
     # brows: horizontal hair strokes along the brow ridge
@@ -73,7 +76,7 @@ def _paint(model, t, y, base=None):
     band = np.exp(-((yy - by) / 3.2) ** 4) * smoothstep(6, 12, ax) * (1 - smoothstep(ex + 18, ex + 26, ax))
     hair = smoothstep(0.35, 0.7, model.noise_brow(x / 2.5, yy / 0.3))
     bmask = np.clip(band * (0.45 + 0.55 * hair), 0, 1)
-    col = col * (1 - 0.8 * bmask[:, None]) + np.array([60.0, 42.0, 32.0]) * 0.8 * bmask[:, None]
+    col = col * (1 - 0.8 * bmask[:, None]) + brow_rgb * 0.8 * bmask[:, None]
     # lash line darkening along the upper margin
     d = f["d"]
     lash = (d > -0.2) & (d < 1.2)
