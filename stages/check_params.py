@@ -9,7 +9,11 @@ refuses, with one line naming ``params.yaml`` and exit 2 (and so nothing else ru
   not starting with a dot; pipeline.settings.check_scan_name) or is listed twice: names become
   folder names and command-line words, so they must never carry shell syntax or ``..``;
 * a block that is not a stage's;
-* a bad value or unknown key in any block (each block's settings dataclass).
+* a bad value or unknown key in any block (each block's settings dataclass);
+* an ``identities:`` entry (a procedural head the ``synthetic_head`` stage builds into
+  ``raw_scans/<name>``) that is not a safe name, is not also listed under ``scans:`` (the
+  per-scan stages would never build it), or whose keys over the ``synthetic_head:`` block are
+  unknown or out of range.
 
 The output's content never changes, so editing a param re-runs this check but none of the
 stages downstream of it.
@@ -38,6 +42,8 @@ BLOCKS = {
     "usd": "pipeline.usd.asset:UsdSettings",
     "render": "pipeline.render.settings:RenderSettings",
 }
+#: Top-level keys that are not a stage's block.
+LISTS = ("scans", "identities")
 OK_TEXT = "params.yaml checked: scan names safe, every block valid\n"
 
 
@@ -61,13 +67,36 @@ def check_scans(scans, source="params.yaml") -> list[str]:
     return list(scans)
 
 
+def check_identities(data: dict, scans: list[str], source="params.yaml") -> dict:
+    """The ``identities:`` mapping read into {name: SyntheticHeadSettings} (ScanError naming
+    ``source`` on a bad name, a name missing from ``scans``, an unknown key or a bad value)."""
+    from pipeline.synthetic_head import identity_settings
+
+    idents = data.get("identities")
+    if idents is None:
+        return {}
+    if not isinstance(idents, dict):
+        raise ScanError(source, "identities must be a mapping of name -> synthetic_head keys")
+    out = {}
+    for name in idents:
+        check_scan_name(name, source, key="identities")
+        if "." in name:          # dvc.yaml's params dep identities.<name> would read it as a key path
+            raise ScanError(source, f"identities: {name!r} has a '.' (not allowed in an identity's name)")
+        if name not in scans:
+            raise ScanError(source, f"identities: {name!r} is not listed under scans (its asset would "
+                                    "never be built)")
+        out[name] = identity_settings(data, name, source)
+    return out
+
+
 def check_params(data: dict, source="params.yaml") -> dict:
-    """Check a whole params mapping; returns {block: settings} (ScanError on the first problem)."""
-    check_scans(data.get("scans"), source)
-    unknown = [k for k in data if k != "scans" and k not in BLOCKS]
+    """Check a whole params mapping; returns {block: settings} (ScanError on the first problem),
+    with ``identities`` -> {name: SyntheticHeadSettings}."""
+    scans = check_scans(data.get("scans"), source)
+    unknown = [k for k in data if k not in LISTS and k not in BLOCKS]
     if unknown:
-        raise ScanError(source, f"{unknown[0]!r} is not a block of this pipeline (known: scans, "
-                                f"{', '.join(BLOCKS)})")
+        raise ScanError(source, f"{unknown[0]!r} is not a block of this pipeline (known: "
+                                f"{', '.join(LISTS)}, {', '.join(BLOCKS)})")
     out = {}
     for block in BLOCKS:
         raw = data.get(block)
@@ -81,6 +110,7 @@ def check_params(data: dict, source="params.yaml") -> dict:
             out[block] = cls.from_params(dict(raw or {}))
         except (ValueError, TypeError) as exc:
             raise ScanError(source, f"{block}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    out["identities"] = check_identities(data, scans, source)
     return out
 
 

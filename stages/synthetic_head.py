@@ -1,9 +1,11 @@
 """Stage ``synthetic_head``: write the procedural test head as a scan folder.
 
-    python -m stages.synthetic_head raw_scans/synthetic_head --metrics build/synthetic_head.metrics.json
+    python -m stages.synthetic_head raw_scans/<name> [--identity <name>] --metrics build/<name>/synthetic_head.metrics.json
 
-Reads the ``synthetic_head:`` block of ``params.yaml`` (seed, target_triangles,
-eye_shape, eye_spacing_mm, noise_mm, texture_size) and writes, atomically,
+Reads the ``synthetic_head:`` block of ``params.yaml`` (seed, target_triangles, eye_shape,
+eye_spacing_mm, noise_mm, texture_size, eye_radius_mm, skin_tone, wrinkle_scale, pore_scale),
+with ``--identity`` the entry ``identities.<name>`` over it (dvc.yaml runs one per identity),
+and writes, atomically,
 ``scan.ply`` (binary PLY with per-vertex UVs ``s``/``t``), ``texture.png``,
 ``scan.yaml`` and ``ground_truth.json``. See pipeline/synthetic_head/.
 """
@@ -15,16 +17,22 @@ from pathlib import Path
 
 from pipeline.io.atomic import atomic_dir
 from pipeline.results import StageResult
-from pipeline.synthetic_head import SyntheticHeadSettings, make_synthetic_head, write_scan_folder
-from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
+from pipeline.synthetic_head import (SyntheticHeadSettings, identity_settings, make_synthetic_head,
+                                     write_scan_folder)
+from stages._common import default_metrics_path, load_settings, read_params_file, stage_exit, stage_parser
 
 
 def main(argv) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0], scan_arg="out_dir")
     parser.add_argument("out_dir", help="scan folder to write (replaced atomically)")
+    parser.add_argument("--identity", default=None,
+                        help="an identities: entry of params.yaml over the synthetic_head block")
     args = parser.parse_args(argv)
     out = Path(args.out_dir)
-    settings = load_settings(SyntheticHeadSettings, args.params)
+    if args.identity is None:
+        settings = load_settings(SyntheticHeadSettings, args.params)
+    else:
+        settings = identity_settings(read_params_file(args.params), args.identity, source=str(args.params))
     t0 = time.perf_counter()
     head = make_synthetic_head(settings)
     t1 = time.perf_counter()

@@ -5,8 +5,11 @@
 
 Reads snap/mesh.npz (V, F, UV, FUV), bake/color.png + bake/displacement.exr (+ bake.json),
 rig/rig.npz + rig/rig.json, ingest/scan.json and rigged_assets/eyeball/eyeball.usda; writes
-rigged_assets/<scan>/{<scan>.usda, <scan>.usdz, textures/color.png, textures/displacement.exr}.
-The eyeball is referenced relatively (../eyeball/eyeball.usda); the usdz packages it too.
+<out>/{<scan>.usda, <scan>.usdz, textures/color.png, textures/displacement.exr, eyeball/} where
+the output argument says (``rigged_assets/<scan>`` in dvc.yaml; the scan is its folder's name).
+The asset folder is self-contained: it holds a copy of the eyeball asset (eyeball/eyeball.usda
+and its textures, ~3 MB), which the eyes reference as ./eyeball/eyeball.usda, so a copied or
+moved folder keeps its eyes; the usdz packages the same files.
 Every asset is checked with pipeline.usd.validate; any error refuses the build (exit 2).
 With ``preview: true`` in the ``usd:`` block, a Cycles contact sheet (front views at pitch
 +25/0/-25 deg and a three-quarter view; pipeline/blender/asset_preview.py, run as a Blender

@@ -35,7 +35,7 @@ def _commands(clone: Path) -> list[tuple[str, list[str]]]:
     stages = yaml.safe_load((clone / "dvc.yaml").read_text())["stages"]
     out = []
     for name, st in stages.items():
-        cmd = st["do"]["cmd"].replace("${item}", SCAN) if "foreach" in st else st["cmd"]
+        cmd = st["do"]["cmd"].replace("${item}", SCAN).replace("${key}", SCAN) if "foreach" in st else st["cmd"]
         cmd = re.sub(r"'([^']*)'", lambda m: shlex.quote(str(clone / m.group(1))), cmd)
         argv = shlex.split(cmd)
         assert argv[:2] == ["python", "-m"], cmd

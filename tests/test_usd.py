@@ -28,7 +28,7 @@ def test_asset_files_and_validation(built):
     from pipeline.usd.validate import validate_stage
 
     out = built["out"]
-    assert sorted(p.name for p in out.iterdir()) == ["textures", "tiny.usda", "tiny.usdz"]
+    assert sorted(p.name for p in out.iterdir()) == ["eyeball", "textures", "tiny.usda", "tiny.usdz"]
     assert sorted(p.name for p in (out / "textures").iterdir()) == ["color.png", "displacement.exr"]
     assert validate_stage(out / "tiny.usda") == []
     m = json.loads(built["metrics"].read_text())
@@ -87,7 +87,7 @@ def test_eye_references_landmarks_and_variants(built):
     for side in ("left", "right"):
         eye = stage.GetPrimAtPath(f"/tiny/Eyes/eye_{side}")
         refs = eye.GetPrimStack()[0].referenceList.prependedItems
-        assert [r.assetPath for r in refs] == ["../eyeball/eyeball.usda"]
+        assert [r.assetPath for r in refs] == ["./eyeball/eyeball.usda"]
         assert eye.GetTypeName() == "Xform" and Usd.ModelAPI(eye).GetKind() == "subcomponent"
         assert {c.GetName() for c in eye.GetChildren()} >= {"Outer", "Inner"}
         crv = UsdGeom.BasisCurves(stage.GetPrimAtPath(f"/tiny/Landmarks/eyelid_{side}"))
@@ -162,14 +162,14 @@ def test_usdz_self_contained_and_folder_movable(built, tmp_path):
     z = Sdf.ZipFile.Open(str(built["out"] / "tiny.usdz"))
     names = list(z.GetFileNames())
     assert names[0] == "tiny/tiny.usda"
-    assert {"eyeball/eyeball.usda", "tiny/textures/color.png", "tiny/textures/displacement.exr",
-            "eyeball/textures/iris_blue.png"} <= set(names)
+    assert {"tiny/eyeball/eyeball.usda", "tiny/textures/color.png", "tiny/textures/displacement.exr",
+            "tiny/eyeball/textures/iris_blue.png"} <= set(names)
     lone = tmp_path / "lone"
     lone.mkdir()
     shutil.copy(built["out"] / "tiny.usdz", lone / "x.usdz")       # nothing beside it
     assert check_package(lone / "x.usdz") == []
     moved = tmp_path / "moved"
-    shutil.copytree(built["out"].parent, moved)                    # rigged_assets/ as a whole
+    shutil.copytree(built["out"], moved / "tiny")                  # the asset folder alone
     assert validate_stage(moved / "tiny" / "tiny.usda") == []
 
 

@@ -49,13 +49,14 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from pipeline.errors import ScanError
 from pipeline.settings import SettingError, Settings, setting
 from pipeline.synthetic_head.model import T_RANGE, Y_RANGE, HeadModel, base_curve, surface_points
-from pipeline.synthetic_head.paint import paint_texture
+from pipeline.synthetic_head.paint import SKIN_TONE_BASE, paint_texture
 from pipeline.synthetic_head.truth import ground_truth
 
 __all__ = ["SyntheticHead", "SyntheticHeadSettings", "make_synthetic_head", "write_scan_folder", "grid_shape",
-           "LICENCE", "EYE_SHAPES"]
+           "identity_settings", "LICENCE", "EYE_SHAPES"]
 
 LICENCE = "CC0-1.0 (procedural, eyerig)"
 EYE_SHAPES = {"round": 0.0, "hooded": 1.0}
@@ -75,10 +76,40 @@ class SyntheticHeadSettings(Settings):
     noise_mm: float = setting(0.02, ge=0, le=1)                  # scanner noise along normals (0 = off)
     texture_size: int = setting(2048, ge=16, le=8192)            # colour texture side (px)
     eye_radius_mm: tuple[float, float] = setting((15.5, 16.8), ge=8, le=20, ordered=True)  # drawn by the seed
+    # identity: skin colour and age-like detail (pipeline/synthetic_head/paint.py, model.py)
+    skin_tone: float = setting(SKIN_TONE_BASE, ge=0, le=1)       # melanin: 0 palest .. 1 darkest
+    wrinkle_scale: float = setting(1.0, ge=0, le=3)              # depth of forehead lines, crow's feet, lid lines
+    pore_scale: float = setting(1.0, ge=0, le=3)                 # depth of the pores
 
     def validate(self) -> None:
         if isinstance(self.eye_shape, float) and not 0.0 <= self.eye_shape <= 1.0:
             raise SettingError("eye_shape", f"must be round, hooded or a number in [0, 1] (got {self.eye_shape:g})")
+
+
+def identity_settings(params: dict, name: str, source="params.yaml") -> SyntheticHeadSettings:
+    """Identity ``name``'s settings: the ``synthetic_head:`` block of the params mapping with its
+    ``identities:`` entry (the keys that differ) over it.
+
+    Raises ScanError (one line naming ``source`` and ``identities.<name>.<key>``) for a missing
+    identity, an unknown key or a bad value.
+    """
+    idents = params.get("identities") or {}
+    if not isinstance(idents, dict):
+        raise ScanError(source, "identities must be a mapping of name -> synthetic_head keys")
+    if name not in idents:
+        raise ScanError(source, f"identities has no {name!r} (known: {', '.join(map(str, idents)) or 'none'})")
+    entry = idents[name] if idents[name] is not None else {}
+    if not isinstance(entry, dict):
+        raise ScanError(source, f"identities.{name} must be a mapping of synthetic_head keys")
+    base = params.get("synthetic_head") or {}
+    if not isinstance(base, dict):
+        raise ScanError(source, "synthetic_head must be a mapping of settings")
+    known = set(SyntheticHeadSettings.keys())
+    for k in entry:              # named as the identity's key, not the block's, when unknown
+        if k not in known:
+            raise ScanError(source, f"identities.{name}.{k} is an unknown key (known: "
+                                    f"{', '.join(SyntheticHeadSettings.keys())})")
+    return SyntheticHeadSettings.from_params({**base, **entry}, source=source, block=f"identities.{name}")
 
 
 # ----------------------------------------------------------------------------- API
@@ -154,10 +185,12 @@ def make_synthetic_head(settings: SyntheticHeadSettings | None = None, *, skin_d
     ----------
     settings : SyntheticHeadSettings, optional
         The ``synthetic_head:`` block (seed, target_triangles, eye_shape, eye_spacing_mm,
-        noise_mm, texture_size, eye_radius_mm; see its fields). None: its defaults, the same as
+        noise_mm, texture_size, eye_radius_mm, skin_tone, wrinkle_scale, pore_scale; see its
+        fields), or one identity's (that block with an ``identities:`` entry over it). None: its defaults, the same as
         params.yaml's. Every value it accepts is generated: its checks are the only limits.
     skin_detail : float
-        Scale of the fine skin detail (1 = nominal, 0 = none); not a params.yaml setting.
+        Scale of all the fine skin detail, on top of ``wrinkle_scale`` and ``pore_scale``
+        (1 = nominal, 0 = none); not a params.yaml setting.
     **fields
         Settings fields that replace the ones of ``settings`` (``seed=3, texture_size=64``),
         checked by :class:`SyntheticHeadSettings` (a ``SettingError``, a ValueError, names the
@@ -173,7 +206,8 @@ def make_synthetic_head(settings: SyntheticHeadSettings | None = None, *, skin_d
     hood = EYE_SHAPES[s.eye_shape] if isinstance(s.eye_shape, str) else float(s.eye_shape)
     seed, target_triangles, eye_spacing_mm, noise_mm = s.seed, s.target_triangles, s.eye_spacing_mm, s.noise_mm
     texture_size, (lo, hi) = s.texture_size, s.eye_radius_mm
-    model = HeadModel(seed, hood, eye_spacing_mm, skin_detail, (lo, hi))
+    model = HeadModel(seed, hood, eye_spacing_mm, skin_detail, (lo, hi), wrinkle_scale=s.wrinkle_scale,
+                      pore_scale=s.pore_scale, skin_tone=s.skin_tone)
     ny, nt = grid_shape(target_triangles)
     tv = np.linspace(-T_RANGE, T_RANGE, nt)
     yv = np.linspace(Y_RANGE[0], Y_RANGE[1], ny)

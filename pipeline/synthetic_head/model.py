@@ -188,8 +188,10 @@ def _make_eye(side, rng, ipd, hood, y_eye, radius_range=(15.5, 16.8)):
 class HeadModel:
     """All seeded shape parameters; ``fields(t, y)`` evaluates the surface depths."""
 
-    def __init__(self, seed, eye_shape, eye_spacing_mm, detail, eye_radius_mm=(15.5, 16.8)):
+    def __init__(self, seed, eye_shape, eye_spacing_mm, detail, eye_radius_mm=(15.5, 16.8), *,
+                 wrinkle_scale=1.0, pore_scale=1.0, skin_tone=None):
         rng = np.random.default_rng(seed)
+        self.skin_tone = skin_tone           # None: paint's base tone
         self.seed = seed
         self.hood = float(eye_shape)
         self.ipd = float(eye_spacing_mm)
@@ -209,8 +211,10 @@ class HeadModel:
         self.noise_brow = _Noise(rng)
         self.forehead_lines = np.sort(rng.uniform(38.0, 70.0, size=4))
         self.forehead_phase = rng.uniform(0, 2 * np.pi, size=4)
-        self.pore_depth = float(rng.uniform(0.07, 0.1))
-        self.wrinkle_depth = float(rng.uniform(0.25, 0.32))
+        # the seed draws the depths; an identity's age-like scales multiply them (1.0: the draw, exactly)
+        self.pore_depth = float(rng.uniform(0.07, 0.1)) * float(pore_scale)
+        self.wrinkle_depth = float(rng.uniform(0.25, 0.32)) * float(wrinkle_scale)
+        self.pore_fine = 0.03 * float(pore_scale)
 
     # -- face (no eyes) -------------------------------------------------------
     def face_depth(self, x, y):
@@ -349,7 +353,7 @@ class HeadModel:
         """Signed skin displacement (mm): pores, forehead lines, crow's feet, lid lines."""
         pores = self.noise_pore(u / 0.55, y / 0.55)
         pores = -self.pore_depth * smoothstep(0.55, 0.85, pores) \
-            + 0.03 * (self.noise_pore(u / 2.3 + 91.0, y / 2.3) - 0.5)
+            + self.pore_fine * (self.noise_pore(u / 2.3 + 91.0, y / 2.3) - 0.5)
         fl = np.zeros_like(x)
         for yk, ph in zip(self.forehead_lines, self.forehead_phase):
             yy = yk + 2.0 * np.sin(x / 23.0 + ph) + 0.00045 * x * x

@@ -10,7 +10,8 @@ head frame, metersPerUnit 0.001, upAxis Y, +Z out of the face)::
                                   eyeball's pupil/iris shapes (0)
         EyeRegion                 Mesh: the eye-region skin (primvars:st, normals); bound to
                                   joint "head"; blend shapes lids_up, lids_down (with inbetweens)
-        Eyes/eye_left, eye_right  Xform referencing ../eyeball/eyeball.usda (typeName overridden
+        Eyes/eye_left, eye_right  Xform referencing ./eyeball/eyeball.usda, the asset folder's copy
+                                  of rigged_assets/eyeball (typeName overridden
                                   from SkelRoot to Xform, kind subcomponent, its own Skel
                                   deactivated); Outer/Inner rebound rigidly to the eye joint, their
                                   points and the Inner blend shapes overridden with the eye placed
@@ -222,7 +223,7 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     landmark_curves : dict side -> (points (12, 3) mm, list of BlendShape on points 0..11)
     eyes : dict side -> {"center": (3,), "radius": r, "forward": (3,)}; the eye is placed at
                              the fitted radius (see the module docstring)
-    eyeball_ref : str        asset path of eyeball.usda relative to this layer (``../eyeball/eyeball.usda``)
+    eyeball_ref : str        asset path of eyeball.usda relative to this layer (``./eyeball/eyeball.usda``)
     metadata : dict          stored as customData["eyerig"] on the default prim
     caruncle_faces : (k,) int, optional  faces of F given the caruncle material (none: no subset)
 
@@ -357,13 +358,35 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     return path
 
 
+#: The asset folder's copy of the eyeball asset (its eyes reference ``./eyeball/eyeball.usda``).
+EYEBALL_DIR = "eyeball"
+
+
+def copy_eyeball(src, asset_dir) -> str:
+    """Copy the eyeball asset folder ``src`` (``eyeball.usda`` and every file of ``textures/``:
+    the renderer also reads ``sclera_bump.png``, which no USD attribute names; not its preview)
+    into ``asset_dir/eyeball/``. Returns the reference relative to a layer in ``asset_dir``
+    (``eyeball/eyeball.usda``). Bytes and file modes as in ``src``, whatever its location."""
+    import shutil
+
+    src, dst = Path(src), Path(asset_dir) / EYEBALL_DIR
+    (dst / "textures").mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src / "eyeball.usda", dst / "eyeball.usda")
+    if (src / "textures").is_dir():
+        for f in sorted((src / "textures").iterdir()):
+            if f.is_file():
+                shutil.copyfile(f, dst / "textures" / f.name)
+    return f"{EYEBALL_DIR}/eyeball.usda"
+
+
 def package_usdz(usda, usdz, folder_name: str | None = None) -> list[str]:
     """Package ``usda`` with every dependency (textures, the referenced eyeball) into ``usdz``.
 
-    The archive mirrors ``rigged_assets/``: the root layer is ``<folder>/<scan>.usda`` (the first
-    file, so it is the package's root layer), its textures under ``<folder>/textures/``, the
-    eyeball under ``eyeball/``. Every authored relative path (``../eyeball/eyeball.usda``,
-    ``./textures/...``) therefore stays valid inside the package unchanged (UsdUtils'
+    The archive mirrors the asset folder's parent: the root layer is ``<folder>/<scan>.usda`` (the
+    first file, so it is the package's root layer), its textures under ``<folder>/textures/``, the
+    eyeball's copy under ``<folder>/eyeball/`` (a dependency in a sibling folder goes under its
+    own name; one farther out is refused). Every authored relative path
+    (``./eyeball/eyeball.usda``, ``./textures/...``) therefore stays valid inside the package unchanged (UsdUtils'
     CreateNewUsdzPackage renames dependencies outside the folder and breaks the eyeball's own
     texture paths, so it is not used).
 

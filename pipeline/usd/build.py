@@ -8,7 +8,6 @@ settings, calls them inside an atomic output folder and returns the metrics.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import sys
 import tempfile
@@ -61,7 +60,7 @@ class UsdInputs:
     color, displacement : Path
         The baked maps.
     eyeball : Path
-        ``rigged_assets/eyeball/eyeball.usda``, which the asset references.
+        ``rigged_assets/eyeball/eyeball.usda``, copied into the asset, which references the copy.
     caruncle : (c,) int64
         Faces of ``F`` that take the caruncle material (snap's corner strips; may be empty).
     """
@@ -111,16 +110,17 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
 
 
 def build(inp: UsdInputs, out_dir: Path, name: str, all_params: dict, package: bool = True) -> StageResult:
-    """Write the asset into ``out_dir`` (an empty folder beside rigged_assets/eyeball), validate
-    it and package it."""
-    from pipeline.usd.asset import DISPLACEMENT_DOC, check_package, package_usdz, write_scan_asset
+    """Write the asset into ``out_dir`` (an empty folder, anywhere), with a copy of the eyeball
+    asset in ``out_dir/eyeball/``, validate it and package it."""
+    from pipeline.usd.asset import DISPLACEMENT_DOC, check_package, copy_eyeball, package_usdz, write_scan_asset
     from pipeline.usd.validate import validate_stage
 
     (out_dir / "textures").mkdir(parents=True, exist_ok=True)
     shutil.copyfile(inp.color, out_dir / "textures" / "color.png")
     shutil.copyfile(inp.displacement, out_dir / "textures" / "displacement.exr")
-    # out_dir is a sibling of the final folder (atomic_dir), so the relative path is the same
-    ref = Path(os.path.relpath(inp.eyeball.resolve(), out_dir.resolve()))
+    # the eyeball travels inside the asset folder (a copied or moved folder keeps its eyes; the
+    # asset publishes anywhere): ~3 MB beside a ~35 MB asset
+    ref = "./" + copy_eyeball(inp.eyeball.parent, out_dir)
     meta = {
         "scan": inp.scan.name if inp.scan.name is not None else name,
         "source_sha256": inp.scan.source_sha256,
@@ -140,7 +140,7 @@ def build(inp: UsdInputs, out_dir: Path, name: str, all_params: dict, package: b
     try:
         usda = write_scan_asset(out_dir / f"{name}.usda", name=name, V=inp.V, F=inp.F, UV=inp.UV,
                                 FUV=inp.FUV, shapes=inp.shapes, landmark_curves=inp.curves,
-                                eyes=inp.eyes, eyeball_ref=ref.as_posix(), metadata=meta,
+                                eyes=inp.eyes, eyeball_ref=ref, metadata=meta,
                                 caruncle_faces=inp.caruncle)
     except ValueError as exc:
         raise ScanError(inp.eyeball, str(exc)) from None
