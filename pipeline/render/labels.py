@@ -37,13 +37,69 @@ def _angles(v) -> dict:
 TIMING_KEYS = ("render_s", "total_s", "render_cpu_s", "total_cpu_s", "passes_s")
 
 
+PINHOLE_NOTE = ("pinhole, no distortion: [u, v, 1] ~ K @ p_opencv, p_opencv = opencv.R @ p_head + opencv.t "
+                "(x right, y down, z forward) = diag(1, -1, -1) @ p_cam; K in the labels' pixels (centres at +0.5; "
+                "K_pixel_centres_at_integers for OpenCV's); the image is the sensor's pixels [x0, x0 + width) x "
+                "[y0, y0 + height), x0, y0 = sensor.crop_offset_px, so K = sensor.K with cx - x0, cy - y0")
+
+
+def camera_block(smp: sp.Sample, settings: RenderSettings) -> dict:
+    """The label's ``camera`` block: orthographic (as before the pinhole camera) or pinhole
+    (intrinsics, the sensor and crop, OpenCV extrinsics); both give ``projection`` (3, 4), camera
+    mm -> homogeneous px, and ``head_to_pixel``."""
+    c = smp.camera
+    W2C = np.asarray(c["world_to_camera"], float)
+    spherical = {"eye": smp.side, "polar_deg": c["polar_deg"], "azimuth_deg": c["azimuth_deg"],
+                 "distance_mm": c["distance_mm"], "polar_axis": "the eye's rest forward (0 = frontal view)"}
+    if c.get("type") != "pinhole":
+        P = cam.projection_matrix(c["ortho_scale_mm"], settings.width, settings.height)
+        ow, oh = cam.ortho_size(c["ortho_scale_mm"], settings.width, settings.height)
+        return {
+            "type": "orthographic",
+            "ortho_scale_mm": c["ortho_scale_mm"], "image_width_mm": ow, "image_height_mm": oh,
+            "mm_per_px": c["mm_per_px"],
+            "world_to_camera": W2C.tolist(),
+            "projection": P.tolist(),
+            "head_to_pixel": (P @ W2C).tolist(),
+            "position_head_mm": list(map(float, c["position_mm"])),
+            "spherical": spherical,
+            "framing_shift_mm": c["jitter_mm"],
+        }
+    K, Ks = np.asarray(c["K"], float), np.asarray(c["K_sensor"], float)
+    P = cam.pinhole_projection_matrix(K)
+    Rcv, tcv = cam.opencv_extrinsics(W2C)
+    f, (w, h) = float(K[0, 0]), (settings.width, settings.height)
+    sw, sh = c["sensor_px"]
+    return {
+        "type": "pinhole",
+        "intrinsics": {"K": K.tolist(), "K_pixel_centres_at_integers": cam.opencv_pixel_K(K).tolist(),
+                       "width": w, "height": h, "focal_px": f,
+                       "principal_point_px": [float(K[0, 2]), float(K[1, 2])],
+                       "fov_deg": [math.degrees(2 * math.atan(w / (2 * f))), math.degrees(2 * math.atan(h / (2 * f)))],
+                       "distortion": [0.0] * 5, "distortion_model": "none (OpenCV k1, k2, p1, p2, k3 = 0)"},
+        "sensor": {"K": Ks.tolist(), "K_pixel_centres_at_integers": cam.opencv_pixel_K(Ks).tolist(),
+                   "width": sw, "height": sh, "crop_offset_px": list(c["crop_offset_px"]),
+                   "fov_deg": [math.degrees(2 * math.atan(sw / (2 * f))), math.degrees(2 * math.atan(sh / (2 * f)))]},
+        "opencv": {"R": Rcv.tolist(), "t": tcv.tolist(),
+                   "world_to_camera": np.vstack([np.c_[Rcv, tcv], [0.0, 0.0, 0.0, 1.0]]).tolist()},
+        "model": PINHOLE_NOTE,
+        "mm_per_px": c["mm_per_px"],
+        "mm_per_px_at": "the median depth of the 28 landmarks",
+        "world_to_camera": W2C.tolist(),
+        "projection": P.tolist(),
+        "head_to_pixel": (P @ W2C).tolist(),
+        "position_head_mm": list(map(float, c["position_mm"])),
+        "aim": {"rule": c["aim"], "point_head_mm": list(map(float, c["aim_point_mm"]))},
+        "spherical": spherical,
+        "framing_shift_mm": c["jitter_mm"],
+    }
+
+
 def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict | None = None) -> dict:
     """The label dict of one image (``reply`` = the worker's reply, adds the render facts)."""
     spec = smp.spec
     W2C = np.asarray(smp.camera["world_to_camera"], float)
     R = W2C[:3, :3]
-    P = cam.projection_matrix(smp.camera["ortho_scale_mm"], settings.width, settings.height)
-    ow, oh = cam.ortho_size(smp.camera["ortho_scale_mm"], settings.width, settings.height)
     view = -R[2]                               # camera viewing direction in the head frame
     g = smp.gaze[smp.side]
     g_cam = R @ g["vector_head"]
@@ -62,20 +118,7 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
         "seed": {"seed": settings.seed, "index": smp.index, "attempts": smp.attempts,
                  "rng": "numpy.random.default_rng([seed, index, attempt]), attempt = attempts - 1"},
         "preset": settings.preset,
-        "camera": {
-            "type": "orthographic",
-            "ortho_scale_mm": smp.camera["ortho_scale_mm"], "image_width_mm": ow, "image_height_mm": oh,
-            "mm_per_px": smp.camera["mm_per_px"],
-            "world_to_camera": W2C.tolist(),
-            "projection": P.tolist(),
-            "head_to_pixel": (P @ W2C).tolist(),
-            "position_head_mm": list(map(float, smp.camera["position_mm"])),
-            "spherical": {"eye": smp.side, "polar_deg": smp.camera["polar_deg"],
-                          "azimuth_deg": smp.camera["azimuth_deg"],
-                          "distance_mm": smp.camera["distance_mm"],
-                          "polar_axis": "the eye's rest forward (0 = frontal view)"},
-            "framing_shift_mm": smp.camera["jitter_mm"],
-        },
+        "camera": camera_block(smp, settings),
         "head_pose": {"rotation_head_to_camera": R.tolist(),
                       "camera_direction_head": list(map(float, -view)),
                       **{f"camera_{k}": v for k, v in _angles(-view).items()},
@@ -129,10 +172,12 @@ def apparent_job(smp: sp.Sample, eye, settings: RenderSettings) -> dict:
     from pipeline.render.camera import quat_to_matrix
 
     R = quat_to_matrix(smp.spec.eye_rotation[smp.side])
+    lens = ({"type": "pinhole", "K": np.asarray(smp.camera["K"]).tolist()} if smp.camera.get("type") == "pinhole"
+            else {"ortho_scale_mm": smp.camera["ortho_scale_mm"]})
     return {"points_head": smp.landmarks_head[12:28].tolist(),
             "world_to_camera": np.asarray(smp.camera["world_to_camera"]).tolist(),
             "model_to_head": eye.model_to_head(R).tolist(), "eyeball_params": dict(eye.eyeball_params),
-            "ior": eye.cornea_ior, "ortho_scale_mm": smp.camera["ortho_scale_mm"],
+            "ior": eye.cornea_ior, **lens,
             "width": settings.width, "height": settings.height, "order": APPARENT_ORDER}
 
 
