@@ -13,6 +13,16 @@ Posing (SynthesEyes section 4.1), for one sample drawn with
    roll), image right = up x d. Orthographic scale (the image width, mm) uniform in
    ``ortho_scale_mm``, or, with ``iris_distance_px`` (the ``unityeyes`` preset), the scale that
    puts the iris centre that many pixels from the eyeball centre (:func:`iris_framed_scale`).
+   **Pinhole** (``camera: pinhole``, :func:`pinhole_camera`): the camera centre is
+   ``c + distance * d`` (distance uniform in ``camera_distance_mm``), so eye contact is exactly
+   ``d``; it looks at ``c`` (``camera_aim: eye``) or at the midpoint of both eyeball centres
+   (``between_eyes``), shifted by the in-plane ``center_jitter_mm``; the same up. Focal length
+   uniform in ``focal_px``; the sensor's principal point ``principal_point_px`` (default its
+   centre) plus a uniform ``+-principal_jitter_px``; with ``sensor_px`` the image is the window
+   of the sensor image whose whole-pixel offset centres the eyeball centre (plus a uniform
+   ``+-crop_jitter_px``, clipped to the sensor), and its ``K`` is the sensor's with the
+   principal point moved by the offset. These draws follow all the others, so an orthographic
+   sample is drawn as before.
 3. **Gaze**: eye contact (``d``, towards the orthographic camera) expressed as pitch/yaw in
    the eye's rest frame (``e_x`` = towards head +X = subject's left, ``e_y`` up, ``f``), plus
    offsets drawn from the grid ``k * gaze_step_deg``, ``|k * step| <= gaze_offset_max_deg``
@@ -37,7 +47,7 @@ Posing (SynthesEyes section 4.1), for one sample drawn with
    of attempts is stored.
 
 **Skin detail** (:func:`choose_skin_detail`): with ``p = ortho_scale_mm / width`` (mm per
-pixel), ``a`` = the 99th percentile of the baked |displacement| and ``e`` = the median edge
+pixel; pinhole: the median depth of the 28 landmarks / focal length), ``a`` = the 99th percentile of the baked |displacement| and ``e`` = the median edge
 length of the low-poly skin: ``displacement`` when ``a >= p / 2`` (the relief moves
 silhouettes and occlusions by half a pixel or more: real geometry needed); else ``bump`` when
 ``e > p`` (polygons span more than a pixel, so the map's shading detail is resolved); else
