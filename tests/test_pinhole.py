@@ -85,9 +85,9 @@ def test_K_comes_from_the_settings(asset):
     s = _settings(preset="near_eye")
     for smp, lab in _labels(asset, s):
         K = np.asarray(lab["camera"]["intrinsics"]["K"])
-        assert K[0, 0] == K[1, 1] == 343.0 and K[0, 1] == 0 and list(K[2]) == [0, 0, 1]
+        assert K[0, 0] == K[1, 1] == 277.1 and K[0, 1] == 0 and list(K[2]) == [0, 0, 1]
         assert abs(K[0, 2] - 160) <= 8 and abs(K[1, 2] - 120) <= 8                # principal_jitter_px 8
-        assert 20 <= lab["camera"]["spherical"]["distance_mm"] <= 60
+        assert 33.5 <= lab["camera"]["spherical"]["distance_mm"] <= 73.5      # 20-60 mm before the cornea
         assert lab["camera"]["sensor"]["crop_offset_px"] == [0, 0]
         np.testing.assert_array_equal(lab["camera"]["sensor"]["K"], K)
         assert lab["camera"]["intrinsics"]["distortion"] == [0.0] * 5
@@ -142,14 +142,14 @@ def test_webcam_crop_K_relation(asset):
         K, Ks = np.asarray(c["intrinsics"]["K"]), np.asarray(c["sensor"]["K"])
         x0, y0 = c["sensor"]["crop_offset_px"]
         assert isinstance(x0, int) and isinstance(y0, int)
-        assert 0 <= x0 <= 1280 - 60 and 0 <= y0 <= 720 - 36
+        assert 0 <= x0 <= 1280 - 80 and 0 <= y0 <= 720 - 48
         np.testing.assert_array_equal(K, cam.crop_intrinsics(Ks, (x0, y0)))
         # in the sensor image the landmarks lie at the crop's px + the offset
         full = cam.project_pinhole(lab["landmarks"]["camera_mm"], Ks)
         np.testing.assert_allclose(full, np.asarray(lab["landmarks"]["px"]) + [x0, y0], atol=1e-9)
         # the crop is centred on the eyeball centre up to crop_jitter_px (4) and rounding
         e = cam.project_pinhole(cam.to_camera(asset.eyes[smp.side].center[None], c["world_to_camera"]), K)[0]
-        assert np.all(np.abs(e - [30, 18]) <= 4.5), e
+        assert np.all(np.abs(e - [40, 24]) <= 4.5), e
         # the camera aims between the eyes: the eye is well off the sensor's principal point
         mid = 0.5 * (asset.eyes["left"].center + asset.eyes["right"].center)
         np.testing.assert_allclose(c["aim"]["point_head_mm"], mid, atol=1.5)       # centre_jitter_mm 1
@@ -180,7 +180,7 @@ def test_spec_round_trips_and_checks_K(asset):
     ({"camera": "pinhole", "focal_px": [-5, 300]}, "render.focal_px every value must be > 0"),
     ({"camera": "pinhole"}, "render.focal_px must be set with camera: pinhole"),
     ({"preset": "near_eye", "camera_distance_mm": [10.0, 60.0]}, "render.camera_distance_mm must be >= 15 mm"),
-    ({"preset": "near_eye", "camera_distance_mm": [60.0, 20.0]}, "render.camera_distance_mm must be in increasing"),
+    ({"preset": "near_eye", "camera_distance_mm": [60.0, 30.0]}, "render.camera_distance_mm must be in increasing"),
     ({"preset": "near_eye", "principal_point_px": [330.0, 120.0]}, "render.principal_point_px [330, 120] +- "
                                                                    "principal_jitter_px 8 must lie inside"),
     ({"preset": "near_eye", "principal_point_px": [5.0, 120.0]}, "render.principal_point_px [5, 120]"),
@@ -205,7 +205,7 @@ def test_orthographic_settings_hash_as_before():
     assert not set(PINHOLE_KEYS) & set(s.hashed())
     assert s.hashed()["camera_distance_mm"] == 200.0
     p = _settings(preset="near_eye")
-    assert set(PINHOLE_KEYS) <= set(p.hashed()) and p.hashed()["camera_distance_mm"] == [20.0, 60.0]
+    assert set(PINHOLE_KEYS) <= set(p.hashed()) and p.hashed()["camera_distance_mm"] == [33.5, 73.5]
     for name in ("near_eye", "webcam"):
         assert PRESETS[name]["camera"] == "pinhole"
 
@@ -263,7 +263,7 @@ def test_apparent_job_of_a_pinhole_label(asset):
     px = apparent_landmarks(job)["apparent_px"]
     assert sum(q is not None for q in px) >= 12
     got = np.array([q for q in px if q is not None])
-    assert np.all((got > -5) & (got < [65, 41]))                   # about the eye in the 60 x 36 crop
+    assert np.all((got > -5) & (got < [85, 53]))                   # about the eye in the 80 x 48 crop
 
 
 # ------------------------------------------------------------------------------- Blender

@@ -30,20 +30,21 @@ PRESETS = {
     "unityeyes": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 30.0, "gaze_step_deg": 1.0,
                   "width": 512, "height": 384, "eyes": ("left",), "center_jitter_mm": 0.0,
                   "camera_distance_mm": 100.0, "iris_distance_px": 71.7593},
-    # a near-eye (headset) infrared camera, pinhole: NVGaze's 4:3 frame (its real camera 640 x 480,
-    # here halved), the camera 20-60 mm from the eyeball centre (issue 24: headsets), a 50 deg
-    # horizontal field of view (focal 160 / tan 25 deg = 343 px: our eye regions, ~40 mm wide
-    # about the eye, fill the frame at the middle distance), the principal point within 8 px of
-    # the centre
-    "near_eye": {"camera": "pinhole", "width": 320, "height": 240, "camera_distance_mm": (20.0, 60.0),
-                 "focal_px": 343.0, "principal_jitter_px": 8.0, "camera_polar_max_deg": 25.0,
+    # a near-eye (headset) eye camera, pinhole: NVGaze's 4:3 frame (its real camera 640 x 480,
+    # here halved), the camera 20-60 mm in front of the cornea (issue 24: headsets; the cornea's
+    # apex is 13.5 mm in front of the eyeball centre, so 33.5-73.5 mm from it: nearer, the
+    # camera would sit among the lashes), a 60 deg horizontal field of view (focal 160 / tan 30
+    # deg = 277.1 px; an eye camera's ~60 deg that images the whole eye from 15-25 mm), the
+    # principal point within 8 px of the centre
+    "near_eye": {"camera": "pinhole", "width": 320, "height": 240, "camera_distance_mm": (33.5, 73.5),
+                 "focal_px": 277.1, "principal_jitter_px": 8.0, "camera_polar_max_deg": 25.0,
                  "gaze_offset_max_deg": 30.0, "gaze_step_deg": 2.0},
     # a laptop webcam, pinhole, at 400-700 mm: MPIIGaze's 1280 x 720 laptop sensors, focal
     # 950-1150 px (horizontal field of view 68-58 deg), aimed between the eyes; the image is the
-    # 60 x 36 px crop of the sensor image around the eye (the eye patch size of MPIIGaze and
-    # GazeML: at 600 mm and f = 1000 px it spans the 36 mm of MPIIGaze's normalised patch), the eye
-    # within 4 px of the crop centre
-    "webcam": {"camera": "pinhole", "width": 60, "height": 36, "sensor_px": (1280, 720),
+    # 80 x 48 px crop of the sensor image around the eye (the 5:3 of MPIIGaze's and GazeML's
+    # 60 x 36 eye patch, a third larger: the corner-to-corner eye spans a median 0.56-0.68 of it
+    # on our scans and fits at 400 mm), the eye within 4 px of the crop centre
+    "webcam": {"camera": "pinhole", "width": 80, "height": 48, "sensor_px": (1280, 720),
                "camera_distance_mm": (400.0, 700.0), "focal_px": (950.0, 1150.0), "principal_jitter_px": 10.0,
                "camera_aim": "between_eyes", "crop_jitter_px": 4.0, "camera_polar_max_deg": 20.0,
                "gaze_offset_max_deg": 30.0, "gaze_step_deg": 2.0},
