@@ -297,11 +297,14 @@ def rendered(asset, tmp_path_factory):
         rep = bp.render(spec, timeout_s=300)
         assert rep["ok"], rep
         app = sh.apparent_landmarks(lb.apparent_job(smp, asset.eyes[smp.side], s))["apparent_px"]
-        done[name] = {"smp": smp, "reply": rep, "s": s, "apparent": app,
+        done[name] = {"smp": smp, "reply": rep, "s": s, "apparent": app, "files": spec,
                       "label": lb.make_label(smp, s, "tiny", rep),
                       "seg": read_seg(spec["seg_png"], (s.width, s.height)),
                       "depth": read_depth(spec["depth_exr"], (s.width, s.height))}
 
+    # an orthographic image first, and again after the pinhole ones: the camera goes back
+    ortho = _settings(samples=4, denoise=False, width=64, height=48)
+    render("ortho_first", ortho, {**FRONT, "ortho_scale_mm": 30.0})
     base = {"samples": 4, "denoise": False, "camera": "pinhole"}
     # near: off-axis eye (aim shifted 3 mm), the principal point far off the centre, gaze away
     render("near", _settings(**base, width=64, height=48, focal_px=64.0, camera_distance_mm=40.0,
@@ -316,6 +319,7 @@ def rendered(asset, tmp_path_factory):
     render("sensor", _settings(**sensor, width=128, height=96), FRONT)
     render("sensor_crop", _settings(**sensor, width=64, height=48, sensor_px=[128, 96]),
            {**FRONT, "crop_shift_px": np.array([9.0, -5.0])})
+    render("ortho_again", ortho, {**FRONT, "ortho_scale_mm": 30.0})
     yield done
     bp.close()
 
@@ -371,3 +375,14 @@ def test_blender_crop_is_the_sensor_image_window(rendered):
     assert same > 0.97, same
     np.testing.assert_allclose(np.asarray(crop["label"]["landmarks"]["px"]) + [x0, y0],
                                big["label"]["landmarks"]["px"], atol=1e-9)
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_blender_orthographic_after_pinhole_is_unchanged(rendered):
+    """The worker's camera goes back to orthographic: the same spec gives the same bytes."""
+    from pathlib import Path
+
+    a, b = rendered["ortho_first"]["files"], rendered["ortho_again"]["files"]
+    for k in ("png", "seg_png", "depth_exr"):
+        assert Path(a[k]).read_bytes() == Path(b[k]).read_bytes(), k
