@@ -71,6 +71,16 @@ def test_projection_known_answers():
                           cam.project(Q, 32.0, 120, 80))
 
 
+def test_pixel_rays_project_back_to_their_pixels():
+    px = np.array([[0.0, 0.0], [60.0, 40.0], [119.5, 3.25], [17.0, 79.0]])
+    for c in ({"type": "pinhole", "K": cam.intrinsics(90.0, 70.0, 30.0)}, {"ortho_scale_mm": 32.0}):
+        O, D = cam.pixel_rays(px, c, 120, 80)
+        np.testing.assert_allclose(np.linalg.norm(D, axis=1), 1.0)
+        assert np.all(D[:, 2] < 0)                                            # forward = -z
+        for t in (5.0, 250.0):
+            np.testing.assert_allclose(cam.project_camera(O + t * D, c, 120, 80), px, atol=1e-9)
+
+
 def test_crop_intrinsics_are_the_sensor_K_shifted():
     Ks = cam.intrinsics(1000.0, 640.0, 360.0)
     Kc = cam.crop_intrinsics(Ks, (600, 340))

@@ -15,7 +15,8 @@ principal point is ``(W / 2, H / 2)``; OpenCV's own pixel convention (centres at
 ``K`` with ``cx - 0.5, cy - 0.5`` (:func:`opencv_pixel_K`). A crop at integer offset ``(x0, y0)``
 of a sensor image has ``K_crop = K_sensor`` with ``cx - x0, cy - y0`` (:func:`crop_intrinsics`).
 :func:`project_camera` projects with either kind from a camera description (a label's camera
-block, a sample's camera dict or a :class:`pipeline.render.spec.CameraSpec`).
+block, a sample's camera dict or a :class:`pipeline.render.spec.CameraSpec`), and
+:func:`pixel_rays` gives the camera ray of a pixel.
 """
 
 from __future__ import annotations
@@ -231,10 +232,26 @@ def camera_projection(camera, width: int, height: int) -> np.ndarray:
 
 def project_camera(points_cam, camera, width: int, height: int) -> np.ndarray:
     """(n, 2) pixels (origin top-left, pixel centres at +0.5) of (n, 3) OpenGL camera-frame mm
-    points, with either camera kind (``camera`` as in :func:`camera_projection`)."""
+    points, with either camera kind (``camera`` as in :func:`camera_projection`). A pinhole
+    camera sees only points in front of it (``z < 0``); those behind project to mirrored pixels,
+    so mask them first."""
     if camera_kind(camera) == "ortho":
         return project(points_cam, _getter(camera)("ortho_scale_mm"), width, height)
     return project_pinhole(points_cam, camera_K(camera))
+
+
+def pixel_rays(px, camera, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Camera rays of (n, 2) pixel positions, either camera kind: (n, 3) origins and (n, 3) unit
+    directions in the OpenGL camera frame (``origin + t * direction``, t > 0, projects to
+    ``px``): orthographic rays start on the image plane z = 0 and run along -z, pinhole rays
+    start at the camera centre."""
+    px = np.atleast_2d(np.asarray(px, float))
+    if camera_kind(camera) == "ortho":
+        ow, oh = ortho_size(_getter(camera)("ortho_scale_mm"), width, height)
+        O = np.c_[(px[:, 0] / width - 0.5) * ow, (0.5 - px[:, 1] / height) * oh, np.zeros(len(px))]
+        return O, np.broadcast_to([0.0, 0.0, -1.0], O.shape).copy()
+    d = np.c_[px, np.ones(len(px))] @ np.linalg.inv(camera_K(camera)).T @ GL_TO_CV
+    return np.zeros((len(px), 3)), d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def point_in_polygon(pt, poly) -> bool:
