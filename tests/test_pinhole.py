@@ -9,6 +9,7 @@ eyeballs poking through it). Blender renders a few 64 x 48 images at 4 samples.
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -164,6 +165,26 @@ def test_webcam_crop_K_relation(asset):
         mid = 0.5 * (asset.eyes["left"].center + asset.eyes["right"].center)
         np.testing.assert_allclose(c["aim"]["point_head_mm"], mid, atol=1.5)       # centre_jitter_mm 1
         assert np.linalg.norm(e + [x0, y0] - Ks[:2, 2]) > 20
+
+
+@pytest.mark.parametrize("preset", ["near_eye", "webcam"])
+def test_eye_contact_looks_at_the_camera_centre(asset, preset):
+    """Gaze offsets 0: the imaged eye looks at the pinhole camera's centre, off the optical axis
+    or not (the webcam aims between the eyes: its eye-contact gaze is not (0, 0) in camera angles)."""
+    s = _settings(preset=preset)
+    for i in range(4):
+        smp = sp.make_sample(asset, s, i, "/tmp/000000.png", {"gaze_offset_deg": [0.0, 0.0]})
+        lab = lb.make_label(smp, s, "tiny")
+        if lab["gaze"]["clipped"]:
+            continue
+        e = cam.to_camera(asset.eyes[smp.side].center[None], lab["camera"]["world_to_camera"])[0]
+        np.testing.assert_allclose(lab["gaze"]["vector_camera"], -e / np.linalg.norm(e), atol=1e-9)
+        off_axis = math.degrees(math.acos(-e[2] / np.linalg.norm(e)))
+        assert abs(math.hypot(lab["gaze"]["camera"]["pitch_deg"], lab["gaze"]["camera"]["yaw_deg"])
+                   - off_axis) < 0.05
+        if preset == "webcam":
+            assert off_axis > 2.0                                     # 31.5 mm off the axis at <= 700 mm
+        assert "optical axis" in lab["frames"]
 
 
 def test_spec_round_trips_and_checks_K(asset):

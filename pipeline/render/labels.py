@@ -25,6 +25,13 @@ LANDMARK_ORDER = ("28 landmarks of the imaged eye: 0-11 eyelid (" + EYELID_ORDER
                   "boundary, 20-27 pupil boundary (eyeball asset order: azimuth 45 deg * k from the "
                   "eye's +X, counter-clockwise seen from the front)")
 FRAMES = __doc__.split("\n\n")[1].replace("\n", " ")
+#: A pinhole camera's frames: the gaze angles' zero is the optical axis, which passes through
+#: the eye only when the camera aims at it (not a webcam aimed between the eyes).
+FRAMES_PINHOLE = FRAMES.replace(
+    "a gaze straight at the camera is (0, 0)).",
+    "a gaze along the optical axis toward the camera is (0, 0); a gaze at a pinhole camera's centre is (0, 0) "
+    "only for an eye on its optical axis). Pinhole camera: ``[u, v, 1] ~ camera.intrinsics.K @ diag(1, -1, -1) "
+    "@ p_cam``.")
 
 
 def _angles(v) -> dict:
@@ -114,7 +121,7 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
         "scan": scan,
         "image": {"file": sp.png_name(smp.index), "width": settings.width, "height": settings.height,
                   "pixels": "origin top-left, pixel centres at +0.5"},
-        "frames": FRAMES,
+        "frames": FRAMES_PINHOLE if smp.camera.get("type") == "pinhole" else FRAMES,
         "seed": {"seed": settings.seed, "index": smp.index, "attempts": smp.attempts,
                  "rng": "numpy.random.default_rng([seed, index, attempt]), attempt = attempts - 1"},
         "preset": settings.preset,
