@@ -251,7 +251,7 @@ def test_settings_presets_and_validation():
     assert RenderSettings.from_dict({"preset": "targeted"}).camera_polar_max_deg == 5.0
     assert RenderSettings.from_dict({"preset": "targeted", "gaze_step_deg": 2}).gaze_step_deg == 2
     np.testing.assert_array_equal(sp.offset_grid(45, 10), [-40, -30, -20, -10, 0, 10, 20, 30, 40])
-    for bad, message in (({"preset": "nope"}, r"render\.preset must be one of generic, targeted"),
+    for bad, message in (({"preset": "nope"}, r"render\.preset must be one of generic, near_eye, targeted"),
                          ({"width": 40, "height": 80}, r"render\.width must be >= height"),
                          ({"eyes": ["middle"]}, r"render\.eyes\[0\] must be one of 'left', 'right'"),
                          ({"samples": 0}, r"render\.samples must be >= 1")):

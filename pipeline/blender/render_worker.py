@@ -27,12 +27,13 @@ Scene (SynthesEyes paper, section 4):
   scale and the Y-up -> Z-up rotation into the armature's world matrix ``H`` (head mm ->
   Blender world m: head +X -> +X, head +Z -> -Y, head +Y -> +Z); every head-frame quantity
   of the spec goes through ``H`` and every measurement comes back through ``H^-1``.
-* Camera: orthographic; ``world_to_camera`` (head mm -> camera mm, OpenGL axes, the camera
-  looks down -Z) is inverted and mapped through ``H``; ``ortho_scale`` = ``ortho_scale_mm``
-  / 1000 (horizontal extent, sensor fit AUTO with W >= H). The camera is pulled back
+* Camera: ``world_to_camera`` (head mm -> camera mm, OpenGL axes, the camera looks down -Z)
+  is inverted and mapped through ``H``. Orthographic: ``ortho_scale`` = ``ortho_scale_mm``
+  / 1000 (horizontal extent, sensor fit AUTO with W >= H); the camera is pulled back
   along its own +Z by :data:`CAMERA_PULLBACK_M`: an orthographic image does not depend on
   the distance along the view axis, and this keeps clipping away from the face whatever
-  origin the spec gives.
+  origin the spec gives. Pinhole (spec ``K``): a perspective camera at the spec's camera
+  centre, sensor fit HORIZONTAL, lens and shifts from ``K`` (:func:`pinhole_lens`).
 * Eyes: each eye bone gets the head-frame quaternion ``eye_rotation[side]`` conjugated into
   the bone's rest frame (``R_b^-1 q R_b``), i.e. the eye rotates by ``q`` about its centre.
   Pupil/iris blend weights drive the Inner mesh shape keys.
@@ -107,6 +108,7 @@ from pipeline.render.spec import EYE_BLENDS, SIDES, CameraSpec, RenderSpec
 
 REPLY_PREFIX = "@@render@@ "
 CAMERA_PULLBACK_M = 0.25
+PINHOLE_SENSOR_MM = 36.0         # any width: Blender's lens is set from it (pinhole_lens)
 ADAPTIVE_THRESHOLD = 0.02
 WORLD_MAP_RESOLUTION = 256
 DENOISERS = ("worker", "cycles")  # the worker's own persistent OIDN filters (default) | Cycles' per render
@@ -156,6 +158,23 @@ def camera_to_head(world_to_camera) -> np.ndarray:
     C[:3, :3] = R.T
     C[:3, 3] = -R.T @ M[:3, 3]
     return C
+
+
+def pinhole_lens(K, width: int, height: int) -> dict:
+    """Blender perspective-camera values of pinhole intrinsics ``K`` (pixel centres at +0.5) for a
+    ``width`` x ``height`` image, with ``sensor_fit = HORIZONTAL`` and ``sensor_width =``
+    :data:`PINHOLE_SENSOR_MM`: ``lens = f * sensor_width / width`` (horizontal fit: the sensor
+    width spans the image width); Blender's shifts are in units of the fitted dimension (the
+    width), shift_x moving the view right and shift_y up: ``shift_x = (width / 2 - cx) / width``,
+    ``shift_y = (cy - height / 2) / width``.
+    """
+    K = np.asarray(K, float)
+    f, cx, cy = float(K[0, 0]), float(K[0, 2]), float(K[1, 2])
+    lens = f * PINHOLE_SENSOR_MM / width
+    if lens < 1.0:                               # Blender's smallest lens
+        raise ValueError(f"camera.K focal length {f:g} px is too short for a {width} px wide image "
+                         f"(horizontal field of view over {2 * np.degrees(np.arctan(width / (2 * f))):.0f} deg)")
+    return {"lens": lens, "shift_x": (width / 2.0 - cx) / width, "shift_y": (cy - height / 2.0) / width}
 
 
 def _eyeball_landmark_indices(asset: Path) -> dict:
@@ -447,15 +466,28 @@ class Worker:
         from mathutils import Matrix
 
         C = camera_to_head(cam.world_to_camera)
-        scale = float(cam.ortho_scale_mm)
         R = self.H_rot @ C[:3, :3]
-        loc = self.H[:3, :3] @ C[:3, 3] + self.H[:3, 3] + R[:, 2] * CAMERA_PULLBACK_M
+        pullback = CAMERA_PULLBACK_M if cam.K is None else 0.0   # a pinhole camera stays where it is
+        loc = self.H[:3, :3] @ C[:3, 3] + self.H[:3, 3] + R[:, 2] * pullback
         Mw = np.eye(4)
         Mw[:3, :3] = R
         Mw[:3, 3] = loc
         self.cam_base = Mw
         self.cam.matrix_world = Matrix((self.Rw @ Mw).tolist())
-        self.cam.data.ortho_scale = scale * self.h_scale if width >= height else scale * self.h_scale * height / width
+        data = self.cam.data
+        if cam.K is None:
+            scale = float(cam.ortho_scale_mm)
+            if data.type != "ORTHO":             # back from a pinhole image: the set-up's values
+                data.type, data.sensor_fit, data.shift_x, data.shift_y = "ORTHO", "AUTO", 0.0, 0.0
+                data.clip_start, data.clip_end = 1e-3, CAMERA_PULLBACK_M + 1.0
+            data.ortho_scale = scale * self.h_scale if width >= height else scale * self.h_scale * height / width
+        else:
+            lens = pinhole_lens(cam.K, width, height)
+            data.type, data.sensor_fit, data.sensor_width = "PERSP", "HORIZONTAL", PINHOLE_SENSOR_MM
+            data.lens, data.shift_x, data.shift_y = lens["lens"], lens["shift_x"], lens["shift_y"]
+            data.clip_start = 0.1 * self.h_scale
+            data.clip_end = float(np.linalg.norm(C[:3, 3]) + 1000.0) * self.h_scale
+        self.seg.pullback_m = pullback            # the depth map is measured from the spec's camera
         self.scene.render.resolution_x, self.scene.render.resolution_y = int(width), int(height)
 
     def _evaluated_head_mm(self, obj, dg) -> np.ndarray:

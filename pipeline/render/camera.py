@@ -1,4 +1,4 @@
-"""Camera math of a render: frames, the orthographic projection and the eye-frame angles.
+"""Camera math of a render: frames, the orthographic and pinhole projections and the eye-frame angles.
 
 Frames (labels, pipeline/render/labels.py): head frame mm; camera frame OpenGL/Blender (the
 camera looks down -Z, +Y up in the image, +X right, ``p_cam = world_to_camera @ [p_head, 1]``);
@@ -6,6 +6,17 @@ image pixels with the origin at the top-left pixel corner and pixel centres at +
 (``[u, v, 1] ~ projection @ [p_cam, 1]``). An eye frame is the rows ``e_x, e_y, forward`` of
 :func:`pipeline.io.eyes_file.eye_basis`: pitch positive = up, yaw positive = toward ``e_x``
 (head +X, the subject's left). Rotations are 3x3 matrices or quaternions ``(w, x, y, z)``.
+
+Two camera kinds (:data:`CAMERA_KINDS`): ``ortho`` (image width ``ortho_scale_mm``) and
+``pinhole``: intrinsics ``K = [[f, 0, cx], [0, f, cy], [0, 0, 1]]`` (square pixels, no skew, no
+distortion) in the same pixel convention, applied to OpenCV camera axes (x right, y down, z
+forward = :data:`GL_TO_CV` of the OpenGL axes): ``[u, v, 1] ~ K @ GL_TO_CV @ p_cam``. A centred
+principal point is ``(W / 2, H / 2)``; OpenCV's own pixel convention (centres at integers) is
+``K`` with ``cx - 0.5, cy - 0.5`` (:func:`opencv_pixel_K`). A crop at integer offset ``(x0, y0)``
+of a sensor image has ``K_crop = K_sensor`` with ``cx - x0, cy - y0`` (:func:`crop_intrinsics`).
+:func:`project_camera` projects with either kind from a camera description (a label's camera
+block, a sample's camera dict or a :class:`pipeline.render.spec.CameraSpec`), and
+:func:`pixel_rays` gives the camera ray of a pixel.
 """
 
 from __future__ import annotations
@@ -13,6 +24,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+CAMERA_KINDS = ("ortho", "pinhole")
+#: OpenGL/Blender camera axes (x right, y up, looking down -z) -> OpenCV's (x right, y down, z forward).
+GL_TO_CV = np.diag([1.0, -1.0, -1.0])
 
 
 def rotation_between(a, b) -> np.ndarray:
@@ -134,6 +149,109 @@ def project(points_cam, ortho_scale_mm: float, width: int, height: int) -> np.nd
     P = np.asarray(points_cam, float)
     H = np.concatenate([P, np.ones((len(P), 1))], 1) @ projection_matrix(ortho_scale_mm, width, height).T
     return H[:, :2] / H[:, 2:]
+
+
+def intrinsics(focal_px: float, cx: float, cy: float) -> np.ndarray:
+    """(3, 3) pinhole ``K`` (square pixels, no skew; pixel centres at +0.5, as the labels' px)."""
+    return np.array([[float(focal_px), 0.0, float(cx)], [0.0, float(focal_px), float(cy)], [0.0, 0.0, 1.0]])
+
+
+def crop_intrinsics(K_sensor, offset_px) -> np.ndarray:
+    """(3, 3) ``K`` of the crop whose top-left pixel is sensor pixel ``offset_px = (x0, y0)``:
+    the same focal length, the principal point moved by ``-(x0, y0)``."""
+    K = np.array(K_sensor, float)
+    K[0, 2] -= float(offset_px[0])
+    K[1, 2] -= float(offset_px[1])
+    return K
+
+
+def opencv_pixel_K(K) -> np.ndarray:
+    """``K`` in OpenCV's pixel convention (pixel centres at integers): ``cx - 0.5, cy - 0.5``."""
+    Kc = np.array(K, float)
+    Kc[:2, 2] -= 0.5
+    return Kc
+
+
+def pinhole_projection_matrix(K) -> np.ndarray:
+    """(3, 4) OpenGL camera mm -> homogeneous pixels: ``K @ [GL_TO_CV | 0]``."""
+    return np.asarray(K, float) @ np.hstack([GL_TO_CV, np.zeros((3, 1))])
+
+
+def opencv_extrinsics(world_to_camera) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), t (3,)) of OpenCV camera axes: ``p_cv = R @ p_head + t`` (x right, y down, z forward)."""
+    M = np.asarray(world_to_camera, float)
+    return GL_TO_CV @ M[:3, :3], GL_TO_CV @ M[:3, 3]
+
+
+def project_pinhole(points_cam, K) -> np.ndarray:
+    """(n, 2) pixels of OpenGL camera-frame points (in front of the camera: z < 0) through ``K``."""
+    P = np.asarray(points_cam, float)
+    H = np.concatenate([P, np.ones((len(P), 1))], 1) @ pinhole_projection_matrix(K).T
+    return H[:, :2] / H[:, 2:]
+
+
+def _getter(camera):
+    return (lambda k: camera.get(k)) if isinstance(camera, dict) else (lambda k: getattr(camera, k, None))
+
+
+def camera_kind(camera) -> str:
+    """``ortho`` | ``pinhole`` of a camera description (see :func:`camera_projection`)."""
+    get = _getter(camera)
+    kind = get("type") or get("kind")
+    if kind in ("orthographic", "ortho"):
+        return "ortho"
+    if kind == "pinhole" or get("K") is not None or get("intrinsics") is not None:
+        return "pinhole"
+    if get("ortho_scale_mm") is not None:
+        return "ortho"
+    raise ValueError("camera description has neither ortho_scale_mm nor K")
+
+
+def camera_K(camera) -> np.ndarray:
+    """(3, 3) ``K`` of a pinhole camera description (``K`` or ``intrinsics.K``)."""
+    get = _getter(camera)
+    K = get("K")
+    if K is None:
+        K = (get("intrinsics") or {}).get("K")
+    if K is None:
+        raise ValueError("pinhole camera description has no K")
+    return np.asarray(K, float)
+
+
+def camera_projection(camera, width: int, height: int) -> np.ndarray:
+    """(3, 4) OpenGL camera mm -> homogeneous pixels of either camera kind.
+
+    ``camera``: a dict or object with ``ortho_scale_mm`` (orthographic) or ``K`` /
+    ``intrinsics.K`` (pinhole; ``type`` may say which): a label's ``camera`` block, a sample's
+    camera dict, a :class:`pipeline.render.spec.CameraSpec`.
+    """
+    if camera_kind(camera) == "pinhole":
+        return pinhole_projection_matrix(camera_K(camera))
+    return projection_matrix(_getter(camera)("ortho_scale_mm"), width, height)
+
+
+def project_camera(points_cam, camera, width: int, height: int) -> np.ndarray:
+    """(n, 2) pixels (origin top-left, pixel centres at +0.5) of (n, 3) OpenGL camera-frame mm
+    points, with either camera kind (``camera`` as in :func:`camera_projection`). A pinhole
+    camera sees only points in front of it (``z < 0``); those behind project to mirrored pixels,
+    so mask them first."""
+    if camera_kind(camera) == "ortho":
+        return project(points_cam, _getter(camera)("ortho_scale_mm"), width, height)
+    return project_pinhole(points_cam, camera_K(camera))
+
+
+def pixel_rays(px, camera, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Camera rays of (n, 2) pixel positions, either camera kind: (n, 3) origins and (n, 3) unit
+    directions in the OpenGL camera frame (``origin + t * direction``, t > 0, projects to
+    ``px``): orthographic rays start on the image plane z = 0 and run along -z, pinhole rays
+    start at the camera centre."""
+    px = np.atleast_2d(np.asarray(px, float))
+    if camera_kind(camera) == "ortho":
+        ow, oh = ortho_size(_getter(camera)("ortho_scale_mm"), width, height)
+        O = np.c_[(px[:, 0] / width - 0.5) * ow, (0.5 - px[:, 1] / height) * oh, np.zeros(len(px))]
+        return O, np.broadcast_to([0.0, 0.0, -1.0], O.shape).copy()
+    d = np.c_[px, np.ones(len(px))] @ np.linalg.inv(camera_K(camera)).T @ GL_TO_CV
+    return np.zeros((len(px), 3)), d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def point_in_polygon(pt, poly) -> bool:

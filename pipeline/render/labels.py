@@ -26,6 +26,13 @@ LANDMARK_ORDER = ("28 landmarks of the imaged eye: 0-11 eyelid (" + EYELID_ORDER
                   "boundary, 20-27 pupil boundary (eyeball asset order: azimuth 45 deg * k from the "
                   "eye's +X, counter-clockwise seen from the front)")
 FRAMES = __doc__.split("\n\n")[1].replace("\n", " ")
+#: A pinhole camera's frames: the gaze angles' zero is the optical axis, which passes through
+#: the eye only when the camera aims at it (not a webcam aimed between the eyes).
+FRAMES_PINHOLE = FRAMES.replace(
+    "a gaze straight at the camera is (0, 0)).",
+    "a gaze along the optical axis toward the camera is (0, 0); a gaze at a pinhole camera's centre is (0, 0) "
+    "only for an eye on its optical axis). Pinhole camera: ``[u, v, 1] ~ camera.intrinsics.K @ diag(1, -1, -1) "
+    "@ p_cam``.")
 
 
 def _angles(v) -> dict:
@@ -34,8 +41,78 @@ def _angles(v) -> dict:
             "yaw_deg": math.degrees(math.atan2(v[0], v[2]))}
 
 
+def _normalization_forward(smp: sp.Sample, settings: RenderSettings) -> np.ndarray:
+    """(3,) the eye's direction from the camera in OpenCV axes, for ETH-XGaze's normalisation.
+
+    Orthographic rays are parallel: the view axis. A pinhole camera looks at the eye along the
+    ray to its centre, which ETH-XGaze and MPIIGaze take as the midpoint of the two eye corners
+    (our landmarks 0 and 6)."""
+    if settings.camera != "pinhole":
+        return np.array([0.0, 0.0, 1.0])
+    L = np.asarray(smp.landmarks_cam, float)
+    return conv.to_opencv(0.5 * (L[0] + L[6]))
+
+
 #: Worker reply fields that measure time, not the image: kept out of the labels.
 TIMING_KEYS = ("render_s", "total_s", "render_cpu_s", "total_cpu_s", "passes_s")
+
+
+PINHOLE_NOTE = ("pinhole, no distortion: [u, v, 1] ~ K @ p_opencv, p_opencv = opencv.R @ p_head + opencv.t "
+                "(x right, y down, z forward) = diag(1, -1, -1) @ p_cam; K in the labels' pixels (centres at +0.5; "
+                "K_pixel_centres_at_integers for OpenCV's); the image is the sensor's pixels [x0, x0 + width) x "
+                "[y0, y0 + height), x0, y0 = sensor.crop_offset_px, so K = sensor.K with cx - x0, cy - y0")
+
+
+def camera_block(smp: sp.Sample, settings: RenderSettings) -> dict:
+    """The label's ``camera`` block: orthographic (as before the pinhole camera) or pinhole
+    (intrinsics, the sensor and crop, OpenCV extrinsics); both give ``projection`` (3, 4), camera
+    mm -> homogeneous px, and ``head_to_pixel``."""
+    c = smp.camera
+    W2C = np.asarray(c["world_to_camera"], float)
+    spherical = {"eye": smp.side, "polar_deg": c["polar_deg"], "azimuth_deg": c["azimuth_deg"],
+                 "distance_mm": c["distance_mm"], "polar_axis": "the eye's rest forward (0 = frontal view)"}
+    if c.get("type") != "pinhole":
+        P = cam.projection_matrix(c["ortho_scale_mm"], settings.width, settings.height)
+        ow, oh = cam.ortho_size(c["ortho_scale_mm"], settings.width, settings.height)
+        return {
+            "type": "orthographic",
+            "ortho_scale_mm": c["ortho_scale_mm"], "image_width_mm": ow, "image_height_mm": oh,
+            "mm_per_px": c["mm_per_px"],
+            "world_to_camera": W2C.tolist(),
+            "projection": P.tolist(),
+            "head_to_pixel": (P @ W2C).tolist(),
+            "position_head_mm": list(map(float, c["position_mm"])),
+            "spherical": spherical,
+            "framing_shift_mm": c["jitter_mm"],
+        }
+    K, Ks = np.asarray(c["K"], float), np.asarray(c["K_sensor"], float)
+    P = cam.pinhole_projection_matrix(K)
+    Rcv, tcv = cam.opencv_extrinsics(W2C)
+    f, (w, h) = float(K[0, 0]), (settings.width, settings.height)
+    sw, sh = c["sensor_px"]
+    return {
+        "type": "pinhole",
+        "intrinsics": {"K": K.tolist(), "K_pixel_centres_at_integers": cam.opencv_pixel_K(K).tolist(),
+                       "width": w, "height": h, "focal_px": f,
+                       "principal_point_px": [float(K[0, 2]), float(K[1, 2])],
+                       "fov_deg": [math.degrees(2 * math.atan(w / (2 * f))), math.degrees(2 * math.atan(h / (2 * f)))],
+                       "distortion": [0.0] * 5, "distortion_model": "none (OpenCV k1, k2, p1, p2, k3 = 0)"},
+        "sensor": {"K": Ks.tolist(), "K_pixel_centres_at_integers": cam.opencv_pixel_K(Ks).tolist(),
+                   "width": sw, "height": sh, "crop_offset_px": list(c["crop_offset_px"]),
+                   "fov_deg": [math.degrees(2 * math.atan(sw / (2 * f))), math.degrees(2 * math.atan(sh / (2 * f)))]},
+        "opencv": {"R": Rcv.tolist(), "t": tcv.tolist(),
+                   "world_to_camera": np.vstack([np.c_[Rcv, tcv], [0.0, 0.0, 0.0, 1.0]]).tolist()},
+        "model": PINHOLE_NOTE,
+        "mm_per_px": c["mm_per_px"],
+        "mm_per_px_at": "the median depth of the 28 landmarks",
+        "world_to_camera": W2C.tolist(),
+        "projection": P.tolist(),
+        "head_to_pixel": (P @ W2C).tolist(),
+        "position_head_mm": list(map(float, c["position_mm"])),
+        "aim": {"rule": c["aim"], "point_head_mm": list(map(float, c["aim_point_mm"]))},
+        "spherical": spherical,
+        "framing_shift_mm": c["jitter_mm"],
+    }
 
 
 def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict | None = None) -> dict:
@@ -43,8 +120,6 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
     spec = smp.spec
     W2C = np.asarray(smp.camera["world_to_camera"], float)
     R = W2C[:3, :3]
-    P = cam.projection_matrix(smp.camera["ortho_scale_mm"], settings.width, settings.height)
-    ow, oh = cam.ortho_size(smp.camera["ortho_scale_mm"], settings.width, settings.height)
     view = -R[2]                               # camera viewing direction in the head frame
     g = smp.gaze[smp.side]
     g_cam = R @ g["vector_head"]
@@ -59,24 +134,11 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
         "scan": scan,
         "image": {"file": sp.png_name(smp.index), "width": settings.width, "height": settings.height,
                   "pixels": "origin top-left, pixel centres at +0.5"},
-        "frames": FRAMES,
+        "frames": FRAMES_PINHOLE if smp.camera.get("type") == "pinhole" else FRAMES,
         "seed": {"seed": settings.seed, "index": smp.index, "attempts": smp.attempts,
                  "rng": "numpy.random.default_rng([seed, index, attempt]), attempt = attempts - 1"},
         "preset": settings.preset,
-        "camera": {
-            "type": "orthographic",
-            "ortho_scale_mm": smp.camera["ortho_scale_mm"], "image_width_mm": ow, "image_height_mm": oh,
-            "mm_per_px": smp.camera["mm_per_px"],
-            "world_to_camera": W2C.tolist(),
-            "projection": P.tolist(),
-            "head_to_pixel": (P @ W2C).tolist(),
-            "position_head_mm": list(map(float, smp.camera["position_mm"])),
-            "spherical": {"eye": smp.side, "polar_deg": smp.camera["polar_deg"],
-                          "azimuth_deg": smp.camera["azimuth_deg"],
-                          "distance_mm": smp.camera["distance_mm"],
-                          "polar_axis": "the eye's rest forward (0 = frontal view)"},
-            "framing_shift_mm": smp.camera["jitter_mm"],
-        },
+        "camera": camera_block(smp, settings),
         "head_pose": {"rotation_head_to_camera": R.tolist(),
                       "camera_direction_head": list(map(float, -view)),
                       **{f"camera_{k}": v for k, v in _angles(-view).items()},
@@ -94,7 +156,8 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
                  "limits_deg": {"pitch": settings.max_pitch_deg, "yaw": settings.max_yaw_deg},
                  "rotation_rule": "Listing's law from the rest forward: minimal rotation forward -> gaze"},
         # the same gaze and head pose as ETH-XGaze, MPIIGaze, GazeML and UnityEyes write them
-        "conventions": conv.conventions(W2C, g_cam, mirror_unityeyes=smp.side == "right"),
+        "conventions": conv.conventions(W2C, g_cam, mirror_unityeyes=smp.side == "right",
+                                        forward_cv=_normalization_forward(smp, settings)),
         "eyes": eyes,
         "eyelids": {"pitch_deg": smp.lid_pitch_deg, "weights": spec.lid_weights,
                     "rule": "pipeline.rig.lids.lid_weights(mean lid pitch of both eyes)"},
@@ -132,10 +195,12 @@ def apparent_job(smp: sp.Sample, eye, settings: RenderSettings) -> dict:
     from pipeline.render.camera import quat_to_matrix
 
     R = quat_to_matrix(smp.spec.eye_rotation[smp.side])
+    lens = ({"type": "pinhole", "K": np.asarray(smp.camera["K"]).tolist()} if smp.camera.get("type") == "pinhole"
+            else {"ortho_scale_mm": smp.camera["ortho_scale_mm"]})
     return {"points_head": smp.landmarks_head[12:28].tolist(),
             "world_to_camera": np.asarray(smp.camera["world_to_camera"]).tolist(),
             "model_to_head": eye.model_to_head(R).tolist(), "eyeball_params": dict(eye.eyeball_params),
-            "ior": eye.cornea_ior, "ortho_scale_mm": smp.camera["ortho_scale_mm"],
+            "ior": eye.cornea_ior, **lens,
             "width": settings.width, "height": settings.height, "order": APPARENT_ORDER}
 
 

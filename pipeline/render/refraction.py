@@ -1,13 +1,14 @@
 """Apparent (refracted) image positions of points seen through the cornea.
 
 The iris and pupil landmarks are points of the Inner mesh, behind the refractive cornea
-(n = 1.376). An orthographic camera sees them where the camera ray that, refracted once at
-the outer eye surface, passes through the point meets the image -- not at their straight
-projection: the cornea magnifies the iris by roughly 10-30 % depending on the view.
+(n = 1.376). The camera sees them where the camera ray that, refracted once at the outer eye
+surface, passes through the point meets the image -- not at their straight projection: the
+cornea magnifies the iris by roughly 10-30 % depending on the view.
 
-:func:`apparent_projection` finds, for each point ``P``, the camera-plane position ``(x, y)``
-of that ray by Gauss-Newton iteration (finite-difference Jacobian) starting from the straight
-projection. The outer surface is the eyeball asset's own analytic profile
+:func:`apparent_projection` finds, for each point ``P``, that ray by Gauss-Newton iteration
+(finite-difference Jacobian) starting from the straight projection: for an orthographic camera
+the camera-plane position ``(x, y)`` of the parallel ray, for a pinhole camera the point
+``(x, y, z_P)`` at ``P``'s own depth that the ray from the camera centre passes through. The outer surface is the eyeball asset's own analytic profile
 (:func:`pipeline.eyeball.geometry.outer_radial`: eyeball sphere and corneal sphere joined by
 the smooth maximum, a surface of revolution about the eye's forward axis), in the eye's model
 space (mm of the parametric eye, before the scan's scale), intersected by marching + bisection;
@@ -40,14 +41,15 @@ def _normal(S, params: EyeballParams, h: float = 1e-5):
 
 
 def _hit(O, d, params: EyeballParams, n_march: int = 48, n_bisect: int = 32):
-    """First intersection of rays ``O + tau d`` (model space, unit d) with the outer surface."""
+    """First intersection of rays ``O + tau d``, tau >= 0 (model space, unit d), with the outer surface."""
     R = params.apex + 0.5
     b = np.einsum("ij,ij->i", O, d)
     c = np.einsum("ij,ij->i", O, O) - R * R
     disc = b * b - c
     ok = disc > 0
     sq = np.sqrt(np.where(ok, disc, 0.0))
-    t0, t1 = -b - sq, -b + sq
+    # a pinhole camera's centre may lie inside the bounding sphere: never march behind it
+    t0, t1 = np.maximum(-b - sq, 0.0), -b + sq
     ts = t0[:, None] + (t1 - t0)[:, None] * np.linspace(0.0, 1.0, n_march)[None]
     F = _surface_f(O[:, None] + ts[..., None] * d[:, None], params)
     neg = F < 0
@@ -74,8 +76,14 @@ def _refract(d, n, eta):
 
 
 def apparent_projection(points_head, world_to_camera, model_to_head, params: EyeballParams,
-                        ior: float = CORNEA_IOR, tol_mm: float = 1e-6, max_iter: int = 20):
-    """Camera-frame (x, y) mm where an orthographic camera sees ``points_head`` through the cornea.
+                        ior: float = CORNEA_IOR, tol_mm: float = 1e-6, max_iter: int = 20,
+                        pinhole: bool = False):
+    """Camera-frame (x, y) mm where the camera sees ``points_head`` through the cornea.
+
+    Orthographic (default): the camera ray is the line along the view axis through camera-plane
+    point ``(x, y)``. Pinhole (``pinhole=True``): the ray from the camera centre (the origin of
+    the camera frame) through camera-frame point ``(x, y, z_P)``, ``z_P`` the point's own
+    camera-frame depth; its pixel is that point's pinhole projection (:func:`apparent_points_camera`).
 
     Parameters
     ----------
@@ -85,10 +93,11 @@ def apparent_projection(points_head, world_to_camera, model_to_head, params: Eye
                                      (uniform scale * rotation, translation)
     params : EyeballParams           the eyeball asset's geometry (model mm)
     ior : float                      cornea refractive index
+    pinhole : bool                   rays from the camera centre instead of parallel rays
 
     Returns
     -------
-    (n, 2) float64 camera-plane coordinates (NaN where not seen through the cornea).
+    (n, 2) float64 camera-frame coordinates (NaN where not seen through the cornea).
     """
     P = np.asarray(points_head, float)
     W = np.asarray(world_to_camera, float)
@@ -107,8 +116,9 @@ def apparent_projection(points_head, world_to_camera, model_to_head, params: Eye
     eta = 1.0 / float(ior)
     # far start: 4 eye sizes before the point along the ray (orthographic: depth is free)
     back = 4.0 * (params.apex + 1.0)
+    cam = P @ Rc.T + W[:3, 3]
 
-    def residual(xy, P_m):
+    def parallel_rays(xy, P_m):
         O_h = cam_pos + xy[:, :1] * xc + xy[:, 1:] * yc
         O_m = O_h @ Ainv[:3, :3].T + Ainv[:3, 3]
         O_m = O_m + ((P_m - O_m) @ d_m - back)[:, None] * d_m     # slide the origin near the eye
@@ -119,7 +129,21 @@ def apparent_projection(points_head, world_to_camera, model_to_head, params: Eye
         r = w - np.einsum("ij,ij->i", w, t)[:, None] * t
         return np.stack([r @ ex, r @ ey], 1), ok & ok2
 
-    cam = P @ Rc.T + W[:3, 3]
+    z3 = np.tile(cam[:, 2], 3)
+    O_pin = Ainv[:3, :3] @ cam_pos + Ainv[:3, 3]
+
+    def central_rays(xy, P_m):
+        Q = cam_pos + xy[:, :1] * xc + xy[:, 1:] * yc + z3[:len(xy), None] * zc
+        d = (Q - cam_pos) @ Ainv[:3, :3].T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        S, ok = _hit(np.broadcast_to(O_pin, d.shape).copy(), d, params)
+        t, ok2 = _refract(d, _normal(S, params), eta)
+        w = P_m - S
+        r = w - np.einsum("ij,ij->i", w, t)[:, None] * t
+        return np.stack([r @ ex, r @ ey], 1), ok & ok2
+
+    residual = central_rays if pinhole else parallel_rays
+
     xy = cam[:, :2].copy()
     n_p = len(P)
     good = np.ones(n_p, bool)
@@ -146,3 +170,16 @@ def apparent_projection(points_head, world_to_camera, model_to_head, params: Eye
     good &= ok & np.all(np.abs(r) < 1e-4, axis=1)
     xy[~good] = np.nan
     return xy
+
+
+def apparent_points_camera(points_head, world_to_camera, model_to_head, params: EyeballParams,
+                           ior: float = CORNEA_IOR, pinhole: bool = False) -> np.ndarray:
+    """(n, 3) camera-frame mm points on the rays along which the camera sees ``points_head``
+    through the cornea (NaN rows where not seen): orthographic ``(x, y, 0)``, pinhole
+    ``(x, y, z_P)``; project them with :func:`pipeline.render.camera.project_camera`."""
+    xy = apparent_projection(points_head, world_to_camera, model_to_head, params, ior, pinhole=pinhole)
+    if not pinhole:
+        return np.c_[xy, np.zeros(len(xy))]
+    W = np.asarray(world_to_camera, float)
+    z = np.asarray(points_head, float) @ W[2, :3] + W[2, 3]
+    return np.c_[xy, z]

@@ -13,6 +13,16 @@ Posing (SynthesEyes section 4.1), for one sample drawn with
    roll), image right = up x d. Orthographic scale (the image width, mm) uniform in
    ``ortho_scale_mm``, or, with ``iris_distance_px`` (the ``unityeyes`` preset), the scale that
    puts the iris centre that many pixels from the eyeball centre (:func:`iris_framed_scale`).
+   **Pinhole** (``camera: pinhole``, :func:`pinhole_camera`): the camera centre is
+   ``c + distance * d`` (distance uniform in ``camera_distance_mm``), so eye contact is exactly
+   ``d``; it looks at ``c`` (``camera_aim: eye``) or at the midpoint of both eyeball centres
+   (``between_eyes``), shifted by the in-plane ``center_jitter_mm``; the same up. Focal length
+   uniform in ``focal_px``; the sensor's principal point ``principal_point_px`` (default its
+   centre) plus a uniform ``+-principal_jitter_px``; with ``sensor_px`` the image is the window
+   of the sensor image whose whole-pixel offset centres the eyeball centre (plus a uniform
+   ``+-crop_jitter_px``, clipped to the sensor), and its ``K`` is the sensor's with the
+   principal point moved by the offset. These draws follow all the others, so an orthographic
+   sample is drawn as before.
 3. **Gaze**: eye contact (``d``, towards the orthographic camera) expressed as pitch/yaw in
    the eye's rest frame (``e_x`` = towards head +X = subject's left, ``e_y`` up, ``f``), plus
    offsets drawn from the grid ``k * gaze_step_deg``, ``|k * step| <= gaze_offset_max_deg``
@@ -37,7 +47,7 @@ Posing (SynthesEyes section 4.1), for one sample drawn with
    of attempts is stored.
 
 **Skin detail** (:func:`choose_skin_detail`): with ``p = ortho_scale_mm / width`` (mm per
-pixel), ``a`` = the 99th percentile of the baked |displacement| and ``e`` = the median edge
+pixel; pinhole: the median depth of the 28 landmarks / focal length), ``a`` = the 99th percentile of the baked |displacement| and ``e`` = the median edge
 length of the low-poly skin: ``displacement`` when ``a >= p / 2`` (the relief moves
 silhouettes and occlusions by half a pixel or more: real geometry needed); else ``bump`` when
 ``e > p`` (polygons span more than a pixel, so the map's shading detail is resolved); else
@@ -55,8 +65,9 @@ import numpy as np
 from pipeline.eyeball.textures import IRIS_COLORS, VEINS
 from pipeline.eyeball.textures import SCLERA_TINTS as _SCLERA_TINTS
 from pipeline.render import asset as ra
-from pipeline.render.camera import (direction_from_angles, eye_angles, look_at, matrix_to_quat, ortho_size, point_in_polygon,
-                                     project, rotation_between, to_camera)
+from pipeline.render.camera import (crop_intrinsics, direction_from_angles, eye_angles, intrinsics, look_at, matrix_to_quat,
+                                     ortho_size, point_in_polygon, project_camera, project_pinhole, rotation_between,
+                                     to_camera)
 from pipeline.render.settings import RenderSettings
 from pipeline.render.spec import CameraSpec, EyeConfiguration, Lighting, Quality, RenderSpec
 from pipeline.rig import landmarks as lmk
@@ -91,7 +102,7 @@ class Sample:
     attempts: int
     spec: RenderSpec
     side: str
-    camera: dict            # world_to_camera (4,4), ortho_scale_mm, position_mm, polar/azimuth
+    camera: dict            # world_to_camera (4,4), ortho_scale_mm | K (pinhole_camera), position_mm, polar/azimuth
     gaze: dict              # per side: vector, pitch/yaw in eye frame, clipped flag, offsets
     lid_pitch_deg: float
     landmarks_head: np.ndarray   # (28, 3)
@@ -125,8 +136,41 @@ def _draw(asset: ra.RenderAsset, s: RenderSettings, rng, overrides: dict | None 
         "strength": float(rng.uniform(*s.strength)),
         "cycles_seed": int(rng.integers(0, 2**31 - 1)),
     }
+    if s.camera == "pinhole":          # drawn after the orthographic draws, which stay as they were
+        d["distance_mm"] = float(rng.uniform(*_range(s.camera_distance_mm)))
+        d["focal_px"] = float(rng.uniform(*_range(s.focal_px)))
+        d["principal_shift_px"] = rng.uniform(-1.0, 1.0, size=2) * s.principal_jitter_px
+        d["crop_shift_px"] = rng.uniform(-1.0, 1.0, size=2) * s.crop_jitter_px
     d.update(o)
     return d
+
+
+def _range(v) -> tuple[float, float]:
+    """``(low, high)`` of a setting that is one value or a [low, high] range."""
+    return (float(v[0]), float(v[1])) if isinstance(v, tuple) else (float(v), float(v))
+
+
+def pinhole_camera(asset: ra.RenderAsset, s: RenderSettings, side: str, view, d: dict) -> dict:
+    """The pinhole camera of one attempt (rule in the module doc): world_to_camera, the image's
+    ``K``, the sensor's ``K_sensor`` and the crop offset, from the draws ``d``."""
+    eye = asset.eyes[side]
+    pos = eye.center + d["distance_mm"] * np.asarray(view, float)
+    aim = eye.center if s.camera_aim == "eye" else 0.5 * (asset.eyes["left"].center + asset.eyes["right"].center)
+    W2C0 = look_at(pos, aim, eye.basis[1])
+    shift = W2C0[0, :3] * d["jitter"][0] + W2C0[1, :3] * d["jitter"][1]
+    W2C = look_at(pos, aim + shift, eye.basis[1])
+    sw, sh = s.sensor_px or (s.width, s.height)
+    cx, cy = s.principal_point_px or (sw / 2.0, sh / 2.0)
+    K_sensor = intrinsics(d["focal_px"], cx + d["principal_shift_px"][0], cy + d["principal_shift_px"][1])
+    offset = (0, 0)
+    if s.sensor_px is not None:        # the crop around the eye: whole pixels of the sensor image
+        u = project_pinhole(to_camera(eye.center[None], W2C), K_sensor)[0] + d["crop_shift_px"]
+        offset = tuple(int(min(max(math.floor(u[k] - n / 2.0 + 0.5), 0), full - n))
+                       for k, (n, full) in enumerate(((s.width, sw), (s.height, sh))))
+    return {"type": "pinhole", "world_to_camera": W2C, "K": crop_intrinsics(K_sensor, offset),
+            "K_sensor": K_sensor, "sensor_px": [int(sw), int(sh)], "crop_offset_px": [int(offset[0]), int(offset[1])],
+            "focal_px": d["focal_px"], "position_mm": pos, "aim": s.camera_aim, "aim_point_mm": aim + shift,
+            "distance_mm": d["distance_mm"]}
 
 
 def _blend(pupil: float, iris: float) -> dict:
@@ -163,12 +207,17 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
     th, ph = math.radians(d["polar_deg"]), math.radians(d["azimuth_deg"])
     view = math.cos(th) * B[2] + math.sin(th) * (math.cos(ph) * B[0] + math.sin(ph) * B[1])
     view /= np.linalg.norm(view)
-    pos0 = eye.center + s.camera_distance_mm * view
-    W2C = look_at(pos0, eye.center, B[1])
-    # in-plane shift of the framing (camera x/y axes)
-    shift = W2C[0, :3] * d["jitter"][0] + W2C[1, :3] * d["jitter"][1]
-    pos = pos0 + shift
-    W2C = look_at(pos, eye.center + shift, B[1])
+    if s.camera == "pinhole":
+        pin = pinhole_camera(asset, s, side, view, d)
+        W2C, lens = pin["world_to_camera"], {"K": pin["K"]}
+    else:
+        pos0 = eye.center + s.camera_distance_mm * view
+        W2C = look_at(pos0, eye.center, B[1])
+        # in-plane shift of the framing (camera x/y axes)
+        shift = W2C[0, :3] * d["jitter"][0] + W2C[1, :3] * d["jitter"][1]
+        pos = pos0 + shift
+        W2C = look_at(pos, eye.center + shift, B[1])
+        lens = {"ortho_scale_mm": d["ortho_scale_mm"]}
 
     # gaze: eye contact + offsets, clipped; the other eye parallel
     p0, y0 = eye_angles(view, B)
@@ -198,15 +247,19 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
 
     L_head = ra.posed_landmarks(asset, side, lw, blend, rots[side])
     L_cam = to_camera(L_head, W2C)
-    L_px = project(L_cam, d["ortho_scale_mm"], s.width, s.height)
+    L_px = project_camera(L_cam, lens, s.width, s.height)
     pc_cam = to_camera(ra.pupil_center(asset, side, blend, rots[side])[None], W2C)
-    pc_px = project(pc_cam, d["ortho_scale_mm"], s.width, s.height)[0]
-    poly_px = project(to_camera(ra.posed_lid_polygon(asset, side, lw), W2C),
-                      d["ortho_scale_mm"], s.width, s.height)
-    mm_per_px = ortho_size(d["ortho_scale_mm"], s.width, s.height)[0] / s.width
+    pc_px = project_camera(pc_cam, lens, s.width, s.height)[0]
+    poly_px = project_camera(to_camera(ra.posed_lid_polygon(asset, side, lw), W2C), lens, s.width, s.height)
+    if s.camera == "pinhole":          # the footprint of a pixel at the landmarks' median depth
+        mm_per_px = float(np.median(-L_cam[:, 2])) / d["focal_px"]
+        cam_spec = CameraSpec(W2C.tolist(), None, pin["K"].tolist())
+    else:
+        mm_per_px = ortho_size(d["ortho_scale_mm"], s.width, s.height)[0] / s.width
+        cam_spec = CameraSpec(W2C.tolist(), d["ortho_scale_mm"])
     spec = RenderSpec(
         index=int(index), png=str(png), width=int(s.width), height=int(s.height), eye=side,
-        camera=CameraSpec(W2C.tolist(), d["ortho_scale_mm"]),
+        camera=cam_spec,
         eye_rotation={sd: gaze[sd]["rotation_wxyz"] for sd in ra.SIDES},
         lid_weights={k: float(v) for k, v in lw.items()},
         eyeball=EyeConfiguration(d["iris_color"], d["sclera_tint"], d["veins"], blend),
@@ -214,10 +267,15 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
         quality=Quality(int(s.samples), bool(s.denoise), d["cycles_seed"],
                         choose_skin_detail(mm_per_px, asset.displacement_amplitude_mm, asset.skin_faces_edge_mm)),
         landmarks_head_mm=L_head.tolist())
-    camera = {"world_to_camera": W2C, "ortho_scale_mm": d["ortho_scale_mm"], "position_mm": pos,
-              "polar_deg": d["polar_deg"], "azimuth_deg": d["azimuth_deg"],
-              "distance_mm": float(s.camera_distance_mm), "jitter_mm": [float(x) for x in d["jitter"]],
-              "gaze_offset_deg": [dp, dy], "eye_contact_eye_deg": [p0, y0], "mm_per_px": mm_per_px}
+    if s.camera == "pinhole":
+        camera = {**pin, "polar_deg": d["polar_deg"], "azimuth_deg": d["azimuth_deg"],
+                  "jitter_mm": [float(x) for x in d["jitter"]], "gaze_offset_deg": [dp, dy],
+                  "eye_contact_eye_deg": [p0, y0], "mm_per_px": mm_per_px}
+    else:
+        camera = {"world_to_camera": W2C, "ortho_scale_mm": d["ortho_scale_mm"], "position_mm": pos,
+                  "polar_deg": d["polar_deg"], "azimuth_deg": d["azimuth_deg"],
+                  "distance_mm": float(s.camera_distance_mm), "jitter_mm": [float(x) for x in d["jitter"]],
+                  "gaze_offset_deg": [dp, dy], "eye_contact_eye_deg": [p0, y0], "mm_per_px": mm_per_px}
     return Sample(index=int(index), attempts=attempt + 1, spec=spec, side=side, camera=camera, gaze=gaze,
                   lid_pitch_deg=lid_pitch, landmarks_head=L_head, landmarks_cam=L_cam, landmarks_px=L_px,
                   pupil_center_px=pc_px, lid_polygon_px=poly_px)

@@ -32,10 +32,35 @@ PRESETS = {
     "unityeyes": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 30.0, "gaze_step_deg": 1.0,
                   "width": 512, "height": 384, "eyes": ("left",), "center_jitter_mm": 0.0,
                   "camera_distance_mm": 100.0, "iris_distance_px": GAZEML_EYEBALL_RADIUS_PX},
+    # a near-eye (headset) eye camera, pinhole: NVGaze's 4:3 frame (its real camera 640 x 480,
+    # here halved), the camera 20-60 mm in front of the cornea (issue 24: headsets; the cornea's
+    # apex is 13.5 mm in front of the eyeball centre, so 33.5-73.5 mm from it: nearer, the
+    # camera would sit among the lashes), a 60 deg horizontal field of view (focal 160 / tan 30
+    # deg = 277.1 px; an eye camera's ~60 deg that images the whole eye from 15-25 mm), the
+    # principal point within 8 px of the centre
+    "near_eye": {"camera": "pinhole", "width": 320, "height": 240, "camera_distance_mm": (33.5, 73.5),
+                 "focal_px": 277.1, "principal_jitter_px": 8.0, "camera_polar_max_deg": 25.0,
+                 "gaze_offset_max_deg": 30.0, "gaze_step_deg": 2.0},
+    # a laptop webcam, pinhole, at 400-700 mm: MPIIGaze's 1280 x 720 laptop sensors, focal
+    # 950-1150 px (horizontal field of view 68-58 deg), aimed between the eyes; the image is the
+    # 80 x 48 px crop of the sensor image around the eye (the 5:3 of MPIIGaze's and GazeML's
+    # 60 x 36 eye patch, a third larger: the corner-to-corner eye spans a median 0.56-0.68 of it
+    # on our scans and fits at 400 mm), the eye within 4 px of the crop centre
+    "webcam": {"camera": "pinhole", "width": 80, "height": 48, "sensor_px": (1280, 720),
+               "camera_distance_mm": (400.0, 700.0), "focal_px": (950.0, 1150.0), "principal_jitter_px": 10.0,
+               "camera_aim": "between_eyes", "crop_jitter_px": 4.0, "camera_polar_max_deg": 20.0,
+               "gaze_offset_max_deg": 30.0, "gaze_step_deg": 2.0},
 }
 
 
 _GENERIC = PRESETS["generic"]
+#: A pinhole camera nearer than this to the eyeball centre would sit in the cornea (its apex is
+#: ~13 mm in front of the centre) or the lashes' roots.
+MIN_PINHOLE_DISTANCE_MM = 15.0
+#: Keys that only a pinhole camera reads: left out of the config hash of an orthographic render
+#: (its hash, and so its files, stay those of before the pinhole camera existed).
+PINHOLE_KEYS = ("camera", "focal_px", "principal_point_px", "principal_jitter_px", "sensor_px", "camera_aim",
+                "crop_jitter_px")
 
 
 @dataclass(frozen=True)
@@ -50,8 +75,15 @@ class RenderPreset(Settings):
     height: int = setting(80, ge=8, le=8192)
     eyes: tuple[Literal["left", "right"], ...] = setting(("left", "right"), min_len=1, max_len=2)
     center_jitter_mm: float = setting(1.0, ge=0, le=100)
-    camera_distance_mm: float = setting(200.0, gt=0, le=100_000)
+    camera_distance_mm: float | tuple[float, float] = setting(200.0, gt=0, le=100_000, ordered=True)
     iris_distance_px: float | None = setting(None, gt=0, le=100_000)
+    camera: Literal["ortho", "pinhole"] = "ortho"
+    focal_px: float | tuple[float, float] | None = setting(None, gt=0, le=1_000_000, ordered=True)
+    principal_point_px: tuple[float, float] | None = None
+    principal_jitter_px: float = setting(0.0, ge=0, le=100_000)
+    sensor_px: tuple[int, int] | None = setting(None, ge=8, le=100_000)
+    camera_aim: Literal["eye", "between_eyes"] = "eye"
+    crop_jitter_px: float = setting(0.0, ge=0, le=100_000)
 
 
 #: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
@@ -87,7 +119,9 @@ class RenderSettings(Settings):
     max_yaw_deg: float = setting(35.0, ge=0, le=90)
     ortho_scale_mm: tuple[float, float] = setting((30.0, 36.0), gt=0, le=1000, ordered=True)
     center_jitter_mm: float = setting(1.0, ge=0, le=100)
-    camera_distance_mm: float = setting(200.0, gt=0, le=100_000)
+    # along the view ray, from the eyeball centre; orthographic: framing only (one value);
+    # pinhole: a [low, high] range drawn uniformly, or one value
+    camera_distance_mm: float | tuple[float, float] = setting(200.0, gt=0, le=100_000, ordered=True)
     strength: tuple[float, float] = setting((0.6, 1.6), ge=0, le=1000, ordered=True)
     hdris: tuple[str, ...] = setting(HDRIS, min_len=1, max_len=1000)
     max_attempts: int = setting(100, ge=1, le=100_000)
@@ -95,6 +129,23 @@ class RenderSettings(Settings):
     # framing for GazeML's UnityEyes loader: the orthographic scale of each image puts the iris
     # centre this many pixels from the eyeball centre (ortho_scale_mm is then not used)
     iris_distance_px: float | None = setting(None, gt=0, le=100_000)
+    # the camera (pipeline/render/camera.py): ortho (image width ortho_scale_mm) or pinhole (the keys
+    # below; docs/render.md, Cameras)
+    camera: Literal["ortho", "pinhole"] = "ortho"
+    # pinhole: focal length of the sensor in px, a [low, high] range drawn uniformly or one value
+    focal_px: float | tuple[float, float] | None = setting(None, gt=0, le=1_000_000, ordered=True)
+    # pinhole: the sensor's principal point (px, pixel centres at +0.5; null = the sensor's centre),
+    # moved by a uniform +-principal_jitter_px in x and y
+    principal_point_px: tuple[float, float] | None = None
+    principal_jitter_px: float = setting(0.0, ge=0, le=100_000)
+    # pinhole: the full sensor (width, height px) when the image is a crop of it around the eye
+    # (webcam); null = the image is the whole sensor
+    sensor_px: tuple[int, int] | None = setting(None, ge=8, le=100_000)
+    # pinhole: where the camera looks: the imaged eye's centre, or the midpoint of both eyeball
+    # centres (a webcam facing the face); plus the center_jitter_mm shift in both cases
+    camera_aim: Literal["eye", "between_eyes"] = "eye"
+    # pinhole with sensor_px: the crop's offset moves the eye up to this many px off the crop centre
+    crop_jitter_px: float = setting(0.0, ge=0, le=100_000)
     # label files per image, one module each in pipeline/render/formats/ (eyerig: NNNNNN.json, always)
     label_formats: tuple[Literal[LABEL_FORMATS], ...] = setting((REQUIRED_FORMAT,), min_len=1,
                                                                max_len=len(LABEL_FORMATS))
@@ -136,7 +187,17 @@ class RenderSettings(Settings):
         return cls.from_params(d)
 
     def validate(self) -> None:
-        if self.width < self.height:
+        if self.camera == "pinhole":
+            self._validate_pinhole()
+        else:
+            for k in PINHOLE_KEYS[1:]:
+                if getattr(self, k) != type(self).__dataclass_fields__[k].default:
+                    raise SettingError(k, f"is a pinhole setting: it needs camera: pinhole (got {getattr(self, k)!r} "
+                                          "with camera: ortho)")
+            if isinstance(self.camera_distance_mm, tuple):
+                raise SettingError("camera_distance_mm", "must be one value with camera: ortho (the orthographic "
+                                                         "image does not depend on it; a range needs camera: pinhole)")
+        if self.camera == "ortho" and self.width < self.height:
             raise SettingError("width", f"must be >= height (orthographic scale = image width; got "
                                         f"{self.width} x {self.height})")
         if any(not h.endswith(".exr") for h in self.hdris):
@@ -153,7 +214,8 @@ class RenderSettings(Settings):
             raise SettingError("masks", f"must be true for label format {', '.join(needs_masks(self.label_formats))} "
                                         "(it reads the masks and landmark visibility)")
         # GazeML's loader hard-codes the framing (formats/unityeyes.py): anything else misplaces its iris centre
-        if "unityeyes" in self.label_formats and self.iris_distance_px != GAZEML_EYEBALL_RADIUS_PX:
+        if (self.camera == "ortho" and "unityeyes" in self.label_formats
+                and self.iris_distance_px != GAZEML_EYEBALL_RADIUS_PX):
             lo, hi = self.ortho_scale_mm
             framing = (f"iris_distance_px {self.iris_distance_px:g}" if self.iris_distance_px is not None else
                        f"ortho_scale_mm {lo:g}-{hi:g} at {self.width} x {self.height} px with a "
@@ -165,8 +227,36 @@ class RenderSettings(Settings):
                                                 f"{GAZEML_EYEBALL_RADIUS_PX}, center_jitter_mm: 0 and width x height "
                                                 f">= 512 x 384")
 
+    def _validate_pinhole(self) -> None:
+        """Cross-field checks of a pinhole camera (one line each, naming the key)."""
+        if self.focal_px is None:
+            raise SettingError("focal_px", "must be set with camera: pinhole (the sensor's focal length in px, "
+                                           "one value or a [low, high] range)")
+        dist = self.camera_distance_mm
+        if (dist[0] if isinstance(dist, tuple) else dist) < MIN_PINHOLE_DISTANCE_MM:
+            raise SettingError("camera_distance_mm", f"must be >= {MIN_PINHOLE_DISTANCE_MM:g} mm with camera: pinhole (the "
+                                                     f"cornea's apex is ~13 mm from the eyeball centre; got "
+                                                     f"{list(dist) if isinstance(dist, tuple) else dist})")
+        if self.iris_distance_px is not None:
+            raise SettingError("iris_distance_px", "needs camera: ortho (it sets the orthographic scale)")
+        if "unityeyes" in self.label_formats:
+            raise SettingError("label_formats", "unityeyes needs camera: ortho (GazeML's UnityEyes loader assumes "
+                                                "UnityEyes' orthographic framing)")
+        sw, sh = self.sensor_px or (self.width, self.height)
+        if sw < self.width or sh < self.height:
+            raise SettingError("sensor_px", f"must be at least the image size {self.width} x {self.height} "
+                                            f"(the image is a crop of the sensor; got {sw} x {sh})")
+        if self.crop_jitter_px and self.sensor_px is None:
+            raise SettingError("crop_jitter_px", "needs sensor_px (the image is a crop of a larger sensor)")
+        cx, cy = self.principal_point_px or (sw / 2.0, sh / 2.0)
+        j = self.principal_jitter_px
+        if not (0 < cx - j and cx + j < sw and 0 < cy - j and cy + j < sh):
+            raise SettingError("principal_point_px", f"[{cx:g}, {cy:g}] +- principal_jitter_px {j:g} must lie inside "
+                                                     f"the {sw} x {sh} px sensor")
+
     def hashed(self) -> dict:
-        """The settings that change images or labels (not n_images: sample i ignores it; not how to run)."""
-        skip = {"n_images", "presets", *RUN_KEYS}
+        """The settings that change images or labels (not n_images: sample i ignores it; not how to run;
+        not the pinhole keys of an orthographic render)."""
+        skip = {"n_images", "presets", *RUN_KEYS, *(PINHOLE_KEYS if self.camera == "ortho" else ())}
         d = {k: getattr(self, k) for k in self.keys() if k not in skip}
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}

@@ -181,9 +181,9 @@ def apparent_landmarks(job: dict) -> dict:
     from pipeline.render import refraction as rf
     from pipeline.render import camera as cam
 
-    xy = rf.apparent_projection(job["points_head"], job["world_to_camera"], job["model_to_head"],
-                                EyeballParams.from_dict(job["eyeball_params"]), job["ior"])
-    px = cam.project(np.c_[xy, np.zeros(len(xy))], job["ortho_scale_mm"], job["width"], job["height"])
+    pts = rf.apparent_points_camera(job["points_head"], job["world_to_camera"], job["model_to_head"],
+                                    EyeballParams.from_dict(job["eyeball_params"]), job["ior"], "K" in job)
+    px = cam.project_camera(pts, job, job["width"], job["height"])
     px = [None if not np.all(np.isfinite(p)) else [float(p[0]), float(p[1])] for p in px]
     return {"apparent_px": px, "apparent_order": job["order"]}
 
