@@ -417,3 +417,17 @@ def test_blender_orthographic_after_pinhole_is_unchanged(rendered):
     a, b = rendered["ortho_first"]["files"], rendered["ortho_again"]["files"]
     for k in ("png", "seg_png", "depth_exr"):
         assert Path(a[k]).read_bytes() == Path(b[k]).read_bytes(), k
+
+
+@pytest.mark.parametrize("preset", ["near_eye", "webcam"])
+def test_eth_normalisation_of_a_pinhole_label_looks_at_the_eye(asset, preset):
+    """ETH-XGaze's normalised camera looks at the eye centre (the eye corners' midpoint): the
+    forward row of its rotation is the unit ray to that point in OpenCV axes."""
+    s = _settings(preset=preset)
+    for smp, lab in _labels(asset, s, n=4):
+        L = np.asarray(lab["landmarks"]["camera_mm"], float)
+        mid = 0.5 * (L[0] + L[6])
+        ray = np.array([mid[0], -mid[1], -mid[2]]) / np.linalg.norm(mid)
+        Rn = np.asarray(lab["conventions"]["eth_xgaze"]["normalized"]["rotation"], float)
+        assert np.allclose(Rn[2], ray, atol=1e-9)
+        assert np.allclose(Rn @ Rn.T, np.eye(3), atol=1e-9)
