@@ -1,6 +1,6 @@
 """GazeML's UnityEyes loader on each preset's labels (no render): why only ``unityeyes`` is allowed.
 
-    .venv/bin/python -m benchmarks.gazeml_presets [--images 24] [--scans synthetic_head ict_neutral james]
+    .venv/bin/python -m benchmarks.bench_gazeml_presets [--images 24] [--scans synthetic_head ict_neutral james]
         [--root .]
 
 For each scan (``rigged_assets/<scan>``, ``build/<scan>/rig`` under ``--root``) and preset, samples
