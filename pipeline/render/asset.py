@@ -128,6 +128,7 @@ class RenderAsset:
     displacement_amplitude_mm: float = 0.0
     variants: dict = field(default_factory=dict)
     metadata: dict = field(default_factory=dict)   # customData["eyerig"]: scan, licence, source_sha256, ...
+    skin_faces: np.ndarray | None = None  # (m, 3) int64 skin triangles (polygons fanned), for pipeline/render/coverage.py
 
     def doubts(self) -> list[str]:
         """What the pipeline was not sure of when it built this asset (``eyes.<side>.doubts`` in
@@ -235,6 +236,7 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
     starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
     a = idx
     b = idx.copy()
+    tris = [idx[s + np.array([0, k, k + 1])] for s, c in zip(starts, cnt) for k in range(1, c - 1)]
     for s, c in zip(starts, cnt):          # next corner within each face (few thousand faces)
         b[s:s + c] = np.roll(idx[s:s + c], -1)
     edge_len = float(np.median(np.linalg.norm(V[a] - V[b], axis=1))) if len(a) else 0.0
@@ -305,7 +307,7 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
                        skin_faces_edge_mm=edge_len, lid_shapes=lid_shapes, rig_arrays=arrays,
                        eyes=eyes, max_pitch_deg=max_pitch,
                        displacement_amplitude_mm=_displacement_amplitude(usda), variants=vsets,
-                       metadata=_plain(meta))
+                       metadata=_plain(meta), skin_faces=np.array(tris, np.int64).reshape(-1, 3))
 
 
 # ------------------------------------------------------------------------------------ posing

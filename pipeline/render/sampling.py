@@ -43,7 +43,9 @@ Posing (SynthesEyes section 4.1), for one sample drawn with
    strength uniform in ``strength``.
 8. **Rejection**: if the projected pupil centre is outside the projected eyelid polygon (the
    posed lid loop of the imaged eye) or outside the polygon of the label's 12 eyelid
-   landmarks (:func:`pupil_in_lids`), the sample is redrawn with ``attempt + 1``; the number
+   landmarks (:func:`pupil_in_lids`), or if the camera sees past the asset (any pixel's filter
+   footprint not covered by the posed skin and the eyeballs: background,
+   :mod:`pipeline.render.coverage`), the sample is redrawn with ``attempt + 1``; the number
    of attempts is stored.
 
 **Skin detail** (:func:`choose_skin_detail`): with ``p = ortho_scale_mm / width`` (mm per
@@ -290,23 +292,37 @@ def pupil_in_lids(smp: Sample) -> bool:
 
 
 class RejectionError(ValueError):
-    """No attempt of a sample put the pupil inside the eyelid polygon."""
+    """No attempt of a sample put the pupil inside the eyelid polygon with the asset covering the frame."""
 
 
 def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overrides: dict | None = None,
                 reject: bool = True) -> Sample:
-    """Sample ``index``: the first attempt whose projected pupil centre is inside the lid polygon.
+    """Sample ``index``: the first attempt whose projected pupil centre is inside the lid polygon
+    and whose frame the asset covers (no background: :mod:`pipeline.render.coverage`).
 
     Raises
     ------
-    RejectionError after ``max_attempts`` rejected attempts.
+    RejectionError after ``max_attempts`` rejected attempts (one line naming the asset and preset).
     """
+    from pipeline.render import coverage
+
+    n_pupil = n_background = 0
     for attempt in range(int(s.max_attempts)):
         smp = pose_sample(asset, s, index, attempt, str(png), overrides)
-        if not reject or pupil_in_lids(smp):
+        if not reject:
             return smp
-    raise RejectionError(f"sample {index}: pupil outside the eyelid polygon in all "
-                         f"{s.max_attempts} attempts")
+        if not pupil_in_lids(smp):
+            n_pupil += 1
+        elif coverage.sample_uncovered(asset, smp, s.width, s.height) > 0:
+            n_background += 1
+        else:
+            return smp
+    raise RejectionError(f"{asset.name}, preset {s.preset}: sample {index}: no attempt of {s.max_attempts} "
+                         f"is usable (pupil outside the eyelid polygon in {n_pupil}, frame reaching past the "
+                         f"asset (background) in {n_background}); the asset's eye region is too small for "
+                         f"this framing" if n_background else
+                         f"{asset.name}, preset {s.preset}: sample {index}: pupil outside the eyelid polygon "
+                         f"in all {s.max_attempts} attempts")
 
 
 def png_name(index: int) -> str:
