@@ -44,7 +44,7 @@ import numpy as np
 from benchmarks.results_files import RESULTS, write_results
 
 SCANS = ("synthetic_head", "james", "ict_neutral")
-PRESETS = ("generic", "targeted", "unityeyes")
+PRESETS = ("generic", "targeted", "unityeyes", "near_eye", "webcam")
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -226,7 +226,14 @@ def report(args) -> None:
         p = RESULTS / f"{name}.json"
         return json.loads(p.read_text()) if p.is_file() else None
 
-    pred, before, after = load("background_predict"), load("background_before"), load("background_after")
+    def merged(tag):
+        # ``render --tag before`` and ``--tag before_<more>`` runs of other presets join one table
+        parts = [json.loads(p.read_text()) for p in sorted(RESULTS.glob(f"background_{tag}*.json"))]
+        if not parts:
+            return None
+        return {"n_per_case": sorted({x["n_per_case"] for x in parts}), "cases": [c for x in parts for c in x["cases"]]}
+
+    pred, before, after = load("background_predict"), merged("before"), merged("after")
     summary = {"predict": pred, "before": None, "after": None}
     lines = ["# Background (segmentation class 0) in renders", "",
              "`python -m benchmarks.bench_background predict|render|report` (module doc). Class-0 pixels per",
