@@ -67,6 +67,7 @@ import numpy as np
 from pipeline.eyeball.textures import IRIS_COLORS, VEINS
 from pipeline.eyeball.textures import SCLERA_TINTS as _SCLERA_TINTS
 from pipeline.render import asset as ra
+from pipeline.render import coverage
 from pipeline.render.camera import (crop_intrinsics, direction_from_angles, eye_angles, intrinsics, look_at, matrix_to_quat,
                                      ortho_size, point_in_polygon, project_camera, project_pinhole, rotation_between,
                                      to_camera)
@@ -304,8 +305,6 @@ def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overr
     ------
     RejectionError after ``max_attempts`` rejected attempts (one line naming the asset and preset).
     """
-    from pipeline.render import coverage
-
     n_pupil = n_background = 0
     for attempt in range(int(s.max_attempts)):
         smp = pose_sample(asset, s, index, attempt, str(png), overrides)
