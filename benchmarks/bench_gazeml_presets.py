@@ -45,7 +45,7 @@ def main(argv=None) -> int:
         rows = []
         for name, a in assets.items():
             for i in range(args.images):
-                smp = sp.make_sample(a, s, i, "/x.png")
+                smp = sp.make_sample(a, s, i, "/x.png", cover=False)   # labels only: the home scans cannot fill unityeyes
                 label = json.loads(json.dumps(lb.make_label(smp, s, name)))
                 doc = uef.unityeyes_document(label, uef.points_job(a, smp))
                 e = gz.read_entry({**doc, "head_pose": "(0.0, 180.0, 0.0)"}, s.height, s.width)

@@ -143,6 +143,8 @@ def test_a_framing_no_camera_can_fill_is_refused_in_one_line(tiny):
         sp.make_sample(tiny["asset"], s, 0, "/x.png")
     msg = str(e.value)
     assert "\n" not in msg and msg.startswith("tiny, preset generic: sample 0:") and "background" in msg
+    # label studies that render nothing may keep only the pupil rule
+    assert sp.make_sample(tiny["asset"], s, 0, "/x.png", cover=False).attempts <= 5
 
 
 def test_visible_part_of_the_tiny_asset_agrees_with_the_rasteriser(tiny):

@@ -297,9 +297,11 @@ class RejectionError(ValueError):
 
 
 def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overrides: dict | None = None,
-                reject: bool = True) -> Sample:
+                reject: bool = True, cover: bool = True) -> Sample:
     """Sample ``index``: the first attempt whose projected pupil centre is inside the lid polygon
     and whose frame the asset covers (no background: :mod:`pipeline.render.coverage`).
+    ``cover=False`` keeps only the pupil rule (label studies that render nothing); the render
+    stage always covers.
 
     Raises
     ------
@@ -312,7 +314,7 @@ def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overr
             return smp
         if not pupil_in_lids(smp):
             n_pupil += 1
-        elif coverage.sample_uncovered(asset, smp, s.width, s.height) > 0:
+        elif cover and coverage.sample_uncovered(asset, smp, s.width, s.height) > 0:
             n_background += 1
         else:
             return smp
