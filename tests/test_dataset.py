@@ -27,6 +27,7 @@ from fixtures import make_render_asset
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.render import labels as lb
 from pipeline.render import mix
+from pipeline.render.run import CARD_PLOTS
 from pipeline.render.settings import MAX_IMAGES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -214,8 +215,9 @@ def test_changed_weights_need_overwrite_and_rerender_only_the_images_whose_asset
     r = _run(_cmd(two, out, "--weights", "1", "1", n=5))                  # another plan: refused
     assert r.returncode == 2 and r.stderr.startswith(f"error: {out}: holds a dataset of another plan (n 6 -> 5; "
                                                      "weights [2.0, 1.0] -> [1.0, 1.0]): --overwrite replaces it")
-    # --overwrite: 4 files per image that goes (index 5 and the changed ones), the index, sheet and card
-    gone = 4 * (changed + 1) + 5
+    # --overwrite: 4 files per image that goes (index 5 and the changed ones), the index, sheet and
+    # card files, and the card's plots
+    gone = 4 * (changed + 1) + 5 + len(CARD_PLOTS)
     r = _run(_cmd(two, out, "--weights", "1", "1", "--overwrite", n=5))
     assert r.returncode == 0, r.stderr
     assert r.stderr == f"note: --overwrite: {gone} files of the earlier dataset in {out} go (n 6 -> 5; " \

@@ -263,7 +263,7 @@ def test_settings_presets_and_validation():
 def test_fingerprint_covers_the_referenced_eyeball_and_its_textures(tiny):
     a = tiny["asset"]
     before = a.fingerprint()
-    bump = tiny["root"] / "rigged_assets" / "eyeball" / "textures" / "sclera_bump.png"
+    bump = Path(a.usda).parent / "eyeball" / "textures" / "sclera_bump.png"    # the asset's own copy
     data = bump.read_bytes()
     try:
         bump.write_bytes(data + b"changed")
