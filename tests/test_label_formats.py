@@ -80,7 +80,7 @@ def _angle_deg(a, b) -> float:
 
 def test_unityeyes_preset_and_label_formats_settings():
     s = _settings()
-    assert (s.width, s.height, s.eyes, s.center_jitter_mm, s.camera_distance_mm) == (512, 384, ("left",), 0.0, 100.0)
+    assert (s.width, s.height, s.eyes, s.center_jitter_mm, s.camera_distance_mm) == (320, 240, ("left",), 0.0, 100.0)
     assert s.iris_distance_px == uef.GAZEML_EYEBALL_RADIUS_PX and s.label_formats == tuple(ALL)
     assert s.hashed()["label_formats"] == ALL                      # a format change re-renders
     d = RenderSettings.from_params({})
@@ -310,14 +310,21 @@ def test_why_generic_framing_is_refused(tiny):
     assert worst > 5.0 and wide >= 1
 
 
-def test_an_image_too_small_for_gazemls_crop_is_refused_when_drawn(tiny):
+def test_an_image_too_small_for_gazemls_crop_is_drawn_again_or_refused(tiny):
+    """The sampler never hands the writer a sample whose GazeML crop leaves the image (the format's
+    ``accepts`` rule: it draws again, or says in one line that no attempt served); the writer
+    itself still refuses one in one line."""
     s = _settings(width=200, height=150)
-    smp = sp.make_sample(tiny["asset"], s, 0, "/x.png")
+    smp = sp.make_sample(tiny["asset"], s, 0, "/x.png", reject=False)
+    assert not uef.accepts(tiny["asset"], smp)
     with pytest.raises(ScanError) as ei:
         lf.format_job(tiny["asset"], smp, s.label_formats)
     msg = str(ei.value)
     assert "\n" not in msg and "image 0: label format unityeyes needs GazeML's crop (1.5 eye widths" in msg
     assert "inside the 200 x 150 image; use preset unityeyes" in msg
+    with pytest.raises(sp.RejectionError) as ei:
+        sp.make_sample(tiny["asset"], s, 0, "/x.png")
+    assert "\n" not in str(ei.value) and f"a label format's own rule in {s.max_attempts})" in str(ei.value)
 
 
 @pytest.mark.parametrize("params", [
@@ -434,7 +441,7 @@ def test_stage_writes_every_format_and_gazeml_reads_it(tiny, tmp_path):
         np.testing.assert_allclose(read_pts(out / f"{i:06d}.pts") - 0.5, label["landmarks"]["px"], atol=1e-6)
         ue = read_unityeyes(out / "unityeyes" / f"{i:06d}.json")
         with Image.open(out / "unityeyes" / f"{i:06d}.jpg") as im:
-            assert im.format == "JPEG" and im.size == (512, 384)
+            assert im.format == "JPEG" and im.size == (320, 240)
             grey = np.asarray(im.convert("L"), float)
         with Image.open(out / f"{i:06d}.png") as im:
             png = np.asarray(im.convert("L"), float)
@@ -448,7 +455,7 @@ def test_stage_writes_every_format_and_gazeml_reads_it(tiny, tmp_path):
             gml = np.asarray(label["conventions"]["gazeml"]["gaze_pitchyaw_rad"]) * ([1, -1] if side == "right" else 1)
             np.testing.assert_allclose(r[3]["gaze"], gml, atol=2e-4)
             lo, hi = _crop_box(r[3])
-            assert np.all(lo >= 0) and np.all(hi <= [512, 384])
+            assert np.all(lo >= 0) and np.all(hi <= [320, 240])
         c = label["conventions"]["eth_xgaze"]["gaze_pitchyaw_rad"]
         ang = label["gaze"]["camera"]
         np.testing.assert_allclose(np.degrees(c), [ang["pitch_deg"], -ang["yaw_deg"]], atol=1e-9)

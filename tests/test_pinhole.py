@@ -96,7 +96,7 @@ def test_K_comes_from_the_settings(asset):
     s = _settings(preset="near_eye")
     for smp, lab in _labels(asset, s):
         K = np.asarray(lab["camera"]["intrinsics"]["K"])
-        assert K[0, 0] == K[1, 1] == 277.1 and K[0, 1] == 0 and list(K[2]) == [0, 0, 1]
+        assert K[0, 0] == K[1, 1] == 343.1 and K[0, 1] == 0 and list(K[2]) == [0, 0, 1]
         assert abs(K[0, 2] - 160) <= 8 and abs(K[1, 2] - 120) <= 8                # principal_jitter_px 8
         assert 33.5 <= lab["camera"]["spherical"]["distance_mm"] <= 73.5      # 20-60 mm before the cornea
         assert lab["camera"]["sensor"]["crop_offset_px"] == [0, 0]

@@ -68,6 +68,7 @@ from pipeline.eyeball.textures import IRIS_COLORS, VEINS
 from pipeline.eyeball.textures import SCLERA_TINTS as _SCLERA_TINTS
 from pipeline.render import asset as ra
 from pipeline.render import coverage
+from pipeline.render import formats
 from pipeline.render.camera import (crop_intrinsics, direction_from_angles, eye_angles, intrinsics, look_at, matrix_to_quat,
                                      ortho_size, point_in_polygon, project_camera, project_pinhole, rotation_between,
                                      to_camera)
@@ -307,7 +308,7 @@ def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overr
     ------
     RejectionError after ``max_attempts`` rejected attempts (one line naming the asset and preset).
     """
-    n_pupil = n_background = 0
+    n_pupil = n_background = n_format = 0
     for attempt in range(int(s.max_attempts)):
         smp = pose_sample(asset, s, index, attempt, str(png), overrides)
         if not reject:
@@ -316,14 +317,17 @@ def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overr
             n_pupil += 1
         elif cover and coverage.sample_uncovered(asset, smp, s.width, s.height) > 0:
             n_background += 1
+        elif cover and not formats.accepts(asset, smp, s.label_formats):
+            n_format += 1                            # e.g. GazeML's crop leaving the image (unityeyes)
         else:
             return smp
+    if not (n_background or n_format):
+        raise RejectionError(f"{asset.name}, preset {s.preset}: sample {index}: pupil outside the eyelid polygon "
+                             f"in all {s.max_attempts} attempts")
     raise RejectionError(f"{asset.name}, preset {s.preset}: sample {index}: no attempt of {s.max_attempts} "
                          f"is usable (pupil outside the eyelid polygon in {n_pupil}, frame reaching past the "
-                         f"asset (background) in {n_background}); the asset's eye region is too small for "
-                         f"this framing" if n_background else
-                         f"{asset.name}, preset {s.preset}: sample {index}: pupil outside the eyelid polygon "
-                         f"in all {s.max_attempts} attempts")
+                         f"asset (background) in {n_background}, a label format's own rule in {n_format}); "
+                         f"the asset's eye region is too small for this framing")
 
 
 def png_name(index: int) -> str:

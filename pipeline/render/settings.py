@@ -27,19 +27,22 @@ PRESETS = {
     "targeted": {"camera_polar_max_deg": 5.0, "gaze_offset_max_deg": 10.0, "gaze_step_deg": 5.0},
     # framed as UnityEyes frames its images, so that GazeML's UnityEyes loader (eyeball centre at the
     # image centre, iris centre 71.7593 px from it along the gaze) holds; see
-    # pipeline/render/formats/unityeyes.py. UnityEyes' recommended 512 x 384, its left eye, its camera
-    # 10 units (cm) from the eyeball centre looking at it (no shift), GazeML's |head pitch|, |yaw| <= 20
+    # pipeline/render/formats/unityeyes.py. The central 320 x 240 of UnityEyes' recommended 512 x 384
+    # (the same scale and centre, so GazeML reads it alike; the eye region covers this window, not
+    # the whole 512 x 384: benchmarks/results/background.md), its left eye, its camera 10 units (cm)
+    # from the eyeball centre looking at it (no shift), GazeML's |head pitch|, |yaw| <= 20
     "unityeyes": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 30.0, "gaze_step_deg": 1.0,
-                  "width": 512, "height": 384, "eyes": ("left",), "center_jitter_mm": 0.0,
+                  "width": 320, "height": 240, "eyes": ("left",), "center_jitter_mm": 0.0,
                   "camera_distance_mm": 100.0, "iris_distance_px": GAZEML_EYEBALL_RADIUS_PX},
     # a near-eye (headset) eye camera, pinhole: NVGaze's 4:3 frame (its real camera 640 x 480,
     # here halved), the camera 20-60 mm in front of the cornea (issue 24: headsets; the cornea's
     # apex is 13.5 mm in front of the eyeball centre, so 33.5-73.5 mm from it: nearer, the
-    # camera would sit among the lashes), a 60 deg horizontal field of view (focal 160 / tan 30
-    # deg = 277.1 px; an eye camera's ~60 deg that images the whole eye from 15-25 mm), the
-    # principal point within 8 px of the centre
+    # camera would sit among the lashes), a 50 deg horizontal field of view (focal 160 / tan 25
+    # deg = 343.1 px; eye cameras image the whole eye from 15-25 mm with ~60 deg, but at 60 deg
+    # the frame outgrows the eye-region asset beyond ~45 mm: benchmarks/results/background.md),
+    # the principal point within 8 px of the centre
     "near_eye": {"camera": "pinhole", "width": 320, "height": 240, "camera_distance_mm": (33.5, 73.5),
-                 "focal_px": 277.1, "principal_jitter_px": 8.0, "camera_polar_max_deg": 25.0,
+                 "focal_px": 343.1, "principal_jitter_px": 8.0, "camera_polar_max_deg": 25.0,
                  "gaze_offset_max_deg": 30.0, "gaze_step_deg": 2.0},
     # a laptop webcam, pinhole, at 400-700 mm: MPIIGaze's 1280 x 720 laptop sensors, focal
     # 950-1150 px (horizontal field of view 68-58 deg), aimed between the eyes; the image is the
@@ -225,7 +228,7 @@ class RenderSettings(Settings):
                                                 f"crop of 1.5 eye widths inside the image): preset {self.preset} "
                                                 f"frames {framing}; use preset unityeyes, or set iris_distance_px: "
                                                 f"{GAZEML_EYEBALL_RADIUS_PX}, center_jitter_mm: 0 and width x height "
-                                                f">= 512 x 384")
+                                                f">= 320 x 240")
 
     def _validate_pinhole(self) -> None:
         """Cross-field checks of a pinhole camera (one line each, naming the key)."""

@@ -66,9 +66,9 @@ class RetopoSettings(Settings):
 
     method: Literal["quadric", "isotropic"] = "quadric"
     target_polygons: int = setting(9000, ge=100, le=2_000_000)
-    margin_lateral_mm: float = setting(22.0, gt=0, le=200)   # beyond each eye centre, away from the nose (x)
-    margin_above_mm: float = setting(28.0, gt=0, le=200)     # above the eye centres (brow)
-    margin_below_mm: float = setting(24.0, gt=0, le=200)     # below the eye centres (upper cheek)
+    margin_lateral_mm: float = setting(36.0, gt=0, le=200)   # beyond each eye centre, away from the nose (x)
+    margin_above_mm: float = setting(32.0, gt=0, le=200)     # above the eye centres (brow)
+    margin_below_mm: float = setting(30.0, gt=0, le=200)     # below the eye centres (upper cheek)
     margin_back_mm: float = setting(12.0, gt=0, le=200)      # behind the eye centres (z); keeps the front surface only
     loop_points: int = setting(64, ge=8, le=4096)            # vertices per eyelid loop in the output
     predecimate_faces: int = setting(120000, ge=1000, le=20_000_000)  # isotropic route: pre-decimate the crop to this many faces

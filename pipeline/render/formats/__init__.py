@@ -7,6 +7,8 @@ A format module in this folder defines
   image (relative to the render or dataset folder);
 * ``job(asset, smp)``: what its writer needs beyond the label, computed when the sample is drawn
   (``None``: nothing);
+* optionally ``accepts(asset, smp)``: False for a drawn sample the format cannot write right
+  (the sampler draws again, as for the pupil and background rules: :func:`accepts`);
 * ``write(out_dir, index, label, job, png)``: writes image ``index``'s files and returns their
   paths.
 
@@ -167,6 +169,12 @@ def format_job(asset, smp, formats) -> dict | None:
         if j is not None:
             job[f] = j
     return job
+
+
+def accepts(asset, smp, formats) -> bool:
+    """Whether every format of ``formats`` can write the drawn sample ``smp`` right (a format
+    without ``accepts`` takes any)."""
+    return all(getattr(FORMATS[f], "accepts", None) is None or FORMATS[f].accepts(asset, smp) for f in formats)
 
 
 def write_formats(out_dir, index: int, label: dict, job: dict | None, png) -> list:

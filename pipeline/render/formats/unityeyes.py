@@ -185,10 +185,15 @@ def gazeml_crop(interior_px, caruncle_px, eye_image=GAZEML_EYE_IMAGE) -> np.ndar
     return np.array([mid[0] - w / 2, mid[1] - h / 2, mid[0] + w / 2, mid[1] + h / 2])
 
 
+def _inside(crop, width: int, height: int) -> bool:
+    x0, y0, x1, y1 = crop
+    return bool(x0 >= 0 and y0 >= 0 and x1 <= width and y1 <= height)
+
+
 def check_crop(interior_px, caruncle_px, width: int, height: int, where, index: int) -> None:
     """Refuse (one line) an image whose GazeML crop does not lie inside the ``width`` x ``height`` image."""
-    x0, y0, x1, y1 = gazeml_crop(interior_px, caruncle_px)
-    if x0 < 0 or y0 < 0 or x1 > width or y1 > height:
+    x0, y0, x1, y1 = crop = gazeml_crop(interior_px, caruncle_px)
+    if not _inside(crop, width, height):
         raise ScanError(where, f"image {index}: label format unityeyes needs GazeML's crop (1.5 eye widths, "
                                f"{x1 - x0:.0f} x {y1 - y0:.0f} px at {x0:.0f}..{x1:.0f}, {y0:.0f}..{y1:.0f}) "
                                f"inside the {width} x {height} image; use preset unityeyes or a larger width and "
@@ -216,6 +221,25 @@ def points_job(asset, smp) -> dict:
             "iris_size": float(ra.ring_radius(iris) / ra.ring_radius(iris_rest))}
 
 
+def _crop_px(asset, smp, j) -> tuple:
+    """GazeML's loader's interior margin and caruncle points of ``smp`` in the image (px)."""
+    W2C, scale = smp.camera["world_to_camera"], smp.camera["ortho_scale_mm"]
+    w, h = smp.spec.width, smp.spec.height
+
+    def px(P):
+        return cam.project(cam.to_camera(P, W2C), scale, w, h)
+
+    return px(j["interior_head_mm"]), px(j["caruncle_head_mm"]), w, h
+
+
+def accepts(asset, smp) -> bool:
+    """GazeML's crop of the drawn sample lies inside the image (else the sampler draws again)."""
+    if "K" in smp.camera:
+        return False                                 # settings refuse this; never write it
+    interior, caruncle, w, h = _crop_px(asset, smp, points_job(asset, smp))
+    return _inside(gazeml_crop(interior, caruncle), w, h)
+
+
 def job(asset, smp) -> dict:
     """What the UnityEyes writer needs beyond the label (:func:`points_job`), once GazeML's crop of
     the image is known to lie inside it.
@@ -225,14 +249,8 @@ def job(asset, smp) -> dict:
     ScanError  naming the asset and the image when the crop leaves the image (:func:`check_crop`).
     """
     j = points_job(asset, smp)
-    W2C, scale = smp.camera["world_to_camera"], smp.camera["ortho_scale_mm"]
-    w, h = smp.spec.width, smp.spec.height
-
-    def px(P):
-        return cam.project(cam.to_camera(P, W2C), scale, w, h)
-
-    check_crop(px(j["interior_head_mm"]), px(j["caruncle_head_mm"]), w, h, getattr(asset, "usda", "asset"),
-               smp.index)
+    interior, caruncle, w, h = _crop_px(asset, smp, j)
+    check_crop(interior, caruncle, w, h, getattr(asset, "usda", "asset"), smp.index)
     return j
 
 
