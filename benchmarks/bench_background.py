@@ -1,7 +1,7 @@
 """Background (segmentation class 0) in renders, before and after the coverage rejection.
 
     python -m benchmarks.bench_background predict [--n 200] [--scans synthetic_head james ict_neutral]
-        [--assets /work/fresh/rigged_assets] [--build /work/fresh/build]
+        [--assets rigged_assets] [--build build]
     python -m benchmarks.bench_background render --tag after [--n 12] [--presets generic targeted unityeyes]
     python -m benchmarks.bench_background crop --pairs NAME ASSET_DIR RIG_DIR [NAME ASSET_DIR RIG_DIR ...] [--n 30]
     python -m benchmarks.bench_background report
@@ -332,8 +332,8 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=None)
     ap.add_argument("--scans", nargs="+", default=list(SCANS))
     ap.add_argument("--presets", nargs="+", default=list(PRESETS))
-    ap.add_argument("--assets", default="/work/fresh/rigged_assets")
-    ap.add_argument("--build", default="/work/fresh/build")
+    ap.add_argument("--assets", default=str(ROOT / "rigged_assets"))
+    ap.add_argument("--build", default=str(ROOT / "build"))
     ap.add_argument("--tag", default="after")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
