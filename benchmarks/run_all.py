@@ -95,6 +95,8 @@ BENCHMARKS = (
     Benchmark("bench_label_formats", modest=("--images", "8"), needs=("synthetic_asset",)),
     Benchmark("bench_masks", args=(str(SYNTH_ASSET.parent), str(SYNTH_BUILD / "rig")),
               modest=("--n", "6"), needs=("synthetic_asset",)),
+    Benchmark("bench_background", args=("predict",), modest=("--n", "10", "--scans", "synthetic_head"),
+              needs=("synthetic_asset",)),
     Benchmark("bench_gazeml_presets", modest=("--scans", "synthetic_head"), needs=("synthetic_asset",)),
     Benchmark("bench_dataset", args=("--assets", str(SYNTH_ASSET.parent), "--out", str(ROOT / "benchmarks" / "out" / "dataset"),
                                      "--name", "dataset_synthetic_head"), modest=("--n", "20"), needs=("synthetic_asset",)),
