@@ -36,7 +36,9 @@ def _commands(clone: Path) -> list[tuple[str, list[str]]]:
     out = []
     for name, st in stages.items():
         cmd = st["do"]["cmd"].replace("${item}", SCAN).replace("${key}", SCAN) if "foreach" in st else st["cmd"]
-        cmd = re.sub(r"'([^']*)'", lambda m: shlex.quote(str(clone / m.group(1))), cmd)
+        # every quoted path made absolute; an identity's name is a name, not a path
+        cmd = re.sub(r"'([^']*)'", lambda m: m.group(0) if m.string[:m.start()].endswith("--identity ")
+                     else shlex.quote(str(clone / m.group(1))), cmd)
         argv = shlex.split(cmd)
         assert argv[:2] == ["python", "-m"], cmd
         out.append((name, [sys.executable, *argv[1:]]))
