@@ -15,6 +15,7 @@ import yaml
 from pipeline.synthetic_head import make_synthetic_head
 from pipeline.synthetic_head.paint import SKIN_RGB, SKIN_TONE_BASE, melanin_transmittance
 from stages import check_params as cp
+from pipeline.synthetic_head import identities as idlib
 from stages import identities as ids
 from stages import synthetic_head as sh_stage
 from stages._common import run_stage
@@ -54,7 +55,7 @@ def test_command_adds_n_entries_deterministically_keeping_every_line(tmp_path, c
     e = data["identities"]["ident_s3_002"]
     assert set(e) == {"seed", "eye_shape", "skin_tone", "wrinkle_scale", "pore_scale", "eye_spacing_mm",
                       "target_triangles"}
-    assert e["target_triangles"] == ids.DEFAULT_TRIANGLES and 0 <= e["skin_tone"] <= 1
+    assert e["target_triangles"] == idlib.DEFAULT_TRIANGLES and 0 <= e["skin_tone"] <= 1
     assert cp.check_params(data)["identities"]["ident_s3_002"].skin_tone == e["skin_tone"]
     # the same run again: the same bytes; a shorter run elsewhere: the first entries
     _add(p, 4, seed=3)
@@ -70,7 +71,7 @@ def test_command_adds_n_entries_deterministically_keeping_every_line(tmp_path, c
 
 
 def test_tones_spread_over_the_range_for_any_n():
-    tones = sorted(ids.draw_identity(0, i, 1000)["skin_tone"] for i in range(20))
+    tones = sorted(idlib.draw_identity(0, i, 1000)["skin_tone"] for i in range(20))
     assert np.diff([0.0, *tones, 1.0]).max() < 0.1        # 20 tones leave no gap of 0.1
 
 
