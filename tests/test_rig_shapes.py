@@ -10,8 +10,9 @@ from fixtures.rig import PITCHES_1DEG, two_eye_region
 from pipeline.errors import ScanError
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.rig import lids
-from pipeline.rig.eye_frame import EyeFrame, eye_frames
-from pipeline.rig.lid_shapes import build_lid_shapes, canthus_taper, follow_surface, mesh_edges, smootherstep_falloff
+from pipeline.rig.eye_frame import EyeFrame, eye_frames, rotate_about_axis
+from pipeline.rig.lid_shapes import (build_lid_shapes, canthus_taper, follow_surface, limit_margin_shear,
+                                     mesh_edges, smootherstep_falloff)
 from pipeline.rig.sweep import lid_opening, sweep_check
 
 
@@ -63,9 +64,11 @@ def test_mid_lid_margin_turns_by_the_stated_gain(region):
 
 def test_both_lids_share_the_canthus_gain(region):
     """Next to each canthus the upper and lower lid turn by nearly the same angle (they ramp from
-    one corner gain, the floor share of their mean), so the corner faces do not shear."""
-    V, F, eyes, rig = region
-    p = lids.LidParams()
+    one corner gain, the floor share of their mean), so the corner faces do not shear. The taper
+    exactly, with the shear limit off (it only lowers gains: test_margin_shear_is_limited)."""
+    V, F, eyes, _ = region
+    p = lids.LidParams(max_margin_shear=0.0)
+    rig = build_lid_shapes(V, F, eyes, p)
     for e in eyes:
         f, li = rig.fields[e.side], e.lateral_index
         th = f.theta_down[e.loop]
@@ -83,6 +86,47 @@ def test_both_lids_share_the_canthus_gain(region):
         c = np.where(medial, p.canthus_floor, p.lateral_canthus_floor) * mean
         np.testing.assert_allclose(th, -np.radians(p.max_pitch_deg) * (c + (gain - c) * ramp),
                                    atol=1e-12)
+
+
+def _margin_shear(V, P, e, theta):
+    """Per loop segment: how far its end moves beyond turning rigidly with its start, per mm."""
+    L, Ln = e.loop, np.roll(e.loop, -1)
+    rigid = rotate_about_axis(V[Ln] - V[L] + e.center, e.center, e.axis, theta[L]) - e.center
+    return np.linalg.norm((P[Ln] - P[L]) - rigid, axis=1) / np.linalg.norm(V[Ln] - V[L], axis=1)
+
+
+@pytest.mark.parametrize("max_shear", [0.5, 0.2])
+def test_margin_shear_is_limited(region, max_shear):
+    """Neighbouring margin points part by at most max_margin_shear per mm in the full poses, and
+    the limit only lowers the taper's gains, where they climb too fast next to the canthi."""
+    V, F, eyes, _ = region
+    free = build_lid_shapes(V, F, eyes, lids.LidParams(max_margin_shear=0.0))
+    rig = build_lid_shapes(V, F, eyes, lids.LidParams(max_margin_shear=max_shear))
+    for e in eyes:
+        f0, f = free.fields[e.side], rig.fields[e.side]
+        for name, key in (("lids_up", "theta_up"), ("lids_down", "theta_down")):
+            P0 = lids.evaluate_shapes(V, free.shapes, {name: 1.0})
+            P = lids.evaluate_shapes(V, rig.shapes, {name: 1.0})
+            th0, th = getattr(f0, key)[e.loop], getattr(f, key)[e.loop]
+            assert np.all(np.abs(th) <= np.abs(th0) + 1e-12)
+            assert _margin_shear(V, P, e, getattr(f, key)).max() <= max_shear * (1 + 1e-6)
+            if _margin_shear(V, P0, e, getattr(f0, key)).max() > max_shear:
+                assert np.any(np.abs(th) < np.abs(th0) - 1e-6)
+        if max_shear >= lids.LidParams().max_margin_shear:
+            # the default leaves the plateau between the canthus ramps as the taper made it
+            mid = (f.loop_u > 0.45) & (f.loop_u < 0.55)
+            np.testing.assert_allclose(f.theta_down[e.loop][mid], f0.theta_down[e.loop][mid], atol=1e-12)
+
+
+def test_limit_margin_shear_known_answer():
+    """A step in the gains along a straight loop becomes a ramp of the allowed slope, from the
+    low side: the largest gains under the original ones with the Lipschitz bound."""
+    P = np.stack([np.arange(10.0), np.zeros(10), np.zeros(10)], axis=1)   # 1 mm apart (closed: 9 mm back)
+    g = np.where(np.arange(10) < 5, 0.0, 1.0)
+    pmax, rho, k = 0.5, 10.0, 0.5                       # slope: k * d / (rho * pmax) = 0.1 per mm
+    out = limit_margin_shear(P, g, pmax, rho, k)
+    np.testing.assert_allclose(out, [0.0, 0.0, 0.0, 0.0, 0.0, 0.1, 0.2, 0.3, 0.4, 0.5], atol=1e-12)
+    assert np.all(limit_margin_shear(P, np.full(10, 0.3), pmax, rho, k) == 0.3)
 
 
 def test_falloff_support_and_smoothness(region):

@@ -187,6 +187,51 @@ def _keep_lids_apart(W, B, u, upper, lower, gain_up, gain_dn, pmax, frac):
     return gain_up, gain_dn
 
 
+def limit_margin_shear(P, gain, pmax: float, rho, max_shear: float) -> np.ndarray:
+    """Lower the margin gains where they change faster along the loop than ``max_shear`` allows.
+
+    Neighbouring margin points ``i``, ``j`` (distance ``d``, ``rho`` from the pitch axis) part
+    by about ``rho * pmax * |g_i - g_j|`` in a full pose, beyond turning together. Where that
+    nears ``d`` the segment between them turns over, and so does the face it shares with the
+    skin: the canthus ramps (infinite slope at the corner for ``canthus_exponent`` < 1) do this
+    on a loop sampled finer than a millimetre. The result is the largest ``g' <= g`` with
+    ``|g'_i - g'_j| <= max_shear * d / (max(rho_i, rho_j) * pmax)`` along the closed loop ``P``
+    (the lower Lipschitz envelope); gains that change slowly are kept as they are.
+
+    Parameters
+    ----------
+    P : (k, 3) float64
+        Loop points in order (closed).
+    gain : (k,) float64
+    pmax : float
+        Full pose pitch, radians.
+    rho : (k,) float64
+        Each point's distance from the pitch axis, mm.
+    max_shear : float
+        Largest displacement difference of neighbours per mm between them.
+
+    Returns
+    -------
+    (k,) float64
+    """
+    g = np.array(gain, dtype=np.float64, copy=True)
+    k = len(g)
+    if k < 2 or pmax <= 0:
+        return g
+    rho = np.broadcast_to(np.asarray(rho, dtype=np.float64), (k,))
+    lever = np.maximum(np.maximum(rho, np.roll(rho, -1)), 1e-9) * pmax
+    step = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1) * max_shear / lever  # i -> i + 1
+    # two sweeps each way round the closed loop reach every vertex from every other one
+    for _ in range(2):
+        for i in range(1, 2 * k):
+            a, b = (i - 1) % k, i % k
+            g[b] = min(g[b], g[a] + step[a])
+        for i in range(2 * k - 2, -1, -1):
+            a, b = (i + 1) % k, i % k
+            g[b] = min(g[b], g[a] + step[b])
+    return g
+
+
 def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeField:
     """Rotation angle of every vertex for the full lids_up and lids_down poses of one eye.
 
@@ -252,9 +297,15 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
 
     gain_up = tapered(params.gain_upper_up, params.gain_lower_up)
     gain_dn = tapered(params.gain_upper_down, params.gain_lower_down)
-    gain_up, gain_dn = _keep_lids_apart(V[loop] - eye.center, B, u, upper, lower, gain_up, gain_dn,
-                                        math.radians(params.max_pitch_deg),
-                                        params.min_opening_fraction)
+    pm = math.radians(params.max_pitch_deg)
+    rho = np.linalg.norm(np.cross(V[loop] - eye.center, eye.axis), axis=1)
+    # both rules only lower gains, so alternating them settles; keeping the lids apart goes last
+    for _ in range(4 if params.max_margin_shear > 0 else 1):
+        if params.max_margin_shear > 0:
+            gain_up = limit_margin_shear(V[loop], gain_up, pm, rho, params.max_margin_shear)
+            gain_dn = limit_margin_shear(V[loop], gain_dn, pm, rho, params.max_margin_shear)
+        gain_up, gain_dn = _keep_lids_apart(V[loop] - eye.center, B, u, upper, lower, gain_up,
+                                            gain_dn, pm, params.min_opening_fraction)
     skin_up = tapered(params.skin_gain_upper_up, params.skin_gain_lower_up)
     skin_dn = tapered(params.skin_gain_upper_down, params.skin_gain_lower_down)
     radius = per_lid(params.upper_falloff_mm, params.lower_falloff_mm)

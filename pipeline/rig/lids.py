@@ -126,6 +126,7 @@ class LidParams(Settings):
     canthus_exponent: float = setting(0.75, gt=0, le=10)
     lateral_canthus_width: float = setting(0.35, ge=0, le=0.5)   # lateral end
     canthus_floor: float = setting(0.375, ge=0, le=1)           # medial canthus: share of the lids' mean gain
+    max_margin_shear: float = setting(0.5, ge=0, le=10)         # neighbouring margin points part by at most this per mm in a full pose (0 = off)
     lateral_canthus_floor: float = setting(0.8, ge=0, le=1)     # lateral canthus
     upper_falloff_mm: float = setting(22.0, gt=0, le=100)
     lower_falloff_mm: float = setting(10.0, gt=0, le=100)
