@@ -18,7 +18,7 @@ interior margin point 8, centred on the interior margin's box, aspect 36 x 60, f
 Writes ``benchmarks/results/background_predict.json``.
 
 ``render``: renders ``n`` images per preset and scan through the render stage
-(``python -m stages.render``; samples 1, no denoising, masks on, label formats eyerig +
+(``python -m stages.render``; ``--samples`` per pixel (default 1), no denoising, masks on, label formats eyerig +
 unityeyes for the unityeyes preset) into ``/tmp/bench_background/<tag>/<preset>/<scan>`` and
 counts class-0 pixels per image (``NNNNNN_seg.png``) and, for unityeyes images, inside the
 GazeML crop (from the written ``unityeyes/NNNNNN.json`` through the transcription of GazeML's
@@ -226,7 +226,7 @@ def render(args) -> dict:
             folder = base / preset / scan
             params = base / f"{preset}_{scan}.yaml"
             params.parent.mkdir(parents=True, exist_ok=True)
-            r = {"preset": preset, "n_images": args.n, "seed": args.seed, "samples": 1, "denoise": False,
+            r = {"preset": preset, "n_images": args.n, "seed": args.seed, "samples": args.samples, "denoise": False,
                  "masks": True, "workers": 1, "threads": args.threads, "progress": False}
             if preset == "unityeyes":
                 r["label_formats"] = ["eyerig", "unityeyes"]
@@ -237,7 +237,8 @@ def render(args) -> dict:
                                 str(base / f"{preset}_{scan}.metrics.json"), "--params", str(params),
                                 "--no-progress"], capture_output=True, text=True, timeout=3600, cwd=args.code,
                                env={**os.environ, "PYTHONPATH": str(args.code)})
-            case = {"preset": preset, "scan": scan, "rc": p.returncode, "wall_s": time.perf_counter() - t0}
+            case = {"preset": preset, "scan": scan, "rc": p.returncode, "wall_s": time.perf_counter() - t0,
+                    "samples": args.samples}
             if p.returncode != 0:
                 case["message"] = (p.stderr.strip().splitlines() or [""])[-1]
             rows = _count_render(folder, preset) if folder.is_dir() else []
@@ -270,6 +271,9 @@ def report(args) -> None:
             return None
         return {"n_per_case": sorted({x["n_per_case"] for x in parts}), "cases": [c for x in parts for c in x["cases"]]}
 
+    def spp(cases):
+        return ", ".join(str(s) for s in sorted({c.get("samples", 1) for c in cases}))
+
     pred, before, after = load("background_predict"), merged("before"), merged("after")
     wide = load("background_crop")
     summary = {"predict": pred, "before": None, "after": None}
@@ -284,11 +288,11 @@ def report(args) -> None:
                         "images": sum(c["images"] for c in cases),
                         "images_with_background": sum(c["images_with_background"] for c in cases),
                         "background_px": sum(c["background_px"] for c in cases)}
-        lines += [f"## Rendered, {tag} ({summary[tag]['images']} images, samples 1, no denoising)", "",
-                  "| preset | scan | images | with background | class-0 px | GazeML crops with bg | crop bg px | note |",
-                  "|---|---|---|---|---|---|---|---|"]
+        lines += [f"## Rendered, {tag} ({summary[tag]['images']} images, samples {spp(cases)}, no denoising)", "",
+                  "| preset | scan | samples | images | with background | class-0 px | GazeML crops with bg | crop bg px | note |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for c in cases:
-            lines.append(f"| {c['preset']} | {c['scan']} | {c['images']} | {c['images_with_background']} | "
+            lines.append(f"| {c['preset']} | {c['scan']} | {c.get('samples', 1)} | {c['images']} | {c['images_with_background']} | "
                          f"{c['background_px']} | {c.get('crops_with_background', '')} | {c.get('crop_background_px', '')} | "
                          f"{c.get('message', '')[:160]} |")
         lines.append("")
@@ -337,6 +341,7 @@ def main(argv=None) -> int:
     ap.add_argument("--tag", default="after")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--samples", type=int, default=1, help="render mode: Cycles samples per pixel")
     ap.add_argument("--tmp", default="/tmp/bench_background")
     ap.add_argument("--pairs", nargs="+", default=[], help="crop mode: NAME ASSETS_DIR BUILD_DIR, repeated")
     ap.add_argument("--code", type=Path, default=ROOT, help="checkout whose stages.render renders (main for --tag before)")

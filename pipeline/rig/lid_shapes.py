@@ -27,7 +27,8 @@
   over about 11 mm above the upper lid looking down; benchmarks/compare_ict_lids.py.) Where
   the skin far from the pitch axis would be squeezed past zero thickness by the rising
   upper (or dropping lower) lid, the radii are widened by the smallest factor (up to
-  ``max_support_scale``) that keeps every face of the full poses above
+  ``max_support_scale``) that keeps every face of the full poses (but those on the margin, set
+  by its gains) above
   ``min_area_fraction`` of its rest area (no fold-over).
 
 Linear blend shapes move each point along the straight chord of its rotation
@@ -320,6 +321,12 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
     F = np.asarray(F, dtype=np.int64)
     n0 = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     a0 = np.linalg.norm(n0, axis=1)
+    # Faces with a margin vertex are left out of that test: the margin's gains set their shape
+    # (S is flat at the margin, so no radius changes them) and the sweep refuses any that flips;
+    # judged here, one squeezed corner face widened the whole eye's support to its limit.
+    on_margin = np.zeros(len(V), bool)
+    on_margin[loop] = True
+    judged = ~on_margin[F].any(axis=1) & (a0 > 1e-12)
     for scale in np.arange(1.0, params.max_support_scale + 1e-9, 0.05):
         r_max = float(radius.max()) * scale
         D = dijkstra(G, directed=False, indices=loop, min_only=True, limit=r_max * 1.0001)
@@ -342,7 +349,7 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
             mv = np.flatnonzero(th != 0.0)
             P = V.copy()
             P[mv] = rotate_about_axis(V[mv], eye.center, eye.axis, th[mv])
-            fm = np.flatnonzero(region[F].any(axis=1) & (a0 > 1e-12))
+            fm = np.flatnonzero(region[F].any(axis=1) & judged)
             n1 = np.cross(P[F[fm, 1]] - P[F[fm, 0]], P[F[fm, 2]] - P[F[fm, 0]])
             if len(fm):
                 worst = min(worst, float(np.min(np.einsum("ij,ij->i", n1, n0[fm]) / a0[fm] ** 2)))
