@@ -11,7 +11,7 @@ five of ``--n 20``, and a second run replaces the entries of the same names (sam
 
 ``params.yaml`` is edited as text between the ``# >>> identities`` and ``# <<< identities``
 marks of each list (written there by hand once; its comments stay as they are), then checked
-with stages.check_params before it is replaced. Then ``dvc repro usd@<name> ...`` runs for the
+with pipeline.params_check before it is replaced. Then ``dvc repro usd@<name> ...`` runs for the
 new names (each one pass of the per-scan stages; ``--no-repro`` prints the command instead).
 The dataset command mixes them with the scans: ``python -m stages.dataset --assets rigged_assets/*``.
 
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
         text = add_identities(args.params.read_text(encoding="utf-8"), entries, args.params)
         import yaml
 
-        from stages.check_params import check_params
+        from pipeline.params_check import check_params
 
         check_params(yaml.safe_load(text), source=str(args.params))    # before anything is written
         write_text(args.params, text)

@@ -14,8 +14,9 @@ import yaml
 
 from pipeline.synthetic_head import make_synthetic_head
 from pipeline.synthetic_head.paint import SKIN_RGB, SKIN_TONE_BASE, melanin_transmittance
-from stages import check_params as cp
+from pipeline.params_check import check_params
 from pipeline.synthetic_head import identities as idlib
+from stages import check_params as cp
 from stages import identities as ids
 from stages import synthetic_head as sh_stage
 from stages._common import run_stage
@@ -56,7 +57,7 @@ def test_command_adds_n_entries_deterministically_keeping_every_line(tmp_path, c
     assert set(e) == {"seed", "eye_shape", "skin_tone", "wrinkle_scale", "pore_scale", "eye_spacing_mm",
                       "target_triangles"}
     assert e["target_triangles"] == idlib.DEFAULT_TRIANGLES and 0 <= e["skin_tone"] <= 1
-    assert cp.check_params(data)["identities"]["ident_s3_002"].skin_tone == e["skin_tone"]
+    assert check_params(data)["identities"]["ident_s3_002"].skin_tone == e["skin_tone"]
     # the same run again: the same bytes; a shorter run elsewhere: the first entries
     _add(p, 4, seed=3)
     assert p.read_text() == after

@@ -14,7 +14,8 @@ no cycles." Read bottom up, the floors are:
 4. the shared models, ``eyeball`` and ``synthetic_head`` (side by side: neither imports the other);
 5. the stage packages in DAG order: ``ingest``, ``remove_eyeballs``, ``retopo``, ``bake``,
    ``snap``, ``rig``, ``usd``, ``render``;
-6. ``blender``, everything that imports bpy.
+6. ``blender``, everything that imports bpy, and beside it ``params_check``, the check of all of
+   ``params.yaml`` (it names every stage package's settings class).
 
 A package may import its own modules and any package on a lower floor, never one on its own
 floor or above. Imports are read with :mod:`ast`, wherever they stand (inside functions and
@@ -36,7 +37,7 @@ FLOORS = [
     {"geometry"},
     {"eyeball", "synthetic_head"},
     {"ingest"}, {"remove_eyeballs"}, {"retopo"}, {"bake"}, {"snap"}, {"rig"}, {"usd"}, {"render"},
-    {"blender"},
+    {"blender", "params_check"},
 ]
 FLOOR = {pkg: k for k, names in enumerate(FLOORS) for pkg in names}
 

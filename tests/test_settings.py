@@ -190,7 +190,7 @@ def _nested(key: tuple, value) -> dict:
 
 def _block_boundaries():
     from pipeline.settings import boundaries
-    from stages.check_params import BLOCKS, settings_class
+    from pipeline.params_check import BLOCKS, settings_class
 
     return [(block, key, value, ok) for block in BLOCKS
             for key, value, ok in boundaries(settings_class(block))]
@@ -202,7 +202,7 @@ def test_every_block_takes_its_limits_and_refuses_past_them_in_one_line(block):
     """Fuzz from each block's own schema: a value at a limit is read as that value (or refused
     by a check across fields, in one line), the next value past it is refused in one line
     naming params.yaml and the key; the check_params stage reads the block the same way."""
-    from stages.check_params import check_params, settings_class
+    from pipeline.params_check import check_params, settings_class
 
     cls = settings_class(block)
     cases = [(k, v, ok) for b, k, v, ok in _block_boundaries() if b == block]
