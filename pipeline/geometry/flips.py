@@ -10,6 +10,8 @@ where all their faces keep their orientation (small linear programs; retopology 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
@@ -170,6 +172,73 @@ def flip_slivers(V, F, ref_V, ref_F, min_angle_deg=10.0):
     return Fn
 
 
+def _corner_deg(P, at, u, w):
+    a, b = P[u] - P[at], P[w] - P[at]
+    c = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-300)
+    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
+
+
+def delaunay_flips(V, F, max_dihedral_deg=20.0, min_cos=0.5, passes=8):
+    """Flip interior edges that are not locally Delaunay (the two angles facing the edge sum past
+    180 deg) where its two faces are nearly coplanar, until none is left (or ``passes``).
+
+    Remeshing and the loop placement leave slivers whose long edge faces an angle near 180 deg:
+    a vertex lying almost on the edge of two others. Flipping that edge removes the sliver
+    without moving a vertex (so the surface and the loops stay where they are); the dihedral
+    bound keeps the flips from changing the shape, and each new face must stay within
+    ``acos(min_cos)`` of the pair's normal. A border vertex keeps at least two faces and an
+    interior one three.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+
+    Returns
+    -------
+    F2 : (m, 3) int64
+        The same vertices, flipped faces (face count unchanged).
+    n_flips : int
+    """
+    V = np.asarray(V, dtype=np.float64)
+    tm = TriMesh(V, F)
+    on_border = np.zeros(len(V), dtype=bool)
+    for lp in mc.boundary_loops(np.asarray(F, dtype=np.int64)):
+        on_border[lp] = True
+    cos_dih = math.cos(math.radians(max_dihedral_deg))
+    n_flips = 0
+    for _ in range(passes):
+        flipped = 0
+        for fi in list(tm.F):
+            if fi not in tm.F:
+                continue
+            for k in range(3):
+                f = tm.F[fi]
+                b, a, c = f[k], f[(k + 1) % 3], f[(k + 2) % 3]
+                twins = [g for g in tm.vf[a] & tm.vf[c] if g != fi]
+                if len(twins) != 1:
+                    continue
+                g = twins[0]
+                d = [v for v in tm.F[g] if v not in (a, c)][0]
+                if _corner_deg(V, b, a, c) + _corner_deg(V, d, a, c) <= 180.0 + 1e-6:
+                    continue
+                if any(len(tm.vf[v]) <= (2 if on_border[v] else 3) for v in (a, c)):
+                    continue
+                n1, _ = tm.normal(f)
+                n2, _ = tm.normal(tm.F[g])
+                if float(n1 @ n2) < cos_dih:
+                    continue
+                ref = n1 + n2
+                ref = ref / max(float(np.linalg.norm(ref)), 1e-300)
+                if tm.flip_edge(fi, a, c, ref=ref, min_cos=min_cos):
+                    flipped += 1
+                    break
+        n_flips += flipped
+        if flipped == 0:
+            break
+    return np.array(list(tm.F.values()), dtype=np.int64), n_flips
+
+
 def collapse_flipped(V, F, loops, fixed, ref_V, ref_F):
     """Remove flipped faces by collapsing their free vertex into one of the face's other corners."""
     R = reference_face_normals(V, F, ref_V, ref_F)
@@ -195,6 +264,47 @@ def collapse_flipped(V, F, loops, fixed, ref_V, ref_F):
                 break
     Vn, Fn, remap = tm.arrays()
     return Vn, Fn, {k: remap[v] for k, v in loops.items()}
+
+
+def collapse_short_edges(V, F, loops, fixed, min_len: float, min_cos: float = 0.5):
+    """Collapse edges shorter than ``min_len`` by merging their free end into the other end.
+
+    The flip repairs next to the loops can leave edges a tenth of the mesh's length beside a
+    canthus; their faces are slivers that turn over as soon as the lids move. A vertex in
+    ``fixed`` never moves; a collapse that would turn a moved face more than ``acos(min_cos)``
+    is refused (:meth:`TriMesh.collapse`).
+
+    Returns
+    -------
+    V2, F2 : the mesh without the collapsed vertices
+    loops : dict
+        ``loops`` with their vertex indices remapped.
+    n : int
+        Collapses done.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    E = mc.edges_of(F)
+    E = np.unique(np.sort(E, axis=1), axis=0)
+    L = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
+    short = np.flatnonzero(L < min_len)
+    if len(short) == 0:
+        return V, F, dict(loops), 0
+    fixed = set(map(int, fixed))
+    tm = TriMesh(V, F)
+    n = 0
+    for e in short[np.argsort(L[short])]:
+        a, b = map(int, E[e])
+        if not tm.vf.get(a) or not tm.vf.get(b) or b not in tm.neighbours(a):
+            continue
+        for src, dst in ((a, b), (b, a)):
+            if src not in fixed and tm.collapse(src, dst, min_cos=min_cos):
+                n += 1
+                break
+    if n == 0:
+        return V, F, dict(loops), 0
+    Vn, Fn, remap = tm.arrays()
+    return Vn, Fn, {k: remap[v] for k, v in loops.items()}, n
 
 
 def count_flipped(V, F, ref_V, ref_F):

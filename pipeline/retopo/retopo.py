@@ -49,7 +49,7 @@ from pipeline.geometry import mesh_checks as mc
 from pipeline.retopo.eye_rings import add_eye_rings
 from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
                                           project_to_polyline, resample_loop, smooth_margin)
-from pipeline.geometry.flips import (collapse_flipped, count_flipped, flip_slivers, mirror_flipped,
+from pipeline.geometry.flips import (collapse_flipped, collapse_short_edges, count_flipped, delaunay_flips, flip_slivers, mirror_flipped,
                                      reference_face_normals, relax, repair_flips, untangle)
 from pipeline.geometry.mesh_edit import TriMesh
 from pipeline.retopo.mesh_clean import clean_mesh
@@ -264,14 +264,15 @@ def subdivide_midpoint(V, F):
 
 
 def refine_coarse_crop(V, F, min_loop_vertices, eye_loop_lengths, max_levels=4):
-    """Midpoint-subdivide a crop whose eye openings have fewer than half ``min_loop_vertices``
-    boundary vertices, until each has at least ``min_loop_vertices``.
+    """Midpoint-subdivide a crop whose eye openings have fewer than ``min_loop_vertices``
+    boundary vertices, until each has at least that many.
 
-    A coarse scan (a few hundred faces around the eyes, ~10 vertices per eyelid opening)
-    would otherwise reach ``loop_points`` only by splitting each opening edge several times,
-    leaving fans of sliver triangles from one interior vertex to a run of collinear loop
-    vertices, which fold as soon as the loop moves (snap, lid shapes). Subdividing first
-    gives the remesher interior vertices next to the loop; the surface is unchanged.
+    An opening with fewer boundary vertices than ``loop_points`` (a coarse scan, or a narrow
+    half-closed opening of a dense one: 34 of 64 on a 150k-face half blink) would otherwise
+    reach ``loop_points`` only by splitting opening edges, leaving fans of sliver triangles
+    from one interior vertex to a run of collinear loop vertices (5-11 mm long on that half
+    blink), which fold as soon as the loop moves (snap, lid shapes). Subdividing first gives the
+    remesher interior vertices next to the loop; the surface is unchanged.
 
     Returns
     -------
@@ -279,7 +280,7 @@ def refine_coarse_crop(V, F, min_loop_vertices, eye_loop_lengths, max_levels=4):
     """
     levels = 0
     n_loop = min(eye_loop_lengths) if len(eye_loop_lengths) else min_loop_vertices
-    if 2 * n_loop >= min_loop_vertices:
+    if n_loop >= min_loop_vertices:
         return V, F, 0
     while levels < max_levels and n_loop < min_loop_vertices:
         V, F = subdivide_midpoint(V, F)
@@ -364,14 +365,15 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
             new = (s.eye_rings + 1) * s.loop_points + (per + 2 * np.pi * w) / L0
             lost += max(0.0, band - new)
         tri_target += int(round(lost * (1.0 if s.method == "quadric" else 1.0 / 0.58)))
-    # eye openings with under a quarter of the output loop's vertices (coarse scans) are
-    # subdivided first, so that opening edges are not split into fans of slivers at the loop
+    # eye openings with fewer boundary vertices than the output loop (coarse scans, narrow
+    # half-closed openings) are subdivided first, so that opening edges are not split into
+    # fans of slivers at the loop
     cbl = mc.boundary_loops(Fc)
     eye_loop_lengths = []
     for side, e in eyes.items():
         li = set(int(inv[int(v)]) for v in e["loop_indices"] if int(v) in inv)
         eye_loop_lengths += [len(b) for b in cbl if li & set(map(int, b))][:1]
-    Vr, Fr, refine_levels = refine_coarse_crop(Vc, Fc, (s.loop_points + 1) // 2, eye_loop_lengths)
+    Vr, Fr, refine_levels = refine_coarse_crop(Vc, Fc, s.loop_points, eye_loop_lengths)
     if s.method == "quadric":
         # the borders are locked during decimation and coarsened afterwards (each boundary vertex
         # collapsed removes one face): ask for that many more faces so the result lands on target
@@ -461,6 +463,20 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         near = np.isin(Fn, bad_v).any(axis=1)
         floor = np.where(near, 0.25 * float(np.median(np.linalg.norm(nf, axis=1))), 0.0)
         Vn, _ = untangle(Vn, Fn, R, free, min_projected=floor)
+    # slivers left by the loop placement and the repairs (a vertex almost on the edge of two
+    # others, up to 15 mm long on unseen heads) fold in the lid sweep: flip them away, relax
+    # what the flips freed, and flip again
+    n_delaunay = 0
+    # edges under a fifth of the median (the repairs' leftovers beside a canthus) go first
+    elen = np.linalg.norm(Vn[Fn] - Vn[np.roll(Fn, -1, axis=1)], axis=2)
+    Vn, Fn, loops, n_short = collapse_short_edges(Vn, Fn, loops, fixed, 0.2 * float(np.median(elen)))
+    if n_short:
+        fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
+    for _ in range(2):
+        Fd, k = delaunay_flips(Vn, Fn)
+        if k and count_flipped(Vn, Fd, Vc, Fc) <= count_flipped(Vn, Fn, Vc, Fc):
+            Fn, n_delaunay = Fd, n_delaunay + k
+            Vn = relax(Vn, Fn, fixed, Vc, Fc, iterations=s.relax_iterations)
     Fs = flip_slivers(Vn, Fn, Vc, Fc)
     if len(Fs) == len(Fn) and count_flipped(Vn, Fs, Vc, Fc) <= count_flipped(Vn, Fn, Vc, Fc):
         Fn = Fs
@@ -498,6 +514,8 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         "vertices": int(len(Vn)),
         "crop_faces": int(len(Fc)),
         "crop_subdivisions": int(refine_levels),
+        "delaunay_flips": int(n_delaunay),
+        "short_edges_collapsed": int(n_short),
         "eye_rings": ring_info,
         "canthus_apex": apex_info,
         "timings_s": {k: round(v, 4) for k, v in timings.items()},

@@ -1,0 +1,115 @@
+"""Mesh repairs after the retopology's loop placement (pipeline/geometry/flips.py): Delaunay edge
+flips and short-edge collapses, on constructed meshes with known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.geometry import mesh_checks as mc
+from pipeline.geometry.flips import collapse_short_edges, delaunay_flips
+from pipeline.retopo.retopo import refine_coarse_crop
+
+
+def _grid(n=6, h=1.0):
+    """(n x n) vertex grid in the z = 0 plane, two triangles per cell, normals +z."""
+    x, y = np.meshgrid(np.arange(n) * h, np.arange(n) * h)
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
+    F = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j + 1, (i + 1) * n + j
+            F += [[a, b, c], [a, c, d]]
+    return V, np.array(F, dtype=np.int64)
+
+
+def _not_delaunay(V, F):
+    """Interior edges whose two facing angles sum past 180 deg."""
+    ang = mc.triangle_angles_deg(V, F)
+    facing = {}
+    for f, tri in enumerate(F):
+        for k in range(3):
+            e = tuple(sorted((int(tri[(k + 1) % 3]), int(tri[(k + 2) % 3]))))
+            facing.setdefault(e, []).append(ang[f, k])
+    return [e for e, a in facing.items() if len(a) == 2 and sum(a) > 180.0 + 1e-6]
+
+
+def _pushed_grid():
+    """A grid whose interior vertex 14 is pushed 0.45 mm along both axes: edge 7-14 faces two
+    angles summing past 180 deg (its cell's other diagonal, 8-13, is the Delaunay one)."""
+    V, F = _grid()
+    V[14] += [0.45, 0.45, 0.0]
+    return V, F
+
+
+def _edges(F):
+    return {tuple(sorted(e)) for e in mc.edges_of(F).tolist()}
+
+
+def test_delaunay_flips_turn_a_long_diagonal():
+    # a lone rhombus split along its long diagonal: its corners are border vertices with one or
+    # two faces, which a flip would leave with fewer; nothing is flipped
+    V = np.array([[0.0, 0, 0], [1, -0.5, 0], [2, 0, 0], [1, 0.5, 0]])
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    F2, n = delaunay_flips(V, F)
+    assert n == 0 and np.array_equal(F2, F)
+    V, F = _pushed_grid()
+    assert _not_delaunay(V, F) == [(7, 14)]
+    F2, n = delaunay_flips(V, F)
+    assert n == 1 and len(F2) == len(F)
+    assert _edges(F) - _edges(F2) == {(7, 14)} and _edges(F2) - _edges(F) == {(8, 13)}
+    assert _not_delaunay(V, F2) == []
+    # the cell's two faces: their smallest angle grows (Delaunay maximises it), the mesh's never falls
+    def cell_min(Fx):
+        sel = np.isin(Fx, [7, 8, 13, 14]).sum(axis=1) == 3
+        return mc.triangle_angles_deg(V, Fx[sel]).min()
+    assert cell_min(F2) > cell_min(F) + 5.0
+    assert mc.triangle_angles_deg(V, F2).min() >= mc.triangle_angles_deg(V, F).min()
+    # still a consistently oriented surface over the same vertices
+    assert np.all(mc.face_normals(V, F2)[:, 2] > 0)
+    assert set(np.unique(F2)) == set(np.unique(F))
+
+
+def test_delaunay_flips_keep_a_crease():
+    """Lifting the pushed vertex 0.5 mm creases the cell past the 20 deg dihedral bound: the edge
+    stays (a flip would change the surface's shape); at 0.2 mm it is flipped."""
+    V, F = _pushed_grid()
+    V[14, 2] = 0.5
+    F2, n = delaunay_flips(V, F, max_dihedral_deg=20.0)
+    assert n == 0 and np.array_equal(F2, F) and _not_delaunay(V, F2) == [(7, 14)]
+    V[14, 2] = 0.2
+    F2, n = delaunay_flips(V, F, max_dihedral_deg=20.0)
+    assert n == 1 and _not_delaunay(V, F2) == []
+
+
+def test_collapse_short_edges_merges_the_free_end():
+    V, F = _grid()
+    V[14] = V[15] + [0.03, 0.0, 0.0]        # 0.03 mm from its neighbour (interior, free)
+    loops = {"left": np.array([0, 1, 2, 3, 4, 5])}
+    V2, F2, loops2, n = collapse_short_edges(V, F, loops, fixed=loops["left"], min_len=0.2)
+    assert n == 1
+    assert len(V2) == len(V) - 1 and len(F2) == len(F) - 2
+    E = mc.edges_of(F2)
+    assert np.linalg.norm(V2[E[:, 0]] - V2[E[:, 1]], axis=1).min() > 0.2
+    # the fixed loop keeps its points, under new indices
+    np.testing.assert_array_equal(V2[loops2["left"]], V[loops["left"]])
+    assert np.all(mc.face_normals(V2, F2)[:, 2] > 0)
+
+
+def test_collapse_short_edges_never_moves_a_fixed_vertex():
+    V, F = _grid()
+    V[1] = V[0] + [0.05, 0.0, 0.0]          # a short border edge, both ends fixed
+    loops = {"border": np.array([0, 1, 2, 3, 4, 5])}
+    V2, F2, loops2, n = collapse_short_edges(V, F, loops, fixed=loops["border"], min_len=0.2)
+    assert n == 0 and np.array_equal(F2, F) and np.array_equal(V2, V)
+
+
+def test_refine_when_an_opening_has_fewer_vertices_than_the_loop():
+    """An opening of 34 boundary vertices for a 64-point loop (a narrow half blink) is subdivided
+    once (68 >= 64); one of 64 or more is left alone."""
+    V, F = _grid(3)
+    _, F1, levels = refine_coarse_crop(V, F, 64, [34])
+    assert levels == 1 and len(F1) == 4 * len(F)
+    _, F0, levels = refine_coarse_crop(V, F, 64, [64])
+    assert levels == 0 and np.array_equal(F0, F)
+    _, _, levels = refine_coarse_crop(V, F, 64, [15])
+    assert levels == 3
