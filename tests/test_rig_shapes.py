@@ -313,3 +313,38 @@ def test_support_widens_where_the_skin_would_fold():
     p = lids.LidParams()
     assert all(f.support_mm == pytest.approx(max(p.upper_falloff_mm, p.lower_falloff_mm))
                for f in fields.values())
+
+
+def test_relax_folds_smooths_a_fold_away():
+    """A shape that carries one vertex of a flat grid across its neighbours' edges (a fold) is
+    smoothed until nothing flips; motion away from the fold is left as it was, and a shape
+    without a fold comes back unchanged."""
+    from pipeline.rig.lid_shapes import flipped_faces, relax_folds
+
+    n = 9
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
+    F = np.array([f for i in range(n - 1) for j in range(n - 1) for f in
+                  ([i * n + j, i * n + j + 1, (i + 1) * n + j + 1],
+                   [i * n + j, (i + 1) * n + j + 1, (i + 1) * n + j])], dtype=np.int64)
+    smooth = np.stack([0.3 * V[:, 1], np.zeros(n * n), np.zeros(n * n)], axis=1)   # a shear: folds nothing
+    spike = smooth.copy()
+    c = 4 * n + 4
+    spike[c] += [1.6, 0.0, 0.0]                 # the centre vertex jumps past its right neighbour
+    idx = np.arange(n * n)
+    down = lids.BlendShape("lids_down", idx, spike)
+    up = lids.BlendShape("lids_up", idx, smooth)
+    pitches = np.linspace(-25, 25, 11)
+    assert len(flipped_faces(V, F, [up, down], pitches, 25.0)) > 0
+    shapes, rounds, relaxed = relax_folds(V, F, [up, down], [], pitches, 25.0)
+    assert rounds >= 1 and relaxed > 0
+    assert len(flipped_faces(V, F, shapes, pitches, 25.0)) == 0
+    new_down = np.zeros_like(V)
+    new_down[shapes[1].point_indices] = shapes[1].offsets
+    far = np.flatnonzero(np.max(np.abs(V - V[c]), axis=1) > 3)
+    np.testing.assert_allclose(new_down[far], spike[far], atol=1e-12)
+    new_up = np.zeros_like(V)
+    new_up[shapes[0].point_indices] = shapes[0].offsets
+    np.testing.assert_allclose(new_up[far], smooth[far], atol=1e-12)
+    same, rounds, relaxed = relax_folds(V, F, [up], [], pitches, 25.0)
+    assert rounds == 0 and relaxed == 0 and same[0] is up

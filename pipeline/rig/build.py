@@ -16,7 +16,7 @@ from pipeline.eyeball.geometry import EyeballParams, placed_params
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.rig.eye_frame import eye_frames
-from pipeline.rig.lid_shapes import build_lid_shapes
+from pipeline.rig.lid_shapes import build_lid_shapes, relax_folds
 from pipeline.rig.sweep import sweep_check
 from pipeline.rig import textures as tex
 
@@ -44,8 +44,14 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
                       profile=profile)
     V = np.asarray(mesh["V"], np.float64)
     F = np.asarray(mesh["F"], np.int64)
+    step = st.sweep_step_deg
+    pitches = np.unique(np.concatenate([np.arange(-lp.max_pitch_deg, lp.max_pitch_deg + 1e-9, step),
+                                        [-lp.max_pitch_deg, 0.0, lp.max_pitch_deg]]))
     t0 = time.perf_counter()
     rig = build_lid_shapes(V, F, eyes, lp)
+    # a sliver the retopology left can still turn over under the smooth lid field: smooth the
+    # skin's motion around it (the sweep below still refuses any fold that remains)
+    rig.shapes, relax_rounds, relaxed = relax_folds(V, F, rig.shapes, eyes, pitches, lp.max_pitch_deg)
     t_build = time.perf_counter() - t0
 
     arrays = lids.shapes_to_arrays(rig.shapes)
@@ -73,9 +79,6 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
         }
         lm_doc[e.side] = {"eyelid_loop_position": lm.loop_position, "eyelid_edges": lm.edge}
 
-    step = st.sweep_step_deg
-    pitches = np.unique(np.concatenate([np.arange(-lp.max_pitch_deg, lp.max_pitch_deg + 1e-9, step),
-                                        [-lp.max_pitch_deg, 0.0, lp.max_pitch_deg]]))
     t0 = time.perf_counter()
     sweep = sweep_check(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg,
                         corneas=_model_corneas(eyes), fork=True)
@@ -141,6 +144,7 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
         "n_segments": rig.n_segments, "interpolation_error_mm": rig.predicted_sag_mm,
         **{f"{s.name}_n_points": int(len(s.point_indices)) for s in rig.shapes},
         "sweep_step_deg": step,
+        "fold_relax_rounds": int(relax_rounds), "fold_relaxed_vertices": int(relaxed),
         **{f"sweep_{k}": v for k, v in sweep.items()},
         **motion,
         "build_s": round(t_build, 4), "sweep_s": round(t_sweep, 4),
