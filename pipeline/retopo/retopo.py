@@ -75,6 +75,7 @@ class RetopoSettings(Settings):
     isotropic_iterations: int = setting(6, ge=0, le=100)
     quad_max_angle_dev_deg: float = setting(50.0, ge=0, le=90)
     relax_iterations: int = setting(4, ge=0, le=1000)
+    min_edge_fraction: float = setting(0.2, ge=0, le=0.9)    # after the repairs, collapse edges shorter than this x the median (0 = off)
     eye_rings: int = setting(0, ge=0, le=20)                 # rings of quads around each eyelid loop (0 = off)
     ring_spacing_mm: float = setting(0.0, ge=0, le=20)       # between rings; 0: the loop's mean edge length
     metric_samples: int = setting(50000, ge=100, le=10_000_000)
@@ -365,15 +366,17 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
             new = (s.eye_rings + 1) * s.loop_points + (per + 2 * np.pi * w) / L0
             lost += max(0.0, band - new)
         tri_target += int(round(lost * (1.0 if s.method == "quadric" else 1.0 / 0.58)))
-    # eye openings with fewer boundary vertices than the output loop (coarse scans, narrow
-    # half-closed openings) are subdivided first, so that opening edges are not split into
-    # fans of slivers at the loop
+    # eye openings with under three quarters of the output loop's vertices (coarse scans,
+    # narrow half-closed openings: 34 of 64 on a 150k-face half blink) are subdivided first, so
+    # that opening edges are not split into fans of slivers at the loop (at 50-53 of 64, the
+    # tests' 100k-face synthetic head, the splits stay single and subdividing moved its medial
+    # canthus behind the lid skin in a front view)
     cbl = mc.boundary_loops(Fc)
     eye_loop_lengths = []
     for side, e in eyes.items():
         li = set(int(inv[int(v)]) for v in e["loop_indices"] if int(v) in inv)
         eye_loop_lengths += [len(b) for b in cbl if li & set(map(int, b))][:1]
-    Vr, Fr, refine_levels = refine_coarse_crop(Vc, Fc, s.loop_points, eye_loop_lengths)
+    Vr, Fr, refine_levels = refine_coarse_crop(Vc, Fc, (3 * s.loop_points + 3) // 4, eye_loop_lengths)
     if s.method == "quadric":
         # the borders are locked during decimation and coarsened afterwards (each boundary vertex
         # collapsed removes one face): ask for that many more faces so the result lands on target
@@ -469,7 +472,8 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     n_delaunay = 0
     # edges under a fifth of the median (the repairs' leftovers beside a canthus) go first
     elen = np.linalg.norm(Vn[Fn] - Vn[np.roll(Fn, -1, axis=1)], axis=2)
-    Vn, Fn, loops, n_short = collapse_short_edges(Vn, Fn, loops, fixed, 0.2 * float(np.median(elen)))
+    Vn, Fn, loops, n_short = collapse_short_edges(Vn, Fn, loops, fixed,
+                                                  s.min_edge_fraction * float(np.median(elen)))
     if n_short:
         fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
     for _ in range(2):
