@@ -319,7 +319,7 @@ def test_relax_folds_smooths_a_fold_away():
     """A shape that carries one vertex of a flat grid across its neighbours' edges (a fold) is
     smoothed until nothing flips; motion away from the fold is left as it was, and a shape
     without a fold comes back unchanged."""
-    from pipeline.rig.lid_shapes import flipped_faces, relax_folds
+    from pipeline.rig.folds import flipped_faces, relax_folds
 
     n = 9
     x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))

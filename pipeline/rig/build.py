@@ -16,7 +16,8 @@ from pipeline.eyeball.geometry import EyeballParams, placed_params
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.rig.eye_frame import eye_frames
-from pipeline.rig.lid_shapes import build_lid_shapes, relax_folds
+from pipeline.rig.folds import relax_folds
+from pipeline.rig.lid_shapes import build_lid_shapes
 from pipeline.rig.sweep import sweep_check
 from pipeline.rig import textures as tex
 
