@@ -19,15 +19,6 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry.mesh_edit import TriMesh
 
 
-def _vertex_adjacency(F, n):
-    from scipy.sparse import coo_matrix
-
-    e = mc.edges_of(F)
-    A = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
-    A = ((A + A.T) > 0).astype(np.float64)
-    return A
-
-
 def reference_face_normals(V, F, ref_V, ref_F):
     """Per face, the normalised sum of the reference surface's normals nearest its three vertices."""
     _, fi, _ = mc.closest_points(V, ref_V, ref_F)
@@ -47,7 +38,7 @@ def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3):
     V = np.asarray(V, dtype=np.float64).copy()
     if iterations <= 0:
         return V
-    A = _vertex_adjacency(F, len(V))
+    A = meshtopo.vertex_adjacency(F, len(V))
     deg = np.asarray(A.sum(axis=1)).ravel()
     free = np.ones(len(V), dtype=bool)
     free[np.asarray(fixed, dtype=np.int64)] = False
@@ -73,7 +64,7 @@ def repair_flips(V, F, fixed, ref_V, ref_F, rounds=10):
     """Move the free vertices of flipped faces to the mean of their neighbours (then onto the
     reference surface when that keeps the face unflipped); returns new V."""
     V = np.asarray(V, dtype=np.float64).copy()
-    A = _vertex_adjacency(F, len(V))
+    A = meshtopo.vertex_adjacency(F, len(V))
     deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1)
     free = np.ones(len(V), dtype=bool)
     free[np.asarray(fixed, dtype=np.int64)] = False

@@ -1,4 +1,4 @@
-"""Triangle-mesh helpers: normals and areas, face adjacency and components, boundary loops,
+"""Triangle-mesh helpers: normals and areas, face and vertex adjacency, components, boundary loops,
 manifold checks."""
 
 from __future__ import annotations
@@ -32,6 +32,16 @@ def face_adjacency(F, n_vertices=None):
     same = ks[1:] == ks[:-1]
     a, b = order[:-1][same], order[1:][same]
     return np.column_stack([fid[a], fid[b]]), E[a]
+
+
+def vertex_adjacency(F, n):
+    """(n, n) sparse 0/1 matrix (CSR, float64), 1 where two vertices share an edge of ``F``."""
+    from scipy.sparse import coo_matrix
+
+    F = np.asarray(F, dtype=np.int64)
+    e = np.stack([F, np.roll(F, -1, axis=1)], axis=-1).reshape(-1, 2)
+    A = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    return ((A + A.T) > 0).astype(np.float64)
 
 
 def face_components(n_faces, pairs, mask=None):

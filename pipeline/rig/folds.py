@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.rig.lid_shapes import mesh_edges
+from pipeline.geometry.meshtopo import vertex_adjacency
 from pipeline.rig.lids import BlendShape, evaluate_shapes, lid_weights
 
 
@@ -48,8 +48,6 @@ def relax_folds(V, F, shapes, eyes, pitches_deg, max_pitch_deg: float, rounds: i
     n_relaxed : int
         Vertices whose motion was smoothed (all rounds).
     """
-    from scipy.sparse import coo_matrix
-
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     n = len(V)
@@ -57,10 +55,7 @@ def relax_folds(V, F, shapes, eyes, pitches_deg, max_pitch_deg: float, rounds: i
     for e in eyes:
         locked[e.loop] = True
         locked[e.strip_inner] = True
-    E = mesh_edges(F)
-    A = coo_matrix((np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
-                   shape=(n, n)).tocsr()
-    A.data[:] = 1.0
+    A = vertex_adjacency(F, n)
     deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1.0)
     touched = np.zeros(n, bool)
     bad = flipped_faces(V, F, shapes, pitches_deg, max_pitch_deg)

@@ -298,15 +298,15 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
 
     gain_up = tapered(params.gain_upper_up, params.gain_lower_up)
     gain_dn = tapered(params.gain_upper_down, params.gain_lower_down)
-    pm = math.radians(params.max_pitch_deg)
+    pmax = math.radians(params.max_pitch_deg)
     rho = np.linalg.norm(np.cross(V[loop] - eye.center, eye.axis), axis=1)
     # both rules only lower gains, so alternating them settles; keeping the lids apart goes last
     for _ in range(4 if params.max_margin_shear > 0 else 1):
         if params.max_margin_shear > 0:
-            gain_up = limit_margin_shear(V[loop], gain_up, pm, rho, params.max_margin_shear)
-            gain_dn = limit_margin_shear(V[loop], gain_dn, pm, rho, params.max_margin_shear)
+            gain_up = limit_margin_shear(V[loop], gain_up, pmax, rho, params.max_margin_shear)
+            gain_dn = limit_margin_shear(V[loop], gain_dn, pmax, rho, params.max_margin_shear)
         gain_up, gain_dn = _keep_lids_apart(V[loop] - eye.center, B, u, upper, lower, gain_up,
-                                            gain_dn, pm, params.min_opening_fraction)
+                                            gain_dn, pmax, params.min_opening_fraction)
     skin_up = tapered(params.skin_gain_upper_up, params.skin_gain_lower_up)
     skin_dn = tapered(params.skin_gain_upper_down, params.skin_gain_lower_down)
     radius = per_lid(params.upper_falloff_mm, params.lower_falloff_mm)
@@ -317,7 +317,6 @@ def lid_angle_field(V, F, eye: EyeFrame, params: LidParams, graph=None) -> EyeFi
     # pitch axis), and the skin folds over (faces flip) near 1. The falloff radii are scaled by
     # the smallest factor (steps of 5 %, from 1) for which no face of the full poses keeps less
     # than min_area_fraction of its area seen along its rest normal.
-    pmax = math.radians(params.max_pitch_deg)
     F = np.asarray(F, dtype=np.int64)
     n0 = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     a0 = np.linalg.norm(n0, axis=1)
