@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.eyeball.geometry import EyeballSettings
 from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
@@ -58,10 +59,11 @@ def main(argv) -> StageResult:
                              "without that cue when it is absent)")
     args = parser.parse_args(argv)
     st = load_settings(RemoveEyeballsSettings, args.params)
+    eyeball = load_settings(EyeballSettings, args.params).geometry   # the eye the asset carries
     mesh, hints, texture, source, tex_path = _read(args.ingest)
     prior = EyeRegionPrior.load(args.prior)
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture,
-                          prior=None if prior is None else prior.register)
+                          prior=None if prior is None else prior.register, eyeball=eyeball)
     for side in ("left", "right"):      # published, but not sure: say so where the user looks
         for doubt in res.eyes[side]["doubts"]:
             print(f"warning: {source}: {side} eye: {doubt}", file=sys.stderr)

@@ -8,7 +8,7 @@ import pytest
 
 from conftest import extra_scans_dir
 from pipeline.remove_eyeballs import eye_place as ep
-from test_remove_eyeballs import make_head
+from fixtures.eye_heads import make_head
 
 
 def test_cap_height_known_answers():

@@ -50,6 +50,7 @@ class EyeFit:
     capped: bool = False
     inliers: np.ndarray = field(default=None, repr=False)
     radius_sigma: float = float("inf")
+    prior_axis: np.ndarray | None = field(default=None, repr=False)   # the eye region's forward
 
 
 def unit_vector(v):

@@ -307,6 +307,12 @@ class FitResult:
     cov: np.ndarray
     shares: list          # per eye: {cue: share of the information on (c, R)}
     cost: float
+    limbus_cov: list = None   # per eye: (6, 6) covariance of (limbus centre, unit gaze)
+
+
+def limbus_center(e: Eye) -> np.ndarray:
+    """Centre of the eye model's limbus circle (the rim of its anterior cap), (3,)."""
+    return np.asarray(e.c, float) + e.R * np.cos(np.radians(e.tl)) * np.asarray(e.n, float)
 
 
 def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm=None,
@@ -364,8 +370,22 @@ def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm
         b = nR + NP * i
         cols.append([b, b + 1, b + 2, (0 if nR == 1 else i) if nR else None])
     J_full = _jacobian_blocks(blocks, res.x)
-    cov, shares = _laplace(J_full, res.x, cols, nR, k)
-    return FitResult(es, cov, shares, float(res.cost))
+    cov, shares, C = _laplace(J_full, res.x, cols, nR, k)
+    # what a scan shows best is the front of the eye: the limbus centre and the gaze, with their
+    # covariance from the same Laplace approximation (the asset's eye is anchored there)
+    lcov = []
+    for i in range(k):
+        def g(x, i=i):
+            e = unpack(x)[i]
+            return np.concatenate([limbus_center(e), e.n])
+        J = np.zeros((6, len(res.x)))
+        for j in range(len(res.x)):
+            xp, xq = res.x.copy(), res.x.copy()
+            xp[j] += 1e-5
+            xq[j] -= 1e-5
+            J[:, j] = (g(xp) - g(xq)) / 2e-5
+        lcov.append(J @ C @ J.T if np.isfinite(C).all() else np.full((6, 6), np.inf))
+    return FitResult(es, cov, shares, float(res.cost), lcov)
 
 
 def _jacobian_blocks(blocks, x, h=1e-4):
@@ -413,7 +433,7 @@ def _laplace(Js, x, cols, nR, k):
             tot[cue] = tot.get(cue, 0.0) + float(np.sum(J[:, sel] ** 2))
         s = sum(tot.values()) or 1.0
         shares.append({kk: v / s for kk, v in tot.items()})
-    return cov, shares
+    return cov, shares, C
 
 
 def hypotheses(p: Patch, cues: Cues, radius_range, rng, n_pairs=1500, keep=3, min_fold_deg=15.0,
@@ -567,6 +587,9 @@ class Placement:
     fold_deg: float = 0.0
     profile: tuple = None      # (radii, energy above the placement's) of radius_profile
     sigma_laplace_mm: tuple = (0.0, 0.0)   # the Laplace part of (sigma_center, sigma_radius)
+    sigma_limbus_mm: float = 0.0      # calibrated 1-sigma of the limbus centre (RMS 3-D error)
+    sigma_axis_deg: float = 0.0       # ... of the gaze (optical axis), degrees
+    limbus_laplace: tuple = (0.0, 0.0)  # the Laplace part of (sigma_limbus_mm, sigma_axis_deg)
 
 
 PRIOR_BLOCKS = ("prior", "radius_prior", "limbus_prior", "ring_prior")
@@ -676,6 +699,11 @@ def _placement(p, modes, joint, temperature, sigma_scale, profile=None):
     var_c = float(np.trace(cov[np.ix_(ci, ci)])) * sigma_scale ** 2
     var_r = float(cov[ri, ri]) * sigma_scale ** 2
     lap = (float(np.sqrt(var_c)), float(np.sqrt(var_r)))
+    lc = (fit.limbus_cov[i] if joint is not None else m0.fit.limbus_cov[0])
+    var_l = float(np.trace(lc[:3, :3])) * sigma_scale ** 2
+    var_a = float(np.trace(lc[3:, 3:])) * sigma_scale ** 2       # rad^2 (small angles)
+    lap_l = (float(np.sqrt(var_l)), float(np.degrees(np.sqrt(var_a))))
+    l0 = limbus_center(m0.eye)
     # other local optima, weighted by their energy: a second explanation nearly as good widens
     # the uncertainty by how far away it lies
     e0 = min(m.energy for m in modes)
@@ -684,15 +712,21 @@ def _placement(p, modes, joint, temperature, sigma_scale, profile=None):
     for w, m in zip(wts, modes):
         var_c += w * float(np.sum((m.eye.c - m0.eye.c) ** 2))
         var_r += w * (m.eye.R - m0.eye.R) ** 2
+        var_l += w * float(np.sum((limbus_center(m.eye) - l0) ** 2))
+        var_a += w * float(np.arccos(np.clip(np.dot(m.eye.n, m0.eye.n), -1.0, 1.0))) ** 2
     if profile is not None:     # the radius's own evidence, and where the centre goes with it
         radii, energies, centres = profile
         w = np.exp(-(energies - min(energies.min(), m0.energy)) / temperature)
         w /= w.sum()
         var_r += float(np.sum(w * (radii - m0.eye.R) ** 2))
         var_c += float(np.sum(w * np.sum((centres - m0.eye.c) ** 2, axis=1)))
+        # the front is held along the profile: the limbus moves by the cap's depth change only
+        lp = centres + (radii * np.cos(np.radians(m0.eye.tl)))[:, None] * np.asarray(m0.eye.n)
+        var_l += float(np.sum(w * np.sum((lp - l0) ** 2, axis=1)))
     cues = sorted((CUE_NAMES.get(k, k) for k, v in shares.items() if v >= 0.05),
                   key=lambda k: -shares.get({v: kk for kk, v in CUE_NAMES.items()}.get(k, k), 0))
     prof = None if profile is None else (profile[0], profile[1] - m0.energy)
     return Placement(m0.eye, m0.lab, p, float(np.sqrt(var_c)), float(np.sqrt(var_r)), cues,
                      {CUE_NAMES.get(k, k): round(v, 4) for k, v in shares.items()},
-                     [(m.eye.c, m.eye.R, m.energy - e0) for m in modes], m0.fold_deg, prof, lap)
+                     [(m.eye.c, m.eye.R, m.energy - e0) for m in modes], m0.fold_deg, prof, lap,
+                     float(np.sqrt(var_l)), float(np.degrees(np.sqrt(var_a))), lap_l)

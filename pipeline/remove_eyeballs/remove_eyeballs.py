@@ -388,6 +388,9 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source
             raise err
         fits[s] = fit_texture(mesh, sub_arrays, texture, hints[s], s, st, source)
         placements[s] = None
+    for s in SIDES:
+        if front is not None and front.get(s) is not None:
+            fits[s].prior_axis = np.asarray(front[s]["axis"], float)
     for fit in fits.values():       # back to full-mesh ids
         region = np.zeros(len(F), bool)
         region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
@@ -442,20 +445,52 @@ def _placement_record(pl, fit):
 
 
 def _placement_doubts(eye: dict, st: RemoveEyeballsSettings) -> list:
-    """Sentences for what the placement is not sure of: little evidence (a wide calibrated
-    uncertainty) and every failed self-check. The eye is still published."""
-    out = []
-    unc = eye.get("uncertainty_mm")
-    if unc is not None and unc["center"] > st.doubt_center_sigma_mm:
-        out.append(f"placed from little evidence ({', '.join(eye['placement']) or 'priors only'}): "
-                   f"centre +-{unc['center']:.1f} mm, radius +-{unc['radius']:.1f} mm (1 sigma)")
-    for k in eye_checks.failed(eye["checks"]):
-        out.append("self-check " + k + ": " + eye_checks.describe(k, eye["checks"][k]))
-    return out
+    """Sentences for every failed self-check of the scan's sphere (the asset's eye adds its own:
+    little evidence on the limbus or the axis, an iris outside the opening). The eye is still
+    published."""
+    return ["self-check " + k + ": " + eye_checks.describe(k, eye["checks"][k])
+            for k in eye_checks.failed(eye["checks"])]
+
+
+#: An eye placed from its texture states the anatomy's spread (the fissure's corners against the
+#: eye centre, UnityEyes' eight regions: 0.4-1.9 mm; the gaze prior: within 5 deg of forward).
+TEXTURE_SIGMA = (1.2, 5.0)
+
+
+def _asset_eyes(eyes, fits, placements, eyeball, st: RemoveEyeballsSettings) -> dict:
+    """The asset's eyes (:func:`human_eye.asset_eyes`) from what the scan shows: the fitted eye
+    model's limbus and gaze, or for a texture placement the limbus of its anatomical eye."""
+    from pipeline.eyeball.geometry import EyeballParams, placed_params
+    from pipeline.remove_eyeballs import human_eye
+    from pipeline.remove_eyeballs.eye_place import limbus_center
+
+    geo = eyeball or EyeballParams()
+    scan = {}
+    for s in SIDES:
+        fit, pl = fits[s], placements[s]
+        e = {"center": np.asarray(fit.center, float), "radius": float(fit.radius), "loop_points": np.asarray(eyes[s]["loop_points"], float),
+             "prior_axis": fit.prior_axis}
+        if pl is not None:
+            e.update(limbus_center=limbus_center(pl.eye), axis=np.asarray(pl.eye.n, float),
+                     limbus_radius=float(pl.eye.R * np.sin(np.radians(pl.eye.tl))),
+                     sigma_limbus_mm=pl.sigma_limbus_mm, sigma_axis_deg=pl.sigma_axis_deg,
+                     sigma_radius=pl.sigma_radius_mm, source="geometry")
+        else:
+            here = placed_params(geo, fit.radius)     # the anatomical eye behind the fissure
+            e.update(limbus_center=np.asarray(fit.center) + human_eye.limbus_depth(here) * np.asarray(fit.forward),
+                     axis=np.asarray(fit.forward, float), limbus_radius=human_eye.limbus_radius(here),
+                     sigma_limbus_mm=TEXTURE_SIGMA[0], sigma_axis_deg=TEXTURE_SIGMA[1],
+                     sigma_radius=None, source="texture")
+        scan[s] = e
+    return human_eye.asset_eyes(scan, eye_size=st.eye_size, eyeball=geo,
+                                population=tuple(st.population_radius_mm),
+                                min_iris_visible=st.min_iris_visible,
+                                doubt_limbus_sigma_mm=st.doubt_limbus_sigma_mm,
+                                doubt_axis_sigma_deg=st.doubt_axis_sigma_deg)
 
 
 def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings | None = None, *,
-                    source="mesh", texture=None, prior=None) -> RemovalResult:
+                    source="mesh", texture=None, prior=None, eyeball=None) -> RemovalResult:
     """Fit both eyes and cut the scanned eyeball surface out of the head mesh.
 
     Parameters
@@ -472,6 +507,10 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings |
         Colour texture (used when geometry alone cannot find the eye).
     prior : callable, optional
         The eye-region prior (``eye_prior.EyeRegionPrior.register``), or None.
+    eyeball : EyeballParams, optional
+        The parametric eyeball the asset carries (its ``r1`` and ``iris_radius``; default the
+        paper's): the asset's eye is that eyeball anchored at the scan's limbus
+        (:mod:`pipeline.remove_eyeballs.human_eye`).
 
     Returns
     -------
@@ -592,16 +631,34 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings |
             metrics[s].update({"texture_fissure_width_mm": round(fissure["width_mm"], 2),
                                "loop_width_mm": round(fissure["loop_width_mm"], 2)})
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
+    asset = _asset_eyes(eyes, fits, placements, eyeball, st)
     for s in SIDES:
         eyes[s]["checks"].update(pair)
         metrics[s]["placement"] = "+".join(eyes[s]["placement"])
         metrics[s]["checks_failed"] = eye_checks.failed(eyes[s]["checks"])
         metrics[s].update({f"check_{k}": c["value"] for k, c in eyes[s]["checks"].items()})
-        eyes[s]["doubts"] = _placement_doubts(eyes[s], st) + eyes[s]["doubts"]
+        a = asset[s]
+        eyes[s]["scan_sphere"] = {"center": eyes[s]["center"], "radius": eyes[s]["radius"],
+                                  "uncertainty_mm": eyes[s].pop("uncertainty_mm")}
+        eyes[s].update({
+            "center": np.round(a["center"], 6).tolist(), "radius": round(a["radius"], 6),
+            "forward": np.round(a["forward"], 9).tolist(), "eye_size": st.eye_size,
+            "limbus": {"center": np.round(a["limbus"]["center"], 6).tolist(),
+                       "radius": round(a["limbus"]["radius"], 4), "source": a["limbus"]["source"],
+                       "depth_mm": round(a["limbus"]["depth_mm"], 6)},
+            "uncertainty": {k: round(v, 4) for k, v in a["uncertainty"].items()},
+            "uncertainty_mm": {"center": round(a["uncertainty"]["center_mm"], 4),
+                               "radius": round(a["uncertainty"]["radius_mm"], 4)},
+            "iris_at_rest": a["iris"]})
+        eyes[s]["doubts"] = _placement_doubts(eyes[s], st) + a["doubts"] + eyes[s]["doubts"]
         metrics[s]["doubts"] = len(eyes[s]["doubts"])
-        unc = eyes[s]["uncertainty_mm"]
-        if unc is not None:
-            metrics[s].update({"sigma_center_mm": unc["center"], "sigma_radius_mm": unc["radius"]})
+        metrics[s].update({"radius_mm": round(a["radius"], 4),
+                           "scan_sphere_radius_mm": round(fits[s].radius, 4),
+                           "sigma_limbus_mm": eyes[s]["uncertainty"]["limbus_mm"],
+                           "sigma_axis_deg": eyes[s]["uncertainty"]["axis_deg"],
+                           "sigma_center_mm": eyes[s]["uncertainty"]["center_mm"],
+                           "limbus_source": a["limbus"]["source"],
+                           "iris_visible_share": a["iris"]["visible_share"]})
     if n_loops_out != loops_in - absorbed + 2:
         raise ScanError(source, f"cutting the eyeballs gave {n_loops_out} boundary loops, expected "
                                 f"{loops_in} - {absorbed} holes in the openings + 2")

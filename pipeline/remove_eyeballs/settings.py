@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 from pipeline.settings import Settings, setting
 
@@ -34,7 +34,13 @@ class RemoveEyeballsSettings(Settings):
     prior_front_sigma_mm: float = setting(4.0, gt=0, le=100)     # the eye-region prior's say on the front of the globe
     uncertainty_temperature: float = setting(5.0, gt=0, le=1e6)  # energy scale of a rival local optimum's weight
     uncertainty_scale: float = setting(3.0, gt=0, le=100)        # Laplace sigma x this (calibrated on unseen heads)
-    doubt_center_sigma_mm: float = setting(1.0, gt=0, le=100)    # a placement less sure than this is published with a doubt
+    # the asset's eye (pipeline.remove_eyeballs.human_eye): the parametric eyeball (eyeball.geometry)
+    # anchored at the scan's limbus; its size: the paper's r1, a population size, or the scan's sphere
+    eye_size: Literal["human", "population", "fitted"] = "human"
+    population_radius_mm: tuple[float, float] = setting((11.7, 0.45), gt=0, le=100, min_len=2, max_len=2)
+    min_iris_visible: float = setting(0.2, ge=0, le=1)           # less of the iris inside the opening at rest: placed from the opening
+    doubt_limbus_sigma_mm: float = setting(0.5, gt=0, le=100)    # a limbus centre less sure than this is published with a doubt
+    doubt_axis_sigma_deg: float = setting(2.0, gt=0, le=90)      # ... an axis less sure than this
     min_open_area_mm2: float = setting(6.0, ge=0, le=1000)       # less visible eye than this: the eye is closed
     fill_face_ratio: float = setting(12.0, gt=1, le=1e6)         # faces this many times the median area: a scanner's flat fill
     min_eye_vertices: int = setting(40, ge=0, le=100000)         # fewer scan vertices on the eye surface: too coarse to place from geometry

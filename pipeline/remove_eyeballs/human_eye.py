@@ -1,0 +1,237 @@
+"""The asset's eye: the paper's human eyeball, anchored where the scan shows the eye.
+
+A scan shows the front of an eye reliably (the limbus, the cornea or iris, the sclera beside it
+and the lid margin round it) and its depth hardly at all: the sphere fitted to the exposed
+sclera is a one-parameter family of radius against depth (docs/remove_eyeballs.md), and
+scanned or generated heads carry non-human globes (ICT-FaceKit's 14-15.5 mm). The asset's
+eyeball is therefore the paper's (r1 = 12 mm, r2 = 8 mm; SynthesEyes 3.1) or a population
+size, never the fitted sphere (unless ``eye_size: fitted``): its limbus centre and optical axis
+are put on the scan's, so its rotation centre lies ``sqrt(r1^2 - iris_radius^2)`` (10.5 mm for
+r1 = 12) behind the scan's limbus centre. With a 16 mm globe the iris would swing 14.5 mm in
+front of the rotation centre instead of about 10, 45 % too far per degree of gaze.
+
+Plain functions on arrays; :func:`asset_eyes` is what ``remove_eyeballs`` calls.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pipeline.geometry.frame import eye_basis
+
+SIDES = ("left", "right")
+#: Population eyeball radius (mm): 11.7 +- 0.45, from the axial length 23.4 +- 0.9 mm.
+POPULATION_RADIUS_MM = (11.7, 0.45)
+#: Fallback: the limbus centre lies this far behind the mean of the lid margin (mm), with this
+#: 1-sigma (mm) and the axis this sure (deg): an eye placed from its opening alone.
+OPENING_LIMBUS_DEPTH_MM = 1.5
+OPENING_SIGMA_MM = 1.5
+OPENING_AXIS_SIGMA_DEG = 6.0
+
+
+def limbus_depth(params) -> float:
+    """Distance (mm) from the eyeball centre to its limbus centre: where the corneal sphere
+    meets the eyeball sphere (:func:`pipeline.eyeball.geometry.limbus_theta`), as the scan's
+    fitted eye model defines its limbus (10.02 mm for the paper's eye: r1 12, r2 8, apex 13.5).
+
+    Parameters
+    ----------
+    params : EyeballParams
+        The eyeball as placed (``placed_params`` at the asset's radius).
+    """
+    from pipeline.eyeball.geometry import limbus_theta
+
+    return float(params.r1 * math.cos(limbus_theta(params)))
+
+
+def limbus_radius(params) -> float:
+    """Radius (mm) of the eyeball's limbus circle (6.6 mm for the paper's eye)."""
+    from pipeline.eyeball.geometry import limbus_theta
+
+    return float(params.r1 * math.sin(limbus_theta(params)))
+
+
+def anchor_center(limbus_center, axis, params) -> np.ndarray:
+    """Rotation centre (3,) of the eyeball ``params`` (as placed) whose limbus centre is
+    ``limbus_center`` (3,) and whose optical axis is the unit ``axis`` (3,)."""
+    a = np.asarray(axis, np.float64)
+    a = a / np.linalg.norm(a)
+    return np.asarray(limbus_center, np.float64) - limbus_depth(params) * a
+
+
+def asset_radius(mode: str, fitted: dict, human_mm: float = 12.0,
+                 population=POPULATION_RADIUS_MM) -> dict:
+    """The asset's eyeball radius per side (mm) and its 1-sigma: both eyes of a head one size.
+
+    Parameters
+    ----------
+    mode : str
+        ``human``: ``human_mm`` (the paper's 12 mm). ``population``: the posterior of the
+        population prior (11.7 +- 0.45 mm) given the scan's radius evidence (the two eyes'
+        inverse-variance mean; an eye with no stated sigma adds none), so a head whose eyes the
+        scan shows sharply keeps its size and a doubtful one takes the population's.
+        ``fitted``: each eye's fitted sphere, as the scan suggests (not human; for artists).
+    fitted : dict
+        side -> ``(radius, sigma or None)`` of the sphere the scan suggests.
+
+    Returns
+    -------
+    dict side -> (radius, sigma)
+    """
+    if mode == "human":
+        return {s: (float(human_mm), 0.0) for s in SIDES}
+    if mode == "fitted":
+        return {s: (float(fitted[s][0]), float(fitted[s][1] or 0.0)) for s in SIDES}
+    if mode != "population":
+        raise ValueError(f"eye_size must be human, population or fitted, got {mode!r}")
+    m, sd = population
+    prec, acc = 1.0 / sd ** 2, m / sd ** 2
+    for s in SIDES:
+        r, sig = fitted[s]
+        if sig is not None and sig > 0 and np.isfinite(sig):
+            prec += 1.0 / sig ** 2
+            acc += r / sig ** 2
+    r = acc / prec
+    return {s: (float(r), float(1.0 / math.sqrt(prec))) for s in SIDES}
+
+
+def _in_polygon(P, poly) -> np.ndarray:
+    """(n,) bool: points (n, 2) inside the closed polygon (k, 2) (even-odd rule)."""
+    P = np.asarray(P, float)
+    x, y = P[:, 0][:, None], P[:, 1][:, None]
+    a, b = poly, np.roll(poly, -1, axis=0)
+    cond = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xc = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return (np.count_nonzero(cond & (x < xc), axis=1) % 2) == 1
+
+
+def iris_in_opening(loop_points, limbus_center, axis, iris_radius: float, n: int = 24) -> dict:
+    """How the eye's iris at rest sits in the opening, seen along its axis.
+
+    Returns
+    -------
+    dict
+        ``center_inside`` (bool: the iris centre lies inside the lid opening), ``visible_share``
+        (share of the iris disc inside the opening), ``offset_mm`` (iris centre to the opening's
+        centroid, in the plane across the axis) and ``opening_half_width_mm``.
+    """
+    B = eye_basis(axis)
+    L = np.asarray(loop_points, float)
+    o = np.asarray(limbus_center, float)
+    poly = (L - o) @ B[:2].T
+    g = np.linspace(-1.0, 1.0, n)
+    gx, gy = np.meshgrid(g, g)
+    disc = np.stack([gx.ravel(), gy.ravel()], 1)
+    disc = disc[(disc ** 2).sum(1) <= 1.0] * iris_radius
+    inside = _in_polygon(np.vstack([[0.0, 0.0], disc]), poly)
+    return {"center_inside": bool(inside[0]), "visible_share": round(float(inside[1:].mean()), 4),
+            "offset_mm": round(float(np.linalg.norm(poly.mean(axis=0))), 4),
+            "opening_half_width_mm": round(float(0.5 * np.ptp(poly[:, 0])), 4)}
+
+
+def opening_limbus(loop_points, axis) -> np.ndarray:
+    """The limbus centre an eye placed from its opening alone gets: the iris centred in the
+    opening (the centroid of the lid margin seen along ``axis``), ``OPENING_LIMBUS_DEPTH_MM``
+    behind the margin's mean."""
+    L = np.asarray(loop_points, float)
+    a = np.asarray(axis, float)
+    a = a / np.linalg.norm(a)
+    B = eye_basis(a)
+    m = L.mean(axis=0)
+    q = (L - m) @ B[:2].T
+    # the centroid of the polygon's area, not of its (unevenly spaced) vertices
+    x, y = q[:, 0], q[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cr = x * yn - xn * y
+    area = 0.5 * cr.sum()
+    if abs(area) > 1e-9:
+        cx, cy = ((x + xn) * cr).sum() / (6 * area), ((y + yn) * cr).sum() / (6 * area)
+    else:
+        cx, cy = 0.0, 0.0
+    return m + cx * B[0] + cy * B[1] - OPENING_LIMBUS_DEPTH_MM * a
+
+
+def asset_eyes(scan: dict, *, eye_size: str, eyeball,
+               population=POPULATION_RADIUS_MM, min_iris_visible: float = 0.3,
+               doubt_limbus_sigma_mm: float = 0.5, doubt_axis_sigma_deg: float = 2.0) -> dict:
+    """Both eyes of the asset from what the scan shows of them.
+
+    Parameters
+    ----------
+    scan : dict
+        side -> ``limbus_center`` (3,), ``axis`` (3,) unit, ``limbus_radius``, ``sigma_limbus_mm``,
+        ``sigma_axis_deg`` (calibrated 1-sigma), ``source`` (``geometry`` | ``texture``),
+        ``center``, ``radius`` and ``sigma_radius`` (the sphere the scan suggests), ``loop_points`` (L, 3)
+        (the lid opening), ``prior_axis`` ((3,) or None: the eye region's forward).
+    eye_size : str
+        ``human`` (radius ``r1``), ``population`` or ``fitted`` (:func:`asset_radius`).
+    eyeball : EyeballParams
+        The parametric eyeball the asset carries (its ``r1`` is the ``human`` size; the other
+        sizes place it with :func:`pipeline.eyeball.geometry.placed_params`).
+
+    Returns
+    -------
+    dict side -> dict
+        ``center``, ``radius``, ``forward`` (the asset's eye), ``limbus`` (centre, radius as the
+        scan shows it, ``source``: geometry | texture | opening), ``uncertainty`` (``limbus_mm``,
+        ``axis_deg``, ``center_mm``, ``radius_mm``), ``iris`` (:func:`iris_in_opening` at rest)
+        and ``doubts`` (sentences).
+    """
+    from pipeline.eyeball.geometry import placed_params
+
+    radii = asset_radius(eye_size, {s: (scan[s]["radius"], scan[s].get("sigma_radius")) for s in SIDES},
+                         eyeball.r1, population)
+    out = {}
+    for s in SIDES:
+        e = scan[s]
+        r, sr = radii[s]
+        placed = placed_params(eyeball, r)
+        ir = placed.iris_radius
+        lc = np.asarray(e["limbus_center"], float)
+        ax = np.asarray(e["axis"], float)
+        ax = ax / np.linalg.norm(ax)
+        sl, sa, source = float(e["sigma_limbus_mm"]), float(e["sigma_axis_deg"]), e["source"]
+        doubts = []
+        iris = iris_in_opening(e["loop_points"], lc, ax, ir)
+        if not iris["center_inside"] or iris["visible_share"] < min_iris_visible:
+            # an iris behind a lid or in a corner at rest is no eye a scan shows: the opening
+            # and the eye region's forward place it instead (the 57 deg turn into the nose)
+            was = iris
+            ax = _opening_axis(e["loop_points"], e.get("prior_axis"), ax)
+            lc = opening_limbus(e["loop_points"], ax)
+            sl, sa, source = OPENING_SIGMA_MM, OPENING_AXIS_SIGMA_DEG, "opening"
+            iris = iris_in_opening(e["loop_points"], lc, ax, ir)
+            doubts.append(f"the placed iris lay {'outside' if not was['center_inside'] else 'mostly behind'} "
+                          f"the lid opening at rest ({100 * was['visible_share']:.0f} % of it inside): "
+                          f"placed from the opening instead, iris centred, axis along the eye "
+                          f"region's forward")
+        d = limbus_depth(placed)
+        c = lc - d * ax
+        if eye_size == "fitted" and source != "opening":     # today's scan-shaped globe, as fitted
+            c, d = np.asarray(e["center"], float), float(np.dot(lc - np.asarray(e["center"], float), ax))
+        sc = math.sqrt(sl ** 2 + (d * math.radians(sa)) ** 2 + sr ** 2)
+        if source != "opening" and (sl > doubt_limbus_sigma_mm or sa > doubt_axis_sigma_deg):
+            doubts.append(f"placed from little evidence ({source}): limbus centre +-{sl:.2f} mm, "
+                          f"axis +-{sa:.1f} deg (1 sigma)")
+        out[s] = {"center": c, "radius": r, "forward": ax,
+                  "limbus": {"center": lc, "radius": float(e["limbus_radius"]), "source": source,
+                             "depth_mm": d},
+                  "uncertainty": {"limbus_mm": sl, "axis_deg": sa, "center_mm": sc, "radius_mm": sr},
+                  "iris": iris, "doubts": doubts}
+    return out
+
+
+def _opening_axis(loop_points, prior_axis, axis):
+    """The eye region's forward for an eye placed from its opening: the prior's axis when it
+    registered, else the normal of the opening's best-fit plane, turned out of the face."""
+    if prior_axis is not None and np.all(np.isfinite(prior_axis)):
+        a = np.asarray(prior_axis, float)
+        return a / np.linalg.norm(a)
+    L = np.asarray(loop_points, float)
+    _, _, vt = np.linalg.svd(L - L.mean(axis=0), full_matrices=False)
+    n = vt[2]
+    n = n if n[2] >= 0 else -n
+    return n / np.linalg.norm(n)

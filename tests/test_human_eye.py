@@ -1,0 +1,116 @@
+"""The asset's eye: the paper's human eyeball anchored at the scan's limbus (human_eye)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.eyeball.geometry import EyeballParams, placed_params
+from pipeline.remove_eyeballs import human_eye
+from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
+from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
+from fixtures.eye_heads import make_head
+
+
+def test_limbus_depth_of_the_papers_eye():
+    """Known answer: spheres r1 12 and r2 8 with the apex at 13.5 (corneal centre at 5.5) meet
+    at z = (144 + 5.5^2 - 64) / 11 = 10.0227 mm, radius sqrt(144 - z^2)."""
+    p = EyeballParams()
+    z = (144.0 + 5.5 ** 2 - 64.0) / 11.0
+    assert human_eye.limbus_depth(p) == pytest.approx(z, abs=1e-12)
+    assert human_eye.limbus_radius(p) == pytest.approx(math.sqrt(144.0 - z * z), abs=1e-12)
+    # a larger globe keeps the cornea's mm (placed_params): its limbus lies deeper, off a flatter cap
+    big = placed_params(p, 16.0)
+    assert human_eye.limbus_depth(big) > 13.0
+    c = human_eye.anchor_center([1.0, 2.0, 3.0], [0.0, 0.0, 2.0], p)
+    assert np.allclose(c, [1.0, 2.0, 3.0 - z])
+
+
+def test_asset_radius_modes():
+    fitted = {"left": (15.0, 0.45), "right": (15.0, 0.45)}
+    assert human_eye.asset_radius("human", fitted, 12.0) == {"left": (12.0, 0.0), "right": (12.0, 0.0)}
+    assert human_eye.asset_radius("fitted", {"left": (14.0, 0.3), "right": (15.0, None)}) == \
+        {"left": (14.0, 0.3), "right": (15.0, 0.0)}
+    # the population (11.7 +- 0.45) and two eyes of 15 +- 0.45: the precision-weighted mean
+    pop = human_eye.asset_radius("population", fitted)
+    assert pop["left"] == pop["right"]
+    assert pop["left"][0] == pytest.approx((11.7 + 15.0 + 15.0) / 3.0)
+    assert pop["left"][1] == pytest.approx(0.45 / math.sqrt(3.0))
+    # no evidence (texture placements): the population itself
+    assert human_eye.asset_radius("population", {"left": (12.0, None), "right": (13.0, np.inf)})["left"] \
+        == pytest.approx((11.7, 0.45))
+    with pytest.raises(ValueError, match="eye_size"):
+        human_eye.asset_radius("huge", fitted)
+
+
+def _almond(cx=0.0, z=11.0, a=13.5, b=4.75, n=64):
+    t = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    return np.column_stack([cx + a * np.cos(t), b * np.sin(t), np.full(n, z)])
+
+
+def test_iris_in_opening_centred_and_in_a_corner():
+    L = _almond()
+    mid = human_eye.iris_in_opening(L, [0.0, 0.0, 10.0], [0.0, 0.0, 1.0], 5.85)
+    assert mid["center_inside"] and 0.6 < mid["visible_share"] < 0.9
+    assert mid["offset_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert mid["opening_half_width_mm"] == pytest.approx(13.5)
+    # turned 57 deg toward a corner: the iris centre leaves the opening
+    corner = human_eye.iris_in_opening(L, [15.0, -2.0, 6.0], [0.0, 0.0, 1.0], 5.85)
+    assert not corner["center_inside"] and corner["visible_share"] < 0.2
+
+
+def _scan_eye(lc, axis, loop, prior_axis=None, sigma=(0.2, 0.5)):
+    return {"limbus_center": np.asarray(lc, float), "axis": np.asarray(axis, float), "limbus_radius": 6.6,
+            "sigma_limbus_mm": sigma[0], "sigma_axis_deg": sigma[1], "source": "geometry",
+            "radius": 15.0, "sigma_radius": 0.5, "loop_points": loop, "prior_axis": prior_axis}
+
+
+def test_asset_eyes_anchor_one_size_and_fall_back_on_a_hidden_iris():
+    L = _almond()
+    turned = np.array([math.sin(math.radians(57.0)), 0.0, math.cos(math.radians(57.0))])
+    scan = {"left": _scan_eye([0.0, 0.0, 10.0], [0.0, 0.0, 1.0], L),
+            "right": _scan_eye([14.0, -1.0, 7.0], turned, L, prior_axis=[0.0, 0.1, 1.0])}
+    out = human_eye.asset_eyes(scan, eye_size="human", eyeball=EyeballParams())
+    d = human_eye.limbus_depth(EyeballParams())
+    left, right = out["left"], out["right"]
+    assert left["radius"] == right["radius"] == 12.0
+    assert np.allclose(left["center"], [0.0, 0.0, 10.0 - d])
+    assert left["doubts"] == [] and left["limbus"]["source"] == "geometry"
+    # sigma of the centre: the limbus's and the axis's lever over the limbus depth
+    assert left["uncertainty"]["center_mm"] == pytest.approx(math.hypot(0.2, d * math.radians(0.5)))
+    # the iris turned into the corner: placed from the opening, along the prior's axis, doubted
+    assert right["limbus"]["source"] == "opening" and len(right["doubts"]) == 1
+    assert "lid opening at rest" in right["doubts"][0]
+    assert np.allclose(right["forward"], np.array([0.0, 0.1, 1.0]) / np.linalg.norm([0.0, 0.1, 1.0]))
+    assert right["iris"]["center_inside"] and right["iris"]["visible_share"] > 0.5
+    assert right["uncertainty"]["limbus_mm"] == human_eye.OPENING_SIGMA_MM
+    # an eye whose limbus the scan shows loosely is published with a doubt
+    loose = human_eye.asset_eyes({**scan, "right": _scan_eye([0.0, 0.0, 10.0], [0, 0, 1], L, sigma=(0.9, 1.0))},
+                                 eye_size="human", eyeball=EyeballParams())
+    assert any("limbus centre +-0.90 mm" in x for x in loose["right"]["doubts"])
+
+
+def test_a_12mm_eye_is_placed_within_0_2mm_and_1deg():
+    """The height-field head carries the paper's eye (r1 12, cornea 8, apex 13.5) at (+-30, 0, 0)
+    looking along +Z: the asset's eye lands on it."""
+    mesh, hints, gt = make_head(0.5, seed=1, noise=0.02)
+    res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
+    for s in ("left", "right"):
+        e = res.eyes[s]
+        assert e["radius"] == 12.0 and e["eye_size"] == "human"
+        assert np.linalg.norm(np.array(e["center"]) - gt[s]["center"]) <= 0.2, (s, e["center"])
+        assert np.degrees(np.arccos(min(1.0, e["forward"][2]))) <= 1.0
+        assert e["limbus"]["source"] == "geometry" and e["iris_at_rest"]["center_inside"]
+
+
+def test_unequal_scan_spheres_give_one_human_size_or_the_fitted_ones():
+    mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 14.0))
+    res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
+    assert res.eyes["left"]["radius"] == res.eyes["right"]["radius"] == 12.0
+    fitted = remove_eyeballs(mesh, hints, RemoveEyeballsSettings(eye_size="fitted"))
+    for s in ("left", "right"):
+        e = fitted.eyes[s]
+        assert e["radius"] == pytest.approx(e["scan_sphere"]["radius"], abs=1e-5)
+        assert abs(e["radius"] - gt[s]["radius"]) <= 0.5
