@@ -42,7 +42,7 @@ KNOWN_KEYS = ("mesh", "texture", "units", "up_axis", "forward_axis", "eyes", "li
 FREE_FORM_KEYS = ("source", "notes", "description", "name", "comment")
 EYE_SIDES = ("left", "right")
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
-TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".tga", ".webp")
+TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")   # PNG, JPEG, TIFF: pipeline.io.formats.image
 DEFAULT_MAX_YAML_BYTES = 65536
 _URI = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]+:")
 # YAML 1.2 core-schema floats ("3.45e1", "1e3", ".5"), which YAML 1.1 (PyYAML's default) reads as text
