@@ -22,13 +22,14 @@ import sys
 from pathlib import Path
 
 from pipeline.errors import ScanError
+from pipeline.io.strict_yaml import DuplicateKeyError, StrictLoader
 from pipeline.io.scratch import stage_scratch
 from pipeline.render import mix
 from pipeline.render import plan as pl
 from pipeline.render.dataset import asset_inputs, load_assets, render_dataset
 from pipeline.render.settings import MAX_IMAGES, RenderSettings
 from pipeline.render.shard import dashboard_text
-from stages._common import load_params
+from stages._common import load_params, read_params_file
 
 
 class _Parser(argparse.ArgumentParser):
@@ -46,13 +47,17 @@ def _settings(args) -> RenderSettings:
         raise ScanError("--n", f"must be between 1 and {MAX_IMAGES} (got {args.n})")
     if args.params != "params.yaml" and not Path(args.params).is_file():
         raise ScanError(args.params, "params file not found")
+    if Path(args.params).is_file() and "render" not in read_params_file(args.params):
+        raise ScanError(args.params, "has no render: block (the dataset's settings)")
     params = load_params("render", args.params)      # {} without a params.yaml
     for item in args.set or ():
         key, eq, value = item.partition("=")
         if not eq or not key:
             raise ScanError("--set", f"{item!r} is not KEY=VALUE")
         try:
-            params[key] = yaml.safe_load(value)
+            params[key] = yaml.load(value, Loader=StrictLoader)     # params.yaml's rules
+        except DuplicateKeyError as exc:
+            raise ScanError("--set", f"{key}: {exc}") from None
         except yaml.YAMLError:
             raise ScanError("--set", f"{key}: {value!r} is not a YAML value") from None
     params["n_images"] = args.n
