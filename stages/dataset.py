@@ -10,8 +10,11 @@ Not a DVC stage (its output folder is the user's), but a script like them: it re
 ``--workers`` override it), checks the assets and the output folder, says what it skips,
 doubts and removes, and calls the library (pipeline/render/dataset.py: the plan, the folder,
 the files, the card). Bad input (a missing or invalid asset or rig, ``--n`` out of range, a
-weight count that does not match, an output folder that is not a dataset or holds another plan)
-ends with one line and exit 2 before anything is written.
+weight count that does not match, an output folder that is not a dataset or holds another plan, or
+a symbolic link where the run would write or delete) ends with one line and exit 2 before anything
+is written. ``--out`` belongs to one run at a time (pipeline/io/folder_lock.py): a second run is
+refused naming the holder's pid and host; a lock whose process is provably gone on this host is
+taken over with a warning line.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from pathlib import Path
 
 from pipeline.errors import ScanError
 from pipeline.io.strict_yaml import DuplicateKeyError, StrictLoader
+from pipeline.io.folder_lock import folder_lock
 from pipeline.io.scratch import stage_scratch
 from pipeline.render import mix
 from pipeline.render import plan as pl
@@ -97,31 +101,34 @@ def main(argv=None) -> int:
         settings = _settings(args)
         pairs, skipped = asset_inputs(args.assets, args.rigs)
         pl.check_out(args.out)
-        for f in skipped:
-            print(f"note: skipped {f} (the shared eyeball, not a head)", file=sys.stderr)
-        assets = load_assets(pairs, args.weights, settings)
-        for a in assets:                      # rendered all the same; the card lists them too
-            for d in a.doubts():
-                print(f"warning: {a.folder}: {d}", file=sys.stderr)
-        assign = mix.assign(args.n, [a.weight for a in assets], settings.seed)
-        fp = pl.inspect_dataset(args.out, assets, assign, settings)
-        err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
-        if err is not None:
-            raise err
-        if args.overwrite and fp.state == "new":
-            print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
-        elif args.overwrite:
-            what = "; ".join(fp.differences) or "the same plan"
-            print(f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {args.out} go ({what})",
-                  file=sys.stderr)
+        with folder_lock(args.out) as took_over:   # one run at a time in --out, until it ends
+            if took_over:
+                print(f"warning: {took_over}", file=sys.stderr)
+            for f in skipped:
+                print(f"note: skipped {f} (the shared eyeball, not a head)", file=sys.stderr)
+            assets = load_assets(pairs, args.weights, settings)
+            for a in assets:                      # rendered all the same; the card lists them too
+                for d in a.doubts():
+                    print(f"warning: {a.folder}: {d}", file=sys.stderr)
+            assign = mix.assign(args.n, [a.weight for a in assets], settings.seed)
+            fp = pl.inspect_dataset(args.out, assets, assign, settings)
+            err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
+            if err is not None:
+                raise err
+            if args.overwrite and fp.state == "new":
+                print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
+            elif args.overwrite:
+                what = "; ".join(fp.differences) or "the same plan"
+                print(f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {args.out} go ({what})",
+                      file=sys.stderr)
 
-        def dashboard(url):
-            print(dashboard_text(url), file=sys.stderr)
+            def dashboard(url):
+                print(dashboard_text(url), file=sys.stderr)
 
-        with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
-            m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
-                               progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume,
-                               on_dashboard=dashboard if args.dashboard else None)
+            with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
+                m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
+                                   progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume,
+                                   on_dashboard=dashboard if args.dashboard else None)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
