@@ -2,7 +2,8 @@
 
     python -m stages.dataset --assets rigged_assets/* --n 10000 --preset generic --out DIR \\
         [--weights 2 1 1] [--rigs build/a/rig ...] [--seed S] [--params params.yaml] \\
-        [--set KEY=VALUE ...] [--workers N] [--scheduler ADDRESS] [--no-progress] [--dashboard] \\
+        [--set KEY=VALUE ...] [--workers N] [--scheduler ADDRESS [--tls-ca-file F --tls-cert F --tls-key F]] \\
+        [--no-progress] [--dashboard] \\
         [--overwrite | --resume]
 
 Not a DVC stage (its output folder is the user's), but a script like them: it reads the
@@ -73,6 +74,22 @@ def _settings(args) -> RenderSettings:
     return RenderSettings.from_params(params, source=args.params)
 
 
+def _security(args):
+    """The client's TLS credentials for ``--scheduler`` from ``--tls-*`` (None: Dask's config)."""
+    given = {k: getattr(args, k) for k in ("tls_ca_file", "tls_cert", "tls_key")}
+    if not any(given.values()):
+        return None
+    if not all(given.values()) or not args.scheduler:
+        raise ScanError("--tls-ca-file", "give --tls-ca-file, --tls-cert and --tls-key together, with --scheduler")
+    for k, p in given.items():
+        if not p.is_file():
+            raise ScanError(p, f"--{k.replace('_', '-')}: file not found")
+    from distributed.security import Security
+
+    return Security(tls_ca_file=str(given["tls_ca_file"]), tls_client_cert=str(given["tls_cert"]),
+                    tls_client_key=str(given["tls_key"]), require_encryption=True)
+
+
 def main(argv=None) -> int:
     ap = _Parser(prog="python -m stages.dataset", description=__doc__.splitlines()[0])
     ap.add_argument("--assets", nargs="+", required=True, help="rigged_assets/<scan> folders (rigged_assets/* "
@@ -87,7 +104,13 @@ def main(argv=None) -> int:
     ap.add_argument("--set", nargs="+", default=None, metavar="KEY=VALUE",
                     help="override render settings (YAML values), e.g. width=240 height=160 samples=32")
     ap.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes")
-    ap.add_argument("--scheduler", default=None, help="dask scheduler address (default: a LocalCluster)")
+    ap.add_argument("--scheduler", default=None, help="dask scheduler address (default: a LocalCluster, "
+                                                      "TLS with credentials made for the run)")
+    for flag, what in (("--tls-ca-file", "CA certificate"), ("--tls-cert", "client certificate"),
+                       ("--tls-key", "client key")):
+        ap.add_argument(flag, type=Path, default=None,
+                        help=f"with --scheduler tls://...: the {what} (PEM; default: Dask's config, "
+                             "distributed.comm.tls.*; docs/datasets.md)")
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--dashboard", action="store_true",
                     help="serve the LocalCluster's dask dashboard on 127.0.0.1 (a free port, printed)")
@@ -99,6 +122,7 @@ def main(argv=None) -> int:
 
     try:
         settings = _settings(args)
+        security = _security(args)
         pairs, skipped = asset_inputs(args.assets, args.rigs)
         pl.check_out(args.out)
         with folder_lock(args.out) as took_over:   # one run at a time in --out, until it ends
@@ -128,7 +152,7 @@ def main(argv=None) -> int:
             with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
                 m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
                                    progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume,
-                                   on_dashboard=dashboard if args.dashboard else None)
+                                   on_dashboard=dashboard if args.dashboard else None, security=security)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
