@@ -63,6 +63,7 @@ BENCHMARKS = (
     Benchmark("view_synthetic_head"),
     Benchmark("bench_ingest", modest=("--runs", "1")),
     Benchmark("bench_hostile"),
+    Benchmark("bench_holes"),
     Benchmark("bench_eyeball", modest=("--repeats", "1")),
     Benchmark("bench_remove_eyeballs", modest=("--repeats", "1")),
     Benchmark("bench_eyelid_margin", args=("--scans", "{scans}"), needs=("scans",)),

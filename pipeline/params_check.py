@@ -72,9 +72,11 @@ def check_identities(data: dict, scans: list[str], source="params.yaml") -> dict
     return out
 
 
-def check_params(data: dict, source="params.yaml") -> dict:
+def check_params(data: dict, source="params.yaml", complete: bool = False) -> dict:
     """Check a whole params mapping; returns {block: settings} (ScanError on the first problem),
-    with ``identities`` -> {name: SyntheticHeadSettings}."""
+    with ``identities`` -> {name: SyntheticHeadSettings}. ``complete``: every block and list must
+    be there (a whole ``params.yaml``, as DVC's params deps need them); otherwise a block that is
+    absent takes its defaults."""
     scans = check_scans(data.get("scans"), source)
     unknown = [k for k in data if k not in LISTS and k not in BLOCKS]
     if unknown:
@@ -94,4 +96,9 @@ def check_params(data: dict, source="params.yaml") -> dict:
         except (ValueError, TypeError) as exc:
             raise ScanError(source, f"{block}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     out["identities"] = check_identities(data, scans, source)
+    if complete:
+        missing = [k for k in (*LISTS, *BLOCKS) if k not in data]
+        if missing:
+            raise ScanError(source, f"{missing[0]}: block is missing (every block of this pipeline must be "
+                                    f"there; missing: {', '.join(missing)})")
     return out

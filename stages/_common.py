@@ -21,20 +21,22 @@ import yaml
 
 from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json
+from pipeline.io.strict_yaml import DuplicateKeyError, StrictLoader
 from pipeline.results import StageResult
 
 EXIT_BAD_INPUT = 2
 
 
-# a safe loader (plain YAML types only, never Python objects): libyaml's when PyYAML has it (the
-# same resolver and constructors as yaml.safe_load, about 10x faster: the pure-Python one took
-# 27 ms per read of params.yaml, and the usd stage reads every block)
-_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+# a safe loader (plain YAML types only, never Python objects) that refuses a repeated key (scan.yaml's
+# rules): libyaml's parser when PyYAML has it (about 10x faster: the pure-Python one took 27 ms per
+# read of params.yaml, and the usd stage reads every block)
+_SAFE_LOADER = StrictLoader
 _PARAMS_CACHE: dict = {}      # resolved path -> ((mtime_ns, size), parsed document)
 
 
 def read_params_file(path="params.yaml") -> dict:
-    """The whole params file as a mapping (empty when absent); ScanError when it is not one.
+    """The whole params file as a mapping (empty when absent); ScanError when it is not one or
+    repeats a key (``render: samples`` twice: no silent "last one wins").
 
     Parsed once per process while the file is unchanged; each call gets its own deep copy."""
     p = Path(path)
@@ -50,6 +52,8 @@ def read_params_file(path="params.yaml") -> dict:
             with open(p, encoding="utf-8") as fh:
                 data = yaml.load(fh, Loader=_SAFE_LOADER)
             _PARAMS_CACHE[key] = (stamp, data)
+    except DuplicateKeyError as exc:
+        raise ScanError(p, f"{exc}: each key may appear once") from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise ScanError(p, f"cannot be read as YAML ({type(exc).__name__})") from None
     if data is None:

@@ -8,7 +8,8 @@ refuses, with one line naming ``params.yaml`` and exit 2 (and so nothing else ru
 * a scan name under ``scans:`` that is not a safe name (letters, digits, ``.``, ``_``, ``-``,
   not starting with a dot; pipeline.settings.check_scan_name) or is listed twice: names become
   folder names and command-line words, so they must never carry shell syntax or ``..``;
-* a block that is not a stage's;
+* a key given twice in one mapping (``samples`` twice under ``render:``: no silent "last one wins");
+* a block that is not a stage's, or a block (or ``scans:`` / ``identities:``) that is missing;
 * a bad value or unknown key in any block (each block's settings dataclass);
 * an ``identities:`` entry (a procedural head the ``synthetic_head`` stage builds into
   ``raw_scans/<name>``) that is not a safe name, is not also listed under ``scans:`` (the
@@ -37,7 +38,7 @@ def main(argv) -> None:
     parser.add_argument("params_file", type=Path, help="params.yaml")
     parser.add_argument("out", type=Path, help="build/check_params.ok (written when everything is valid)")
     args = parser.parse_args(argv)
-    check_params(read_params_file(args.params_file), source=str(args.params_file))
+    check_params(read_params_file(args.params_file), source=str(args.params_file), complete=True)
     write_text(args.out, OK_TEXT)
     return None
 

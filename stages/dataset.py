@@ -2,7 +2,8 @@
 
     python -m stages.dataset --assets rigged_assets/* --n 10000 --preset generic --out DIR \\
         [--weights 2 1 1] [--rigs build/a/rig ...] [--seed S] [--params params.yaml] \\
-        [--set KEY=VALUE ...] [--workers N] [--scheduler ADDRESS] [--no-progress] [--dashboard] \\
+        [--set KEY=VALUE ...] [--workers N] [--scheduler ADDRESS [--tls-ca-file F --tls-cert F --tls-key F]] \\
+        [--no-progress] [--dashboard] \\
         [--overwrite | --resume]
 
 Not a DVC stage (its output folder is the user's), but a script like them: it reads the
@@ -10,8 +11,11 @@ Not a DVC stage (its output folder is the user's), but a script like them: it re
 ``--workers`` override it), checks the assets and the output folder, says what it skips,
 doubts and removes, and calls the library (pipeline/render/dataset.py: the plan, the folder,
 the files, the card). Bad input (a missing or invalid asset or rig, ``--n`` out of range, a
-weight count that does not match, an output folder that is not a dataset or holds another plan)
-ends with one line and exit 2 before anything is written.
+weight count that does not match, an output folder that is not a dataset or holds another plan, or
+a symbolic link where the run would write or delete) ends with one line and exit 2 before anything
+is written. ``--out`` belongs to one run at a time (pipeline/io/folder_lock.py): a second run is
+refused naming the holder's pid and host; a lock whose process is provably gone on this host is
+taken over with a warning line.
 """
 
 from __future__ import annotations
@@ -22,13 +26,15 @@ import sys
 from pathlib import Path
 
 from pipeline.errors import ScanError
+from pipeline.io.strict_yaml import DuplicateKeyError, StrictLoader
+from pipeline.io.folder_lock import folder_lock
 from pipeline.io.scratch import stage_scratch
 from pipeline.render import mix
 from pipeline.render import plan as pl
 from pipeline.render.dataset import asset_inputs, load_assets, render_dataset
 from pipeline.render.settings import MAX_IMAGES, RenderSettings
 from pipeline.render.shard import dashboard_text
-from stages._common import load_params
+from stages._common import load_params, read_params_file
 
 
 class _Parser(argparse.ArgumentParser):
@@ -46,13 +52,17 @@ def _settings(args) -> RenderSettings:
         raise ScanError("--n", f"must be between 1 and {MAX_IMAGES} (got {args.n})")
     if args.params != "params.yaml" and not Path(args.params).is_file():
         raise ScanError(args.params, "params file not found")
+    if Path(args.params).is_file() and "render" not in read_params_file(args.params):
+        raise ScanError(args.params, "has no render: block (the dataset's settings)")
     params = load_params("render", args.params)      # {} without a params.yaml
     for item in args.set or ():
         key, eq, value = item.partition("=")
         if not eq or not key:
             raise ScanError("--set", f"{item!r} is not KEY=VALUE")
         try:
-            params[key] = yaml.safe_load(value)
+            params[key] = yaml.load(value, Loader=StrictLoader)     # params.yaml's rules
+        except DuplicateKeyError as exc:
+            raise ScanError("--set", f"{key}: {exc}") from None
         except yaml.YAMLError:
             raise ScanError("--set", f"{key}: {value!r} is not a YAML value") from None
     params["n_images"] = args.n
@@ -62,6 +72,22 @@ def _settings(args) -> RenderSettings:
     if args.no_progress:
         params["progress"] = False
     return RenderSettings.from_params(params, source=args.params)
+
+
+def _security(args):
+    """The client's TLS credentials for ``--scheduler`` from ``--tls-*`` (None: Dask's config)."""
+    given = {k: getattr(args, k) for k in ("tls_ca_file", "tls_cert", "tls_key")}
+    if not any(given.values()):
+        return None
+    if not all(given.values()) or not args.scheduler:
+        raise ScanError("--tls-ca-file", "give --tls-ca-file, --tls-cert and --tls-key together, with --scheduler")
+    for k, p in given.items():
+        if not p.is_file():
+            raise ScanError(p, f"--{k.replace('_', '-')}: file not found")
+    from distributed.security import Security
+
+    return Security(tls_ca_file=str(given["tls_ca_file"]), tls_client_cert=str(given["tls_cert"]),
+                    tls_client_key=str(given["tls_key"]), require_encryption=True)
 
 
 def main(argv=None) -> int:
@@ -78,7 +104,13 @@ def main(argv=None) -> int:
     ap.add_argument("--set", nargs="+", default=None, metavar="KEY=VALUE",
                     help="override render settings (YAML values), e.g. width=240 height=160 samples=32")
     ap.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes")
-    ap.add_argument("--scheduler", default=None, help="dask scheduler address (default: a LocalCluster)")
+    ap.add_argument("--scheduler", default=None, help="dask scheduler address (default: a LocalCluster, "
+                                                      "TLS with credentials made for the run)")
+    for flag, what in (("--tls-ca-file", "CA certificate"), ("--tls-cert", "client certificate"),
+                       ("--tls-key", "client key")):
+        ap.add_argument(flag, type=Path, default=None,
+                        help=f"with --scheduler tls://...: the {what} (PEM; default: Dask's config, "
+                             "distributed.comm.tls.*; docs/datasets.md)")
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--dashboard", action="store_true",
                     help="serve the LocalCluster's dask dashboard on 127.0.0.1 (a free port, printed)")
@@ -90,33 +122,37 @@ def main(argv=None) -> int:
 
     try:
         settings = _settings(args)
+        security = _security(args)
         pairs, skipped = asset_inputs(args.assets, args.rigs)
         pl.check_out(args.out)
-        for f in skipped:
-            print(f"note: skipped {f} (the shared eyeball, not a head)", file=sys.stderr)
-        assets = load_assets(pairs, args.weights, settings)
-        for a in assets:                      # rendered all the same; the card lists them too
-            for d in a.doubts():
-                print(f"warning: {a.folder}: {d}", file=sys.stderr)
-        assign = mix.assign(args.n, [a.weight for a in assets], settings.seed)
-        fp = pl.inspect_dataset(args.out, assets, assign, settings)
-        err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
-        if err is not None:
-            raise err
-        if args.overwrite and fp.state == "new":
-            print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
-        elif args.overwrite:
-            what = "; ".join(fp.differences) or "the same plan"
-            print(f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {args.out} go ({what})",
-                  file=sys.stderr)
+        with folder_lock(args.out) as took_over:   # one run at a time in --out, until it ends
+            if took_over:
+                print(f"warning: {took_over}", file=sys.stderr)
+            for f in skipped:
+                print(f"note: skipped {f} (the shared eyeball, not a head)", file=sys.stderr)
+            assets = load_assets(pairs, args.weights, settings)
+            for a in assets:                      # rendered all the same; the card lists them too
+                for d in a.doubts():
+                    print(f"warning: {a.folder}: {d}", file=sys.stderr)
+            assign = mix.assign(args.n, [a.weight for a in assets], settings.seed)
+            fp = pl.inspect_dataset(args.out, assets, assign, settings)
+            err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
+            if err is not None:
+                raise err
+            if args.overwrite and fp.state == "new":
+                print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
+            elif args.overwrite:
+                what = "; ".join(fp.differences) or "the same plan"
+                print(f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {args.out} go ({what})",
+                      file=sys.stderr)
 
-        def dashboard(url):
-            print(dashboard_text(url), file=sys.stderr)
+            def dashboard(url):
+                print(dashboard_text(url), file=sys.stderr)
 
-        with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
-            m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
-                               progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume,
-                               on_dashboard=dashboard if args.dashboard else None)
+            with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
+                m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
+                                   progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume,
+                                   on_dashboard=dashboard if args.dashboard else None, security=security)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

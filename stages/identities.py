@@ -59,9 +59,14 @@ def main(argv=None) -> int:
         text = add_identities(args.params.read_text(encoding="utf-8"), entries, args.params)
         import yaml
 
+        from pipeline.io.strict_yaml import DuplicateKeyError, StrictLoader
         from pipeline.params_check import check_params
 
-        check_params(yaml.safe_load(text), source=str(args.params))    # before anything is written
+        try:
+            data = yaml.load(text, Loader=StrictLoader)       # params.yaml's rules: no repeated key
+        except DuplicateKeyError as exc:
+            raise ScanError(args.params, f"{exc}: each key may appear once") from None
+        check_params(data, source=str(args.params), complete=True)    # before anything is written
         write_text(args.params, text)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)

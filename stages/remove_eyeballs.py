@@ -45,7 +45,7 @@ def _read(ingest: Path):
     tex_path = ingest / "texture.png"
     if tex_path.is_file():
         from PIL import Image
-        with Image.open(tex_path) as im:
+        with Image.open(tex_path, formats=["PNG"]) as im:   # ingest writes a PNG; nothing else is decoded
             texture = np.asarray(im.convert("RGB"))
     return mesh, scan.hints, texture, scan.folder or str(mesh_path), tex_path
 

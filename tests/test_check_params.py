@@ -155,3 +155,60 @@ def test_dvc_repro_with_a_malicious_scan_runs_nothing(tmp_path):
     assert "Running stage 'synthetic_head'" not in text and "Running stage 'ingest" not in text
     assert not list(tmp_path.rglob("PWNED")) and not (repo / "build" / "check_params.ok").exists()
     assert not (repo / "raw_scans" / "synthetic_head").exists()
+
+
+# ---------------------------------------------------------------------------- strict settings (issue 31)
+
+def _params_text(tmp_path, edit) -> Path:
+    """The repository's params.yaml with ``edit(text) -> text`` applied (comments kept)."""
+    text = (ROOT / "params.yaml").read_text()
+    p = tmp_path / "params.yaml"
+    p.write_text(edit(text))
+    return p
+
+
+def _twice(text):            # samples given twice under render: (the second one would win)
+    assert "\n  samples: 10 " in text
+    return text.replace("\nrender:\n", "\nrender:\n  samples: 99\n", 1)
+
+
+def _no_render(text):
+    return text[:text.index("\nrender:\n") + 1]
+
+
+def _dataset(tmp_path, params):
+    from stages import dataset
+
+    return dataset.main(["--assets", str(tmp_path / "no_asset"), "--n", "2", "--out", str(tmp_path / "ds"),
+                         "--params", str(params), "--no-progress"])
+
+
+def test_duplicate_key_refused_by_check_params_and_dataset(tmp_path, capsys):
+    p = _params_text(tmp_path, _twice)
+    assert run_stage(cp.main, [str(p), str(tmp_path / "ok")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {p}: duplicate key 'samples'") and err.count("\n") == 1, err
+    assert not (tmp_path / "ok").exists()
+    assert _dataset(tmp_path, p) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {p}: duplicate key 'samples'") and err.count("\n") == 1, err
+    assert not (tmp_path / "ds").exists()
+
+
+def test_missing_block_refused_by_check_params_and_dataset(tmp_path, capsys):
+    p = _params_text(tmp_path, _no_render)
+    assert run_stage(cp.main, [str(p), str(tmp_path / "ok")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: {p}: render: block is missing (every block of this pipeline must be there; " \
+                  "missing: render)\n"
+    assert not (tmp_path / "ok").exists()
+    assert _dataset(tmp_path, p) == 2
+    assert capsys.readouterr().err == f"error: {p}: has no render: block (the dataset's settings)\n"
+
+
+def test_duplicate_key_in_a_set_value_refused(tmp_path, capsys):
+    from stages import dataset
+
+    assert dataset.main(["--assets", str(tmp_path / "a"), "--n", "2", "--out", str(tmp_path / "ds"),
+                         "--params", str(ROOT / "params.yaml"), "--set", "cycles={x: 1, x: 2}"]) == 2
+    assert "duplicate key 'x'" in capsys.readouterr().err

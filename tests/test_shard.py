@@ -89,6 +89,36 @@ def test_local_cluster_listens_on_loopback_and_serves_a_dashboard_only_when_aske
         assert status == (200 if dashboard else 404)
 
 
+def test_local_cluster_admits_only_the_runs_own_client():
+    """The worker processes' LocalCluster speaks TLS with credentials made for the run (issue 31):
+    another local process cannot connect, with no credentials, over plain TCP or with its own
+    certificates, so it cannot run code in the workers; the run's own client can."""
+    from dask.distributed import Client
+    from distributed.security import Security
+
+    from pipeline.render.shard import _client
+
+    client, cluster = _client(2, None, 10.0)
+    try:
+        address = cluster.scheduler_address
+        assert address.startswith(f"tls://{LOOPBACK}:"), address
+        ran = []
+        for how, kw in (("tcp", {"address": address.replace("tls://", "tcp://")}),
+                        ("no credentials", {"address": address}),
+                        ("its own certificates", {"address": address, "security": Security.temporary()})):
+            t0 = time.perf_counter()
+            with pytest.raises(Exception):  # noqa: B017 - refused any way dask likes (closed, TLS, config)
+                intruder = Client(timeout="3s", **kw)
+                ran.append((how, intruder.run(os.getpid)))
+                intruder.close()
+            assert time.perf_counter() - t0 < 8, how
+        assert ran == []
+        assert len(client.run(os.getpid)) == 2          # the run's own client reaches both workers
+    finally:
+        client.close()
+        cluster.close()
+
+
 @pytest.mark.blender
 def test_concurrent_renders_listen_on_loopback_only_and_do_not_warn(two, tmp_path):
     """Two dataset runs at once (one worker in-process, two as processes): every listening socket

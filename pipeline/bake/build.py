@@ -34,7 +34,7 @@ def _texture(path: Path):
     if not path.exists():
         return None
     try:
-        with Image.open(path) as im:
+        with Image.open(path, formats=["PNG"]) as im:     # ingest writes a PNG; nothing else is decoded
             return np.asarray(im.convert("RGB"))
     except OSError as exc:
         raise ScanError(path, f"cannot read texture ({exc})") from None

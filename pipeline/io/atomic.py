@@ -7,7 +7,8 @@ file, then of the folder after the rename; a file written atomically inside an
 stage leaves at most a ``.<name>.tmp-<pid>-*`` sibling, which git and DVC ignore,
 and never a half-written output; other scans' outputs are never touched. The
 next write of the same output removes such siblings once their process
-``<pid>`` is gone (:func:`remove_stale_siblings`).
+``<pid>`` is gone (:func:`remove_stale_siblings`). No writer writes through a symbolic link
+(:func:`refuse_link`): a link where an output goes is refused in one line.
 """
 
 from __future__ import annotations
@@ -21,6 +22,25 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+
+
+def refuse_link(path, root=None) -> None:
+    """Refuse (ScanError) a symbolic link at ``path``, or at any folder between ``root`` (excluded)
+    and ``path``: a command writes and deletes only its own files, so it never writes through a
+    link, nor follows one out of its folder. ``root`` None: ``path`` itself only (the folders above
+    an output are the user's to link as they like)."""
+    from pipeline.errors import ScanError
+
+    path = Path(path)
+    chain = [path]
+    if root is not None:
+        rel = Path(os.path.relpath(os.path.abspath(path), os.path.abspath(root)))
+        if rel.parts and rel.parts[0] != "..":
+            chain = [Path(root).joinpath(*rel.parts[:k]) for k in range(1, len(rel.parts) + 1)]
+    for p in chain:
+        if p.is_symlink():
+            raise ScanError(p, "is a symbolic link where this command writes or deletes; it follows no "
+                               "link out of its folder (remove the link; nothing was changed)")
 
 
 def _umask() -> int:
@@ -152,6 +172,7 @@ def atomic_dir(path) -> Iterator[Path]:
     from pipeline.errors import ScanError
 
     path = Path(path)
+    refuse_link(path)
     if path.exists() and not path.is_dir():
         raise ScanError(path, "exists and is not a folder: it was left as it was")
     tmp = _tmp_sibling(path, directory=True)
@@ -182,8 +203,9 @@ def atomic_dir(path) -> Iterator[Path]:
 
 
 @contextlib.contextmanager
-def atomic_file(path) -> Iterator[Path]:
-    """Write one file through a temporary sibling path; rename on success.
+def atomic_file(path, root=None) -> Iterator[Path]:
+    """Write one file through a temporary sibling path; rename on success. A symbolic link at
+    ``path`` (or at a folder between ``root`` and it) is refused (:func:`refuse_link`).
 
     Yields
     ------
@@ -192,6 +214,7 @@ def atomic_file(path) -> Iterator[Path]:
         writers that choose a format by extension still work.
     """
     path = Path(path)
+    refuse_link(path, root)
     tmp = _tmp_sibling(path, directory=False)
     tmp_with_suffix = tmp.with_name(tmp.name + "".join(path.suffixes))
     os.replace(tmp, tmp_with_suffix)
@@ -208,15 +231,15 @@ def atomic_file(path) -> Iterator[Path]:
         raise
 
 
-def write_bytes(path, data: bytes) -> None:
-    """Atomically write ``data`` to ``path``."""
-    with atomic_file(path) as tmp:
+def write_bytes(path, data: bytes, root=None) -> None:
+    """Atomically write ``data`` to ``path`` (no link at it, nor between ``root`` and it)."""
+    with atomic_file(path, root) as tmp:
         tmp.write_bytes(data)
 
 
-def write_text(path, text: str) -> None:
+def write_text(path, text: str, root=None) -> None:
     """Atomically write UTF-8 ``text`` to ``path``."""
-    write_bytes(path, text.encode("utf-8"))
+    write_bytes(path, text.encode("utf-8"), root)
 
 
 def _json_default(obj):
@@ -234,6 +257,6 @@ def dumps_json(obj) -> str:
     return json.dumps(obj, indent=1, default=_json_default, allow_nan=False) + "\n"
 
 
-def write_json(path, obj) -> None:
+def write_json(path, obj, root=None) -> None:
     """Atomically write ``obj`` as indented JSON (numpy arrays become lists)."""
-    write_text(path, dumps_json(obj))
+    write_text(path, dumps_json(obj), root)

@@ -8,7 +8,8 @@ limited once merged); ``v``/``f`` line counts of an OBJ before any line is parse
 a GLB's JSON size, and every buffer view, accessor (count x type against the bytes
 it reads), node hierarchy (a tree) and the vertices/faces of every node instance
 (:func:`pipeline.io.formats.glb._glb_check_doc`) before trimesh decodes anything; image pixel counts from
-the image header before decoding (decompression bombs).
+the image header before decoding (decompression bombs). Textures are decoded only when their
+first bytes say PNG, JPEG or TIFF (:mod:`pipeline.io.formats.image`).
 
 Text readers keep memory proportional to the data, not the file: OBJ, ASCII PLY and
 MTL are read in chunks with blank (and OBJ/MTL comment) lines dropped without a
@@ -39,6 +40,7 @@ import numpy as np
 from pipeline.errors import ScanError
 from pipeline.io.formats.common import Limits, LoadedMesh, check_file_size, max_pixels
 from pipeline.io.formats.glb import load_glb
+from pipeline.io.formats.image import sniff_texture
 from pipeline.io.formats.obj import load_obj
 from pipeline.io.formats.ply import load_ply
 from pipeline.io.formats.stl import load_stl
@@ -79,6 +81,10 @@ def load_mesh_file(path, folder, limits: Limits = Limits()) -> LoadedMesh:
 def load_texture(source, limits: Limits = Limits(), name=None):
     """Open and fully decode a texture image, refusing oversize images before decoding.
 
+    Only PNG, JPEG and TIFF are decoded (:mod:`pipeline.io.formats.image`): the content's magic
+    bytes are checked first and Pillow is given that one format, so no other decoder (nor any
+    external program, such as Ghostscript for PostScript) ever sees the bytes.
+
     Parameters
     ----------
     source : pathlib.Path or bytes
@@ -101,10 +107,11 @@ def load_texture(source, limits: Limits = Limits(), name=None):
         data = Path(source).read_bytes()
     else:
         data = bytes(source)
+    fmt = sniff_texture(data, label)          # PNG, JPEG or TIFF by its magic bytes, before any decoder
     with max_pixels(limits.max_texture_pixels), warnings.catch_warnings():
         warnings.simplefilter("error", Image.DecompressionBombWarning)
         try:
-            img = Image.open(io.BytesIO(data))  # reads the header only
+            img = Image.open(io.BytesIO(data), formats=[fmt])  # reads the header only, one plugin
         except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
             raise ScanError(label, f"texture is over the limit of {limits.max_texture_pixels} pixels "
                                    f"(ingest.max_texture_pixels), possible decompression bomb; not decoded "

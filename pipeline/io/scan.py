@@ -34,6 +34,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import ScanError
+from pipeline.io.strict_yaml import DuplicateKeyError, SidecarLoader, StrictLoader  # noqa: F401 (re-exported)
 
 SIDECAR_NAME = "scan.yaml"
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
@@ -42,44 +43,9 @@ KNOWN_KEYS = ("mesh", "texture", "units", "up_axis", "forward_axis", "eyes", "li
 FREE_FORM_KEYS = ("source", "notes", "description", "name", "comment")
 EYE_SIDES = ("left", "right")
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
-TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".tga", ".webp")
+TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")   # PNG, JPEG, TIFF: pipeline.io.formats.image
 DEFAULT_MAX_YAML_BYTES = 65536
 _URI = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]+:")
-# YAML 1.2 core-schema floats ("3.45e1", "1e3", ".5"), which YAML 1.1 (PyYAML's default) reads as text
-_FLOAT_12 = re.compile(r"""^[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?$
-                           |^[-+]?\.(?:inf|Inf|INF)$|^\.(?:nan|NaN|NAN)$""", re.X)
-
-
-class DuplicateKeyError(yaml.YAMLError):
-    """A YAML mapping repeats a key."""
-
-    def __init__(self, key, mark):
-        self.key, self.mark = key, mark
-        line = f" (line {mark.line + 1})" if mark is not None else ""
-        super().__init__(f"duplicate key {key!r}{line}")
-
-
-class SidecarLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` that refuses duplicate mapping keys and reads YAML 1.2 floats."""
-
-    def construct_mapping(self, node, deep=False):
-        if isinstance(node, yaml.MappingNode):
-            seen = set()
-            for key_node, _ in node.value:
-                if key_node.tag == "tag:yaml.org,2002:merge":
-                    continue                   # "<<: *base" merges; explicit keys may override it
-                key = self.construct_object(key_node, deep=True)
-                try:
-                    new = key not in seen
-                except TypeError:          # unhashable key: the base class reports it
-                    break
-                if not new:
-                    raise DuplicateKeyError(key, key_node.start_mark)
-                seen.add(key)
-        return super().construct_mapping(node, deep=deep)
-
-
-SidecarLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
 
 
 @dataclass(frozen=True)

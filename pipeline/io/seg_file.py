@@ -97,7 +97,7 @@ def read_seg(path, size: tuple[int, int] | None = None) -> np.ndarray:
     if not path.is_file():
         raise ScanError(path, "not found")
     try:
-        with Image.open(path) as img:
+        with Image.open(path, formats=["PNG"]) as img:
             img.load()
             mode, pal, a = img.mode, img.getpalette(), np.asarray(img)
     except (OSError, UnidentifiedImageError) as exc:

@@ -249,7 +249,7 @@ def _check_index(out: Path, assets, assign: np.ndarray) -> np.ndarray:
 
 
 def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, progress: bool = True,
-                   overwrite: bool = False, resume: bool = False, on_dashboard=None) -> dict:
+                   overwrite: bool = False, resume: bool = False, on_dashboard=None, security=None) -> dict:
     """Render (resuming) the ``n``-image dataset of ``assets`` into ``out``; returns the run's measures.
 
     Parameters
@@ -263,6 +263,8 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
                                      shares are kept); without it such a folder is refused
     resume : bool                    only continue a dataset of this plan
     on_dashboard : callable, optional  serve a LocalCluster's dashboard (127.0.0.1), called with its URL
+    security : distributed.security.Security, optional  the client's TLS credentials for ``scheduler``
+                                     (None: Dask's config; a LocalCluster makes its own)
 
     Raises
     ------
@@ -293,7 +295,7 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
             run = sh.run_shards(shards, a.asset.usda, a.asset.rig_npz, out.resolve(), how["opts"],
                                 workers=how["workers"], scheduler=how["scheduler"], progress=False,
                                 connect_timeout_s=settings.connect_timeout_s, total=len(pending),
-                                on_result=bar.of(a.name, res), on_dashboard=on_dashboard)
+                                on_result=bar.of(a.name, res), on_dashboard=on_dashboard, security=security)
             dt = time.perf_counter() - t1 - (stats["sampling_s"] - s0)
             t_render += dt
             starts += int(sum(v.get("starts", 0) for v in run["blender"].values()))

@@ -93,8 +93,10 @@ class FolderPlan:
 
 
 def check_out(out: Path) -> None:
-    """``out`` is new, empty, or an earlier dataset; else a ScanError (and nothing is touched)."""
+    """``out`` is new, empty, or an earlier dataset with no symbolic link where a run writes or
+    deletes (:func:`pipeline.render.run.check_no_links`); else a ScanError (and nothing is touched)."""
     rr.check_out_folder(out, "dataset")
+    rr.check_no_links(out, OWN_FILES)
 
 
 def inspect_dataset(out: Path, assets, assign: np.ndarray, settings) -> FolderPlan:

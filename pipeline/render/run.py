@@ -138,6 +138,45 @@ def check_out_folder(out: Path, kind: str) -> None:
 def check_render_out(out: Path) -> None:
     """:func:`check_out_folder` for the render stage."""
     check_out_folder(out, "render")
+    check_no_links(out)
+
+
+def _owned(rel: str, own=()) -> bool:
+    """Is ``rel`` (a path relative to a render or dataset folder) one a run writes or deletes?"""
+    from pipeline.render.formats import INDEX, _matches, dataset_file_table, file_table
+
+    if rel in (CONFIG, ".tmp", *DERIVED_FILES, *own) or rel.startswith(".tmp/"):
+        return True
+    folder, _, name = rel.rpartition("/")
+    for pattern in file_table():
+        pf, _, base = pattern.rpartition("/")
+        if pf == folder and _matches(name, base.replace(INDEX, "SSSSSS")):
+            return True
+    return any(pf == folder and _matches(name, base)
+               for pf, _, base in (p.rpartition("/") for p in dataset_file_table()))
+
+
+def check_no_links(out: Path, own=()) -> None:
+    """Refuse (ScanError naming it) a symbolic link in the folder ``out`` where a run writes or
+    deletes: ``.tmp``, a folder its files go in (``card/``, a format's), or a file of its own
+    (``own``: more names the caller writes). A run never follows a link out of its folder; a link
+    of the user's under another name is left alone. Nothing is touched."""
+    from pipeline.io.atomic import refuse_link
+    from pipeline.render.formats import dataset_file_table, file_table
+
+    out = Path(out)
+    if not out.is_dir():
+        return
+    folders = {".tmp"} | {p.rpartition("/")[0] for p in (*file_table(), *dataset_file_table(), *DERIVED_FILES, *own)}
+    folders.discard("")
+    for f in sorted(folders):
+        refuse_link(out / f, out)
+    for d in [out] + [out / f for f in sorted(folders) if (out / f).is_dir()]:
+        with os.scandir(d) as it:
+            for e in it:
+                rel = Path(e.path).relative_to(out).as_posix()
+                if e.is_symlink() and _owned(rel, own):
+                    refuse_link(e.path)
 
 
 def doomed_files(out: Path, keep) -> list[Path]:

@@ -319,10 +319,24 @@ LOW_LEVEL_LOG_LENGTH = 32
 LOOPBACK = "127.0.0.1"
 
 
-def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0, dashboard: bool = False):
-    """``(client, cluster)``: a Client of the cluster at ``scheduler``, else of a new LocalCluster
-    (``cluster``, None for a given scheduler) whose every server listens on 127.0.0.1 only, each on
-    a free port (concurrent runs never collide), with the dashboard only when ``dashboard``."""
+def local_security():
+    """TLS credentials made for one run (``Security.temporary()``: a fresh self-signed CA and key
+    pair, in memory only): the scheduler, its workers and this process's client hold them, so no
+    other process can connect to the LocalCluster, let alone submit work."""
+    from distributed.security import Security
+
+    return Security.temporary()
+
+
+def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0, dashboard: bool = False,
+            security=None):
+    """``(client, cluster)``: a Client of the cluster at ``scheduler`` (with ``security``, a
+    ``distributed.security.Security``; None: Dask's config, ``distributed.comm.tls.*``), else of a new
+    LocalCluster (``cluster``, None for a given scheduler) whose every server listens on 127.0.0.1
+    only, each on a free port (concurrent runs never collide), with the dashboard only when
+    ``dashboard``. Worker processes talk to its scheduler over TLS with credentials made for the run
+    (:func:`local_security`); one worker is a thread of this process and talks in memory (inproc), so
+    there is nothing to connect to."""
     import logging
 
     import dask
@@ -332,7 +346,8 @@ def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0
 
     if scheduler:
         try:
-            return Client(scheduler, timeout=f"{connect_timeout_s}s"), None
+            kw = {} if security is None else {"security": security}
+            return Client(scheduler, timeout=f"{connect_timeout_s}s", **kw), None
         except (OSError, TimeoutError, ValueError) as exc:
             raise ScanError(scheduler, f"cannot connect to the dask scheduler ({type(exc).__name__})") from None
     # One worker runs in this process (a thread): no nanny and worker processes to start and
@@ -347,13 +362,14 @@ def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0
     # a scheduler asked for a dashboard without bokeh appends a route to this config list in
     # place, which would serve that page from every later scheduler of the process: a copy each
     routes = list(dask.config.get("distributed.scheduler.http.routes"))
+    tls = {"security": local_security(), "protocol": "tls://"} if processes else {}
     with dask.config.set({"distributed.scheduler.http.routes": routes}):
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=processes,
                                host=LOOPBACK if processes else None, dashboard_address=http,
                                scheduler_kwargs={"dashboard": bool(dashboard)},
                                worker_class=None if processes else _loopback_worker_class(),
-                               memory_limit=0, silence_logs=logging.ERROR)
-    return Client(cluster), cluster
+                               memory_limit=0, silence_logs=logging.ERROR, **tls)
+    return Client(cluster, **({"security": tls["security"]} if tls else {})), cluster
 
 
 def dashboard_text(url: str) -> str:
@@ -380,7 +396,7 @@ def _loopback_worker_class():
 
 def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, scheduler: str | None = None,
                progress: bool = True, connect_timeout_s: float = 10.0, total: int | None = None,
-               on_result=None, max_in_flight: int | None = None, on_dashboard=None) -> dict:
+               on_result=None, max_in_flight: int | None = None, on_dashboard=None, security=None) -> dict:
     """Render every shard (an iterable of lists of ``(spec, label)``, consumed lazily: at most
     ``max_in_flight`` shards, default 2 per worker + 2, are sampled and submitted ahead).
 
@@ -402,7 +418,8 @@ def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, schedu
     first = next(shards, None)
     if first is None:
         return {"results": results, "workers": 0, "blender": {}}
-    client, cluster = _client(workers, scheduler, connect_timeout_s, dashboard=on_dashboard is not None)
+    client, cluster = _client(workers, scheduler, connect_timeout_s, dashboard=on_dashboard is not None,
+                              security=security)
     try:
         if cluster is not None and on_dashboard is not None:
             on_dashboard(f"http://{LOOPBACK}:{cluster.scheduler.http_server.port}/status")

@@ -2,7 +2,8 @@
 
 Before trimesh decodes anything, the JSON chunk's size and every buffer view, accessor (count x
 type against the bytes it reads), node hierarchy (a tree) and the vertices/faces of every node
-instance are checked (:func:`_glb_check_doc`), and every embedded image's pixel count is read
+instance are checked (:func:`_glb_check_doc`), and every embedded image's format is checked from
+its first bytes (PNG, JPEG or TIFF only, :mod:`pipeline.io.formats.image`) and its pixel count read
 from its header (decompression bombs). External or data: URIs are refused.
 """
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.io.formats.common import Limits, LoadedMesh, check_counts, check_file_size, max_pixels
+from pipeline.io.formats.image import sniff_texture
 from pipeline.io.scan import one_line, short_repr
 
 
@@ -45,9 +47,10 @@ def _glb_check_images(path: Path, doc: dict, limits: Limits) -> None:
             data = blob[start:start + int(view["byteLength"])]
         except (KeyError, IndexError, TypeError, ValueError):
             raise ScanError(path, f"GLB image {i} has no valid bufferView") from None
+        fmt = sniff_texture(data, path, f"GLB image {i}")   # before trimesh hands it to Pillow
         try:
             with max_pixels(2**62):
-                w, h = Image.open(io.BytesIO(data)).size  # header only
+                w, h = Image.open(io.BytesIO(data), formats=[fmt]).size  # header only
         except Exception as exc:  # noqa: BLE001
             raise ScanError(path, f"GLB image {i} cannot be opened: {one_line(exc)[:100]}") from None
         if w * h > limits.max_texture_pixels:
