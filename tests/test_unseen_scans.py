@@ -29,10 +29,10 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, extra_scans_dir
+from fixtures.truth import truth_limbus
 from pipeline.io.eyes_file import read_eyes
 
 FACES = 100_000
-PLACE_MM = 1.0
 
 
 def _cases():
@@ -92,20 +92,21 @@ def test_open_eyes_are_right_or_not_sure(scans, tmp_path, name):
     eyes = {s: e.doc for s, e in read_eyes(tmp_path / "remove_eyeballs" / "eyes.json").items()}
     truth = json.loads((scan / "ground_truth.json").read_text())["eyes"]
     for side in ("left", "right"):
-        e, g = eyes[side], truth[side]["eyeball_sphere"]
+        e, g = eyes[side], truth[side]
         placement = e.get("placement")
         assert placement and isinstance(placement, list) and all(isinstance(p, str) for p in placement), \
             f"{side}: placement must name the cues that carried the fit, got {placement!r}"
-        unc = e.get("uncertainty_mm")
+        unc = e.get("uncertainty")
         assert isinstance(unc, dict) and all(np.isfinite(unc.get(k, np.nan)) and unc[k] > 0
-                                             for k in ("center", "radius")), \
-            f"{side}: no stated 1-sigma uncertainty (centre, radius): {unc!r}"
-        err = float(np.linalg.norm(np.asarray(e["center"]) - g["center_mm"]))
-        dr = e["radius"] - g["radius_mm"]
-        if err <= PLACE_MM and abs(dr) <= PLACE_MM and all(c["ok"] for c in e["checks"].values()):
+                                             for k in ("limbus_mm", "axis_deg")), \
+            f"{side}: no stated 1-sigma uncertainty (limbus, axis): {unc!r}"
+        lt, gz = truth_limbus(g)
+        err = float(np.linalg.norm(np.asarray(e["limbus"]["center"]) - lt))
+        ang = float(np.degrees(np.arccos(np.clip(np.dot(e["forward"], gz), -1.0, 1.0))))
+        if err <= 1.0 and ang <= 3.0:
             continue
         # not right: it must say so, in eyes.json and on stderr, naming the scan and the eye
-        assert e["doubts"], f"{side} centre {err:.2f} mm, radius {dr:+.2f} mm off and not doubted"
+        assert e["doubts"], f"{side} limbus {err:.2f} mm, axis {ang:.1f} deg off and not doubted"
         assert any(ln.startswith(f"warning: {scan}: {side} eye: ") for ln in lines), lines
 
 
