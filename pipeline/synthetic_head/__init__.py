@@ -9,21 +9,20 @@ triangulates into one connected sheet with its only boundary at the grid rim.
 
 ``h`` is the smooth maximum of two depths along the same ray:
 
-* the eye surface: the outer intersection with the eyeball sphere (radius drawn in
-  ``eye_radius_mm``, 15.5-16.8 mm by default, by the seed) joined by a smooth maximum with
-  the corneal sphere (radius ~7.6 mm, apex ~1.1 mm out of the sphere, whatever its radius);
+* the eye surface: the outer intersection with the eyeball sphere (r1 drawn once per head
+  from ``eye_radius_mm``, 11.7 +- 0.45 mm by default) joined by a smooth maximum with the
+  human corneal sphere (r2 ~7.6 mm, apex ~13.3 mm from the centre at r1 = 12, scaled with r1);
 * the skin: a face depth field (forehead, brow ridge, orbits, nose, cheeks, lips,
   chin, jaw, neck) blended, near each eye, into a lid shell that follows the eye
-  surface at ``+T(d)``, where ``d`` is the signed distance (mm) from an almond
-  opening drawn in the eye's angular coordinates. ``T`` rises from 0 at the
-  margin to the lid thickness outside and drops behind the eyeball inside, so
-  inside the almond the eye surface wins and the crossing curve (the eyelid
-  margin) lies on the eyeball. The almond spans about 130 degrees of the eye
-  horizontally, so with the default radii the opening is 27-31 mm corner to corner
-  (adults: about 28-30 mm); its height is kept in mm whatever the radius (~11 mm).
-  The lid margin rests on the eyeball sphere up to the canthi, so an opening that wide
-  needs a sphere of about 15 mm (as ICT-FaceKit's, 15.4 mm in its neutral head): on a
-  12 mm eye the corner-to-corner width is at most 24 mm.
+  surface at ``+st + T(d)``, where ``d`` is the signed distance (mm) from an almond
+  opening drawn in the eye's plane across the gaze and ``st`` the margin's standoff off
+  the globe (0.5-0.9 mm between the canthi, growing to each corner's). ``T`` rises from 0
+  at the margin to the lid thickness outside and drops behind the eyeball inside, so
+  inside the almond the eye surface wins. The almond's corners (canthi) lie off the globe
+  where UnityEyes' eye regions put them (medial ~8.6 mm, lateral ~4.5 mm in front of the
+  centre); where the opening runs past the globe's silhouette a floor of tissue fills it
+  (the caruncle medially, the fornix laterally). The fissure is 27 +- 1.7 mm wide and
+  9.5 +- 1.5 mm high (docs/synthetic_head.md).
 
 The smooth maximum rounds the lid/eye crease over ~1 mm, like a Poisson
 reconstruction, while eye vertices away from the crease lie exactly on the

@@ -170,6 +170,8 @@ _MEDIAL_FWD, _LATERAL_FWD, _LATERAL_AXIS = (8.56, 0.69), (4.51, 1.18), (12.68, 0
 #: Population fissure (mm, mean and SD; the width at the mean radius, scaled with the radius).
 _FISSURE_WIDTH, _FISSURE_HEIGHT = (27.0, 1.7), (9.5, 1.5)
 _MEAN_RADIUS_MM = 11.7
+#: The lateral corner lies at least this far off the globe (mm).
+_LATERAL_MIN_OFF_MM = 0.6
 #: A fully hooded upper lid hangs this much lower than a round one (mm).
 _HOOD_DROP_MM = 1.2
 #: The cornea of the project's human eye at r1 = 12 mm (scaled with r1): corneal sphere radius and
@@ -212,10 +214,14 @@ def _make_eye(side, rng, ipd, hood, y_eye, radius):
     limbus_r = float(np.sqrt(max(radius ** 2 - zl ** 2, 0.0)))
     # the fissure (UnityEyes' regions and the adult population; corners scaled with the radius)
     sc = radius / _ANATOMY_RADIUS_MM
-    width = _clipped_normal(rng, _FISSURE_WIDTH[0], 0.8 * _FISSURE_WIDTH[1]) * radius / _MEAN_RADIUS_MM
+    width = float(np.clip(_clipped_normal(rng, _FISSURE_WIDTH[0], 0.8 * _FISSURE_WIDTH[1]) * radius
+                          / _MEAN_RADIUS_MM, _FISSURE_WIDTH[0] - 1.9 * _FISSURE_WIDTH[1],
+                          _FISSURE_WIDTH[0] + 1.9 * _FISSURE_WIDTH[1]))
     f_m = float(np.clip(_clipped_normal(rng, *_MEDIAL_FWD) * sc, 7.2, 9.9))
     f_l = float(np.clip(_clipped_normal(rng, *_LATERAL_FWD) * sc, 2.2, 5.8))
     a_l = _clipped_normal(rng, *_LATERAL_AXIS) * sc
+    # the lateral corner stays off the globe (a shallow corner on a large eye would touch it)
+    a_l = float(max(a_l, np.sqrt((radius + _LATERAL_MIN_OFF_MM) ** 2 - f_l ** 2)))
     v_m, v_l = -rng.uniform(0.2, 0.8), rng.uniform(0.3, 1.5)
     horiz = np.sqrt(max(width ** 2 - (v_l - v_m) ** 2 - (f_m - f_l) ** 2, 1.0))
     u_l = float(np.sqrt(max(a_l ** 2 - v_l ** 2, 1.0)))
