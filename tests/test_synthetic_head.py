@@ -29,10 +29,12 @@ def head_clean():
 
 
 def _eye(gt, side):
+    """Centre, radius, cornea centre and radius, the tissue/eye contact line (the edge of the
+    visible eye surface) and the truth record of one eye."""
     e = gt["eyes"][side]
     return (np.array(e["eyeball_sphere"]["center_mm"]), e["eyeball_sphere"]["radius_mm"],
             np.array(e["cornea_sphere"]["center_mm"]), e["cornea_sphere"]["radius_mm"],
-            np.array(e["eyelid_margin"]["points_mm"]), e)
+            np.array(e["eye_contact"]["points_mm"]), e)
 
 
 def _inside_polygon(pts, poly):
@@ -76,33 +78,67 @@ def test_same_seed_identical_different_seed_differs():
     assert not np.allclose(a.V, c.V)
 
 
-def test_radius_range_over_seeds():
-    radii = [make_synthetic_head(seed=s, target_triangles=2_000, **SMALL).ground_truth["eyes"][side]
-             ["eyeball_sphere"]["radius_mm"] for s in range(4) for side in ("left", "right")]
-    assert all(15.5 <= r <= 16.8 for r in radii)
-    assert max(radii) - min(radii) > 0.5          # nothing downstream may assume one radius
-    small = make_synthetic_head(seed=0, target_triangles=2_000, eye_radius_mm=(11.0, 13.5), **SMALL)
-    assert all(11.0 <= small.ground_truth["eyes"][s]["eyeball_sphere"]["radius_mm"] <= 13.5
-               for s in ("left", "right"))
-    with pytest.raises(ValueError, match="eye_radius_mm"):
-        make_synthetic_head(eye_radius_mm=(14.0, 12.0), target_triangles=2_000, **SMALL)
+def test_radius_is_one_population_draw_per_head():
+    """Issue 29: r1 ~ N(11.7, 0.45) mm clipped to +-3 sd, drawn once per head (both eyes one
+    size); a zero spread gives the mean exactly, and the cornea scales with it."""
+    radii = []
+    for s in range(6):
+        gt = make_synthetic_head(seed=s, target_triangles=2_000, **SMALL).ground_truth
+        rl, rr = (gt["eyes"][side]["eyeball_sphere"]["radius_mm"] for side in ("left", "right"))
+        assert rl == rr == gt["eye_radius_mm"]
+        radii.append(rl)
+    assert all(11.7 - 3 * 0.45 <= r <= 11.7 + 3 * 0.45 for r in radii)
+    assert np.ptp(radii) > 0.3                    # nothing downstream may assume one radius
+    gt = make_synthetic_head(seed=0, target_triangles=2_000, eye_radius_mm={"mean": 12.0, "sd": 0.0},
+                             **SMALL).ground_truth
+    for side in ("left", "right"):
+        e = gt["eyes"][side]
+        assert e["eyeball_sphere"]["radius_mm"] == 12.0
+        # the human eye at r1 = 12: r2 ~7.6, apex ~13.3, limbus ~5.95 mm off the axis
+        assert 7.45 <= e["cornea_sphere"]["radius_mm"] <= 7.75
+        assert 13.2 <= e["corneal_apex_distance_mm"] <= 13.4
+        assert 5.75 <= e["limbus"]["radius_mm"] <= 6.15
+        assert 9.9 <= e["limbus"]["distance_from_center_mm"] <= 10.6
+    for bad, key in (({"mean": 11.7, "sd": -0.1}, "sd"), ({"mean": 30.0, "sd": 0.45}, "mean"),
+                     ({"mean": 11.7, "width": 1.0}, "width")):
+        with pytest.raises(ValueError, match=key):
+            make_synthetic_head(eye_radius_mm=bad, target_triangles=2_000, **SMALL)
+
+
+def _margin_facts(e):
+    m = e["eyelid_margin"]
+    return m, np.asarray(m["points_mm"]), m["medial_canthus_index"], m["lateral_canthus_index"]
 
 
 @pytest.mark.parametrize("seed", [1, 3, 7])
-def test_openings_have_adult_proportions(seed):
-    """Issue 14: the openings are 27-31 mm corner to corner (adults ~28-30 mm), ~10 mm high,
-    around a human cornea (r ~7.6 mm, apex ~1.1 mm out of the sphere) whatever the sphere."""
+def test_openings_have_human_eye_regions(seed):
+    """Issue 29: the fissure 27 +- 1.7 mm wide and 9.5 +- 1.5 mm high (within 2 sd), the canthi
+    off the globe (medial 7-10 mm, lateral 2-6 mm in front of the centre along the gaze, the
+    medial one farther off), the margin 0.35-2.1 mm off the globe between them, growing toward
+    the corners; the records agree with the points."""
     h = make_synthetic_head(seed=seed, target_triangles=100_000, **SMALL)
     for side in ("left", "right"):
         e = h.ground_truth["eyes"][side]
-        m = e["eyelid_margin"]
-        P = np.asarray(m["points_mm"])
-        width = np.linalg.norm(P[m["medial_canthus_index"]] - P[m["lateral_canthus_index"]])
-        assert 27.0 <= width <= 31.0
-        assert 9.0 <= np.ptp(P[:, 1]) <= 12.0
-        assert 7.4 <= e["cornea_sphere"]["radius_mm"] <= 7.8
-        apex = np.linalg.norm(np.asarray(e["corneal_apex_mm"]) - e["eyeball_sphere"]["center_mm"])
-        assert 0.9 <= apex - e["eyeball_sphere"]["radius_mm"] <= 1.3
+        m, P, i_m, i_l = _margin_facts(e)
+        c, r = np.asarray(e["eyeball_sphere"]["center_mm"]), e["eyeball_sphere"]["radius_mm"]
+        g = np.asarray(e["gaze_direction"])
+        width = np.linalg.norm(P[i_m] - P[i_l])
+        assert 27.0 - 2 * 1.7 <= width <= 27.0 + 2 * 1.7 and abs(width - m["width_mm"]) < 1e-3
+        assert 9.5 - 2 * 1.5 <= np.ptp(P[:, 1]) <= 9.5 + 2 * 1.5
+        fwd = (P - c) @ g
+        assert 7.0 <= fwd[i_m] <= 10.0 and 2.0 <= fwd[i_l] <= 6.0
+        assert fwd[i_m] == pytest.approx(m["medial_canthus"]["in_front_mm"], abs=1e-4)
+        off = np.linalg.norm(P - c, axis=1) - r
+        assert off[i_m] > off[i_l] > 0.35          # both corners off the globe, the medial farther
+        x = (P - P[i_m]) @ (P[i_l] - P[i_m]) / np.sum((P[i_l] - P[i_m]) ** 2)
+        mid = (x > 0.2) & (x < 0.95)
+        assert 0.35 <= off[mid].min() and off[mid].max() <= 2.1
+        st = m["distance_to_eyeball_sphere_mm"]["between_canthi"]
+        assert st["min"] == pytest.approx(off[mid].min(), abs=1e-4)
+        # the standoff grows toward the corners: the ends of the lids stand off more than the middle
+        centre = (x > 0.4) & (x < 0.6)
+        ends = ((x > 0.0) & (x < 0.1)) | (x > 0.97)
+        assert off[ends].mean() > off[centre].mean() + 0.3
 
 
 @pytest.mark.parametrize("target", [10_000, 100_000, 1_500_000])
@@ -141,7 +177,7 @@ def test_head_dimensions_and_frame(head):
         apex = np.array(gt["eyes"][side]["corneal_apex_mm"])
         c = np.array(gt["eyes"][side]["eyeball_sphere"]["center_mm"])
         r = gt["eyes"][side]["eyeball_sphere"]["radius_mm"]
-        assert 0.9 <= np.linalg.norm(apex - c) - r <= 1.3   # a human cornea on any sphere
+        assert 1.15 <= np.linalg.norm(apex - c) - r <= 1.5  # the human cornea (13.3 mm at r1 = 12)
         # the nose tip sticks out in front of the corneas
     assert V[:, 2].max() > max(gt["eyes"][s]["corneal_apex_mm"][2] for s in ("left", "right")) + 15.0
 
@@ -157,40 +193,71 @@ def test_eyeball_vertices_lie_on_ground_truth_spheres(head):
         d = np.minimum(ds, dc)
         assert d.max() < 0.15                      # only the smoothed sclera/cornea seam is off
         assert np.mean(d < 1e-4) > 0.7            # the rest on a sphere (GT rounded to 1e-5 mm)
-        assert (ds < 1e-4).sum() > 10 and (dc < 1e-4).sum() > 10   # both sclera and cornea seen
+        assert (ds < 1e-4).sum() >= 5 and (dc < 1e-4).sum() > 10   # both sclera and cornea seen
 
 
-def test_eyelid_margin_on_eyeball_ordered_and_closed(head):
+def test_margin_and_contact_ordered_closed_and_on_the_mesh(head):
+    """The margin (the lid's edge, off the globe) and the contact line (where tissue meets the
+    eye surface, inside it) are closed, ordered medial canthus first over the upper lid, and lie on
+    the generated mesh; the contact line lies on the eye surface (up to the ~0.25 mm rounding of
+    the crease), never inside the eyeball."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(head.V, head.F, process=False)
     for side, sign in (("left", 1.0), ("right", -1.0)):
-        c, r, cc, rc, margin, e = _eye(head.ground_truth, side)
-        m = e["eyelid_margin"]
-        assert m["closed"] and m["medial_canthus_index"] == 0
-        k = m["lateral_canthus_index"]
-        lat = sign * (margin[:, 0] - c[0])
-        assert np.argmin(lat) == 0 and np.argmax(lat) == k
-        assert margin[1:k, 1].mean() > margin[k + 1:, 1].mean()   # upper lid first
-        seg = np.linalg.norm(np.diff(np.vstack([margin, margin[:1]]), axis=0), axis=1)
-        assert seg.max() < 0.05 * seg.sum()        # closed, no jumps (incl. last -> first)
-        # on the eyeball sphere: exactly where the margin runs over sclera, within 1 mm where it
-        # crosses the corneal bulge (as a real lid over the upper cornea does)
-        d = np.linalg.norm(margin - c, axis=1) - r
-        g = np.array(e["gaze_direction"])
-        ang = np.degrees(np.arccos(((margin - c) / np.linalg.norm(margin - c, axis=1)[:, None]) @ g))
-        sclera = ang > e["limbus_half_angle_deg"] + 4.0
-        assert sclera.mean() > 0.6
-        assert np.abs(d[sclera]).max() < 0.01
-        assert np.abs(d).max() < 1.0
-        assert d.min() > -0.02                     # never inside the eyeball
-        # realistic opening: upper lid ~30-42 mm along the surface (27-31 mm corner to corner),
-        # height 9-12 mm (round)
-        assert 8.5 <= m["height_mm"] <= 12.0
-        up = margin[:k + 1]
-        arc = np.linalg.norm(np.diff(up, axis=0), axis=1).sum()
-        assert 30.0 <= arc <= 42.0
+        c, r, cc, rc, contact, e = _eye(head.ground_truth, side)
+        m, margin, _, k = _margin_facts(e)
+        # on the mesh: the 100k head's ~1 mm facets cut the steep lid edge and the crease inside it
+        # (measured: margin median 0.11, max 0.55 mm; contact median 0.38, max 0.97 mm)
+        for curve, k_lat, (med, mx) in ((margin, k, (0.2, 0.7)),
+                                         (contact, e["eye_contact"]["lateral_index"], (0.5, 1.2))):
+            lat = sign * (curve[:, 0] - c[0])
+            assert np.argmin(lat) == 0 and np.argmax(lat) == k_lat
+            assert curve[1:k_lat, 1].mean() > curve[k_lat + 1:, 1].mean()   # upper lid first
+            seg = np.linalg.norm(np.diff(np.vstack([curve, curve[:1]]), axis=0), axis=1)
+            assert seg.max() < 0.05 * seg.sum()    # closed, no jumps (incl. last -> first)
+            dist = trimesh.proximity.closest_point(mesh, curve)[1]
+            assert np.median(dist) < med and dist.max() < mx
+        ds = np.linalg.norm(contact - c, axis=1) - r
+        dc = np.linalg.norm(contact - cc, axis=1) - rc
+        on_eye = np.minimum(ds, dc)                # distance outside the eye surface (the union)
+        assert on_eye.min() > -0.02 and on_eye.max() < 0.3
+        # the contact line lies inside the margin's opening, seen along the gaze
+        assert _inside_polygon(contact[:, :2] + 0.0 * c[:2], margin[:, :2]).mean() > 0.95
+        assert 7.0 <= m["height_mm"] <= 12.5
         # hint within ~2 mm of the opening centre, which lies on the eyeball sphere
         o = np.array(e["eye_opening_center_mm"])
         assert abs(np.linalg.norm(o - c) - r) < 1e-4
         assert abs(np.linalg.norm(np.array(head.hints[side]) - o) - 2.0) < 1e-3
+
+
+def test_corner_pockets_are_tissue_not_holes(head):
+    """Where the fissure runs past the globe's silhouette (the corners), the mesh shows a floor of
+    tissue a little behind the margin (the caruncle medially), not a pit: every vertex seen inside
+    the margin lies no deeper than the globe's silhouette plane allows, and the surface there has no
+    spikes (no edge steeper than 80 degrees to the view over more than a few faces)."""
+    for side in ("left", "right"):
+        c, r, _, _, contact, e = _eye(head.ground_truth, side)
+        m, margin, i_m, i_l = _margin_facts(e)
+        g = np.asarray(e["gaze_direction"])
+        near = np.where(np.linalg.norm(head.V[:, :2] - c[:2], axis=1) < 20.0)[0]
+        inside = near[_inside_polygon(head.V[near, :2], margin[:, :2])]
+        beyond = inside[~_inside_polygon(head.V[inside, :2], contact[:, :2])]   # tissue in the opening
+        assert len(beyond) > 8                     # ~1 mm grid: a few rows of tissue
+        fwd = (head.V[beyond] - c) @ g
+        corner_depth = min(m["medial_canthus"]["in_front_mm"], m["lateral_canthus"]["in_front_mm"])
+        assert fwd.min() > corner_depth - 3.5      # a pocket ~1-1.5 mm behind the corners, no pit
+        # the medial pocket (caruncle) spans more of the fissure than the lateral one
+        u = e["eyelid_margin"]
+        ax = (head.V[beyond] - margin[i_m]) @ (margin[i_l] - margin[i_m]) / u["width_mm"] ** 2
+        assert (ax < 0.5).sum() > (ax >= 0.5).sum()
+    nrm = np.cross(head.V[head.F[:, 1]] - head.V[head.F[:, 0]], head.V[head.F[:, 2]] - head.V[head.F[:, 0]])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    for side in ("left", "right"):
+        c = np.asarray(head.ground_truth["eyes"][side]["eyeball_sphere"]["center_mm"])
+        fc = head.V[head.F].mean(axis=1)
+        box = np.linalg.norm(fc[:, :2] - c[:2], axis=1) < 18.0
+        assert (nrm[box, 2] > -0.05).all()         # a height field toward the viewer: no folds
 
 
 def test_lids_fused_with_eyeball_single_surface(head):
@@ -267,7 +334,7 @@ def test_skin_detail_amplitude_and_none_on_eyeball(head, head_clean):
     for side in ("left", "right"):
         c, r, _, _, margin, _ = _eye(head.ground_truth, side)
         idx = _opening_vertices(head.V, margin, c, r, inset_mm=0.3)
-        assert amp[idx].max() == 0.0               # no skin detail on the eyeball
+        assert len(idx) > 40 and amp[idx].max() == 0.0   # no skin detail on the eyeball
 
 
 # ----------------------------------------------------------------------------- texture, UVs, files
@@ -352,8 +419,8 @@ def _limits(expensive: bool):
     from pipeline.settings import boundaries
     from pipeline.synthetic_head import SyntheticHeadSettings
 
-    cases = [(k[0], v) for k, v, ok in boundaries(SyntheticHeadSettings) if ok]
-    cases += [("eye_shape", 0.0), ("eye_shape", 1.0), ("eye_radius_mm", [8.0, 20.0])]
+    cases = [(".".join(k), v) for k, v, ok in boundaries(SyntheticHeadSettings) if ok]
+    cases += [("eye_shape", 0.0), ("eye_shape", 1.0)]
     big = [("target_triangles", 5_000_000), ("texture_size", 8192)]
     return [c for c in cases if any(c == b for b in big) == expensive]
 
@@ -362,7 +429,8 @@ def _generate_at(key, value):
     from pipeline.synthetic_head import SyntheticHeadSettings
 
     small = {"target_triangles": 2_000, "texture_size": 16}
-    s = SyntheticHeadSettings.from_params({**small, key: value})
+    top, _, sub = key.partition(".")
+    s = SyntheticHeadSettings.from_params({**small, top: {sub: value} if sub else value})
     h = make_synthetic_head(s)
     assert np.isfinite(h.V).all() and len(h.F) > 0 and h.texture.shape[:2] == (s.texture_size,) * 2
     for side in ("left", "right"):

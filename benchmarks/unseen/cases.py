@@ -188,7 +188,7 @@ HELDOUT = [
     # procedural heads (new seeds; one with human-sized eyes)
     _synthetic(341, 150_000, "round"),
     _synthetic(342, 220_000, "hooded"),
-    _synthetic(343, 120_000, 0.3, eye_radius_mm=[11.5, 12.5], eye_spacing_mm=61.0),
+    _synthetic(343, 120_000, 0.3, eye_radius_mm={"mean": 12.0, "sd": 0.25}, eye_spacing_mm=61.0),
 ]
 for _c in HELDOUT:
     _c["set"] = "heldout"
@@ -308,7 +308,12 @@ def generate(case, work: Path, scanify: Path, ict: Path) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     if case["kind"] == "synthetic":
         from pipeline.synthetic_head import make_synthetic_head, write_scan_folder
-        head = make_synthetic_head(texture_size=512, **case["synthetic"])
+        from pipeline.synthetic_head import EyeRadiusDraw
+
+        kw = dict(case["synthetic"])
+        if isinstance(kw.get("eye_radius_mm"), dict):     # the population a head's r1 is drawn from
+            kw["eye_radius_mm"] = EyeRadiusDraw(**kw["eye_radius_mm"])
+        head = make_synthetic_head(texture_size=512, **kw)
         write_scan_folder(head, folder)
         labels = _synthetic_labels(head)
         np.save(folder / "scan_labels.npy", labels)

@@ -9,21 +9,20 @@ triangulates into one connected sheet with its only boundary at the grid rim.
 
 ``h`` is the smooth maximum of two depths along the same ray:
 
-* the eye surface: the outer intersection with the eyeball sphere (radius drawn in
-  ``eye_radius_mm``, 15.5-16.8 mm by default, by the seed) joined by a smooth maximum with
-  the corneal sphere (radius ~7.6 mm, apex ~1.1 mm out of the sphere, whatever its radius);
+* the eye surface: the outer intersection with the eyeball sphere (r1 drawn once per head
+  from ``eye_radius_mm``, 11.7 +- 0.45 mm by default) joined by a smooth maximum with the
+  human corneal sphere (r2 ~7.6 mm, apex ~13.3 mm from the centre at r1 = 12, scaled with r1);
 * the skin: a face depth field (forehead, brow ridge, orbits, nose, cheeks, lips,
   chin, jaw, neck) blended, near each eye, into a lid shell that follows the eye
-  surface at ``+T(d)``, where ``d`` is the signed distance (mm) from an almond
-  opening drawn in the eye's angular coordinates. ``T`` rises from 0 at the
-  margin to the lid thickness outside and drops behind the eyeball inside, so
-  inside the almond the eye surface wins and the crossing curve (the eyelid
-  margin) lies on the eyeball. The almond spans about 130 degrees of the eye
-  horizontally, so with the default radii the opening is 27-31 mm corner to corner
-  (adults: about 28-30 mm); its height is kept in mm whatever the radius (~11 mm).
-  The lid margin rests on the eyeball sphere up to the canthi, so an opening that wide
-  needs a sphere of about 15 mm (as ICT-FaceKit's, 15.4 mm in its neutral head): on a
-  12 mm eye the corner-to-corner width is at most 24 mm.
+  surface at ``+st + T(d)``, where ``d`` is the signed distance (mm) from an almond
+  opening drawn in the eye's plane across the gaze and ``st`` the margin's standoff off
+  the globe (0.5-0.9 mm between the canthi, growing to each corner's). ``T`` rises from 0
+  at the margin to the lid thickness outside and drops behind the eyeball inside, so
+  inside the almond the eye surface wins. The almond's corners (canthi) lie off the globe
+  where UnityEyes' eye regions put them (medial ~8.6 mm, lateral ~4.5 mm in front of the
+  centre); where the opening runs past the globe's silhouette a floor of tissue fills it
+  (the caruncle medially, the fornix laterally). The fissure is 27 +- 1.7 mm wide and
+  9.5 +- 1.5 mm high (docs/synthetic_head.md).
 
 The smooth maximum rounds the lid/eye crease over ~1 mm, like a Poisson
 reconstruction, while eye vertices away from the crease lie exactly on the
@@ -55,11 +54,22 @@ from pipeline.synthetic_head.model import T_RANGE, Y_RANGE, HeadModel, base_curv
 from pipeline.synthetic_head.paint import SKIN_TONE_BASE, paint_texture
 from pipeline.synthetic_head.truth import ground_truth
 
-__all__ = ["SyntheticHead", "SyntheticHeadSettings", "make_synthetic_head", "write_scan_folder", "grid_shape",
+__all__ = ["SyntheticHead", "SyntheticHeadSettings", "EyeRadiusDraw", "make_synthetic_head", "write_scan_folder", "grid_shape",
            "identity_settings", "LICENCE", "EYE_SHAPES"]
 
 LICENCE = "CC0-1.0 (procedural, eyerig)"
 EYE_SHAPES = {"round": 0.0, "hooded": 1.0}
+
+
+@dataclasses.dataclass(frozen=True)
+class EyeRadiusDraw(Settings):
+    """``synthetic_head.eye_radius_mm``: the population the eyeball radius r1 is drawn from, once
+    per head (both eyes one size): a normal draw ``mean + sd * z``, ``z`` clipped to +-3."""
+
+    block: ClassVar[str] = "synthetic_head.eye_radius_mm"
+
+    mean: float = setting(11.7, ge=8, le=20)     # adults: 11.7 mm (axial length 23.4 +- 0.9 mm)
+    sd: float = setting(0.45, ge=0, le=1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,7 +85,7 @@ class SyntheticHeadSettings(Settings):
     eye_spacing_mm: float = setting(63.0, ge=40, le=90)          # interpupillary distance
     noise_mm: float = setting(0.02, ge=0, le=1)                  # scanner noise along normals (0 = off)
     texture_size: int = setting(2048, ge=16, le=8192)            # colour texture side (px)
-    eye_radius_mm: tuple[float, float] = setting((15.5, 16.8), ge=8, le=20, ordered=True)  # drawn by the seed
+    eye_radius_mm: EyeRadiusDraw = dataclasses.field(default_factory=EyeRadiusDraw)  # r1 ~ N(mean, sd), per head
     # identity: skin colour and age-like detail (pipeline/synthetic_head/paint.py, model.py)
     skin_tone: float = setting(SKIN_TONE_BASE, ge=0, le=1)       # melanin: 0 palest .. 1 darkest
     wrinkle_scale: float = setting(1.0, ge=0, le=3)              # depth of forehead lines, crow's feet, lid lines
@@ -205,8 +215,8 @@ def make_synthetic_head(settings: SyntheticHeadSettings | None = None, *, skin_d
         s = dataclasses.replace(s, **fields)
     hood = EYE_SHAPES[s.eye_shape] if isinstance(s.eye_shape, str) else float(s.eye_shape)
     seed, target_triangles, eye_spacing_mm, noise_mm = s.seed, s.target_triangles, s.eye_spacing_mm, s.noise_mm
-    texture_size, (lo, hi) = s.texture_size, s.eye_radius_mm
-    model = HeadModel(seed, hood, eye_spacing_mm, skin_detail, (lo, hi), wrinkle_scale=s.wrinkle_scale,
+    texture_size, radius_draw = s.texture_size, (s.eye_radius_mm.mean, s.eye_radius_mm.sd)
+    model = HeadModel(seed, hood, eye_spacing_mm, skin_detail, radius_draw, wrinkle_scale=s.wrinkle_scale,
                       pore_scale=s.pore_scale, skin_tone=s.skin_tone)
     ny, nt = grid_shape(target_triangles)
     tv = np.linspace(-T_RANGE, T_RANGE, nt)

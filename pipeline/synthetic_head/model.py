@@ -21,6 +21,8 @@ Y_RANGE = (-150.0, 95.0)     # neck to upper forehead, eyes at y ~ 0
 
 _K_LID = 1.0          # smooth-max width of the lid/eye crease (mm)
 _K_CORNEA = 0.5       # smooth-max width of the sclera/cornea seam (mm)
+_K_POCKET = 0.6       # smooth-max width of the lid's inner face and the corner pockets' floor (mm)
+_POCKET_SINK = 12.0   # how far a corner pocket's floor sinks where it fades out (mm)
 _MISS = -1.0e3        # depth of a ray that misses a sphere
 
 
@@ -128,67 +130,181 @@ class _Eye:
     cornea_center: np.ndarray  # (3,)
     cornea_radius: float
     apex: np.ndarray           # (3,)
-    almond: dict               # angles in radians
-    boundary_mm: np.ndarray    # (k, 2) almond boundary in (r*alpha, r*beta)
+    limbus_radius: float       # radius of the circle where the cornea meets the sclera (mm)
+    e1: np.ndarray             # (3,) the eye frame's horizontal axis (head +X side)
+    e2: np.ndarray             # (3,) the eye frame's vertical axis (up)
+    almond: dict               # the opening in the eye's (u, v) plane (mm), see almond_curves
+    boundary_mm: np.ndarray    # (k, 2) almond boundary in (u, v): upper lid medial->lateral, lower back
+    boundary_s: np.ndarray     # (k,) almond parameter s of each boundary point
     tree: object               # cKDTree over boundary_mm
     crow_angles: np.ndarray    # crow's-feet line angles (rad)
-    lateral_canthus: np.ndarray  # (2,) (alpha, beta) of the lateral corner
+    lateral_canthus: np.ndarray  # (2,) (u, v) of the lateral corner
 
 
 def almond_curves(al, s):
-    """Upper and lower lid elevation (rad) at almond parameter ``s`` in [0, 1]."""
+    """Upper and lower lid heights ``v`` (mm, in the eye's plane) at almond parameter ``s`` in
+    [0, 1] (medial corner 0, lateral corner 1), and the canthal line between them."""
     s = np.clip(s, 0.0, 1.0)
-    base = al["b_m"] + (al["b_l"] - al["b_m"]) * s
+    base = al["v_m"] + (al["v_l"] - al["v_m"]) * s
     up = base + al["h_u"] * np.sin(np.pi * s ** al["g_u"])
     lo = base - al["h_l"] * np.sin(np.pi * s ** al["g_l"]) ** 0.85
     return base, up, lo
 
 
-#: Eyeball radius of the opening's vertical shape: the lid heights are drawn as angles on an eye
-#: of this radius and kept in mm on the drawn one (the opening is as tall whatever the radius).
-_LID_REF_RADIUS_MM = 12.25
+def standoff(al, s):
+    """How far the lid margin stands off the globe (mm) at almond parameter ``s``: ``st_mid``
+    between the canthi, growing toward each corner to the corner's own distance off the globe."""
+    s = np.clip(s, 0.0, 1.0)
+    gm = np.maximum(1.0 - s / _GROW_MEDIAL, 0.0) ** 2
+    gl = np.maximum(1.0 - (1.0 - s) / _GROW_LATERAL, 0.0) ** 2
+    return al["st_mid"] + (al["st_m"] - al["st_mid"]) * gm + (al["st_l"] - al["st_mid"]) * gl
 
 
-def _make_eye(side, rng, ipd, hood, y_eye, radius_range=(15.5, 16.8)):
+#: Share of the fissure (from each corner) over which the margin's standoff grows to the corner's.
+_GROW_MEDIAL, _GROW_LATERAL = 0.3, 0.15
+#: UnityEyes' eight registered eye regions around a 12.05 mm eye (mean, SD; mm): the medial end of
+#: the fissure and the lateral corner in front of the centre along the gaze and off the gaze axis
+#: (docs/remove_eyeballs.md, texture fallback); the procedural corners scale them with the radius.
+_ANATOMY_RADIUS_MM = 12.05
+_MEDIAL_FWD, _LATERAL_FWD, _LATERAL_AXIS = (8.56, 0.69), (4.51, 1.18), (12.68, 0.41)
+#: Population fissure (mm, mean and SD; the width at the mean radius, scaled with the radius).
+_FISSURE_WIDTH, _FISSURE_HEIGHT = (27.0, 1.7), (9.5, 1.5)
+_MEAN_RADIUS_MM = 11.7
+#: The lateral corner lies at least this far off the globe (mm).
+_LATERAL_MIN_OFF_MM = 0.6
+#: A fully hooded upper lid hangs this much lower than a round one (mm).
+_HOOD_DROP_MM = 1.2
+#: The cornea of the project's human eye at r1 = 12 mm (scaled with r1): corneal sphere radius and
+#: apex distance from the centre (the limbus then lies ~5.95 mm off the axis, 10.4 mm in front).
+_CORNEA_R2_MM, _CORNEA_APEX_MM = 7.6, 13.3
+
+
+def _clipped_normal(rng, mean, sd, k=2.0):
+    return float(mean + sd * np.clip(rng.normal(), -k, k))
+
+
+def draw_radius(rng, mean, sd):
+    """One eyeball radius for a head (both eyes): a normal draw clipped to +-3 SD."""
+    return _clipped_normal(rng, mean, sd, 3.0)
+
+
+def _make_eye(side, rng, ipd, hood, y_eye, radius):
     from scipy.spatial import cKDTree
 
     lat = 1.0 if side == "left" else -1.0
-    radius = float(rng.uniform(*radius_range))
     x = lat * (ipd / 2.0 + rng.uniform(-0.3, 0.3))
     tx = t_for_x(x)
     bx, bz, _, _ = base_curve(np.array([tx]))
-    # the eye's front stays where a 12.25 mm eye's was: a larger sphere sits deeper
-    depth = 15.0 + (radius - _LID_REF_RADIUS_MM)
+    # the cornea's front stays where a 12.25 mm eye's was: a larger sphere sits deeper
+    depth = 15.0 + (radius - 12.25)
     center = np.array([x, y_eye + rng.uniform(-0.4, 0.4), float(bz[0]) - depth + rng.uniform(-0.5, 0.5)])
     yaw = np.deg2rad(rng.uniform(-2.0, 2.0))
     pitch = np.deg2rad(rng.uniform(-2.0, 2.0))
     gaze = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
-    # a human cornea whatever the sclera's radius (r ~ 7.6 mm, apex ~1.1 mm out of the sphere)
-    rc = 7.6 * rng.uniform(0.98, 1.02)
-    apex_dist = radius + rng.uniform(0.95, 1.25)
+    e1 = np.cross([0.0, 1.0, 0.0], gaze)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(gaze, e1)
+    # the human cornea, scaled with the globe (r2 ~7.6 mm, apex ~13.3 mm at r1 = 12)
+    k = radius / 12.0
+    rc = _CORNEA_R2_MM * k * rng.uniform(0.985, 1.015)
+    apex_dist = _CORNEA_APEX_MM * k * rng.uniform(0.995, 1.005)
     cc = center + (apex_dist - rc) * gaze
-    d = np.deg2rad
-    v = _LID_REF_RADIUS_MM / radius           # vertical angles: mm of a 12.25 mm eye
-    al = {
-        "a_m": -d(rng.uniform(55.0, 60.0)), "a_l": d(rng.uniform(73.0, 78.0)),
-        "b_m": v * d(rng.uniform(-3.0, -1.0)), "b_l": v * d(rng.uniform(1.0, 4.0)),
-        "h_u": v * d((1 - hood) * rng.uniform(25.5, 27.5) + hood * rng.uniform(19.0, 21.0)),
-        "h_l": v * d(rng.uniform(23.0, 25.0)),
-        "g_u": float(rng.uniform(0.8, 0.95)), "g_l": float(rng.uniform(1.1, 1.25)),
-    }
+    dcc = apex_dist - rc
+    zl = (radius ** 2 + dcc ** 2 - rc ** 2) / (2 * dcc)
+    limbus_r = float(np.sqrt(max(radius ** 2 - zl ** 2, 0.0)))
+    # the fissure (UnityEyes' regions and the adult population; corners scaled with the radius)
+    sc = radius / _ANATOMY_RADIUS_MM
+    width = float(np.clip(_clipped_normal(rng, _FISSURE_WIDTH[0], 0.8 * _FISSURE_WIDTH[1]) * radius
+                          / _MEAN_RADIUS_MM, _FISSURE_WIDTH[0] - 1.9 * _FISSURE_WIDTH[1],
+                          _FISSURE_WIDTH[0] + 1.9 * _FISSURE_WIDTH[1]))
+    f_m = float(np.clip(_clipped_normal(rng, *_MEDIAL_FWD) * sc, 7.2, 9.9))
+    f_l = float(np.clip(_clipped_normal(rng, *_LATERAL_FWD) * sc, 2.2, 5.8))
+    a_l = _clipped_normal(rng, *_LATERAL_AXIS) * sc
+    # the lateral corner stays off the globe (a shallow corner on a large eye would touch it)
+    a_l = float(max(a_l, np.sqrt((radius + _LATERAL_MIN_OFF_MM) ** 2 - f_l ** 2)))
+    v_m, v_l = -rng.uniform(0.2, 0.8), rng.uniform(0.3, 1.5)
+    horiz = np.sqrt(max(width ** 2 - (v_l - v_m) ** 2 - (f_m - f_l) ** 2, 1.0))
+    u_l = float(np.sqrt(max(a_l ** 2 - v_l ** 2, 1.0)))
+    u_m = float(u_l - horiz)                      # the medial corner: the rest of the width
+    # height: a round opening's draw, the hooded lid lower by up to 1.2 mm
+    h_round = _clipped_normal(rng, _FISSURE_HEIGHT[0] + 0.6, 0.85 * _FISSURE_HEIGHT[1])
+    height = h_round - _HOOD_DROP_MM * hood
+    al = {"u_m": u_m, "u_l": u_l, "v_m": float(v_m), "v_l": float(v_l), "f_m": f_m, "f_l": f_l,
+          "g_u": float(rng.uniform(0.8, 0.95)), "g_l": float(rng.uniform(1.1, 1.25)),
+          "h_u": 0.55 * h_round - _HOOD_DROP_MM * hood, "h_l": 0.45 * h_round}
     s = np.linspace(0.0, 1.0, 1500)
     _, up, lo = almond_curves(al, s)
-    alpha = al["a_m"] + (al["a_l"] - al["a_m"]) * s
-    bnd = np.concatenate([np.stack([alpha, up], 1), np.stack([alpha[::-1], lo[::-1]], 1)]) * radius
+    kh = height / float(up.max() - lo.min())
+    al["h_u"] *= kh
+    al["h_l"] *= kh
+    # the margin's standoff off the globe: st_mid between the canthi, the corners' own at the ends
+    al["st_mid"] = float(rng.uniform(0.5, 0.9))
+    al["st_m"] = float(np.hypot(np.hypot(u_m, v_m), f_m) - radius)
+    al["st_l"] = float(np.hypot(np.hypot(u_l, v_l), f_l) - radius)
+    # the corner pockets' floors (caruncle medially) lie this far behind the corners
+    al["pocket_m"], al["pocket_l"] = float(rng.uniform(1.2, 1.6)), float(rng.uniform(0.8, 1.0))
+    _, up, lo = almond_curves(al, s)
+    uu = al["u_m"] + (al["u_l"] - al["u_m"]) * s
+    bnd = np.concatenate([np.stack([uu, up], 1), np.stack([uu[::-1], lo[::-1]], 1)])
+    bs = np.concatenate([s, s[::-1]])
     crow = np.deg2rad(rng.uniform(-35, 35, size=5) + np.array([-50, -25, 0, 25, 50]) * 0.9)
-    return _Eye(side, lat, center, radius, gaze, cc, rc, center + apex_dist * gaze, al, bnd,
-                cKDTree(bnd), crow, np.array([al["a_l"], al["b_l"]]))
+    eye = _Eye(side, lat, center, radius, gaze, cc, rc, center + apex_dist * gaze, limbus_r, e1, e2,
+               al, bnd, bs, cKDTree(bnd), crow, np.array([u_l, v_l]))
+    # the lateral corner lies in the (u, v) plane at its depth; the medial corner's ray crosses
+    # that plane 3-5 mm behind it, a little off the gaze: its standoff puts it at depth f_m exactly
+    t, y = ray_for_uv(eye, u_m, v_m)
+    bx, bz, nx, nz = base_curve(np.array([t]))
+    o = np.array([bx[0], y, bz[0]])
+    n = np.array([nx[0], 0.0, nz[0]])
+    p = o + (f_m - (o - center) @ gaze) / (n @ gaze) * n
+    al["st_m"] = float(np.linalg.norm(p - center) - radius)
+    return eye
+
+
+def eye_plane_uv(e, ox, oy, oz, nx, nz):
+    """Where rays ``o + h n`` cross the eye's reference plane (across the gaze, at the lateral
+    corner's depth in front of the centre, where the rays tilt most): ``(u, v)`` mm, ``u`` toward
+    the lateral side, ``v`` up."""
+    g = e.gaze
+    w_ref = e.almond["f_l"]
+    px, py, pz = ox - e.center[0], oy - e.center[1], oz - e.center[2]
+    den = nx * g[0] + nz * g[2]
+    h = (w_ref - (px * g[0] + py * g[1] + pz * g[2])) / den
+    qx, qy, qz = px + h * nx, py, pz + h * nz
+    u = e.lat * (qx * e.e1[0] + qy * e.e1[1] + qz * e.e1[2])
+    v = qx * e.e2[0] + qy * e.e2[1] + qz * e.e2[2]
+    return u, v
+
+
+def mm_per_t(t0):
+    """Millimetres along the base curve per radian of ``t`` at ``t0``."""
+    bx, bz, _, _ = base_curve(np.array([t0 - 1e-3, t0 + 1e-3]))
+    return float(np.hypot(bx[1] - bx[0], bz[1] - bz[0]) / 2e-3)
+
+
+def ray_for_uv(e, u, v, iters=8):
+    """Grid parameters ``(t, y)`` of the ray that crosses the eye's plane at ``(u, v)``."""
+    p = e.center + e.almond["f_l"] * e.gaze + e.lat * u * e.e1 + v * e.e2
+    t, y = t_for_x(p[0]), float(p[1])
+    for _ in range(iters):
+        bx, bz, nx, nz = base_curve(np.array([t]))
+        uu, vv = eye_plane_uv(e, bx, np.array([y]), bz, nx, nz)
+        dt = e.lat * (u - uu[0]) / (mm_per_t(t) * (e.e1[0] * nz[0] - e.e1[2] * nx[0]))
+        t, y = t + float(dt), y + float(v - vv[0])
+    return t, y
+
+
+def _depth_at_w(e, ox, oy, oz, nx, nz, w):
+    """Ray parameter ``h`` where rays reach ``w`` mm in front of the eye centre along the gaze."""
+    g = e.gaze
+    px, py, pz = ox - e.center[0], oy - e.center[1], oz - e.center[2]
+    return (w - (px * g[0] + py * g[1] + pz * g[2])) / (nx * g[0] + nz * g[2])
 
 
 class HeadModel:
     """All seeded shape parameters; ``fields(t, y)`` evaluates the surface depths."""
 
-    def __init__(self, seed, eye_shape, eye_spacing_mm, detail, eye_radius_mm=(15.5, 16.8), *,
+    def __init__(self, seed, eye_shape, eye_spacing_mm, detail, eye_radius_mm=(11.7, 0.45), *,
                  wrinkle_scale=1.0, pore_scale=1.0, skin_tone=None):
         rng = np.random.default_rng(seed)
         self.skin_tone = skin_tone           # None: paint's base tone
@@ -197,9 +313,10 @@ class HeadModel:
         self.ipd = float(eye_spacing_mm)
         self.detail_scale = float(detail)
         self.y_eye = 0.0
-        rr = tuple(float(r) for r in eye_radius_mm)
-        self.eyes = [_make_eye("left", rng, self.ipd, self.hood, self.y_eye, rr),
-                     _make_eye("right", rng, self.ipd, self.hood, self.y_eye, rr)]
+        # one eyeball radius per head (both eyes one size), drawn from the population
+        self.radius = draw_radius(rng, *(float(r) for r in eye_radius_mm))
+        self.eyes = [_make_eye("left", rng, self.ipd, self.hood, self.y_eye, self.radius),
+                     _make_eye("right", rng, self.ipd, self.hood, self.y_eye, self.radius)]
         j = lambda a, b: float(rng.uniform(a, b))  # noqa: E731
         self.face = {
             "brow": j(3.5, 5.5), "nose": j(21.0, 27.0), "nose_w": j(0.9, 1.15), "cheek": j(5.0, 8.0),
@@ -263,7 +380,8 @@ class HeadModel:
         out = {}
         if want_texture:
             out.update(eye_angle=np.full(t.shape, np.pi), eye_radius=np.zeros(t.shape),
-                       upper=np.zeros(t.shape))
+                       iris_radius=np.zeros(t.shape), upper=np.zeros(t.shape),
+                       pocket=np.zeros(t.shape, bool))
         for e in self.eyes:
             c = e.center
             box = (np.abs(bx - c[0]) < 34.0) & (np.abs(y - c[1]) < 30.0)
@@ -274,26 +392,23 @@ class HeadModel:
             hs, h0, dd = _ray_sphere(ox, oy, oz, mx, mz, c, e.radius)
             hc, _, _ = _ray_sphere(ox, oy, oz, mx, mz, e.cornea_center, e.cornea_radius)
             he = _smax(hs, hc, _K_CORNEA)
-            # eye angular coordinates from the sphere hit (closest approach on a miss)
-            hp = np.where(hs > _MISS, hs, h0)
-            px, py, pz = ox + hp * mx - c[0], oy - c[1], oz + hp * mz - c[2]
-            alpha = np.arctan2(e.lat * px, pz)
-            beta = np.arctan2(py, np.hypot(px, pz))
+            # the opening: an almond in the eye's plane across the gaze, (u, v) mm
             al = e.almond
-            s = (alpha - al["a_m"]) / (al["a_l"] - al["a_m"])
+            u, v = eye_plane_uv(e, ox, oy, oz, mx, mz)
+            s = (u - al["u_m"]) / (al["u_l"] - al["u_m"])
             base_b, up, lo = almond_curves(al, s)
-            # off the sphere, scale the angles by the ray's distance from the centre so d keeps
-            # growing away from the eye (continuous at the silhouette)
-            rho = np.where(hs > _MISS, e.radius, np.sqrt(np.maximum(dd, 0.0)))
-            dist, _ = e.tree.query(np.stack([alpha * rho, beta * rho], 1))
-            inside = (s > 0) & (s < 1) & (beta < up) & (beta > lo)
+            dist, near = e.tree.query(np.stack([u, v], 1))
+            inside = (s > 0) & (s < 1) & (v < up) & (v > lo)
             d = np.where(inside, -dist, dist)
-            upper = smoothstep(-0.02, 0.02, beta - base_b)
-            # lid profile T(d): thickness outside, behind the eye inside
+            s_near = e.boundary_s[near]
+            upper = smoothstep(-0.25, 0.25, v - base_b)
+            # lid profile: the margin stands st(s) off the eye surface; outside it the lid
+            # thickens, inside it drops behind the eye (the lid's inner face)
+            st = standoff(al, s_near)
             thick = 2.3 + 0.4 * upper
             tout = thick * np.tanh(np.maximum(d, 0.0) / 1.1) + 0.3 * np.maximum(d - 2.0, 0.0)
-            tin = -4.0 * (1.0 - np.exp(np.minimum(d, 0.0) / 1.0))
-            tlid = np.where(d >= 0, tout, tin)
+            tin = -(st + 2.5) * (1.0 - np.exp(np.minimum(d, 0.0) / 0.45))
+            tlid = st + np.where(d >= 0, tout, tin)
             # upper-lid crease (round) or a hanging skin fold (hooded)
             hood = self.hood
             fold = upper * ((1 - hood) * (-0.9 * _gauss(d - 7.5, 1.3))
@@ -307,6 +422,21 @@ class HeadModel:
             hl_c, _, _ = _ray_sphere(ox, oy, oz, mx, mz, e.cornea_center,
                                      np.maximum(e.cornea_radius + tlid, 0.5))
             h_lid = _smax(hl_s, hl_c, _K_CORNEA)
+            # the corners lie off the globe: where the fissure runs past the globe's silhouette a
+            # floor of tissue fills it, the caruncle medially (a low mound), the lateral fornix
+            # laterally; each sinks under the globe toward the opening's middle
+            du_m, du_l = u - al["u_m"], al["u_l"] - u
+            w_med = (al["f_m"] - al["pocket_m"] - 0.12 * np.maximum(du_m, 0.0)
+                     + 0.5 * np.exp(-((du_m - 2.5) / 2.2) ** 2 - ((v - al["v_m"]) / 1.6) ** 2))
+            w_lat = al["f_l"] - al["pocket_l"] - 0.1 * np.maximum(du_l, 0.0)
+            near_d = 1.0 - smoothstep(0.5, 2.0, d)
+            m_med = (1.0 - smoothstep(0.2, 0.3, s)) * near_d
+            m_lat = smoothstep(0.86, 0.93, s) * near_d
+            h_pock = np.maximum(
+                _depth_at_w(e, ox, oy, oz, mx, mz, w_med - _POCKET_SINK * (1.0 - m_med)),
+                _depth_at_w(e, ox, oy, oz, mx, mz, w_lat - _POCKET_SINK * (1.0 - m_lat)))
+            h_lid = _smax(h_lid, h_pock, _K_POCKET)
+            pocket = (h_pock >= h_lid - 0.05) & (d < 0.5)
             # a few mm out from the margin the skin never sinks behind the face (no moat)
             q = smoothstep(1.0, 4.0, d)
             h_lid = h_lid + q * (_smax(h_lid, h_skin[box], 3.0) - h_lid)
@@ -318,7 +448,7 @@ class HeadModel:
             # crow's feet and lower-lid lines (negative = crease)
             if detail:
                 lc = e.lateral_canthus
-                da, db = (alpha - lc[0]) * e.radius, (beta - lc[1]) * e.radius
+                da, db = u - lc[0], v - lc[1]
                 rr = np.hypot(da, db)
                 ang = np.arctan2(db, da)
                 cf = np.zeros_like(rr)
@@ -339,7 +469,9 @@ class HeadModel:
                 cosang = (qx * e.gaze[0] + qy * e.gaze[1] + qz * e.gaze[2]) / np.maximum(qn, 1e-9)
                 out["eye_angle"][box] = np.minimum(out["eye_angle"][box], np.arccos(np.clip(cosang, -1, 1)))
                 out["eye_radius"][box] = e.radius
+                out["iris_radius"][box] = e.limbus_radius - 0.1
                 out["upper"][box] = np.maximum(out["upper"][box], upper)
+                out["pocket"][box] |= pocket
         det = np.zeros(t.shape)
         if detail and self.detail_scale > 0:
             det = self.skin_detail(bx, arc(t), y, d_all, wrinkle) * self.detail_scale

@@ -81,17 +81,21 @@ def _paint(model, t, y, base=None):
     d = f["d"]
     lash = (d > -0.2) & (d < 1.2)
     col[lash] *= np.where(f["upper"][lash] > 0.5, 0.45, 0.8)[:, None]
+    # the corner pockets' tissue: the caruncle and the lateral fornix, moist pink
+    pk = f["pocket"]
+    col[pk] = np.array([196.0, 112.0, 108.0]) * (1.0 + 0.08 * fine[pk, None])
     # the scanned eyeball: sclera, iris, pupil where the eye surface is visible
     eye = f["h_eye"] >= f["h_skin"]
     ang = f["eye_angle"][eye]
     r = np.maximum(f["eye_radius"][eye], 1.0)
     rad_mm = r * np.sin(np.minimum(ang, np.pi / 2))
+    iris_r = f["iris_radius"][eye]
     sclera = np.array([236.0, 226.0, 218.0]) * (1 - 0.08 * smoothstep(8, 14, rad_mm))[:, None]
     iris_c = np.array([92.0, 118.0, 140.0])
     ring = 0.85 + 0.15 * np.cos(np.arctan2(0, 1) + rad_mm * 6.0)
     iris = iris_c[None, :] * ring[:, None]
-    iris = np.where((rad_mm > 5.4)[:, None], iris * 0.6, iris)
-    ec = np.where((rad_mm < 5.8)[:, None], iris, sclera)
+    iris = np.where((rad_mm > iris_r - 0.45)[:, None], iris * 0.6, iris)
+    ec = np.where((rad_mm < iris_r)[:, None], iris, sclera)
     ec = np.where((rad_mm < 1.9)[:, None], np.array([12.0, 10.0, 10.0]), ec)
     col[eye] = ec
     return np.clip(col, 0, 255).astype(np.uint8)
