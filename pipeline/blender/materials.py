@@ -206,15 +206,31 @@ def skin_material(mat, color_image, disp_image, displacement_method=None, subsur
     return {"mat": mat, "nt": nt, "disp": d, "out": out}
 
 
-def caruncle_material(mat, subsurface_method=None, **bsdf_inputs) -> dict:
-    """Caruncle: the asset's moist pink (``pipeline.geometry.corners.CARUNCLE_DIFFUSE``), glossier than
-    the skin, with the skin's subsurface scattering (``bsdf_inputs``, e.g. the render worker's
-    ``SKIN_BSDF``); no texture, no displacement. Returns the dict of :func:`skin_material`."""
-    from pipeline.geometry.corners import CARUNCLE_DIFFUSE, CARUNCLE_ROUGHNESS
+def caruncle_material(mat, subsurface_method=None, color_image=None, **bsdf_inputs) -> dict:
+    """Caruncle: moist tissue in the medial corner, glossier than the skin, with the skin's
+    subsurface scattering (``bsdf_inputs``, e.g. the render worker's ``SKIN_BSDF``), no
+    displacement. Its colour is the skin's colour map (UV map ``st``) times
+    ``pipeline.geometry.corners.CARUNCLE_TINT``, so it keeps the subject's tone and never
+    outshines the skin; without a map the asset's pink (``CARUNCLE_DIFFUSE``). Returns the dict
+    of :func:`skin_material`."""
+    from pipeline.geometry.corners import CARUNCLE_DIFFUSE, CARUNCLE_ROUGHNESS, CARUNCLE_TINT
 
     nt, out = new_tree(mat)
     b = principled(nt, **{**bsdf_inputs, "Base Color": (*CARUNCLE_DIFFUSE, 1.0),
                           "Roughness": CARUNCLE_ROUGHNESS})
+    if color_image is not None:
+        uv = nt.nodes.new("ShaderNodeUVMap")
+        uv.uv_map = "st"
+        tex = nt.nodes.new("ShaderNodeTexImage")
+        tex.image = color_image
+        nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+        tint = nt.nodes.new("ShaderNodeMix")
+        tint.data_type = "RGBA"
+        tint.blend_type = "MULTIPLY"
+        tint.inputs["Factor"].default_value = 1.0
+        tint.inputs[7].default_value = (*CARUNCLE_TINT, 1.0)     # B (colour)
+        nt.links.new(tex.outputs["Color"], tint.inputs[6])        # A (colour)
+        nt.links.new(tint.outputs[2], b.inputs["Base Color"])
     if subsurface_method is not None:
         try:
             b.subsurface_method = subsurface_method
@@ -238,7 +254,7 @@ def eye_region_materials(skin_obj, color_image, disp_image, displacement_method=
         if slot.material is None:
             continue
         if is_caruncle(slot.material):
-            out.append(caruncle_material(slot.material, subsurface_method, **bsdf_inputs))
+            out.append(caruncle_material(slot.material, subsurface_method, color_image, **bsdf_inputs))
         else:
             out.append(skin_material(slot.material, color_image, disp_image, displacement_method,
                                      subsurface_method, **bsdf_inputs))

@@ -25,8 +25,9 @@ to ``pupil_dilated_mm``), ``pupil_constrict`` (to ``pupil_constricted_mm``),
 Weight rule (:func:`clamp_weights`): finite weights are clamped to [0, 1];
 NaN/inf and unknown shape names are refused with ``ValueError``.
 
-Placed in a scan (:func:`placed_params`): the sclera sphere takes the fitted radius, everything
-else (cornea, apex protrusion, iris, pupil) keeps its size in mm; the eye is never scaled.
+Placed in a scan (:func:`placed_params`): the sclera sphere takes the eye's radius (the paper's
+12 mm by default; a population size or the scan's sphere when asked), everything else (cornea,
+apex protrusion, iris, pupil) keeps its size in mm; the eye is never scaled.
 
 Landmarks: 8 iris-boundary and 8 pupil-boundary vertices of the inner mesh at
 azimuths ``45 deg * k`` (k = 0..7), starting at +X and running counter-clockwise

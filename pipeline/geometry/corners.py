@@ -41,6 +41,10 @@ CARUNCLE_MM = 4.4
 #: pink mucosa, glossier than skin, no texture.
 CARUNCLE_DIFFUSE = (0.72, 0.34, 0.33)
 CARUNCLE_ROUGHNESS = 0.3
+#: Where the skin's colour map exists, the caruncle is that colour times this tint (linear RGB):
+#: the subject's own tone and the light it was scanned in, reddened like mucosa and no brighter
+#: than the skin around it (a constant pink was the brightest thing in a dark-skinned preview).
+CARUNCLE_TINT = (1.0, 0.62, 0.6)
 
 
 def _smoothstep(x):

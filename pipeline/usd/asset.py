@@ -15,14 +15,14 @@ head frame, metersPerUnit 0.001, upAxis Y, +Z out of the face)::
                                   from SkelRoot to Xform, kind subcomponent, its own Skel
                                   deactivated); Outer/Inner rebound rigidly to the eye joint, their
                                   points and the Inner blend shapes overridden with the eye placed
-                                  at the fitted radius (customData eyerig.params: its geometry)
+                                  at the asset's radius (customData eyerig.params: its geometry)
         Landmarks/eyelid_left,    BasisCurves (12 points, linear, periodic) with the same lid
                   eyelid_right    blend shapes and inbetweens
         Landmarks/eye_left, ...   Scope: eyerig:landmarks:iris / :pupil (Inner vertex indices,
                                   copied from the eyeball) + rel eyerig:landmarks:mesh -> Inner
         Materials/Skin            UsdPreviewSurface: diffuse = textures/color.png,
                                   displacement = textures/displacement.exr (scale 1: mm = stage units)
-        Materials/Caruncle        UsdPreviewSurface, moist pink: bound to the EyeRegion's GeomSubset
+        Materials/Caruncle        UsdPreviewSurface, the skin map reddened (or pink): bound to the EyeRegion's GeomSubset
                                   "caruncle" (the strip closing the medial corner where the lids
                                   stand off the eye, pipeline/geometry/corners.py); absent when
                                   every corner rests on the eye
@@ -30,13 +30,14 @@ head frame, metersPerUnit 0.001, upAxis Y, +Z out of the face)::
 Eyes and joints: UsdSkel does not move child prims of joints, so each eye's meshes are
 skinned rigidly (constant ``jointIndices``/``jointWeights``) to their eye joint. The joint's
 bind/rest transform is the fitted eye frame (rotation rows e_x, e_y, forward; translation =
-fitted centre) and so is ``geomBindTransform`` (no scale): the eye's points are the parametric
-eye placed at the fitted radius (:func:`pipeline.eyeball.geometry.placed_params`: the sclera
-sphere takes the radius, cornea, iris and pupil keep their size in mm), built at the referenced
+eye's centre) and so is ``geomBindTransform`` (no scale): the eye's points are the parametric
+eye placed at the eye's radius in eyes.json (the paper's 12 mm unless ``remove_eyeballs.eye_size``
+says otherwise; :func:`pipeline.eyeball.geometry.placed_params`: the sclera sphere takes the
+radius, cornea, iris and pupil keep their size in mm), built at the referenced
 eyeball's resolution from its own parameters (customData eyerig.params and .resolution) and
 authored over the reference's points, with the Inner blend shapes' offsets; the eye prim's
-customData eyerig.params says which. At rest the eye sits at the fitted centre looking along
-the fitted forward direction, and rotating the joint rotates it about its centre.
+customData eyerig.params says which. At rest the eye sits at its centre (anchored at the scan's
+limbus, pipeline/remove_eyeballs/human_eye.py) looking along its forward direction, and rotating the joint rotates it about its centre.
 """
 
 from __future__ import annotations
@@ -114,17 +115,20 @@ def _skin_material(stage, path, color_tex: str | None, disp_tex: str | None):
     return mat
 
 
-def _caruncle_subset(stage, path: str, mesh, faces, n_faces: int, skin) -> None:
+def _caruncle_subset(stage, path: str, mesh, faces, n_faces: int, skin, color_tex=None) -> None:
     """Bind the caruncle material to the mesh faces ``faces`` and the skin to the rest: two
     GeomSubsets (family materialBind, a partition of the faces). The mesh keeps its own binding
     to the skin for viewers without subsets; Blender's importer reads only the subsets once
-    there are any, so the skin gets one too."""
+    there are any, so the skin gets one too. With the skin's colour map ``color_tex`` the
+    caruncle is that map times ``CARUNCLE_TINT`` (the texture's ``scale``), else a flat pink."""
     from pxr import UsdGeom, UsdShade, Vt
 
-    from pipeline.geometry.corners import CARUNCLE_DIFFUSE, CARUNCLE_ROUGHNESS
+    from pipeline.geometry.corners import CARUNCLE_DIFFUSE, CARUNCLE_ROUGHNESS, CARUNCLE_TINT
     from pipeline.usd import stage as su
 
-    mat, _, _ = su.preview_material(stage, path, diffuse=CARUNCLE_DIFFUSE, roughness=CARUNCLE_ROUGHNESS)
+    mat, _, _ = su.preview_material(stage, path, diffuse=CARUNCLE_DIFFUSE, roughness=CARUNCLE_ROUGHNESS,
+                                    texture=color_tex,
+                                    scale=None if color_tex is None else (*CARUNCLE_TINT, 1.0))
     api = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
     car = np.unique(np.asarray(faces, np.int64))
     rest = np.setdiff1d(np.arange(n_faces), car)
@@ -204,7 +208,7 @@ def _place_eye(prim, model, radius: float, eyeball_ref: str) -> None:
     prim.SetCustomDataByKey("eyerig:cornea_center_mm", Gf.Vec3d(0, 0, placed.cornea_center_z))
     prim.SetCustomDataByKey("eyerig:placement",
                             "pipeline.eyeball.geometry.placed_params: the eyeball sphere r1 = the "
-                            "fitted radius; r2, apex - r1, iris, pupil, gap in mm as in the "
+                            "eye's radius (eyes.json); r2, apex - r1, iris, pupil, gap in mm as in the "
                             "referenced eyeball (not scaled)")
 
 
@@ -222,7 +226,7 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     shapes : list of pipeline.rig.lids.BlendShape (lids_up, lids_down with inbetweens)
     landmark_curves : dict side -> (points (12, 3) mm, list of BlendShape on points 0..11)
     eyes : dict side -> {"center": (3,), "radius": r, "forward": (3,)}; the eye is placed at
-                             the fitted radius (see the module docstring)
+                             the fitted radius (eyes.json; see the module docstring)
     eyeball_ref : str        asset path of eyeball.usda relative to this layer (``./eyeball/eyeball.usda``)
     metadata : dict          stored as customData["eyerig"] on the default prim
     caruncle_faces : (k,) int, optional  faces of F given the caruncle material (none: no subset)
@@ -289,9 +293,9 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     skin = _skin_material(stage, rp + "/Materials/Skin", color_tex, disp_tex)
     su.bind_material(mesh.GetPrim(), skin)
     if caruncle_faces is not None and len(caruncle_faces):
-        _caruncle_subset(stage, rp + "/Materials/Caruncle", mesh, caruncle_faces, len(F), skin)
+        _caruncle_subset(stage, rp + "/Materials/Caruncle", mesh, caruncle_faces, len(F), skin, color_tex)
 
-    # eyes: placed at the fitted radius, rigid skinning to their joints
+    # eyes: placed at their radius, rigid skinning to their joints
     model = _eyeball_model(probe, eyeball_ref)
     for j, side in enumerate(SIDES, start=1):
         p = eye_prims[side]
@@ -306,7 +310,7 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
                 api.CreateJointIndicesPrimvar(True, 1).Set([j])
                 api.CreateJointWeightsPrimvar(True, 1).Set([1.0])
                 api.CreateGeomBindTransformAttr().Set(G)
-        p.SetDocumentation(f"Subject's {side} eye: {eyeball_ref} placed at the fitted radius "
+        p.SetDocumentation(f"Subject's {side} eye: {eyeball_ref} placed at radius "
                            f"{float(eyes[side]['radius']):.4f} mm (sclera; cornea, iris and pupil "
                            f"keep their size) and rigidly skinned to joint {JOINTS[j]} (centre "
                            f"{list(map(float, eyes[side]['center']))} mm)")
