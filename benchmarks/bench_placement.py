@@ -28,7 +28,6 @@ from benchmarks.unseen.cases import generate, select
 from benchmarks.unseen.report import says_closed
 
 ROOT = Path(__file__).resolve().parents[1]
-PRIOR = ROOT.parent / "shared" / "reference" / "unityeyes_eye_region"
 
 
 def _stage(*args):
@@ -42,8 +41,7 @@ def place(scan: Path, build: Path) -> dict:
         if r.returncode != 0:
             return {"refused": (r.stderr.strip().splitlines() or ["?"])[-1], "stage": "ingest"}
     shutil.rmtree(build / "remove_eyeballs", ignore_errors=True)
-    args = ["--prior", PRIOR] if PRIOR.is_dir() else []
-    r = _stage("stages.remove_eyeballs", build / "ingest", build / "remove_eyeballs", *args,
+    r = _stage("stages.remove_eyeballs", build / "ingest", build / "remove_eyeballs",    # the shipped prior
                "--metrics", build / "remove_eyeballs.metrics.json")
     if r.returncode != 0:
         return {"refused": (r.stderr.strip().splitlines() or ["?"])[-1], "stage": "remove_eyeballs"}
