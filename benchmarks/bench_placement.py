@@ -31,7 +31,6 @@ from benchmarks.unseen.report import says_closed
 from tests.fixtures.truth import truth_limbus
 
 ROOT = Path(__file__).resolve().parents[1]
-PRIOR = ROOT.parent / "shared" / "reference" / "unityeyes_eye_region"
 
 
 def _stage(*args):
@@ -45,8 +44,7 @@ def place(scan: Path, build: Path) -> dict:
         if r.returncode != 0:
             return {"refused": (r.stderr.strip().splitlines() or ["?"])[-1], "stage": "ingest"}
     shutil.rmtree(build / "remove_eyeballs", ignore_errors=True)
-    args = ["--prior", PRIOR] if PRIOR.is_dir() else []
-    r = _stage("stages.remove_eyeballs", build / "ingest", build / "remove_eyeballs", *args,
+    r = _stage("stages.remove_eyeballs", build / "ingest", build / "remove_eyeballs",    # the shipped prior
                "--metrics", build / "remove_eyeballs.metrics.json")
     if r.returncode != 0:
         return {"refused": (r.stderr.strip().splitlines() or ["?"])[-1], "stage": "remove_eyeballs"}

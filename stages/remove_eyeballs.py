@@ -1,6 +1,7 @@
 """Stage ``remove_eyeballs``: fit each scanned eyeball and cut it out of the head mesh.
 
     python -m stages.remove_eyeballs build/<scan>/ingest build/<scan>/remove_eyeballs \
+        --prior pipeline/remove_eyeballs/data/eye_region_prior.npz \
         --metrics build/<scan>/remove_eyeballs.metrics.json
 
 Reads ``ingest/mesh.npz``, ``ingest/scan.json`` (eye hints; its ``folder`` is the scan folder
@@ -8,7 +9,9 @@ a refusal names) and ``ingest/texture.png`` when present; writes ``mesh.npz`` (h
 eye openings, UV/FUV/VC carried), ``eyes.json`` (per eye: center, radius, forward,
 residual_rms_mm, n_inliers, placement (the cues that carried the fit), uncertainty_mm,
 checks, loop_indices, loop_points, lateral_canthus_index, texture_fissure, doubts) and copies
-``texture.png``. ``--prior`` names the eye-region model's folder (used when present). Each
+``texture.png``. ``--prior`` names the eye-region prior file (default: the one eyerig ships,
+pipeline/remove_eyeballs/data/eye_region_prior.npz; missing or corrupt: an error naming it,
+never a placement without it). Each
 doubt (an eye placed from little evidence, a failed self-check, a texture-placed opening
 narrower than the texture's fissure) is also printed to stderr as a warning; the eye is still
 published. See pipeline/remove_eyeballs/eye_place.py, eye_prior.py, remove_eyeballs.py.
@@ -28,7 +31,7 @@ from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.io.scan_file import read_scan_record
-from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
+from pipeline.remove_eyeballs.eye_prior import PRIOR_FILE, EyeRegionPrior
 from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 from pipeline.results import StageResult
@@ -54,16 +57,16 @@ def main(argv) -> StageResult:
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("ingest", type=Path, help="build/<scan>/ingest")
     parser.add_argument("out", type=Path, help="build/<scan>/remove_eyeballs")
-    parser.add_argument("--prior", type=Path, default=None,
-                        help="folder of the UnityEyes eye-region model (optional: placement goes "
-                             "without that cue when it is absent)")
+    parser.add_argument("--prior", type=Path, default=PRIOR_FILE,
+                        help="the eye-region prior file (default: the one eyerig ships, "
+                             "pipeline/remove_eyeballs/data/eye_region_prior.npz)")
     args = parser.parse_args(argv)
     st = load_settings(RemoveEyeballsSettings, args.params)
     eyeball = load_settings(EyeballSettings, args.params).geometry   # the eye the asset carries
     mesh, hints, texture, source, tex_path = _read(args.ingest)
     prior = EyeRegionPrior.load(args.prior)
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture,
-                          prior=None if prior is None else prior.register, eyeball=eyeball)
+                          prior=prior.register, eyeball=eyeball)
     for side in ("left", "right"):      # published, but not sure: say so where the user looks
         for doubt in res.eyes[side]["doubts"]:
             print(f"warning: {source}: {side} eye: {doubt}", file=sys.stderr)

@@ -39,6 +39,8 @@ def _label(i: int, rng, w: int = 24, h: int = 16) -> dict:
             "gaze": {"eye": "left" if i % 2 else "right", "vector_camera": [0.1, 0.2, 0.97],
                      "camera": {"pitch_deg": float(rng.uniform(-25, 25)), "yaw_deg": float(rng.uniform(-35, 35))}},
             "head_pose": {"camera_pitch_deg": float(rng.uniform(-20, 10)), "camera_yaw_deg": float(rng.uniform(-20, 20))},
+            "eyes": {side: {"radius_mm": 12.0 if asset == ASSETS[0] else 11.55,
+                            "center_to_iris_plane_mm": float(rng.uniform(9.5, 10.5))} for side in ("left", "right")},
             "landmarks": {"px": px.tolist(), "pupil_center_px": [w / 2, h / 2], "apparent_px": None,
                           "visible": [bool(v) for v in rng.random(28) < np.linspace(0.05, 0.95, 28)]}}
 
@@ -74,6 +76,14 @@ def test_plots_are_pngs_of_the_labels_numbers_and_the_card_quotes_them(labels, t
     assert stats["images_per_asset"] == {"alpha": 20, "a_much_longer_asset_name": 10}
     vis = np.array([d["landmarks"]["visible"] for d in labels])
     assert stats["landmark_visible_share"] == [round(float(s), 4) for s in vis.mean(0)]
+    # the imaged eye's radius and iris plane, in 0.1 mm bins (12.0 in the bin [12.0, 12.1))
+    r = stats["eye_mm"]["radius"]
+    assert dict(zip(r["edges"], r["counts"])) == {11.5: 10, 11.6: 0, 11.7: 0, 11.8: 0, 11.9: 0, 12.0: 20}
+    d = np.array([x["eyes"][x["gaze"]["eye"]]["center_to_iris_plane_mm"] for x in labels])
+    e = np.asarray(stats["eye_mm"]["center_to_iris_plane"]["edges"])
+    assert np.allclose(np.diff(e), plots.BIN_MM) and e[0] <= d.min() and d.max() < e[-1]
+    assert stats["eye_mm"]["center_to_iris_plane"]["counts"] == [int(np.sum((d >= a) & (d < b)))
+                                                                 for a, b in zip(e[:-1], e[1:])]
 
     out = tmp_path / "ds"
     files = plots.write_plots(out, stats)
@@ -97,6 +107,8 @@ def test_plots_are_pngs_of_the_labels_numbers_and_the_card_quotes_them(labels, t
     assert np.allclose(read, vis.mean(0), atol=5e-4) and len(read) == 28
     g = np.array([d["gaze"]["camera"]["pitch_deg"] for d in labels])
     assert f"pitch {g.min():+.1f} to {g.max():+.1f} deg" in card
+    assert (f"eyeball radius 11.55 to 12.00 mm, mean {np.mean([12.0] * 20 + [11.55] * 10):.2f}; rotation centre to "
+            f"iris plane {d.min():.2f} to {d.max():.2f} mm") in card
 
 
 def test_a_rerun_deletes_the_card_plots_and_nothing_else(tmp_path):
@@ -105,6 +117,14 @@ def test_a_rerun_deletes_the_card_plots_and_nothing_else(tmp_path):
         (tmp_path / f).write_bytes(b"x")
     gone = {p.relative_to(tmp_path).as_posix() for p in rr.doomed_files(tmp_path, lambda i: True)}
     assert gone == set(rr.CARD_PLOTS)
+
+
+def test_labels_without_the_eyes_geometry_have_no_eye_plot(labels, tmp_path):
+    bare = [{k: v for k, v in d.items() if k != "eyes"} for d in labels]
+    stats = plots.label_stats(bare, ASSETS)
+    assert stats["eye_mm"] is None
+    assert plots.write_plots(tmp_path, stats) == [f for f in rr.CARD_PLOTS if not f.endswith("/eye.png")]
+    assert "eyeball radius" not in dataset_card(_info(stats, [], len(bare)), bare[0])
 
 
 def test_no_visibility_no_visibility_plot(labels, tmp_path):

@@ -107,6 +107,11 @@ def test_coco_json_read_back_equals_labels_and_masks(made):
         mx, my, mw, mh = cf.mask_bbox(eye_mask)
         assert x <= mx and y <= my and mx + mw <= x + w + 1e-9 and my + mh <= y + h + 1e-9
         np.testing.assert_allclose(eye[0]["gaze_camera"], label["gaze"]["vector_camera"])
+        geo = label["eyes"][label["gaze"]["eye"]]                      # the imaged eye's centre, radius, iris plane
+        np.testing.assert_allclose(eye[0]["gaze_origin"], np.asarray(geo["center_px"]) - 0.5)
+        np.testing.assert_allclose(eye[0]["gaze_origin_camera_mm"], geo["center_camera_mm"])
+        assert eye[0]["eyeball_radius_mm"] == geo["radius_mm"]
+        assert eye[0]["center_to_iris_plane_mm"] == geo["center_to_iris_plane_mm"]
         # the class annotations rebuild the mask exactly
         rebuilt = np.zeros_like(seg)
         for a in anns:

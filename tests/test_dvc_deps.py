@@ -138,6 +138,13 @@ def test_editing_any_module_the_render_stage_runs_changes_the_render_fingerprint
     assert run.config_hash(s0, before) != run.config_hash(s1, before)
 
 
+def _is_code(dep: str) -> bool:
+    """Is the dvc.yaml dep ``dep`` code (a module or a package folder under pipeline/ or stages/),
+    which :func:`write_dvc_yaml` regenerates, rather than data it keeps (the eye-region prior)?"""
+    return dep.startswith(CODE) and (dep.endswith(".py") or (ROOT / dep / "__init__.py").is_file()
+                                     or not (ROOT / dep).exists())
+
+
 def write_dvc_yaml() -> list[str]:
     """Rewrite the pipeline/ and stages/ deps of every stage in dvc.yaml as its exact closure
     (data deps and everything else untouched); returns the stages whose deps changed."""
@@ -157,7 +164,7 @@ def write_dvc_yaml() -> list[str]:
             while i < len(lines) and re.match(rf"^ {{{indent}}}- ", lines[i]):
                 items.append(lines[i])
                 i += 1
-            data = [x for x in items if not x.strip()[2:].split()[0].startswith(CODE)]
+            data = [x for x in items if not _is_code(x.strip()[2:].split()[0])]
             code = compact(import_closure(stage))
             new = data + [f"{' ' * indent}- {p}\n" for p in code]
             if new != items:

@@ -3,6 +3,8 @@ eye_prior: the eye-region model registered to a surface made from it."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -109,20 +111,77 @@ def test_closed_eyes_have_no_placement():
     assert res["left"] is None and res["right"] is None
 
 
-def _prior_dir():
+def _unityeyes_dir():
     base = extra_scans_dir()
     if base is None:
         pytest.skip("EYERIG_EXTRA_SCANS is not set")
     d = base.parent / "reference" / "unityeyes_eye_region"
     if not (d / "mesh_mean.txt").is_file():
-        pytest.skip(f"the eye-region model is not beside {base}")
+        pytest.skip(f"the UnityEyes eye-region model is not beside {base}")
     return d
 
 
-def test_prior_absent_is_none(tmp_path):
+def test_the_shipped_prior_is_the_unityeyes_model(tmp_path):
+    """The prior eyerig ships holds the UnityEyes text files' numbers exactly (mm, the first 10
+    components), and the derivation gives the same bytes again."""
+    from benchmarks.derive_eye_prior import derive
+    from pipeline.io.eye_prior_file import write_eye_prior
+    from pipeline.remove_eyeballs.eye_prior import PRIOR_FILE, EyeRegionPrior
+
+    d = _unityeyes_dir()
+    prior = EyeRegionPrior.load()
+    mean = np.loadtxt(d / "mesh_mean.txt", dtype=np.float64)
+    comp = np.loadtxt(d / "pca_components.txt", dtype=np.float64)
+    assert np.array_equal(prior.mean, mean * 1000.0)
+    assert np.array_equal(prior.components, comp[:, :10] * 1000.0)
+    assert np.array_equal(prior.coef_sd, np.loadtxt(d / "transformed_std.txt")[:10])
+    out = tmp_path / "p.npz"
+    write_eye_prior(out, derive(d, 10))
+    assert out.read_bytes() == PRIOR_FILE.read_bytes()
+
+
+def test_the_prior_ships_with_its_licence_and_is_package_data():
+    import tomllib
+
+    from pipeline.remove_eyeballs.eye_prior import PRIOR_FILE, EyeRegionPrior
+
+    prior = EyeRegionPrior.load()
+    assert prior.mean.shape == (229, 3) and prior.components.shape == (687, 10) and prior.modes == 10
+    assert PRIOR_FILE.stat().st_size < 200_000
+    lic = (PRIOR_FILE.parent / "LICENSE-unityeyes.txt").read_text()
+    assert "MIT License" in lic and "Erroll Wood" in lic and "UnityEyes2" in lic
+    root = Path(__file__).resolve().parents[1]
+    data = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    assert {"data/eye_region_prior.npz", "data/LICENSE-unityeyes.txt"} <= set(data["pipeline.remove_eyeballs"])
+
+
+@pytest.mark.parametrize("content", [None, b"not a zip", b"PK\x03\x04 truncated"])
+def test_a_missing_or_corrupt_prior_is_one_line_naming_the_file(tmp_path, content):
+    from pipeline.errors import ScanError
     from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
 
-    assert EyeRegionPrior.load(tmp_path) is None and EyeRegionPrior.load(None) is None
+    f = tmp_path / "prior.npz"
+    if content is not None:
+        f.write_bytes(content)
+    with pytest.raises(ScanError) as exc:
+        EyeRegionPrior.load(f)
+    assert str(exc.value).startswith(f"{f}: ") and "\n" not in str(exc.value)
+
+
+def test_a_prior_of_the_wrong_shape_or_with_nan_is_refused(tmp_path):
+    from pipeline.errors import ScanError
+    from pipeline.io.eye_prior_file import read_eye_prior
+    from pipeline.remove_eyeballs.eye_prior import PRIOR_FILE
+
+    with np.load(PRIOR_FILE) as z:
+        good = {k: z[k] for k in z.files}
+    for change, words in (({"mean_mm": good["mean_mm"][:200]}, "shapes"),
+                          ({"coef_sd": good["coef_sd"] * np.nan}, "non-finite"),
+                          ({"schema": np.asarray(2)}, "schema")):
+        f = tmp_path / "bad.npz"
+        np.savez(f, **{**good, **change})
+        with pytest.raises(ScanError, match=words):
+            read_eye_prior(f)
 
 
 def test_prior_registers_its_own_mean_shape():
@@ -132,17 +191,10 @@ def test_prior_registers_its_own_mean_shape():
 
     from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior, to_head
 
-    d = _prior_dir()
-    prior = EyeRegionPrior.load(d)
-    ms = pymeshlab.MeshSet()
-    ms.load_new_mesh(str(d / "eye_region.3ds"))
-    F = np.asarray(ms.current_mesh().face_matrix(), dtype=np.int64)
-    Vm = np.asarray(ms.current_mesh().vertex_matrix(), dtype=np.float64)
-    if len(Vm) != 229:
-        pytest.skip("eye_region.3ds does not hold the 229-vertex topology")
+    prior = EyeRegionPrior.load()
     # dense enough to fit against: subdivide the coarse region twice
-    ms.clear()
-    ms.add_mesh(pymeshlab.Mesh(to_head(prior.mean, "left"), F.astype(np.int32)))
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(to_head(prior.mean, "left"), prior.faces.astype(np.int32)))
     ms.meshing_surface_subdivision_midpoint(iterations=2)
     V = np.asarray(ms.current_mesh().vertex_matrix(), dtype=np.float64)
     Fd = np.asarray(ms.current_mesh().face_matrix(), dtype=np.int64)

@@ -2,7 +2,9 @@
 a space, a dot-folder and non-ASCII, given absolute paths through it. Only a scan folder's own
 name is held to the safe-name rule (tests/test_check_params.py).
 
-One run of the whole chain on a small synthetic head (about 40 s on two cores).
+One run of the whole chain on a small synthetic head (about 40 s on two cores). And the chain reads
+nothing outside the repository: a copy of the project with no ../shared beside it writes the same
+bytes as this checkout (through retopo, about 30 s).
 """
 
 from __future__ import annotations
@@ -76,3 +78,70 @@ def test_every_stage_and_the_dataset_command_run_from_a_clone_under_odd_folders(
                        text=True, timeout=600)
     assert r.returncode == 0 and r.stderr == "", r.stderr
     assert [row["asset"] for row in read_index(out / "index.jsonl")] == [SCAN, SCAN]
+
+
+#: the per-scan chain this test runs (every stage that read ../shared before stops at remove_eyeballs)
+SELF_CONTAINED = ("synthetic_head", "ingest", "remove_eyeballs", "retopo")
+#: a small head and a cheap retopo metric keep it short
+SMALL = {"synthetic_head": {"target_triangles": 80000, "texture_size": 256}, "retopo": {"metric_samples": 5000}}
+
+
+def _project_copy(dst: Path) -> Path:
+    """The project's files (tracked, and new ones git does not ignore) copied to ``dst``."""
+    r = subprocess.run(["git", "ls-files", "-z", "-co", "--exclude-standard"], cwd=ROOT, capture_output=True)
+    if r.returncode != 0:
+        pytest.skip("not a git checkout")
+    for rel in filter(None, r.stdout.decode().split("\0")):
+        src = ROOT / rel
+        if rel == ".venv" or src.is_symlink() or not src.is_file():
+            continue
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, dst / rel)
+    return dst
+
+
+def _chain(root: Path, out: Path | None) -> list[list[str]]:
+    """dvc.yaml's commands of :data:`SELF_CONTAINED` for the scan, as DVC runs them in ``root``;
+    with ``out``, the scan and build paths moved under ``out`` (other paths left as they are)."""
+    stages = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]
+    cmds = []
+    for name in SELF_CONTAINED:
+        cmd = stages[name]["do"]["cmd"].replace("${item}", SCAN).replace("${key}", SCAN)
+        if out is not None:
+            cmd = re.sub(r"'((?:raw_scans|build)/[^']*)'", lambda m: shlex.quote(str(out / m.group(1))), cmd)
+        argv = shlex.split(cmd)
+        assert argv[:2] == ["python", "-m"], cmd
+        cmds.append([sys.executable, *argv[1:]])
+    return cmds
+
+
+@pytest.mark.slow
+def test_the_chain_reads_nothing_outside_the_repository(tmp_path):
+    """A copy of the project with no ../shared beside it runs the per-scan chain through retopo (every
+    stage that read outside the repository: remove_eyeballs' eye-region prior) on a small procedural
+    head, as DVC runs it there, and writes the same bytes as the same commands run in this checkout."""
+    clone = _project_copy(tmp_path / "eyerig")
+    assert not (clone.parent / "shared").exists()
+    params = yaml.safe_load((clone / "params.yaml").read_text())
+    params["scans"] = [SCAN]
+    for block, values in SMALL.items():
+        params[block].update(values)
+    (clone / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    here = tmp_path / "here"
+    here.mkdir()
+    shutil.copyfile(clone / "params.yaml", here / "params.yaml")
+    env = {k: v for k, v in os.environ.items() if k != "EYERIG_EXTRA_SCANS"}
+    for cwd, cmds, params_file in ((clone, _chain(clone, None), "params.yaml"),
+                                   (ROOT, _chain(ROOT, here), str(here / "params.yaml"))):
+        for argv in cmds:
+            r = subprocess.run(argv + ["--params", params_file], cwd=cwd, capture_output=True, text=True,
+                               env={**env, "PYTHONPATH": str(cwd)}, timeout=600)
+            assert r.returncode == 0 and "error" not in r.stderr, (cwd, argv, r.stderr[-2000:])
+    outputs = [p.relative_to(clone) for d in (f"raw_scans/{SCAN}", "build") for p in sorted((clone / d).rglob("*"))
+               if p.is_file() and not p.name.endswith(".timings.json")]
+    assert any(p.name == "eyes.json" for p in outputs) and any(p.match("build/*/retopo/*") for p in outputs)
+    for rel in outputs:
+        mine, theirs = (clone / rel).read_bytes(), (here / rel).read_bytes()
+        if rel.name == "scan.json":          # ingest records the scan folder it was given
+            theirs = theirs.replace(str(here).encode() + b"/", b"")
+        assert mine == theirs, rel

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -146,15 +147,21 @@ def test_closed_eyes_fail():
     assert "closed.npz" in msg and "\n" not in msg and ("closed" in msg or "no eyeball" in msg)
 
 
-def test_stage_writes_outputs(tmp_path):
-    from stages.remove_eyeballs import main
-
+def _ingested_head(tmp_path) -> Path:
+    """An ingest folder of the open test head."""
     mesh, hints, _ = make_head(0.7)
     ing = tmp_path / "ingest"
     ing.mkdir()
     save_mesh(ing / "mesh.npz", **mesh)
     (ing / "scan.json").write_text(json.dumps(
         {"name": "t", "eyes": {s: {"hint": h.tolist()} for s, h in hints.items()}}))
+    return ing
+
+
+def test_stage_writes_outputs(tmp_path):
+    from stages.remove_eyeballs import main
+
+    ing = _ingested_head(tmp_path)
     out = tmp_path / "remove_eyeballs"
     metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"]).metrics
     assert metrics["boundary_loops_out"] == 3
@@ -202,6 +209,20 @@ def test_stage_refuses_bad_settings_in_one_line(tmp_path, capsys, text, message)
     assert run_stage(main, [str(tmp_path / "in"), str(tmp_path / "out"), "--params", str(params)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {params}: {message}"), err
+
+
+def test_stage_refuses_a_missing_prior_in_one_line(tmp_path, capsys):
+    """The eye-region prior ships with eyerig; without it the stage stops, naming the file."""
+    from stages._common import run_stage
+    from stages.remove_eyeballs import main
+
+    ing = _ingested_head(tmp_path)
+    capsys.readouterr()
+    missing = tmp_path / "nowhere" / "eye_region_prior.npz"
+    assert run_stage(main, [str(ing), str(tmp_path / "out"), "--prior", str(missing), "--params", "none.yaml"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {missing}: "), err
+    assert not (tmp_path / "out").exists()
 
 
 def test_stage_missing_input_is_one_line(tmp_path):

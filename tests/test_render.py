@@ -109,6 +109,67 @@ def test_projection_of_stored_3d_landmarks_reproduces_stored_2d(tiny):
         np.testing.assert_allclose(P @ W[:3, :3].T + W[:3, 3], lab["landmarks"]["camera_mm"], atol=1e-9)
 
 
+EYE_FIELDS = ("center_head_mm", "center_camera_mm", "center_px", "radius_mm", "center_to_iris_plane_mm")
+
+
+@pytest.mark.parametrize("preset", ["generic", "near_eye", "webcam"])
+def test_every_label_gives_each_eyes_centre_radius_and_iris_plane(tiny, preset):
+    """Both eyes of every label: the rotation centre (the gaze origin) in head mm, camera mm and
+    pixels, the radius and the centre-to-iris-plane distance, read from the asset; the pixels are
+    the label's own camera matrices applied to the centre (orthographic and pinhole)."""
+    a = tiny["asset"]
+    s = RenderSettings.from_params({"preset": preset, "n_images": 6})          # the preset's own image size
+    for i in range(6):
+        smp = sp.make_sample(a, s, i, "/tmp/x.png")
+        lab = json.loads(json.dumps(lb.make_label(smp, s, "tiny")))       # as stored on disk
+        cam_block = lab["camera"]
+        assert cam_block["type"] == ("orthographic" if preset == "generic" else "pinhole")
+        W, P, H = (np.asarray(cam_block[k]) for k in ("world_to_camera", "projection", "head_to_pixel"))
+        for side in ("left", "right"):
+            e = lab["eyes"][side]
+            assert all(k in e for k in EYE_FIELDS), e.keys()
+            c = np.asarray(e["center_head_mm"])
+            np.testing.assert_allclose(c, EYES[side]["center"], atol=1e-9)          # the asset's joint
+            assert e["radius_mm"] == a.eyes[side].radius == EYES[side]["radius"]    # the asset's radius
+            np.testing.assert_allclose(W[:3, :3] @ c + W[:3, 3], e["center_camera_mm"], atol=1e-9)
+            for M, X in ((P, e["center_camera_mm"]), (H, c)):
+                uv = M @ np.r_[X, 1.0]
+                np.testing.assert_allclose(uv[:2] / uv[2], e["center_px"], atol=1e-9)
+        # the imaged eye's iris landmarks lie on the iris plane, that far along the gaze from the centre
+        e = lab["eyes"][lab["gaze"]["eye"]]
+        rel = np.asarray(lab["landmarks"]["head_mm"])[12:20] - e["center_head_mm"]
+        np.testing.assert_allclose(rel @ lab["gaze"]["vector_head"], e["center_to_iris_plane_mm"], atol=1e-5)
+    # the label reader checks them
+    from pipeline.io.labels_file import _eye_geometry
+    bad = json.loads(json.dumps(lab))
+    bad["eyes"]["left"]["center_px"] = [1.0]
+    with pytest.raises(ScanError, match="eyes.left.center_px"):
+        _eye_geometry(bad, "x.json")
+
+
+def test_the_iris_plane_distance_is_the_eyeballs_geometry(tiny):
+    """Centre to iris plane = the Inner mesh's planar front, z = sqrt((r1 - gap)^2 - r_iris^2) in the
+    asset's eyeball (its own r1, not a fixed 12 mm), moved by the iris blend shapes' offsets (linear
+    in their weights), within 1e-6 mm; the same at every eye rotation."""
+    from pipeline.eyeball.geometry import EyeballParams, shape_targets
+
+    for side in ("left", "right"):
+        eye = tiny["asset"].eyes[side]
+        p = EyeballParams.from_dict(eye.eyeball_params)
+        assert p.r1 == EYES[side]["radius"]
+        z = lambda r: np.sqrt(p.inner_radius ** 2 - r ** 2)                        # noqa: E731
+        z_large, z_small = (z(shape_targets(p)[k][1]) for k in ("iris_large", "iris_small"))
+        scale = np.linalg.norm(eye.bind[2, :3])
+        for blend in ({}, {"iris_large": 0.7}, {"iris_small": 1.0, "pupil_dilate": 0.5}, {"pupil_constrict": 1.0}):
+            want = z(p.iris_radius) + blend.get("iris_large", 0.0) * (z_large - z(p.iris_radius)) \
+                + blend.get("iris_small", 0.0) * (z_small - z(p.iris_radius))
+            assert abs(ra.iris_plane_distance(eye, blend) - scale * want) < 1e-6, (side, blend)
+        # rotated about the centre, the iris ring keeps its plane's distance along the rotated forward
+        R = quat_to_matrix([0.95, 0.2, -0.2, 0.1] / np.linalg.norm([0.95, 0.2, -0.2, 0.1]))
+        ring = ra.inner_points(eye, {}, R, eye.iris) - eye.center
+        np.testing.assert_allclose(ring @ (R @ eye.forward), ra.iris_plane_distance(eye, {}), atol=1e-6)
+
+
 def test_projection_convention_of_an_orthographic_camera():
     # image 120 x 80, 30 mm wide: a point 7.5 mm right and 5 mm up of the axis
     uv = cam.project([[7.5, 5.0, -100.0], [0.0, 0.0, -5.0]], 30.0, 120, 80)

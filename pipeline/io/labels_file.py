@@ -11,7 +11,8 @@ this module owns the file: ``{"schema": 1, "index": i, "scan": ..., "image": {..
 
 :func:`read_label` validates the schema and every field a consumer relies on (index, image
 size, camera matrices, gaze, the 28 landmarks in pixels / camera mm / head mm, attempts,
-lighting map, skin detail) and refuses anything else with one line naming the file. Labels
+lighting map, skin detail; each eye's rotation centre, radius and centre-to-iris-plane distance
+in ``eyes.<side>``, when present) and refuses anything else with one line naming the file. Labels
 rendered with ``render.masks`` (schema 1 extended; labels without these fields still read) also
 carry ``"seg": {"file": "NNNNNN_seg.png", ...}``, ``"depth": {"file": "NNNNNN_depth.exr", ...}``
 (files beside the label, pipeline/io/seg_file.py) and per landmark ``landmarks.visible`` (28
@@ -116,6 +117,7 @@ def read_label(path) -> Label:
     check = df.field(doc, "landmark_check_mm", path, default=None)
     if check is not None:
         df.number(doc, "landmark_check_mm", path)
+    _eye_geometry(doc, path)
     visible, occlusion = _visibility(doc, path)
     return Label(path=path, index=index, width=w, height=h, eye=eye,
                  projection=df.array_field(doc, "camera.projection", (3, 4), path),
@@ -127,6 +129,22 @@ def read_label(path) -> Label:
 
 
 OCCLUSIONS = ("lid", "lashes", "eye", "outside")
+
+
+def _eye_geometry(doc: dict, path) -> None:
+    """Each eye's rotation centre (head mm, camera mm, px: null behind a pinhole camera), radius and
+    centre-to-iris-plane distance (``eyes.<side>``), checked when the label has them (labels
+    written before they were added have none)."""
+    for side in SIDES:
+        if "center_head_mm" not in ((doc.get("eyes") or {}).get(side) or {}):
+            continue
+        pre = f"eyes.{side}."
+        df.array_field(doc, pre + "center_head_mm", (3,), path)
+        df.array_field(doc, pre + "center_camera_mm", (3,), path)
+        if df.field(doc, pre + "center_px", path) is not None:
+            df.array_field(doc, pre + "center_px", (2,), path)
+        df.number(doc, pre + "radius_mm", path, low=0.0)
+        df.number(doc, pre + "center_to_iris_plane_mm", path)
 
 
 def _visibility(doc: dict, path):

@@ -2,15 +2,17 @@
 
 Wood et al. built a PCA model of the eye region (229 vertices, lids, canthi, caruncle and the
 skin out to brow and cheek) from the SynthesEyes head scans, every scan in the frame of its own
-eyeball (``../shared/reference/unityeyes_eye_region``, MIT; its README gives the frame: origin
-at the eyeball centre, metres, -y forward, +z up, x medial to lateral, one (left) eye). Fitted
-to a scan's skin, it says where the front of that person's globe lies and along which axis:
-the lids wrap the front of the eye, so the model's globe front (its centre plus its 12.05 mm
-sclera along its forward axis) is what transfers between heads, not its centre (an eye 3 mm
-larger sits 3 mm deeper behind the same lids).
+eyeball (UnityEyes, MIT; the frame: origin at the eyeball centre, -y forward, +z up, x medial
+to lateral, one (left) eye). Fitted to a scan's skin, it says where the front of that person's
+globe lies and along which axis: the lids wrap the front of the eye, so the model's globe front
+(its centre plus its 12.05 mm sclera along its forward axis) is what transfers between heads, not
+its centre (an eye 3 mm larger sits 3 mm deeper behind the same lids).
 
-The data are not part of eyerig: :meth:`EyeRegionPrior.load` reads them from a folder and
-returns None when they are absent, and placement then goes without this cue.
+The model ships with eyerig: :data:`PRIOR_FILE` (``data/eye_region_prior.npz`` beside this
+module, read by pipeline/io/eye_prior_file.py) holds what the placement uses, derived from the
+UnityEyes text files by benchmarks/derive_eye_prior.py (``data/README.md``; the MIT licence is
+``data/LICENSE-unityeyes.txt``). :meth:`EyeRegionPrior.load` reads it; a missing or corrupt file is
+a ScanError naming it, never a placement without the cue.
 """
 
 from __future__ import annotations
@@ -20,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import ScanError
+from pipeline.io.eye_prior_file import N_VERTICES, read_eye_prior
 
-FILES = ("mesh_mean.txt", "pca_components.txt", "transformed_mean.txt", "transformed_std.txt")
-N_VERTICES = 229
+#: The eye-region prior eyerig ships (pipeline/remove_eyeballs/data/README.md).
+PRIOR_FILE = Path(__file__).resolve().parent / "data" / "eye_region_prior.npz"
 SCLERA_RADIUS_MM = 12.05      # the UnityEyes eyeball the model was registered to
 MARGIN = (12, 13, 14, 15, 16, 17, 18, 132, 131, 130, 6, 2, 1, 7, 8, 0)
 CARUNCLE = (28, 27, 25, 32, 31, 30, 33)
@@ -39,39 +41,28 @@ def to_head(P, side):
 
 @dataclass
 class EyeRegionPrior:
-    """The shape model: mean (229, 3) mm, components (687, k), coefficient mean and sd (k,)."""
+    """The shape model: mean (229, 3) mm, components (687, k), coefficient mean and sd (k,);
+    ``faces`` (414, 3) the region's triangles (tests and pictures; the fit uses none)."""
 
     mean: np.ndarray
     components: np.ndarray
     coef_mean: np.ndarray
     coef_sd: np.ndarray
     modes: int = 10
+    faces: np.ndarray | None = None
 
     @classmethod
-    def load(cls, folder, modes: int = 10):
-        """The model from ``folder``, or None when the folder or its files are absent; a file
-        of the wrong shape is a ScanError naming it."""
-        if folder is None:
-            return None
-        folder = Path(folder)
-        if not all((folder / f).is_file() for f in FILES):
-            return None
-        arrays = {}
-        for f in FILES:
-            try:
-                arrays[f] = np.loadtxt(folder / f, dtype=np.float64, ndmin=1)
-            except ValueError as exc:
-                raise ScanError(folder / f, f"is not a table of numbers ({exc})") from None
-        mean, comp = arrays["mesh_mean.txt"], arrays["pca_components.txt"]
-        mu, sd = arrays["transformed_mean.txt"], arrays["transformed_std.txt"]
-        if mean.shape != (N_VERTICES, 3) or comp.ndim != 2 or comp.shape[0] != 3 * N_VERTICES \
-                or mu.shape != (comp.shape[1],) or sd.shape != mu.shape:
-            raise ScanError(folder, f"is not the 229-vertex UnityEyes eye-region model "
-                                    f"(shapes {mean.shape}, {comp.shape}, {mu.shape}, {sd.shape})")
-        if not all(np.isfinite(a).all() for a in arrays.values()):
-            raise ScanError(folder, "holds non-finite numbers")
-        k = int(min(modes, comp.shape[1]))
-        return cls(mean * 1000.0, comp[:, :k] * 1000.0, mu[:k], sd[:k], k)
+    def load(cls, path=PRIOR_FILE, modes: int = 10):
+        """The model in ``path`` (default :data:`PRIOR_FILE`), its first ``modes`` components.
+
+        Raises
+        ------
+        ScanError  the file is missing or is not an eye-region prior file (one line naming it).
+        """
+        a = read_eye_prior(path)
+        k = int(min(modes, a.components_mm.shape[1]))
+        return cls(a.mean_mm, np.ascontiguousarray(a.components_mm[:, :k]), a.coef_mean[:k].copy(),
+                   a.coef_sd[:k].copy(), k, a.faces)
 
     def shape(self, z):
         """Model vertices (229, 3) mm for standardised coefficients ``z`` (k,)."""

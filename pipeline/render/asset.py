@@ -72,7 +72,8 @@ class EyeAsset:
     center : (3,) float64        eye joint rest translation (eyeball centre), mm
     basis : (3, 3) float64       rows e_x, e_y, forward of the joint rest rotation
     bind : (4, 4) float64        geomBindTransform (row-vector convention: p_head = [p, 1] @ bind)
-    radius : float               eyeball radius in the head frame, mm
+    radius : float               eyeball radius in the head frame, mm (the asset's metadata
+                                 ``eyes.<side>.radius_mm``; else its eyeball's ``r1`` x the bind scale)
     inner_rest : (k, 3) float64  Inner mesh points (model space, mm)
     inner_shapes : dict          name -> (indices (j,) int64, offsets (j, 3) float64)
     iris : (8,) int64 ; pupil : (8,) int64   Inner vertex indices of the landmarks
@@ -286,7 +287,8 @@ def load_render_asset(asset_dir, rig_dir) -> RenderAsset:
         eb_meta = stage.GetPrimAtPath(f"{rp}/Eyes/eye_{side}").GetCustomDataByKey("eyerig") or {}
         eb_params = {k: float(v) for k, v in dict(eb_meta.get("params") or {}).items()}
         meta_eye = ((root.GetCustomDataByKey("eyerig") or {}).get("eyes") or {}).get(side) or {}
-        radius = float(meta_eye.get("radius_mm", 12.0 * np.linalg.norm(G[0, :3])))
+        scale = float(np.linalg.norm(G[0, :3]))     # the eyeball's sphere as placed (the asset's word)
+        radius = float(meta_eye.get("radius_mm", eb_params.get("r1", 12.0) * scale))
         eyes[side] = EyeAsset(side=side, center=R[3, :3].copy(), basis=basis, bind=G,
                               radius=radius, inner_rest=inner_rest,
                               inner_shapes=shapes, iris=iris, pupil=pupil,
@@ -356,6 +358,18 @@ def inner_points(eye: EyeAsset, blend: dict, rotation, indices) -> np.ndarray:
     H = np.concatenate([P, np.ones((len(P), 1))], 1) @ eye.bind
     rest = H[:, :3]
     return eye.center + (rest - eye.center) @ np.asarray(rotation, np.float64).T
+
+
+def iris_plane_distance(eye: EyeAsset, blend: dict) -> float:
+    """Distance (mm) from the eye's rotation centre to the plane of its 8 iris landmarks, along the
+    eye's optical axis (+ = in front of the centre), with the eyeball blend shapes ``blend``.
+
+    The landmarks lie on the Inner mesh's planar front (model ``z = const``, perpendicular to the
+    model's +Z, which the bind transform takes to the eye's forward), so this is their mean
+    distance along that axis; the same at every eye rotation, which turns them about the centre."""
+    P = inner_points(eye, blend, np.eye(3), eye.iris)
+    n = eye.bind[2, :3] / np.linalg.norm(eye.bind[2, :3])
+    return float(np.mean((P - eye.center) @ n))
 
 
 def ring_radius(P) -> float:

@@ -183,6 +183,7 @@ def _plots(info) -> list[str]:
            f"direction from the head to the camera; pitch + = camera above, yaw + = toward the subject's "
            f"left): pitch {_range(h['pitch'])}; yaw {_range(h['yaw'])}.",
            "- Images per asset: " + ", ".join(f"`{k}` {v}" for k, v in st["images_per_asset"].items()) + ".",
+           *_eye_line(st.get("eye_mm")),
            ""]
     out += [f"![{f.rsplit('/', 1)[-1][:-4].replace('_', ' ')}]({f})" for f in files] + [""]
     share = st.get("landmark_visible_share")
@@ -194,6 +195,15 @@ def _plots(info) -> list[str]:
     out += ["The contact sheet (the first images, each tile captioned with its index and asset, "
             "landmarks and gaze drawn on):", "", "![contact sheet](contact_sheet.png)", ""]
     return out
+
+
+def _eye_line(eye) -> list[str]:
+    """The card's line on the imaged eyes' radius and centre-to-iris-plane distance (none without them)."""
+    if not eye:
+        return []
+    mm = lambda h: f"{h['min']:.2f} to {h['max']:.2f} mm, mean {h['mean']:.2f}"    # noqa: E731
+    return [f"- The imaged eye, as its asset has it (`eyes.<eye>.radius_mm`, `center_to_iris_plane_mm`): "
+            f"eyeball radius {mm(eye['radius'])}; rotation centre to iris plane {mm(eye['center_to_iris_plane'])}."]
 
 
 def _masks_text(masks) -> str:

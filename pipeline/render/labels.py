@@ -127,7 +127,7 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
     for sd, gd in smp.gaze.items():
         eyes[sd] = {"rotation_wxyz": gd["rotation_wxyz"], "gaze_head": list(map(float, gd["vector_head"])),
                     "pitch_eye_deg": gd["pitch_eye_deg"], "yaw_eye_deg": gd["yaw_eye_deg"],
-                    "clipped": gd["clipped"]}
+                    "clipped": gd["clipped"], **smp.eye_geometry[sd]}
     lm_h = smp.landmarks_head
     label = {
         "index": smp.index,

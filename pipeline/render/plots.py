@@ -4,7 +4,9 @@
 camera frame (our convention, ``gaze.camera``: pitch + = up, yaw + = toward image right), the head
 pose relative to the camera (``head_pose.camera_pitch_deg`` / ``camera_yaw_deg``: the head-frame
 direction from the head toward the camera; pitch + = camera above, yaw + = toward the subject's
-left), images per asset and the share of images in which each of the 28 landmarks is visible
+left), images per asset, the imaged eye's radius and the distance from its rotation centre to its
+iris plane (``eyes.<eye>.radius_mm`` / ``center_to_iris_plane_mm``; None when the labels carry
+neither) and the share of images in which each of the 28 landmarks is visible
 (``landmarks.visible``; None when the labels carry no visibility). ``dataset.json`` keeps these
 numbers (``statistics``), so the card's text and the plots say the same.
 
@@ -29,23 +31,26 @@ PLOTS = {
     "gaze.png": "histograms of the gaze pitch and yaw in the camera frame",
     "head_pose.png": "histograms of the head pose relative to the camera",
     "assets.png": "images per asset",
+    "eye.png": "histograms of the imaged eye's radius and of the distance from its centre to its iris plane",
     "visibility.png": "share of images in which each landmark is visible",
 }
 BIN_DEG = 5.0
+BIN_MM = 0.1
 #: Short names of the 28 landmarks (pipeline/render/labels.py LANDMARK_ORDER) for the plot's axis.
 LANDMARK_NAMES = (["medial canthus"] + [f"upper lid {k}" for k in range(1, 6)] + ["lateral canthus"]
                   + [f"lower lid {k}" for k in range(1, 6)] + [f"iris {k}" for k in range(8)]
                   + [f"pupil {k}" for k in range(8)])
 
 
-def _hist(values) -> dict:
-    """Counts over bins of :data:`BIN_DEG` degrees aligned to multiples of it (edges (k+1,), counts (k,))."""
+def _hist(values, step: float = BIN_DEG) -> dict:
+    """Counts over bins of ``step`` (:data:`BIN_DEG` degrees, :data:`BIN_MM` mm) aligned to multiples
+    of it (edges (k+1,), counts (k,))."""
     v = np.asarray(values, float)
-    lo = math.floor(v.min() / BIN_DEG) * BIN_DEG
-    hi = max(math.ceil(v.max() / BIN_DEG) * BIN_DEG, lo + BIN_DEG)
-    if hi == v.max():                       # np.histogram's last bin is closed: keep it a full bin
-        hi += BIN_DEG
-    edges = np.arange(lo, hi + BIN_DEG / 2, BIN_DEG)
+    k0 = math.floor(round(v.min() / step, 9))          # 12.0 / 0.1 is 119.99999999999999
+    k1 = max(math.ceil(round(v.max() / step, 9)), k0 + 1)
+    if k1 * step <= v.max():                # np.histogram's last bin is closed: keep it a full bin
+        k1 += 1
+    edges = np.round(np.arange(k0, k1 + 1) * step, 9)
     counts, _ = np.histogram(v, edges)
     return {"edges": [float(e) for e in edges], "counts": [int(c) for c in counts],
             "min": round(float(v.min()), 4), "max": round(float(v.max()), 4),
@@ -64,10 +69,11 @@ def label_stats(labels, asset_names) -> dict:
     Returns
     -------
     dict  ``gaze_camera_deg`` and ``head_pose_deg`` (``pitch`` / ``yaw``: :func:`_hist`),
-          ``images_per_asset`` {name: n}, ``landmark_visible_share`` (28 floats, 4 decimals, or
-          None without visibility), ``n_images``
+          ``images_per_asset`` {name: n}, ``eye_mm`` (``radius`` / ``center_to_iris_plane``:
+          :func:`_hist` of the imaged eye's, 0.1 mm bins, or None when a label lacks them),
+          ``landmark_visible_share`` (28 floats, 4 decimals, or None without visibility), ``n_images``
     """
-    gp, gy, hp, hy = [], [], [], []
+    gp, gy, hp, hy, radius, iris = [], [], [], [], [], []
     per_asset = {name: 0 for name in asset_names}
     visible, n_vis, n = np.zeros(28, np.int64), 0, 0
     for d in labels:
@@ -77,6 +83,10 @@ def label_stats(labels, asset_names) -> dict:
         gy.append(g["yaw_deg"])
         hp.append(d["head_pose"]["camera_pitch_deg"])
         hy.append(d["head_pose"]["camera_yaw_deg"])
+        eye = (d.get("eyes") or {}).get(d["gaze"]["eye"]) or {}
+        if "radius_mm" in eye and "center_to_iris_plane_mm" in eye:
+            radius.append(eye["radius_mm"])
+            iris.append(eye["center_to_iris_plane_mm"])
         name = (d.get("asset") or {}).get("name", d.get("scan"))
         per_asset[name] = per_asset.get(name, 0) + 1
         vis = d["landmarks"].get("visible")
@@ -90,6 +100,8 @@ def label_stats(labels, asset_names) -> dict:
             "gaze_camera_deg": {"pitch": _hist(gp), "yaw": _hist(gy)},
             "head_pose_deg": {"pitch": _hist(hp), "yaw": _hist(hy)},
             "images_per_asset": per_asset,
+            "eye_mm": ({"radius": _hist(radius, BIN_MM), "center_to_iris_plane": _hist(iris, BIN_MM)}
+                       if len(radius) == n else None),
             "landmark_visible_share": share}
 
 
@@ -124,7 +136,7 @@ def _pair(path, title: str, a: dict, b: dict, xa: str, xb: str, color: str) -> N
 def write_plots(out, stats: dict) -> list:
     """Draw the card's plots of ``stats`` (:func:`label_stats`) into the folder ``out`` (a Path);
     returns their paths relative to it (run.py ``CARD_PLOTS``; no ``visibility.png`` without
-    visibility)."""
+    visibility, no ``eye.png`` without the eyes' radius and iris plane)."""
     import matplotlib.style
     from matplotlib.figure import Figure
 
@@ -155,6 +167,12 @@ def write_plots(out, stats: dict) -> list:
         ax.margins(x=0.12)
         _save(fig, path["assets.png"])
 
+        eye = stats.get("eye_mm")
+        if eye is not None:
+            _pair(path["eye.png"], f"The imaged eye ({n} images; from the asset: eyes.<eye> in the labels)",
+                  eye["radius"], eye["center_to_iris_plane"], "eyeball radius (mm)",
+                  "rotation centre to iris plane (mm)", "tab:purple")
+
         share = stats["landmark_visible_share"]
         if share is not None:
             fig = Figure(figsize=(9, 3.6), layout="constrained")
@@ -167,4 +185,5 @@ def write_plots(out, stats: dict) -> list:
             ax.set_title("Landmark visibility (green: eyelid 0-11, cyan: iris 12-19, yellow: pupil 20-27)")
             ax.grid(axis="y", alpha=0.3)
             _save(fig, path["visibility.png"])
-    return [p for p in CARD_PLOTS if share is not None or not p.endswith("/visibility.png")]
+    return [p for p in CARD_PLOTS if (share is not None or not p.endswith("/visibility.png"))
+            and (eye is not None or not p.endswith("/eye.png"))]

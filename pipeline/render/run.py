@@ -85,7 +85,7 @@ def read_config(out: Path) -> dict | None:
 
 
 #: The dataset card's plots (pipeline/render/plots.py draws them at the end of a dataset run).
-CARD_PLOTS = ("card/gaze.png", "card/head_pose.png", "card/assets.png", "card/visibility.png")
+CARD_PLOTS = ("card/gaze.png", "card/head_pose.png", "card/assets.png", "card/eye.png", "card/visibility.png")
 #: Files a run rebuilds from the labels at its end (removed first, so a killed run leaves none stale).
 DERIVED_FILES = ("index.jsonl", "contact_sheet.png") + CARD_PLOTS
 

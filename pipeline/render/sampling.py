@@ -114,6 +114,7 @@ class Sample:
     landmarks_px: np.ndarray     # (28, 2)
     pupil_center_px: np.ndarray  # (2,)
     lid_polygon_px: np.ndarray   # (L, 2)
+    eye_geometry: dict           # per side: centre (head, camera, px), radius, centre to iris plane (label eyes.<side>)
 
 
 def _draw(asset: ra.RenderAsset, s: RenderSettings, rng, overrides: dict | None = None) -> dict:
@@ -255,6 +256,7 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
     pc_cam = to_camera(ra.pupil_center(asset, side, blend, rots[side])[None], W2C)
     pc_px = project_camera(pc_cam, lens, s.width, s.height)[0]
     poly_px = project_camera(to_camera(ra.posed_lid_polygon(asset, side, lw), W2C), lens, s.width, s.height)
+    eye_geometry = _eye_geometry(asset, W2C, lens, s, blend)
     if s.camera == "pinhole":          # the footprint of a pixel at the landmarks' median depth
         mm_per_px = float(np.median(-L_cam[:, 2])) / d["focal_px"]
         cam_spec = CameraSpec(W2C.tolist(), None, pin["K"].tolist())
@@ -282,7 +284,26 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
                   "gaze_offset_deg": [dp, dy], "eye_contact_eye_deg": [p0, y0], "mm_per_px": mm_per_px}
     return Sample(index=int(index), attempts=attempt + 1, spec=spec, side=side, camera=camera, gaze=gaze,
                   lid_pitch_deg=lid_pitch, landmarks_head=L_head, landmarks_cam=L_cam, landmarks_px=L_px,
-                  pupil_center_px=pc_px, lid_polygon_px=poly_px)
+                  pupil_center_px=pc_px, lid_polygon_px=poly_px, eye_geometry=eye_geometry)
+
+
+def _eye_geometry(asset: ra.RenderAsset, W2C, lens: dict, s: RenderSettings, blend: dict) -> dict:
+    """Per side, what the asset says of the eye (the label's ``eyes.<side>``): its rotation centre
+    (the gaze origin) in the head frame, the camera frame and pixels, its radius and the distance
+    from the centre to the plane of its iris landmarks (:func:`pipeline.render.asset.iris_plane_distance`);
+    ``center_px`` is None for a centre behind a pinhole camera (the other eye, at most)."""
+    out = {}
+    for sd in ra.SIDES:
+        eye = asset.eyes[sd]
+        c_cam = to_camera(np.asarray(eye.center, float)[None], W2C)
+        seen = "K" not in lens or c_cam[0, 2] < 0          # a pinhole camera sees only what lies in front of it
+        out[sd] = {"center_head_mm": [float(v) for v in eye.center],
+                   "center_camera_mm": [float(v) for v in c_cam[0]],
+                   "center_px": ([float(v) for v in project_camera(c_cam, lens, s.width, s.height)[0]]
+                                 if seen else None),
+                   "radius_mm": float(eye.radius),
+                   "center_to_iris_plane_mm": ra.iris_plane_distance(eye, blend)}
+    return out
 
 
 def pupil_in_lids(smp: Sample) -> bool:

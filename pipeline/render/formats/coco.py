@@ -25,8 +25,11 @@ or killed run, or images finishing in any order, give the same bytes.
     classes sclera, iris, pupil and caruncle: the eye opening as seen); ``area`` = its pixel
     count; ``bbox`` = the box around that mask and the labelled eyelid landmarks (the outline of
     the eye, which a closed lid keeps), clipped to the image. Also ``eye`` (``left``/``right``,
-    the subject's), ``gaze_camera`` (unit vector, our camera frame) and ``gaze_pitch_yaw_deg``
-    (label ``gaze.camera``).
+    the subject's), ``gaze_camera`` (unit vector, our camera frame), ``gaze_pitch_yaw_deg``
+    (label ``gaze.camera``) and the imaged eye's geometry (label ``eyes.<eye>``): ``gaze_origin``
+    = its rotation centre as a keypoint ``(x, y)`` (our pixels - 0.5, as the keypoints; null
+    behind a pinhole camera), ``gaze_origin_camera_mm``, ``eyeball_radius_mm`` and
+    ``center_to_iris_plane_mm``.
   - one per class: ``segmentation`` = the class's pixels, ``area`` = their count, ``bbox`` = their
     box (pycocotools ``toBbox`` of the RLE).
 
@@ -114,6 +117,18 @@ def _eye_bbox(mask, kp: list[float], width: int, height: int) -> list[float]:
     return [x0, y0, x1 - x0, y1 - y0]
 
 
+def _eye_geometry(label: dict) -> dict:
+    """The imaged eye's rotation centre (COCO keypoint pixels, camera mm), radius and centre-to-iris-plane
+    distance from the label's ``eyes.<eye>`` (nothing for a label without them)."""
+    e = (label.get("eyes") or {}).get(label["gaze"]["eye"]) or {}
+    if "center_camera_mm" not in e:
+        return {}
+    px = e["center_px"]
+    return {"gaze_origin": None if px is None else [float(px[0]) - 0.5, float(px[1]) - 0.5],
+            "gaze_origin_camera_mm": [float(v) for v in e["center_camera_mm"]],
+            "eyeball_radius_mm": float(e["radius_mm"]), "center_to_iris_plane_mm": float(e["center_to_iris_plane_mm"])}
+
+
 def fragment(index: int, label: dict, seg: np.ndarray) -> dict:
     """Image ``index``'s COCO image and annotations (without annotation ids) from its label and
     (H, W) class mask."""
@@ -128,7 +143,8 @@ def fragment(index: int, label: dict, seg: np.ndarray) -> dict:
              "keypoints": kp, "num_keypoints": nk,
              "segmentation": rle_encode(eye), "area": int(eye.sum()), "bbox": _eye_bbox(eye, kp, w, h),
              "eye": g["eye"], "gaze_camera": [float(v) for v in g["vector_camera"]],
-             "gaze_pitch_yaw_deg": [float(g["camera"]["pitch_deg"]), float(g["camera"]["yaw_deg"])]}]
+             "gaze_pitch_yaw_deg": [float(g["camera"]["pitch_deg"]), float(g["camera"]["yaw_deg"])],
+             **_eye_geometry(label)}]
     for c in sorted(CLASSES):
         m = seg == c
         if c == 0 or not m.any():
