@@ -94,11 +94,11 @@ def test_radius_is_one_population_draw_per_head():
     for side in ("left", "right"):
         e = gt["eyes"][side]
         assert e["eyeball_sphere"]["radius_mm"] == 12.0
-        # the human eye at r1 = 12: r2 ~7.6, apex ~13.3, limbus ~5.95 mm off the axis
-        assert 7.45 <= e["cornea_sphere"]["radius_mm"] <= 7.75
-        assert 13.2 <= e["corneal_apex_distance_mm"] <= 13.4
-        assert 5.75 <= e["limbus"]["radius_mm"] <= 6.15
-        assert 9.9 <= e["limbus"]["distance_from_center_mm"] <= 10.6
+        # the paper's eye at r1 = 12: r2 8, apex 13.5, limbus 6.6 mm off the axis, 10.02 in front
+        assert 7.85 <= e["cornea_sphere"]["radius_mm"] <= 8.15
+        assert 13.4 <= e["corneal_apex_distance_mm"] <= 13.6
+        assert 6.3 <= e["limbus"]["radius_mm"] <= 6.9
+        assert 9.8 <= e["limbus"]["distance_from_center_mm"] <= 10.25
     for bad, key in (({"mean": 11.7, "sd": -0.1}, "sd"), ({"mean": 30.0, "sd": 0.45}, "mean"),
                      ({"mean": 11.7, "width": 1.0}, "width")):
         with pytest.raises(ValueError, match=key):
@@ -177,7 +177,7 @@ def test_head_dimensions_and_frame(head):
         apex = np.array(gt["eyes"][side]["corneal_apex_mm"])
         c = np.array(gt["eyes"][side]["eyeball_sphere"]["center_mm"])
         r = gt["eyes"][side]["eyeball_sphere"]["radius_mm"]
-        assert 1.15 <= np.linalg.norm(apex - c) - r <= 1.5  # the human cornea (13.3 mm at r1 = 12)
+        assert 1.3 <= np.linalg.norm(apex - c) - r <= 1.7  # the paper's cornea (13.5 mm at r1 = 12)
         # the nose tip sticks out in front of the corneas
     assert V[:, 2].max() > max(gt["eyes"][s]["corneal_apex_mm"][2] for s in ("left", "right")) + 15.0
 
@@ -282,16 +282,9 @@ def test_lids_fused_with_eyeball_single_surface(head):
     assert (nrm[near, 2] > 0).all()
 
 
-def _visible_eye_height(h, side):
-    """Vertical extent of the mesh vertices that lie on the eye: on the eyeball or cornea sphere,
-    or in the smooth seam between them (which, with a human cornea on a large sphere, spans much
-    of the opening)."""
-    e = h.ground_truth["eyes"][side]
-    c, r = np.array(e["eyeball_sphere"]["center_mm"]), e["eyeball_sphere"]["radius_mm"]
-    cc, rc = np.array(e["cornea_sphere"]["center_mm"]), e["cornea_sphere"]["radius_mm"]
-    ds, dc = np.linalg.norm(h.V - c, axis=1) - r, np.linalg.norm(h.V - cc, axis=1) - rc
-    on = (np.abs(ds) < 1e-3) | (np.abs(dc) < 1e-3) | ((np.maximum(ds, dc) > -1e-3) & (np.maximum(ds, dc) < 0.15))
-    return np.ptp(h.V[on, 1])
+def _contact_height(h, side):
+    """Vertical extent of the visible eye: of the line where the tissue meets the eye surface."""
+    return float(np.ptp(np.asarray(h.ground_truth["eyes"][side]["eye_contact"]["points_mm"])[:, 1]))
 
 
 def test_hooded_eyes_have_smaller_opening():
@@ -304,7 +297,9 @@ def test_hooded_eyes_have_smaller_opening():
         hh = hood.ground_truth["eyes"][side]["eyelid_margin"]["height_mm"]
         hm = half.ground_truth["eyes"][side]["eyelid_margin"]["height_mm"]
         assert hh + 0.8 < hr and hh < hm < hr     # lid lower by ~6 deg, fold over it
-        assert _visible_eye_height(hood, side) < _visible_eye_height(rnd, side) - 0.5
+        # the visible eye (inside the line where the tissue meets it) is lower too; the mesh's
+        # ~1 mm rows cannot resolve this, the traced contact line can
+        assert _contact_height(hood, side) < _contact_height(rnd, side) - 0.5
     assert hood.ground_truth["eye_shape"] == "hooded"
     assert hood.ground_truth["eye_shape_params"]["hoodedness"] == 1.0
 

@@ -11,7 +11,7 @@ triangulates into one connected sheet with its only boundary at the grid rim.
 
 * the eye surface: the outer intersection with the eyeball sphere (r1 drawn once per head
   from ``eye_radius_mm``, 11.7 +- 0.45 mm by default) joined by a smooth maximum with the
-  human corneal sphere (r2 ~7.6 mm, apex ~13.3 mm from the centre at r1 = 12, scaled with r1);
+  paper's corneal sphere (r2 8 mm, apex 13.5 mm from the centre at r1 = 12, scaled with r1);
 * the skin: a face depth field (forehead, brow ridge, orbits, nose, cheeks, lips,
   chin, jaw, neck) blended, near each eye, into a lid shell that follows the eye
   surface at ``+st + T(d)``, where ``d`` is the signed distance (mm) from an almond

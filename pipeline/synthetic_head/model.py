@@ -174,9 +174,11 @@ _MEAN_RADIUS_MM = 11.7
 _LATERAL_MIN_OFF_MM = 0.6
 #: A fully hooded upper lid hangs this much lower than a round one (mm).
 _HOOD_DROP_MM = 1.2
-#: The cornea of the project's human eye at r1 = 12 mm (scaled with r1): corneal sphere radius and
-#: apex distance from the centre (the limbus then lies ~5.95 mm off the axis, 10.4 mm in front).
-_CORNEA_R2_MM, _CORNEA_APEX_MM = 7.6, 13.3
+#: The cornea of the paper's eye (SynthesEyes 3.1, the asset's eyeball) at r1 = 12 mm, scaled with
+#: r1: corneal sphere radius and apex distance from the centre (the limbus, where the two spheres
+#: meet, then lies 6.6 mm off the axis and 10.0 mm in front): a head whose eye is the asset's own
+#: is placed exactly, since the asset's eye is anchored at that limbus.
+_CORNEA_R2_MM, _CORNEA_APEX_MM = 8.0, 13.5
 
 
 def _clipped_normal(rng, mean, sd, k=2.0):
@@ -204,7 +206,7 @@ def _make_eye(side, rng, ipd, hood, y_eye, radius):
     e1 = np.cross([0.0, 1.0, 0.0], gaze)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(gaze, e1)
-    # the human cornea, scaled with the globe (r2 ~7.6 mm, apex ~13.3 mm at r1 = 12)
+    # the paper's cornea, scaled with the globe (r2 8 mm, apex 13.5 mm at r1 = 12)
     k = radius / 12.0
     rc = _CORNEA_R2_MM * k * rng.uniform(0.985, 1.015)
     apex_dist = _CORNEA_APEX_MM * k * rng.uniform(0.995, 1.005)
