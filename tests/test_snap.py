@@ -58,8 +58,11 @@ def test_gap_penetration_falloff(lift0):
     assert zone.min() >= -0.05
     assert sn.flipped_faces(V, V2, F) == 0
     assert meshtopo.is_edge_manifold(F)
-    far = ~(info["falloff_distance"] < st.falloff_mm)
+    far = ~(info["falloff_distance"] < info["falloff_radius"])
     assert far.any() and np.array_equal(V2[far], V[far])
+    # the zone reaches falloff_mm, or falloff_per_mm x the nearest margin vertex's move if longer
+    move = np.linalg.norm(V2[loop] - V[loop], axis=1)
+    assert info["falloff_radius"][loop] == pytest.approx(np.maximum(st.falloff_mm, st.falloff_per_mm * move))
     # smooth: displacement decreases with distance from the margin along each spoke
     disp = np.linalg.norm(V2 - V, axis=1).reshape(-1, 72)
     assert (np.diff(disp[:, 0]) <= 1e-9).all()

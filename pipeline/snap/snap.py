@@ -7,8 +7,9 @@ crossing within ``max_move_mm``) the vertex goes to its closest surface point in
 With ``keep_opening`` (default) the normal first loses its part into the opening, seen along
 the eye's axis (:func:`_outward_lines`), so the canthi are not pulled toward the eye's centre.
 Vertices near the margin follow with a smooth falloff of the margin displacement over the
-edge-graph distance ``falloff_mm`` (C1 smoothstep, weight 1 at the margin, 0 beyond), so no
-vertex farther than ``falloff_mm`` moves. Any vertex of the falloff zone left inside the
+edge-graph distance ``falloff_mm``, or ``falloff_per_mm`` times the nearest margin vertex's move
+where that is longer (C1 smoothstep, weight 1 at the margin, 0 beyond), so no vertex farther
+than that moves. Any vertex of the falloff zone left inside the
 eyeball is pushed out to the surface.
 
 Where the margin moves far compared with the triangles next to it (coarse scans: the margin
@@ -44,6 +45,7 @@ class SnapSettings(Settings):
     block: ClassVar[str] = "snap"
 
     falloff_mm: float = setting(4.0, ge=0, le=100)        # margin displacement fades to 0 over this edge-graph distance
+    falloff_per_mm: float = setting(2.5, ge=0, le=100)    # ... or over this many times a margin vertex's move, if longer
     keep_opening: bool = True                             # the snap line loses its part into the opening (module doc)
     max_move_mm: float = setting(6.0, gt=0, le=100)       # search range along the normal
     ray_samples: int = setting(49, ge=2, le=10000)        # samples of the normal line before bisection
@@ -201,13 +203,19 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
         target = P + np.asarray(weight, float)[:, None] * (target - P)
     delta = target - P
     G = edge_graph(V, F) if graph is None else graph
+    # a long move (a lid far off a smaller globe) fades over proportionally more skin, so the
+    # zone's slope stays under ~1/falloff_per_mm and its faces do not turn over
+    reach = np.maximum(st.falloff_mm, st.falloff_per_mm * np.linalg.norm(delta, axis=1))
     dist, _, src = dijkstra(G, directed=False, indices=loop, min_only=True,
-                            return_predecessors=True, limit=st.falloff_mm)
-    w = smoothstep_falloff(dist, st.falloff_mm)
-    w[~np.isfinite(dist)] = 0.0
-    moved = np.where(w > 0)[0]
+                            return_predecessors=True, limit=float(reach.max(initial=st.falloff_mm)))
     pos_in_loop = -np.ones(len(V), dtype=np.int64)
     pos_in_loop[loop] = np.arange(len(loop))
+    radius = np.full(len(V), st.falloff_mm)
+    has = src >= 0
+    radius[has] = reach[pos_in_loop[src[has]]]
+    w = smoothstep_falloff(dist / np.maximum(radius, 1e-12), 1.0)
+    w[~np.isfinite(dist)] = 0.0
+    moved = np.where(w > 0)[0]
     V2 = V.copy()
     V2[moved] += w[moved, None] * delta[pos_in_loop[src[moved]]]
     V2[loop] = target
@@ -251,7 +259,7 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
         untangled = len(um)
     return V2, {"moved": moved, "grazing": int(graze.sum()), "pushed_out": pushed,
                 "relax_iterations": relax_iters, "untangled": untangled,
-                "falloff_distance": dist}
+                "falloff_distance": dist, "falloff_radius": radius}
 
 
 def _flipped_mask(V0, V1, F):
@@ -329,7 +337,7 @@ def _snap_side(V_in, V0, F, loop, eye: PlacedEye, st: SnapSettings, G, lateral_i
     Vs, info = snap_loop(V_in, F, loop, eye, st, graph=G,
                          weight=None if runs.on_eye.all() else runs.weight)
     moved = info["moved"]
-    far = info["falloff_distance"] > st.falloff_mm
+    far = info["falloff_distance"] > info["falloff_radius"]
     moved_far = int((np.linalg.norm(Vs - V_in, axis=1)[far] > 0).sum())
     rep = margin_report(Vs, loop, eye, st, on_eye=runs.on_eye)
     d_zone = eye.signed_distance(Vs[moved])
