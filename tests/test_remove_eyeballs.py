@@ -15,6 +15,7 @@ from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 from pipeline.remove_eyeballs.eye_fit import eye_surface_distance
+from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
 from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 
@@ -120,8 +121,11 @@ def test_eyes_json_records_placement_and_checks():
         assert {"sclera", "cornea_or_iris"} <= set(e["placement"]), e["placement"]
         assert abs(sum(e["cue_shares"].values()) - 1.0) < 1e-3
         unc, st = e["uncertainty"], RemoveEyeballsSettings()
-        # a clean eye showing sclera and cornea is sure enough not to be doubted
+        # a clean eye showing sclera and cornea is sure enough not to be doubted, and the truth
+        # (the paper's eye at the head's centre, looking along +Z) lies within 2 sigma
         assert 0 < unc["limbus_mm"] < st.doubt_limbus_sigma_mm and 0 < unc["axis_deg"] < st.doubt_axis_sigma_deg
+        assert np.linalg.norm(np.array(e["center"]) - gt[s]["center"]) <= 2 * unc["center_mm"]
+        assert np.degrees(np.arccos(min(1.0, e["forward"][2]))) <= 2 * unc["axis_deg"]
         sph = e["scan_sphere"]
         err = np.linalg.norm(np.array(sph["center"]) - gt[s]["center"])
         assert err <= 2 * sph["uncertainty_mm"]["center"] + 0.05, (err, sph)
@@ -253,11 +257,14 @@ def test_ict_neutral(extra_scan):
     folder = extra_scan("ict_neutral")
     r = ingest_scan(folder, IngestSettings())
     hints = {s: r.scan["eyes"][s]["hint"] for s in ("left", "right")}
-    res = remove_eyeballs(r.mesh, hints, RemoveEyeballsSettings(), source="scan.ply")
+    # with the eye-region prior, as the stage runs (without it the left eye takes a rival optimum
+    # 4.3 mm and 22 deg off, doubted)
+    res = remove_eyeballs(r.mesh, hints, RemoveEyeballsSettings(), source="scan.ply",
+                          prior=EyeRegionPrior.load().register)
     assert res.metrics["edge_manifold_out"]
     gt = json.loads((folder / "ground_truth.json").read_text())["eyes"]
     for s, ((cerr, rerr), loop_d) in _gt_errors(folder, res).items():
-        # measured: centre 0.93 / 0.91 mm and radius -0.65 mm from the visible sclera's sphere
+        # measured: centre 0.92 / 0.90 mm and radius -0.65 mm from the visible sclera's sphere
         # (1.55 mm and -0.98 mm from the whole eyeball's), stated uncertainty 0.79 mm (1 sigma),
         # so the truth lies within 2 sigma. The scanner flattened the cornea, the eye is placed
         # 14.45 mm where ICT's is 15.4, and cornea_shows doubts it. The loop misses the
@@ -488,8 +495,10 @@ def test_stage_warns_of_each_doubt_and_still_publishes(extra_scan, tmp_path, cap
     assert run_stage(ingest.main, [str(folder), str(tmp_path / "ingest"), "--params", "none.yaml"]) == 0
     capsys.readouterr()
     assert run_stage(main, [str(tmp_path / "ingest"), str(tmp_path / "out"), "--params", str(params)]) == 0
-    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    warnings = [line for line in capsys.readouterr().err.splitlines()
+                if line.startswith("warning:") and "texture's fissure" in line]
     assert [w.split(": ")[2] for w in warnings] == ["left eye", "right eye"], warnings
-    assert all(str(folder) in w and "texture's fissure" in w for w in warnings)
+    assert all(str(folder) in w for w in warnings)
     eyes = read_eyes(tmp_path / "out" / "eyes.json")
-    assert all(len(eyes[s].doubts) == 1 for s in ("left", "right"))
+    # beside the texture placement's own (limbus +-1.2 mm, axis +-5 deg: the anatomy's spread)
+    assert all(sum("texture's fissure" in d for d in eyes[s].doubts) == 1 for s in ("left", "right"))

@@ -436,7 +436,9 @@ def _placement_record(pl, fit):
             "limbus_half_angle_deg": round(float(pl.eye.tl), 3),
             "lid_fold_deg": round(float(pl.fold_deg), 2),
             "uncertainty_laplace_mm": {"center": round(pl.sigma_laplace_mm[0], 4),
-                                       "radius": round(pl.sigma_laplace_mm[1], 4)},
+                                       "radius": round(pl.sigma_laplace_mm[1], 4),
+                                       "limbus": round(pl.limbus_laplace[0], 4),
+                                       "axis_deg": round(pl.limbus_laplace[1], 3)},
             "radius_profile": None if pl.profile is None else {
                 "radius": [round(float(r), 3) for r in pl.profile[0]],
                 "energy_above": [round(float(e), 2) for e in pl.profile[1]]},
