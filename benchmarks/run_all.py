@@ -61,6 +61,7 @@ class Benchmark:
 
 BENCHMARKS = (
     Benchmark("bench_synthetic_head", modest=("--repeats", "1")),
+    Benchmark("bench_synthetic_anatomy", modest=("--n", "6")),
     Benchmark("view_synthetic_head"),
     Benchmark("bench_ingest", modest=("--runs", "1")),
     Benchmark("bench_hostile"),

@@ -429,7 +429,16 @@ def test_stage_killed_and_resumed_has_every_index_once(tiny, tmp_path):
     stored = read_label(out / "000003.json").doc
     extra = {k: stored["landmarks"].pop(k) for k in ("apparent_px", "apparent_order", "visible", "occlusion",
                                                      "visibility_rule")}
-    assert stored["landmarks"] == json.loads(json.dumps(fresh["landmarks"]))
+    # (the stage runs on pinned numeric kernels, pipeline/kernels.py, and this process on the
+    # CPU's own: the same sample to the last few bits, not bit for bit)
+    want = json.loads(json.dumps(fresh["landmarks"]))
+    assert stored["landmarks"].keys() == want.keys()
+    for k, v in want.items():
+        if isinstance(v, str):
+            assert stored["landmarks"][k] == v, k
+        else:
+            np.testing.assert_allclose(np.asarray(stored["landmarks"][k], float), np.asarray(v, float),
+                                       rtol=1e-12, atol=1e-9, err_msg=k)
     sheet = Image.open(out / "contact_sheet.png")
     assert sheet.size == tuple(m["contact_sheet_px"])
     assert not (out / ".tmp").exists()
