@@ -117,6 +117,36 @@ def summary(rows: list, outcomes: list) -> dict:
                 round(float(np.median(e)), 3) if len(rows) else None}
 
 
+def page(results: Path) -> str:
+    """benchmarks/results/placement.md from placement_dev.json and placement_heldout.json."""
+    cols = [("eyes", "eyes"), ("limbus_within_0_5mm_pct", "limbus ≤ 0.5 mm %"),
+            ("limbus_within_1mm_pct", "≤ 1 mm %"), ("axis_within_2deg_pct", "axis ≤ 2° %"),
+            ("limbus_err_median_mm", "limbus median mm"), ("axis_err_median_deg", "axis median °"),
+            ("today_limbus_err_median_mm", "before: limbus median mm"),
+            ("truth_within_2sigma_pct", "truth within 2σ %"), ("doubted_pct", "doubted %"),
+            ("silent_over_1mm_or_3deg", "> 1 mm or 3° off, not doubted"),
+            ("iris_hidden_at_rest", "iris hidden at rest"), ("open_refused", "open eyes refused")]
+    out = ["# Eye placement on unseen heads: the asset's limbus and axis against the truth", "",
+           "`python -m benchmarks.bench_placement --set dev|heldout --skip-missing` (ingest and "
+           "remove_eyeballs with the shipped eye-region prior; per eye against scanify's limbus "
+           "centre and gaze). *Before* is where the asset's limbus lay when the eye took the "
+           "fitted sphere's radius (the human cornea on that sphere). Only the generated cases "
+           "count (`cases`).", ""]
+    for name in ("dev", "heldout"):
+        f = results / f"placement_{name}.json"
+        if not f.is_file():
+            continue
+        doc = json.loads(f.read_text())
+        out += [f"## {name} ({doc['summary']['cases']} cases)", "",
+                "| family | " + " | ".join(t for _, t in cols) + " |",
+                "|---" * (len(cols) + 1) + "|"]
+        rows = [("all", doc["summary"])] + sorted(doc.get("per_family", {}).items())
+        for fam, sm in rows:
+            out.append(f"| {fam} | " + " | ".join("–" if sm.get(k) is None else str(sm[k]) for k, _ in cols) + " |")
+        out.append("")
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--set", default="heldout", choices=("dev", "heldout", "all"), dest="set_name")
@@ -127,7 +157,11 @@ def main(argv=None):
     ap.add_argument("--results", default=str(ROOT / "benchmarks" / "results"), type=Path)
     ap.add_argument("--show-heldout", action="store_true", help="print held-out cases one by one")
     ap.add_argument("--out", default=None, help="results file stem (default placement_<set>)")
+    ap.add_argument("--page", action="store_true", help="only write placement.md from the results")
     a = ap.parse_args(argv)
+    if a.page:
+        (a.results / "placement.md").write_text(page(a.results))
+        return 0
     rows, outcomes = [], []
     for case in select(a.set_name):
         folder = a.work / "scans" / case["name"]

@@ -76,7 +76,10 @@ def test_every_stage_and_the_dataset_command_run_from_a_clone_under_odd_folders(
     r = subprocess.run([sys.executable, "-m", "stages.dataset", "--assets", str(clone / "rigged_assets" / SCAN),
                         "--n", "2", "--out", str(out), "--no-progress"], cwd=clone, env=env, capture_output=True,
                        text=True, timeout=600)
-    assert r.returncode == 0 and r.stderr == "", r.stderr
+    # nothing on stderr but the asset's own doubts, which name it where it lies
+    noise = [ln for ln in r.stderr.splitlines()
+             if not ln.startswith(f"warning: {clone / 'rigged_assets' / SCAN}: ")]
+    assert r.returncode == 0 and noise == [], r.stderr
     assert [row["asset"] for row in read_index(out / "index.jsonl")] == [SCAN, SCAN]
 
 

@@ -149,7 +149,8 @@ def blender_import(chain_root):
 # ------------------------------------------------------------------ geometry of the chain
 
 def test_doubts_reach_the_asset_only_where_measured(asset):
-    """The synthetic head is not doubted, james only for being placed from a photograph (its
+    """The synthetic head is doubted at most for its stated sigma, james only for being placed
+    from a photograph (its
     openings follow the fissure it shows; 18 mm openings against a 31.5 mm fissure were doubted
     before issue 21);
     ict_neutral's eyes are, by the one self-check they fail (cornea_shows: its scanner
@@ -168,8 +169,9 @@ def test_doubts_reach_the_asset_only_where_measured(asset):
         # more than the doubt thresholds, and nothing else is doubted
         assert all(d == ["placed from little evidence (texture): limbus centre +-1.20 mm, axis +-5.0 deg "
                          "(1 sigma)"] for d in doubts.values()), doubts
-    else:
-        assert doubts == {"left": [], "right": []}
+    else:       # the procedural head: at most its own stated sigma's doubt (docs/remove_eyeballs.md)
+        assert all(all(x.startswith("placed from little evidence (geometry)") for x in d)
+                   for d in doubts.values()), doubts
 
 
 def test_james_canthi_are_its_annotated_corners(james):

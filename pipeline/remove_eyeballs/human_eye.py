@@ -156,7 +156,7 @@ def opening_limbus(loop_points, axis) -> np.ndarray:
 
 def asset_eyes(scan: dict, *, eye_size: str, eyeball,
                population=POPULATION_RADIUS_MM, min_iris_visible: float = 0.05,
-               doubt_limbus_sigma_mm: float = 0.6, doubt_axis_sigma_deg: float = 5.0) -> dict:
+               doubt_limbus_sigma_mm: float = 0.5, doubt_axis_sigma_deg: float = 2.0) -> dict:
     """Both eyes of the asset from what the scan shows of them.
 
     Parameters

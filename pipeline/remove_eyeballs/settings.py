@@ -39,8 +39,8 @@ class RemoveEyeballsSettings(Settings):
     eye_size: Literal["human", "population", "fitted"] = "human"
     population_radius_mm: tuple[float, float] = setting((11.7, 0.45), gt=0, le=100, min_len=2, max_len=2)
     min_iris_visible: float = setting(0.05, ge=0, le=1)          # less of the iris inside the opening at rest: placed from the opening
-    doubt_limbus_sigma_mm: float = setting(0.6, gt=0, le=100)    # a limbus centre less sure than this is published with a doubt
-    doubt_axis_sigma_deg: float = setting(5.0, gt=0, le=90)      # ... an axis less sure than this
+    doubt_limbus_sigma_mm: float = setting(0.5, gt=0, le=100)    # a limbus centre less sure than this is published with a doubt
+    doubt_axis_sigma_deg: float = setting(2.0, gt=0, le=90)      # ... an axis less sure than this
     min_open_area_mm2: float = setting(6.0, ge=0, le=1000)       # less visible eye than this: the eye is closed
     fill_face_ratio: float = setting(12.0, gt=1, le=1e6)         # faces this many times the median area: a scanner's flat fill
     min_eye_vertices: int = setting(40, ge=0, le=100000)         # fewer scan vertices on the eye surface: too coarse to place from geometry
