@@ -91,6 +91,7 @@ BENCHMARKS = (
     Benchmark("bench_new_scan", modest=("--repeats", "1")),        # its own clone: dvc repro of one new scan
     Benchmark("bench_dispatch", modest=("--settings", "native,npy_no_avx2")),   # fresh clones: dvc repro per setting
     Benchmark("bench_render", needs=("synthetic_asset",)),
+    Benchmark("bench_tls_render", modest=("--repeats", "1"), needs=("synthetic_asset",)),
     Benchmark("bench_render_quality", modest=("--repeats", "1"), needs=("synthetic_asset",)),
     Benchmark("bench_render_split", modest=("--images", "6"), needs=("synthetic_asset",)),
     Benchmark("bench_render_curves", modest=("--images", "4"), needs=("synthetic_asset",)),
