@@ -66,8 +66,18 @@ def read_params_file(path="params.yaml") -> dict:
 
 
 def load_params(stage: str, path="params.yaml") -> dict:
-    """The ``stage:`` block of ``params.yaml`` (empty when the file or block is absent)."""
-    block = read_params_file(path).get(stage)
+    """The ``stage:`` block of the params file ``path``.
+
+    No file at ``path`` means no params file: every setting its default (``{}``), as in a test's
+    ``--params none.yaml``. A file that is there must have the block (an empty ``stage:`` takes
+    the defaults): its absence is a one-line ScanError naming the file and the block, as DVC and
+    ``check_params`` refuse it, never a silent run on defaults."""
+    data = read_params_file(path)
+    if stage not in data:
+        if not Path(path).exists():
+            return {}
+        raise ScanError(path, f"no {stage!r} block (every stage's block is required; see docs/settings.md)")
+    block = data[stage]
     if block is None:
         return {}
     if not isinstance(block, dict):

@@ -34,7 +34,7 @@ from pipeline.render import plan as pl
 from pipeline.render.dataset import asset_inputs, load_assets, render_dataset
 from pipeline.render.settings import MAX_IMAGES, RenderSettings
 from pipeline.render.shard import dashboard_text
-from stages._common import load_params, read_params_file
+from stages._common import load_params
 
 
 class _Parser(argparse.ArgumentParser):
@@ -52,9 +52,7 @@ def _settings(args) -> RenderSettings:
         raise ScanError("--n", f"must be between 1 and {MAX_IMAGES} (got {args.n})")
     if args.params != "params.yaml" and not Path(args.params).is_file():
         raise ScanError(args.params, "params file not found")
-    if Path(args.params).is_file() and "render" not in read_params_file(args.params):
-        raise ScanError(args.params, "has no render: block (the dataset's settings)")
-    params = load_params("render", args.params)      # {} without a params.yaml
+    params = load_params("render", args.params)      # {} without a params.yaml; refused without render:
     for item in args.set or ():
         key, eq, value = item.partition("=")
         if not eq or not key:

@@ -19,7 +19,7 @@ from pipeline.io.atomic import atomic_dir
 from pipeline.results import StageResult
 from pipeline.synthetic_head import (SyntheticHeadSettings, identity_settings, make_synthetic_head,
                                      write_scan_folder)
-from stages._common import default_metrics_path, load_settings, read_params_file, stage_exit, stage_parser
+from stages._common import default_metrics_path, load_params, load_settings, stage_exit, stage_parser
 
 
 def main(argv) -> StageResult:
@@ -32,7 +32,8 @@ def main(argv) -> StageResult:
     if args.identity is None:
         settings = load_settings(SyntheticHeadSettings, args.params)
     else:
-        settings = identity_settings(read_params_file(args.params), args.identity, source=str(args.params))
+        blocks = {b: load_params(b, args.params) for b in ("synthetic_head", "identities")}   # both required
+        settings = identity_settings(blocks, args.identity, source=str(args.params))
     t0 = time.perf_counter()
     head = make_synthetic_head(settings)
     t1 = time.perf_counter()

@@ -32,7 +32,7 @@ PARAM_BLOCKS = ("ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "e
 def _all_params(path) -> dict:
     out = {}
     for b in PARAM_BLOCKS:
-        out[b] = load_params(b, path)       # {} when the block is absent
+        out[b] = load_params(b, path)       # each block required where the file is there
     return out
 
 
@@ -44,10 +44,11 @@ def main(argv):
     from pipeline.usd.asset import UsdSettings
 
     settings = load_settings(UsdSettings, args.params)
+    all_params = _all_params(args.params)       # a missing block refused before anything is written
     inp = read_inputs(args.snap, args.bake, args.rig, args.ingest, args.eyeball)
     name = scan_folder_name(args.out)
     with atomic_dir(args.out) as tmp:
-        result = build(inp, Path(tmp), name, _all_params(args.params), package=settings.usdz)
+        result = build(inp, Path(tmp), name, all_params, package=settings.usdz)
         if settings.preview:
             result += render_preview(Path(tmp) / f"{name}.usda", args.rig / "rig.npz", Path(tmp) / "preview.png",
                                      settings.preview_px, settings.preview_samples)

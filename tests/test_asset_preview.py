@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from fixtures import make_inputs, usd_argv
+from fixtures import make_inputs, params_file, usd_argv
 from pipeline.blender.asset_preview import LABEL_H, PAD, TILE_ASPECT, sheet_size, tile_boxes
 from stages import usd as usd_stage
 from stages._common import read_stage_metrics, run_stage
@@ -19,8 +19,7 @@ SIZE = 32
 def previewed(tmp_path_factory):
     root = tmp_path_factory.mktemp("asset_preview")
     inp = make_inputs(root)
-    params = root / "params.yaml"
-    params.write_text(f"usd:\n  usdz: false\n  preview: true\n  preview_px: {SIZE}\n  preview_samples: 2\n")
+    params = params_file(root, {"usd": {"usdz": False, "preview": True, "preview_px": SIZE, "preview_samples": 2}})
     args = usd_argv(inp)
     args[args.index("--params") + 1] = str(params)
     assert run_stage(usd_stage.main, args) == 0

@@ -16,6 +16,8 @@ from pipeline.settings import check_scan_name
 from stages import check_params as cp
 from stages._common import run_stage
 
+from fixtures import params_file
+
 ROOT = Path(__file__).resolve().parents[1]
 EVIL = "scan$(touch${IFS}PWNED)"
 
@@ -203,7 +205,67 @@ def test_missing_block_refused_by_check_params_and_dataset(tmp_path, capsys):
                   "missing: render)\n"
     assert not (tmp_path / "ok").exists()
     assert _dataset(tmp_path, p) == 2
-    assert capsys.readouterr().err == f"error: {p}: has no render: block (the dataset's settings)\n"
+    assert capsys.readouterr().err == f"error: {p}: {_NO_BLOCK.format(block='render')}\n"
+    assert not (tmp_path / "ds").exists()
+
+
+_NO_BLOCK = "no '{block}' block (every stage's block is required; see docs/settings.md)"
+#: stage -> (positional arguments, the last one its output; extra arguments; the blocks it reads)
+_READS = {
+    "ingest": (2, [], ["ingest"]),
+    "remove_eyeballs": (2, [], ["remove_eyeballs", "eyeball"]),
+    "retopo": (2, [], ["retopo"]),
+    "bake": (3, [], ["bake"]),
+    "snap": (4, [], ["snap"]),
+    "rig": (2, [], ["rig"]),
+    "usd": (6, [], ["ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "eyeball", "usd"]),
+    "eyeball": (1, [], ["eyeball"]),
+    "render": (3, [], ["render"]),
+    "synthetic_head": (1, [], ["synthetic_head"]),
+    "synthetic_head --identity": (1, ["--identity", "synthetic_head"], ["synthetic_head", "identities"]),
+}
+
+
+def _stage_argv(work, stage):
+    n_pos, extra, _ = _READS[stage]
+    return [str(work / f"in{k}") for k in range(n_pos - 1)] + [str(work / "scan"), *extra]
+
+
+@pytest.mark.parametrize("stage, block", [(s, b) for s, (_, _, blocks) in _READS.items() for b in blocks])
+def test_stage_refuses_an_existing_params_file_without_its_block(tmp_path, capsys, stage, block):
+    """A stage run by hand (``--params FILE``) with a FILE that is there but lacks a block the
+    stage reads: exit 2, one line naming the file and the block, nothing written; a stage that
+    reads several blocks (remove_eyeballs, usd, synthetic_head --identity) needs each."""
+    import importlib
+
+    mod = importlib.import_module(f"stages.{stage.split()[0]}")
+    p = params_file(tmp_path, drop=[block])
+    work = tmp_path / "work"
+    assert run_stage(mod.main, _stage_argv(work, stage) + ["--params", str(p)]) == 2
+    assert capsys.readouterr().err == f"error: {p}: {_NO_BLOCK.format(block=block)}\n"
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["params.yaml"]
+
+
+@pytest.mark.parametrize("stage", ["ingest", "remove_eyeballs", "bake", "snap", "rig", "usd", "render"])
+def test_a_params_path_that_is_not_there_means_the_defaults(tmp_path, capsys, stage):
+    """``--params PATH`` with nothing at PATH: no params file, every block its defaults (the
+    stage goes on to its missing inputs); an empty block (``render:``) is the defaults too."""
+    import importlib
+
+    from pipeline.params_check import BLOCKS, settings_class
+    from stages._common import load_params, load_settings
+
+    none = tmp_path / "none.yaml"
+    for block in BLOCKS:
+        cls = settings_class(block)
+        assert load_params(block, none) == {} and load_settings(cls, none) == cls.from_params({})
+    empty = params_file(tmp_path, {"render": None})
+    assert load_params("render", empty) == {}
+    mod = importlib.import_module(f"stages.{stage}")
+    work = tmp_path / "work"
+    assert run_stage(mod.main, _stage_argv(work, stage) + ["--params", str(none)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {work}") and err.count("\n") == 1, err
 
 
 def test_duplicate_key_in_a_set_value_refused(tmp_path, capsys):

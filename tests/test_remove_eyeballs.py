@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
@@ -19,6 +20,7 @@ from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
 from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 
+from fixtures import params_file
 from fixtures.eye_heads import make_head
 
 
@@ -211,8 +213,7 @@ def test_stage_refuses_bad_settings_in_one_line(tmp_path, capsys, text, message)
     from stages._common import run_stage
     from stages.remove_eyeballs import main
 
-    params = tmp_path / "p.yaml"
-    params.write_text(f"remove_eyeballs:\n  {text}\n")
+    params = params_file(tmp_path, {"remove_eyeballs": yaml.safe_load(text)}, name="p.yaml")
     capsys.readouterr()
     assert run_stage(main, [str(tmp_path / "in"), str(tmp_path / "out"), "--params", str(params)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -495,8 +496,7 @@ def test_stage_warns_of_each_doubt_and_still_publishes(extra_scan, tmp_path, cap
     from stages.remove_eyeballs import main
 
     folder = extra_scan("james")
-    params = tmp_path / "params.yaml"
-    params.write_text("remove_eyeballs:\n  texture_fissure_min_share: 0.95\n")
+    params = params_file(tmp_path, {"remove_eyeballs": {"texture_fissure_min_share": 0.95}})
     assert run_stage(ingest.main, [str(folder), str(tmp_path / "ingest"), "--params", "none.yaml"]) == 0
     capsys.readouterr()
     assert run_stage(main, [str(tmp_path / "ingest"), str(tmp_path / "out"), "--params", str(params)]) == 0
