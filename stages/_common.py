@@ -21,16 +21,16 @@ import yaml
 
 from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json
-from pipeline.io.strict_yaml import DuplicateKeyError, StrictLoader
+from pipeline.io.strict_yaml import DuplicateKeyError, load_strict
 from pipeline.results import StageResult
 
 EXIT_BAD_INPUT = 2
 
 
-# a safe loader (plain YAML types only, never Python objects) that refuses a repeated key (scan.yaml's
-# rules): libyaml's parser when PyYAML has it (about 10x faster: the pure-Python one took 27 ms per
-# read of params.yaml, and the usd stage reads every block)
-_SAFE_LOADER = StrictLoader
+# params.yaml is read with load_strict: a safe loader (plain YAML types only, never Python objects)
+# that refuses a repeated key (scan.yaml's rules), on libyaml's parser when PyYAML has it (about
+# 10x faster: the pure-Python one took 27 ms per read of params.yaml, and the usd stage reads
+# every block)
 _PARAMS_CACHE: dict = {}      # resolved path -> ((mtime_ns, size), parsed document)
 
 
@@ -50,7 +50,7 @@ def read_params_file(path="params.yaml") -> dict:
             data = hit[1]
         else:
             with open(p, encoding="utf-8") as fh:
-                data = yaml.load(fh, Loader=_SAFE_LOADER)
+                data = load_strict(fh)
             _PARAMS_CACHE[key] = (stamp, data)
     except DuplicateKeyError as exc:
         raise ScanError(p, f"{exc}: each key may appear once") from None

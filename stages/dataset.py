@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 
 from pipeline.errors import ScanError
-from pipeline.io.strict_yaml import DuplicateKeyError, StrictLoader
+from pipeline.io.strict_yaml import DuplicateKeyError, load_strict
 from pipeline.io.folder_lock import folder_lock
 from pipeline.io.scratch import stage_scratch
 from pipeline.render import mix
@@ -58,7 +58,7 @@ def _settings(args) -> RenderSettings:
         if not eq or not key:
             raise ScanError("--set", f"{item!r} is not KEY=VALUE")
         try:
-            params[key] = yaml.load(value, Loader=StrictLoader)     # params.yaml's rules
+            params[key] = load_strict(value)     # params.yaml's rules
         except DuplicateKeyError as exc:
             raise ScanError("--set", f"{key}: {exc}") from None
         except yaml.YAMLError:

@@ -57,13 +57,11 @@ def main(argv=None) -> int:
             raise ScanError(args.params, "not found")
         entries = {identity_name(args.seed, i): draw_identity(args.seed, i, args.triangles) for i in range(args.n)}
         text = add_identities(args.params.read_text(encoding="utf-8"), entries, args.params)
-        import yaml
-
-        from pipeline.io.strict_yaml import DuplicateKeyError, StrictLoader
+        from pipeline.io.strict_yaml import DuplicateKeyError, load_strict
         from pipeline.params_check import check_params
 
         try:
-            data = yaml.load(text, Loader=StrictLoader)       # params.yaml's rules: no repeated key
+            data = load_strict(text)       # params.yaml's rules: no repeated key
         except DuplicateKeyError as exc:
             raise ScanError(args.params, f"{exc}: each key may appear once") from None
         check_params(data, source=str(args.params), complete=True)    # before anything is written

@@ -80,14 +80,15 @@ def _coat(mat, bump_image=None, bump_distance_mm: float = 0.16, strength: float 
     return mat
 
 
-def _textured(mat, image, tint=(1.0, 1.0, 1.0), roughness=0.5, subsurface=0.0):
-    nt, out = new_tree(mat)
-    b = principled(nt, **{"Roughness": roughness, "Specular IOR Level": 0.3})
+def _tinted_map(nt, image, tint, base_color_input, interpolation=None):
+    """``image`` on UV map ``st`` times the colour ``tint`` into ``base_color_input``: the
+    (texture, multiply) nodes."""
     uv = nt.nodes.new("ShaderNodeUVMap")
     uv.uv_map = "st"
     tex = nt.nodes.new("ShaderNodeTexImage")
     tex.image = image
-    tex.interpolation = "Cubic"
+    if interpolation:
+        tex.interpolation = interpolation
     nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
     mul = nt.nodes.new("ShaderNodeMix")
     mul.data_type = "RGBA"
@@ -95,7 +96,14 @@ def _textured(mat, image, tint=(1.0, 1.0, 1.0), roughness=0.5, subsurface=0.0):
     mul.inputs["Factor"].default_value = 1.0
     mul.inputs[7].default_value = (*tint, 1.0)       # B (colour)
     nt.links.new(tex.outputs["Color"], mul.inputs[6])  # A (colour)
-    nt.links.new(mul.outputs[2], b.inputs["Base Color"])
+    nt.links.new(mul.outputs[2], base_color_input)
+    return tex, mul
+
+
+def _textured(mat, image, tint=(1.0, 1.0, 1.0), roughness=0.5, subsurface=0.0):
+    nt, out = new_tree(mat)
+    b = principled(nt, **{"Roughness": roughness, "Specular IOR Level": 0.3})
+    tex, mul = _tinted_map(nt, image, tint, b.inputs["Base Color"], "Cubic")
     if subsurface:
         b.inputs["Subsurface Weight"].default_value = subsurface
         b.inputs["Subsurface Radius"].default_value = (1.0, 0.3, 0.2)
@@ -219,18 +227,7 @@ def caruncle_material(mat, subsurface_method=None, color_image=None, **bsdf_inpu
     b = principled(nt, **{**bsdf_inputs, "Base Color": (*CARUNCLE_DIFFUSE, 1.0),
                           "Roughness": CARUNCLE_ROUGHNESS})
     if color_image is not None:
-        uv = nt.nodes.new("ShaderNodeUVMap")
-        uv.uv_map = "st"
-        tex = nt.nodes.new("ShaderNodeTexImage")
-        tex.image = color_image
-        nt.links.new(uv.outputs["UV"], tex.inputs["Vector"])
-        tint = nt.nodes.new("ShaderNodeMix")
-        tint.data_type = "RGBA"
-        tint.blend_type = "MULTIPLY"
-        tint.inputs["Factor"].default_value = 1.0
-        tint.inputs[7].default_value = (*CARUNCLE_TINT, 1.0)     # B (colour)
-        nt.links.new(tex.outputs["Color"], tint.inputs[6])        # A (colour)
-        nt.links.new(tint.outputs[2], b.inputs["Base Color"])
+        _tinted_map(nt, color_image, CARUNCLE_TINT, b.inputs["Base Color"])
     if subsurface_method is not None:
         try:
             b.subsurface_method = subsurface_method

@@ -59,3 +59,9 @@ class StrictLoader(_StrictMappings, getattr(yaml, "CSafeLoader", yaml.SafeLoader
 
 for _loader in (SidecarLoader, StrictLoader):
     _loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
+
+
+def load_strict(stream):
+    """A YAML text or stream read with :class:`StrictLoader` (params.yaml's rules: safe types
+    only, no repeated key, YAML 1.2 numbers)."""
+    return yaml.load(stream, Loader=StrictLoader)

@@ -47,7 +47,7 @@ def write_unityeyes(folder, index: int, doc: dict, png, mirror: bool = False) ->
     folder.mkdir(parents=True, exist_ok=True)
     name_json, name_jpg = unityeyes_names(index)
     buf = io.BytesIO()
-    with Image.open(png) as im:
+    with Image.open(png, formats=["PNG"]) as im:     # the render's own PNG
         rgb = im.convert("RGB")
         (ImageOps.mirror(rgb) if mirror else rgb).save(buf, "JPEG", quality=JPEG_QUALITY)
     write_bytes(folder / name_jpg, buf.getvalue())
