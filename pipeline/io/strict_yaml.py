@@ -64,4 +64,4 @@ for _loader in (SidecarLoader, StrictLoader):
 def load_strict(stream):
     """A YAML text or stream read with :class:`StrictLoader` (params.yaml's rules: safe types
     only, no repeated key, YAML 1.2 numbers)."""
-    return yaml.load(stream, Loader=StrictLoader)
+    return yaml.load(stream, Loader=StrictLoader)     # StrictLoader is a SafeLoader

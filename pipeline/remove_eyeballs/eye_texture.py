@@ -94,8 +94,8 @@ class TextureEyeFit(EyeFit):
 
 
 #: Where the fissure's corners lie around a 12.05 mm eye (mean, SD; mm), measured on the eight
-#: SynthesEyes eye regions registered to their eyeballs (``../shared/reference/
-#: unityeyes_eye_region``): in front of the centre along the gaze, and from the gaze axis. The
+#: SynthesEyes eye regions registered to their eyeballs (UnityEyes' eye-region files, MIT; see
+#: pipeline/remove_eyeballs/data/README.md): in front of the centre along the gaze, and from the gaze axis. The
 #: medial corner is the far end of the caruncle, where the lids meet.
 MEDIAL_CORNER_FWD, MEDIAL_CORNER_AXIS = (8.56, 0.69), (15.19, 1.93)
 LATERAL_CORNER_FWD, LATERAL_CORNER_AXIS = (4.51, 1.18), (12.68, 0.41)
