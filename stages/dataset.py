@@ -26,14 +26,13 @@ import sys
 from pathlib import Path
 
 from pipeline.errors import ScanError
-from pipeline.io.strict_yaml import DuplicateKeyError, load_strict
 from pipeline.io.folder_lock import folder_lock
 from pipeline.io.scratch import stage_scratch
 from pipeline.render import mix
 from pipeline.render import plan as pl
 from pipeline.render.dataset import asset_inputs, load_assets, render_dataset
-from pipeline.render.settings import MAX_IMAGES, RenderSettings
-from pipeline.render.shard import dashboard_text
+from pipeline.render.settings import MAX_IMAGES, RenderSettings, parse_overrides
+from pipeline.render.shard import client_security, dashboard_text
 from stages._common import load_params
 
 
@@ -46,23 +45,12 @@ class _Parser(argparse.ArgumentParser):
 
 def _settings(args) -> RenderSettings:
     """The ``render:`` block of ``--params`` with the command line's overrides."""
-    import yaml
-
     if not 1 <= args.n <= MAX_IMAGES:
         raise ScanError("--n", f"must be between 1 and {MAX_IMAGES} (got {args.n})")
     if args.params != "params.yaml" and not Path(args.params).is_file():
         raise ScanError(args.params, "params file not found")
     params = load_params("render", args.params)      # {} without a params.yaml; refused without render:
-    for item in args.set or ():
-        key, eq, value = item.partition("=")
-        if not eq or not key:
-            raise ScanError("--set", f"{item!r} is not KEY=VALUE")
-        try:
-            params[key] = load_strict(value)     # params.yaml's rules
-        except DuplicateKeyError as exc:
-            raise ScanError("--set", f"{key}: {exc}") from None
-        except yaml.YAMLError:
-            raise ScanError("--set", f"{key}: {value!r} is not a YAML value") from None
+    params.update(parse_overrides(args.set or ()))
     params["n_images"] = args.n
     for key in ("preset", "seed", "workers"):
         if getattr(args, key) is not None:
@@ -70,22 +58,6 @@ def _settings(args) -> RenderSettings:
     if args.no_progress:
         params["progress"] = False
     return RenderSettings.from_params(params, source=args.params)
-
-
-def _security(args):
-    """The client's TLS credentials for ``--scheduler`` from ``--tls-*`` (None: Dask's config)."""
-    given = {k: getattr(args, k) for k in ("tls_ca_file", "tls_cert", "tls_key")}
-    if not any(given.values()):
-        return None
-    if not all(given.values()) or not args.scheduler:
-        raise ScanError("--tls-ca-file", "give --tls-ca-file, --tls-cert and --tls-key together, with --scheduler")
-    for k, p in given.items():
-        if not p.is_file():
-            raise ScanError(p, f"--{k.replace('_', '-')}: file not found")
-    from distributed.security import Security
-
-    return Security(tls_ca_file=str(given["tls_ca_file"]), tls_client_cert=str(given["tls_cert"]),
-                    tls_client_key=str(given["tls_key"]), require_encryption=True)
 
 
 def main(argv=None) -> int:
@@ -120,7 +92,7 @@ def main(argv=None) -> int:
 
     try:
         settings = _settings(args)
-        security = _security(args)
+        security = client_security(args.tls_ca_file, args.tls_cert, args.tls_key, scheduler=args.scheduler)
         pairs, skipped = asset_inputs(args.assets, args.rigs)
         pl.check_out(args.out)
         with folder_lock(args.out) as took_over:   # one run at a time in --out, until it ends

@@ -263,3 +263,31 @@ class RenderSettings(Settings):
         skip = {"n_images", "presets", *RUN_KEYS, *(PINHOLE_KEYS if self.camera == "ortho" else ())}
         d = {k: getattr(self, k) for k in self.keys() if k not in skip}
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+def parse_overrides(items) -> dict:
+    """``KEY=VALUE`` strings (``--set``) -> ``{key: value}``, each value read as YAML with
+    params.yaml's rules (:func:`pipeline.io.strict_yaml.load_strict`).
+
+    Raises
+    ------
+    ScanError
+        One line naming ``--set``: no ``=``, a repeated key inside a value, or no YAML value.
+    """
+    import yaml
+
+    from pipeline.errors import ScanError
+    from pipeline.io.strict_yaml import DuplicateKeyError, load_strict
+
+    out = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or not key:
+            raise ScanError("--set", f"{item!r} is not KEY=VALUE")
+        try:
+            out[key] = load_strict(value)
+        except DuplicateKeyError as exc:
+            raise ScanError("--set", f"{key}: {exc}") from None
+        except yaml.YAMLError:
+            raise ScanError("--set", f"{key}: {value!r} is not a YAML value") from None
+    return out

@@ -328,6 +328,30 @@ def local_security():
     return Security.temporary()
 
 
+def client_security(ca_file, cert, key, *, scheduler=None):
+    """A ``distributed.security.Security`` for a client of ``scheduler`` from three PEM files
+    (``--tls-ca-file``, ``--tls-cert``, ``--tls-key``), or None when none is given (Dask's config,
+    ``distributed.comm.tls.*``).
+
+    Raises
+    ------
+    ScanError
+        One line: only some of the three given, given without a scheduler, or a file missing.
+    """
+    given = {"tls_ca_file": ca_file, "tls_cert": cert, "tls_key": key}
+    if not any(given.values()):
+        return None
+    if not all(given.values()) or not scheduler:
+        raise ScanError("--tls-ca-file", "give --tls-ca-file, --tls-cert and --tls-key together, with --scheduler")
+    for k, p in given.items():
+        if not Path(p).is_file():
+            raise ScanError(p, f"--{k.replace('_', '-')}: file not found")
+    from distributed.security import Security
+
+    return Security(tls_ca_file=str(ca_file), tls_client_cert=str(cert), tls_client_key=str(key),
+                    require_encryption=True)
+
+
 def _client(workers: int, scheduler: str | None, connect_timeout_s: float = 10.0, dashboard: bool = False,
             security=None):
     """``(client, cluster)``: a Client of the cluster at ``scheduler`` (with ``security``, a
