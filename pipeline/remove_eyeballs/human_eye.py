@@ -209,7 +209,7 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
                           f"placed from the opening instead, iris centred, axis along the eye "
                           f"region's forward")
         d = limbus_depth(placed)
-        c = lc - d * ax
+        c = anchor_center(lc, ax, placed)
         if eye_size == "fitted" and source != "opening":     # today's scan-shaped globe, as fitted
             c, d = np.asarray(e["center"], float), float(np.dot(lc - np.asarray(e["center"], float), ax))
         sc = math.sqrt(sl ** 2 + (d * math.radians(sa)) ** 2 + sr ** 2)
