@@ -1,6 +1,6 @@
 """The identities command as a user runs it: the README's line, the dvc it runs (this venv's
 ``python`` first on PATH), a failed repro that keeps the entries, removal that leaves nothing of
-the identity and touches nothing else."""
+the identity and touches nothing else, and the dataset page that lists only real assets."""
 
 from __future__ import annotations
 
@@ -201,3 +201,20 @@ def test_lock_edit_refuses_a_layout_it_cannot_cut(tmp_path):
     kept = yaml.safe_load(out)["stages"]
     assert set(kept) == {k for k in yaml.safe_load(real)["stages"] if "@" not in k}
     assert all(line in real for line in out.split("\n"))
+
+
+# ----------------------------------------------------------------------------- the dataset page
+
+def test_dataset_page_lists_only_real_assets(tmp_path):
+    from benchmarks.bench_dataset import images_per_asset
+
+    for n in ("home", "ident_s0_000"):
+        (tmp_path / "rigged_assets" / n).mkdir(parents=True)
+        (tmp_path / "rigged_assets" / n / f"{n}.usda").write_text("#usda 1.0\n")
+    (tmp_path / "rigged_assets" / "ident_s0_001").mkdir()            # never became an asset
+    assets = sorted(str(d) for d in (tmp_path / "rigged_assets").iterdir())
+    lines = images_per_asset({"ident_s0_001": 87, "home": 86, "ident_s0_000": 87, "gone": 3}, assets)
+    assert lines == ["Images per asset: home 86, ident_s0_000 87",
+                     "Not assets (no rigged_assets/<name>/<name>.usda), images labelled with them: "
+                     "gone 3, ident_s0_001 87"]
+    assert images_per_asset({"home": 1}, assets) == ["Images per asset: home 1"]
