@@ -94,6 +94,20 @@ def _loose_name(key: str, ext: str) -> str:
     return f"{key}_{stem}.{last}" if stem else f"{key}.{ext}"
 
 
+def images_per_asset(counts: dict, assets) -> list[str]:
+    """The page's lines of images per asset (``counts``: {name: images}, from the labels): a name
+    is an asset only when one of the ``--assets`` folders of that name holds ``<name>.usda``
+    (``rigged_assets/<name>/<name>.usda``); any other name (an identity that never became an
+    asset, or was removed since) is named on a line of its own, never among the assets."""
+    have = {Path(p).name for p in assets if (Path(p) / f"{Path(p).name}.usda").is_file()}
+    lines = ["Images per asset: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()) if k in have)]
+    missing = sorted(k for k in counts if k not in have)
+    if missing:
+        lines.append("Not assets (no rigged_assets/<name>/<name>.usda), images labelled with them: "
+                     + ", ".join(f"{k} {counts[k]}" for k in missing))
+    return lines
+
+
 def torch_check(out: Path, labels: dict) -> dict:
     ds = _torch_example().EyeDataset(out)
     t0, bad = time.perf_counter(), 0
@@ -170,7 +184,7 @@ def main(argv=None) -> int:
     t = res["torch_example"]
     md.append(f"| torch example | {t['items']} items, wrong {t['items_wrong']}, depth {t['has_depth']}, "
               f"{t['read_s_per_item'] * 1000:.1f} ms per item |")
-    md += ["", "Images per asset: " + ", ".join(f"{k} {v}" for k, v in sorted(res["counts"].items())), ""]
+    md += ["", *images_per_asset(res["counts"], a.assets), ""]
     (RESULTS / f"{a.name}.md").write_text("\n".join(md))
     print("\n".join(md))
     return 0
