@@ -1,6 +1,6 @@
 """Hostile scan folders (issue 12): limits hold before memory is spent, and every refusal is one line.
 
-The cases live in ``benchmarks/bench_hostile.py`` (the benchmark times the same folders).
+The cases live in ``tests/fixtures/hostile.py`` (``benchmarks/bench_hostile.py`` times the same folders).
 Each is built from a good synthetic head in ``tmp_path`` and run as
 ``python -m stages.ingest`` in a subprocess under a 1.5 GiB address-space cap. A
 refused case must exit 2 with exactly one stderr line naming the file and the
