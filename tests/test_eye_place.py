@@ -88,6 +88,7 @@ def test_segmentation_at_the_true_eye_is_the_opening():
     assert ep.fold_deg(p, lab) > 30.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed,noise", [(0, 0.0), (1, 0.03)])
 def test_both_eyes_placed_within_their_uncertainty(seed, noise):
     mesh, hints, gt = make_head(0.5, seed=seed, noise=noise)
@@ -103,6 +104,7 @@ def test_both_eyes_placed_within_their_uncertainty(seed, noise):
         assert "sclera" in pl.cues and "cornea_or_iris" in pl.cues
 
 
+@pytest.mark.slow
 def test_closed_eyes_have_no_placement():
     """A smooth lid over each eye: no eye surface is ringed by a lid fold."""
     mesh, hints, _ = make_head(0.7, closed=True)
