@@ -1,12 +1,14 @@
 # The two commands of the README:
 #   make run    install everything, then `dvc repro` (synthetic head and every scan in params.yaml)
 #   make test   install everything, then the test suite
+# and the two-minute loop while working:
+#   make test-fast   every test that needs neither Blender nor a large head (not slow, not blender)
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-$(shell cksum < pyproject.toml | cut -d' ' -f1)
 
-.PHONY: setup run test bench clean-venv
+.PHONY: setup run test test-fast bench clean-venv
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), "eyerig needs Python 3.11 (bpy 5.0.1 ships only for 3.11), got " + sys.version.split()[0]'
@@ -22,7 +24,10 @@ run: $(STAMP)
 	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/dvc repro
 
 test: $(STAMP)
-	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python -m pytest -q
+	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python -m pytest -q --durations=15
+
+test-fast: $(STAMP)
+	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python -m pytest -q --durations=15 -m "not slow and not blender"
 
 bench: $(STAMP)
 	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python -m benchmarks.run_all

@@ -22,7 +22,7 @@ Writes ``benchmarks/results/background_predict.json``.
 unityeyes for the unityeyes preset) into ``/tmp/bench_background/<tag>/<preset>/<scan>`` and
 counts class-0 pixels per image (``NNNNNN_seg.png``) and, for unityeyes images, inside the
 GazeML crop (from the written ``unityeyes/NNNNNN.json`` through the transcription of GazeML's
-loader, tests/gazeml_unityeyes.py: the crop's full-image rectangle, pixels whose centre lies
+loader, tests/fixtures/gazeml_unityeyes.py: the crop's full-image rectangle, pixels whose centre lies
 in it). A scan whose preset refuses every sample is recorded with the stage's one-line message.
 Writes ``benchmarks/results/background_<tag>.json``. Run it on main's checkout with
 ``--tag before --code <main checkout>`` (its ``stages.render`` renders) and with ``--tag after``.
@@ -58,7 +58,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def gazeml_crop(interior_px, caruncle_px, eye_image_shape=(36, 60)) -> tuple[float, float, float, float]:
-    """(x0, x1, y0, y1) full-image pixels of GazeML's UnityEyes crop (tests/gazeml_unityeyes.py
+    """(x0, x1, y0, y1) full-image pixels of GazeML's UnityEyes crop (tests/fixtures/gazeml_unityeyes.py
     step 3 without augmentation): width ``1.5 |mean(caruncle).x - interior[8].x|``, centred on the
     interior margin's bounding box, height = width * oh / ow. Points (n, 2) in our pixels (y down,
     the same as GazeML's after its flip)."""
@@ -187,8 +187,7 @@ def crop(args) -> dict:
 def _count_render(folder: Path, preset: str) -> list[dict]:
     from PIL import Image
 
-    sys.path.insert(0, str(ROOT / "tests"))
-    import gazeml_unityeyes as gz
+    from tests.fixtures import gazeml_unityeyes as gz
 
     rows = []
     for seg_path in sorted(folder.glob("*_seg.png")):
@@ -279,7 +278,7 @@ def report(args) -> None:
     summary = {"predict": pred, "before": None, "after": None}
     lines = ["# Background (segmentation class 0) in renders", "",
              "`python -m benchmarks.bench_background predict|render|report` (module doc). Class-0 pixels per",
-             "image from the seg masks; the GazeML crop is its UnityEyes loader's (tests/gazeml_unityeyes.py).", ""]
+             "image from the seg masks; the GazeML crop is its UnityEyes loader's (tests/fixtures/gazeml_unityeyes.py).", ""]
     for tag, res in (("before", before), ("after", after)):
         if not res:
             continue

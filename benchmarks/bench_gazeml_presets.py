@@ -6,7 +6,7 @@
 For each scan (``rigged_assets/<scan>``, ``build/<scan>/rig`` under ``--root``) and preset, samples
 ``--images`` labels, builds their UnityEyes documents (:func:`pipeline.render.formats.unityeyes.points_job`:
 the writer's points without its crop check) and reads them with the transcription of GazeML's
-loader (tests/gazeml_unityeyes.py, head-pose filter off so every sample counts). Prints, per
+loader (tests/fixtures/gazeml_unityeyes.py, head-pose filter off so every sample counts). Prints, per
 preset, the loader's iris centre against ours (px; a right eye mirrored, as the export writes
 it), its gaze against ours (deg) and how many of its crops leave the image.
 """
@@ -24,8 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def main(argv=None) -> int:
-    sys.path.insert(0, str(ROOT / "tests"))
-    import gazeml_unityeyes as gz
+    from tests.fixtures import gazeml_unityeyes as gz
     from pipeline.render import asset as ra
     from pipeline.render import labels as lb
     from pipeline.render import sampling as sp

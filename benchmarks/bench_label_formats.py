@@ -7,7 +7,7 @@ Needs rigged_assets/<scan> and build/<scan>/rig (``dvc repro usd@<scan>``). Rend
 images with the ``render`` params of params.yaml (less the keys the preset fills) plus
 ``preset: unityeyes`` and every label format (``python -m stages.render``, into benchmarks/out/label_formats/<scan>), then reads each
 ``unityeyes/NNNNNN.json`` with the transcription of GazeML's UnityEyes loader
-(tests/gazeml_unityeyes.py; the image size from the JPEG, as GazeML reads it) and compares:
+(tests/fixtures/gazeml_unityeyes.py; the image size from the JPEG, as GazeML reads it) and compares:
 
 * iris centre: GazeML's (image centre + 71.7593 px along the look vector) against the centre
   of our 8 iris landmarks (pixels), and against our pupil centre label;
@@ -42,7 +42,7 @@ from pipeline.io.labels_file import read_label
 from pipeline.io.pts_file import read_pts
 from pipeline.io.unityeyes_file import read_unityeyes
 from stages._common import read_stage_metrics
-from tests.gazeml_unityeyes import gaze_to_camera, read_entry
+from tests.fixtures.gazeml_unityeyes import gaze_to_camera, read_entry
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -190,7 +190,7 @@ def main(argv=None) -> int:
                               "height": [round(float(crops[:, 1].min()), 1), round(float(crops[:, 1].max()), 1)]},
            "pts_max_abs_error_px": pts_err,
            "generic_framing_same_size_sampled": generic_contrast(asset, params, args.images),
-           "what": "GazeML UnityEyes loader (tests/gazeml_unityeyes.py) on our unityeyes JSON vs our labels"}
+           "what": "GazeML UnityEyes loader (tests/fixtures/gazeml_unityeyes.py) on our unityeyes JSON vs our labels"}
     RESULTS.mkdir(parents=True, exist_ok=True)
     write_json(RESULTS / "label_formats.json", res)
     picture(out, min(4, args.images), RESULTS / f"unityeyes_{args.scan}.png")

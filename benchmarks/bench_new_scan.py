@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -41,10 +40,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from tests.fixtures.chain import RUNNING, stage_walls
+from tests.fixtures.params import set_scans
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 STAGES = ("check_params", "ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "usd", "render")
-RUNNING = re.compile(r"^Running stage '([A-Za-z0-9_]+)(?:@([A-Za-z0-9_.-]+))?'")
 
 
 def run_env() -> dict:
@@ -78,19 +79,6 @@ def make_scan(source: str, triangles: int, seed: int, folder: Path, scanify: Pat
            "--identity-seed", str(seed), "--seed", str(seed), "--faces", str(triangles)], ROOT, "scanify")
 
 
-def set_scans(params_file: Path, names: list[str]) -> None:
-    """Replace the ``scans:`` list of a params.yaml, keeping every other line (and comment) as it is."""
-    lines = params_file.read_text(encoding="utf-8").splitlines(keepends=True)
-    start = next((i for i, line in enumerate(lines) if line.startswith("scans:")), None)
-    if start is None:
-        raise SystemExit(f"{params_file}: no 'scans:' block")
-    end = start + 1
-    while end < len(lines) and lines[end].startswith("  -"):
-        end += 1
-    params_file.write_text("".join(lines[:start + 1] + [f"  - {n}\n" for n in names] + lines[end:]),
-                           encoding="utf-8")
-
-
 def timed_repro(clone: Path, target: str):
     """``dvc repro target`` in ``clone``, reading its output as it comes: (total wall s, [(stage, scan or
     None, start s)], output text). Exits with the output's end when DVC fails."""
@@ -108,12 +96,6 @@ def timed_repro(clone: Path, target: str):
     if rc != 0:
         raise SystemExit(f"dvc repro {target} failed ({rc}):\n{''.join(text)[-3000:]}")
     return total, starts, "".join(text)
-
-
-def stage_walls(starts, total) -> dict:
-    """Wall time of each stage DVC ran: from its ``Running stage`` line to the next one (or the end)."""
-    ends = [s[2] for s in starts[1:]] + [total]
-    return {name: end - start for (name, _scan, start), end in zip(starts, ends)}
 
 
 def own_timings(clone: Path, scan: str) -> dict:

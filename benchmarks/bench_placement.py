@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.unseen.cases import generate, select
-from benchmarks.unseen.report import says_closed
+from tests.fixtures.unseen.cases import generate, select
+from tests.fixtures.unseen.metrics import says_closed
 from tests.fixtures.truth import truth_limbus
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -41,18 +41,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.io.atomic import write_json
+from tests.fixtures.truth import iris_diameter, truth_corners
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET = (0.35, 0.43)
-_K = np.arange(8) * np.pi / 4
-_A = np.stack([np.ones(8), np.cos(_K), np.sin(_K)], 1)
-
-
-def iris_diameter(P) -> float:
-    """Major axis (same unit as ``P``) of the ellipse through the 8 iris landmarks ``P`` (8, 2)."""
-    coef, *_ = np.linalg.lstsq(_A, np.asarray(P, float), rcond=None)
-    return float(2.0 * np.linalg.svd(coef[1:].T, compute_uv=False)[0])
-
 
 def measure(px, mm_per_px: float) -> dict:
     """Ratio, iris diameter and canthus distance (px and mm) of one label's 28 landmarks."""
@@ -106,46 +98,6 @@ def rest_geometry(asset) -> dict:
                      "iris_diameter_mm": iris_diameter((lm[12:20] - eye.center) @ B[:2].T),
                      "canthus_distance_mm": float(np.linalg.norm(lm[0] - lm[6]))}
     return out
-
-
-def truth_corners(scan_dir: Path) -> dict | None:
-    """The true eye corners of a scan folder, or None when it has none (module doc).
-
-    Returns
-    -------
-    dict
-        ``{"source": str, "left": {"medial": (3,), "lateral": (3,)}, "right": {...}}``, mm.
-    """
-    import json
-
-    import yaml
-
-    meta = yaml.safe_load((scan_dir / "scan.yaml").read_text(encoding="utf-8")) or {}
-    if (meta.get("units"), meta.get("up_axis"), meta.get("forward_axis")) != ("mm", "+Y", "+Z"):
-        return None
-    gt = scan_dir / "ground_truth.json"
-    if gt.is_file():
-        eyes = json.loads(gt.read_text(encoding="utf-8")).get("eyes", {})
-        out = {"source": "ground_truth.json eyelid_margin"}
-        for side in ("left", "right"):
-            m = eyes[side]["eyelid_margin"]
-            P = np.asarray(m["points_mm"], float)
-            out[side] = {"medial": P[int(m["medial_canthus_index"])],
-                         "lateral": P[int(m["lateral_canthus_index"])]}
-        return out
-    for npy in sorted(scan_dir.glob("*_landmarks68.npy")):
-        groups = npy.with_name(npy.stem + "_groups.json")
-        if not groups.is_file():
-            continue
-        L, g = np.load(npy), json.loads(groups.read_text(encoding="utf-8"))
-        eyes = {"left": L[g["reye"]], "right": L[g["leye"]]}
-        mid = 0.5 * (eyes["left"][:, 0].mean() + eyes["right"][:, 0].mean())
-        out = {"source": f"{npy.name} (68-point annotations)"}
-        for side, P in eyes.items():
-            lateral = (P[:, 0] - mid) * (1.0 if side == "left" else -1.0)
-            out[side] = {"medial": P[int(np.argmin(lateral))], "lateral": P[int(np.argmax(lateral))]}
-        return out
-    return None
 
 
 def truth_errors(asset, corners: dict, iris_mm: float) -> dict:

@@ -5,7 +5,7 @@
         [--ict ../shared/scans/ict_facekit] [--generate-only] [--stop-after usd|rig|...]
         [--pictures DIR] [--results benchmarks/results] [--out unseen_scans] [--markdown]
 
-Cases (``benchmarks.unseen.cases``): a ``dev`` set to develop on and a ``heldout`` set (new identity
+Cases (``tests/fixtures/unseen/cases.py``): a ``dev`` set to develop on and a ``heldout`` set (new identity
 seeds) to measure on; every family in both: ICT-FaceKit heads made scan-like by ``scanify``
 (expressions, 45k-1.2M faces, cornea iris|dome, noise, holes, debris, sparse cameras, hints 5 mm
 off, exaggerated identities, ICT's non-spherical eyes, real-scanner imitations), openings filled
@@ -16,7 +16,7 @@ Each case runs ``ingest -> remove_eyeballs -> retopo -> bake -> snap -> rig -> u
 ``--stop-after``; an outcome ``asset`` means every stage run passed) as dvc.yaml does
 (subprocesses, with ./params.yaml except ``BENCH_PARAMS``: a 512 px bake, no previews, no usdz;
 nothing eye-related is changed). Per eye it measures the placement, what a camera would see, the
-lid margin and canthi and the stated uncertainty against the truth (``benchmarks.unseen.metrics``),
+lid margin and canthi and the stated uncertainty against the truth (``tests/fixtures/unseen/metrics.py``),
 and judges the rows by issue 21's bounds per family and per set (``benchmarks.unseen.report``).
 Held-out cases print no per-case figures (``--show-heldout`` does): they are for the summary.
 
@@ -40,9 +40,9 @@ import time
 from pathlib import Path
 
 from benchmarks.unseen import report as rep
-from benchmarks.unseen.cases import (  # noqa: F401  (re-exported: tests, oracle)
+from tests.fixtures.unseen.cases import (  # noqa: F401  (re-exported: the oracle)
     ALL_CASES, CASES, FAMILIES, HELDOUT, SETS, _ply_write, fill_openings, generate, select)
-from benchmarks.unseen.metrics import eye_rows
+from tests.fixtures.unseen.metrics import eye_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

@@ -18,6 +18,7 @@ within 40 mm of each eye that either moves. Rules: the hand-set paper-like gains
 before issue 14), the current defaults, and a fresh fit (:func:`fit_rule`). Targets (issue 14):
 margin mean <= 0.5 mm per lid and region RMS <= 1.0 mm at +-25 deg.
 Writes benchmarks/results/ict_lids.json and .png and prints a summary.
+The ICT loading, the rings and the figures live in tests/fixtures/ict_lids.py (the rig tests use them).
 """
 
 from __future__ import annotations
@@ -33,143 +34,18 @@ import numpy as np
 
 from pipeline.io.atomic import write_json
 from pipeline.rig import lids
-from pipeline.rig.eye_frame import EyeFrame, find_lateral_canthus
-from pipeline.rig.lid_shapes import _edge_graph, build_lid_shapes, lid_angle_field, mesh_edges, pose_points
+from pipeline.rig.lid_shapes import _edge_graph, build_lid_shapes, mesh_edges
 from pipeline.rig.sweep import sweep_check
+from tests.fixtures.ict_lids import (PITCHES, SIDES, cut_to_ring, figures, load_ict, margin_rings, quick_figures,
+                                     visible_ring)
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SIDES = {"left": "L", "right": "R"}
-PITCHES = (25.0, -25.0, 15.0, -15.0, 10.0, -10.0)
-
-
-def load_ict(scans: Path):
-    import trimesh
-
-    kit = scans / "ict_facekit"
-    modes = np.load(kit / "ict_shape_modes.npz")
-    names = [str(n) for n in modes["expression_names"]]
-    neutral = modes["neutral"].astype(np.float64) * 10.0
-    parts = json.loads((kit / "ict_parts_vertex_ranges_inclusive.json").read_text())
-    last_skin = parts["head_neck"][1]
-    tri = trimesh.load(kit / "ict_neutral_full_tri.ply", process=False)
-    F = np.asarray(tri.faces, np.int64)
-    F = F[(F <= last_skin).all(axis=1)]
-    used = np.unique(F)
-    remap = np.full(len(neutral), -1)
-    remap[used] = np.arange(len(used))
-    gt = json.loads((scans / "ict_neutral" / "ground_truth.json").read_text())
-    deltas = {}
-    for side, s in SIDES.items():
-        for kind in ("Up", "Down"):
-            deltas[(side, kind)] = modes["expression_deltas"][names.index(f"eyeLook{kind}_{s}")][used] * 10.0
-    return neutral[used], remap[F], remap, gt, deltas
 
 
 def stats(a):
     a = np.asarray(a, float)
     return {"mean": float(a.mean()), "max": float(a.max())}
-
-
-def hop_rings(F, loop, n):
-    """(n,) edge-hop distance of every vertex from the vertex set ``loop``."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import dijkstra
-
-    E = mesh_edges(F)
-    A = coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
-    return dijkstra(A + A.T, indices=loop, min_only=True, unweighted=True)
-
-
-def margin_rings(V, F, gt, remap, deltas, lash_roots, n_rings: int = 6) -> list:
-    """Measurements of the vertex rings around ICT's margin loop, worst eye, central half of the
-    lids (u in 0.25-0.75): per ring and lid the share of vertices hidden from the front (a ray
-    along the gaze hits the skin), mean clearance from the eyeball sphere (mm), eyelash roots on
-    the ring, and ICT's gain (rotation about the eye's horizontal axis / pitch) up and down."""
-    import trimesh
-
-    mesh = trimesh.Trimesh(V, F, process=False)
-    rows = []
-    for side, s in SIDES.items():
-        e = gt["eyes"][side]
-        loop = remap[np.asarray(e["eyelid_margin"]["ict_vertex_ids"])]
-        c, r = np.asarray(e["eyeball_sphere"]["center_mm"], float), float(e["eyeball_sphere"]["radius_mm"])
-        B = EyeFrame(side, c, r, np.asarray(e["gaze_direction"], float), loop, 0).basis()
-        hop = hop_rings(F, loop, len(V))
-        w = V - c
-        phi = np.arctan2(w @ B[1], w @ B[2])
-        x = w @ B[0]
-        u = (x - x[loop].min()) / (x[loop].max() - x[loop].min())
-        for k in range(n_rings):
-            for lid, sel in (("upper", phi > phi[loop].mean()), ("lower", phi <= phi[loop].mean())):
-                ring = np.flatnonzero((hop == k) & sel & (u > 0.25) & (u < 0.75))
-                hidden = mesh.ray.intersects_any(V[ring] + 0.05 * B[2], np.tile(B[2], (len(ring), 1)))
-                gains = {}
-                for kind in ("Up", "Down"):
-                    w1 = w[ring] + deltas[(side, kind)][ring]
-                    dphi = np.arctan2(w1 @ B[1], w1 @ B[2]) - phi[ring]
-                    gains[kind] = float(abs(dphi.mean()) / math.radians(25.0))
-                rows.append({"side": side, "ring": k, "lid": lid, "n": int(len(ring)),
-                             "hidden_from_front": float(hidden.mean()),
-                             "clearance_mm": float((np.linalg.norm(w[ring], axis=1) - r).mean()),
-                             "lash_roots": int(np.isin(ring, lash_roots[side]).sum()),
-                             "gain_up": gains["Up"], "gain_down": gains["Down"]})
-    return rows
-
-
-def visible_ring(rows) -> int:
-    """The innermost ring no vertex of which (either lid, either eye) is hidden from the front."""
-    return min(k for k in {r["ring"] for r in rows}
-               if all(r["hidden_from_front"] == 0.0 for r in rows if r["ring"] == k))
-
-
-def cut_to_ring(V, F, gt, remap, deltas, k: int):
-    """The skin outside ring ``k`` of ICT's margin, with that ring as each eye's margin.
-
-    Faces touching a vertex less than ``k`` hops from ICT's margin are dropped (the hidden lid
-    wedge), unused vertices removed; each ring is ordered as a margin loop (medial canthus
-    first: the ring vertex nearest ICT's medial canthus; then the upper lid), its vertices
-    projected radially onto the eyeball sphere. Returns (V (n', 3) with the rings snapped,
-    F (m', 3), eyes [EyeFrame], deltas on the kept vertices, V before the snap)."""
-    drop = np.zeros(len(V), bool)
-    rings = {}
-    for side in SIDES:
-        loop0 = remap[np.asarray(gt["eyes"][side]["eyelid_margin"]["ict_vertex_ids"])]
-        hop = hop_rings(F, loop0, len(V))
-        drop |= hop < k
-        rings[side] = (loop0, np.flatnonzero(hop == k))
-    Fk = F[~drop[F].any(axis=1)]
-    used = np.unique(Fk)
-    rm = np.full(len(V), -1)
-    rm[used] = np.arange(len(used))
-    Fk, V0 = rm[Fk], V[used]
-    Vk = V0.copy()
-    E = np.sort(np.concatenate([Fk[:, [0, 1]], Fk[:, [1, 2]], Fk[:, [2, 0]]]), axis=1)
-    edges, count = np.unique(E, axis=0, return_counts=True)
-    boundary = edges[count == 1]
-    eyes = []
-    for side, (loop0, ring) in rings.items():
-        g = gt["eyes"][side]
-        c, r = np.asarray(g["eyeball_sphere"]["center_mm"], float), float(g["eyeball_sphere"]["radius_mm"])
-        fwd = np.asarray(g["gaze_direction"], float)
-        ring = rm[ring]
-        nb: dict = {}
-        for a, b in boundary[np.isin(boundary, ring).all(axis=1)]:
-            nb.setdefault(int(a), []).append(int(b))
-            nb.setdefault(int(b), []).append(int(a))
-        if any(len(v) != 2 for v in nb.values()) or len(nb) != len(ring):
-            raise ValueError(f"ring {k} around the {side} ICT margin is not a simple boundary loop")
-        start = int(ring[np.argmin(np.linalg.norm(Vk[ring] - V[loop0[0]], axis=1))])
-        up = EyeFrame(side, c, r, fwd, ring, 0).basis()[1]
-        order = [start, max(nb[start], key=lambda v: Vk[v] @ up)]
-        while len(order) < len(ring):
-            order.append(next(v for v in nb[order[-1]] if v != order[-2]))
-        loop = np.asarray(order)
-        w = Vk[loop] - c
-        Vk[loop] = c + r * w / np.linalg.norm(w, axis=1, keepdims=True)
-        eyes.append(EyeFrame(side=side, center=c, radius=r, forward=fwd, loop=loop,
-                             lateral_index=find_lateral_canthus(Vk[loop], c, fwd, side)))
-    return Vk, Fk, eyes, {key: d[used] for key, d in deltas.items()}, V0
 
 
 #: The hand-set, paper-like lid rule: the default before issue 14.
@@ -196,42 +72,6 @@ FIT_GRID = {"gain_upper_up": np.arange(0.30, 0.801, 0.01),
             "lower_falloff_mm": np.arange(6.0, 24.01, 1.0)}
 #: Weight of each pitch in the fit's secondary term (the endpoints carry the targets).
 FIT_WEIGHTS = {25.0: 1.0, -25.0: 1.0, 15.0: 0.5, -15.0: 0.5, 10.0: 0.5, -10.0: 0.5}
-
-
-def quick_figures(Vs, F, eyes, deltas, params, graph=None, pitches=PITCHES):
-    """Per pitch (upper margin mean, lower margin mean, region RMS), worst eye, mm, and the
-    smallest area share any face keeps seen along its rest normal (< min_area_fraction: a fold).
-    Poses are the rotations alone (eyes are spheres here), as the stored shapes are at their
-    poses."""
-    fields = {e.side: lid_angle_field(Vs, F, e, params, graph=graph) for e in eyes}
-    n0 = np.cross(Vs[F[:, 1]] - Vs[F[:, 0]], Vs[F[:, 2]] - Vs[F[:, 0]])
-    a0 = np.einsum("ij,ij->i", n0, n0)
-    ok = a0 > 1e-12
-    out, min_area = {}, 1.0
-    for pitch in pitches:
-        key, kind = ("theta_up", "Up") if pitch > 0 else ("theta_down", "Down")
-        P = pose_points(Vs, eyes, {sd: getattr(f, key) for sd, f in fields.items()},
-                        abs(pitch) / params.max_pitch_deg)
-        n1 = np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])
-        min_area = min(min_area, float(np.min(np.einsum("ij,ij->i", n1[ok], n0[ok]) / a0[ok])))
-        out[pitch] = figures(Vs, P - Vs, eyes, deltas, kind, abs(pitch) / 25.0)
-    return out, min_area
-
-
-def figures(Vs, ours, eyes, deltas, kind, s):
-    """(upper margin mean, lower margin mean, region RMS), worst eye, for displacements ``ours``
-    against ICT's ``kind`` shape at weight ``s``."""
-    mu = ml = rms = 0.0
-    for e in eyes:
-        ict = deltas[(e.side, kind)] * s
-        li = e.lateral_index
-        for lid, idx in (("upper", e.loop[1:li]), ("lower", e.loop[li + 1:])):
-            d = float(np.linalg.norm(ours[idx] - ict[idx], axis=1).mean())
-            mu, ml = (max(mu, d), ml) if lid == "upper" else (mu, max(ml, d))
-        m = ((np.linalg.norm(ours, axis=1) > 1e-3) | (np.linalg.norm(ict, axis=1) > 1e-3)) \
-            & (np.linalg.norm(Vs - e.center, axis=1) < 40.0)
-        rms = max(rms, float(np.sqrt(np.mean(np.sum((ours[m] - ict[m]) ** 2, axis=1)))))
-    return mu, ml, rms
 
 
 def fit_score(fig) -> float:

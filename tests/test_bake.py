@@ -237,6 +237,7 @@ def test_sample_bilinear_pixel_centres():
     assert np.allclose(sample_bilinear(img, uv), [img[2, 1], 0.5])
 
 
+@pytest.mark.slow
 def test_stage_cli(tmp_path):
     V, F, eyes = face_patch()
     dense = tmp_path / "remove_eyeballs"

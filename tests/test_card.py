@@ -227,6 +227,7 @@ def _declared_metrics(repo) -> list[tuple[str, str]]:
         return [(s.name.split("@")[0], o.def_path) for s in r.index.stages for o in s.outs if o.metric]
 
 
+@pytest.mark.slow
 def test_dvc_metrics_show_fits_120_columns(tmp_path):
     """The repository's dvc.yaml in a fresh DVC repo with every declared metrics file written the way
     stages/_common.py writes it, from metrics at their widest (7-digit face counts, 4-digit

@@ -132,6 +132,7 @@ def test_stages_take_ordinary_parent_paths(tmp_path, capsys, stage):
     assert err.startswith(f"error: {base}") and "safe" not in err and err.count("\n") == 1, err
 
 
+@pytest.mark.slow
 def test_dvc_repro_with_a_malicious_scan_runs_nothing(tmp_path):
     """``dvc repro`` in a copy of the pipeline with ``scan$(touch${IFS}PWNED)`` listed: check_params
     refuses it first (every stage depends on it), so nothing runs and no PWNED appears."""

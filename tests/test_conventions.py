@@ -13,7 +13,7 @@ Transcribed here, written anew from the reading:
 * MPIIGaze, ``hysts/pytorch_mpiigaze`` ``tools/preprocess_mpiigaze.py``: ``convert_gaze``
   (``pitch = arcsin(-y)``, ``yaw = arctan2(-x, -z)``), ``convert_pose``
   (``vec = Rodrigues(v)[0][:, 2]``, ``(arcsin(vec[1]), arctan2(vec[0], vec[2]))``).
-* GazeML: tests/gazeml_unityeyes.py (``swook/GazeML`` ``src/datasources/unityeyes.py`` and
+* GazeML: tests/fixtures/gazeml_unityeyes.py (``swook/GazeML`` ``src/datasources/unityeyes.py`` and
   ``src/util/gaze.py``).
 * UnityEyes: ``Quaternion.Euler(x, y, z)`` = ``Ry(y) Rx(x) Rz(z)`` (Unity's documented order:
   z, then x, then y), ``look_vec = Camera.main.transform.worldToLocalMatrix * GetEyeLookVector()``.
@@ -27,7 +27,7 @@ import math
 import numpy as np
 import pytest
 
-import gazeml_unityeyes as gz
+from fixtures import gazeml_unityeyes as gz
 from fixtures import make_render_asset
 from pipeline.render import asset as ra
 from pipeline.render import camera as cam

@@ -108,6 +108,7 @@ def _run(cmd, **kw):
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600, **kw)
 
 
+@pytest.mark.slow
 def test_bad_inputs_exit_2_with_one_line_and_nothing_written(two, tmp_path):
     out = tmp_path / "ds"
     broken = two["root"] / "rigged_assets" / "broken"            # a folder with a rig but no valid asset

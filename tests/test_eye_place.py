@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import extra_scans_dir
+from conftest import ROOT, extra_scans_dir
 from pipeline.remove_eyeballs import eye_place as ep
 from fixtures.eye_heads import make_head
 
@@ -88,6 +88,7 @@ def test_segmentation_at_the_true_eye_is_the_opening():
     assert ep.fold_deg(p, lab) > 30.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed,noise", [(0, 0.0), (1, 0.03)])
 def test_both_eyes_placed_within_their_uncertainty(seed, noise):
     mesh, hints, gt = make_head(0.5, seed=seed, noise=noise)
@@ -103,6 +104,7 @@ def test_both_eyes_placed_within_their_uncertainty(seed, noise):
         assert "sclera" in pl.cues and "cornea_or_iris" in pl.cues
 
 
+@pytest.mark.slow
 def test_closed_eyes_have_no_placement():
     """A smooth lid over each eye: no eye surface is ringed by a lid fold."""
     mesh, hints, _ = make_head(0.7, closed=True)
@@ -123,9 +125,11 @@ def _unityeyes_dir():
 
 def test_the_shipped_prior_is_the_unityeyes_model(tmp_path):
     """The prior eyerig ships holds the UnityEyes text files' numbers exactly (mm, the first 10
-    components), and the derivation gives the same bytes again."""
-    from benchmarks.derive_eye_prior import derive
-    from pipeline.io.eye_prior_file import write_eye_prior
+    components), and the derivation (``python -m benchmarks.derive_eye_prior``) gives the same
+    bytes again."""
+    import subprocess
+    import sys
+
     from pipeline.remove_eyeballs.eye_prior import PRIOR_FILE, EyeRegionPrior
 
     d = _unityeyes_dir()
@@ -136,7 +140,9 @@ def test_the_shipped_prior_is_the_unityeyes_model(tmp_path):
     assert np.array_equal(prior.components, comp[:, :10] * 1000.0)
     assert np.array_equal(prior.coef_sd, np.loadtxt(d / "transformed_std.txt")[:10])
     out = tmp_path / "p.npz"
-    write_eye_prior(out, derive(d, 10))
+    r = subprocess.run([sys.executable, "-m", "benchmarks.derive_eye_prior", "--source", str(d), "--out", str(out),
+                        "--modes", "10"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
     assert out.read_bytes() == PRIOR_FILE.read_bytes()
 
 

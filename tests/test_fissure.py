@@ -28,6 +28,7 @@ def _map_of(theta, cell=0.25, radius=22.0, noise=0.0, seed=0):
     return cm
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("side, theta", [
     ("left", [-13.0, -1.0, 14.0, 0.5, 6.5, 3.8, 0.45, 0.55, 1.0]),
     ("right", [12.5, 0.0, -13.5, -1.5, 5.5, 4.0, 0.4, 0.5, 0.8]),

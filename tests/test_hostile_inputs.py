@@ -1,6 +1,6 @@
 """Hostile scan folders (issue 12): limits hold before memory is spent, and every refusal is one line.
 
-The cases live in ``benchmarks/bench_hostile.py`` (the benchmark times the same folders).
+The cases live in ``tests/fixtures/hostile.py`` (``benchmarks/bench_hostile.py`` times the same folders).
 Each is built from a good synthetic head in ``tmp_path`` and run as
 ``python -m stages.ingest`` in a subprocess under a 1.5 GiB address-space cap. A
 refused case must exit 2 with exactly one stderr line naming the file and the
@@ -34,6 +34,7 @@ def _refused(run, out, fname, problem):
     assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}.tmp-")]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_hostile_folder_refused_in_one_line_within_bounds(tmp_path, case):
     folder, params = build_case(case.build, tmp_path)
@@ -48,6 +49,7 @@ def test_at_least_30_hostile_cases():
     assert len(CASES) >= 30 and len({c.name for c in CASES}) == len(CASES)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("build", ACCEPTED, ids=[a.__name__[2:] for a in ACCEPTED])
 def test_hostile_looking_but_valid_folder_ingests(tmp_path, build):
     folder, params = build_case(build, tmp_path)
@@ -81,6 +83,7 @@ def test_hostile_looking_but_valid_folder_ingests(tmp_path, build):
         assert len(mesh["F"]) == len(F)
 
 
+@pytest.mark.slow
 def test_blank_padding_costs_no_memory(tmp_path):
     """The same OBJ with and without 20 MiB of blank lines: the padding costs less than its own size
     (the old reader took 37 times the file)."""
@@ -93,6 +96,7 @@ def test_blank_padding_costs_no_memory(tmp_path):
     assert padded.peak_mib - base.peak_mib < 20, (base.peak_mib, padded.peak_mib)
 
 
+@pytest.mark.slow
 def test_stl_triangle_count_checked_from_header_not_soup_vertices(tmp_path):
     """1.7M triangles are 5.1M soup vertices (over max_vertices 5M) but well within max_faces:
     the header check must not refuse them (only the face count is known before merging)."""
@@ -110,6 +114,7 @@ def test_stl_triangle_count_checked_from_header_not_soup_vertices(tmp_path):
     assert len(mesh.F) == n and len(mesh.V) == 1 and mesh.merged_vertices == 3 * n - 1   # all corners at 0
 
 
+@pytest.mark.slow
 def test_memory_error_in_ingest_is_one_line(tmp_path):
     """A file that gets past every header check but not the stage's own memory bound: one line, exit 2."""
     folder = tmp_path / "scan"

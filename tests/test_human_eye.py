@@ -92,6 +92,7 @@ def test_asset_eyes_anchor_one_size_and_fall_back_on_a_hidden_iris():
     assert any("limbus centre +-0.90 mm" in x for x in loose["right"]["doubts"])
 
 
+@pytest.mark.slow
 def test_a_12mm_eye_is_placed_within_0_2mm_and_1deg():
     """The height-field head carries the paper's eye (r1 12, cornea 8, apex 13.5) at (+-30, 0, 0)
     looking along +Z: the asset's eye lands on it."""
@@ -105,6 +106,7 @@ def test_a_12mm_eye_is_placed_within_0_2mm_and_1deg():
         assert e["limbus"]["source"] == "geometry" and e["iris_at_rest"]["center_inside"]
 
 
+@pytest.mark.slow
 def test_unequal_scan_spheres_give_one_human_size_or_the_fitted_ones():
     mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 14.0))
     res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())

@@ -144,6 +144,7 @@ def test_melanin_known_answers():
     assert np.allclose(np.array(SKIN_RGB) * melanin_transmittance(0.0), (239, 185, 159), atol=1)
 
 
+@pytest.mark.slow
 def test_skin_tone_darkens_and_browns_the_texture_monotonically():
     """The same head at rising tones: the skin's mean colour falls in every channel, and blue falls
     faster than red (a hue change, not a brightness scale); the eyes keep their colours."""

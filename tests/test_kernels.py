@@ -46,6 +46,7 @@ def _probe(extra: dict, pin: bool) -> str:
     return r.stdout.strip()
 
 
+@pytest.mark.slow
 def test_pinned_kernels_give_the_same_bits_under_every_dispatch_setting():
     pinned = {_probe(s, pin=True) for s in SETTINGS}
     assert len(pinned) == 1, pinned
@@ -55,6 +56,7 @@ def test_pinned_kernels_give_the_same_bits_under_every_dispatch_setting():
         assert len({_probe(s, pin=False) for s in SETTINGS}) > 1
 
 
+@pytest.mark.slow
 def test_a_stage_pins_itself_and_writes_the_same_bytes_under_every_setting(tmp_path):
     params = tmp_path / "params.yaml"
     params.write_text(yaml.safe_dump({"synthetic_head": {"target_triangles": 20_000, "texture_size": 64}}))

@@ -1,5 +1,5 @@
 """Label formats (pipeline/render/formats/): UnityEyes JSON read by a transcription of
-GazeML's loader (tests/gazeml_unityeyes.py), 300-W .pts, the ``unityeyes`` preset's framing,
+GazeML's loader (tests/fixtures/gazeml_unityeyes.py), 300-W .pts, the ``unityeyes`` preset's framing,
 and ``render.label_formats`` validation.
 
 Labels come from the small constructed asset of fixtures.make_render_asset, sampled without
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import gazeml_unityeyes as gz
+from fixtures import gazeml_unityeyes as gz
 from fixtures import make_render_asset
 from pipeline.errors import ScanError
 from pipeline.io.labels_file import read_index, read_label

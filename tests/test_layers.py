@@ -1,8 +1,8 @@
 """The house's floors: each package of ``pipeline/`` imports only the packages below it.
 
-DESIGN.md: "A package imports only packages below it: io at the bottom, then geometry and the
-shared models, then the stage packages in DAG order, then blender. A test holds this; there are
-no cycles." Read bottom up, the floors are:
+A package imports only packages below it: io at the bottom, then geometry and the shared models,
+then the stage packages in DAG order, then blender (docs/layout.md draws the house); this module
+holds it and finds no cycles. Read bottom up, the floors are:
 
 0. the tools every floor may use: ``errors`` (the one expected-error type), ``results`` (a
    stage's metrics and timings), ``kernels``, ``fork`` (the process helper) and ``sources``;
@@ -90,7 +90,7 @@ def project_imports(files: dict) -> dict[str, set[str]]:
 def test_every_package_has_a_floor():
     files = module_files()
     unknown = sorted({package_of(m, files) for m in files} - set(FLOOR))
-    assert not unknown, f"packages with no floor (add them to FLOORS and DESIGN.md): {unknown}"
+    assert not unknown, f"packages with no floor (add them to FLOORS and docs/layout.md): {unknown}"
 
 
 def test_each_package_imports_only_packages_below_it():

@@ -67,6 +67,7 @@ def _run(cmd):
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow
 def test_another_plan_is_refused_naming_what_differs_and_nothing_is_touched(two, tmp_path):
     out = tmp_path / "ds"
     before = _dataset(two, out)

@@ -28,6 +28,9 @@ from fixtures import extra_scans_dir, stage_commands, usd_roundtrip
 from pipeline.io.rig_file import read_rig
 from stages._common import run_stage
 
+#: every test here builds assets through the stage chain, from the real scans or the home synthetic head
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 POSE_DEG = 20.0
 SIDES = ("left", "right")

@@ -24,6 +24,7 @@ from fixtures import params_file
 from fixtures.eye_heads import make_head
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("step,seed,noise", [(0.5, 0, 0.0), (0.4, 1, 0.03), (0.7, 2, 0.05)])
 def test_ground_truth_and_topology(step, seed, noise):
     mesh, hints, gt = make_head(step, seed=seed, noise=noise)
@@ -71,6 +72,7 @@ def test_ground_truth_and_topology(step, seed, noise):
         assert res.metrics[s]["loop_moved_mean_mm"] < 2 * step
 
 
+@pytest.mark.slow
 def test_different_eye_sizes_are_kept():
     """Radius sharing only when both fits agree: a 12 mm and a 13 mm eye keep their radii."""
     mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 13.0))
@@ -83,6 +85,7 @@ def test_different_eye_sizes_are_kept():
         assert res.eyes[s]["radius"] == 12.0
 
 
+@pytest.mark.slow
 def test_an_unmeasured_pupil_hole_is_part_of_the_opening():
     """Scanners lose the dark pupil: a 3 mm hole in the middle of each opening. The eye is fitted
     as before and the hole goes with the cut (one loop per eye, no extra boundary left)."""
@@ -102,6 +105,7 @@ def test_an_unmeasured_pupil_hole_is_part_of_the_opening():
         assert abs(sph["radius"] - gt[s]["radius"]) <= 0.5
 
 
+@pytest.mark.slow
 def test_eyes_of_unequal_size_beyond_anatomy_are_published_with_a_doubt():
     """12 and 15 mm eyes in one head: the fits may be right, but no head has them. The asset
     is still made; each eye carries a doubt naming the failed check."""
@@ -114,6 +118,7 @@ def test_eyes_of_unequal_size_beyond_anatomy_are_published_with_a_doubt():
                    for d in res.eyes[s]["doubts"]), res.eyes[s]["doubts"]
 
 
+@pytest.mark.slow
 def test_eyes_json_records_placement_and_checks():
     mesh, hints, gt = make_head(0.5, seed=1, noise=0.02)
     res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
@@ -142,6 +147,7 @@ def test_eyes_json_records_placement_and_checks():
         assert e["checks"]["loop_on_sphere"]["value"] <= 0.8
 
 
+@pytest.mark.slow
 def test_no_eye_near_hint_fails():
     mesh, hints, _ = make_head(0.7)
     hints["left"] = np.array([0.0, 15.0, 4.0])  # flat forehead-like area between the eyes
@@ -149,6 +155,7 @@ def test_no_eye_near_hint_fails():
         remove_eyeballs(mesh, hints, RemoveEyeballsSettings(), source="flat.npz")
 
 
+@pytest.mark.slow
 def test_closed_eyes_fail():
     mesh, hints, _ = make_head(0.7, closed=True)
     with pytest.raises(ScanError) as exc:
@@ -168,6 +175,7 @@ def _ingested_head(tmp_path) -> Path:
     return ing
 
 
+@pytest.mark.slow
 def test_stage_writes_outputs(tmp_path):
     from stages.remove_eyeballs import main
 
@@ -184,6 +192,7 @@ def test_stage_writes_outputs(tmp_path):
         assert np.allclose(m["V"][eyes[s]["loop_indices"]], eyes[s]["loop_points"])
 
 
+@pytest.mark.slow
 def test_stage_names_the_scan_folder_when_the_eyes_are_closed(tmp_path, capsys):
     """The refusal names the scan folder ingest recorded, not build/<scan>/ingest/mesh.npz."""
     from stages._common import run_stage
@@ -256,6 +265,7 @@ def _gt_errors(folder, res):
     return out
 
 
+@pytest.mark.slow
 def test_ict_neutral(extra_scan):
     from pipeline.ingest.ingest import IngestSettings, ingest_scan
 
@@ -291,6 +301,7 @@ def test_ict_neutral(extra_scan):
         assert np.degrees(np.arccos(np.clip(np.dot(e["forward"], gt[s]["gaze_direction"]), -1, 1))) <= 3.5
 
 
+@pytest.mark.slow
 def test_james_texture_fallback(extra_scan):
     from PIL import Image
 
@@ -355,6 +366,7 @@ def test_james_texture_fallback(extra_scan):
         assert off[0] > 3.0 and off[0] > off[li], (s, off[0], off[li])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed,triangles,noise,shape", [
     pytest.param(7, 300_000, 0.0, "round", marks=pytest.mark.slow),
     (1, 100_000, 0.05, "round"),
@@ -486,6 +498,7 @@ def test_texture_fissure_without_skin_around_reads_nothing():
     assert fis == {"width_mm": 0.0, "height_mm": 0.0, "cells": 0}
 
 
+@pytest.mark.slow
 def test_stage_warns_of_each_doubt_and_still_publishes(extra_scan, tmp_path, capsys):
     """james, asked for openings of 95 % of its photographed fissures (its own are 29.6 / 25.7 mm
     of 32.0 / 29.0 mm: 0.93 / 0.89, not doubted at the default 0.8): the stage exits 0 with both

@@ -467,6 +467,7 @@ def test_stage_on_an_existing_dask_cluster(tiny, tmp_path):
     assert [x["index"] for x in read_index(out / "index.jsonl")] == [0, 1, 2]
 
 
+@pytest.mark.slow
 def test_bad_inputs_exit_2_with_one_line(tiny, tmp_path):
     params = _params(tmp_path, "p.yaml", n_images=2)
     r = subprocess.run(_stage_cmd(tiny, tmp_path / "o1", params)[:3] + [str(tmp_path / "missing")]

@@ -158,22 +158,11 @@ def test_stage_missing_eyeball_one_line(tmp_path, capsys, region):
     assert not (tmp_path / "rig").exists()
 
 
-def _compare_ict_lids():
-    """benchmarks/compare_ict_lids.py as a module (its ICT loading and figures)."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_ict_lids.py"
-    spec = importlib.util.spec_from_file_location("compare_ict_lids", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_ict_head_sweep(extra_scan):
     scans = extra_scan("ict_facekit").parent
     extra_scan("ict_neutral")
-    mod = _compare_ict_lids()
+    from fixtures import ict_lids as mod
+
     V, F, remap, gt, deltas = mod.load_ict(scans)
     eyes = []
     for side in ("left", "right"):
@@ -208,12 +197,13 @@ def test_ict_head_sweep(extra_scan):
 
 def test_default_rule_matches_icts_visible_lid(extra_scan):
     """The default rule against ICT-FaceKit's captured eyeLookUp/Down at its visible lid edge
-    (benchmarks/compare_ict_lids.py): ring 2 round ICT's margin loop is the innermost one seen
-    from the front, and at +-25 deg the margin means are within 0.5 mm and the skin RMS within
-    1.0 mm (issue 14), with no face folded."""
+    (tests/fixtures/ict_lids.py, as benchmarks/compare_ict_lids.py measures it): ring 2 round
+    ICT's margin loop is the innermost one seen from the front, and at +-25 deg the margin means
+    are within 0.5 mm and the skin RMS within 1.0 mm (issue 14), with no face folded."""
     scans = extra_scan("ict_facekit").parent
     extra_scan("ict_neutral")
-    mod = _compare_ict_lids()
+    from fixtures import ict_lids as mod
+
     V, F, remap, gt, deltas = mod.load_ict(scans)
     rows = mod.margin_rings(V, F, gt, remap, deltas, {"left": np.zeros(0, int), "right": np.zeros(0, int)},
                             n_rings=3)

@@ -64,7 +64,7 @@ def _files(out: Path) -> dict:
             if p.is_file() and p.name != "timings.json"}
 
 
-@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_local_cluster_listens_on_loopback_and_serves_a_dashboard_only_when_asked(workers):
     from pipeline.render.shard import _client
 
@@ -89,6 +89,7 @@ def test_local_cluster_listens_on_loopback_and_serves_a_dashboard_only_when_aske
         assert status == (200 if dashboard else 404)
 
 
+@pytest.mark.slow
 def test_local_cluster_admits_only_the_runs_own_client():
     """The worker processes' LocalCluster speaks TLS with credentials made for the run (issue 31):
     another local process cannot connect, with no credentials, over plain TCP or with its own

@@ -78,6 +78,7 @@ def test_same_seed_identical_different_seed_differs():
     assert not np.allclose(a.V, c.V)
 
 
+@pytest.mark.slow
 def test_radius_is_one_population_draw_per_head():
     """Issue 29: r1 ~ N(11.7, 0.45) mm clipped to +-3 sd, drawn once per head (both eyes one
     size); a zero spread gives the mean exactly, and the cornea scales with it."""
@@ -110,6 +111,7 @@ def _margin_facts(e):
     return m, np.asarray(m["points_mm"]), m["medial_canthus_index"], m["lateral_canthus_index"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 3, 7])
 def test_openings_have_human_eye_regions(seed):
     """Issue 29: the fissure 27 +- 1.7 mm wide and 9.5 +- 1.5 mm high (within 2 sd), the canthi
@@ -141,7 +143,7 @@ def test_openings_have_human_eye_regions(seed):
         assert off[ends].mean() > off[centre].mean() + 0.3
 
 
-@pytest.mark.parametrize("target", [10_000, 100_000, 1_500_000])
+@pytest.mark.parametrize("target", [10_000, pytest.param(100_000, marks=pytest.mark.slow), 1_500_000])
 def test_density_control(target):
     ny, nt = grid_shape(target)
     assert abs(2 * (ny - 1) * (nt - 1) - target) < 0.02 * target
@@ -162,6 +164,7 @@ def test_bad_parameters_are_refused():
 
 # ----------------------------------------------------------------------------- geometry
 
+@pytest.mark.slow
 def test_head_dimensions_and_frame(head):
     V = head.V
     ext = V.max(axis=0) - V.min(axis=0)
@@ -182,6 +185,7 @@ def test_head_dimensions_and_frame(head):
     assert V[:, 2].max() > max(gt["eyes"][s]["corneal_apex_mm"][2] for s in ("left", "right")) + 15.0
 
 
+@pytest.mark.slow
 def test_eyeball_vertices_lie_on_ground_truth_spheres(head):
     for side in ("left", "right"):
         c, r, cc, rc, margin, _ = _eye(head.ground_truth, side)
@@ -196,6 +200,7 @@ def test_eyeball_vertices_lie_on_ground_truth_spheres(head):
         assert (ds < 1e-4).sum() >= 5 and (dc < 1e-4).sum() > 10   # both sclera and cornea seen
 
 
+@pytest.mark.slow
 def test_margin_and_contact_ordered_closed_and_on_the_mesh(head):
     """The margin (the lid's edge, off the globe) and the contact line (where tissue meets the
     eye surface, inside it) are closed, ordered medial canthus first over the upper lid, and lie on
@@ -231,6 +236,7 @@ def test_margin_and_contact_ordered_closed_and_on_the_mesh(head):
         assert abs(np.linalg.norm(np.array(head.hints[side]) - o) - 2.0) < 1e-3
 
 
+@pytest.mark.slow
 def test_corner_pockets_are_tissue_not_holes(head):
     """Where the fissure runs past the globe's silhouette (the corners), the mesh shows a floor of
     tissue a little behind the margin (the caruncle medially), not a pit: every vertex seen inside
@@ -260,6 +266,7 @@ def test_corner_pockets_are_tissue_not_holes(head):
         assert (nrm[box, 2] > -0.05).all()         # a height field toward the viewer: no folds
 
 
+@pytest.mark.slow
 def test_lids_fused_with_eyeball_single_surface(head):
     V, F = head.V, head.F
     n = len(V)
@@ -287,6 +294,7 @@ def _contact_height(h, side):
     return float(np.ptp(np.asarray(h.ground_truth["eyes"][side]["eye_contact"]["points_mm"])[:, 1]))
 
 
+@pytest.mark.slow
 def test_hooded_eyes_have_smaller_opening():
     kw = dict(seed=5, target_triangles=150_000, **SMALL)      # rows ~1 mm apart
     rnd = make_synthetic_head(eye_shape="round", **kw)
@@ -319,6 +327,7 @@ def test_noise_along_normals():
     assert a.ground_truth["eyes"] == b.ground_truth["eyes"]   # GT describes the noise-free surface
 
 
+@pytest.mark.slow
 def test_skin_detail_amplitude_and_none_on_eyeball(head, head_clean):
     d = head.V - head_clean.V
     amp = np.linalg.norm(d, axis=1)
@@ -334,6 +343,7 @@ def test_skin_detail_amplitude_and_none_on_eyeball(head, head_clean):
 
 # ----------------------------------------------------------------------------- texture, UVs, files
 
+@pytest.mark.slow
 def test_texture_and_uvs(head):
     assert head.texture.shape == (128, 128, 3) and head.texture.dtype == np.uint8
     assert head.UV.shape == (len(head.V), 2)
@@ -349,6 +359,7 @@ def test_texture_and_uvs(head):
     assert tex.reshape(-1, 3).std(axis=0).min() > 5    # not a flat colour
 
 
+@pytest.mark.slow
 def test_write_scan_folder_reloads(tmp_path, head):
     import trimesh
 

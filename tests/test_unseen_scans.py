@@ -14,7 +14,7 @@ docs/remove_eyeballs.md.) Identity seeds come from the benchmark's dev set (neve
 one). Needs ``EYERIG_EXTRA_SCANS`` (ICT-FaceKit and ``../tools/scanify`` beside it); skips
 cleanly without. Each scan is made once per test session (about a minute each).
 
-The benchmark's instrument (``benchmarks/unseen/metrics.py``) is checked here too, fast, on
+The benchmark's instrument (``tests/fixtures/unseen/metrics.py``) is checked here too, fast, on
 an eye whose answers are known.
 """
 
@@ -36,7 +36,7 @@ FACES = 100_000
 
 
 def _cases():
-    from benchmarks.unseen.cases import _filled, _sc
+    from fixtures.unseen.cases import _filled, _sc
 
     return {c["name"]: c for c in (
         _sc("t_id42_down", "expression", 42, faces=FACES, expr=["eyeLookDown"]),
@@ -60,7 +60,7 @@ def scans(tmp_path_factory):
     tool, ict = base.parent / "tools" / "scanify" / "scanify.py", base / "ict_facekit"
     if not tool.is_file() or not (ict / "ict_shape_modes.npz").is_file():
         pytest.skip(f"scanify or ICT-FaceKit not found beside {base}")
-    from benchmarks.unseen.cases import generate
+    from fixtures.unseen.cases import generate
 
     work, cases = tmp_path_factory.mktemp("unseen"), _cases()
     return lambda name: generate(cases[name], work, tool, ict)
@@ -132,7 +132,7 @@ def test_blink_is_refused_as_closed_or_never_published_as_sure(scans, tmp_path):
         return
     assert r.returncode == 2, r.stderr[-500:]
     assert len(lines) == 1 and lines[0].startswith(f"error: {scan}: "), lines
-    from benchmarks.unseen.report import says_closed
+    from fixtures.unseen.metrics import says_closed
 
     assert says_closed(lines[0]), lines[0]
     assert "Traceback" not in r.stderr and not out.exists()
@@ -153,7 +153,7 @@ def _truth_eye(side="left"):
 
 
 def test_visible_surface_lies_on_the_true_eye_inside_the_opening():
-    from benchmarks.unseen.metrics import true_visible_surface
+    from fixtures.unseen.metrics import true_visible_surface
 
     g = _truth_eye()
     P = true_visible_surface(g, step=0.5)
@@ -168,7 +168,7 @@ def test_visible_surface_lies_on_the_true_eye_inside_the_opening():
 
 
 def test_placement_figures_against_a_known_eye():
-    from benchmarks.unseen.metrics import placement_metrics, true_visible_surface
+    from fixtures.unseen.metrics import placement_metrics, true_visible_surface
 
     g = _truth_eye()
     P = true_visible_surface(g, step=0.5)
@@ -190,7 +190,7 @@ def test_placement_figures_against_a_known_eye():
 def test_asset_eye_figure_reuses_the_placed_eye():
     """The asset figure measures the eye the usd stage builds: placed_params' eye, here with the
     truth's own cornea, so the truth placed exactly is 0 and a 0.3 mm shift is about 0.3."""
-    from benchmarks.unseen.metrics import placement_metrics, true_visible_surface
+    from fixtures.unseen.metrics import placement_metrics, true_visible_surface
     from pipeline.eyeball.geometry import EyeballParams
 
     g = _truth_eye()
@@ -204,7 +204,7 @@ def test_asset_eye_figure_reuses_the_placed_eye():
 
 @pytest.mark.parametrize("side", ["left", "right"])
 def test_margin_and_canthi_against_a_known_opening(side):
-    from benchmarks.unseen.metrics import canthus_metrics, margin_metrics, true_canthi
+    from fixtures.unseen.metrics import canthus_metrics, margin_metrics, true_canthi
 
     g = _truth_eye(side)
     M = np.asarray(g["eyelid_margin"]["points_mm"])
@@ -222,7 +222,7 @@ def test_margin_and_canthi_against_a_known_opening(side):
 
 
 def test_refusals_that_say_closed():
-    from benchmarks.unseen.report import says_closed
+    from fixtures.unseen.metrics import says_closed
 
     assert says_closed("error: raw_scans/x: left eye looks closed, or too little of the eyeball shows")
     assert says_closed("error: raw_scans/x: both eyes are closed")
@@ -232,7 +232,7 @@ def test_refusals_that_say_closed():
 
 def test_true_corners_belong_to_the_lids_not_the_turned_eye():
     """An eye turned 30 deg inward (scanify rotates the eyeball, not the lids) keeps its corners."""
-    from benchmarks.unseen.metrics import true_canthi
+    from fixtures.unseen.metrics import true_canthi
 
     g = _truth_eye("left")
     a = np.radians(-30.0)                       # the left eye turned toward the nose (-X)

@@ -1,3 +1,4 @@
-"""The unseen-scan benchmark's parts: ``cases`` (the dev and held-out heads, how their scans are
-made), ``metrics`` (per-eye figures against truth), ``report`` (issue 21's bounds, tables). The
-command is ``benchmarks/bench_unseen_scans.py``."""
+"""The unseen-scan benchmark's own part: ``report`` (issue 21's bounds, tables). What it shares with
+the tests, ``cases`` (the dev and held-out heads, how their scans are made) and ``metrics``
+(per-eye figures against truth), is ``tests/fixtures/unseen/``. The command is
+``benchmarks/bench_unseen_scans.py``."""

@@ -27,9 +27,9 @@ stopped before (``--stop-after``) is "not measured", neither met nor failed.
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
+
+from tests.fixtures.unseen.metrics import says_closed  # noqa: F401  (bench_placement reads it here too)
 
 SIDES = ("left", "right")
 CHAIN = ("ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "usd")
@@ -41,15 +41,6 @@ VISIBLE_RMS_MM, VISIBLE_FRACTION = 0.5, 0.95
 MARGIN_MM, CANTHUS_MM, MARGIN_FRACTION = 0.5, 1.5, 1.0
 CALIBRATION_FRACTION = 0.90
 SILENT_MM = 2.0
-
-
-# "left eye looks closed", "is closed", "closed eyes": not "boundary edges do not form closed loops"
-CLOSED = re.compile(r"\b(looks?|is|are|appears?|seems?)\s+closed\b|\bclosed\s+eye", re.IGNORECASE)
-
-
-def says_closed(message: str) -> bool:
-    """Whether a refusal line says the eye is closed."""
-    return bool(CLOSED.search(message or ""))
 
 
 def outcome(row) -> str:

@@ -1,4 +1,5 @@
-"""bench_proportions: the true eye corners it compares the canthus landmarks with."""
+"""fixtures.truth: a scan folder's true eye corners (what bench_proportions compares the canthus
+landmarks with) and the iris diameter through the 8 iris landmarks."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.bench_proportions import iris_diameter, truth_corners
+from fixtures.truth import iris_diameter, truth_corners
 
 HEAD_FRAME = "units: mm\nup_axis: \"+Y\"\nforward_axis: \"+Z\"\n"
 
