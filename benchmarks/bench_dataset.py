@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from tests.fixtures.assets import images_per_asset
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -92,20 +94,6 @@ def _loose_name(key: str, ext: str) -> str:
     """The loose file of webdataset member ``key.ext`` (``seg.png`` -> ``NNNNNN_seg.png``)."""
     stem, _, last = ext.rpartition(".")
     return f"{key}_{stem}.{last}" if stem else f"{key}.{ext}"
-
-
-def images_per_asset(counts: dict, assets) -> list[str]:
-    """The page's lines of images per asset (``counts``: {name: images}, from the labels): a name
-    is an asset only when one of the ``--assets`` folders of that name holds ``<name>.usda``
-    (``rigged_assets/<name>/<name>.usda``); any other name (an identity that never became an
-    asset, or was removed since) is named on a line of its own, never among the assets."""
-    have = {Path(p).name for p in assets if (Path(p) / f"{Path(p).name}.usda").is_file()}
-    lines = ["Images per asset: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()) if k in have)]
-    missing = sorted(k for k in counts if k not in have)
-    if missing:
-        lines.append("Not assets (no rigged_assets/<name>/<name>.usda), images labelled with them: "
-                     + ", ".join(f"{k} {counts[k]}" for k in missing))
-    return lines
 
 
 def torch_check(out: Path, labels: dict) -> dict:

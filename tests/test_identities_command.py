@@ -206,7 +206,7 @@ def test_lock_edit_refuses_a_layout_it_cannot_cut(tmp_path):
 # ----------------------------------------------------------------------------- the dataset page
 
 def test_dataset_page_lists_only_real_assets(tmp_path):
-    from benchmarks.bench_dataset import images_per_asset
+    from tests.fixtures.assets import images_per_asset
 
     for n in ("home", "ident_s0_000"):
         (tmp_path / "rigged_assets" / n).mkdir(parents=True)

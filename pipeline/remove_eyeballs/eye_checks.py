@@ -50,7 +50,7 @@ class CheckLimits:
     max_inside_area_mm2: float = 2.0
     cornea_cone_deg: float = 35.0    # around the forward axis a recessed iris disc may lie inside ...
     cone_depth_mm: float = 2.0       # ... up to this deep
-    radius_range_mm: tuple = (10.0, 18.0)
+    radius_range_mm: tuple = (10.0, 21.0)
     max_width_ratio: float = 1.0     # opening width / eyeball diameter
     max_loop_off_mm: float = 1.0     # 90th percentile of |loop - sphere|
     min_convex_fill: float = 0.9     # loop area / convex hull area, seen along the gaze, less a
@@ -64,7 +64,7 @@ class CheckLimits:
     corner_max_share: float = CORNER_MAX_SHARE        # of each lid, at most
 
 
-def limits_for(median_edge_mm: float, radius_range_mm=(10.0, 18.0)) -> CheckLimits:
+def limits_for(median_edge_mm: float, radius_range_mm=(10.0, 21.0)) -> CheckLimits:
     """The limits for a scan of this resolution: a vertex of a coarse mesh may sit a quarter
     edge off the surface it samples, a loop vertex half an edge off the margin, and two faces
     of area is the smallest patch a coarse mesh can show."""

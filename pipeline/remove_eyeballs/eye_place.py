@@ -609,7 +609,10 @@ def _inside_range(R, radius_range):
     """Whether ``R`` lies inside the radius range, off its bounds. A fit that presses against
     a bound wants a globe no eye has: a sphere laid over a closed lid, a cheek or a filled
     opening (on 33 unseen ICT heads every optimum at 18 mm was 5.9-13.7 mm off, most with a
-    confident 0.4-0.9 mm uncertainty), not an eye."""
+    confident 0.4-0.9 mm uncertainty), not an eye. The range reaches 21 mm because an eye
+    turned in or out fits a sphere 1.5-2 mm larger than its own (ICT's 15-16 mm eyes at 17-18
+    mm), and an upper bound of 18 cut off its true gaze's optimum; the sphere is a diagnostic,
+    the asset's eye is the human one anchored at the limbus."""
     return radius_range[0] + RANGE_EDGE_MM < R < radius_range[1] - RANGE_EDGE_MM
 
 

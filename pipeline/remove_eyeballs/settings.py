@@ -17,7 +17,7 @@ class RemoveEyeballsSettings(Settings):
 
     patch_radius_mm: float = setting(22.0, gt=0, le=100)       # surface considered around a hint
     sample_radius_mm: float = setting(13.0, gt=0, le=100)      # holes within this of a hint are closed for the fit
-    radius_range_mm: tuple[float, float] = setting((10.0, 18.0), gt=0, le=100, ordered=True)
+    radius_range_mm: tuple[float, float] = setting((10.0, 21.0), gt=0, le=100, ordered=True)  # the scan sphere (a diagnostic)
     radius_prior_mm: float = setting(12.0, gt=0, le=100)
     radius_prior_sigma_mm: float = setting(3.0, gt=0, le=100)
     min_crease_deg: float = setting(12.0, ge=0, le=180)        # lid fold around the eye surface; below = closed
