@@ -44,6 +44,9 @@ def main(argv) -> StageResult:
         # position of the lateral canthus in the resampled loop (for rig)
         if result.lateral.get(side) is not None:
             arrays[f"lateral_index_{side}"] = np.array([int(result.lateral[side])], dtype=np.int64)
+    for side, ids in (result.band or {}).items():
+        # the grid band's vertex ids, ring by ring (ring 0 is loop_<side>): carried to rig and usd
+        arrays[f"band_{side}"] = np.asarray(ids, dtype=np.int64)
     if result.poly_counts is not None:
         arrays.update(poly_counts=result.poly_counts, poly_indices=result.poly_indices)
     with atomic_dir(out) as tmp:
