@@ -5,7 +5,8 @@
 Reads ``REMOVE_EYEBALLS_DIR/mesh.npz`` (V, F) and ``eyes.json`` (per eye: center,
 loop_indices); writes ``OUT_DIR/mesh.npz`` (V, F [, poly_counts, poly_indices],
 loop_left, loop_right [, lateral_index_left, lateral_index_right: position of the
-lateral canthus in each loop, when eyes.json gives lateral_canthus_index]) atomically.
+lateral canthus in each loop, when eyes.json gives lateral_canthus_index;
+band_left, band_right: (band_rings + 1, loop_points) vertex ids with ``band: grid``]) atomically.
 """
 
 from __future__ import annotations
