@@ -35,6 +35,18 @@ from pipeline.geometry.flips import reference_face_normals, relax
 PARAM_INNER = 0.2
 PARAM_OUTER = 2.0
 
+# smooth_grid (measured on ict_neutral, ident_s0_001, synthetic_head: docs/retopo.md): Jacobi
+# sweeps; rings 1 .. SMOOTH_PUSH_RINGS kept SMOOTH_PUSH x their distance out along the loop's
+# outward direction; the loop's height over the scan fades out as (1 - d / width) ** SMOOTH_LIFT_POWER;
+# the outer ring's nodes slide along its SMOOTH_OUTER_HALF-vertex moving average. ZIP_ROUNDS: relax
+# and re-zip rounds of the cut border
+SMOOTH_ITERATIONS = 60
+SMOOTH_PUSH = 0.6
+SMOOTH_PUSH_RINGS = 2
+SMOOTH_LIFT_POWER = 2.0
+SMOOTH_OUTER_HALF = 1
+ZIP_ROUNDS = 3
+
 
 def ring_distances(rings: int, width: float, first: float) -> np.ndarray:
     """(rings + 1,) distances from the loop: 0, then steps growing by one ratio g from ``first``
@@ -275,6 +287,73 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     return G, info
 
 
+def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, push=SMOOTH_PUSH,
+                push_rings=SMOOTH_PUSH_RINGS, lift_power=SMOOTH_LIFT_POWER,
+                outer_half=SMOOTH_OUTER_HALF, step=0.8):
+    """Elliptic smoothing of one eye's band grid ``G`` (R + 1, S, 3) on the dense surface.
+
+    Rings 1 .. R - 1 move (Jacobi sweeps, ``step`` of the way) towards the discrete Laplace
+    equation's solution in the computational coordinates (spoke index times the ring's mean
+    tangential spacing, ring distance ``d``), whose fixed point keeps the geometric grading, and
+    go back onto the surface (closest point) after every sweep. The outer ring's nodes slide
+    along it (on its ``outer_half``-neighbour moving average, back on the surface): the harmonic
+    map leaves them skewed against the loop's along a lid (ict_neutral's lower lids). Laplace
+    alone cuts the tip off a sharp canthus (ring 1 ends up inside the apex): rings 1 ..
+    ``push_rings`` are kept at least ``push * d_k`` out along the loop's outward direction (square
+    to the loop in the scan's mean tangent plane within 3 mm). The loop is off the scan in places
+    (a canthus apex is placed up to ~2 mm over the scan's rounded corner): the smoothing runs from
+    the loop's closest points on the scan, and the loop's height over them fades out over the
+    band afterwards, as ``(1 - d / d[-1]) ** lift_power``. Ring 0 (the loop) is held.
+    """
+    from scipy.spatial import cKDTree
+
+    from pipeline.retopo.eyelid_loop import closed_moving_average, project_to_polyline
+
+    G = np.array(G, dtype=np.float64)
+    R = G.shape[0] - 1
+    if R < 2:
+        return G
+    d = np.asarray(d, dtype=np.float64)
+    h = np.diff(d)
+    am = 2.0 / ((h[:-1] + h[1:]) * h[:-1])                         # weight of ring k - 1
+    ap = 2.0 / ((h[:-1] + h[1:]) * h[1:])                          # ... ring k + 1
+    outer_line = closed_moving_average(G[R], outer_half) if outer_half else G[R].copy()
+    loop = G[0].copy()
+    _, _, C0 = mc.closest_points(loop, ref_V, ref_F)
+    lift = loop - C0
+    G[0] = C0
+    nf = mc.face_normals(ref_V, ref_F, normalize=False)
+    tree = cKDTree(ref_V[ref_F].mean(axis=1))
+    N = np.stack([nf[ix].sum(axis=0) if len(ix) else np.zeros(3) for ix in tree.query_ball_point(loop, 3.0)])
+    e_prev = loop - np.roll(loop, 1, axis=0)
+    e_next = np.roll(loop, -1, axis=0) - loop
+    e_prev /= np.maximum(np.linalg.norm(e_prev, axis=1, keepdims=True), 1e-300)
+    e_next /= np.maximum(np.linalg.norm(e_next, axis=1, keepdims=True), 1e-300)
+    out = np.cross(e_prev + e_next, N)
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
+    if np.sum(np.einsum("ij,ij->i", out, G[-1] - G[0])) < 0:
+        out = -out
+    for _ in range(iterations):
+        tau = np.linalg.norm(np.roll(G, -1, axis=1) - G, axis=2).mean(axis=1)
+        b = 1.0 / tau[1:R] ** 2
+        lat = np.roll(G[1:R], 1, axis=1) + np.roll(G[1:R], -1, axis=1)
+        new = (am[:, None, None] * G[:R - 1] + ap[:, None, None] * G[2:] + b[:, None, None] * lat) \
+            / (am + ap + 2.0 * b)[:, None, None]
+        P = G[1:R] + step * (new - G[1:R])
+        for k in range(1, min(R, push_rings + 1)):
+            short = push * d[k] - np.einsum("ij,ij->i", P[k - 1] - G[0], out)
+            P[k - 1] += np.clip(short, 0.0, None)[:, None] * out
+        G[1:R] = mc.closest_points(P.reshape(-1, 3), ref_V, ref_F)[2].reshape(P.shape)
+        aR, bR = 1.0 / h[-1] ** 2, 1.0 / tau[R] ** 2
+        newR = (aR * G[R - 1] + bR * (np.roll(G[R], 1, axis=0) + np.roll(G[R], -1, axis=0))) / (aR + 2.0 * bR)
+        G[R] = mc.closest_points(project_to_polyline(G[R] + step * (newR - G[R]), outer_line)[1],
+                                 ref_V, ref_F)[2]
+    fade = np.clip(1.0 - d / d[-1], 0.0, 1.0) ** lift_power
+    G = G + fade[:, None, None] * lift[None]
+    G[0] = loop
+    return G
+
+
 def grid_quads(base, rings, S, reverse=False):
     """(rings * S, 4) quads of a grid numbered ``base + ring * S + spoke``; ``reverse`` winds
     them the other way (spoke order kept)."""
@@ -309,6 +388,81 @@ def band_report(V, Q, ref_V, ref_F, S, base):
             "min_angle_p5_deg": round(float(np.percentile(ang, 5)), 3),
             "flipped_faces": int(bad.sum()),
             "flipped_at_ring_spoke": [list(w) for w in where]}
+
+
+def _zip_score(V, T, ref_V, ref_F):
+    """(-turned faces, smallest angle) of the triangles T: larger is better."""
+    R = reference_face_normals(V, T, ref_V, ref_F)
+    turned = int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, T), R) <= 0))
+    return (-turned, float(mc.triangle_angles_deg(V, T).min()))
+
+
+def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
+    """Triangles between two closed polylines wound like :func:`pipeline.retopo.eye_rings._zip_strip`'s
+    (``(inner[i], inner[i+1], outer[j])`` and ``(inner[i], outer[j+1], outer[j])``), the strip
+    chosen by dynamic programming to have the largest smallest angle, starting at ``inner[0]`` -
+    ``outer[j0]``. With ``ref_V, ref_F`` a triangle turned against the surface there (normal of
+    its centroid's closest face) counts as angle -1: never taken while another way exists."""
+    N, M = len(inner), len(outer)
+    A = Vi[np.arange(N + 1) % N]
+    B = Vo[(j0 + np.arange(M + 1)) % M]
+
+    def minang(P, Q, R):
+        u, v, w = Q - P, R - Q, P - R
+        lu, lv, lw = (np.linalg.norm(x, axis=-1) for x in (u, v, w))
+
+        def ang(a, b, la, lb):
+            c = -np.einsum("...k,...k->...", a, b) / np.maximum(la * lb, 1e-300)
+            return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+        return np.minimum(np.minimum(ang(w, u, lw, lu), ang(u, v, lu, lv)), ang(v, w, lv, lw))
+
+    # step inner: (A[i], A[i+1], B[j]) ; step outer: (A[i], B[j+1], B[j])
+    ti = minang(A[:-1, None, :], A[1:, None, :], B[None, :, :])           # (N, M + 1)
+    to = minang(A[:, None, :], B[None, 1:, :], B[None, :-1, :])           # (N + 1, M)
+    if ref_V is not None:
+        dots = []
+        for P, Q, R in ((A[:-1, None, :], A[1:, None, :], B[None, :, :]),
+                        (A[:, None, :], B[None, 1:, :], B[None, :-1, :])):
+            P, Q, R = np.broadcast_arrays(P, Q, R)
+            n = np.cross(Q - P, R - P).reshape(-1, 3)
+            _, fi, _ = mc.closest_points(((P + Q + R) / 3.0).reshape(-1, 3), ref_V, ref_F)
+            dots.append(np.einsum("ij,ij->i", n, mc.face_normals(ref_V, ref_F[fi])).reshape(P.shape[:2]))
+        # the strips' winding against the surface's: whichever way most nearby candidates agree
+        i_, j_ = np.meshgrid(np.arange(N + 1), np.arange(M + 1), indexing="ij")
+        near = np.abs(i_ / N - j_ / M) < 0.5 / min(N, M)
+        sign = 1.0 if np.sum(np.sign(dots[1][near[:, :-1]])) >= 0 else -1.0
+        fl_i, fl_o = (sign * dots[0] <= 0).astype(int), (sign * dots[1] <= 0).astype(int)
+    else:
+        fl_i, fl_o = np.zeros(ti.shape, dtype=int), np.zeros(to.shape, dtype=int)
+    # the strip stays within a quarter turn of the diagonal (no fan round a whole ring)
+    fi_ = np.arange(N + 1)[:, None] / N - np.arange(M + 1)[None, :] / M
+    off = np.abs(fi_) > 0.25
+    # best strip to (i, j): fewest turned triangles, then the largest smallest angle
+    nfl = np.full((N + 1, M + 1), 1 << 30)
+    best = np.full((N + 1, M + 1), -np.inf)
+    came = np.zeros((N + 1, M + 1), dtype=np.int8)
+    nfl[0, 0], best[0, 0] = 0, 180.0
+    for i in range(N + 1):
+        for j in range(M + 1):
+            if (i == 0 and j == 0) or off[i, j]:
+                continue
+            cand = []
+            if i > 0 and np.isfinite(best[i - 1, j]):
+                cand.append((nfl[i - 1, j] + fl_i[i - 1, j], -min(best[i - 1, j], ti[i - 1, j]), 1))
+            if j > 0 and np.isfinite(best[i, j - 1]):
+                cand.append((nfl[i, j - 1] + fl_o[i, j - 1], -min(best[i, j - 1], to[i, j - 1]), 2))
+            if cand:
+                f, m, c = min(cand)
+                nfl[i, j], best[i, j], came[i, j] = f, -m, c
+    tris, i, j = [], N, M
+    while i > 0 or j > 0:
+        if came[i, j] == 1:
+            tris.append((inner[(i - 1) % N], inner[i % N], outer[(j0 + j) % M]))
+            i -= 1
+        else:
+            tris.append((inner[i % N], outer[(j0 + j) % M], outer[(j0 + j - 1) % M]))
+            j -= 1
+    return np.asarray(tris[::-1], dtype=np.int64)
 
 
 def _inside_polygon(P, poly):
@@ -376,6 +530,7 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         first = float(np.mean(np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)))
         G, info = build_band(P, ref_V, ref_F, dense_loops[holes[side]], rings, width, first,
                              param_mm, locked)
+        G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F)
         params[side] = info.pop("_param")
         grids[side], infos[side] = G, info
     # cut each band's outer ring out of the remesh: faces with a corner inside it (seen in the
@@ -383,9 +538,13 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     keep = np.ones(len(F), dtype=bool)
     borders = {}
     for side in sides:
-        Fr, loc, X, outer_uv = params[side]
-        _, fi, C = mc.closest_points(V, ref_V, Fr)
-        uv = np.einsum("ij,ijk->ik", _barycentric(C, ref_V[Fr[fi]]), X[Fr[fi]])
+        Fr, loc, X, _ = params[side]
+
+        def to_uv(P):
+            _, fi, C = mc.closest_points(P, ref_V, Fr)
+            return np.einsum("ij,ijk->ik", _barycentric(C, ref_V[Fr[fi]]), X[Fr[fi]])
+        uv = to_uv(V)
+        outer_uv = to_uv(grids[side][-1])         # the outer ring as smoothed (slid along itself)
         inside = _inside_polygon(uv, outer_uv)
         inside[loops[side]] = True
         Fk = F[keep]
@@ -406,7 +565,7 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     remap = -np.ones(len(V), dtype=np.int64)
     remap[used] = len(sides) * nb + np.arange(len(used))
     V2 = np.concatenate([grids[s].reshape(-1, 3) for s in sides] + [V[used]])
-    tris, quads, band_ids = [remap[Fk]], [], {}
+    tris, quads, band_ids, zips = [remap[Fk]], [], {}, []
     for e, side in enumerate(sides):
         base = e * nb
         band_ids[side] = base + np.arange(nb).reshape(rings + 1, S)
@@ -419,19 +578,36 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         outer = band_ids[side][-1][::-1] if reverse else band_ids[side][-1]
         B = _oriented_border(remap[Fk], remap[borders[side]])
         j0 = int(np.argmin(np.linalg.norm(V2[B] - V2[outer[0]], axis=1)))
-        zip_ = _zip_strip(outer, B, V2[outer], V2[B], j0)
-        tris.append(zip_)
-        infos[side].update(zip_triangles=int(len(zip_)), border_vertices=int(len(B)))
-    F2 = np.concatenate(tris)
+        zips.append((outer, B, j0))
+        tris.append(_zip_strip(outer, B, V2[outer], V2[B], j0))
     Q = np.concatenate(quads)
-    # the cut's border is jagged (whole remesh faces): relax it, nothing else, along the surface
-    Fall = np.concatenate([F2, Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
+    # the cut's border is jagged (whole remesh faces): relax it and the remesh's vertices within
+    # two edges of it (no other border), along the surface; zip again on the relaxed border
+    Fr = remap[Fk]
     move = np.concatenate([remap[borders[s]] for s in sides])
+    other = np.setdiff1d(np.concatenate(mc.boundary_loops(Fr)), move)
+    for _ in range(2):
+        move = np.union1d(move, np.setdiff1d(np.unique(Fr[np.isin(Fr, move).any(axis=1)]), other))
     fixed = np.setdiff1d(np.arange(len(V2)), move)
-    V2 = relax(V2, Fall, fixed, ref_V, ref_F, iterations=max(relax_iterations, 8))
-    for e, side in enumerate(sides):
-        Qe = quads[e]
-        infos[side].update(band_report(V2, Qe, ref_V, ref_F, S, e * nb))
+    for rnd in range(ZIP_ROUNDS):
+        if rnd:
+            tris[1:] = [_zip_strip(o, B, V2[o], V2[B], j0) for o, B, j0 in zips]
+        Fall = np.concatenate(tris + [Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
+        V2 = relax(V2, Fall, fixed, ref_V, ref_F, iterations=max(relax_iterations, 8))
+    # last, on the relaxed border: the strip with the fewest faces turned against the scan and
+    # then the largest smallest angle, where it beats the greedy one
+    for e, (o, B, j0) in enumerate(zips):
         zt = tris[1 + e]
-        infos[side]["zip_min_angle_deg"] = round(float(mc.triangle_angles_deg(V2, zt).min()), 3)
+        dp = zip_strip_maxmin(o, B, V2[o], V2[B], j0, ref_V, ref_F)
+        if _zip_score(V2, dp, ref_V, ref_F) > _zip_score(V2, zt, ref_V, ref_F):
+            tris[1 + e] = dp
+    F2 = np.concatenate(tris)
+    for e, side in enumerate(sides):
+        infos[side].update(band_report(V2, quads[e], ref_V, ref_F, S, e * nb))
+        zt = tris[1 + e]
+        R = reference_face_normals(V2, zt, ref_V, ref_F)
+        infos[side].update(zip_triangles=int(len(zt)), border_vertices=int(len(zips[e][1])),
+                           zip_min_angle_deg=round(float(mc.triangle_angles_deg(V2, zt).min()), 3),
+                           zip_flipped_faces=int(np.count_nonzero(
+                               np.einsum("ij,ij->i", mc.face_normals(V2, zt), R) <= 0)))
     return V2, F2, Q, band_ids, infos
