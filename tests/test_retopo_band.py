@@ -7,7 +7,8 @@ import pytest
 
 from fixtures import face_patch
 from pipeline.geometry import mesh_checks as mc
-from pipeline.retopo.eye_band import band_report, build_band, grid_quads, ring_distances, split_quads
+from pipeline.retopo.eye_band import (band_report, build_band, grid_quads, ring_distances, smooth_grid, split_quads,
+                                      zip_strip_maxmin)
 from pipeline.retopo.retopo import RetopoSettings, retopologize
 
 
@@ -60,6 +61,46 @@ def test_band_on_a_disk_with_a_hole_is_the_polar_grid():
     Q = split_quads(G.reshape(-1, 3), grid_quads(0, rings, S, reverse=True))
     rep = band_report(G.reshape(-1, 3), Q, V, F, S, 0)
     assert rep["flipped_faces"] == 0 and rep["min_angle_deg"] > 20.0
+
+
+def test_smoothing_keeps_the_polar_grid_and_pulls_a_cut_tip_out():
+    """The polar grid of a flat annulus is (nearly) a fixed point of smooth_grid; a ring 1 node
+    pulled in behind a spike of the loop (a canthus apex) is pushed back out beyond it."""
+    V, F = _planar_annulus()
+    S, a, rings, width = 64, 5.0, 6, 8.0
+    th = 2 * np.pi * np.arange(S) / S
+    d = ring_distances(rings, width, 2 * np.pi * a / S)
+    G = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+    Gs = smooth_grid(G, d, V, F)
+    assert np.array_equal(Gs[0], G[0])
+    assert np.abs(Gs - G).max() < 0.1
+    assert np.abs(np.linalg.norm(Gs[-1], axis=1) - (a + width)).max() < 0.05     # outer ring slides along itself
+    # a spike: loop vertex 0 moved 1.5 mm out, ring 1 left where it was (inside the tip)
+    G2 = G.copy()
+    G2[0, 0] *= (a + 1.5) / a
+    Gs2 = smooth_grid(G2, d, V, F)
+    assert np.linalg.norm(Gs2[1, 0]) > np.linalg.norm(G2[0, 0]) + 0.5 * d[1]
+
+
+def test_zip_strip_maxmin_is_a_strip_no_worse_than_the_greedy_one():
+    from pipeline.retopo.eye_rings import _zip_strip
+
+    t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    u = np.linspace(0, 2 * np.pi, 86, endpoint=False) + 0.03
+    V = np.concatenate([8 * np.stack([np.cos(t), np.sin(t), 0 * t], 1), 9 * np.stack([np.cos(u), np.sin(u), 0 * u], 1)])
+    inner, outer = np.arange(64), 64 + np.arange(86)
+    T = zip_strip_maxmin(inner, outer, V[inner], V[outer], 0)
+    G = _zip_strip(inner, outer, V[inner], V[outer], 0)
+    assert len(T) == 64 + 86 and len(np.unique(np.sort(T, 1), axis=0)) == len(T)
+    assert mc.triangle_angles_deg(V, T).min() >= mc.triangle_angles_deg(V, G).min() - 1e-9
+    # wound like the greedy strip
+    assert np.sign(mc.face_normals(V, T)[:, 2]).sum() == np.sign(mc.face_normals(V, G)[:, 2]).sum()
+    # with the surface: no triangle turned against it
+    disk = np.concatenate([V, [[0.0, 0.0, 0.0]]])
+    ring = np.concatenate([np.stack([np.arange(86) + 64, np.roll(np.arange(86), -1) + 64, np.full(86, 150)], 1)])
+    Ts = zip_strip_maxmin(inner, outer, V[inner], V[outer], 0, disk, ring[:, [1, 0, 2]] if
+                          mc.face_normals(disk, ring)[0, 2] * mc.face_normals(V, G)[0, 2] < 0 else ring)
+    assert np.all(mc.face_normals(V, Ts)[:, 2] * mc.face_normals(V, G)[0, 2] > 0)
 
 
 @pytest.fixture(scope="module")

@@ -3,19 +3,22 @@
 Around each eye, ``rings + 1`` rings of ``S = len(loop)`` vertices on ``S`` spokes: ring 0 is the
 placed eyelid loop (held exactly), ring ``k`` lies ``d_k`` mm out along every spoke, with
 ``d_k`` growing geometrically from about the loop's edge length to ``width`` at the outer ring.
-The spokes come from a harmonic parametrisation of the dense surface round the opening:
+The spokes start from a harmonic parametrisation of the dense surface round the opening:
 the dense annulus between the scan's opening and a closed curve about ``param_mm`` out
 (:func:`annulus_region`) is mapped with mean-value weights onto a planar annulus, the opening
 onto the unit circle and the outer border onto the circle of radius 2, each by arc length
 (:func:`harmonic_annulus`). Spoke ``i`` is the radial segment through the loop vertex's image;
 the grid points are found on it by 3D arc length and mapped back into the dense triangle that
-holds them (barycentric). Disjoint radial segments, rings that cross no spoke: the grid cannot
-tangle in the plane, and nothing inside it is repaired afterwards. Where it still comes out
-flipped against the dense surface (the map or the surface too coarse for a face) the metrics
-say which ring and spoke (:func:`band_report`).
+holds them (barycentric). That first grid is skewed where the opening is far from round (the
+spokes of a lower lid run along it, the canthi crowd) and cuts the tip off a canthus apex;
+:func:`smooth_grid` then solves for it on the scan (elliptic smoothing with the grading kept,
+the outer ring at ``width`` from the loop, the tip held out). Nothing is repaired afterwards:
+where a face still comes out flipped against the dense surface the metrics say which ring and
+spoke (:func:`band_report`).
 
 :func:`add_eye_bands` cuts the remesh's faces inside each outer ring away and zips the outer
-ring to the hole's border with one strip of triangles. The band vertices come first in the
+ring to the hole's border with one strip of triangles (the border relaxed, the strip re-zipped on
+it, the best strip by dynamic programming last: :func:`zip_strip_maxmin`). The band vertices come first in the
 output, left eye then right, ``ring * S + spoke`` within an eye: the same ids in every asset
 with the same ``loop_points`` and ``band_rings``.
 """
@@ -35,12 +38,14 @@ from pipeline.geometry.flips import reference_face_normals, relax
 PARAM_INNER = 0.2
 PARAM_OUTER = 2.0
 
-# smooth_grid (measured on ict_neutral, ident_s0_001, synthetic_head: docs/retopo.md): Jacobi
-# sweeps; rings 1 .. SMOOTH_PUSH_RINGS kept SMOOTH_PUSH x their distance out along the loop's
-# outward direction; the loop's height over the scan fades out as (1 - d / width) ** SMOOTH_LIFT_POWER;
-# the outer ring's nodes slide along its SMOOTH_OUTER_HALF-vertex moving average. ZIP_ROUNDS: relax
-# and re-zip rounds of the cut border
-SMOOTH_ITERATIONS = 60
+# smooth_grid (measured on ict_neutral, ident_s0_001, synthetic_head: docs/retopo.md): at most
+# SMOOTH_ITERATIONS Jacobi sweeps, fewer once no node moves SMOOTH_TOL_MM; rings 1 ..
+# SMOOTH_PUSH_RINGS kept SMOOTH_PUSH x their distance out along the loop's outward direction; the
+# loop's height over the scan fades out as (1 - d / width) ** SMOOTH_LIFT_POWER; the outer ring is
+# the loop offset by the width, its nodes sliding along its SMOOTH_OUTER_HALF-neighbour moving
+# average. ZIP_ROUNDS: relax and re-zip rounds of the cut border
+SMOOTH_ITERATIONS = 250
+SMOOTH_TOL_MM = 1e-3
 SMOOTH_PUSH = 0.6
 SMOOTH_PUSH_RINGS = 2
 SMOOTH_LIFT_POWER = 2.0
@@ -287,27 +292,32 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     return G, info
 
 
-def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, push=SMOOTH_PUSH,
+def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL_MM, push=SMOOTH_PUSH,
                 push_rings=SMOOTH_PUSH_RINGS, lift_power=SMOOTH_LIFT_POWER,
-                outer_half=SMOOTH_OUTER_HALF, step=0.8):
+                outer_half=SMOOTH_OUTER_HALF, step=1.0):
     """Elliptic smoothing of one eye's band grid ``G`` (R + 1, S, 3) on the dense surface.
 
-    Rings 1 .. R - 1 move (Jacobi sweeps, ``step`` of the way) towards the discrete Laplace
-    equation's solution in the computational coordinates (spoke index times the ring's mean
-    tangential spacing, ring distance ``d``), whose fixed point keeps the geometric grading, and
-    go back onto the surface (closest point) after every sweep. The outer ring's nodes slide
-    along it (on its ``outer_half``-neighbour moving average, back on the surface): the harmonic
-    map leaves them skewed against the loop's along a lid (ict_neutral's lower lids). Laplace
-    alone cuts the tip off a sharp canthus (ring 1 ends up inside the apex): rings 1 ..
-    ``push_rings`` are kept at least ``push * d_k`` out along the loop's outward direction (square
-    to the loop in the scan's mean tangent plane within 3 mm). The loop is off the scan in places
-    (a canthus apex is placed up to ~2 mm over the scan's rounded corner): the smoothing runs from
-    the loop's closest points on the scan, and the loop's height over them fades out over the
-    band afterwards, as ``(1 - d / d[-1]) ** lift_power``. Ring 0 (the loop) is held.
+    The outer ring is put at ``d[-1]`` from the loop along the loop's outward direction (square
+    to the loop in the scan's mean tangent plane within 3 mm; the harmonic map's own outer ring
+    lies as little as 4.4 mm out where its spokes are skewed, ict_neutral's lower lids), and its
+    nodes then only slide along it (on its ``outer_half``-neighbour moving average). Rings
+    1 .. R - 1 move (Jacobi sweeps, ``step`` of the way, within the scan's tangent plane at the
+    node, then back onto the scan: an average across a crease, the lateral canthus in a V-shaped
+    groove, would otherwise land on the other wall) towards the discrete Laplace equation's
+    solution in the computational coordinates (spoke index times the ring's mean tangential
+    spacing, ring distance ``d``), the lateral pull taken along the ring only (its curvature does
+    not draw the ring in): the polar grid of a round hole is its fixed point, grading included.
+    Laplace alone cuts the tip off a sharp canthus (ring 1 ends up inside the apex): rings
+    1 .. ``push_rings`` are kept at least ``push * d_k`` out along the outward direction. The loop
+    is off the scan in places (a canthus apex is placed up to ~2 mm over the scan's rounded
+    corner): the smoothing runs from the loop's closest points on the scan, and the loop's height
+    over them fades out over the band afterwards, as ``(1 - d / d[-1]) ** lift_power``. Ring 0
+    (the loop) is held. Stops after ``iterations`` sweeps or once no node moved ``tol`` mm.
     """
     from scipy.spatial import cKDTree
 
-    from pipeline.retopo.eyelid_loop import closed_moving_average, project_to_polyline
+    from pipeline.retopo.eyelid_loop import (closed_moving_average, point_at_arclength, polyline_arclength,
+                                             project_to_polyline)
 
     G = np.array(G, dtype=np.float64)
     R = G.shape[0] - 1
@@ -317,7 +327,6 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, push=SMOOTH_PU
     h = np.diff(d)
     am = 2.0 / ((h[:-1] + h[1:]) * h[:-1])                         # weight of ring k - 1
     ap = 2.0 / ((h[:-1] + h[1:]) * h[1:])                          # ... ring k + 1
-    outer_line = closed_moving_average(G[R], outer_half) if outer_half else G[R].copy()
     loop = G[0].copy()
     _, _, C0 = mc.closest_points(loop, ref_V, ref_F)
     lift = loop - C0
@@ -325,33 +334,49 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, push=SMOOTH_PU
     nf = mc.face_normals(ref_V, ref_F, normalize=False)
     tree = cKDTree(ref_V[ref_F].mean(axis=1))
     N = np.stack([nf[ix].sum(axis=0) if len(ix) else np.zeros(3) for ix in tree.query_ball_point(loop, 3.0)])
-    e_prev = loop - np.roll(loop, 1, axis=0)
-    e_next = np.roll(loop, -1, axis=0) - loop
-    e_prev /= np.maximum(np.linalg.norm(e_prev, axis=1, keepdims=True), 1e-300)
-    e_next /= np.maximum(np.linalg.norm(e_next, axis=1, keepdims=True), 1e-300)
-    out = np.cross(e_prev + e_next, N)
-    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
+    out = np.cross(_unit(loop - np.roll(loop, 1, axis=0)) + _unit(np.roll(loop, -1, axis=0) - loop), N)
+    out = _unit(out)
     if np.sum(np.einsum("ij,ij->i", out, G[-1] - G[0])) < 0:
         out = -out
+    G[R] = mc.closest_points(G[0] + d[-1] * out, ref_V, ref_F)[2]
+    outer_line = closed_moving_average(G[R], outer_half) if outer_half else G[R].copy()
+    line_len = float(polyline_arclength(outer_line)[0][-1])
+    G[R] = project_to_polyline(G[R], outer_line)[1]
     for _ in range(iterations):
+        before = G.copy()
         tau = np.linalg.norm(np.roll(G, -1, axis=1) - G, axis=2).mean(axis=1)
         b = 1.0 / tau[1:R] ** 2
-        lat = np.roll(G[1:R], 1, axis=1) + np.roll(G[1:R], -1, axis=1)
+        prv, nxt = np.roll(G[1:R], 1, axis=1), np.roll(G[1:R], -1, axis=1)
+        t = _unit(nxt - prv)
+        lat = 2.0 * (G[1:R] + np.einsum("rsk,rsk->rs", 0.5 * (prv + nxt) - G[1:R], t)[..., None] * t)
         new = (am[:, None, None] * G[:R - 1] + ap[:, None, None] * G[2:] + b[:, None, None] * lat) \
             / (am + ap + 2.0 * b)[:, None, None]
-        P = G[1:R] + step * (new - G[1:R])
+        delta = step * (new - G[1:R])
+        _, fcur, _ = mc.closest_points(G[1:R].reshape(-1, 3), ref_V, ref_F)
+        nn = mc.face_normals(ref_V, ref_F[fcur]).reshape(delta.shape)
+        P = G[1:R] + delta - np.einsum("rsk,rsk->rs", delta, nn)[..., None] * nn
         for k in range(1, min(R, push_rings + 1)):
             short = push * d[k] - np.einsum("ij,ij->i", P[k - 1] - G[0], out)
             P[k - 1] += np.clip(short, 0.0, None)[:, None] * out
         G[1:R] = mc.closest_points(P.reshape(-1, 3), ref_V, ref_F)[2].reshape(P.shape)
+        # the outer ring's nodes: along the line by the step's component along the ring
         aR, bR = 1.0 / h[-1] ** 2, 1.0 / tau[R] ** 2
         newR = (aR * G[R - 1] + bR * (np.roll(G[R], 1, axis=0) + np.roll(G[R], -1, axis=0))) / (aR + 2.0 * bR)
-        G[R] = mc.closest_points(project_to_polyline(G[R] + step * (newR - G[R]), outer_line)[1],
-                                 ref_V, ref_F)[2]
+        tR = _unit(np.roll(G[R], -1, axis=0) - np.roll(G[R], 1, axis=0))
+        s_on = np.unwrap(2.0 * np.pi * project_to_polyline(G[R], outer_line)[0] / line_len) * line_len / (2.0 * np.pi)
+        s_on += step * np.einsum("ij,ij->i", newR - G[R], tR)
+        G[R] = mc.closest_points(point_at_arclength(outer_line, s_on), ref_V, ref_F)[2]
+        if np.abs(G - before).max() < tol:
+            break
     fade = np.clip(1.0 - d / d[-1], 0.0, 1.0) ** lift_power
     G = G + fade[:, None, None] * lift[None]
     G[0] = loop
     return G
+
+
+def _unit(A):
+    """Rows of A scaled to length 1 (zero rows stay zero)."""
+    return A / np.maximum(np.linalg.norm(A, axis=-1, keepdims=True), 1e-300)
 
 
 def grid_quads(base, rings, S, reverse=False):
@@ -364,14 +389,19 @@ def grid_quads(base, rings, S, reverse=False):
     return Q[:, ::-1] if reverse else Q
 
 
-def split_quads(V, Q):
+def split_quads(V, Q, ref_V=None, ref_F=None):
     """Each quad as its two triangles across the diagonal with the larger smallest angle:
-    ``(q, 4)`` quads rotated so that the fan (0, 1, 2), (0, 2, 3) is that split."""
+    ``(q, 4)`` quads rotated so that the fan (0, 1, 2), (0, 2, 3) is that split. With the scan
+    ``ref_V, ref_F``, a split with fewer triangles turned against it wins first (a quad folded
+    across a crease, beside a canthus in a V-shaped groove, is turned over across one diagonal)."""
     rot = np.stack([Q, np.roll(Q, -1, axis=1)])
     best = []
     for R in rot:
         T = np.concatenate([R[:, [0, 1, 2]], R[:, [0, 2, 3]]])
         a = mc.triangle_angles_deg(V, T).min(axis=1).reshape(2, -1).min(axis=0)
+        if ref_V is not None:
+            turned = np.einsum("ij,ij->i", mc.face_normals(V, T), reference_face_normals(V, T, ref_V, ref_F)) <= 0
+            a = a - 180.0 * turned.reshape(2, -1).sum(axis=0)
         best.append(a)
     return np.where((best[1] > best[0])[:, None], rot[1], rot[0])
 
@@ -573,7 +603,7 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
         R = reference_face_normals(V2, T, ref_V, ref_F)
         reverse = np.sum(np.einsum("ij,ij->i", mc.face_normals(V2, T), R)) < 0
-        Q = split_quads(V2, grid_quads(base, rings, S, reverse))
+        Q = split_quads(V2, grid_quads(base, rings, S, reverse), ref_V, ref_F)
         quads.append(Q)
         outer = band_ids[side][-1][::-1] if reverse else band_ids[side][-1]
         B = _oriented_border(remap[Fk], remap[borders[side]])
