@@ -43,7 +43,8 @@ PARAM_OUTER = 2.0
 # SMOOTH_PUSH_RINGS kept SMOOTH_PUSH x their distance out along the loop's outward direction; the
 # loop's height over the scan fades out as (1 - d / width) ** SMOOTH_LIFT_POWER; the outer ring is
 # the loop offset by the width, its nodes sliding along its SMOOTH_OUTER_HALF-neighbour moving
-# average. ZIP_ROUNDS: relax and re-zip rounds of the cut border
+# average. ZIP_ROUNDS: relax and re-zip rounds of the cut border; CUT_NEAR: the margins (x the
+# outer ring's mean edge) tried for the cut, each eye keeping the one with the best zip
 SMOOTH_ITERATIONS = 250
 SMOOTH_TOL_MM = 1e-3
 SMOOTH_PUSH = 0.6
@@ -51,6 +52,7 @@ SMOOTH_PUSH_RINGS = 2
 SMOOTH_LIFT_POWER = 2.0
 SMOOTH_OUTER_HALF = 1
 ZIP_ROUNDS = 3
+CUT_NEAR = (0.0, 0.5, 0.8)
 
 
 def ring_distances(rings: int, width: float, first: float) -> np.ndarray:
@@ -75,17 +77,9 @@ def ring_distances(rings: int, width: float, first: float) -> np.ndarray:
 def annulus_region(V, F, hole, radius, locked):
     """Faces of the dense surface within ``radius`` (edge-graph distance) of the opening
     ``hole`` closed into an annulus (:func:`pipeline.retopo.eye_rings.close_annulus`), or None."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import dijkstra
+    from pipeline.retopo.eye_rings import close_annulus, edge_graph_distance
 
-    from pipeline.retopo.eye_rings import close_annulus
-
-    n = len(V)
-    e = mc.edges_of(F)
-    w = np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1)
-    G = coo_matrix((w, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
-    G = G.maximum(G.T)
-    d = dijkstra(G, indices=np.asarray(hole), min_only=True, limit=1.5 * radius)
+    d = edge_graph_distance(V, F, hole, 1.5 * radius)
     return close_annulus(V, F, (d[F] < radius).all(axis=1), locked)
 
 
@@ -338,10 +332,18 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
     out = _unit(out)
     if np.sum(np.einsum("ij,ij->i", out, G[-1] - G[0])) < 0:
         out = -out
-    G[R] = mc.closest_points(G[0] + d[-1] * out, ref_V, ref_F)[2]
-    outer_line = closed_moving_average(G[R], outer_half) if outer_half else G[R].copy()
+    # the outer line: the loop offset by the width, with the direction turning along each loop
+    # edge (round a canthus apex it sweeps the corner instead of cutting it), smoothed
+    sub = 8
+    t = (np.arange(sub) / sub)[None, :, None]
+    base = (1 - t) * G[0][:, None] + t * np.roll(G[0], -1, axis=0)[:, None]
+    dirs = _unit((1 - t) * out[:, None] + t * np.roll(out, -1, axis=0)[:, None])
+    dense = mc.closest_points((base + d[-1] * dirs).reshape(-1, 3), ref_V, ref_F)[2]
+    outer_line = closed_moving_average(dense, outer_half * sub) if outer_half else dense
+    G[R] = dense[::sub]
     line_len = float(polyline_arclength(outer_line)[0][-1])
     G[R] = project_to_polyline(G[R], outer_line)[1]
+    _, fcur, _ = mc.closest_points(G[1:R].reshape(-1, 3), ref_V, ref_F)      # faces under the nodes
     for _ in range(iterations):
         before = G.copy()
         tau = np.linalg.norm(np.roll(G, -1, axis=1) - G, axis=2).mean(axis=1)
@@ -352,13 +354,13 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
         new = (am[:, None, None] * G[:R - 1] + ap[:, None, None] * G[2:] + b[:, None, None] * lat) \
             / (am + ap + 2.0 * b)[:, None, None]
         delta = step * (new - G[1:R])
-        _, fcur, _ = mc.closest_points(G[1:R].reshape(-1, 3), ref_V, ref_F)
         nn = mc.face_normals(ref_V, ref_F[fcur]).reshape(delta.shape)
         P = G[1:R] + delta - np.einsum("rsk,rsk->rs", delta, nn)[..., None] * nn
         for k in range(1, min(R, push_rings + 1)):
             short = push * d[k] - np.einsum("ij,ij->i", P[k - 1] - G[0], out)
             P[k - 1] += np.clip(short, 0.0, None)[:, None] * out
-        G[1:R] = mc.closest_points(P.reshape(-1, 3), ref_V, ref_F)[2].reshape(P.shape)
+        _, fcur, C = mc.closest_points(P.reshape(-1, 3), ref_V, ref_F)
+        G[1:R] = C.reshape(P.shape)
         # the outer ring's nodes: along the line by the step's component along the ring
         aR, bR = 1.0 / h[-1] ** 2, 1.0 / tau[R] ** 2
         newR = (aR * G[R - 1] + bR * (np.roll(G[R], 1, axis=0) + np.roll(G[R], -1, axis=0))) / (aR + 2.0 * bR)
@@ -534,9 +536,9 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     Q : (q, 4) int64
         Band quads, rotated so that their fan (0, 1, 2), (0, 2, 3) is the better split.
     band_ids : dict side -> (rings + 1, S) int64
-    info : dict side -> build and quality figures (:func:`build_band`, :func:`band_report`)
+    info : dict side -> build and quality figures (:func:`build_band`, :func:`band_report`,
+        the zip's, ``cut_margin``)
     """
-    from pipeline.retopo.eye_rings import _zip_strip, close_annulus
     from pipeline.retopo.eyelid_loop import project_to_polyline
 
     V = np.asarray(V, dtype=np.float64)
@@ -563,6 +565,39 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F)
         params[side] = info.pop("_param")
         grids[side], infos[side] = G, info
+    # the cut and zip, for each eye with the remesh's vertices within each of CUT_NEAR x the
+    # outer ring's edge of it cut away too: the zip's strip is only as good as the cut's border,
+    # and which margin gives the best border varies eye by eye (the eyes' cuts are independent)
+    args = (V, F, loops, grids, params, ref_V, ref_F, rings, S, relax_iterations)
+    tried, best = {}, {}
+    for near in CUT_NEAR:
+        try:
+            tried[near] = _cut_and_zip(*args, {side: near for side in sides})
+        except ValueError:
+            if near == CUT_NEAR[-1] and not tried:
+                raise
+            continue
+        for side in sides:
+            score = tried[near][-1][side]
+            if side not in best or score > best[side][1]:
+                best[side] = (near, score)
+    pick = {side: best[side][0] for side in sides}
+    run = next((r for near, r in tried.items() if all(v == near for v in pick.values())), None)
+    V2, F2, Q, band_ids, zinfo, _ = run if run is not None else _cut_and_zip(*args, pick)
+    for side in sides:
+        infos[side].update(zinfo[side], cut_margin=float(pick[side]))
+    return V2, F2, Q, band_ids, infos
+
+
+def _cut_and_zip(V, F, loops, grids, params, ref_V, ref_F, rings, S, relax_iterations, near):
+    """:func:`add_eye_bands`' cut, renumbering, zip and border relaxation for the grids ``grids``;
+    ``near``: side -> the margin (x the outer ring's mean edge) within which remesh vertices by
+    the outer ring are cut away too. Returns V2, F2, Q, band_ids, per-side figures and per-side
+    zip scores (:func:`_zip_score`)."""
+    from pipeline.retopo.eye_rings import _zip_strip, close_annulus
+    from pipeline.retopo.eyelid_loop import project_to_polyline
+
+    sides = list(loops)
     # cut each band's outer ring out of the remesh: faces with a corner inside it (seen in the
     # eye's parameter plane), closed into an annulus round the old loop
     keep = np.ones(len(F), dtype=bool)
@@ -576,6 +611,12 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         uv = to_uv(V)
         outer_uv = to_uv(grids[side][-1])         # the outer ring as smoothed (slid along itself)
         inside = _inside_polygon(uv, outer_uv)
+        # and remesh vertices hard by the outer ring (the zip's border would run along it)
+        ring = grids[side][-1]
+        near_mm = near[side] * float(np.mean(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1)))
+        close = np.flatnonzero(np.linalg.norm(V - ring.mean(axis=0), axis=1)
+                               < np.linalg.norm(ring - ring.mean(axis=0), axis=1).max() + near_mm)
+        inside[close[project_to_polyline(V[close], ring)[2] < near_mm]] = True
         inside[loops[side]] = True
         Fk = F[keep]
         others = [b for b in mc.boundary_loops(Fk) if not np.isin(b, loops[side]).any()]
@@ -632,12 +673,11 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         if _zip_score(V2, dp, ref_V, ref_F) > _zip_score(V2, zt, ref_V, ref_F):
             tris[1 + e] = dp
     F2 = np.concatenate(tris)
+    info, scores = {}, {}
     for e, side in enumerate(sides):
-        infos[side].update(band_report(V2, quads[e], ref_V, ref_F, S, e * nb))
+        info[side] = band_report(V2, quads[e], ref_V, ref_F, S, e * nb)
         zt = tris[1 + e]
-        R = reference_face_normals(V2, zt, ref_V, ref_F)
-        infos[side].update(zip_triangles=int(len(zt)), border_vertices=int(len(zips[e][1])),
-                           zip_min_angle_deg=round(float(mc.triangle_angles_deg(V2, zt).min()), 3),
-                           zip_flipped_faces=int(np.count_nonzero(
-                               np.einsum("ij,ij->i", mc.face_normals(V2, zt), R) <= 0)))
-    return V2, F2, Q, band_ids, infos
+        scores[side] = _zip_score(V2, zt, ref_V, ref_F)
+        info[side].update(zip_triangles=int(len(zt)), border_vertices=int(len(zips[e][1])),
+                          zip_min_angle_deg=round(scores[side][1], 3), zip_flipped_faces=-scores[side][0])
+    return V2, F2, Q, band_ids, info, scores

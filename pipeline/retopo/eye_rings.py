@@ -22,6 +22,13 @@ def _band_faces(V, F, loop, radius, locked):
     an annulus: its border is ``loop`` plus one simple closed loop. Returns the (m,) bool face
     mask, or None when no such band exists (it would touch a ``locked`` vertex).
     """
+    d = edge_graph_distance(V, F, loop, 2.0 * radius)
+    return close_annulus(V, F, (d[F] < radius).any(axis=1), locked)
+
+
+def edge_graph_distance(V, F, seeds, limit):
+    """(n,) shortest distance along the edges of (V, F) from the vertices ``seeds`` (inf past
+    ``limit``)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
@@ -30,8 +37,7 @@ def _band_faces(V, F, loop, radius, locked):
     w = np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1)
     G = coo_matrix((w, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
     G = G.maximum(G.T)
-    d = dijkstra(G, indices=np.asarray(loop), min_only=True, limit=2.0 * radius)
-    return close_annulus(V, F, (d[F] < radius).any(axis=1), locked)
+    return dijkstra(G, indices=np.asarray(seeds), min_only=True, limit=limit)
 
 
 def close_annulus(V, F, band, locked):
