@@ -5,7 +5,8 @@
 Reads ``REMOVE_EYEBALLS_DIR/mesh.npz`` (V, F) and ``eyes.json`` (per eye: center,
 loop_indices); writes ``OUT_DIR/mesh.npz`` (V, F [, poly_counts, poly_indices],
 loop_left, loop_right [, lateral_index_left, lateral_index_right: position of the
-lateral canthus in each loop, when eyes.json gives lateral_canthus_index]) atomically.
+lateral canthus in each loop, when eyes.json gives lateral_canthus_index;
+band_left, band_right: (band_rings + 1, loop_points) vertex ids with ``band: grid``]) atomically.
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ def main(argv) -> StageResult:
         # position of the lateral canthus in the resampled loop (for rig)
         if result.lateral.get(side) is not None:
             arrays[f"lateral_index_{side}"] = np.array([int(result.lateral[side])], dtype=np.int64)
+    for side, ids in (result.band or {}).items():
+        # the grid band's vertex ids, ring by ring (ring 0 is loop_<side>): carried to rig and usd
+        arrays[f"band_{side}"] = np.asarray(ids, dtype=np.int64)
     if result.poly_counts is not None:
         arrays.update(poly_counts=result.poly_counts, poly_indices=result.poly_indices)
     with atomic_dir(out) as tmp:

@@ -52,13 +52,17 @@ def check_result(r, V, eyes, n_loop):
     assert m["distance_scan_to_lowpoly"]["mean_mm"] < 0.1
 
 
-def test_quadric_keeps_loops_and_is_manifold(patch):
+@pytest.mark.parametrize("band", ["grid", "march"])
+def test_quadric_keeps_loops_and_is_manifold(patch, band):
     V, F, eyes = patch
-    s = RetopoSettings(method="quadric", target_polygons=1500, loop_points=32)
+    s = RetopoSettings(method="quadric", target_polygons=1500, loop_points=32, band=band)
     r = retopologize(V, F, eyes, s)
     check_result(r, V, eyes, 32)
     assert abs(r.metrics["polygons"] - 1500) < 300
-    assert r.poly_counts is None
+    if band == "march":
+        assert r.poly_counts is None
+    else:                                   # triangles, then the bands' quads
+        assert np.count_nonzero(r.poly_counts == 4) == 2 * s.band_rings * 32
     # the crop is the box around both eyes
     assert r.V[:, 0].max() <= 32 + s.margin_lateral_mm + 1e-9
     assert r.V[:, 1].min() >= 36 - s.margin_below_mm - 1e-9
@@ -201,7 +205,7 @@ def ring_structure(r, side):
 ])
 def test_eye_rings(patch, method, kw):
     V, F, eyes = patch
-    r = retopologize(V, F, eyes, RetopoSettings(method=method, eye_rings=3, **kw))
+    r = retopologize(V, F, eyes, RetopoSettings(method=method, eye_rings=3, band="march", **kw))
     n = kw["loop_points"]
     check_result(r, V, eyes, n)                      # loop contract, manifold, no flips, distances
     pc = r.poly_counts
@@ -226,7 +230,7 @@ def test_eye_rings(patch, method, kw):
 
 def test_eye_rings_off_is_the_plain_result(patch):
     V, F, eyes = patch
-    kw = dict(target_polygons=1500, loop_points=32)
+    kw = dict(target_polygons=1500, loop_points=32, band="march")     # eye_rings: march only
     a = retopologize(V, F, eyes, RetopoSettings(eye_rings=0, **kw))
     b = retopologize(V, F, eyes, RetopoSettings(eye_rings=2, **kw))
     assert a.poly_counts is None and a.metrics["eye_rings"] == {} and a.metrics["quads"] == 0

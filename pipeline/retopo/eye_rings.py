@@ -22,18 +22,33 @@ def _band_faces(V, F, loop, radius, locked):
     an annulus: its border is ``loop`` plus one simple closed loop. Returns the (m,) bool face
     mask, or None when no such band exists (it would touch a ``locked`` vertex).
     """
+    d = edge_graph_distance(V, F, loop, 2.0 * radius)
+    return close_annulus(V, F, (d[F] < radius).any(axis=1), locked)
+
+
+def edge_graph_distance(V, F, seeds, limit):
+    """(n,) shortest distance along the edges of (V, F) from the vertices ``seeds`` (inf past
+    ``limit``)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
-    from pipeline.geometry.meshtopo import face_adjacency, face_components
-
-    n, m = len(V), len(F)
+    n = len(V)
     e = mc.edges_of(F)
     w = np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1)
     G = coo_matrix((w, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
     G = G.maximum(G.T)
-    d = dijkstra(G, indices=np.asarray(loop), min_only=True, limit=2.0 * radius)
-    band = (d[F] < radius).any(axis=1)
+    return dijkstra(G, indices=np.asarray(seeds), min_only=True, limit=limit)
+
+
+def close_annulus(V, F, band, locked):
+    """The face mask ``band`` (round one boundary loop) grown into an annulus: pockets it
+    encloses filled, pinch vertices (more than two band/rest edges) grown over, until its border
+    is that loop plus one simple closed loop. Returns the (m,) bool mask, or None when no such
+    band exists (it would touch a ``locked`` vertex, or it is not one annulus)."""
+    from pipeline.geometry.meshtopo import face_adjacency, face_components
+
+    n, m = len(V), len(F)
+    band = np.array(band, dtype=bool)
     pairs, pair_edges = face_adjacency(F, n)
     for _ in range(50):
         rest = ~band

@@ -91,7 +91,7 @@ def resample_loop(tm: TriMesh, loop, n, curve=None):
     return loop
 
 
-def orient_and_place(V, loop, curve, start_point, end_index=None):
+def orient_and_place(V, loop, curve, start_point, end_index=None, split=None):
     """Order the loop like the reference curve (same direction, vertex 0 nearest ``start_point``)
     and return target positions evenly spaced along the curve.
 
@@ -101,7 +101,8 @@ def orient_and_place(V, loop, curve, start_point, end_index=None):
     proportion to their arc lengths. Without it one even spacing runs round the whole loop, and
     the lateral canthus falls between two vertices: up to half a spacing short of the corner,
     which the canthus landmark (the most lateral loop vertex) then misses by as much (0.3-0.8 mm
-    on the synthetic heads at 64 loop vertices).
+    on the synthetic heads at 64 loop vertices). With ``split`` the upper lid gets that many
+    vertices whatever the lids' lengths (the lateral canthus is vertex ``split`` in every asset).
 
     Returns
     -------
@@ -133,7 +134,7 @@ def orient_and_place(V, loop, curve, start_point, end_index=None):
         return loop, point_at_arclength(curve, steps, smooth=sm), None
     upper = float(ss[int(end_index)] - s0s)
     lower = float(ss[-1] - upper)
-    lat = int(np.clip(round(L * upper / ss[-1]), 3, L - 3))
+    lat = int(np.clip(round(L * upper / ss[-1]) if split is None else int(split), 3, L - 3))
     steps = np.concatenate([s0s + np.arange(lat) * upper / lat,
                             s0s + upper + np.arange(L - lat) * lower / (L - lat)])
     return loop, point_at_arclength(curve, steps, smooth=sm), lat

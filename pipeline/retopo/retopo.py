@@ -27,7 +27,10 @@ the loop is not reached by splitting each opening edge into a fan of slivers; ed
 leave a loop vertex with a single triangle (an "ear" with three loop corners, inverted on the
 convex opening).
 
-With ``eye_rings`` > 0 (off by default), :func:`add_eye_rings` then gives each loop concentric
+With ``band: grid`` (the default) the faces round each loop are then cut away and replaced by a
+built band of quads, ``band_rings`` rings of ``loop_points`` vertices with fixed ids
+(:func:`pipeline.retopo.eye_band.add_eye_bands`; docs/retopo.md). With ``band: march`` and
+``eye_rings`` > 0 (off by default), :func:`add_eye_rings` instead gives each loop concentric
 edge flow: the faces within about ``(eye_rings + 1)`` ring spacings of the loop are replaced by
 ``eye_rings`` rings of ``loop_points`` vertices marched out over the dense surface, joined by
 quads (``poly_counts``/``poly_indices`` gain them on both routes), and a greedy loft of
@@ -46,6 +49,7 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
+from pipeline.retopo.eye_band import add_eye_bands
 from pipeline.retopo.eye_rings import add_eye_rings
 from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
                                           project_to_polyline, resample_loop, smooth_margin)
@@ -76,7 +80,11 @@ class RetopoSettings(Settings):
     quad_max_angle_dev_deg: float = setting(50.0, ge=0, le=90)
     relax_iterations: int = setting(4, ge=0, le=1000)
     min_edge_fraction: float = setting(0.2, ge=0, le=0.9)    # after the repairs, collapse edges shorter than this x the median (0 = off)
-    eye_rings: int = setting(0, ge=0, le=20)                 # rings of quads around each eyelid loop (0 = off)
+    band: Literal["grid", "march"] = "grid"                  # grid: eye_band.add_eye_bands; march: the repairs + eye_rings
+    band_rings: int = setting(6, ge=1, le=50)                # grid band: rings outside the loop (the same in every asset)
+    band_width_mm: float = setting(8.0, gt=0, le=50)         # grid band: loop to outer ring along each spoke
+    band_param_mm: float = setting(20.0, gt=0, le=100)       # grid band: dense surface parametrised round the opening
+    eye_rings: int = setting(0, ge=0, le=20)                 # band: march only: rings of quads around each eyelid loop (0 = off)
     ring_spacing_mm: float = setting(0.0, ge=0, le=20)       # between rings; 0: the loop's mean edge length
     metric_samples: int = setting(50000, ge=100, le=10_000_000)
     canthus_apex: bool = True                                # loop corners where the lid lines meet (eyelid_loop.canthus_apex)
@@ -97,6 +105,7 @@ class RetopoResult:
     crop_V: np.ndarray       # the cropped dense surface the result approximates
     crop_F: np.ndarray
     metrics: dict
+    band: dict | None = None  # side -> (band_rings + 1, loop_points) vertex ids (band: grid), ring 0 = loop
 
 
 # ----------------------------------------------------------------------------- crop
@@ -352,7 +361,7 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
 
     t1 = time.perf_counter()
     tri_target = s.target_polygons if s.method == "quadric" else int(round(s.target_polygons / 0.58))
-    if s.eye_rings > 0:
+    if s.eye_rings > 0 and s.band == "march":
         # the rings replace a band of triangles by fewer, longer-sided polygons: ask the
         # remesher for about that many more so the polygon count stays on target
         area = 0.5 * np.linalg.norm(mc.face_normals(Vc, Fc, normalize=False), axis=1).sum()
@@ -430,8 +439,10 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     for side, lp in new_loops.items():
         lp = remap[np.asarray(lp, dtype=np.int64)]
         # both canthi are targets; the lateral one's position goes to the stage (for rig)
+        # grid band: each lid gets half the loop, so both canthi have fixed ids in every asset
         lp, targets, lateral[side] = orient_and_place(Vn, lp, curves[side], curves[side][0],
-                                                      lateral[side])
+                                                      lateral[side],
+                                                      split=s.loop_points // 2 if s.band == "grid" else None)
         # move in a few steps, keeping faces from flipping
         for alpha in (0.2, 0.4, 0.6, 0.8, 1.0):
             Vt = Vn.copy()
@@ -487,9 +498,18 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     timings["relax_quads_s"] = time.perf_counter() - t3
 
     t4 = time.perf_counter()
-    Vn, Fn, ring_quads, loops, ring_info = add_eye_rings(
-        Vn, Fn, loops, Vc, Fc, s.eye_rings, s.ring_spacing_mm, s.relax_iterations)
-    if len(ring_quads):
+    band_ids, band_info = {}, {}
+    if s.band == "grid":
+        # built, not repaired: the loops' neighbourhood that the repairs above worked on is cut
+        # away and replaced by the grid (eye_band module doc)
+        Vn, Fn, ring_quads, band_ids, band_info = add_eye_bands(
+            Vn, Fn, loops, Vc, Fc, s.band_rings, s.band_width_mm, s.band_param_mm, s.relax_iterations)
+        loops = {k: v[0].copy() for k, v in band_ids.items()}
+        ring_info = {}
+    else:
+        Vn, Fn, ring_quads, loops, ring_info = add_eye_rings(
+            Vn, Fn, loops, Vc, Fc, s.eye_rings, s.ring_spacing_mm, s.relax_iterations)
+    if len(ring_quads) and s.band == "march":
         # the lofts' slivers: flips among the triangles only (the quads' edges are borders there)
         Fs = flip_slivers(Vn, Fn, Vc, Fc)
         Fq = np.concatenate([ring_quads[:, [0, 1, 2]], ring_quads[:, [0, 2, 3]]])
@@ -506,7 +526,7 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         poly_counts = np.concatenate([poly_counts, np.full(len(ring_quads), 4, dtype=np.int64)])
         poly_indices = np.concatenate([poly_indices, ring_quads.ravel()])
         Fn = np.concatenate([Fn, ring_quads[:, [0, 1, 2]], ring_quads[:, [0, 2, 3]]])
-    timings["eye_rings_s"] = time.perf_counter() - t4
+    timings["band_s" if s.band == "grid" else "eye_rings_s"] = time.perf_counter() - t4
     timings["total_s"] = time.perf_counter() - t0
 
     metrics = retopo_metrics(Vn, Fn, loops, Vc, Fc, curves, s.metric_samples)
@@ -521,11 +541,14 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         "delaunay_flips": int(n_delaunay),
         "short_edges_collapsed": int(n_short),
         "eye_rings": ring_info,
+        "band": {"kind": s.band, **({"rings": s.band_rings, "spokes": s.loop_points,
+                                     "ids": {k: [int(v.min()), int(v.max()) + 1] for k, v in band_ids.items()},
+                                     **band_info} if band_ids else {})},
         "canthus_apex": apex_info,
         "timings_s": {k: round(v, 4) for k, v in timings.items()},
         "time_s": round(timings["total_s"], 4),
     })
-    return RetopoResult(Vn, Fn, loops, lateral, poly_counts, poly_indices, Vc, Fc, metrics)
+    return RetopoResult(Vn, Fn, loops, lateral, poly_counts, poly_indices, Vc, Fc, metrics, band_ids)
 
 
 def retopo_metrics(V, F, loops, Vc, Fc, curves, n_samples=50000) -> dict:

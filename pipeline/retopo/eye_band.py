@@ -1,0 +1,683 @@
+"""The band round each eyelid opening, built as a structured grid (``retopo.band: grid``).
+
+Around each eye, ``rings + 1`` rings of ``S = len(loop)`` vertices on ``S`` spokes: ring 0 is the
+placed eyelid loop (held exactly), ring ``k`` lies ``d_k`` mm out along every spoke, with
+``d_k`` growing geometrically from about the loop's edge length to ``width`` at the outer ring.
+The spokes start from a harmonic parametrisation of the dense surface round the opening:
+the dense annulus between the scan's opening and a closed curve about ``param_mm`` out
+(:func:`annulus_region`) is mapped with mean-value weights onto a planar annulus, the opening
+onto the unit circle and the outer border onto the circle of radius 2, each by arc length
+(:func:`harmonic_annulus`). Spoke ``i`` is the radial segment through the loop vertex's image;
+the grid points are found on it by 3D arc length and mapped back into the dense triangle that
+holds them (barycentric). That first grid is skewed where the opening is far from round (the
+spokes of a lower lid run along it, the canthi crowd) and cuts the tip off a canthus apex;
+:func:`smooth_grid` then solves for it on the scan (elliptic smoothing with the grading kept,
+the outer ring at ``width`` from the loop, the tip held out). Nothing is repaired afterwards:
+where a face still comes out flipped against the dense surface the metrics say which ring and
+spoke (:func:`band_report`).
+
+:func:`add_eye_bands` cuts the remesh's faces inside each outer ring away and zips the outer
+ring to the hole's border with one strip of triangles (the border relaxed, the strip re-zipped on
+it, the best strip by dynamic programming last: :func:`zip_strip_maxmin`). The band vertices come first in the
+output, left eye then right, ``ring * S + spoke`` within an eye: the same ids in every asset
+with the same ``loop_points`` and ``band_rings``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.geometry import mesh_checks as mc
+from pipeline.geometry.flips import reference_face_normals, relax
+
+# the circles of the parameter plane. A harmonic map between annuli is not one-to-one in general
+# (on a round annulus of radii 5 and 25 mm mapped onto radii 1 and 2, x = (A r + B / r) cos t
+# comes back inwards for r < 6.45 mm: the first rings fold); with the opening on a circle ten
+# times smaller than the outer one the radial part stays monotone up to an outer/inner ratio of
+# about 20, and build_band counts the parameter triangles that still come out inverted
+PARAM_INNER = 0.2
+PARAM_OUTER = 2.0
+
+# smooth_grid (measured on ict_neutral, ident_s0_001, synthetic_head: docs/retopo.md): at most
+# SMOOTH_ITERATIONS Jacobi sweeps, fewer once no node moves SMOOTH_TOL_MM; rings 1 ..
+# SMOOTH_PUSH_RINGS kept SMOOTH_PUSH x their distance out along the loop's outward direction; the
+# loop's height over the scan fades out as (1 - d / width) ** SMOOTH_LIFT_POWER; the outer ring is
+# the loop offset by the width, its nodes sliding along its SMOOTH_OUTER_HALF-neighbour moving
+# average. ZIP_ROUNDS: relax and re-zip rounds of the cut border; CUT_NEAR: the margins (x the
+# outer ring's mean edge) tried for the cut, each eye keeping the one with the best zip
+SMOOTH_ITERATIONS = 250
+SMOOTH_TOL_MM = 1e-3
+SMOOTH_PUSH = 0.6
+SMOOTH_PUSH_RINGS = 2
+SMOOTH_LIFT_POWER = 2.0
+SMOOTH_OUTER_HALF = 1
+ZIP_ROUNDS = 3
+CUT_NEAR = (0.0, 0.5, 0.8)
+
+
+def ring_distances(rings: int, width: float, first: float) -> np.ndarray:
+    """(rings + 1,) distances from the loop: 0, then steps growing by one ratio g from ``first``
+    to a total of ``width`` (g = 1: even steps; a ``first`` over ``width / rings`` gives g < 1)."""
+    if rings <= 0:
+        return np.zeros(1)
+    first = min(float(first), float(width))
+
+    def total(g):
+        return first * rings if abs(g - 1.0) < 1e-12 else first * (g ** rings - 1.0) / (g - 1.0)
+
+    lo, hi = 1e-3, 10.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if total(mid) < width else (lo, mid)
+    g = 0.5 * (lo + hi)
+    d = np.concatenate([[0.0], np.cumsum(first * g ** np.arange(rings))])
+    return d * (float(width) / d[-1])
+
+
+def annulus_region(V, F, hole, radius, locked):
+    """Faces of the dense surface within ``radius`` (edge-graph distance) of the opening
+    ``hole`` closed into an annulus (:func:`pipeline.retopo.eye_rings.close_annulus`), or None."""
+    from pipeline.retopo.eye_rings import close_annulus, edge_graph_distance
+
+    d = edge_graph_distance(V, F, hole, 1.5 * radius)
+    return close_annulus(V, F, (d[F] < radius).all(axis=1), locked)
+
+
+def _mean_value_weights(V, F):
+    """Sparse (n, n) mean-value weights w_ij = (tan(a/2) + tan(b/2)) / |x_i - x_j|: positive on
+    any triangulation (cotangent weights go negative on a scan's obtuse triangles)."""
+    from scipy.sparse import coo_matrix
+
+    rows, cols, vals = [], [], []
+    for k in range(3):
+        i, j, l = F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3]
+        u, w = V[j] - V[i], V[l] - V[i]
+        lu, lw = np.linalg.norm(u, axis=1), np.linalg.norm(w, axis=1)
+        cs = np.einsum("ij,ij->i", u, w) / np.maximum(lu * lw, 1e-300)
+        t = np.tan(0.5 * np.arccos(np.clip(cs, -1.0, 1.0)))
+        rows += [i, i]
+        cols += [j, l]
+        vals += [t / np.maximum(lu, 1e-300), t / np.maximum(lw, 1e-300)]
+    n = len(V)
+    return coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(n, n)).tocsr()
+
+
+def _circle(V, loop, radius):
+    """Points on a circle for the closed vertex loop, by arc length from its first vertex."""
+    P = V[loop]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(np.vstack([P, P[:1]]), axis=0), axis=1))])
+    a = 2.0 * np.pi * s[:-1] / s[-1]
+    return radius * np.stack([np.cos(a), np.sin(a)], axis=1)
+
+
+def _barycentric(P, T):
+    """(k, 3) barycentric coordinates of points P (k, 3) in triangles T (k, 3, 3)."""
+    v0, v1, v2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0], P - T[:, 0]
+    d00, d01, d11 = (np.einsum("ij,ij->i", a, b) for a, b in ((v0, v0), (v0, v1), (v1, v1)))
+    d20, d21 = np.einsum("ij,ij->i", v2, v0), np.einsum("ij,ij->i", v2, v1)
+    den = np.maximum(d00 * d11 - d01 * d01, 1e-300)
+    b1 = (d11 * d20 - d01 * d21) / den
+    b2 = (d00 * d21 - d01 * d20) / den
+    return np.column_stack([1.0 - b1 - b2, b1, b2])
+
+
+def harmonic_annulus(V, F, inner, outer):
+    """(n, 2) parameter of each vertex of the annulus (V, F): harmonic (mean-value weights),
+    ``inner`` on the circle of radius ``PARAM_INNER`` and ``outer`` on ``PARAM_OUTER``'s, by arc length,
+    both counter-clockwise in the plane when seen along the faces' normals. The outer circle
+    starts at the border vertex nearest the inner loop's first vertex, so the map is not twisted.
+    Vertices outside the faces get NaN."""
+    from scipy.sparse import diags
+    from scipy.sparse.linalg import splu
+
+    n = len(V)
+    inner, outer = np.asarray(inner), np.asarray(outer)
+    # both loops run the way the faces wind along the inner one (the outer one then against)
+    he = set(map(tuple, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]).tolist()))
+    if (int(inner[0]), int(inner[1])) not in he:
+        inner = inner[::-1]
+    if (int(outer[1]), int(outer[0])) not in he:
+        outer = outer[::-1]
+    j0 = int(np.argmin(np.linalg.norm(V[outer] - V[inner[0]], axis=1)))
+    # the faces run along the inner loop counter-clockwise seen from outside the annulus: the
+    # hole is on their right, so the inner circle is walked clockwise
+    Xi = _circle(V, inner, PARAM_INNER) * np.array([1.0, -1.0])
+    Xo = np.roll(_circle(V, np.roll(outer, -j0), PARAM_OUTER), j0, axis=0) * np.array([1.0, -1.0])
+    W = _mean_value_weights(V, F)
+    L = diags(np.asarray(W.sum(axis=1)).ravel()) - W
+    fixed = np.zeros(n, dtype=bool)
+    fixed[inner] = fixed[outer] = True
+    used = np.zeros(n, dtype=bool)
+    used[F.ravel()] = True
+    free = np.flatnonzero(used & ~fixed)
+    X = np.full((n, 2), np.nan)
+    X[inner], X[outer] = Xi, Xo
+    fx = np.flatnonzero(fixed)
+    A = L[free][:, free].tocsc()
+    b = -(L[free][:, fx] @ X[fx])
+    X[free] = splu(A).solve(np.ascontiguousarray(b))
+    return X
+
+
+class _Locator:
+    """Which parameter-plane triangle holds a point, and its barycentric coordinates."""
+
+    def __init__(self, X, F, k=12):
+        from scipy.spatial import cKDTree
+
+        self.X, self.F, self.k = X, F, min(k, len(F))
+        self.tree = cKDTree(X[F].mean(axis=1))
+
+    def locate(self, P):
+        _, cand = self.tree.query(P, k=self.k)
+        cand = cand.reshape(len(P), -1)
+        A, B, C = (self.X[self.F[cand, c]] for c in range(3))
+        v0, v1, v2 = B - A, C - A, P[:, None, :] - A
+        den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
+        den = np.where(np.abs(den) < 1e-300, 1e-300, den)
+        b1 = (v2[..., 0] * v1[..., 1] - v2[..., 1] * v1[..., 0]) / den
+        b2 = (v0[..., 0] * v2[..., 1] - v0[..., 1] * v2[..., 0]) / den
+        bary = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
+        score = bary.min(axis=-1)            # >= 0 inside; otherwise the least-outside candidate
+        best = np.argmax(score, axis=1)
+        r = np.arange(len(P))
+        bb = np.clip(bary[r, best], 0.0, None)
+        return cand[r, best], bb / bb.sum(axis=1, keepdims=True)
+
+
+def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locked=()):
+    """Grid points of one eye's band.
+
+    Parameters
+    ----------
+    targets : (S, 3) float64
+        The placed eyelid loop, in loop order (ring 0, kept exactly).
+    ref_V, ref_F : the dense surface ; hole : its opening's boundary loop (vertex ids)
+    rings : int ; width : float (mm, loop to outer ring along each spoke)
+    first : float
+        First ring's distance (mm; the growth is geometric from it to ``width``).
+    param_mm : float
+        How far out the parametrised region reaches (shrunk until it is an annulus clear of
+        ``locked``, not below ``1.25 * width``).
+
+    Returns
+    -------
+    G : (rings + 1, S, 3) float64
+    info : dict (region size, distances, spokes that had to be shortened, angle order)
+    """
+    targets = np.asarray(targets, dtype=np.float64)
+    S = len(targets)
+    radius, region = float(param_mm), None
+    while region is None and radius >= 1.25 * width:
+        region = annulus_region(ref_V, ref_F, hole, radius, locked)
+        if region is None:
+            radius *= 0.85
+    if region is None:
+        raise ValueError(f"no annulus of the dense surface {1.25 * width:.1f} mm round the eye opening "
+                         "(the crop border or the other eye is nearer); lower band_width_mm")
+    Fr = ref_F[region]
+    hole_set = set(map(int, hole))
+    bl = mc.boundary_loops(Fr)
+    inner = next(b for b in bl if set(map(int, b)) & hole_set)
+    outer = next(b for b in bl if not set(map(int, b)) & hole_set)
+    X = harmonic_annulus(ref_V, Fr, inner, outer)
+    e1, e2 = X[Fr[:, 1]] - X[Fr[:, 0]], X[Fr[:, 2]] - X[Fr[:, 0]]
+    # a triangle with all three corners on the opening spans a chord of the inner circle and
+    # comes out turned over by construction; it holds no grid point (the spokes start outside)
+    ears = np.isin(Fr, inner).all(axis=1)
+    param_flips = int(np.count_nonzero((e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] <= 0) & ~ears))
+    loc = _Locator(X, Fr)
+
+    def to3d(P2):
+        fi, bc = loc.locate(P2)
+        return np.einsum("ij,ijk->ik", bc, ref_V[Fr[fi]])
+
+    # each spoke leaves the opening where the loop vertex is nearest it (the placed loop is off
+    # the scan's opening by the canthus apex and the smoothing, up to a few mm) and is walked
+    # from its point nearest the loop vertex; the small sideways gap to the vertex fades out
+    # linearly over the band, so ring 0 is the loop exactly
+    from pipeline.retopo.eyelid_loop import polyline_arclength, project_to_polyline
+
+    # spoke i leaves the opening at the loop's arc-length fraction of vertex i, counted from
+    # where vertex 0 (the medial canthus) is nearest: strictly in order round the circle. The
+    # nearest opening point of every vertex is not: beside a canthus apex, up to 3 mm beyond
+    # the scan's rounded corner, several vertices share one nearest point
+    cum = polyline_arclength(ref_V[inner])[0]
+    s0 = project_to_polyline(targets[:1], ref_V[inner])[0][0]
+    sl = polyline_arclength(targets)[0]
+    sign = 1.0 if np.mean(np.sign(np.diff(np.unwrap(
+        2 * np.pi * project_to_polyline(targets, ref_V[inner])[0] / cum[-1])))) >= 0 else -1.0
+    s_hole = np.mod(s0 + sign * cum[-1] * sl[:-1] / sl[-1], cum[-1])
+    j = np.clip(np.searchsorted(cum, s_hole, side="right") - 1, 0, len(inner) - 1)
+    u = (s_hole - cum[j]) / np.maximum(cum[j + 1] - cum[j], 1e-300)
+    P0 = (1 - u)[:, None] * X[inner[j]] + u[:, None] * X[inner[(j + 1) % len(inner)]]
+    ang = np.arctan2(P0[:, 1], P0[:, 0])
+    dang = np.diff(np.unwrap(np.append(ang, ang[0])))
+    dirs = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    K = 400
+    t = np.linspace(0.0, 1.0, K) ** 2
+    rad = PARAM_INNER + (PARAM_OUTER * 0.999 - PARAM_INNER) * t
+    samples = (rad[None, :, None] * dirs[:, None, :]).reshape(-1, 2)
+    Q = to3d(samples).reshape(S, K, 3)
+    arc = np.concatenate([np.zeros((S, 1)), np.cumsum(np.linalg.norm(np.diff(Q, axis=1), axis=2), axis=1)], axis=1)
+    d = ring_distances(rings, width, first)
+    G = np.zeros((rings + 1, S, 3))
+    G[0] = targets
+    short = []
+    r_outer = np.zeros(S)
+    for i in range(S):
+        k0 = int(np.argmin(np.linalg.norm(Q[i] - targets[i], axis=1)))
+        di = d
+        if arc[i, -1] - arc[i, k0] < 1.1 * width:   # the region ends early on this spoke: squeeze
+            di = d * (0.9 * (arc[i, -1] - arc[i, k0]) / width)
+            short.append(i)
+        r = np.interp(arc[i, k0] + di[1:], arc[i], rad)
+        G[1:, i] = to3d(r[:, None] * dirs[i][None]) + (1.0 - di[1:] / di[-1])[:, None] * (targets[i] - Q[i, k0])
+        r_outer[i] = r[-1]
+    info = {"region_faces": int(len(Fr)), "region_mm": round(radius, 3),
+            "param_inverted_triangles": param_flips,
+            "ring_distances_mm": [round(float(x), 4) for x in d],
+            "shortened_spokes": short,
+            # the images must go round the circle one way, once: a spoke out of order crosses
+            "spokes_out_of_order": np.flatnonzero(np.sign(dang) != np.sign(np.sum(dang))).tolist(),
+            # for the cut (add_eye_bands): the region, its point locator and map, the outer ring
+            "_param": (Fr, loc, X, r_outer[:, None] * dirs)}
+    return G, info
+
+
+def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL_MM, push=SMOOTH_PUSH,
+                push_rings=SMOOTH_PUSH_RINGS, lift_power=SMOOTH_LIFT_POWER,
+                outer_half=SMOOTH_OUTER_HALF, step=1.0):
+    """Elliptic smoothing of one eye's band grid ``G`` (R + 1, S, 3) on the dense surface.
+
+    The outer ring is put at ``d[-1]`` from the loop along the loop's outward direction (square
+    to the loop in the scan's mean tangent plane within 3 mm; the harmonic map's own outer ring
+    lies as little as 4.4 mm out where its spokes are skewed, ict_neutral's lower lids), and its
+    nodes then only slide along it (on its ``outer_half``-neighbour moving average). Rings
+    1 .. R - 1 move (Jacobi sweeps, ``step`` of the way, within the scan's tangent plane at the
+    node, then back onto the scan: an average across a crease, the lateral canthus in a V-shaped
+    groove, would otherwise land on the other wall) towards the discrete Laplace equation's
+    solution in the computational coordinates (spoke index times the ring's mean tangential
+    spacing, ring distance ``d``), the lateral pull taken along the ring only (its curvature does
+    not draw the ring in): the polar grid of a round hole is its fixed point, grading included.
+    Laplace alone cuts the tip off a sharp canthus (ring 1 ends up inside the apex): rings
+    1 .. ``push_rings`` are kept at least ``push * d_k`` out along the outward direction. The loop
+    is off the scan in places (a canthus apex is placed up to ~2 mm over the scan's rounded
+    corner): the smoothing runs from the loop's closest points on the scan, and the loop's height
+    over them fades out over the band afterwards, as ``(1 - d / d[-1]) ** lift_power``. Ring 0
+    (the loop) is held. Stops after ``iterations`` sweeps or once no node moved ``tol`` mm.
+    """
+    from scipy.spatial import cKDTree
+
+    from pipeline.retopo.eyelid_loop import (closed_moving_average, point_at_arclength, polyline_arclength,
+                                             project_to_polyline)
+
+    G = np.array(G, dtype=np.float64)
+    R = G.shape[0] - 1
+    if R < 2:
+        return G
+    d = np.asarray(d, dtype=np.float64)
+    h = np.diff(d)
+    am = 2.0 / ((h[:-1] + h[1:]) * h[:-1])                         # weight of ring k - 1
+    ap = 2.0 / ((h[:-1] + h[1:]) * h[1:])                          # ... ring k + 1
+    loop = G[0].copy()
+    _, _, C0 = mc.closest_points(loop, ref_V, ref_F)
+    lift = loop - C0
+    G[0] = C0
+    nf = mc.face_normals(ref_V, ref_F, normalize=False)
+    tree = cKDTree(ref_V[ref_F].mean(axis=1))
+    N = np.stack([nf[ix].sum(axis=0) if len(ix) else np.zeros(3) for ix in tree.query_ball_point(loop, 3.0)])
+    out = np.cross(_unit(loop - np.roll(loop, 1, axis=0)) + _unit(np.roll(loop, -1, axis=0) - loop), N)
+    out = _unit(out)
+    if np.sum(np.einsum("ij,ij->i", out, G[-1] - G[0])) < 0:
+        out = -out
+    # the outer line: the loop offset by the width, with the direction turning along each loop
+    # edge (round a canthus apex it sweeps the corner instead of cutting it), smoothed
+    sub = 8
+    t = (np.arange(sub) / sub)[None, :, None]
+    base = (1 - t) * G[0][:, None] + t * np.roll(G[0], -1, axis=0)[:, None]
+    dirs = _unit((1 - t) * out[:, None] + t * np.roll(out, -1, axis=0)[:, None])
+    dense = mc.closest_points((base + d[-1] * dirs).reshape(-1, 3), ref_V, ref_F)[2]
+    outer_line = closed_moving_average(dense, outer_half * sub) if outer_half else dense
+    G[R] = dense[::sub]
+    line_len = float(polyline_arclength(outer_line)[0][-1])
+    G[R] = project_to_polyline(G[R], outer_line)[1]
+    _, fcur, _ = mc.closest_points(G[1:R].reshape(-1, 3), ref_V, ref_F)      # faces under the nodes
+    for _ in range(iterations):
+        before = G.copy()
+        tau = np.linalg.norm(np.roll(G, -1, axis=1) - G, axis=2).mean(axis=1)
+        b = 1.0 / tau[1:R] ** 2
+        prv, nxt = np.roll(G[1:R], 1, axis=1), np.roll(G[1:R], -1, axis=1)
+        t = _unit(nxt - prv)
+        lat = 2.0 * (G[1:R] + np.einsum("rsk,rsk->rs", 0.5 * (prv + nxt) - G[1:R], t)[..., None] * t)
+        new = (am[:, None, None] * G[:R - 1] + ap[:, None, None] * G[2:] + b[:, None, None] * lat) \
+            / (am + ap + 2.0 * b)[:, None, None]
+        delta = step * (new - G[1:R])
+        nn = mc.face_normals(ref_V, ref_F[fcur]).reshape(delta.shape)
+        P = G[1:R] + delta - np.einsum("rsk,rsk->rs", delta, nn)[..., None] * nn
+        for k in range(1, min(R, push_rings + 1)):
+            short = push * d[k] - np.einsum("ij,ij->i", P[k - 1] - G[0], out)
+            P[k - 1] += np.clip(short, 0.0, None)[:, None] * out
+        _, fcur, C = mc.closest_points(P.reshape(-1, 3), ref_V, ref_F)
+        G[1:R] = C.reshape(P.shape)
+        # the outer ring's nodes: along the line by the step's component along the ring
+        aR, bR = 1.0 / h[-1] ** 2, 1.0 / tau[R] ** 2
+        newR = (aR * G[R - 1] + bR * (np.roll(G[R], 1, axis=0) + np.roll(G[R], -1, axis=0))) / (aR + 2.0 * bR)
+        tR = _unit(np.roll(G[R], -1, axis=0) - np.roll(G[R], 1, axis=0))
+        s_on = np.unwrap(2.0 * np.pi * project_to_polyline(G[R], outer_line)[0] / line_len) * line_len / (2.0 * np.pi)
+        s_on += step * np.einsum("ij,ij->i", newR - G[R], tR)
+        G[R] = mc.closest_points(point_at_arclength(outer_line, s_on), ref_V, ref_F)[2]
+        if np.abs(G - before).max() < tol:
+            break
+    fade = np.clip(1.0 - d / d[-1], 0.0, 1.0) ** lift_power
+    G = G + fade[:, None, None] * lift[None]
+    G[0] = loop
+    return G
+
+
+def _unit(A):
+    """Rows of A scaled to length 1 (zero rows stay zero)."""
+    return A / np.maximum(np.linalg.norm(A, axis=-1, keepdims=True), 1e-300)
+
+
+def grid_quads(base, rings, S, reverse=False):
+    """(rings * S, 4) quads of a grid numbered ``base + ring * S + spoke``; ``reverse`` winds
+    them the other way (spoke order kept)."""
+    ids = base + np.arange((rings + 1) * S).reshape(rings + 1, S)
+    nxt = np.roll(np.arange(S), -1)
+    Q = np.concatenate([np.stack([ids[k], ids[k][nxt], ids[k + 1][nxt], ids[k + 1]], axis=1)
+                        for k in range(rings)])
+    return Q[:, ::-1] if reverse else Q
+
+
+def split_quads(V, Q, ref_V=None, ref_F=None):
+    """Each quad as its two triangles across the diagonal with the larger smallest angle:
+    ``(q, 4)`` quads rotated so that the fan (0, 1, 2), (0, 2, 3) is that split. With the scan
+    ``ref_V, ref_F``, a split with fewer triangles turned against it wins first (a quad folded
+    across a crease, beside a canthus in a V-shaped groove, is turned over across one diagonal)."""
+    rot = np.stack([Q, np.roll(Q, -1, axis=1)])
+    best = []
+    for R in rot:
+        T = np.concatenate([R[:, [0, 1, 2]], R[:, [0, 2, 3]]])
+        a = mc.triangle_angles_deg(V, T).min(axis=1).reshape(2, -1).min(axis=0)
+        if ref_V is not None:
+            turned = np.einsum("ij,ij->i", mc.face_normals(V, T), reference_face_normals(V, T, ref_V, ref_F)) <= 0
+            a = a - 180.0 * turned.reshape(2, -1).sum(axis=0)
+        best.append(a)
+    return np.where((best[1] > best[0])[:, None], rot[1], rot[0])
+
+
+def band_report(V, Q, ref_V, ref_F, S, base):
+    """Smallest angle (deg, quads as their two triangles) and flipped faces, named by ring and
+    spoke, of one eye's band quads."""
+    T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
+    ang = mc.triangle_angles_deg(V, T).min(axis=1)
+    R = reference_face_normals(V, T, ref_V, ref_F)
+    bad = np.einsum("ij,ij->i", mc.face_normals(V, T), R) <= 0
+    where = sorted({(int((q - base) // S), int((q - base) % S)) for q in T[bad, 0]})
+    return {"min_angle_deg": round(float(ang.min()), 3),
+            "min_angle_p5_deg": round(float(np.percentile(ang, 5)), 3),
+            "flipped_faces": int(bad.sum()),
+            "flipped_at_ring_spoke": [list(w) for w in where]}
+
+
+def _zip_score(V, T, ref_V, ref_F):
+    """(-turned faces, smallest angle) of the triangles T: larger is better."""
+    R = reference_face_normals(V, T, ref_V, ref_F)
+    turned = int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, T), R) <= 0))
+    return (-turned, float(mc.triangle_angles_deg(V, T).min()))
+
+
+def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
+    """Triangles between two closed polylines wound like :func:`pipeline.retopo.eye_rings._zip_strip`'s
+    (``(inner[i], inner[i+1], outer[j])`` and ``(inner[i], outer[j+1], outer[j])``), the strip
+    chosen by dynamic programming to have the largest smallest angle, starting at ``inner[0]`` -
+    ``outer[j0]``. With ``ref_V, ref_F`` a triangle turned against the surface there (normal of
+    its centroid's closest face) counts as angle -1: never taken while another way exists."""
+    N, M = len(inner), len(outer)
+    A = Vi[np.arange(N + 1) % N]
+    B = Vo[(j0 + np.arange(M + 1)) % M]
+
+    def minang(P, Q, R):
+        u, v, w = Q - P, R - Q, P - R
+        lu, lv, lw = (np.linalg.norm(x, axis=-1) for x in (u, v, w))
+
+        def ang(a, b, la, lb):
+            c = -np.einsum("...k,...k->...", a, b) / np.maximum(la * lb, 1e-300)
+            return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+        return np.minimum(np.minimum(ang(w, u, lw, lu), ang(u, v, lu, lv)), ang(v, w, lv, lw))
+
+    # step inner: (A[i], A[i+1], B[j]) ; step outer: (A[i], B[j+1], B[j])
+    ti = minang(A[:-1, None, :], A[1:, None, :], B[None, :, :])           # (N, M + 1)
+    to = minang(A[:, None, :], B[None, 1:, :], B[None, :-1, :])           # (N + 1, M)
+    if ref_V is not None:
+        dots = []
+        for P, Q, R in ((A[:-1, None, :], A[1:, None, :], B[None, :, :]),
+                        (A[:, None, :], B[None, 1:, :], B[None, :-1, :])):
+            P, Q, R = np.broadcast_arrays(P, Q, R)
+            n = np.cross(Q - P, R - P).reshape(-1, 3)
+            _, fi, _ = mc.closest_points(((P + Q + R) / 3.0).reshape(-1, 3), ref_V, ref_F)
+            dots.append(np.einsum("ij,ij->i", n, mc.face_normals(ref_V, ref_F[fi])).reshape(P.shape[:2]))
+        # the strips' winding against the surface's: whichever way most nearby candidates agree
+        i_, j_ = np.meshgrid(np.arange(N + 1), np.arange(M + 1), indexing="ij")
+        near = np.abs(i_ / N - j_ / M) < 0.5 / min(N, M)
+        sign = 1.0 if np.sum(np.sign(dots[1][near[:, :-1]])) >= 0 else -1.0
+        fl_i, fl_o = (sign * dots[0] <= 0).astype(int), (sign * dots[1] <= 0).astype(int)
+    else:
+        fl_i, fl_o = np.zeros(ti.shape, dtype=int), np.zeros(to.shape, dtype=int)
+    # the strip stays within a quarter turn of the diagonal (no fan round a whole ring)
+    fi_ = np.arange(N + 1)[:, None] / N - np.arange(M + 1)[None, :] / M
+    off = np.abs(fi_) > 0.25
+    # best strip to (i, j): fewest turned triangles, then the largest smallest angle
+    nfl = np.full((N + 1, M + 1), 1 << 30)
+    best = np.full((N + 1, M + 1), -np.inf)
+    came = np.zeros((N + 1, M + 1), dtype=np.int8)
+    nfl[0, 0], best[0, 0] = 0, 180.0
+    for i in range(N + 1):
+        for j in range(M + 1):
+            if (i == 0 and j == 0) or off[i, j]:
+                continue
+            cand = []
+            if i > 0 and np.isfinite(best[i - 1, j]):
+                cand.append((nfl[i - 1, j] + fl_i[i - 1, j], -min(best[i - 1, j], ti[i - 1, j]), 1))
+            if j > 0 and np.isfinite(best[i, j - 1]):
+                cand.append((nfl[i, j - 1] + fl_o[i, j - 1], -min(best[i, j - 1], to[i, j - 1]), 2))
+            if cand:
+                f, m, c = min(cand)
+                nfl[i, j], best[i, j], came[i, j] = f, -m, c
+    tris, i, j = [], N, M
+    while i > 0 or j > 0:
+        if came[i, j] == 1:
+            tris.append((inner[(i - 1) % N], inner[i % N], outer[(j0 + j) % M]))
+            i -= 1
+        else:
+            tris.append((inner[i % N], outer[(j0 + j) % M], outer[(j0 + j - 1) % M]))
+            j -= 1
+    return np.asarray(tris[::-1], dtype=np.int64)
+
+
+def _inside_polygon(P, poly):
+    """(k,) bool: points P (k, 2) inside the closed polygon ``poly`` (m, 2) (even-odd rule)."""
+    A, B = poly, np.roll(poly, -1, axis=0)
+    x, y = P[:, 0:1], P[:, 1:2]
+    cross = (A[None, :, 1] > y) != (B[None, :, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xi = A[None, :, 0] + (y - A[None, :, 1]) * (B[None, :, 0] - A[None, :, 0]) / (B[None, :, 1] - A[None, :, 1])
+    return np.count_nonzero(cross & (x < xi), axis=1) % 2 == 1
+
+
+def _oriented_border(F, loop):
+    """The closed vertex loop ``loop`` walked the way the faces ``F`` run along it."""
+    he = set(map(tuple, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]).tolist()))
+    loop = np.asarray(loop, dtype=np.int64)
+    return loop if (int(loop[0]), int(loop[1])) in he else loop[::-1]
+
+
+def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_iterations=4):
+    """Replace the faces round each eyelid loop by a grid band (module doc).
+
+    Parameters
+    ----------
+    V : (n, 3) float64 ; F : (m, 3) int64
+        The remesh; each eye's loop is a boundary loop, placed.
+    loops : dict side -> (S,) int64
+        Ordered loop vertex ids (same S for every eye); their positions are ring 0.
+    ref_V, ref_F : the dense crop (its openings are boundary loops)
+    rings : int ; width : float (mm) ; param_mm : float (mm)
+
+    Returns
+    -------
+    V2 : (n2, 3) float64
+        Band vertices first: eye ``e`` (in ``loops`` order), ring ``k``, spoke ``i`` is
+        ``e * (rings + 1) * S + k * S + i``; then the remesh's vertices outside the bands.
+    F2 : (t, 3) int64
+        The remesh's triangles outside the bands and the zips to the outer rings.
+    Q : (q, 4) int64
+        Band quads, rotated so that their fan (0, 1, 2), (0, 2, 3) is the better split.
+    band_ids : dict side -> (rings + 1, S) int64
+    info : dict side -> build and quality figures (:func:`build_band`, :func:`band_report`,
+        the zip's, ``cut_margin``)
+    """
+    from pipeline.retopo.eyelid_loop import project_to_polyline
+
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    ref_V = np.asarray(ref_V, dtype=np.float64)
+    ref_F = np.asarray(ref_F, dtype=np.int64)
+    sides = list(loops)
+    S = len(loops[sides[0]])
+    if any(len(loops[s]) != S for s in sides):
+        raise ValueError("the eyelid loops have different lengths; a band needs one spoke count")
+    dense_loops = mc.boundary_loops(ref_F)
+    holes = {}
+    for side in sides:
+        P = V[loops[side]]
+        cost = [np.mean(project_to_polyline(ref_V[b][:: max(1, len(b) // 64)], P)[2]) for b in dense_loops]
+        holes[side] = int(np.argmin(cost))
+    grids, infos, params = {}, {}, {}
+    for side in sides:
+        P = V[loops[side]]
+        locked = np.concatenate([b for k, b in enumerate(dense_loops) if k != holes[side]])
+        first = float(np.mean(np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)))
+        G, info = build_band(P, ref_V, ref_F, dense_loops[holes[side]], rings, width, first,
+                             param_mm, locked)
+        G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F)
+        params[side] = info.pop("_param")
+        grids[side], infos[side] = G, info
+    # the cut and zip, for each eye with the remesh's vertices within each of CUT_NEAR x the
+    # outer ring's edge of it cut away too: the zip's strip is only as good as the cut's border,
+    # and which margin gives the best border varies eye by eye (the eyes' cuts are independent)
+    args = (V, F, loops, grids, params, ref_V, ref_F, rings, S, relax_iterations)
+    tried, best = {}, {}
+    for near in CUT_NEAR:
+        try:
+            tried[near] = _cut_and_zip(*args, {side: near for side in sides})
+        except ValueError:
+            if near == CUT_NEAR[-1] and not tried:
+                raise
+            continue
+        for side in sides:
+            score = tried[near][-1][side]
+            if side not in best or score > best[side][1]:
+                best[side] = (near, score)
+    pick = {side: best[side][0] for side in sides}
+    run = next((r for near, r in tried.items() if all(v == near for v in pick.values())), None)
+    V2, F2, Q, band_ids, zinfo, _ = run if run is not None else _cut_and_zip(*args, pick)
+    for side in sides:
+        infos[side].update(zinfo[side], cut_margin=float(pick[side]))
+    return V2, F2, Q, band_ids, infos
+
+
+def _cut_and_zip(V, F, loops, grids, params, ref_V, ref_F, rings, S, relax_iterations, near):
+    """:func:`add_eye_bands`' cut, renumbering, zip and border relaxation for the grids ``grids``;
+    ``near``: side -> the margin (x the outer ring's mean edge) within which remesh vertices by
+    the outer ring are cut away too. Returns V2, F2, Q, band_ids, per-side figures and per-side
+    zip scores (:func:`_zip_score`)."""
+    from pipeline.retopo.eye_rings import _zip_strip, close_annulus
+    from pipeline.retopo.eyelid_loop import project_to_polyline
+
+    sides = list(loops)
+    # cut each band's outer ring out of the remesh: faces with a corner inside it (seen in the
+    # eye's parameter plane), closed into an annulus round the old loop
+    keep = np.ones(len(F), dtype=bool)
+    borders = {}
+    for side in sides:
+        Fr, loc, X, _ = params[side]
+
+        def to_uv(P):
+            _, fi, C = mc.closest_points(P, ref_V, Fr)
+            return np.einsum("ij,ijk->ik", _barycentric(C, ref_V[Fr[fi]]), X[Fr[fi]])
+        uv = to_uv(V)
+        outer_uv = to_uv(grids[side][-1])         # the outer ring as smoothed (slid along itself)
+        inside = _inside_polygon(uv, outer_uv)
+        # and remesh vertices hard by the outer ring (the zip's border would run along it)
+        ring = grids[side][-1]
+        near_mm = near[side] * float(np.mean(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1)))
+        close = np.flatnonzero(np.linalg.norm(V - ring.mean(axis=0), axis=1)
+                               < np.linalg.norm(ring - ring.mean(axis=0), axis=1).max() + near_mm)
+        inside[close[project_to_polyline(V[close], ring)[2] < near_mm]] = True
+        inside[loops[side]] = True
+        Fk = F[keep]
+        others = [b for b in mc.boundary_loops(Fk) if not np.isin(b, loops[side]).any()]
+        cut = close_annulus(V, Fk, inside[Fk].any(axis=1), np.concatenate(others))
+        if cut is None:
+            raise ValueError(f"{side} eye: the remesh inside the band's outer ring is not an annulus "
+                             "round the eyelid loop (the band reaches the crop border or the other eye)")
+        lp = set(map(int, loops[side]))
+        B = next(b for b in mc.boundary_loops(Fk[cut]) if not set(map(int, b)) & lp)
+        idx = np.flatnonzero(keep)
+        keep[idx[cut]] = False
+        borders[side] = B
+    Fk = F[keep]
+    # renumber: band vertices first, then the remesh's vertices still used
+    nb = (rings + 1) * S
+    used = np.unique(Fk)
+    remap = -np.ones(len(V), dtype=np.int64)
+    remap[used] = len(sides) * nb + np.arange(len(used))
+    V2 = np.concatenate([grids[s].reshape(-1, 3) for s in sides] + [V[used]])
+    tris, quads, band_ids, zips = [remap[Fk]], [], {}, []
+    for e, side in enumerate(sides):
+        base = e * nb
+        band_ids[side] = base + np.arange(nb).reshape(rings + 1, S)
+        Q = grid_quads(base, rings, S)
+        T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
+        R = reference_face_normals(V2, T, ref_V, ref_F)
+        reverse = np.sum(np.einsum("ij,ij->i", mc.face_normals(V2, T), R)) < 0
+        Q = split_quads(V2, grid_quads(base, rings, S, reverse), ref_V, ref_F)
+        quads.append(Q)
+        outer = band_ids[side][-1][::-1] if reverse else band_ids[side][-1]
+        B = _oriented_border(remap[Fk], remap[borders[side]])
+        j0 = int(np.argmin(np.linalg.norm(V2[B] - V2[outer[0]], axis=1)))
+        zips.append((outer, B, j0))
+        tris.append(_zip_strip(outer, B, V2[outer], V2[B], j0))
+    Q = np.concatenate(quads)
+    # the cut's border is jagged (whole remesh faces): relax it and the remesh's vertices within
+    # two edges of it (no other border), along the surface; zip again on the relaxed border
+    Fr = remap[Fk]
+    move = np.concatenate([remap[borders[s]] for s in sides])
+    other = np.setdiff1d(np.concatenate(mc.boundary_loops(Fr)), move)
+    for _ in range(2):
+        move = np.union1d(move, np.setdiff1d(np.unique(Fr[np.isin(Fr, move).any(axis=1)]), other))
+    fixed = np.setdiff1d(np.arange(len(V2)), move)
+    for rnd in range(ZIP_ROUNDS):
+        if rnd:
+            tris[1:] = [_zip_strip(o, B, V2[o], V2[B], j0) for o, B, j0 in zips]
+        Fall = np.concatenate(tris + [Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
+        V2 = relax(V2, Fall, fixed, ref_V, ref_F, iterations=max(relax_iterations, 8))
+    # last, on the relaxed border: the strip with the fewest faces turned against the scan and
+    # then the largest smallest angle, where it beats the greedy one
+    for e, (o, B, j0) in enumerate(zips):
+        zt = tris[1 + e]
+        dp = zip_strip_maxmin(o, B, V2[o], V2[B], j0, ref_V, ref_F)
+        if _zip_score(V2, dp, ref_V, ref_F) > _zip_score(V2, zt, ref_V, ref_F):
+            tris[1 + e] = dp
+    F2 = np.concatenate(tris)
+    info, scores = {}, {}
+    for e, side in enumerate(sides):
+        info[side] = band_report(V2, quads[e], ref_V, ref_F, S, e * nb)
+        zt = tris[1 + e]
+        scores[side] = _zip_score(V2, zt, ref_V, ref_F)
+        info[side].update(zip_triangles=int(len(zt)), border_vertices=int(len(zips[e][1])),
+                          zip_min_angle_deg=round(scores[side][1], 3), zip_flipped_faces=-scores[side][0])
+    return V2, F2, Q, band_ids, info, scores

@@ -1,0 +1,173 @@
+"""The grid band round each eyelid loop (retopo ``band: grid``, pipeline/retopo/eye_band.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fixtures import face_patch
+from pipeline.geometry import mesh_checks as mc
+from pipeline.retopo.eye_band import (band_report, build_band, grid_quads, ring_distances, smooth_grid, split_quads,
+                                      zip_strip_maxmin)
+from pipeline.retopo.retopo import RetopoSettings, retopologize
+
+
+def _planar_annulus(a=5.0, b=30.0, h=0.4, seed=0):
+    """A flat disk of radius ``b`` with a round hole of radius ``a`` (z = 0, faces towards +z)."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(seed)
+    pts, r = [], a
+    while r <= b + 1e-9:
+        n = int(round(2 * np.pi * r / h))
+        t = 2 * np.pi * (np.arange(n) + rng.uniform(0, 1)) / n
+        pts.append(np.stack([r * np.cos(t), r * np.sin(t)], 1))
+        r += 0.87 * h
+    P = np.concatenate(pts)
+    T = Delaunay(P).simplices
+    T = T[np.linalg.norm(P[T].mean(axis=1), axis=1) > a]
+    e1, e2 = P[T[:, 1]] - P[T[:, 0]], P[T[:, 2]] - P[T[:, 0]]
+    cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    T[cw] = T[cw][:, [0, 2, 1]]
+    return np.column_stack([P, np.zeros(len(P))]), T.astype(np.int64)
+
+
+def test_ring_distances_grow_geometrically():
+    d = ring_distances(6, 8.0, 0.5)
+    steps = np.diff(d)
+    assert d[0] == 0 and d[-1] == pytest.approx(8.0) and steps[0] == pytest.approx(0.5)
+    assert np.allclose(steps[1:] / steps[:-1], steps[1] / steps[0])
+    assert np.allclose(np.diff(ring_distances(4, 4.0, 1.0)), 1.0)
+
+
+def test_band_on_a_disk_with_a_hole_is_the_polar_grid():
+    """Known answer: on a flat annulus the spokes are radial and ring k lies d_k beyond the hole."""
+    V, F = _planar_annulus()
+    S, a, rings, width = 64, 5.0, 6, 8.0
+    th = 2 * np.pi * np.arange(S) / S
+    loop = np.stack([a * np.cos(th), a * np.sin(th), 0 * th], 1)
+    hole = min(mc.boundary_loops(F), key=lambda b: np.linalg.norm(V[b], axis=1).mean())
+    first = 2 * np.pi * a / S
+    G, info = build_band(loop, V, F, hole, rings, width, first, 20.0)
+    assert G.shape == (rings + 1, S, 3) and G.reshape(-1, 3).shape[0] == (rings + 1) * S
+    assert np.array_equal(G[0], loop)
+    assert info["param_inverted_triangles"] == 0 and not info["spokes_out_of_order"]
+    d = ring_distances(rings, width, first)
+    r = np.linalg.norm(G[..., :2], axis=2)
+    assert np.abs(r - (a + d)[:, None]).max() < 0.02          # rings graded as asked
+    ang = np.angle(np.exp(1j * (np.arctan2(G[..., 1], G[..., 0]) - th[None])))
+    assert np.abs(ang).max() < 0.05                            # spokes radial (rad)
+    assert np.abs(G[..., 2]).max() < 1e-9
+    Q = split_quads(G.reshape(-1, 3), grid_quads(0, rings, S, reverse=True))
+    rep = band_report(G.reshape(-1, 3), Q, V, F, S, 0)
+    assert rep["flipped_faces"] == 0 and rep["min_angle_deg"] > 20.0
+
+
+def test_smoothing_keeps_the_polar_grid_and_pulls_a_cut_tip_out():
+    """The polar grid of a flat annulus is (nearly) a fixed point of smooth_grid; a ring 1 node
+    pulled in behind a spike of the loop (a canthus apex) is pushed back out beyond it."""
+    V, F = _planar_annulus()
+    S, a, rings, width = 64, 5.0, 6, 8.0
+    th = 2 * np.pi * np.arange(S) / S
+    d = ring_distances(rings, width, 2 * np.pi * a / S)
+    G = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+    Gs = smooth_grid(G, d, V, F)
+    assert np.array_equal(Gs[0], G[0])
+    assert np.abs(Gs - G).max() < 0.1
+    assert np.abs(np.linalg.norm(Gs[-1], axis=1) - (a + width)).max() < 0.05     # outer ring slides along itself
+    # a spike: loop vertex 0 moved 1.5 mm out, ring 1 left where it was (inside the tip)
+    G2 = G.copy()
+    G2[0, 0] *= (a + 1.5) / a
+    Gs2 = smooth_grid(G2, d, V, F)
+    assert np.linalg.norm(Gs2[1, 0]) > np.linalg.norm(G2[0, 0]) + 0.5 * d[1]
+
+
+def test_zip_strip_maxmin_is_a_strip_no_worse_than_the_greedy_one():
+    from pipeline.retopo.eye_rings import _zip_strip
+
+    t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    u = np.linspace(0, 2 * np.pi, 86, endpoint=False) + 0.03
+    V = np.concatenate([8 * np.stack([np.cos(t), np.sin(t), 0 * t], 1), 9 * np.stack([np.cos(u), np.sin(u), 0 * u], 1)])
+    inner, outer = np.arange(64), 64 + np.arange(86)
+    T = zip_strip_maxmin(inner, outer, V[inner], V[outer], 0)
+    G = _zip_strip(inner, outer, V[inner], V[outer], 0)
+    assert len(T) == 64 + 86 and len(np.unique(np.sort(T, 1), axis=0)) == len(T)
+    assert mc.triangle_angles_deg(V, T).min() >= mc.triangle_angles_deg(V, G).min() - 1e-9
+    # wound like the greedy strip
+    assert np.sign(mc.face_normals(V, T)[:, 2]).sum() == np.sign(mc.face_normals(V, G)[:, 2]).sum()
+    # with the surface: no triangle turned against it
+    disk = np.concatenate([V, [[0.0, 0.0, 0.0]]])
+    ring = np.concatenate([np.stack([np.arange(86) + 64, np.roll(np.arange(86), -1) + 64, np.full(86, 150)], 1)])
+    Ts = zip_strip_maxmin(inner, outer, V[inner], V[outer], 0, disk, ring[:, [1, 0, 2]] if
+                          mc.face_normals(disk, ring)[0, 2] * mc.face_normals(V, G)[0, 2] < 0 else ring)
+    assert np.all(mc.face_normals(V, Ts)[:, 2] * mc.face_normals(V, G)[0, 2] > 0)
+
+
+@pytest.fixture(scope="module")
+def patch():
+    return face_patch()
+
+
+def test_grid_band_ids_are_fixed_and_built(patch):
+    V, F, eyes = patch
+    s = RetopoSettings(method="quadric", target_polygons=1500, loop_points=32, band="grid",
+                       band_rings=4, band_width_mm=6.0)
+    r = retopologize(V, F, eyes, s)
+    rep = mc.check_mesh(r.V, r.F)
+    assert rep.manifold and rep.boundary_loops == 3
+    nb = 5 * 32
+    for e, side in enumerate(("left", "right")):
+        ids = r.band[side]
+        assert np.array_equal(ids, e * nb + np.arange(nb).reshape(5, 32))
+        assert np.array_equal(r.loops[side], ids[0])
+    # the quads of the band are the first polygons after the triangles: 4 x 32 per eye
+    assert int(np.count_nonzero(r.poly_counts == 4)) == 2 * 4 * 32
+    m = r.metrics["band"]
+    assert m["kind"] == "grid" and m["ids"] == {"left": [0, nb], "right": [nb, 2 * nb]}
+
+
+def test_two_heads_have_the_same_band_ids(patch):
+    """A second head (the patch scaled and its eye region pushed out) gets the same band ids."""
+    V, F, eyes = patch
+    V2 = V.copy()
+    V2[:, 2] += 0.8 * np.exp(-((V2[:, 1] - V2[:, 1].mean()) / 15.0) ** 2)
+    s = RetopoSettings(method="quadric", target_polygons=1500, loop_points=32, band="grid",
+                       band_rings=4, band_width_mm=6.0)
+    r1 = retopologize(V, F, eyes, s)
+    r2 = retopologize(V2 * 1.05, F, {k: {**e, "center": np.asarray(e["center"]) * 1.05} for k, e in eyes.items()}, s)
+    for side in ("left", "right"):
+        assert np.array_equal(r1.band[side], r2.band[side])
+        assert np.array_equal(r1.loops[side], r2.loops[side])
+    assert r1.lateral == r2.lateral
+
+
+@pytest.mark.slow
+def test_former_folding_identity_rigs_without_a_fold(tmp_path):
+    """ident_s0_001 folded a lid face in the rig sweep with the repaired band (issue 30)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from fixtures.chain import stage_commands
+
+    root = Path(__file__).parents[1]
+    eyeball = root / "rigged_assets" / "eyeball"
+    if not (eyeball / "eyeball.usda").is_file():
+        pytest.skip("rigged_assets/eyeball is not built (dvc repro eyeball)")
+    params = tmp_path / "params.yaml"
+    params.write_text((root / "params.yaml").read_text())          # band: grid is the default
+    run = [sys.executable, "-m"]
+    subprocess.run(run + ["stages.identities", "--n", "2", "--no-repro", "--params", str(params)],
+                   check=True, cwd=root, capture_output=True)
+    scan = tmp_path / "ident_s0_001"
+    subprocess.run(run + ["stages.synthetic_head", str(scan), "--identity", "ident_s0_001", "--params",
+                          str(params), "--metrics", str(tmp_path / "sh.json")], check=True, cwd=root,
+                   capture_output=True)
+    cmds = stage_commands(scan, tmp_path / "build", eyeball, tmp_path / "asset", through="rig")
+    for name, words in cmds.items():
+        r = subprocess.run(run + words + ["--params", str(params), "--metrics", str(tmp_path / f"{name}.json")],
+                           cwd=root, capture_output=True, text=True)
+        assert r.returncode == 0, (name, r.stderr[-2000:])
+    assert json.loads((tmp_path / "retopo.json").read_text())["band"]["kind"] == "grid"
+    assert json.loads((tmp_path / "rig.json").read_text())["sweep_flipped_faces"] == 0
