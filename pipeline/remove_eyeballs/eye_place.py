@@ -51,7 +51,8 @@ HA_RANGE = (-1.0, 1.6)  # anterior height: recessed iris .. a prominent cornea
 HB_RANGE = (-1.0, 1.6)  # anterior ring: the iris seen through a clear cornea stands highest off the axis
 HB_SIGMA = 1.0          # weak prior on the ring (0 = a plain cap)
 REFINE_ITERS = 3
-POLISH_KEEP, POLISH_ITERS = 4, 5   # the best local optima refined further (polish)
+POLISH_KEEP, POLISH_ITERS = 2, 4   # the best local optima refined further (polish)
+RESTARTS_KEEP = 4                  # turned gazes refined in full after one round each
 NP = 8                  # parameters per eye besides the radius: c (3), gaze (2), ha, tl, hb
 LIMBUS_DEG = (30.5, 2.0)        # prior on the limbus half-angle, deg (people 29 +- 1.5, ICT 30-34)
 LIMBUS_RANGE = (24.0, 37.0)
@@ -640,11 +641,13 @@ def gaze_restarts(p: Patch, found, cues: Cues, radius_range, min_fold_deg):
     if not ok:
         return []
     m = min(ok, key=lambda m: m.energy)
-    out = []
-    for yaw, pitch in GAZE_RESTARTS_DEG:
-        e = m.eye
-        out.append(refine(p, Eye(e.c, e.R, _turn(e.n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range))
-    return out
+    e = m.eye
+    # one round from every turned gaze, then the full refinement of the few lowest: most turned
+    # starts fall back into the start's basin or wander off within one round
+    first = [refine(p, Eye(e.c, e.R, _turn(e.n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1)
+             for yaw, pitch in GAZE_RESTARTS_DEG]
+    first.sort(key=lambda t: t.energy)
+    return [refine(p, t.eye, cues, radius_range, iters=REFINE_ITERS - 1) for t in first[:RESTARTS_KEEP]]
 
 
 def polish(p: Patch, found, cues: Cues, radius_range, keep=POLISH_KEEP, iters=POLISH_ITERS):
