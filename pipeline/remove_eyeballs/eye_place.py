@@ -27,7 +27,7 @@ Search: sphere hypotheses from pairs of oriented vertices near the hint (and alo
 axis), ranked by the graph-cut energy; the best few are refined by alternating the cut and a
 robust least-squares fit of ``(c, R, n, ha, tl)`` (EM). The best of them is refitted again from
 gazes turned up to 45 deg away (:func:`gaze_restarts`; the least squares does not cross from
-the eye region's forward to a gaze turned in, out or down), and the lowest few are polished. The uncertainty is the Laplace
+the eye region's forward to a gaze turned in, out or down), and the two lowest are polished. The uncertainty is the Laplace
 approximation of the final fit, widened by the other local optima weighted by their energy
 (``temperature``), times a calibration factor measured on unseen heads (benchmarks).
 """
