@@ -43,50 +43,18 @@ problem.
 from __future__ import annotations
 
 import argparse
-import os
 import shlex
-import shutil
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 from pipeline.errors import ScanError
-from pipeline.io.atomic import refuse_link, write_text
-from pipeline.synthetic_head.identities import (DEFAULT_TRIANGLES, add_identities, draw_identity,
-                                                drop_lock_stages, identity_name, remove_identities)
+from pipeline.io.atomic import write_text
+from pipeline.synthetic_head.identities import DEFAULT_TRIANGLES, add_identities, draw_identity, identity_name
+from pipeline.synthetic_head.identity_files import (OUTPUT_FOLDERS, remove, repro_command,  # noqa: F401
+                                                    repro_env, repro_invocation)
 
 #: The folders (beside params.yaml) that hold an identity's outputs, one ``<folder>/<name>`` each.
-OUTPUT_FOLDERS = ("raw_scans", "build", "rigged_assets", "renders")
-
-
-def repro_command(names) -> list[str]:
-    """``dvc repro usd@<name> ...``: each asset and what it needs, not the renders."""
-    return ["dvc", "repro", *[f"usd@{n}" for n in names]]
-
-
-def repro_env(exe=None, environ=None) -> dict:
-    """``environ`` (default os.environ) with the folder of ``exe`` (default this Python) first on
-    PATH: dvc.yaml's commands say ``python``, and dvc runs the first one on PATH, which outside an
-    activated venv has none of the pipeline's packages. The folder is not resolved: a venv's
-    ``python`` is a link to the base interpreter, whose folder is not the venv's."""
-    env = dict(os.environ if environ is None else environ)
-    first = str(Path(sys.executable if exe is None else exe).parent)
-    env["PATH"] = os.pathsep.join([first, *[p for p in env.get("PATH", "").split(os.pathsep) if p]])
-    return env
-
-
-def repro_invocation(names, exe=None, environ=None) -> tuple[list[str], dict]:
-    """(argv, env) that run :func:`repro_command`: the dvc first on :func:`repro_env`'s PATH (the
-    venv's when it has one). ScanError naming the bin folder when there is no dvc at all."""
-    env = repro_env(exe, environ)
-    dvc = shutil.which("dvc", path=env["PATH"])
-    if dvc is None:
-        raise ScanError(env["PATH"].split(os.pathsep)[0], "has no dvc and PATH has none either: install "
-                        "it into this venv (pip install dvc) or pass --no-repro (params.yaml was not changed)")
-    return [dvc, *repro_command(names)[1:]], env
-
-
 def checked_params(text: str, source) -> dict:
     """``text`` read as params.yaml is read (no repeated key) and checked whole; ScanError otherwise."""
     from pipeline.io.strict_yaml import DuplicateKeyError, load_strict
@@ -98,54 +66,6 @@ def checked_params(text: str, source) -> dict:
         raise ScanError(source, f"{exc}: each key may appear once") from None
     check_params(data, source=str(source), complete=True)
     return data
-
-
-def check_folder(path) -> None:
-    """ScanError for a link or a file at ``path``: the command deletes only folders the pipeline
-    wrote, and never follows a link out of the project (pipeline/io/atomic.py refuse_link)."""
-    refuse_link(path)
-    if Path(path).exists() and not Path(path).is_dir():
-        raise ScanError(path, "is not a folder (an identity's outputs are folders); nothing was changed")
-
-
-def remove_folder(path) -> bool:
-    """Delete the folder ``path`` (True) or nothing when there is none (False); a link or a file
-    there is refused (:func:`check_folder`). The folder is renamed to a hidden temporary sibling
-    first, so it vanishes whole even if the delete is killed (what is left is a
-    ``.<name>.tmp-<pid>-*`` folder, which git, dvc and the next atomic write of that name clear)."""
-    path = Path(path)
-    check_folder(path)
-    if not path.exists():
-        return False
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-{os.getpid()}-", dir=path.parent))
-    tmp.rmdir()
-    os.replace(path, tmp)
-    shutil.rmtree(tmp)
-    return True
-
-
-def remove(params: Path, names) -> str:
-    """Remove the identities ``names`` (module docstring); returns the line that reports it."""
-    names = list(dict.fromkeys(names))
-    root = params.resolve().parent
-    text = remove_identities(params.read_text(encoding="utf-8"), names, params)
-    data = checked_params(text, params)
-    scans = [n for n in names if n in (data.get("scans") or [])]
-    if scans:
-        raise ScanError(params, f"scans: {scans[0]!r} is listed outside the '# >>> identities' marks too "
-                                "(a scan of that name: its folders are not an identity's); nothing was changed")
-    lock, lock_text, dropped = root / "dvc.lock", None, []
-    if lock.is_file():
-        lock_text, dropped = drop_lock_stages(lock.read_bytes().decode("utf-8"), names, lock)
-    folders = [root / d / n for n in names for d in OUTPUT_FOLDERS]
-    for f in folders:                    # every refusal before the first change
-        check_folder(f)
-    removed = [f for f in folders if remove_folder(f)]
-    if dropped:
-        write_text(lock, lock_text)
-    write_text(params, text)             # last: until here a rerun of the same command finishes the job
-    return (f"{params}: removed {', '.join(names)} from identities: and scans:, {len(dropped)} stage(s) "
-            f"from {lock.name}, {len(removed)} folder(s)")
 
 
 def main(argv=None) -> int:
@@ -165,7 +85,7 @@ def main(argv=None) -> int:
         if not args.params.is_file():
             raise ScanError(args.params, "not found")
         if args.remove:
-            print(remove(args.params, args.remove))
+            print(remove(args.params, args.remove, checked_params))
             return 0
         if args.n < 1 or args.seed < 0:
             raise ScanError(args.params, f"--n must be >= 1 and --seed >= 0 (got {args.n}, {args.seed})")
