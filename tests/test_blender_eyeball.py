@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,9 @@ def imported(tmp_path_factory):
     eye = geo.build_eyeball(resolution="high")
     usda = write_eyeball_usd(eye, d / "eyeball.usda")
     out = d / "rt.npz"
-    res = subprocess.run([sys.executable, "-m", "pipeline.blender.usd_roundtrip", str(usda), str(out)],
+    from pipeline.blender import launch
+
+    res = subprocess.run(launch.command("pipeline.blender.usd_roundtrip", [usda, out]),
                          cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
     data = dict(np.load(out))
