@@ -25,7 +25,7 @@ def render_preview(usda: Path, rig_npz: Path, out_png: Path, size: int, samples:
         info_path = Path(td) / "preview.json"
         res = launch.run(WORKER, [usda, rig_npz, out_png, "--size", int(size), "--samples", int(samples),
                                   "--json", info_path])
-        if res.returncode != 0 or not out_png.is_file():
+        if res.returncode != 0 or not out_png.is_file() or out_png.stat().st_size == 0:
             last = (res.stderr or res.stdout or "").strip().splitlines()[-1:] or ["no output"]
             raise ScanError(usda, f"the asset preview render failed ({last[0][:200]})")
         strip_png_metadata(out_png)          # Blender's time/text chunks: same pixels, same bytes

@@ -26,7 +26,6 @@ from pipeline.results import StageResult
 from pipeline.rig import lids
 
 
-
 def _need(path: Path) -> Path:
     if not path.is_file():
         raise ScanError(path, "not found")
