@@ -65,8 +65,10 @@ BEFORE = {"size": 240, "samples": 8,
 def run_worker(asset: Path, rig: Path, out_png: Path, size: int, samples: int, options: dict) -> dict:
     """One fresh worker process; its JSON report plus ``process_s`` (wall seen here)."""
     js = out_png.with_suffix(".json")
-    cmd = [sys.executable, "-m", "pipeline.blender.asset_preview", str(asset), str(rig), str(out_png),
-           "--size", str(size), "--samples", str(samples), "--json", str(js)]
+    from pipeline.blender import launch
+
+    cmd = launch.command("pipeline.blender.asset_preview", [asset, rig, out_png, "--size", size, "--samples",
+                                                            samples, "--json", js])
     for k, v in options.items():
         cmd += ["--option", f"{k}={v}"]
     t0 = time.perf_counter()

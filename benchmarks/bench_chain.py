@@ -4,9 +4,9 @@
                                                [--eyeball DIR] [--keep DIR] [--compare CHECKOUT]
 
 Generates the synthetic head once (``make_synthetic_head`` + ``write_scan_folder`` into a temp folder),
-builds the eyeball asset once (preview off) unless ``--eyeball`` names one, then runs each stage exactly as
-dvc.yaml does (``python -m stages.<stage> ... --metrics ...``, params from ./params.yaml with the usd
-stage's preview off: a scan to a validated USD asset) as a subprocess, timing its wall time and its
+builds the eyeball asset once unless ``--eyeball`` names one, then runs each stage exactly as
+dvc.yaml does (``python -m stages.<stage> ... --metrics ...``, params from ./params.yaml: a scan to a
+validated USD asset, the previews being stages of their own) as a subprocess, timing its wall time and its
 CPU time (user + system; hardly moved by other jobs on the machine). Repeated ``--repeats`` times;
 writes benchmarks/results/chain.json with the median per stage and of the total, every run's times,
 the load average before each run, each stage's import time (one more run with ``-X importtime``,
@@ -138,7 +138,7 @@ def main():
         shutil.copytree(args.eyeball, eyeball)
     if not (eyeball / "eyeball.usda").exists():
         pfile = work / "eyeball_params.yaml"
-        pfile.write_text("eyeball: {preview: false}\n")
+        pfile.write_text("eyeball: {}\n")
         timed_run(py + ["stages.eyeball", str(eyeball), "--params", str(pfile),
                    "--metrics", str(work / "eyeball.metrics.json")])
 
@@ -147,7 +147,6 @@ def main():
     import yaml
 
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
-    params.setdefault("usd", {})["preview"] = False      # scan to validated USD (the preview is item 2's)
     pfile = work / "chain_params.yaml"
     pfile.write_text(yaml.safe_dump(params, sort_keys=False))
     sides = {"this": (ROOT, b, cmds)}

@@ -9,9 +9,9 @@ earlier run), the shared inputs are built first and not timed: ``dvc repro check
 eyeball``. Then, for each repeat, a fresh 350k-triangle head is added as
 ``raw_scans/new_scan_<i>/`` and to ``scans:`` in the clone's params.yaml (replacing the
 previous repeat's name, so every repeat is a scan DVC has never seen: no run-cache hit), and
-``dvc repro render@new_scan_<i>`` is timed: check_params (the scan list changed), then that
-scan's ingest, remove_eyeballs, retopo, bake, snap, rig, usd (asset preview included) and render
-(``render.n_images`` images, 16 in params.yaml).
+``dvc repro render@new_scan_<i> preview@new_scan_<i>`` is timed: check_params (the scan list
+changed), then that scan's ingest, remove_eyeballs, retopo, bake, snap, rig, usd, render
+(``render.n_images`` images, 16 in params.yaml) and the asset's preview.
 
 The head is procedural (``make_synthetic_head`` with ``--seed``, not the home scan's seed 7) or,
 with ``--source scanify``, an ICT-FaceKit identity from scanify (``../shared/tools/scanify``,
@@ -45,7 +45,7 @@ from tests.fixtures.params import set_scans
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
-STAGES = ("check_params", "ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "usd", "render")
+STAGES = ("check_params", "ingest", "remove_eyeballs", "retopo", "bake", "snap", "rig", "usd", "render", "preview")
 
 
 def run_env() -> dict:
@@ -79,11 +79,11 @@ def make_scan(source: str, triangles: int, seed: int, folder: Path, scanify: Pat
            "--identity-seed", str(seed), "--seed", str(seed), "--faces", str(triangles)], ROOT, "scanify")
 
 
-def timed_repro(clone: Path, target: str):
+def timed_repro(clone: Path, *targets: str):
     """``dvc repro target`` in ``clone``, reading its output as it comes: (total wall s, [(stage, scan or
     None, start s)], output text). Exits with the output's end when DVC fails."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(["dvc", "repro", target], cwd=clone, env=run_env(), stdout=subprocess.PIPE,
+    proc = subprocess.Popen(["dvc", "repro", *targets], cwd=clone, env=run_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, bufsize=1)
     starts, text = [], []
     for line in proc.stdout:
@@ -154,20 +154,20 @@ def main():
         shutil.copytree(scan_src, clone / "raw_scans" / name)
         set_scans(params_file, home + [name])
         load = os.getloadavg()[0]
-        total, starts, text = timed_repro(clone, f"render@{name}")
+        total, starts, text = timed_repro(clone, f"render@{name}", f"preview@{name}")
         ran = [s[0] for s in starts]
         missing = [st for st in STAGES if st not in ran]
         if missing:
-            raise SystemExit(f"dvc repro render@{name} did not run {', '.join(missing)}:\n{text[-3000:]}")
+            raise SystemExit(f"dvc repro render@{name} preview@{name} did not run {', '.join(missing)}:\n{text[-3000:]}")
         index = clone / "renders" / name / "index.jsonl"
         images = sum(1 for line in index.read_text(encoding="utf-8").splitlines() if line.strip())
         own = own_timings(clone, name)
-        usd = own.get("usd", {})
+        preview = own.get("preview", {})
         run = {"scan": name, "load_average_1min": round(load, 2), "total_s": round(total, 3),
                "dvc_stage_s": {k: round(v, 3) for k, v in stage_walls(starts, total).items()},
                "stage_wall_time_s": {k: v.get("wall_time_s") for k, v in own.items()},
                "stage_cpu_time_s": {k: v.get("cpu_time_s") for k, v in own.items()},
-               "preview_s": usd.get("preview_s"), "images": images,
+               "preview_s": preview.get("preview_s"), "images": images,
                "render_timings": own.get("render", {})}
         runs.append(run)
         print(f"repeat {rep}: {total:.1f} s (load {load:.1f}): "

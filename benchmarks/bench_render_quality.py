@@ -106,8 +106,10 @@ class Client:
 
         self.prefix = REPLY_PREFIX
         t = time.perf_counter()
-        self.p = subprocess.Popen([sys.executable, "-m", "pipeline.blender.render_worker", str(asset),
-                                   str(rig_npz), "--threads", str(threads), *extra], cwd=ROOT,
+        from pipeline.blender import launch
+
+        self.p = subprocess.Popen(launch.command("pipeline.blender.render_worker",
+                                                 [asset, rig_npz, "--threads", threads, *extra]), cwd=ROOT,
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                   stderr=subprocess.DEVNULL, text=True)
         self.ready = self.read()

@@ -51,10 +51,9 @@ SIDES = ("left", "right")
 
 # the oracle's figures (bench_unseen_oracle): what a fit to the scanned sclera can reach
 PLACE_MM, PLACE_MAX_MM = 0.5, 1.0
-BENCH_PARAMS = {"bake": {"resolution": 512, "metric_samples": 20000}, "eyeball": {"preview": False},
-                "usd": {"preview": False, "usdz": False}}
+BENCH_PARAMS = {"bake": {"resolution": 512, "metric_samples": 20000}, "usd": {"usdz": False}}
 # --pictures: small and few, so that ten heads stay affordable on two cores
-PICTURE_PARAMS = {"usd": {"preview": True, "preview_px": 120, "preview_samples": 4}}
+PICTURE_PARAMS = {"usd": {"preview_px": 120, "preview_samples": 4}}
 PICTURE_RENDER = {"n_images": 8, "samples": 4, "workers": 1, "sheet_images": 8}
 
 
@@ -90,8 +89,10 @@ def render_pictures(case: str, build: Path, asset: Path, renders: Path, params: 
     Returns what it wrote, or why not (the render's last stderr line)."""
     out.mkdir(parents=True, exist_ok=True)
     done = {}
-    if (asset / "preview.png").is_file():
-        shutil.copyfile(asset / "preview.png", out / f"{case}_preview.png")
+    r = subprocess.run([sys.executable, "-m", "stages.preview", str(asset), str(build / "rig"),
+                        str(out / f"{case}_preview.png"), "--params", str(params),
+                        "--metrics", str(build / "preview.metrics.json")], cwd=ROOT, capture_output=True, text=True)
+    if r.returncode == 0:
         done["preview"] = str(out / f"{case}_preview.png")
     shutil.rmtree(renders, ignore_errors=True)
     r = subprocess.run([sys.executable, "-m", "stages.render", str(asset), str(build / "rig"), str(renders),

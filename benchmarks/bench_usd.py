@@ -44,7 +44,6 @@ def main(argv=None) -> int:
         shutil.copytree(eyeball, td / "rigged_assets" / "eyeball")
         # The asset itself, not the optional Cycles contact sheet (benchmarks/bench_asset_preview.py).
         params = yaml.safe_load((ROOT / "params.yaml").read_text())
-        params.setdefault("usd", {})["preview"] = False
         (td / "params.yaml").write_text(yaml.safe_dump(params))
         common = ["--params", str(td / "params.yaml")]
         for i in range(RUNS):

@@ -173,7 +173,8 @@ HEADLINES = {
     "bake": {"err_mm": ["reconstruction.with_displacement.symmetric_mean_mm"]},
     "snap": {"err_mm": ["gap_max_mm", "inside_max_mm"], "issues": ["flipped_faces"]},
     "rig": {"faces": ["n_faces"], "err_mm": ["interpolation_error_mm"], "issues": ["sweep_flipped_faces"]},
-    "usd": {"faces": ["n_faces"], "err_mm": ["preview_lid_max_error_mm"], "issues": ["validation_errors"]},
+    "usd": {"faces": ["n_faces"], "issues": ["validation_errors"]},
+    "preview": {"err_mm": ["preview_lid_max_error_mm"]},
     "render": {"images": ["n_images"], "err_mm": ["landmark_check_max_mm"]},
 }
 #: What ``err_mm`` is for each stage (docs/layout.md says the same).
@@ -184,7 +185,7 @@ ERR_MM = {
     "bake": "the mean distance of the displaced low-poly mesh to the scan (symmetric)",
     "snap": "the largest gap or overlap between lid margin and eyeball",
     "rig": "the largest interpolation error of the lid shapes",
-    "usd": "the largest lid error in the published asset's preview",
+    "preview": "the largest lid error in the published asset's preview",
     "render": "the largest landmark check error over the images",
 }
 

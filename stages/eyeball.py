@@ -4,9 +4,8 @@
 
 Builds the eyeball (pipeline/eyeball; the asset: pipeline/usd/eyeball_asset.py), writes ``eyeball.usda`` and
 ``textures/*.png`` (4 iris colours, 2 veins layers, sclera bump height + normal map), validates the asset
-(pipeline/usd/validate.py; any error fails the stage), and, unless
-``preview: false``, renders ``preview.png`` (Cycles contact sheet) in a Blender
-worker subprocess. Settings: the ``eyeball:`` block of params.yaml.
+(pipeline/usd/validate.py; any error fails the stage). No Blender here: the contact sheet is
+the next step, ``stages/eyeball_preview.py``. Settings: the ``eyeball:`` block of params.yaml.
 """
 
 from __future__ import annotations
@@ -15,7 +14,7 @@ from pathlib import Path
 
 from pipeline.eyeball import geometry as geo
 from pipeline.io.atomic import atomic_dir
-from pipeline.usd.eyeball_asset import build_eyeball_asset, render_eyeball_preview
+from pipeline.usd.eyeball_asset import build_eyeball_asset
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
@@ -26,8 +25,6 @@ def main(argv):
     settings = load_settings(geo.EyeballSettings, args.params)   # checked before anything is written
     with atomic_dir(args.out) as tmp:
         result = build_eyeball_asset(tmp, settings)
-        if settings.preview:
-            result += render_eyeball_preview(tmp, settings)
     return result.at(args.metrics or default_metrics_path(args.out))
 
 

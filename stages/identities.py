@@ -29,7 +29,7 @@ command is idempotent, and rolling them back would lose the stages that did fini
 ``--remove`` takes names out of both marked lists (checked the same way), deletes their stages
 ``<stage>@<name>`` from ``dvc.lock`` (cut out as text: every other stage keeps its bytes) and
 their folders ``raw_scans/<name>``, ``build/<name>``, ``rigged_assets/<name>`` and
-``renders/<name>`` beside params.yaml. Everything is checked before anything changes (a name
+``renders/<name>`` beside params.yaml, and the asset's picture ``rigged_assets/<name>.preview.png``. Everything is checked before anything changes (a name
 not between the marks, a folder that is a symbolic link, a dvc.lock not laid out as dvc
 writes it); then the folders go first and params.yaml last, so an interrupted removal still
 lists the identity and the same command finishes it. A folder is renamed to a hidden

@@ -11,10 +11,8 @@ The asset folder is self-contained: it holds a copy of the eyeball asset (eyebal
 and its textures, ~3 MB), which the eyes reference as ./eyeball/eyeball.usda, so a copied or
 moved folder keeps its eyes; the usdz packages the same files.
 Every asset is checked with pipeline.usd.validate; any error refuses the build (exit 2).
-With ``preview: true`` in the ``usd:`` block, a Cycles contact sheet (front views at pitch
-+25/0/-25 deg and a three-quarter view; pipeline/blender/asset_preview.py, run as a Blender
-worker subprocess) is written to rigged_assets/<scan>/preview.png (``preview_px`` tile height,
-``preview_samples`` Cycles samples + OpenImageDenoise). The work is in pipeline/usd/build.py.
+No Blender here: the asset's Cycles contact sheet is the next step, ``stages/preview.py``.
+The work is in pipeline/usd/build.py.
 """
 
 from __future__ import annotations
@@ -22,7 +20,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from pipeline.io.atomic import atomic_dir
-from pipeline.usd.build import build, read_inputs, render_preview
+from pipeline.usd.build import build, read_inputs
 from stages._common import (default_metrics_path, load_params, load_settings, scan_folder_name, stage_exit,
                             stage_parser)
 
@@ -49,9 +47,6 @@ def main(argv):
     name = scan_folder_name(args.out)
     with atomic_dir(args.out) as tmp:
         result = build(inp, Path(tmp), name, all_params, package=settings.usdz)
-        if settings.preview:
-            result += render_preview(Path(tmp) / f"{name}.usda", args.rig / "rig.npz", Path(tmp) / "preview.png",
-                                     settings.preview_px, settings.preview_samples)
     return result.at(args.metrics or default_metrics_path(args.out))
 
 

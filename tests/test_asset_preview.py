@@ -1,4 +1,4 @@
-"""Cycles contact sheet of the per-scan asset (stage ``usd`` with ``preview: true``, Blender worker)."""
+"""Cycles contact sheet of the per-scan asset (stage ``preview`` after ``usd``, Blender worker)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from PIL import Image
 
 from fixtures import make_inputs, params_file, usd_argv
 from pipeline.blender.asset_preview import LABEL_H, PAD, TILE_ASPECT, sheet_size, tile_boxes
+from stages import preview as preview_stage
 from stages import usd as usd_stage
 from stages._common import read_stage_metrics, run_stage
 
@@ -19,11 +20,15 @@ SIZE = 32
 def previewed(tmp_path_factory):
     root = tmp_path_factory.mktemp("asset_preview")
     inp = make_inputs(root)
-    params = params_file(root, {"usd": {"usdz": False, "preview": True, "preview_px": SIZE, "preview_samples": 2}})
+    params = params_file(root, {"usd": {"usdz": False, "preview_px": SIZE, "preview_samples": 2}})
     args = usd_argv(inp)
     args[args.index("--params") + 1] = str(params)
     assert run_stage(usd_stage.main, args) == 0
-    return inp, read_stage_metrics(inp["metrics"])
+    inp["png"] = inp["out"].with_name(inp["out"].name + ".preview.png")
+    metrics = root / "preview.metrics.json"
+    assert run_stage(preview_stage.main, [str(inp["out"]), str(inp["dirs"]["rig"]), str(inp["png"]),
+                                          "--metrics", str(metrics), "--params", str(params)]) == 0
+    return inp, read_stage_metrics(metrics)
 
 
 def _tiles(img):
@@ -33,8 +38,9 @@ def _tiles(img):
 
 def test_sheet_written_with_expected_size_and_content(previewed):
     inp, metrics = previewed
-    png = inp["out"] / "preview.png"
+    png = inp["png"]
     assert png.is_file() and not (inp["out"] / "tiny.usdz").exists()
+    assert not [p.name for p in png.parent.iterdir() if ".tmp" in p.name]     # written through a sibling
     img = Image.open(png)
     assert img.size == sheet_size(SIZE) == (2 * TILE_ASPECT * SIZE + 3 * PAD, 2 * (SIZE + LABEL_H) + 3 * PAD)
     for t in _tiles(img):
@@ -47,7 +53,7 @@ def test_sheet_written_with_expected_size_and_content(previewed):
 
 def test_pose_changes_the_picture_and_lids_match_the_rig(previewed):
     inp, metrics = previewed
-    up, rest, down, _ = _tiles(Image.open(inp["out"] / "preview.png"))
+    up, rest, down, _ = _tiles(Image.open(inp["png"]))
     assert np.abs(up - down).mean() > 0.5          # eyes and lids moved between +25 and -25 deg
     # Blender shape keys (+ inbetween keys from rig.npz) reproduce the UsdSkel inbetween evaluation
     assert metrics["preview_lid_max_error_mm"] < 1e-4
@@ -57,13 +63,6 @@ def test_pose_changes_the_picture_and_lids_match_the_rig(previewed):
         assert sorted(meas[key]) == ["eye_left", "eye_right"]
         for side, got in meas[key].items():
             assert got == pytest.approx(pitch, abs=0.3), (key, side)
-
-
-def test_no_preview_by_default(tmp_path):
-    inp = make_inputs(tmp_path)
-    assert run_stage(usd_stage.main, usd_argv(inp)) == 0
-    assert not (inp["out"] / "preview.png").exists()
-    assert "preview_s" not in read_stage_metrics(inp["metrics"])
 
 
 def test_tiles_lie_inside_the_sheet_apart():

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,9 @@ def imported(tmp_path_factory):
     eye = geo.build_eyeball(resolution="high")
     usda = write_eyeball_usd(eye, d / "eyeball.usda")
     out = d / "rt.npz"
-    res = subprocess.run([sys.executable, "-m", "pipeline.blender.usd_roundtrip", str(usda), str(out)],
+    from pipeline.blender import launch
+
+    res = subprocess.run(launch.command("pipeline.blender.usd_roundtrip", [usda, out]),
                          cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
     data = dict(np.load(out))
@@ -63,3 +64,27 @@ def test_shape_key_offsets_match_usd(imported):
         full = np.zeros_like(off)
         full[s.point_indices] = s.offsets
         assert np.abs(off - full).max() < 1e-4, s.name          # mm
+
+
+def test_eyeball_preview_stage_writes_the_sheet_beside_the_asset(tmp_path):
+    """stages.eyeball_preview renders the sheet of an eyeball asset (4 colours x 4 views) into the
+    file it is given, through a temporary sibling, and leaves the asset folder as it was."""
+    from pipeline.usd.eyeball_asset import build_eyeball_asset
+    from stages import eyeball_preview
+    from stages._common import read_stage_metrics, run_stage
+
+    folder = tmp_path / "eyeball"
+    build_eyeball_asset(folder, {"resolution": "low", "iris_texture_px": 32, "sclera_texture_px": [32, 16]})
+    before = sorted(p.relative_to(folder) for p in folder.rglob("*"))
+    params = tmp_path / "params.yaml"
+    params.write_text("eyeball:\n  preview_px: 16\n  preview_samples: 1\n")
+    png, metrics = tmp_path / "eyeball.preview.png", tmp_path / "eyeball_preview.metrics.json"
+    assert run_stage(eyeball_preview.main, [str(folder), str(png), "--params", str(params),
+                                            "--metrics", str(metrics)]) == 0
+    from PIL import Image
+
+    assert Image.open(png).size == (4 * 16 + 5 * 4 + 60, 4 * 16 + 5 * 4 + 16)
+    assert sorted(p.relative_to(folder) for p in folder.rglob("*")) == before
+    assert [p.name for p in tmp_path.iterdir() if ".tmp" in p.name] == []
+    m = read_stage_metrics(metrics)
+    assert m["tiles"] == 16 and m["size"] == 16 and m["samples"] == 1 and m["wall_s"] > 0

@@ -71,7 +71,12 @@ def test_the_closure_follows_function_imports_strings_and_workers():
     assert "pipeline/render/settings.py" in render                 # imported inside main()
     assert "stages/_common.py" in render and "pipeline/__init__.py" in render
     usd = import_closure("usd")
-    assert "pipeline/blender/asset_preview.py" in usd and "pipeline/usd/validate.py" in usd
+    assert "pipeline/usd/validate.py" in usd
+    assert not [p for p in usd | import_closure("eyeball") if p.startswith("pipeline/blender/")]   # no Blender
+    preview = import_closure("preview")
+    assert "pipeline/blender/asset_preview.py" in preview                  # launch.run(WORKER, ...)
+    assert "pipeline/blender/render_worker.py" not in preview              # only the worker it names
+    assert "pipeline/blender/eyeball_preview.py" in import_closure("eyeball_preview")
     assert "pipeline/settings.py" in import_closure("check_params")
     assert "pipeline/render/settings.py" in import_closure("check_params")   # "module:Class" strings
     assert covered("pipeline/usd/stage.py", ["pipeline/usd"]) and not covered("pipeline/usdx.py", ["pipeline/usd"])

@@ -373,7 +373,7 @@ def test_usd_asset_contents(asset):
         sum(len(s.GetIndicesAttr().Get()) for s in sub) == len(e.inner.poly_counts)
 
 
-def test_stage_cli_builds_asset_without_preview(tmp_path):
+def test_stage_cli_builds_asset_without_blender(tmp_path):
     import subprocess
     import sys
     from pathlib import Path
@@ -381,7 +381,7 @@ def test_stage_cli_builds_asset_without_preview(tmp_path):
     root = Path(__file__).resolve().parents[1]
     params = tmp_path / "params.yaml"
     params.write_text("eyeball:\n  resolution: low\n  iris_texture_px: 64\n"
-                      "  sclera_texture_px: [64, 32]\n  preview: false\n")
+                      "  sclera_texture_px: [64, 32]\n")
     out = tmp_path / "rigged_assets" / "eyeball"
     res = subprocess.run([sys.executable, "-m", "stages.eyeball", str(out), "--params", str(params),
                           "--metrics", str(tmp_path / "m.json")], cwd=root, capture_output=True, text=True)
@@ -389,6 +389,7 @@ def test_stage_cli_builds_asset_without_preview(tmp_path):
     m = read_stage_metrics(tmp_path / "m.json")
     assert m["validation_errors"] == 0 and m["outer_vertices"] == 338
     assert (out / "eyeball.usda").is_file() and len(list((out / "textures").glob("*.png"))) == 8
+    assert not (out / "preview.png").exists()          # the eyeball_preview stage's, beside the folder
     assert not any(p.name.startswith(".eyeball.tmp") for p in out.parent.iterdir())
     assert math.isfinite(m["wall_time_s"])
 
@@ -432,7 +433,7 @@ def test_stage_cli_refuses_bad_settings(tmp_path):
 
     root = Path(__file__).resolve().parents[1]
     params = tmp_path / "params.yaml"
-    params.write_text("eyeball:\n  resolution: {n_around: 30}\n  preview: false\n")
+    params.write_text("eyeball:\n  resolution: {n_around: 30}\n")
     out = tmp_path / "eyeball"
     res = subprocess.run([sys.executable, "-m", "stages.eyeball", str(out), "--params", str(params)],
                          cwd=root, capture_output=True, text=True)
@@ -448,7 +449,7 @@ def _eyeball_limits(expensive: bool):
     big = {("iris_texture_px", 4096), ("sclera_texture_px", 8192)}
     out = []
     for key, value, ok in boundaries(geo.EyeballSettings):
-        if not ok or key[0].startswith("preview"):          # the preview is Blender's (tests/test_blender_eyeball.py)
+        if not ok or key[0].startswith("preview"):          # the eyeball_preview stage's (tests/test_blender_eyeball.py)
             continue
         edge = (key[0], value[0] if isinstance(value, list) else value)
         if (edge in big) == expensive:
@@ -460,7 +461,7 @@ def _build_at(tmp_path, key, value):
     from pipeline.settings import SettingsError
     from pipeline.usd.eyeball_asset import build_eyeball_asset
 
-    small = {"resolution": "low", "iris_texture_px": 16, "sclera_texture_px": [16, 16], "preview": False}
+    small = {"resolution": "low", "iris_texture_px": 16, "sclera_texture_px": [16, 16]}
     raw = dict(small)
     if len(key) == 2:
         raw[key[0]] = {key[1]: value}

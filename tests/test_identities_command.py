@@ -123,7 +123,7 @@ def _project(tmp_path) -> tuple[Path, dict]:
     (root / "dvc.lock").write_text(head + "".join(order))
     for n in (*NAMES, "home"):
         for rel in (f"raw_scans/{n}/scan.obj", f"build/{n}/ingest/mesh.npz", f"build/{n}/usd.metrics.json",
-                    f"rigged_assets/{n}/{n}.usda", f"renders/{n}/000000.png"):
+                    f"rigged_assets/{n}/{n}.usda", f"rigged_assets/{n}.preview.png", f"renders/{n}/000000.png"):
             (root / rel).parent.mkdir(parents=True, exist_ok=True)
             (root / rel).write_bytes(f"{n} {rel}".encode())
     return p, {"head": head, "order": order, "blocks": blocks}
@@ -141,12 +141,13 @@ def test_remove_leaves_nothing_of_it_and_the_rest_byte_identical(tmp_path, capsy
     assert ids.main(["--remove", NAMES[0], "--params", str(p)]) == 0
     assert capsys.readouterr().out.count("\n") == 1
     gone = [k for k in before if NAMES[0] in k]
-    assert len(gone) == 5
+    assert len(gone) == 6
     after = _tree(root)
     assert set(after) == set(before) - set(gone)              # nothing left behind, no temp sibling
     assert {k: v for k, v in after.items() if k not in ("params.yaml", "dvc.lock")} == \
         {k: v for k, v in before.items() if k not in ("params.yaml", "dvc.lock", *gone)}
     assert not any((root / d / NAMES[0]).exists() for d in ids.OUTPUT_FOLDERS)
+    assert not (root / "rigged_assets" / f"{NAMES[0]}.preview.png").exists()
     kept = [b for b in lock["order"] if b not in lock["blocks"][NAMES[0]]]
     assert (root / "dvc.lock").read_text() == lock["head"] + "".join(kept)
     data = yaml.safe_load(p.read_text())
@@ -197,7 +198,7 @@ def test_lock_edit_refuses_a_layout_it_cannot_cut(tmp_path):
     assert drop_lock_stages("", ["a"], "dvc.lock") == ("", [])
     real = (ROOT / "dvc.lock").read_text()                # dvc's own layout: wrapped cmd lines
     out, dropped = drop_lock_stages(real, ["synthetic_head"], "dvc.lock")
-    assert len(dropped) == 9 and all(d.endswith("@synthetic_head") for d in dropped)
+    assert len(dropped) == 10 and all(d.endswith("@synthetic_head") for d in dropped)   # synthetic_head .. preview
     kept = yaml.safe_load(out)["stages"]
     assert set(kept) == {k for k in yaml.safe_load(real)["stages"] if "@" not in k}
     assert all(line in real for line in out.split("\n"))

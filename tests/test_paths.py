@@ -24,10 +24,10 @@ from pipeline.io.labels_file import read_index
 
 ROOT = Path(__file__).resolve().parents[1]
 SCAN = "synthetic_head"
-#: what keeps the run short: a coarser head and bake, no previews, two tiny renders
+#: what keeps the run short: a coarser head and bake, tiny previews, two tiny renders
 CHEAP = {"synthetic_head": {"target_triangles": 120000, "texture_size": 512},
          "retopo": {"metric_samples": 5000}, "bake": {"resolution": 256, "metric_samples": 5000},
-         "eyeball": {"preview": False}, "usd": {"preview": False},
+         "eyeball": {"preview_px": 16, "preview_samples": 1}, "usd": {"preview_px": 16, "preview_samples": 1},
          "render": {"n_images": 2, "width": 48, "height": 32, "samples": 1, "denoise": False, "workers": 1}}
 
 
@@ -65,11 +65,13 @@ def test_every_stage_and_the_dataset_command_run_from_a_clone_under_odd_folders(
     env = {**os.environ, "PYTHONPATH": str(clone)}          # the clone's code, not this checkout's
 
     commands = _commands(clone)
-    assert [n for n, _ in commands][-1] == "render" and len(commands) == 11
+    assert [n for n, _ in commands][-1] == "preview" and len(commands) == 13
     for name, argv in commands:
         r = subprocess.run(argv, cwd=clone, env=env, capture_output=True, text=True, timeout=600)
         assert r.returncode == 0 and "error" not in r.stderr, (name, r.stderr[-2000:])
     assert (clone / "rigged_assets" / SCAN / f"{SCAN}.usdz").is_file()
+    assert (clone / "rigged_assets" / f"{SCAN}.preview.png").is_file()
+    assert (clone / "rigged_assets" / "eyeball.preview.png").is_file()
     assert [row["index"] for row in read_index(clone / "renders" / SCAN / "index.jsonl")] == [0, 1]
 
     out = clone / "renders" / "out dir" / ".set é"

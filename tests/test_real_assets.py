@@ -41,8 +41,8 @@ def _params(root: Path) -> Path:
     p["synthetic_head"].update(target_triangles=60000, texture_size=256)
     p["bake"].update(resolution=256, metric_samples=5000, subdivision_levels=1)
     p["retopo"].update(metric_samples=5000)
-    p["eyeball"].update(resolution="low", iris_texture_px=64, sclera_texture_px=[64, 32], preview=False)
-    p["usd"].update(usdz=False, preview=False)
+    p["eyeball"].update(resolution="low", iris_texture_px=64, sclera_texture_px=[64, 32])
+    p["usd"].update(usdz=False)
     out = root / "params.yaml"
     out.write_text(yaml.safe_dump(p))
     return out

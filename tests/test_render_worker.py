@@ -38,7 +38,6 @@ SMALL_PARAMS = {  # edits of params.yaml for a fast chain
     "metric_samples: 100000": "metric_samples: 5000",
     "metric_samples: 50000": "metric_samples: 5000",
     "usdz: true": "usdz: false",
-    "preview: true ": "preview: false ",
     "resolution: high ": "resolution: low ",
     "iris_texture_px: 512": "iris_texture_px: 128",
     "sclera_texture_px: [1024, 512]": "sclera_texture_px: [128, 64]",

@@ -280,3 +280,18 @@ def test_eye_doubts_carried_into_the_asset_metadata(tmp_path):
     asset = load_render_asset(inp["out"], inp["dirs"]["rig"])
     entry = DatasetAsset(0, "tiny", inp["out"], inp["dirs"]["rig"], 1.0, asset, "")
     assert entry.doubts() == [f"left eye: {doubt}"]
+
+
+def test_the_usd_stage_starts_no_blender(tmp_path, monkeypatch):
+    """Writing the asset runs no Blender worker: the door refuses to open during the usd stage."""
+    from pipeline.blender import launch
+    from stages._common import read_stage_metrics
+
+    def refuse(*a, **k):
+        raise AssertionError("the usd stage started Blender")
+
+    monkeypatch.setattr(launch, "command", refuse)
+    inp = make_inputs(tmp_path)
+    assert run_stage(usd_stage.main, usd_argv(inp)) == 0
+    assert not (inp["out"] / "preview.png").exists()
+    assert "preview_s" not in read_stage_metrics(inp["metrics"])

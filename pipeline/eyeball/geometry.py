@@ -159,7 +159,7 @@ class EyeballSettings(Settings):
     texture_seed: int = setting(0, ge=0, le=2**32 - 1)
     iris_texture_px: int = setting(512, ge=16, le=4096)
     sclera_texture_px: tuple[int, int] = setting((1024, 512), ge=16, le=8192)
-    preview: bool = True                                   # Cycles contact sheet preview.png
+    # the eyeball_preview stage's (rigged_assets/eyeball.preview.png), not the asset's
     preview_px: int = setting(160, ge=16, le=2048)         # tile size
     preview_samples: int = setting(16, ge=1, le=4096)      # + OpenImageDenoise
 

@@ -1,9 +1,10 @@
 """Render shards through ``dask.distributed`` with one persistent Blender process per dask worker.
 
-* :class:`BlenderProcess` runs ``python -m pipeline.blender.render_worker ASSET RIG`` as a
-  subprocess (one :class:`pipeline.render.spec.RenderSpec` a JSON line on stdin, ``@@render@@``-prefixed reply lines on stdout, Blender's
-  chatter on stderr goes to a log file). It dies with its parent (``PR_SET_PDEATHSIG``) and
-  on stdin EOF.
+* :class:`BlenderProcess` runs the render worker (``pipeline.blender.render_worker ASSET RIG``),
+  started through the door to Blender (pipeline/blender/launch.py): one
+  :class:`pipeline.render.spec.RenderSpec` a JSON line on stdin, ``@@render@@``-prefixed reply
+  lines on stdout, Blender's chatter on stderr goes to a log file. It dies with its parent
+  (``PR_SET_PDEATHSIG``) and on stdin EOF.
 * :func:`render_shard` is the dask task: it takes the shard's ``(spec, label)`` pairs (one
   HDRI per shard), keeps ONE Blender process per dask worker process in the module-level
   cache :data:`_BLENDER` (so Blender starts once per worker, not per task), renders every
@@ -31,15 +32,16 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.blender import launch
 from pipeline.errors import ScanError
 from pipeline.io.png import strip_png_metadata
 from pipeline.io.seg_file import depth_name, read_depth, read_seg, seg_name
-from pipeline.io.scratch import die_with_parent
 from pipeline.render.formats import write_formats
 from pipeline.render.spec import RenderSpec
 
 REPLY_PREFIX = "@@render@@ "
-ROOT = Path(__file__).resolve().parents[2]
+#: The worker every render shard talks to (started by pipeline/blender/launch.py).
+WORKER = "pipeline.blender.render_worker"
 _BLENDER: dict = {}
 _STARTS = [0]                         # Blender processes started by this process (stats)
 
@@ -53,16 +55,10 @@ class BlenderProcess:
 
     def __init__(self, asset, rig, threads: int = 0, tile_size: int | None = None,
                  log_path=None, start_timeout_s: float = 600.0, python: str | None = None):
-        cmd = [python or sys.executable, "-m", "pipeline.blender.render_worker", str(asset), str(rig),
-               "--threads", str(int(threads))]
-        if tile_size:
-            cmd += ["--tile-size", str(int(tile_size))]
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+        args = [asset, rig, "--threads", int(threads)] + (["--tile-size", int(tile_size)] if tile_size else [])
         self.log_path = Path(log_path) if log_path else None
         self._log = open(self.log_path, "ab") if self.log_path else subprocess.DEVNULL
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log,
-                                     cwd=str(ROOT), env=env, preexec_fn=die_with_parent)
+        self.proc = launch.start(WORKER, args, stderr=self._log, python=python)
         self._buf = b""
         t0 = time.perf_counter()
         ready = self._reply(start_timeout_s)

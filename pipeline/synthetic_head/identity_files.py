@@ -15,6 +15,9 @@ from pipeline.io.atomic import refuse_link, write_text
 from pipeline.synthetic_head.identities import drop_lock_stages, remove_identities
 
 OUTPUT_FOLDERS = ("raw_scans", "build", "rigged_assets", "renders")
+#: An identity's outputs that are files, not folders: the preview stage's picture lies beside the
+#: asset folder (DVC keeps one stage's outputs out of another's).
+OUTPUT_FILES = ("rigged_assets/{}.preview.png",)
 
 
 def repro_command(names) -> list[str]:
@@ -68,6 +71,13 @@ def remove_folder(path) -> bool:
     return True
 
 
+def check_file(path) -> None:
+    """ScanError for a link or a folder at ``path`` (:func:`check_folder`'s rule for a file)."""
+    refuse_link(path)
+    if Path(path).exists() and not Path(path).is_file():
+        raise ScanError(path, "is not a file (an identity's preview is one); nothing was changed")
+
+
 def remove(params: Path, names, checked_params) -> str:
     """Remove the identities ``names`` (stages/identities.py's docstring); returns the line that
     reports it. ``checked_params(text, source)``: params.yaml's whole check (pipeline.params_check
@@ -84,11 +94,18 @@ def remove(params: Path, names, checked_params) -> str:
     if lock.is_file():
         lock_text, dropped = drop_lock_stages(lock.read_bytes().decode("utf-8"), names, lock)
     folders = [root / d / n for n in names for d in OUTPUT_FOLDERS]
+    files = [root / f.format(n) for n in names for f in OUTPUT_FILES]
     for f in folders:                    # every refusal before the first change
         check_folder(f)
+    for f in files:
+        check_file(f)
     removed = [f for f in folders if remove_folder(f)]
+    removed_files = [f for f in files if f.is_file()]
+    for f in removed_files:
+        f.unlink()
     if dropped:
         write_text(lock, lock_text)
     write_text(params, text)             # last: until here a rerun of the same command finishes the job
     return (f"{params}: removed {', '.join(names)} from identities: and scans:, {len(dropped)} stage(s) "
-            f"from {lock.name}, {len(removed)} folder(s)")
+            f"from {lock.name}, {len(removed)} folder(s)"
+            + (f", {len(removed_files)} preview(s)" if removed_files else ""))

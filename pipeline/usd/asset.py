@@ -60,7 +60,7 @@ class UsdSettings(Settings):
     block: ClassVar[str] = "usd"
 
     usdz: bool = True                                   # also write <scan>.usdz (self-contained)
-    preview: bool = False                               # Cycles contact sheet preview.png
+    # the preview stage's (rigged_assets/<scan>.preview.png), not the asset's
     preview_px: int = setting(180, ge=16, le=2048)      # tile height (tiles are 2:1, both eyes)
     preview_samples: int = setting(4, ge=1, le=4096)    # + OpenImageDenoise (bench_asset_preview --quality)
 

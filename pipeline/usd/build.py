@@ -1,16 +1,15 @@
 """The usd stage's work: load and check the stage products an asset needs, write and validate
-the USD asset (and its usdz), and render its Cycles contact sheet in a Blender child process.
+the USD asset (and its usdz). No Blender: the asset's contact sheet is the preview stage's
+(pipeline/preview/asset.py).
 
-``read_inputs`` -> ``build`` -> ``render_preview``; ``stages/usd.py`` only parses its paths and
-settings, calls them inside an atomic output folder and returns the metrics.
+``read_inputs`` -> ``build``; ``stages/usd.py`` only parses its paths and settings, calls them
+inside an atomic output folder and returns the metrics.
 """
 
 from __future__ import annotations
 
 import json
 import shutil
-import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,14 +20,10 @@ import pipeline
 from pipeline.errors import ScanError
 from pipeline.io.bake_file import read_bake
 from pipeline.io.meshfile import read_stage_mesh
-from pipeline.io.png import strip_png_metadata
 from pipeline.io.rig_file import read_rig
 from pipeline.io.scan_file import ScanRecord, read_scan_record
-from pipeline.io.scratch import run_child
 from pipeline.results import StageResult
 from pipeline.rig import lids
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _need(path: Path) -> Path:
@@ -166,23 +161,3 @@ def build(inp: UsdInputs, out_dir: Path, name: str, all_params: dict, package: b
                         "caruncle_faces": int(len(inp.caruncle)), "n_shapes": len(inp.shapes),
                         "validation_errors": 0},
                        {"write_s": round(t_write, 4), "validate_s": round(t_val, 4), "usdz_s": round(t_pkg, 4)})
-
-
-def render_preview(usda: Path, rig_npz: Path, out_png: Path, size: int, samples: int) -> StageResult:
-    """Run the Blender contact-sheet worker (subprocess); its report, and how long it took."""
-    t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as td:
-        info_path = Path(td) / "preview.json"
-        cmd = [sys.executable, "-m", "pipeline.blender.asset_preview", str(usda), str(rig_npz),
-               str(out_png), "--size", str(int(size)), "--samples", str(int(samples)),
-               "--json", str(info_path)]
-        res = run_child(cmd, capture_output=True, text=True, cwd=ROOT)
-        if res.returncode != 0 or not out_png.is_file():
-            last = (res.stderr or res.stdout or "").strip().splitlines()[-1:] or ["no output"]
-            raise ScanError(usda, f"the asset preview render failed ({last[0][:200]})")
-        strip_png_metadata(out_png)          # Blender's time/text chunks: same pixels, same bytes
-        info = json.loads(info_path.read_text(encoding="utf-8"))
-    return StageResult({"preview_px": info.get("sheet_px"), "preview_samples": info.get("samples"),
-                        "preview_lid_max_error_mm": max(info.get("lid_max_error_mm", {0: 0.0}).values()),
-                        "preview_gaze_pitch_deg": info.get("gaze_pitch_measured_deg")},
-                       {"preview_s": round(time.perf_counter() - t0, 3), "preview_render_s": info.get("render_s_total")})

@@ -1,22 +1,20 @@
 """The eyeball stage's work: build the parametric eyeball, write its asset (eyeball.usda and its
-textures), validate it, and render its Cycles preview in a Blender child process.
+textures) and validate it. No Blender: its contact sheet is the eyeball_preview stage's
+(pipeline/preview/eyeball.py).
 
-``stages/eyeball.py`` parses its folder and settings and calls :func:`build_eyeball_asset` and
-:func:`render_eyeball_preview` inside an atomic output folder. Its own module (not
-pipeline/usd/eyeball.py, which every stage that reads the eyeball imports) so that only the
-eyeball stage's code deps name the preview worker.
+``stages/eyeball.py`` parses its folder and settings and calls :func:`build_eyeball_asset`
+inside an atomic output folder. Its own module, apart from pipeline/usd/eyeball.py (which every
+stage that reads the eyeball imports), so that the textures and checks are the eyeball stage's
+code deps only.
 """
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
 from pipeline.eyeball import geometry as geo
 from pipeline.results import StageResult
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def build_eyeball_asset(folder: Path, settings: geo.EyeballSettings) -> StageResult:
@@ -58,32 +56,3 @@ def build_eyeball_asset(folder: Path, settings: geo.EyeballSettings) -> StageRes
                "max_dihedral_elsewhere_deg": round(max(seam["cornea_max_deg"], seam["sclera_max_deg"]), 3)}
     return StageResult(metrics, {"geometry_s": round(t_geo, 4), "textures_s": round(t_tex, 4),
                                  "usd_write_s": round(t_usd, 4), "validate_s": round(t_val, 4)})
-
-
-#: What the preview worker reports that measures its run, not the sheet.
-PREVIEW_TIMINGS = ("setup_s", "render_s_per_tile_median", "render_s_total")
-
-
-def render_eyeball_preview(folder: Path, settings: geo.EyeballSettings) -> StageResult:
-    """Render ``folder/preview.png`` of the asset in ``folder`` with the Blender preview worker
-    (a subprocess); the sheet's facts under ``preview`` in the metrics, its times in the timings."""
-    import json
-    import tempfile
-
-    from pipeline.io.png import strip_png_metadata
-    from pipeline.io.scratch import run_child
-
-    t = time.perf_counter()
-    with tempfile.TemporaryDirectory() as td:
-        report = Path(td) / "preview.json"
-        cmd = [sys.executable, "-m", "pipeline.blender.eyeball_preview", str(folder / "eyeball.usda"),
-               str(folder / "preview.png"), "--size", str(settings.preview_px),
-               "--samples", str(settings.preview_samples), "--json", str(report)]
-        res = run_child(cmd, capture_output=True, text=True, cwd=ROOT)
-        if res.returncode != 0:
-            raise RuntimeError("preview render failed:\n" + res.stdout[-2000:] + res.stderr[-2000:])
-        info = json.loads(report.read_text())
-    strip_png_metadata(folder / "preview.png")     # Blender's time/text chunks: same pixels, same bytes
-    sheet = {k: v for k, v in info.items() if k not in PREVIEW_TIMINGS}
-    times = {k: info[k] for k in PREVIEW_TIMINGS if k in info}
-    return StageResult({"preview": sheet}, {"preview": {**times, "wall_s": round(time.perf_counter() - t, 3)}})
