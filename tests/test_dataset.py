@@ -32,7 +32,7 @@ from pipeline.render.settings import MAX_IMAGES
 
 ROOT = Path(__file__).resolve().parents[1]
 LOADER = ROOT / "examples" / "load_dataset.py"
-TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
+TINY = {"width": 24, "height": 16, "frame_margin_px": None, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
         "connect_timeout_s": 3, "sheet_images": 4}
 LICENCES = {"alpha": "CC0-1.0 (test alpha)", "beta": "CC-BY-4.0 (test beta)"}
 

@@ -24,7 +24,7 @@ from pipeline.render import run as rr
 from pipeline.render.settings import RenderSettings
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2}
+TINY = {"width": 24, "height": 16, "frame_margin_px": None, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2}
 IMAGE_FILES = (".png", ".json", "_seg.png", "_depth.exr")
 
 

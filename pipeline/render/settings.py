@@ -21,10 +21,14 @@ HDRIS = ("city.exr", "courtyard.exr", "forest.exr", "interior.exr", "night.exr",
 
 PRESETS = {
     # paper: ~40 deg of head-pose (viewpoint) variation, gaze up to 45 deg from eye contact in
-    # 10 deg steps
-    "generic": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 45.0, "gaze_step_deg": 10.0},
-    # paper's laptop setting: 10 deg pose, 20 deg gaze variation
-    "targeted": {"camera_polar_max_deg": 5.0, "gaze_offset_max_deg": 10.0, "gaze_step_deg": 5.0},
+    # 10 deg steps; the paper's training images show the whole eye, so every landmark and the
+    # whole iris stay 3 px inside the frame (frame_margin_px; issue 33: without it the lateral
+    # canthus fell outside 17 of 60 images)
+    "generic": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 45.0, "gaze_step_deg": 10.0,
+                "frame_margin_px": 3.0},
+    # paper's laptop setting: 10 deg pose, 20 deg gaze variation; the whole eye framed likewise
+    "targeted": {"camera_polar_max_deg": 5.0, "gaze_offset_max_deg": 10.0, "gaze_step_deg": 5.0,
+                 "frame_margin_px": 3.0},
     # framed as UnityEyes frames its images, so that GazeML's UnityEyes loader (eyeball centre at the
     # image centre, iris centre 71.7593 px from it along the gaze) holds; see
     # pipeline/render/formats/unityeyes.py. The central 320 x 240 of UnityEyes' recommended 512 x 384
@@ -87,6 +91,7 @@ class RenderPreset(Settings):
     sensor_px: tuple[int, int] | None = setting(None, ge=8, le=100_000)
     camera_aim: Literal["eye", "between_eyes"] = "eye"
     crop_jitter_px: float = setting(0.0, ge=0, le=100_000)
+    frame_margin_px: float | None = setting(None, ge=0, le=1000)
 
 
 #: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
@@ -149,6 +154,11 @@ class RenderSettings(Settings):
     camera_aim: Literal["eye", "between_eyes"] = "eye"
     # pinhole with sensor_px: the crop's offset moves the eye up to this many px off the crop centre
     crop_jitter_px: float = setting(0.0, ge=0, le=100_000)
+    # orthographic: every landmark and the whole iris ring at least this many px inside the image
+    # (the drawn shift moved, the scale widened up to ortho_scale_mm's top; pipeline/render/sampling.py
+    # frame_fit); null = partial crops allowed (the framing as drawn). Not used by a pinhole camera
+    # or with iris_distance_px (their framing is their own): frames_the_eye()
+    frame_margin_px: float | None = setting(None, ge=0, le=1000)
     # label files per image, one module each in pipeline/render/formats/ (eyerig: NNNNNN.json, always)
     label_formats: tuple[Literal[LABEL_FORMATS], ...] = setting((REQUIRED_FORMAT,), min_len=1,
                                                                max_len=len(LABEL_FORMATS))
@@ -257,10 +267,18 @@ class RenderSettings(Settings):
             raise SettingError("principal_point_px", f"[{cx:g}, {cy:g}] +- principal_jitter_px {j:g} must lie inside "
                                                      f"the {sw} x {sh} px sensor")
 
+    def frames_the_eye(self) -> bool:
+        """Whether the framing rule applies: ``frame_margin_px`` set, an orthographic camera free to
+        move (not ``iris_distance_px``, whose framing GazeML's loader fixes); a pinhole camera's
+        framing is its own (a preset's margin, e.g. generic's under ``camera: pinhole``, is not used)."""
+        return self.frame_margin_px is not None and self.camera == "ortho" and self.iris_distance_px is None
+
     def hashed(self) -> dict:
         """The settings that change images or labels (not n_images: sample i ignores it; not how to run;
-        not the pinhole keys of an orthographic render)."""
-        skip = {"n_images", "presets", *RUN_KEYS, *(PINHOLE_KEYS if self.camera == "ortho" else ())}
+        not the pinhole keys of an orthographic render; not an unset frame_margin_px)."""
+        skip = {"n_images", "presets", *RUN_KEYS, *(PINHOLE_KEYS if self.camera == "ortho" else ()),
+                # unset or not applied, the framing rule is absent: such renders keep the hash they had before it
+                *(() if self.frames_the_eye() else ("frame_margin_px",))}
         d = {k: getattr(self, k) for k in self.keys() if k not in skip}
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
