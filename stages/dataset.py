@@ -109,6 +109,9 @@ def main(argv=None) -> int:
             err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
             if err is not None:
                 raise err
+            note = pl.resize_note(args.out, fp, args.n)
+            if note:
+                print(note, file=sys.stderr)
             if args.overwrite and fp.state == "new":
                 print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
             elif args.overwrite:
