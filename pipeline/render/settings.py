@@ -93,6 +93,9 @@ class RenderPreset(Settings):
     crop_jitter_px: float = setting(0.0, ge=0, le=100_000)
     frame_margin_px: float | None = setting(None, ge=0, le=1000)
 
+#: Keys only the label format ``normalized`` reads: hashed only when it is listed.
+NORMALIZED_KEYS = ("normalized_size_px", "normalized_focal_px", "normalized_distance_mm", "normalized_center")
+
 
 #: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
 RUN_KEYS = ("workers", "scheduler", "shard_size", "threads", "tile_size", "sheet_images", "image_timeout_s",
@@ -162,6 +165,14 @@ class RenderSettings(Settings):
     # label files per image, one module each in pipeline/render/formats/ (eyerig: NNNNNN.json, always)
     label_formats: tuple[Literal[LABEL_FORMATS], ...] = setting((REQUIRED_FORMAT,), min_len=1,
                                                                max_len=len(LABEL_FORMATS))
+    # label format normalized (pipeline/render/formats/normalized.py): ETH-XGaze's normalised eye crop, a
+    # virtual camera of this focal length (px) this far (mm) from the eye centre (eyeball: its rotation
+    # centre; canthi: the eye corners' midpoint); ETH-XGaze's eye crops 128 x 128, 1800 px, 600 mm;
+    # MPIIGaze's [60, 36], 960 px, 600 mm
+    normalized_size_px: tuple[int, int] = setting((128, 128), ge=8, le=4096)
+    normalized_focal_px: float = setting(1800.0, gt=0, le=1_000_000)
+    normalized_distance_mm: float = setting(600.0, gt=0, le=100_000)
+    normalized_center: Literal["eyeball", "canthi"] = "eyeball"
     # per image also NNNNNN_seg.png, NNNNNN_depth.exr and landmark visibility, from the same render's
     # passes (pipeline/render/seg.py, visibility.py)
     masks: bool = True
@@ -278,7 +289,8 @@ class RenderSettings(Settings):
         not the pinhole keys of an orthographic render; not an unset frame_margin_px)."""
         skip = {"n_images", "presets", *RUN_KEYS, *(PINHOLE_KEYS if self.camera == "ortho" else ()),
                 # unset or not applied, the framing rule is absent: such renders keep the hash they had before it
-                *(() if self.frames_the_eye() else ("frame_margin_px",))}
+                *(() if self.frames_the_eye() else ("frame_margin_px",)),
+                *(() if "normalized" in self.label_formats else NORMALIZED_KEYS)}
         d = {k: getattr(self, k) for k in self.keys() if k not in skip}
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
