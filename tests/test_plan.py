@@ -50,6 +50,7 @@ def _dataset(two, out, n=8, weights=None) -> dict:
         for end in IMAGE_FILES:
             (out / f"{i:06d}{end}").write_bytes(f"image {i}{end}".encode())
     for name in ("index.jsonl", "contact_sheet.png", *pl.OWN_FILES):
+        (out / name).parent.mkdir(exist_ok=True)
         (out / name).write_text(name)
     (out / "notes.txt").write_text("the user's own")
     return _snapshot(out)
@@ -99,7 +100,7 @@ def test_overwrite_lists_only_the_renders_files_and_keeps_what_the_new_plan_shar
     old = mix.assign(8, [1, 1], 0)
     shared = [i for i in range(6) if old[i] == assign[i]]
     assert fp.state == "other" and fp.differences == ["weights [1.0, 1.0] -> [2.0, 1.0]"]
-    assert sorted(p.name for p in fp.remove) == sorted(
+    assert sorted(p.relative_to(out).as_posix() for p in fp.remove) == sorted(
         [f"{i:06d}{e}" for i in range(8) if i not in shared for e in IMAGE_FILES]
         + ["index.jsonl", "contact_sheet.png", *pl.OWN_FILES])
     assert fp.stale_images == 6 - len(shared) and "notes.txt" not in {p.name for p in fp.remove}
@@ -108,7 +109,8 @@ def test_overwrite_lists_only_the_renders_files_and_keeps_what_the_new_plan_shar
     prep = ds.prepare_dataset(out, assets, assign, st, overwrite=True)
     assert prep["removed_files"] == len(fp.remove)
     left = sorted(p.name for p in out.iterdir())
-    assert left == sorted([f"{i:06d}{e}" for i in shared for e in IMAGE_FILES] + [".tmp", "config.json", "notes.txt"])
+    assert left == sorted([f"{i:06d}{e}" for i in shared for e in IMAGE_FILES] + [".tmp", "config.json", "notes.txt",
+                                                                               "splits"])
     # the same plan again: nothing to refuse, only unfinished images go (and the end-of-run files)
     (out / "000005.png").write_bytes(b"half")                # no label: unfinished
     again = pl.inspect_dataset(out, assets, assign, st)
@@ -123,12 +125,12 @@ def test_another_n_is_the_same_plan_grown_or_shrunk(two, tmp_path):
     assets, assign, st = _plan(two, 12)
     fp = pl.inspect_dataset(out, assets, assign, st)
     assert fp.state == "same" and fp.differences == [] and fp.stale_images == 0 and fp.old_n == 8
-    assert sorted(p.name for p in fp.remove) == sorted(["index.jsonl", "contact_sheet.png", *pl.OWN_FILES])
+    assert sorted(p.relative_to(out).as_posix() for p in fp.remove) == sorted(["index.jsonl", "contact_sheet.png", *pl.OWN_FILES])
     assert pl.refusal(out, fp) is None and pl.resize_note(out, fp, 12).endswith("images 8..11 are added")
     assets, assign, st = _plan(two, 5)
     fp = pl.inspect_dataset(out, assets, assign, st)
     assert fp.state == "same" and pl.refusal(out, fp) is None
-    assert sorted(p.name for p in fp.remove) == sorted(
+    assert sorted(p.relative_to(out).as_posix() for p in fp.remove) == sorted(
         [f"{i:06d}{e}" for i in range(5, 8) for e in IMAGE_FILES] + ["index.jsonl", "contact_sheet.png", *pl.OWN_FILES])
     assert pl.resize_note(out, fp, 5).endswith(f"images 5..7 go ({3 * len(IMAGE_FILES)} files)")
     ds.prepare_dataset(out, assets, assign, st)

@@ -53,12 +53,12 @@ from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json, write_text
 from pipeline.io.labels_file import SCHEMA as LABEL_SCHEMA
 from pipeline.io.labels_file import label_name, read_index, read_label
-from pipeline.render import formats, mix, plots
+from pipeline.render import formats, mix, plots, splits
 from pipeline.render import plan as pl
 from pipeline.render import run as rr
 from pipeline.render.plan import SCHEMA
 
-INFO, CARD, TIMINGS = pl.OWN_FILES
+INFO, CARD, TIMINGS = pl.OWN_FILES[:3]
 #: ``rigged_assets/eyeball`` holds the eyeball every asset references, not a head: skipped.
 SHARED_EYEBALL = "eyeball"
 SEG_FILE = "NNNNNN_seg.png"
@@ -69,6 +69,9 @@ FILES = {
                     "conventions, settings",
     "contact_sheet.png": "the first images with their landmarks drawn, each tile naming its asset",
     "card/*.png": "the card's plots: " + "; ".join(f"`{k}` {v}" for k, v in plots.PLOTS.items()),
+    "splits/{train,val,test}.txt": "the images (NNNNNN.png, one a line) of each split by identity: no asset in "
+                                   "two splits (render.splits, render.split_seed; pipeline/render/splits.py)",
+    "splits/splits.json": "which asset went to which split, the proportions, the seed, images per split",
     "config.json": "the plan and hashes a resumed run compares (not data)",
     "timings.json": "what the last run measured (not data)",
     "README.md": "this card",
@@ -314,6 +317,7 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
     counts = _check_index(out, assets, assign)
     formats.finish_formats(out, n, settings)         # coco.json, webdataset shards (pipeline/render/formats)
     info = dataset_info(out, assets, counts, settings, n)
+    info["splits"] = splits.write_splits(out, [a.name for a in assets], assign, settings.splits, settings.split_seed)
     info["statistics"] = plots.label_stats((read_label(out / label_name(i)).doc for i in range(n)),
                                            [a.name for a in assets])
     info["plots"] = plots.write_plots(out, info["statistics"])

@@ -93,6 +93,8 @@ class RenderPreset(Settings):
     crop_jitter_px: float = setting(0.0, ge=0, le=100_000)
     frame_margin_px: float | None = setting(None, ge=0, le=1000)
 
+#: How a dataset's identities are split (pipeline/render/splits.py): files written from the images, not hashed.
+SPLIT_KEYS = ("splits", "split_seed")
 #: Keys only the label format ``normalized`` reads: hashed only when it is listed.
 NORMALIZED_KEYS = ("normalized_size_px", "normalized_focal_px", "normalized_distance_mm", "normalized_center")
 
@@ -173,6 +175,10 @@ class RenderSettings(Settings):
     normalized_focal_px: float = setting(1800.0, gt=0, le=1_000_000)
     normalized_distance_mm: float = setting(600.0, gt=0, le=100_000)
     normalized_center: Literal["eyeball", "canthi"] = "eyeball"
+    # dataset splits by identity (pipeline/render/splits.py): train, val, test proportions of the assets
+    # and the seed of their order; they change no image (not hashed: a re-run rewrites DIR/splits/)
+    splits: tuple[float, float, float] = setting((0.8, 0.1, 0.1), ge=0, le=1_000_000)
+    split_seed: int = setting(0, ge=0, le=2**63 - 1)
     # per image also NNNNNN_seg.png, NNNNNN_depth.exr and landmark visibility, from the same render's
     # passes (pipeline/render/seg.py, visibility.py)
     masks: bool = True
@@ -224,6 +230,8 @@ class RenderSettings(Settings):
         if self.camera == "ortho" and self.width < self.height:
             raise SettingError("width", f"must be >= height (orthographic scale = image width; got "
                                         f"{self.width} x {self.height})")
+        if sum(self.splits) <= 0:
+            raise SettingError("splits", f"must give a positive proportion to one split at least (got {list(self.splits)})")
         if any(not h.endswith(".exr") for h in self.hdris):
             raise SettingError("hdris", "must be a list of .exr names")
         if self.iris_distance_px is not None and self.center_jitter_mm != 0:
@@ -287,7 +295,7 @@ class RenderSettings(Settings):
     def hashed(self) -> dict:
         """The settings that change images or labels (not n_images: sample i ignores it; not how to run;
         not the pinhole keys of an orthographic render; not an unset frame_margin_px)."""
-        skip = {"n_images", "presets", *RUN_KEYS, *(PINHOLE_KEYS if self.camera == "ortho" else ()),
+        skip = {"n_images", "presets", *RUN_KEYS, *SPLIT_KEYS, *(PINHOLE_KEYS if self.camera == "ortho" else ()),
                 # unset or not applied, the framing rule is absent: such renders keep the hash they had before it
                 *(() if self.frames_the_eye() else ("frame_margin_px",)),
                 *(() if "normalized" in self.label_formats else NORMALIZED_KEYS)}
