@@ -110,7 +110,7 @@ def test_overwrite_lists_only_the_renders_files_and_keeps_what_the_new_plan_shar
     assert prep["removed_files"] == len(fp.remove)
     left = sorted(p.name for p in out.iterdir())
     assert left == sorted([f"{i:06d}{e}" for i in shared for e in IMAGE_FILES] + [".tmp", "config.json", "notes.txt",
-                                                                               "splits"])
+                                                                               "card", "splits"])
     # the same plan again: nothing to refuse, only unfinished images go (and the end-of-run files)
     (out / "000005.png").write_bytes(b"half")                # no label: unfinished
     again = pl.inspect_dataset(out, assets, assign, st)

@@ -28,7 +28,7 @@ from pipeline.render import run as rr
 SCHEMA = 1
 #: The dataset's own files besides the images, rewritten at the end of every run.
 OWN_FILES = ("dataset.json", "README.md", "timings.json", "splits/train.txt", "splits/val.txt", "splits/test.txt",
-             "splits/splits.json")
+             "splits/splits.json", "card/lighting.png", "card/eye_configuration.png")
 
 
 def plan_doc(assets, n: int, settings) -> dict:
