@@ -1,0 +1,145 @@
+"""Issue 33's measurements: framing, stable growth, the normalised export and the splits.
+
+    python -m benchmarks.bench_dataset_lab --assets A ... --rigs R ... \\
+        [--generic DIR] [--targeted DIR] [--grown-from-sha SHA.txt] [--sample-generic 1000] [--sample-targeted 200]
+
+* **Framing, from the sampler** (no render; the labels a render writes are these samples, and
+  the render's landmark check holds them to the image within ``landmark_tolerance_mm``): the
+  first ``--sample-generic`` / ``--sample-targeted`` images of a dataset of the assets, with
+  ``frame_margin_px`` 3 (now) and unset (before): images with a landmark outside the frame, the
+  lateral (6) and medial (0) canthus outside, the smallest margin.
+* **The mix before and after**: of ``n`` images, how many keep their asset when ``n`` changes
+  (60 -> 50, 60 -> 1,000) under the old n-dependent mix and the quota sequence.
+* **Rendered datasets** (``--generic``, ``--targeted``: folders the dataset command wrote with
+  label formats ``eyerig, normalized``): landmarks outside in the labels, the card's count,
+  every normalised label's warped landmarks against the virtual camera's formula (max px), and
+  the splits (no identity twice). ``--grown-from-sha``: ``sha256sum`` lines of the generic
+  folder's image files taken before it grew; the same files now must be byte-identical.
+
+Writes ``benchmarks/results/dataset_lab.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.results_files import write_results
+
+
+def _margin(px, w, h) -> np.ndarray:
+    px = np.asarray(px, float)
+    return np.min([px[:, 0], w - px[:, 0], px[:, 1], h - px[:, 1]], axis=0)
+
+
+def sampled_framing(assets, preset: str, n: int, margin) -> dict:
+    from pipeline.render import mix
+    from pipeline.render import sampling as sp
+    from pipeline.render.settings import RenderSettings
+
+    s = RenderSettings.from_params({"preset": preset, "frame_margin_px": margin})
+    assign = mix.assign(n, [1.0] * len(assets), s.seed)
+    bad, lateral, medial, worst = 0, 0, 0, np.inf
+    for i in range(n):
+        smp = sp.make_sample(assets[int(assign[i])], s, i, "/x.png")
+        m = _margin(smp.landmarks_px, s.width, s.height)
+        bad += bool((m < 0).any())
+        lateral += bool(m[6] < 0)
+        medial += bool(m[0] < 0)
+        worst = min(worst, float(m.min()))
+    return {"images": n, "with_a_landmark_outside": bad, "lateral_canthus_outside": lateral,
+            "medial_canthus_outside": medial, "min_margin_px": round(worst, 3)}
+
+
+def mix_kept(n0: int, n1: int, k: int = 5) -> dict:
+    from pipeline.render import mix
+
+    w = [1.0] * k
+    old0, old1 = mix.assign_legacy(n0, w, 0), mix.assign_legacy(n1, w, 0)
+    new0, new1 = mix.assign(n0, w, 0), mix.assign(n1, w, 0)
+    m = min(n0, n1)
+    return {"from": n0, "to": n1, "kept_before": int(np.count_nonzero(old0[:m] == old1[:m])),
+            "kept_after": int(np.count_nonzero(new0[:m] == new1[:m])), "of": m}
+
+
+def rendered(folder: Path) -> dict:
+    from pipeline.render import normalize as nz
+
+    rows = [json.loads(line) for line in (folder / "index.jsonl").read_text().splitlines()]
+    outside, worst, norm_err, n_norm = 0, np.inf, 0.0, 0
+    for r in rows:
+        lab = json.loads((folder / r["json"]).read_text())
+        m = _margin(lab["landmarks"]["px"], lab["image"]["width"], lab["image"]["height"])
+        outside += int((m < 0).sum())
+        worst = min(worst, float(m.min()))
+        p = folder / "normalized" / r["json"]
+        if p.is_file():
+            doc = json.loads(p.read_text())
+            n = nz.normalization(lab, (doc["image"]["width"], doc["image"]["height"]),
+                                 doc["virtual_camera"]["focal_px"], doc["virtual_camera"]["distance_mm"])
+            want = nz.project_normalized(lab["landmarks"]["camera_mm"], n)
+            norm_err = max(norm_err, float(np.abs(np.asarray(doc["landmarks"]["px"]) - want).max()))
+            n_norm += 1
+    info = json.loads((folder / "dataset.json").read_text())
+    sp = json.loads((folder / "splits" / "splits.json").read_text())
+    owners = {}
+    for s in ("train", "val", "test"):
+        for line in (folder / "splits" / f"{s}.txt").read_text().splitlines():
+            owners.setdefault(rows[int(line[:6])]["asset"], set()).add(s)
+    timings = json.loads((folder / "timings.json").read_text())
+    return {"images": len(rows), "landmarks_outside": outside, "min_margin_px": round(worst, 3),
+            "card_landmarks_inside": info["statistics"]["landmarks_inside"],
+            "normalized_labels": n_norm, "normalized_max_error_px": norm_err,
+            "splits": {"assets": sp["assets"], "images": sp["images"],
+                       "identities_in_two_splits": sorted(a for a, s in owners.items() if len(s) > 1)},
+            "per_asset": timings.get("counts"), "last_run": {k: timings.get(k) for k in
+                                                            ("rendered", "skipped_done", "removed_files",
+                                                             "s_per_image", "wall_s")}}
+
+
+def grown(folder: Path, sha_file: Path) -> dict:
+    before = dict(reversed(line.split(None, 1)) for line in sha_file.read_text().splitlines())
+    same = sum(1 for name, h in before.items()
+               if hashlib.sha256((folder / name.strip()).read_bytes()).hexdigest() == h)
+    n_imgs = len({Path(name).name[:6] for name in before})
+    return {"files_before": len(before), "byte_identical_now": same, "images_before": n_imgs}
+
+
+def main(argv=None) -> int:
+    from pipeline.render.asset import load_render_asset
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--assets", nargs="+", required=True)
+    ap.add_argument("--rigs", nargs="+", required=True)
+    ap.add_argument("--generic", type=Path)
+    ap.add_argument("--targeted", type=Path)
+    ap.add_argument("--grown-from-sha", type=Path)
+    ap.add_argument("--sample-generic", type=int, default=1000)
+    ap.add_argument("--sample-targeted", type=int, default=200)
+    ap.add_argument("--name", default="dataset_lab")
+    args = ap.parse_args(argv)
+    assets = [load_render_asset(a, r) for a, r in zip(args.assets, args.rigs)]
+    out = {"assets": [a.name for a in assets], "framing_sampled": {}}
+    for preset, n in (("generic", args.sample_generic), ("targeted", args.sample_targeted)):
+        out["framing_sampled"][preset] = {"after": sampled_framing(assets, preset, n, 3.0),
+                                          "before": sampled_framing(assets, preset, n, None)}
+        print(preset, out["framing_sampled"][preset], flush=True)
+    out["mix_kept"] = [mix_kept(60, 50), mix_kept(60, 1000), mix_kept(200, 300)]
+    for name in ("generic", "targeted"):
+        folder = getattr(args, name)
+        if folder is not None:
+            out[f"rendered_{name}"] = rendered(folder)
+            print(name, out[f"rendered_{name}"], flush=True)
+    if args.grown_from_sha is not None:
+        out["growth"] = grown(args.generic, args.grown_from_sha)
+        print(out["growth"])
+    write_results(args.name, out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
