@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +45,7 @@ def sampled_framing(assets, preset: str, n: int, margin) -> dict:
     s = RenderSettings.from_params({"preset": preset, "frame_margin_px": margin})
     assign = mix.assign(n, [1.0] * len(assets), s.seed)
     bad, lateral, medial, worst = 0, 0, 0, np.inf
+    t0 = time.perf_counter()
     for i in range(n):
         smp = sp.make_sample(assets[int(assign[i])], s, i, "/x.png")
         m = _margin(smp.landmarks_px, s.width, s.height)
@@ -52,7 +54,8 @@ def sampled_framing(assets, preset: str, n: int, margin) -> dict:
         medial += bool(m[0] < 0)
         worst = min(worst, float(m.min()))
     return {"images": n, "with_a_landmark_outside": bad, "lateral_canthus_outside": lateral,
-            "medial_canthus_outside": medial, "min_margin_px": round(worst, 3)}
+            "medial_canthus_outside": medial, "min_margin_px": round(worst, 3),
+            "sampling_s_per_image": round((time.perf_counter() - t0) / n, 4)}
 
 
 def mix_kept(n0: int, n1: int, k: int = 5) -> dict:
@@ -69,7 +72,12 @@ def mix_kept(n0: int, n1: int, k: int = 5) -> dict:
 def rendered(folder: Path) -> dict:
     from pipeline.render import normalize as nz
 
-    rows = [json.loads(line) for line in (folder / "index.jsonl").read_text().splitlines()]
+    index = folder / "index.jsonl"
+    if index.is_file():
+        rows = [json.loads(line) for line in index.read_text().splitlines()]
+    else:                                    # a run still going (or killed): its finished labels
+        rows = [{"json": p.name, "asset": json.loads(p.read_text())["asset"]["name"]}
+                for p in sorted(folder.glob("[0-9]" * 6 + ".json"))]
     outside, worst, norm_err, n_norm = 0, np.inf, 0.0, 0
     for r in rows:
         lab = json.loads((folder / r["json"]).read_text())
@@ -84,6 +92,10 @@ def rendered(folder: Path) -> dict:
             want = nz.project_normalized(lab["landmarks"]["camera_mm"], n)
             norm_err = max(norm_err, float(np.abs(np.asarray(doc["landmarks"]["px"]) - want).max()))
             n_norm += 1
+    out = {"images": len(rows), "finished": index.is_file(), "landmarks_outside": outside,
+           "min_margin_px": round(worst, 3), "normalized_labels": n_norm, "normalized_max_error_px": norm_err}
+    if not index.is_file():
+        return out
     info = json.loads((folder / "dataset.json").read_text())
     sp = json.loads((folder / "splits" / "splits.json").read_text())
     owners = {}
@@ -91,9 +103,7 @@ def rendered(folder: Path) -> dict:
         for line in (folder / "splits" / f"{s}.txt").read_text().splitlines():
             owners.setdefault(rows[int(line[:6])]["asset"], set()).add(s)
     timings = json.loads((folder / "timings.json").read_text())
-    return {"images": len(rows), "landmarks_outside": outside, "min_margin_px": round(worst, 3),
-            "card_landmarks_inside": info["statistics"]["landmarks_inside"],
-            "normalized_labels": n_norm, "normalized_max_error_px": norm_err,
+    return {**out, "card_landmarks_inside": info["statistics"]["landmarks_inside"],
             "splits": {"assets": sp["assets"], "images": sp["images"],
                        "identities_in_two_splits": sorted(a for a, s in owners.items() if len(s) > 1)},
             "per_asset": timings.get("counts"), "last_run": {k: timings.get(k) for k in

@@ -64,7 +64,8 @@ def main(argv=None) -> int:
     ap = _Parser(prog="python -m stages.dataset", description=__doc__.splitlines()[0])
     ap.add_argument("--assets", nargs="+", required=True, help="rigged_assets/<scan> folders (rigged_assets/* "
                                                                "works: the shared eyeball is skipped)")
-    ap.add_argument("--n", type=int, required=True, help="images in the dataset")
+    ap.add_argument("--n", type=int, required=True, help="images in the dataset (another --n is the same plan, "
+                                                        "grown or shrunk: no --overwrite)")
     ap.add_argument("--out", type=Path, required=True, help="the dataset folder (new, empty or earlier dataset)")
     ap.add_argument("--weights", nargs="+", default=None, help="one weight per asset (default: equal)")
     ap.add_argument("--rigs", nargs="+", default=None, help="build/<scan>/rig per asset (default: beside it)")

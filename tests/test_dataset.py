@@ -28,6 +28,7 @@ from fixtures import make_render_asset
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.render import labels as lb
 from pipeline.render import mix
+from pipeline.render import plan as pl
 from pipeline.render.run import CARD_PLOTS
 from pipeline.render.settings import MAX_IMAGES
 
@@ -229,7 +230,8 @@ def test_changed_weights_need_overwrite_and_rerender_only_the_images_whose_asset
                                                      "weights [2.0, 1.0] -> [1.0, 1.0]): --overwrite replaces it")
     # --overwrite: 4 files per image that goes (index 5 and the changed ones), the index, sheet and
     # card files, and the card's plots
-    gone = 4 * (changed + 1) + 5 + len(CARD_PLOTS)
+    # card files, the card's plots and the splits (plan.OWN_FILES)
+    gone = 4 * (changed + 1) + 2 + len(pl.OWN_FILES) + len(CARD_PLOTS)
     r = _run(_cmd(two, out, "--weights", "1", "1", "--overwrite", n=5))
     assert r.returncode == 0, r.stderr
     assert r.stderr == f"note: --overwrite: {gone} files of the earlier dataset in {out} go (" \
@@ -303,3 +305,25 @@ def test_asset_doubts_reach_the_card():
     lines = _doubts([{"name": "james", "doubts": a.doubts()}, {"name": "ok", "doubts": []}])
     assert lines[0] == "## Doubts" and f"- `james`, left eye: {doubt}" in lines
     assert not any("`ok`" in line for line in lines) and _doubts([{"name": "ok", "doubts": []}]) == []
+
+
+@pytest.mark.blender
+def test_growing_adds_only_the_new_images_and_shrinking_removes_the_tail(two, resumed, tmp_path):
+    """Issue 33: --n 6 -> 9 renders images 6..8 and leaves images 0..5 byte-identical, with no
+    --overwrite; 9 -> 4 removes the tail's files and renders nothing."""
+    out = tmp_path / "ds"
+    shutil.copytree(resumed["out"], out)
+    before = {p.name: p.read_bytes() for p in out.glob("0*")}
+    r = _run(_cmd(two, out, "--weights", "2", "1", n=9))
+    assert r.returncode == 0, r.stderr
+    assert f"note: {out}: n 6 -> 9: the same plan grown, images 6..8 are added" in r.stderr
+    t = json.loads((out / "timings.json").read_text())
+    assert t["rendered"] == 3 and t["skipped_done"] == 6 and t["stale_images"] == 0
+    assert all((out / k).read_bytes() == v for k, v in before.items())
+    assert [r["asset_id"] for r in read_index(out / "index.jsonl")] == mix.assign(9, [2, 1], seed=0).tolist()
+    assert (out / "splits" / "splits.json").is_file()
+    r = _run(_cmd(two, out, "--weights", "2", "1", n=4))
+    assert r.returncode == 0 and "n 9 -> 4: the same plan shrunk, images 4..8 go" in r.stderr, r.stderr
+    assert json.loads((out / "timings.json").read_text())["rendered"] == 0
+    assert sorted({p.name[:6] for p in out.glob("0*")}) == [f"{i:06d}" for i in range(4)]
+    assert all((out / k).read_bytes() == v for k, v in before.items() if int(k[:6]) < 4)
