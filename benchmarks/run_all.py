@@ -42,7 +42,8 @@ SYNTH_RENDERS = ROOT / "renders" / "synthetic_head"
 UNSEEN_WORK = ROOT / "benchmarks" / "out" / "unseen"
 REPORT = ROOT / "benchmarks" / "out" / "run_all.json"
 NOT_BENCHMARKS = {"__init__", "run_all", "results_files",   # the runner and what benchmarks share
-                  "derive_eye_prior"}                    # a tool: derives the shipped eye-region prior
+                  "derive_eye_prior",                    # a tool: derives the shipped eye-region prior
+                  "bench_dataset_presets"}               # compares with another checkout: needs --base
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,11 @@ BENCHMARKS = (
     Benchmark("bench_dataset", args=("--assets", str(SYNTH_ASSET.parent), "--out", str(ROOT / "benchmarks" / "out" / "dataset"),
                                      "--name", "dataset_synthetic_head"), modest=("--n", "20"), needs=("synthetic_asset",)),
     Benchmark("view_masks", args=(str(SYNTH_RENDERS), str(ROOT / "benchmarks" / "out" / "masks_synthetic_head.png")),
+              needs=("synthetic_renders",)),
+    Benchmark("bench_dataset_lab", args=("--assets", str(SYNTH_ASSET.parent), "--rigs", str(SYNTH_BUILD / "rig"),
+                                         "--name", "dataset_lab_synthetic_head"),
+              modest=("--sample-generic", "60", "--sample-targeted", "20"), needs=("synthetic_asset",)),
+    Benchmark("view_normalized", args=(str(SYNTH_RENDERS), str(ROOT / "benchmarks" / "out" / "normalized.png")),
               needs=("synthetic_renders",)),
 )
 

@@ -30,13 +30,26 @@ and docs/labels.md of eyerig):
 * ``depth``: (H, W) float32 camera mm, inf where nothing is seen (``NNNNNN_depth.exr``), when the
   render has masks and OpenEXR is installed.
 * ``index`` (int), ``eye`` (``"left"``/``"right"``, the subject's), ``asset`` (str).
+
+The same folder's ``shards/shard-SSSSSS.tar`` (label format ``webdataset``) stream through
+:class:`EyeShards` (``tarfile`` only; an ``IterableDataset`` with torch): each sample a dict of
+``image`` (H, W, 3) uint8, ``mask`` (H, W) uint8 class ids, ``label`` (the JSON) and ``key``.
+
+**Masks and webdataset's decoders**: ``seg.png`` is an indexed PNG whose *index* is the class
+id. Every image decoder of ``webdataset.WebDataset(...).decode(...)`` converts first:
+``decode("l8")`` gives the palette colours' luminance and ``decode("pil")`` / ``"rgb8"`` their
+RGB, not the class ids (no error, wrong labels). Put :func:`seg_ids` before them::
+
+    wds.WebDataset(urls).decode(seg_ids, "rgb8")      # seg.png -> class ids, png -> RGB
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
+import tarfile
 from pathlib import Path
 
 import numpy as np
@@ -44,8 +57,9 @@ from PIL import Image
 
 try:
     from torch.utils.data import Dataset as _Base
+    from torch.utils.data import IterableDataset as _IterBase
 except ImportError:                         # torch absent: the same class, indexable by hand
-    _Base = object
+    _Base = _IterBase = object
 
 try:
     import OpenEXR
@@ -107,6 +121,61 @@ class EyeDataset(_Base):
         if self.has_depth and label.get("depth"):
             item["depth"] = read_depth(self.root / label["depth"]["file"])
         return self.transform(item) if self.transform is not None else item
+
+
+def seg_ids(key: str, data: bytes):
+    """A webdataset decoder for ``seg.png``: the (H, W) uint8 class ids (the PNG's palette
+    indices, read without converting); None for any other key, so the next decoder takes it."""
+    if not key.lower().endswith("seg.png"):
+        return None
+    with Image.open(io.BytesIO(data)) as im:
+        if im.mode != "P":
+            raise ValueError(f"{key}: a seg mask is an indexed PNG (mode P), got mode {im.mode}")
+        return np.asarray(im)
+
+
+def decode_member(suffix: str, data: bytes):
+    """One shard member by its suffix: ``seg.png`` class ids, ``png`` RGB, ``json`` a dict, else bytes."""
+    ids = seg_ids(suffix, data)
+    if ids is not None:
+        return ids
+    if suffix == "png":
+        with Image.open(io.BytesIO(data)) as im:
+            return np.asarray(im.convert("RGB"))
+    if suffix == "json":
+        return json.loads(data.decode("utf-8"))
+    return data
+
+
+class EyeShards(_IterBase):
+    """The samples of ``root/shards/shard-*.tar`` in order, one dict each (module doc); members
+    of one key are adjacent in our shards, as webdataset expects."""
+
+    FIELDS = {"png": "image", "seg.png": "mask", "json": "label", "depth.exr": "depth_exr"}
+
+    def __init__(self, root, transform=None):
+        self.shards = sorted((Path(root) / "shards").glob("shard-*.tar"))
+        if not self.shards:
+            raise FileNotFoundError(f"{root}/shards: no shard-*.tar (label format webdataset)")
+        self.transform = transform
+
+    def __iter__(self):
+        for shard in self.shards:
+            with tarfile.open(shard) as tar:
+                sample, key = {}, None
+                for m in tar:
+                    k, _, suffix = m.name.partition(".")
+                    if key is not None and k != key:
+                        yield self._done(key, sample)
+                        sample = {}
+                    key = k
+                    sample[self.FIELDS.get(suffix, suffix)] = decode_member(suffix, tar.extractfile(m).read())
+                if key is not None:
+                    yield self._done(key, sample)
+
+    def _done(self, key, sample):
+        sample["key"] = key
+        return self.transform(sample) if self.transform is not None else sample
 
 
 def main(argv=None) -> int:

@@ -64,7 +64,8 @@ def main(argv=None) -> int:
     ap = _Parser(prog="python -m stages.dataset", description=__doc__.splitlines()[0])
     ap.add_argument("--assets", nargs="+", required=True, help="rigged_assets/<scan> folders (rigged_assets/* "
                                                                "works: the shared eyeball is skipped)")
-    ap.add_argument("--n", type=int, required=True, help="images in the dataset")
+    ap.add_argument("--n", type=int, required=True, help="images in the dataset (another --n is the same plan, "
+                                                        "grown or shrunk: no --overwrite)")
     ap.add_argument("--out", type=Path, required=True, help="the dataset folder (new, empty or earlier dataset)")
     ap.add_argument("--weights", nargs="+", default=None, help="one weight per asset (default: equal)")
     ap.add_argument("--rigs", nargs="+", default=None, help="build/<scan>/rig per asset (default: beside it)")
@@ -109,6 +110,9 @@ def main(argv=None) -> int:
             err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
             if err is not None:
                 raise err
+            note = pl.resize_note(args.out, fp, args.n)
+            if note:
+                print(note, file=sys.stderr)
             if args.overwrite and fp.state == "new":
                 print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
             elif args.overwrite:

@@ -111,7 +111,7 @@ def tiny(tmp_path_factory):
 
 
 def _settings(**kw):
-    return RenderSettings.from_params({"width": 24, "height": 16, **kw})
+    return RenderSettings.from_params({"width": 24, "height": 16, "frame_margin_px": None, **kw})
 
 
 def test_asset_carries_its_skin_triangles(tiny):

@@ -280,3 +280,39 @@ def test_stage_writes_its_headline_beside_the_full_metrics(tmp_path):
     assert json.loads((tmp_path / "rig.metrics.json").read_text())["lids"] == {"up": 1}     # nothing lost
     assert json.loads((tmp_path / "rig.summary.json").read_text()) == {"faces": 10, "err_mm": 0.01235, "issues": 2}
     assert _common.headline("dataset", {"n_images": 3}) is None
+
+
+def test_card_counts_lighting_eye_configurations_and_landmarks_inside(labels, tmp_path):
+    """Issue 33: the card says how many images hold every landmark inside, and counts the lighting
+    and the eye configurations; their plots are files a dataset run deletes and redraws."""
+    from pipeline.render import plan as pl
+
+    rng = np.random.default_rng(5)
+    full = []
+    for i, d in enumerate(labels):
+        px = np.asarray(d["landmarks"]["px"], float)
+        if i in (3, 7):
+            px[6, 0] = 24.4                                  # the lateral canthus 0.4 px past the right border
+        full.append({**d, "image": {"width": 24, "height": 16}, "landmarks": {**d["landmarks"], "px": px.tolist()},
+                     "lighting": {"hdri": ["city.exr", "night.exr"][i % 2], "rotation_deg": 0.0,
+                                  "strength": float(rng.uniform(0.6, 1.6))},
+                     "eye_configuration": {"iris_color": ["brown", "blue", "green"][i % 3], "sclera_tint": "white",
+                                           "veins": ["none", "light"][i % 2],
+                                           "pupil_radius_mm": float(rng.uniform(1.0, 3.5))}})
+    stats = plots.label_stats(full, ASSETS)
+    inside = stats["landmarks_inside"]
+    assert inside["images_all_inside"] == 28 and inside["share"] == round(28 / 30, 4)
+    assert inside["outside_per_landmark"][6] == 2 and sum(inside["outside_per_landmark"]) == 2
+    assert inside["min_margin_px"] == -0.4
+    assert stats["lighting"]["hdri"] == {"city.exr": 15, "night.exr": 15}
+    assert sum(stats["lighting"]["strength"]["counts"]) == 30
+    conf = stats["eye_configuration"]
+    assert conf["iris_color"] == {"blue": 10, "brown": 10, "green": 10} and conf["sclera_tint"] == {"white": 30}
+    assert conf["veins"] == {"light": 15, "none": 15} and sum(conf["pupil_radius_mm"]["counts"]) == 30
+    files = plots.write_plots(tmp_path, stats)
+    assert {"card/lighting.png", "card/eye_configuration.png"} <= set(files)
+    assert set(files) <= set(rr.DERIVED_FILES) | set(pl.OWN_FILES)                 # a re-run deletes them
+    card = dataset_card(_info(stats, files, len(full)), full[0])
+    assert "Every landmark inside the image (`landmarks.px` within the frame): 28 of 30 images (93.3 %)" in card
+    assert "by index: 6: 2." in card and "environment map `city.exr` 15, `night.exr` 15" in card
+    assert "iris colour `blue` 10, `brown` 10, `green` 10; sclera tint `white` 30; veins `light` 15, `none` 15" in card

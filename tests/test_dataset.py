@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import os
 import shutil
 import signal
@@ -27,54 +28,65 @@ from fixtures import make_render_asset
 from pipeline.io.labels_file import read_index, read_label
 from pipeline.render import labels as lb
 from pipeline.render import mix
+from pipeline.render import plan as pl
 from pipeline.render.run import CARD_PLOTS
 from pipeline.render.settings import MAX_IMAGES
 
 ROOT = Path(__file__).resolve().parents[1]
 LOADER = ROOT / "examples" / "load_dataset.py"
-TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
+TINY = {"width": 24, "height": 16, "frame_margin_px": None, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
         "connect_timeout_s": 3, "sheet_images": 4}
 LICENCES = {"alpha": "CC0-1.0 (test alpha)", "beta": "CC-BY-4.0 (test beta)"}
 
 
 # ------------------------------------------------------------------------------- the mix (no Blender)
 
-def _largest_remainder(n, weights):
-    """Hamilton's method in exact rational arithmetic (integer weights)."""
-    quota = [Fraction(n * w, sum(weights)) for w in weights]
-    base = [q.numerator // q.denominator for q in quota]
-    order = sorted(range(len(weights)), key=lambda k: (-(quota[k] - base[k]), k))
-    for k in order[:n - sum(base)]:
-        base[k] += 1
-    return base
-
-
-def test_mixing_weights_respected_exactly():
+def test_every_prefix_is_within_one_image_of_its_quota():
+    """The quota method: for every n (each prefix of one sequence) each asset holds floor or ceil
+    of n w / W images, exact rational arithmetic as the check; float weights too."""
     rng = np.random.default_rng(3)
-    for _ in range(300):
+    for trial in range(200):
         k = int(rng.integers(1, 7))
-        weights = [int(x) for x in rng.integers(1, 20, size=k)]
-        n = int(rng.integers(0, 5000))
-        counts = mix.allocate(n, weights)
-        assert counts.sum() == n
-        quota = n * np.asarray(weights, float) / sum(weights)
-        assert np.all(np.abs(counts - quota) < 1)                     # the stated tolerance: < 1 image
-        assert counts.tolist() == _largest_remainder(n, weights)
+        weights = ([int(x) for x in rng.integers(1, 20, size=k)] if trial % 2 else
+                   [float(x) for x in rng.uniform(0.05, 3.0, size=k)])
+        n = int(rng.integers(0, 600))
         a = mix.assign(n, weights, seed=int(rng.integers(0, 2**40)))
-        assert a.shape == (n,) and np.bincount(a, minlength=k).tolist() == counts.tolist()
-    # float weights: the quotas, exactly split
-    assert mix.allocate(10, [2.5, 1.25, 1.25]).tolist() == [5, 3, 2]
+        assert a.shape == (n,)
+        fw = [Fraction(float(w)) for w in weights]
+        share = [f / sum(fw) for f in fw]
+        c = [0] * k
+        for t, x in enumerate(a.tolist(), 1):
+            c[x] += 1
+            for j in range(k):
+                q = t * share[j]
+                assert math.floor(q) <= c[j] <= math.ceil(q), (weights, t)
+        counts = mix.allocate(n, weights)
+        assert counts.sum() == n and np.all(np.abs(counts - n * np.asarray(weights, float) / sum(weights)) < 1)
+    # whole quotas are met exactly
     assert mix.allocate(10000, [2, 1, 1]).tolist() == [5000, 2500, 2500]
+    assert mix.allocate(8, [2.5, 1.25, 1.25]).tolist() == [4, 2, 2]
 
 
-def test_assignment_is_a_pure_function_of_the_seed_and_mixes_every_slice():
+def test_assignment_is_a_prefix_of_one_sequence_and_mixes_every_slice():
+    """Image i's asset depends on the weights, the seed and i, never on n."""
     a = mix.assign(1000, [1, 1], seed=0)
     assert np.array_equal(a, mix.assign(1000, [1, 1], seed=0))
-    assert not np.array_equal(a, mix.assign(1000, [1, 1], seed=1))
+    assert len({tuple(mix.assign(30, [1, 1, 1], seed=s)[:3]) for s in range(8)}) > 1   # the seed orders ties
+    for n in (1, 7, 50, 200, 999):
+        assert np.array_equal(mix.assign(n, [1, 1], seed=0), a[:n])
+    b = mix.assign(1000, [3, 1, 2.5], seed=4)
+    for n in (1, 60, 200, 300):
+        assert np.array_equal(mix.assign(n, [3, 1, 2.5], seed=4), b[:n])
     for lo in range(0, 1000, 100):                                    # interleaved, not in blocks
         assert 25 <= np.count_nonzero(a[lo:lo + 100] == 0) <= 75
     # the mixing stream's key [seed, MIX_TAG] is no image's key [seed, index, attempt]
     assert mix.MIX_TAG >= MAX_IMAGES
+
+
+def test_legacy_mix_is_the_largest_remainder_permutation():
+    """Folders planned before the quota mix are read with it (pipeline/render/plan.py)."""
+    a = mix.assign_legacy(10, [2.5, 1.25, 1.25], seed=0)
+    assert np.bincount(a).tolist() == [5, 3, 2]
 
 
 @pytest.mark.parametrize("weights, message", [
@@ -214,14 +226,15 @@ def test_changed_weights_need_overwrite_and_rerender_only_the_images_whose_asset
     keep = {f"{i:06d}.png": (out / f"{i:06d}.png").read_bytes() for i in range(5) if old[i] == new[i]}
     (out / "notes.txt").write_text("the user's own")
     r = _run(_cmd(two, out, "--weights", "1", "1", n=5))                  # another plan: refused
-    assert r.returncode == 2 and r.stderr.startswith(f"error: {out}: holds a dataset of another plan (n 6 -> 5; "
+    assert r.returncode == 2 and r.stderr.startswith(f"error: {out}: holds a dataset of another plan ("
                                                      "weights [2.0, 1.0] -> [1.0, 1.0]): --overwrite replaces it")
     # --overwrite: 4 files per image that goes (index 5 and the changed ones), the index, sheet and
     # card files, and the card's plots
-    gone = 4 * (changed + 1) + 5 + len(CARD_PLOTS)
+    # card files, the card's plots and the splits (plan.OWN_FILES)
+    gone = 4 * (changed + 1) + 2 + len(pl.OWN_FILES) + len(CARD_PLOTS)
     r = _run(_cmd(two, out, "--weights", "1", "1", "--overwrite", n=5))
     assert r.returncode == 0, r.stderr
-    assert r.stderr == f"note: --overwrite: {gone} files of the earlier dataset in {out} go (n 6 -> 5; " \
+    assert r.stderr == f"note: --overwrite: {gone} files of the earlier dataset in {out} go (" \
                        "weights [2.0, 1.0] -> [1.0, 1.0])\n"
     t = json.loads((out / "timings.json").read_text())
     assert t["rendered"] == changed and t["skipped_done"] == 5 - changed and t["stale_images"] == changed
@@ -292,3 +305,25 @@ def test_asset_doubts_reach_the_card():
     lines = _doubts([{"name": "james", "doubts": a.doubts()}, {"name": "ok", "doubts": []}])
     assert lines[0] == "## Doubts" and f"- `james`, left eye: {doubt}" in lines
     assert not any("`ok`" in line for line in lines) and _doubts([{"name": "ok", "doubts": []}]) == []
+
+
+@pytest.mark.blender
+def test_growing_adds_only_the_new_images_and_shrinking_removes_the_tail(two, resumed, tmp_path):
+    """Issue 33: --n 6 -> 9 renders images 6..8 and leaves images 0..5 byte-identical, with no
+    --overwrite; 9 -> 4 removes the tail's files and renders nothing."""
+    out = tmp_path / "ds"
+    shutil.copytree(resumed["out"], out)
+    before = {p.name: p.read_bytes() for p in out.glob("0*")}
+    r = _run(_cmd(two, out, "--weights", "2", "1", n=9))
+    assert r.returncode == 0, r.stderr
+    assert f"note: {out}: n 6 -> 9: the same plan grown, images 6..8 are added" in r.stderr
+    t = json.loads((out / "timings.json").read_text())
+    assert t["rendered"] == 3 and t["skipped_done"] == 6 and t["stale_images"] == 0
+    assert all((out / k).read_bytes() == v for k, v in before.items())
+    assert [r["asset_id"] for r in read_index(out / "index.jsonl")] == mix.assign(9, [2, 1], seed=0).tolist()
+    assert (out / "splits" / "splits.json").is_file()
+    r = _run(_cmd(two, out, "--weights", "2", "1", n=4))
+    assert r.returncode == 0 and "n 9 -> 4: the same plan shrunk, images 4..8 go" in r.stderr, r.stderr
+    assert json.loads((out / "timings.json").read_text())["rendered"] == 0
+    assert sorted({p.name[:6] for p in out.glob("0*")}) == [f"{i:06d}" for i in range(4)]
+    assert all((out / k).read_bytes() == v for k, v in before.items() if int(k[:6]) < 4)

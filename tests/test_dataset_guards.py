@@ -20,7 +20,7 @@ from fixtures import make_render_asset
 from pipeline.errors import ScanError
 from pipeline.io.folder_lock import LOCK_NAME, folder_lock
 
-TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
+TINY = {"width": 24, "height": 16, "frame_margin_px": None, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
         "connect_timeout_s": 3, "sheet_images": 4}
 STOP = "stopped before rendering (test)"
 

@@ -89,7 +89,8 @@ def test_unityeyes_preset_and_label_formats_settings():
 
 
 @pytest.mark.parametrize("formats, message", [
-    (["eyerig", "hdf5"], "render.label_formats[1] must be one of 'eyerig', 'coco', 'pts', 'unityeyes', "
+    (["eyerig", "hdf5"], "render.label_formats[1] must be one of 'eyerig', 'coco', 'normalized', 'pts', "
+                         "'unityeyes', "
                          "'webdataset' (got 'hdf5')"),
     (["unityeyes"], "render.label_formats must list eyerig"),
     (["eyerig", "pts", "pts"], "each format once"),

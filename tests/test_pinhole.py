@@ -271,7 +271,7 @@ def test_pinhole_rays_through_the_cornea(asset):
     assert 1.05 < radius(app[8:]) / radius(smp.landmarks_px[20:28]) < 1.6
     # a far pinhole camera sees what the orthographic camera sees: 100 m away, the same image width
     far = _settings(camera="pinhole", focal_px=120.0 * 1e5 / 33.0, camera_distance_mm=1e5, center_jitter_mm=0.0)
-    ortho = _settings(ortho_scale_mm=[33.0, 33.0], camera_distance_mm=1e5, center_jitter_mm=0.0)
+    ortho = _settings(ortho_scale_mm=[33.0, 33.0], camera_distance_mm=1e5, center_jitter_mm=0.0, frame_margin_px=None)
     o = {"polar_deg": 12.0, "azimuth_deg": 40.0, "gaze_pitch_deg": 6.0, "gaze_yaw_deg": -9.0,
          "principal_shift_px": np.zeros(2)}
     pf, Af, params, ior = _iris_case(asset, far, o)

@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fixtures import make_two_assets
@@ -24,7 +25,7 @@ from pipeline.render import run as rr
 from pipeline.render.settings import RenderSettings
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2}
+TINY = {"width": 24, "height": 16, "frame_margin_px": None, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2}
 IMAGE_FILES = (".png", ".json", "_seg.png", "_depth.exr")
 
 
@@ -49,6 +50,7 @@ def _dataset(two, out, n=8, weights=None) -> dict:
         for end in IMAGE_FILES:
             (out / f"{i:06d}{end}").write_bytes(f"image {i}{end}".encode())
     for name in ("index.jsonl", "contact_sheet.png", *pl.OWN_FILES):
+        (out / name).parent.mkdir(exist_ok=True)
         (out / name).write_text(name)
     (out / "notes.txt").write_text("the user's own")
     return _snapshot(out)
@@ -72,7 +74,6 @@ def test_another_plan_is_refused_naming_what_differs_and_nothing_is_touched(two,
     out = tmp_path / "ds"
     before = _dataset(two, out)
     cases = [
-        ((), 2, "n 8 -> 2"),
         (("--weights", "2", "1"), 8, "weights [1.0, 1.0] -> [2.0, 1.0]"),
         (("--seed", "7"), 8, "seed 0 -> 7"),
         (("--set", "samples=2", "width=32"), 8, "settings samples 1 -> 2, width 24 -> 32"),
@@ -94,12 +95,12 @@ def test_another_plan_is_refused_naming_what_differs_and_nothing_is_touched(two,
 def test_overwrite_lists_only_the_renders_files_and_keeps_what_the_new_plan_shares(two, tmp_path):
     out = tmp_path / "ds"
     _dataset(two, out, n=8)
-    assets, assign, st = _plan(two, 6)
+    assets, assign, st = _plan(two, 6, weights=[2, 1])
     fp = pl.inspect_dataset(out, assets, assign, st)
     old = mix.assign(8, [1, 1], 0)
     shared = [i for i in range(6) if old[i] == assign[i]]
-    assert fp.state == "other" and fp.differences == ["n 8 -> 6"]
-    assert sorted(p.name for p in fp.remove) == sorted(
+    assert fp.state == "other" and fp.differences == ["weights [1.0, 1.0] -> [2.0, 1.0]"]
+    assert sorted(p.relative_to(out).as_posix() for p in fp.remove) == sorted(
         [f"{i:06d}{e}" for i in range(8) if i not in shared for e in IMAGE_FILES]
         + ["index.jsonl", "contact_sheet.png", *pl.OWN_FILES])
     assert fp.stale_images == 6 - len(shared) and "notes.txt" not in {p.name for p in fp.remove}
@@ -108,11 +109,48 @@ def test_overwrite_lists_only_the_renders_files_and_keeps_what_the_new_plan_shar
     prep = ds.prepare_dataset(out, assets, assign, st, overwrite=True)
     assert prep["removed_files"] == len(fp.remove)
     left = sorted(p.name for p in out.iterdir())
-    assert left == sorted([f"{i:06d}{e}" for i in shared for e in IMAGE_FILES] + [".tmp", "config.json", "notes.txt"])
+    assert left == sorted([f"{i:06d}{e}" for i in shared for e in IMAGE_FILES] + [".tmp", "config.json", "notes.txt",
+                                                                               "card", "splits"])
     # the same plan again: nothing to refuse, only unfinished images go (and the end-of-run files)
     (out / "000005.png").write_bytes(b"half")                # no label: unfinished
     again = pl.inspect_dataset(out, assets, assign, st)
     assert again.state == "same" and [p.name for p in again.remove] == (["000005.png"] if 5 not in shared else [])
+
+
+def test_another_n_is_the_same_plan_grown_or_shrunk(two, tmp_path):
+    """Image i does not depend on n: a larger n adds images and keeps every file, a smaller one
+    removes only the tail (no --overwrite either way)."""
+    out = tmp_path / "ds"
+    before = _dataset(two, out, n=8)
+    assets, assign, st = _plan(two, 12)
+    fp = pl.inspect_dataset(out, assets, assign, st)
+    assert fp.state == "same" and fp.differences == [] and fp.stale_images == 0 and fp.old_n == 8
+    assert sorted(p.relative_to(out).as_posix() for p in fp.remove) == sorted(["index.jsonl", "contact_sheet.png", *pl.OWN_FILES])
+    assert pl.refusal(out, fp) is None and pl.resize_note(out, fp, 12).endswith("images 8..11 are added")
+    assets, assign, st = _plan(two, 5)
+    fp = pl.inspect_dataset(out, assets, assign, st)
+    assert fp.state == "same" and pl.refusal(out, fp) is None
+    assert sorted(p.relative_to(out).as_posix() for p in fp.remove) == sorted(
+        [f"{i:06d}{e}" for i in range(5, 8) for e in IMAGE_FILES] + ["index.jsonl", "contact_sheet.png", *pl.OWN_FILES])
+    assert pl.resize_note(out, fp, 5).endswith(f"images 5..7 go ({3 * len(IMAGE_FILES)} files)")
+    ds.prepare_dataset(out, assets, assign, st)
+    kept = _snapshot(out)
+    assert all(kept[k] == before[k] for k in before if k[:6].isdigit() and int(k[:6]) < 5)
+
+
+def test_a_plan_of_the_earlier_mix_is_another_plan(two, tmp_path):
+    """A folder planned with the n-dependent mix (no ``mix`` in its config) is read with that
+    mix, and a run of today's mix needs --overwrite (its images keep only where the assets agree)."""
+    out = tmp_path / "ds"
+    _dataset(two, out, n=8)
+    cfg = json.loads((out / "config.json").read_text())
+    del cfg["dataset"]["mix"]
+    (out / "config.json").write_text(json.dumps(cfg))
+    assets, assign, st = _plan(two, 8)
+    fp = pl.inspect_dataset(out, assets, assign, st)
+    assert fp.state == "other" and fp.differences == ["mix largest remainder, n-dependent -> quota"]
+    legacy = mix.assign_legacy(8, [1, 1], 0)
+    assert fp.stale_images == int(np.count_nonzero(legacy != assign))
 
 
 def test_resume_needs_a_dataset_and_overwrite_needs_one_too(two, tmp_path):

@@ -36,7 +36,7 @@ from pipeline.rig import lids
 from stages._common import read_stage_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
+TINY = {"width": 24, "height": 16, "frame_margin_px": None, "samples": 1, "denoise": False, "workers": 1, "shard_size": 2,
         "progress": False, "connect_timeout_s": 3}
 
 

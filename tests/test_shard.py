@@ -24,7 +24,7 @@ from pipeline.io.labels_file import read_index
 
 ROOT = Path(__file__).resolve().parents[1]
 LOOPBACK = "127.0.0.1"
-TINY = {"width": 24, "height": 16, "samples": 1, "denoise": False, "shard_size": 2, "connect_timeout_s": 10,
+TINY = {"width": 24, "height": 16, "frame_margin_px": None, "samples": 1, "denoise": False, "shard_size": 2, "connect_timeout_s": 10,
         "sheet_images": 2}
 
 

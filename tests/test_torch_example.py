@@ -9,6 +9,7 @@ format and reads it back through coco.json (pycocotools), the shards and the exa
 from __future__ import annotations
 
 import importlib.util
+import io
 import json
 import subprocess
 import sys
@@ -101,6 +102,31 @@ def test_torch_example_is_lazy_and_bounds_checked(tmp_path):
         ds[3]
     with pytest.raises(FileNotFoundError, match="index.jsonl: missing"):
         mod.EyeDataset(tmp_path)
+
+
+def test_shard_seg_round_trip_keeps_the_class_ids(tmp_path):
+    """The example's shard reader (and its webdataset decoder seg_ids) give the loose masks' class
+    ids; the conversion every webdataset image decoder makes first ("l8": luminance, "pil" and
+    "rgb8": RGB) gives palette colours instead: the trap the docs warn of."""
+    from PIL import Image
+
+    made = fake_render(tmp_path / "made", 5, formats=("eyerig", "webdataset"))
+    spec = importlib.util.spec_from_file_location("torch_dataset", EXAMPLE)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    samples = list(mod.EyeShards(made["out"]))
+    assert [s["key"] for s in samples] == [f"{i:06d}" for i in range(5)]
+    for i, s in enumerate(samples):
+        ids = read_seg(made["out"] / f"{i:06d}_seg.png")
+        assert s["mask"].dtype == np.uint8 and np.array_equal(s["mask"], ids)
+        assert s["label"]["index"] == i and s["image"].shape == (32, 48, 3)
+    with tarfile.open(made["out"] / "shards" / "shard-000000.tar") as tar:
+        data = tar.extractfile("000000.seg.png").read()
+    ids = read_seg(made["out"] / "000000_seg.png")
+    assert np.array_equal(mod.seg_ids("seg.png", data), ids) and mod.seg_ids("png", data) is None
+    with Image.open(io.BytesIO(data)) as im:
+        l8, rgb = np.asarray(im.convert("L")), np.asarray(im.convert("RGB"))
+    assert len(np.unique(ids)) > 1 and not np.array_equal(l8, ids) and rgb.shape == ids.shape + (3,)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("torch") is None, reason="torch not installed")

@@ -176,7 +176,8 @@ def _plots(info) -> list[str]:
     g, h = st["gaze_camera_deg"], st["head_pose_deg"]
     out = ["## Plots", "",
            f"Drawn from the {st['n_images']} finished labels; `dataset.json` (`statistics`) holds the "
-           "numbers: histogram bin edges and counts, images per asset, visibility per landmark.", "",
+           "numbers: histogram bin edges and counts, images per asset, visibility per landmark, landmarks "
+           "inside the frame, lighting and eye configurations.", "",
            f"- Gaze in the camera frame (`gaze.camera`, pitch + = up, yaw + = toward image right): pitch "
            f"{_range(g['pitch'])}; yaw {_range(g['yaw'])}.",
            f"- Head pose relative to the camera (`head_pose.camera_pitch_deg` / `camera_yaw_deg`, the "
@@ -184,6 +185,8 @@ def _plots(info) -> list[str]:
            f"left): pitch {_range(h['pitch'])}; yaw {_range(h['yaw'])}.",
            "- Images per asset: " + ", ".join(f"`{k}` {v}" for k, v in st["images_per_asset"].items()) + ".",
            *_eye_line(st.get("eye_mm")),
+           *_inside_line(st.get("landmarks_inside"), st["n_images"]),
+           *_lighting_lines(st.get("lighting"), st.get("eye_configuration")),
            ""]
     out += [f"![{f.rsplit('/', 1)[-1][:-4].replace('_', ' ')}]({f})" for f in files] + [""]
     share = st.get("landmark_visible_share")
@@ -204,6 +207,37 @@ def _eye_line(eye) -> list[str]:
     mm = lambda h: f"{h['min']:.2f} to {h['max']:.2f} mm, mean {h['mean']:.2f}"    # noqa: E731
     return [f"- The imaged eye, as its asset has it (`eyes.<eye>.radius_mm`, `center_to_iris_plane_mm`): "
             f"eyeball radius {mm(eye['radius'])}; rotation centre to iris plane {mm(eye['center_to_iris_plane'])}."]
+
+
+def _inside_line(inside, n: int) -> list[str]:
+    """The card's line on how many images hold every landmark inside the frame."""
+    if not inside:
+        return []
+    worst = ("" if inside["images_all_inside"] == n else
+             "; images with each landmark outside, by index: " + ", ".join(
+                 f"{k}: {c}" for k, c in enumerate(inside["outside_per_landmark"]) if c))
+    return [f"- Every landmark inside the image (`landmarks.px` within the frame): {inside['images_all_inside']} of "
+            f"{n} images ({100 * inside['share']:.1f} %); the nearest landmark to a border is "
+            f"{inside['min_margin_px']:.2f} px inside it (negative: outside){worst}."]
+
+
+def _count_text(counts: dict) -> str:
+    return ", ".join(f"`{k}` {v}" for k, v in counts.items())
+
+
+def _lighting_lines(light, conf) -> list[str]:
+    """The card's lines on the lighting and eye configurations drawn."""
+    out = []
+    if light:
+        s = light["strength"]
+        out.append(f"- Lighting (`lighting`): images per environment map {_count_text(light['hdri'])}; strength "
+                   f"{s['min']:.2f} to {s['max']:.2f}, mean {s['mean']:.2f}.")
+    if conf:
+        p = conf["pupil_radius_mm"]
+        out.append(f"- Eye configuration (`eye_configuration`): iris colour {_count_text(conf['iris_color'])}; "
+                   f"sclera tint {_count_text(conf['sclera_tint'])}; veins {_count_text(conf['veins'])}; pupil "
+                   f"radius {p['min']:.2f} to {p['max']:.2f} mm, mean {p['mean']:.2f}.")
+    return out
 
 
 def _masks_text(masks) -> str:

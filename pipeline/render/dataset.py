@@ -4,7 +4,8 @@ The library of the dataset command (``python -m stages.dataset``, stages/dataset
 the settings and says what happens); here nothing reads params.yaml or prints.
 
 Image ``i`` (global index ``0..n-1``) shows asset ``assign(n, weights, seed)[i]``
-(pipeline/render/mix.py: exact counts by largest remainder, interleaved by the seed) and is
+(pipeline/render/mix.py: the quota method's sequence, which does not depend on ``n``: every
+prefix within one image of the weights' proportions, interleaved) and is
 sample ``i`` of the render stage's sampler for that asset (``default_rng([seed, i, attempt])``,
 pipeline/render/sampling.py), so it is a pure function of the settings, the asset and ``i``.
 The render machinery is the render stage's (pipeline/render/run.py, shard.py): shards of one
@@ -24,8 +25,9 @@ renderer source, :func:`pipeline.render.run.config_hash`) continues it, skipping
 ``--resume`` does only that. A dataset of another plan is refused with one line naming what
 differs, unless ``--overwrite``: then the command says how many files go, keeps every image
 whose index the new plan gives the same asset under the same config hash and deletes the other
-images first, so a changed ``--n``, weight or asset re-renders only the images whose asset
-changed. Only the files a render writes are ever deleted; a folder that is neither new, empty
+images first, so a changed weight or asset re-renders only the images whose asset changed.
+Another ``--n`` is the same plan: a larger one adds images ``n..m-1`` and touches no other, a
+smaller one removes the tail. Only the files a render writes are ever deleted; a folder that is neither new, empty
 nor a dataset is refused, ``--overwrite`` or not. Settings come from the ``render:`` block of
 ``--params`` (image size, samples, ranges, label formats, workers, ...); ``--set KEY=VALUE``,
 ``--n``, ``--preset`` and ``--seed`` override it.
@@ -51,12 +53,12 @@ from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json, write_text
 from pipeline.io.labels_file import SCHEMA as LABEL_SCHEMA
 from pipeline.io.labels_file import label_name, read_index, read_label
-from pipeline.render import formats, mix, plots
+from pipeline.render import formats, mix, plots, splits
 from pipeline.render import plan as pl
 from pipeline.render import run as rr
 from pipeline.render.plan import SCHEMA
 
-INFO, CARD, TIMINGS = pl.OWN_FILES
+INFO, CARD, TIMINGS = pl.OWN_FILES[:3]
 #: ``rigged_assets/eyeball`` holds the eyeball every asset references, not a head: skipped.
 SHARED_EYEBALL = "eyeball"
 SEG_FILE = "NNNNNN_seg.png"
@@ -67,6 +69,9 @@ FILES = {
                     "conventions, settings",
     "contact_sheet.png": "the first images with their landmarks drawn, each tile naming its asset",
     "card/*.png": "the card's plots: " + "; ".join(f"`{k}` {v}" for k, v in plots.PLOTS.items()),
+    "splits/{train,val,test}.txt": "the images (NNNNNN.png, one a line) of each split by identity: no asset in "
+                                   "two splits (render.splits, render.split_seed; pipeline/render/splits.py)",
+    "splits/splits.json": "which asset went to which split, the proportions, the seed, images per split",
     "config.json": "the plan and hashes a resumed run compares (not data)",
     "timings.json": "what the last run measured (not data)",
     "README.md": "this card",
@@ -219,10 +224,11 @@ def dataset_info(out: Path, assets, counts, settings, n: int) -> dict:
                   "format": "PNG, 8-bit RGB", "pixels": "origin at the top-left pixel corner, x right, "
                                                        "y down, pixel centres at +0.5"},
         "files": {**image_files(out), **FILES},
-        "mixing": "Image i shows asset assign(n, weights, seed)[i] (pipeline/render/mix.py): exact counts "
-                  "by largest remainder (each within one image of n * weight / sum of weights), interleaved "
-                  "by a seeded permutation; images are drawn with numpy.random.default_rng([seed, i, attempt]) "
-                  "over the global index i, so no two images share a random stream.",
+        "mixing": "Image i shows asset assign(n, weights, seed)[i] (pipeline/render/mix.py): the first n terms "
+                  "of Balinski and Young's quota method, a sequence that does not depend on n (growing the "
+                  "dataset adds images, changes none), every prefix within one image of n * weight / sum of "
+                  "weights, ties in a seeded order; images are drawn with numpy.random.default_rng([seed, i, "
+                  "attempt]) over the global index i, so no two images share a random stream.",
         "assets": [{"id": a.id, "name": a.name, "weight": a.weight, "share": a.weight / total_w,
                     "count": int(counts[a.id]), "licence": a.meta("licence"),
                     "source_sha256": a.meta("source_sha256"), "pipeline_version": a.meta("pipeline_version"),
@@ -311,6 +317,7 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
     counts = _check_index(out, assets, assign)
     formats.finish_formats(out, n, settings)         # coco.json, webdataset shards (pipeline/render/formats)
     info = dataset_info(out, assets, counts, settings, n)
+    info["splits"] = splits.write_splits(out, [a.name for a in assets], assign, settings.splits, settings.split_seed)
     info["statistics"] = plots.label_stats((read_label(out / label_name(i)).doc for i in range(n)),
                                            [a.name for a in assets])
     info["plots"] = plots.write_plots(out, info["statistics"])

@@ -1,10 +1,13 @@
 """A dataset folder's plan: what its ``config.json`` records, how a new plan differs, what goes.
 
 The plan of a dataset (pipeline/render/dataset.py) is everything that decides its images: the
-number of images, the seed, the assets in order with their weights and config hashes (render
-settings, asset files and renderer code: :func:`pipeline.render.run.config_hash`) and the
-render settings. :func:`inspect_dataset` compares the plan recorded in a folder with a new one
-and lists the files a run of the new plan would remove; it changes nothing. Only the files a
+seed, the assets in order with their weights and config hashes (render settings, asset files
+and renderer code: :func:`pipeline.render.run.config_hash`), the mix (pipeline/render/mix.py)
+and the render settings. The number of images is not part of it: image ``i`` is the same in
+every length of the plan, so another ``--n`` is the same plan grown (images ``n..m-1`` added)
+or shrunk (the tail's files removed), with no ``--overwrite``. :func:`inspect_dataset` compares
+the plan recorded in a folder with a new one and lists the files a run of the new plan would
+remove; it changes nothing. Only the files a
 render writes are ever listed (:func:`pipeline.render.run.doomed_files` and the dataset's own
 card files); any other file in the folder stays.
 """
@@ -24,13 +27,14 @@ from pipeline.render import run as rr
 
 SCHEMA = 1
 #: The dataset's own files besides the images, rewritten at the end of every run.
-OWN_FILES = ("dataset.json", "README.md", "timings.json")
+OWN_FILES = ("dataset.json", "README.md", "timings.json", "splits/train.txt", "splits/val.txt", "splits/test.txt",
+             "splits/splits.json", "card/lighting.png", "card/eye_configuration.png")
 
 
 def plan_doc(assets, n: int, settings) -> dict:
     """The plan as ``config.json`` records it (``"dataset"``; asset paths are for reading, not
     compared: the config hash covers the files)."""
-    return {"schema": SCHEMA, "n": int(n), "seed": int(settings.seed),
+    return {"schema": SCHEMA, "n": int(n), "seed": int(settings.seed), "mix": mix.MIX,
             "assets": [{"name": a.name, "weight": a.weight, "config_hash": a.config_hash,
                         "asset": os.path.relpath(a.asset.usda), "rig": os.path.relpath(a.asset.rig_npz)}
                        for a in assets]}
@@ -48,7 +52,10 @@ def plan_differences(old_cfg: dict, plan: dict, settings: dict) -> list[str]:
     if not isinstance(ds, dict) or not isinstance(ds.get("assets"), list):
         return ["its config.json records no readable plan"]
     old_assets = [a if isinstance(a, dict) else {} for a in ds["assets"]]
-    diff = [f"{k} {_short(ds.get(k))} -> {_short(plan[k])}" for k in ("n", "seed") if ds.get(k) != plan[k]]
+    # not n: a plan's image i is the same at any length (growing or shrinking is the same plan)
+    diff = [f"{k} {_short(ds.get(k))} -> {_short(plan[k])}" for k in ("seed",) if ds.get(k) != plan[k]]
+    if ds.get("mix") != plan["mix"]:       # plans before the quota mix record none
+        diff.append(f"mix {ds.get('mix') or 'largest remainder, n-dependent'} -> {plan['mix']}")
     names = [a.get("name") for a in old_assets], [a["name"] for a in plan["assets"]]
     weights = [a.get("weight") for a in old_assets], [a["weight"] for a in plan["assets"]]
     if names[0] != names[1]:
@@ -71,7 +78,8 @@ def _old_assignment(ds: dict) -> tuple[list[str], np.ndarray] | None:
     """``(asset keys, asset position of every index)`` of an earlier plan; None when unusable."""
     try:
         keys = [f"{a['name']}\0{a['config_hash']}" for a in ds["assets"]]
-        return keys, mix.assign(int(ds["n"]), [float(a["weight"]) for a in ds["assets"]], int(ds["seed"]))
+        how = mix.assign if ds.get("mix") == mix.MIX else mix.assign_legacy
+        return keys, how(int(ds["n"]), [float(a["weight"]) for a in ds["assets"]], int(ds["seed"]))
     except (KeyError, TypeError, ValueError, IndexError):
         return None
 
@@ -82,14 +90,16 @@ class FolderPlan:
 
     ``state``: ``"new"`` (absent or empty), ``"same"`` (a dataset of this plan: a run continues it)
     or ``"other"`` (a dataset of another plan, ``differences`` say how). ``remove``: the files a run
-    of the new plan removes (stale and unfinished images, the index, sheet and card);
-    ``stale_images``: the finished images among them (their index now shows another asset).
+    of the new plan removes (stale and unfinished images, the tail beyond ``n``, the index, sheet
+    and card); ``stale_images``: the finished images among them below ``n`` (their index now shows
+    another asset); ``old_n``: the number of images the folder's plan had.
     """
 
     state: str
     differences: list = field(default_factory=list)
     remove: list = field(default_factory=list)
     stale_images: int = 0
+    old_n: int | None = None
 
 
 def check_out(out: Path) -> None:
@@ -119,7 +129,21 @@ def inspect_dataset(out: Path, assets, assign: np.ndarray, settings) -> FolderPl
     remove = rr.doomed_files(out, keep)
     stale = sum(1 for p in remove if p.parent == out and p.suffix == ".json" and p.stem.isdigit() and int(p.stem) < n)
     remove += [out / name for name in OWN_FILES if (out / name).is_file()]
-    return FolderPlan("other" if diff else "same", diff, remove, stale)
+    old_n = (old_cfg.get("dataset") or {}).get("n")
+    return FolderPlan("other" if diff else "same", diff, remove, stale, old_n if isinstance(old_n, int) else None)
+
+
+def resize_note(out: Path, fp: FolderPlan, n: int) -> str | None:
+    """One line saying how a run of the same plan at another length changes ``out``; None when the
+    length is the same (or the folder new or of another plan)."""
+    if fp.state != "same" or fp.old_n is None or fp.old_n == n:
+        return None
+    if n > fp.old_n:
+        return f"note: {out}: n {fp.old_n} -> {n}: the same plan grown, images {fp.old_n}..{n - 1} are added"
+    from pipeline.render.formats import image_files
+
+    gone = sum(1 for i, _ in image_files(out) if i >= n)
+    return f"note: {out}: n {fp.old_n} -> {n}: the same plan shrunk, images {n}..{fp.old_n - 1} go ({gone} files)"
 
 
 def refusal(out: Path, fp: FolderPlan, overwrite: bool = False, resume: bool = False) -> ScanError | None:

@@ -23,19 +23,24 @@ import math
 import numpy as np
 
 from pipeline.io.atomic import write_bytes
-from pipeline.render.run import CARD_PLOTS
 
-#: What each of the card's plots shows (their paths: pipeline/render/run.py CARD_PLOTS, the files a
-#: run deletes and rewrites).
+#: What each of the card's plots shows (``card/<name>``: pipeline/render/run.py CARD_PLOTS and, for
+#: the lighting and eye configuration plots, pipeline/render/plan.py OWN_FILES are the files a run
+#: deletes and rewrites).
 PLOTS = {
     "gaze.png": "histograms of the gaze pitch and yaw in the camera frame",
     "head_pose.png": "histograms of the head pose relative to the camera",
     "assets.png": "images per asset",
     "eye.png": "histograms of the imaged eye's radius and of the distance from its centre to its iris plane",
     "visibility.png": "share of images in which each landmark is visible",
+    "lighting.png": "images per environment map and a histogram of the lighting strength",
+    "eye_configuration.png": "images per iris colour, sclera tint and veins variant, and a histogram of the "
+                             "pupil radius",
 }
 BIN_DEG = 5.0
 BIN_MM = 0.1
+BIN_STRENGTH = 0.1
+BIN_PUPIL_MM = 0.25
 #: Short names of the 28 landmarks (pipeline/render/labels.py LANDMARK_ORDER) for the plot's axis.
 LANDMARK_NAMES = (["medial canthus"] + [f"upper lid {k}" for k in range(1, 6)] + ["lateral canthus"]
                   + [f"lower lid {k}" for k in range(1, 6)] + [f"iris {k}" for k in range(8)]
@@ -71,13 +76,37 @@ def label_stats(labels, asset_names) -> dict:
     dict  ``gaze_camera_deg`` and ``head_pose_deg`` (``pitch`` / ``yaw``: :func:`_hist`),
           ``images_per_asset`` {name: n}, ``eye_mm`` (``radius`` / ``center_to_iris_plane``:
           :func:`_hist` of the imaged eye's, 0.1 mm bins, or None when a label lacks them),
-          ``landmark_visible_share`` (28 floats, 4 decimals, or None without visibility), ``n_images``
+          ``landmark_visible_share`` (28 floats, 4 decimals, or None without visibility), ``n_images``,
+          ``landmarks_inside`` (images with all 28 landmarks inside the image, their share, the
+          smallest distance of a landmark to the border in px (negative: outside), images with each
+          landmark outside), ``lighting`` (images per map, strength histogram) and ``eye_configuration``
+          (images per iris colour, sclera tint, veins; pupil radius histogram, 0.25 mm bins); None
+          when the labels lack them
     """
     gp, gy, hp, hy, radius, iris = [], [], [], [], [], []
     per_asset = {name: 0 for name in asset_names}
     visible, n_vis, n = np.zeros(28, np.int64), 0, 0
+    hdri, strength, pupil, config = {}, [], [], {"iris_color": {}, "sclera_tint": {}, "veins": {}}
+    outside, all_inside, margins = np.zeros(28, np.int64), 0, []
     for d in labels:
         n += 1
+        light = d.get("lighting") or {}
+        if "hdri" in light:
+            hdri[light["hdri"]] = hdri.get(light["hdri"], 0) + 1
+            strength.append(light["strength"])
+        ec = d.get("eye_configuration") or {}
+        for k, counts in config.items():
+            if k in ec:
+                counts[ec[k]] = counts.get(ec[k], 0) + 1
+        if "pupil_radius_mm" in ec:
+            pupil.append(ec["pupil_radius_mm"])
+        if "image" in d:
+            px = np.asarray(d["landmarks"]["px"], float)
+            w, h = d["image"]["width"], d["image"]["height"]
+            m = np.min([px[:, 0], w - px[:, 0], px[:, 1], h - px[:, 1]], axis=0)      # per landmark, px
+            outside += m < 0
+            all_inside += bool((m >= 0).all())
+            margins.append(float(m.min()))
         g = d["gaze"]["camera"]
         gp.append(g["pitch_deg"])
         gy.append(g["yaw_deg"])
@@ -102,7 +131,14 @@ def label_stats(labels, asset_names) -> dict:
             "images_per_asset": per_asset,
             "eye_mm": ({"radius": _hist(radius, BIN_MM), "center_to_iris_plane": _hist(iris, BIN_MM)}
                        if len(radius) == n else None),
-            "landmark_visible_share": share}
+            "landmark_visible_share": share,
+            "landmarks_inside": ({"images_all_inside": int(all_inside), "share": round(all_inside / n, 4),
+                                  "min_margin_px": round(min(margins), 3),
+                                  "outside_per_landmark": [int(x) for x in outside]} if len(margins) == n else None),
+            "lighting": ({"hdri": dict(sorted(hdri.items())), "strength": _hist(strength, BIN_STRENGTH)}
+                         if len(strength) == n else None),
+            "eye_configuration": ({**{k: dict(sorted(v.items())) for k, v in config.items()},
+                                   "pupil_radius_mm": _hist(pupil, BIN_PUPIL_MM)} if len(pupil) == n else None)}
 
 
 def _bars(ax, h: dict, xlabel: str, color: str) -> None:
@@ -140,7 +176,7 @@ def write_plots(out, stats: dict) -> list:
     import matplotlib.style
     from matplotlib.figure import Figure
 
-    path = {p.rsplit("/", 1)[-1]: out / p for p in CARD_PLOTS}
+    path = {name: out / "card" / name for name in PLOTS}
     path["gaze.png"].parent.mkdir(parents=True, exist_ok=True)
     n = stats["n_images"]
     with matplotlib.style.context("default"):
@@ -185,5 +221,34 @@ def write_plots(out, stats: dict) -> list:
             ax.set_title("Landmark visibility (green: eyelid 0-11, cyan: iris 12-19, yellow: pupil 20-27)")
             ax.grid(axis="y", alpha=0.3)
             _save(fig, path["visibility.png"])
-    return [p for p in CARD_PLOTS if (share is not None or not p.endswith("/visibility.png"))
-            and (eye is not None or not p.endswith("/eye.png"))]
+        light = stats.get("lighting")
+        if light is not None:
+            fig = Figure(figsize=(9, 3.4), layout="constrained")
+            axs = fig.subplots(1, 2)
+            _counts(axs[0], light["hdri"], "tab:orange")
+            axs[0].set_title("environment map")
+            _bars(axs[1], light["strength"], "lighting strength", "tab:orange")
+            fig.suptitle(f"Lighting ({n} images; the map also turns uniformly about the head's up axis)")
+            _save(fig, path["lighting.png"])
+        conf = stats.get("eye_configuration")
+        if conf is not None:
+            fig = Figure(figsize=(12, 3.4), layout="constrained")
+            axs = fig.subplots(1, 4)
+            for ax, key in zip(axs[:3], ("iris_color", "sclera_tint", "veins")):
+                _counts(ax, conf[key], "tab:cyan")
+                ax.set_title(key.replace("_", " "))
+            _bars(axs[3], conf["pupil_radius_mm"], "pupil radius (mm)", "tab:cyan")
+            fig.suptitle(f"Eye configuration ({n} images; eye_configuration in the labels)")
+            _save(fig, path["eye_configuration.png"])
+    drawn = {"visibility.png": share is not None, "eye.png": eye is not None, "lighting.png": light is not None,
+             "eye_configuration.png": conf is not None}
+    return [f"card/{name}" for name in PLOTS if drawn.get(name, True)]
+
+
+def _counts(ax, counts: dict, color: str) -> None:
+    """Horizontal bars of ``{name: images}``, the first name on top."""
+    names = list(counts)
+    ax.barh(range(len(names)), [counts[k] for k in names], color=color)
+    ax.set_yticks(range(len(names)), names, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("images")

@@ -225,7 +225,7 @@ def pending_shards(asset, settings, out: Path, pending, window: int, stats: dict
             label = lb.make_label(smp, settings, asset.name)
             if asset.eyes[smp.side].eyeball_params:
                 label["_apparent_job"] = lb.apparent_job(smp, asset.eyes[smp.side], settings)
-            formats = format_job(asset, smp, settings.label_formats)
+            formats = format_job(asset, smp, settings.label_formats, settings)
             if formats is not None:                  # unityeyes / pts files (written before the label)
                 label["_formats"] = formats
             by_hdri.setdefault(smp.spec.lighting.hdri, []).append((smp.spec, label))

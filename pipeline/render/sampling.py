@@ -41,7 +41,14 @@ Posing (SynthesEyes section 4.1), for one sample drawn with
    ``pupil_constrict = -s``) and one iris-size value likewise (``iris_large`` / ``iris_small``).
 7. **Lighting**: one of the bundled HDRIs, rotation uniform in [0, 360) deg about head +Y,
    strength uniform in ``strength``.
-8. **Rejection**: if the projected pupil centre is outside the projected eyelid polygon (the
+8. **Framing** (orthographic, ``frame_margin_px`` set: the ``generic`` and ``targeted`` presets):
+   every landmark and the whole iris ring (the circle through the 8 iris landmarks) must lie at
+   least ``frame_margin_px`` inside the image (:func:`frame_fit`). The drawn shift is moved the
+   least that brings them inside, and when they span more than the image allows the orthographic
+   scale is widened as far as the top of ``ortho_scale_mm``; an eye that does not fit even then
+   is drawn again (``attempt + 1``). Camera direction, gaze, lids, eyeball and lighting are the
+   draw's own: only the framing moves. ``frame_margin_px: null`` leaves partial crops possible.
+9. **Rejection**: if the projected pupil centre is outside the projected eyelid polygon (the
    posed lid loop of the imaged eye) or outside the polygon of the label's 12 eyelid
    landmarks (:func:`pupil_in_lids`), or if the camera sees past the asset (any pixel's filter
    footprint not covered by the posed skin and the eyeballs: background,
@@ -146,7 +153,7 @@ def _draw(asset: ra.RenderAsset, s: RenderSettings, rng, overrides: dict | None 
         d["focal_px"] = float(rng.uniform(*_range(s.focal_px)))
         d["principal_shift_px"] = rng.uniform(-1.0, 1.0, size=2) * s.principal_jitter_px
         d["crop_shift_px"] = rng.uniform(-1.0, 1.0, size=2) * s.crop_jitter_px
-    d.update(o)
+    d.update({k: v for k, v in o.items() if not k.startswith("_")})
     return d
 
 
@@ -197,6 +204,47 @@ def iris_framed_scale(eye: ra.EyeAsset, blend: dict, s: RenderSettings) -> float
     iris = ra.inner_points(eye, blend, np.eye(3), eye.iris)
     d = float(np.linalg.norm(iris.mean(0) - eye.center))
     return float(s.width) * d / float(s.iris_distance_px)
+
+
+#: Points on the iris ring the framing rule keeps inside the image (with the 28 landmarks).
+IRIS_RING_POINTS = 64
+
+
+def framing_points(L_cam: np.ndarray) -> np.ndarray:
+    """(28 + 64, 3) camera-frame points the framing keeps in the image: the 28 landmarks and the
+    circle through the 8 iris landmarks (12-19, 45 deg apart: 12 and 14 span a quarter turn), so
+    the whole iris ring is inside, not only its 8 landmarks."""
+    iris = np.asarray(L_cam[12:20], float)
+    c = iris.mean(0)
+    u, v = iris[0] - c, iris[2] - c
+    t = np.linspace(0.0, 2.0 * math.pi, IRIS_RING_POINTS, endpoint=False)[:, None]
+    return np.vstack([L_cam, c + np.cos(t) * u + np.sin(t) * v])
+
+
+def frame_fit(points_cam: np.ndarray, jitter, scale_mm: float, s: RenderSettings):
+    """``(jitter, ortho scale)`` that put ``points_cam`` (camera frame, drawn with the shift
+    ``jitter``) at least ``s.frame_margin_px`` inside an orthographic image, changed as little as
+    possible: the shift clipped into the interval that fits, the scale widened only when the
+    points span more than the image (never above ``s.ortho_scale_mm``'s top). None when they do
+    not fit at that top scale.
+
+    An orthographic shift moves every point by the same amount and the scale is a zoom about
+    the image centre, so the fit is exact: no iteration, no re-projection."""
+    m = float(s.frame_margin_px)
+    W, H = float(s.width), float(s.height)
+    P = np.asarray(points_cam, float)[:, :2] + np.asarray(jitter, float)     # as seen with no shift
+    lo, hi = P.min(0), P.max(0)
+    # half extents in px available to the points, over the px-per-mm factor W / scale
+    half_px = np.array([W / 2.0 - m, H / 2.0 - m])
+    if (half_px <= 0).any():
+        return None
+    need = float(((hi - lo) / 2.0 * W / half_px).max())          # the smallest scale that fits both axes
+    scale = max(float(scale_mm), need)
+    if scale > float(s.ortho_scale_mm[1]) * (1 + 1e-12) and need > float(scale_mm):
+        return None
+    half_mm = half_px * scale / W
+    j = np.clip(np.asarray(jitter, float), hi - half_mm, lo + half_mm)
+    return j, scale
 
 
 def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: int, png: str,
@@ -252,6 +300,15 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
 
     L_head = ra.posed_landmarks(asset, side, lw, blend, rots[side])
     L_cam = to_camera(L_head, W2C)
+    if s.frames_the_eye() and not (overrides or {}).get("_framed"):
+        fit = frame_fit(framing_points(L_cam), d["jitter"], d["ortho_scale_mm"], s)
+        if fit is None:
+            raise FramingError(f"the eye spans more than a {s.ortho_scale_mm[1]:g} mm wide image with "
+                               f"{s.frame_margin_px:g} px margins")
+        if not (np.array_equal(fit[0], d["jitter"]) and fit[1] == d["ortho_scale_mm"]):
+            # the same draw with the framing moved: the camera's direction, the gaze and all else stay
+            return pose_sample(asset, s, index, attempt, png, {**(overrides or {}), "jitter": fit[0],
+                                                                "ortho_scale_mm": fit[1], "_framed": True})
     L_px = project_camera(L_cam, lens, s.width, s.height)
     pc_cam = to_camera(ra.pupil_center(asset, side, blend, rots[side])[None], W2C)
     pc_px = project_camera(pc_cam, lens, s.width, s.height)[0]
@@ -314,6 +371,10 @@ def pupil_in_lids(smp: Sample) -> bool:
             and point_in_polygon(smp.pupil_center_px, smp.landmarks_px[:lmk.N_EYELID]))
 
 
+class FramingError(ValueError):
+    """A drawn eye that no shift and no scale within ``ortho_scale_mm`` keeps inside the image's margins."""
+
+
 class RejectionError(ValueError):
     """No attempt of a sample put the pupil inside the eyelid polygon with the asset covering the frame."""
 
@@ -329,9 +390,15 @@ def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overr
     ------
     RejectionError after ``max_attempts`` rejected attempts (one line naming the asset and preset).
     """
-    n_pupil = n_background = n_format = 0
+    n_pupil = n_background = n_format = n_frame = 0
     for attempt in range(int(s.max_attempts)):
-        smp = pose_sample(asset, s, index, attempt, str(png), overrides)
+        try:
+            smp = pose_sample(asset, s, index, attempt, str(png), overrides)
+        except FramingError:
+            if not reject:
+                raise
+            n_frame += 1
+            continue
         if not reject:
             return smp
         if not pupil_in_lids(smp):
@@ -342,12 +409,13 @@ def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overr
             n_format += 1                            # e.g. GazeML's crop leaving the image (unityeyes)
         else:
             return smp
-    if not (n_background or n_format):
+    if not (n_background or n_format or n_frame):
         raise RejectionError(f"{asset.name}, preset {s.preset}: sample {index}: pupil outside the eyelid polygon "
                              f"in all {s.max_attempts} attempts")
+    wide = f", the eye wider than the widest framing in {n_frame}" if n_frame else ""
     raise RejectionError(f"{asset.name}, preset {s.preset}: sample {index}: no attempt of {s.max_attempts} "
                          f"is usable (pupil outside the eyelid polygon in {n_pupil}, frame reaching past the "
-                         f"asset (background) in {n_background}, a label format's own rule in {n_format}); "
+                         f"asset (background) in {n_background}, a label format's own rule in {n_format}{wide}); "
                          f"the asset's eye region is too small for this framing")
 
 

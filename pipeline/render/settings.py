@@ -21,10 +21,14 @@ HDRIS = ("city.exr", "courtyard.exr", "forest.exr", "interior.exr", "night.exr",
 
 PRESETS = {
     # paper: ~40 deg of head-pose (viewpoint) variation, gaze up to 45 deg from eye contact in
-    # 10 deg steps
-    "generic": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 45.0, "gaze_step_deg": 10.0},
-    # paper's laptop setting: 10 deg pose, 20 deg gaze variation
-    "targeted": {"camera_polar_max_deg": 5.0, "gaze_offset_max_deg": 10.0, "gaze_step_deg": 5.0},
+    # 10 deg steps; the paper's training images show the whole eye, so every landmark and the
+    # whole iris stay 3 px inside the frame (frame_margin_px; issue 33: without it the lateral
+    # canthus fell outside 17 of 60 images)
+    "generic": {"camera_polar_max_deg": 20.0, "gaze_offset_max_deg": 45.0, "gaze_step_deg": 10.0,
+                "frame_margin_px": 3.0},
+    # paper's laptop setting: 10 deg pose, 20 deg gaze variation; the whole eye framed likewise
+    "targeted": {"camera_polar_max_deg": 5.0, "gaze_offset_max_deg": 10.0, "gaze_step_deg": 5.0,
+                 "frame_margin_px": 3.0},
     # framed as UnityEyes frames its images, so that GazeML's UnityEyes loader (eyeball centre at the
     # image centre, iris centre 71.7593 px from it along the gaze) holds; see
     # pipeline/render/formats/unityeyes.py. The central 320 x 240 of UnityEyes' recommended 512 x 384
@@ -87,6 +91,12 @@ class RenderPreset(Settings):
     sensor_px: tuple[int, int] | None = setting(None, ge=8, le=100_000)
     camera_aim: Literal["eye", "between_eyes"] = "eye"
     crop_jitter_px: float = setting(0.0, ge=0, le=100_000)
+    frame_margin_px: float | None = setting(None, ge=0, le=1000)
+
+#: How a dataset's identities are split (pipeline/render/splits.py): files written from the images, not hashed.
+SPLIT_KEYS = ("splits", "split_seed")
+#: Keys only the label format ``normalized`` reads: hashed only when it is listed.
+NORMALIZED_KEYS = ("normalized_size_px", "normalized_focal_px", "normalized_distance_mm", "normalized_center")
 
 
 #: The keys of the ``render:`` block that say how to run, not what to render (not hashed).
@@ -149,9 +159,26 @@ class RenderSettings(Settings):
     camera_aim: Literal["eye", "between_eyes"] = "eye"
     # pinhole with sensor_px: the crop's offset moves the eye up to this many px off the crop centre
     crop_jitter_px: float = setting(0.0, ge=0, le=100_000)
+    # orthographic: every landmark and the whole iris ring at least this many px inside the image
+    # (the drawn shift moved, the scale widened up to ortho_scale_mm's top; pipeline/render/sampling.py
+    # frame_fit); null = partial crops allowed (the framing as drawn). Not used by a pinhole camera
+    # or with iris_distance_px (their framing is their own): frames_the_eye()
+    frame_margin_px: float | None = setting(None, ge=0, le=1000)
     # label files per image, one module each in pipeline/render/formats/ (eyerig: NNNNNN.json, always)
     label_formats: tuple[Literal[LABEL_FORMATS], ...] = setting((REQUIRED_FORMAT,), min_len=1,
                                                                max_len=len(LABEL_FORMATS))
+    # label format normalized (pipeline/render/formats/normalized.py): ETH-XGaze's normalised eye crop, a
+    # virtual camera of this focal length (px) this far (mm) from the eye centre (eyeball: its rotation
+    # centre; canthi: the eye corners' midpoint); ETH-XGaze's eye crops 128 x 128, 1800 px, 600 mm;
+    # MPIIGaze's [60, 36], 960 px, 600 mm
+    normalized_size_px: tuple[int, int] = setting((128, 128), ge=8, le=4096)
+    normalized_focal_px: float = setting(1800.0, gt=0, le=1_000_000)
+    normalized_distance_mm: float = setting(600.0, gt=0, le=100_000)
+    normalized_center: Literal["eyeball", "canthi"] = "eyeball"
+    # dataset splits by identity (pipeline/render/splits.py): train, val, test proportions of the assets
+    # and the seed of their order; they change no image (not hashed: a re-run rewrites DIR/splits/)
+    splits: tuple[float, float, float] = setting((0.8, 0.1, 0.1), ge=0, le=1_000_000)
+    split_seed: int = setting(0, ge=0, le=2**63 - 1)
     # per image also NNNNNN_seg.png, NNNNNN_depth.exr and landmark visibility, from the same render's
     # passes (pipeline/render/seg.py, visibility.py)
     masks: bool = True
@@ -203,6 +230,8 @@ class RenderSettings(Settings):
         if self.camera == "ortho" and self.width < self.height:
             raise SettingError("width", f"must be >= height (orthographic scale = image width; got "
                                         f"{self.width} x {self.height})")
+        if sum(self.splits) <= 0:
+            raise SettingError("splits", f"must give a positive proportion to one split at least (got {list(self.splits)})")
         if any(not h.endswith(".exr") for h in self.hdris):
             raise SettingError("hdris", "must be a list of .exr names")
         if self.iris_distance_px is not None and self.center_jitter_mm != 0:
@@ -257,10 +286,19 @@ class RenderSettings(Settings):
             raise SettingError("principal_point_px", f"[{cx:g}, {cy:g}] +- principal_jitter_px {j:g} must lie inside "
                                                      f"the {sw} x {sh} px sensor")
 
+    def frames_the_eye(self) -> bool:
+        """Whether the framing rule applies: ``frame_margin_px`` set, an orthographic camera free to
+        move (not ``iris_distance_px``, whose framing GazeML's loader fixes); a pinhole camera's
+        framing is its own (a preset's margin, e.g. generic's under ``camera: pinhole``, is not used)."""
+        return self.frame_margin_px is not None and self.camera == "ortho" and self.iris_distance_px is None
+
     def hashed(self) -> dict:
         """The settings that change images or labels (not n_images: sample i ignores it; not how to run;
-        not the pinhole keys of an orthographic render)."""
-        skip = {"n_images", "presets", *RUN_KEYS, *(PINHOLE_KEYS if self.camera == "ortho" else ())}
+        not the pinhole keys of an orthographic render; not an unset frame_margin_px)."""
+        skip = {"n_images", "presets", *RUN_KEYS, *SPLIT_KEYS, *(PINHOLE_KEYS if self.camera == "ortho" else ()),
+                # unset or not applied, the framing rule is absent: such renders keep the hash they had before it
+                *(() if self.frames_the_eye() else ("frame_margin_px",)),
+                *(() if "normalized" in self.label_formats else NORMALIZED_KEYS)}
         d = {k: getattr(self, k) for k in self.keys() if k not in skip}
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 

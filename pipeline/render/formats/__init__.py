@@ -6,7 +6,7 @@ A format module in this folder defines
 * ``FILES``: ``{file name with NNNNNN for the index: what it holds}``, every file it writes per
   image (relative to the render or dataset folder);
 * ``job(asset, smp)``: what its writer needs beyond the label, computed when the sample is drawn
-  (``None``: nothing);
+  (``None``: nothing); ``job(asset, smp, settings)`` with ``READS_SETTINGS = True``;
 * optionally ``accepts(asset, smp)``: False for a drawn sample the format cannot write right
   (the sampler draws again, as for the pupil and background rules: :func:`accepts`);
 * ``write(out_dir, index, label, job, png)``: writes image ``index``'s files and returns their
@@ -157,15 +157,16 @@ def image_files(out: Path):
                         break
 
 
-def format_job(asset, smp, formats) -> dict | None:
+def format_job(asset, smp, formats, settings=None) -> dict | None:
     """What :func:`write_formats` needs beyond the label for ``formats`` (None when only the
-    required label is written)."""
+    required label is written); a format with ``READS_SETTINGS`` gets the render settings too."""
     extra = [f for f in formats if f != REQUIRED]
     if not extra:
         return None
     job = {"formats": extra}
     for f in extra:
-        j = FORMATS[f].job(asset, smp)
+        m = FORMATS[f]
+        j = m.job(asset, smp, settings) if getattr(m, "READS_SETTINGS", False) else m.job(asset, smp)
         if j is not None:
             job[f] = j
     return job
