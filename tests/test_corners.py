@@ -14,7 +14,7 @@ import pytest
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import corners as cn
 from pipeline.geometry import meshtopo
-from pipeline.remove_eyeballs import eye_checks
+from pipeline.placement import checks as eye_checks
 from pipeline.rig.eye_frame import eye_frames
 from pipeline.rig.lid_shapes import build_lid_shapes
 from pipeline.rig.sweep import sweep_check

@@ -12,8 +12,9 @@ holds it and finds no cycles. Read bottom up, the floors are:
    per product;
 3. ``geometry``, the shared mesh helpers (triangles, mesh graph, sphere fit, frames);
 4. the shared models, ``eyeball`` and ``synthetic_head`` (side by side: neither imports the other);
-5. the stage packages in DAG order: ``ingest``, ``remove_eyeballs``, ``retopo``, ``bake``,
-   ``snap``, ``rig``, ``usd``, ``render``;
+5. the stage packages in DAG order: ``ingest``, ``placement`` (where the eyes are: the
+   placement ``remove_eyeballs`` calls), ``remove_eyeballs``, ``retopo``, ``bake``, ``snap``,
+   ``rig``, ``usd``, ``render``;
 6. ``blender``, everything that imports bpy, and beside it ``params_check``, the check of all of
    ``params.yaml`` (it names every stage package's settings class).
 
@@ -36,7 +37,7 @@ FLOORS = [
     {"io"},
     {"geometry"},
     {"eyeball", "synthetic_head"},
-    {"ingest"}, {"remove_eyeballs"}, {"retopo"}, {"bake"}, {"snap"}, {"rig"}, {"usd"}, {"render"},
+    {"ingest"}, {"placement"}, {"remove_eyeballs"}, {"retopo"}, {"bake"}, {"snap"}, {"rig"}, {"usd"}, {"render"},
     {"blender", "params_check"},
 ]
 FLOOR = {pkg: k for k, names in enumerate(FLOORS) for pkg in names}
