@@ -68,14 +68,14 @@ def main(argv) -> StageResult:
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture,
                           prior=prior.register, eyeball=eyeball)
     for side in ("left", "right"):      # published, but not sure: say so where the user looks
-        for doubt in res.eyes[side]["doubts"]:
+        for doubt in res.eyes[side].doubts:
             print(f"warning: {source}: {side} eye: {doubt}", file=sys.stderr)
     with atomic_dir(args.out) as tmp:
         save_mesh(tmp / "mesh.npz", **res.mesh)
         write_eyes(tmp / "eyes.json", res.eyes)
         if texture is not None:
             shutil.copyfile(tex_path, tmp / "texture.png")
-    return StageResult.from_mixed(res.metrics, args.metrics or default_metrics_path(args.out))
+    return res.result.at(args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

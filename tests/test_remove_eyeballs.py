@@ -183,7 +183,7 @@ def test_stage_writes_outputs(tmp_path):
     out = tmp_path / "remove_eyeballs"
     metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"]).metrics
     assert metrics["boundary_loops_out"] == 3
-    eyes = {s: e.doc for s, e in read_eyes(out / "eyes.json").items()}
+    eyes = {s: e.to_doc() for s, e in read_eyes(out / "eyes.json").items()}
     m = load_mesh(out / "mesh.npz")
     for s in ("left", "right"):
         for k in ("center", "radius", "forward", "residual_rms_mm", "n_inliers", "loop_indices",

@@ -18,11 +18,11 @@ from pipeline.placement.settings import PlacementSettings
 from pipeline.placement.texture import texture_fissure
 
 
-def check_doubts(eye: dict) -> list:
-    """Sentences for every failed self-check of the scan's sphere (``eye["checks"]``). The eye is
-    still published."""
-    return ["self-check " + k + ": " + eye_checks.describe(k, eye["checks"][k])
-            for k in eye_checks.failed(eye["checks"])]
+def check_doubts(checks: dict) -> list:
+    """Sentences for every failed self-check of the scan's sphere (``checks``: name -> check, as
+    :func:`pipeline.placement.checks.check_eye` returns them). The eye is still published."""
+    return ["self-check " + k + ": " + eye_checks.describe(k, checks[k])
+            for k in eye_checks.failed(checks)]
 
 
 def fissure_doubts(V, F, mesh_arrays, texture, hint, fit, loop_points, st: PlacementSettings):

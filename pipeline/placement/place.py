@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.io.eyes_file import Eye
 from pipeline.placement import checks as eye_checks
 from pipeline.placement.doubts import check_doubts, fissure_doubts
 from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease_deg, patch_faces
@@ -159,7 +160,7 @@ def placement_record(pl, fit):
 TEXTURE_SIGMA = (1.2, 5.0)
 
 
-def asset_eyes(eyes, fits, placements, eyeball, st: PlacementSettings) -> dict:
+def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettings) -> dict:
     """The asset's eyes (:func:`human_eye.asset_eyes`) from what the scan shows: the fitted eye
     model's limbus and gaze, or for a texture placement the limbus of its anatomical eye."""
     from pipeline.eyeball.geometry import EyeballParams, placed_params
@@ -169,7 +170,7 @@ def asset_eyes(eyes, fits, placements, eyeball, st: PlacementSettings) -> dict:
     scan = {}
     for s in SIDES:
         fit, pl = fits[s], placements[s]
-        e = {"center": np.asarray(fit.center, float), "radius": float(fit.radius), "loop_points": np.asarray(eyes[s]["loop_points"], float),
+        e = {"center": np.asarray(fit.center, float), "radius": float(fit.radius), "loop_points": np.asarray(loop_points[s], float),
              "prior_axis": fit.prior_axis}
         if pl is not None:
             e.update(limbus_center=limbus_center(pl.eye), axis=np.asarray(pl.eye.n, float),
@@ -200,78 +201,77 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
     ``V2``, ordered from the medial canthus) and where its lateral canthus lies; ``fits``,
     ``placements``: :func:`place_pair`'s, regions on ``F``; ``mesh_arrays``, ``hints``,
     ``texture``: for a texture-placed eye, the fissure its texture shows; ``moved``: side -> the
-    mean move of the loop onto the margin (mm). Returns ``(eyes, metrics)``, per side the
-    ``eyes.json`` record (the asset's eye anchored at the scan's limbus, the scan's sphere,
-    the self-checks and every doubt) and the eye's metrics.
+    mean move of the loop onto the margin (mm). Returns ``(eyes, metrics)``: per side the
+    :class:`pipeline.io.eyes_file.Eye` (the asset's eye anchored at the scan's limbus, the
+    scan's sphere, the self-checks and every doubt) and the eye's metrics.
     """
     moved = moved or {}
-    eyes, metrics = {}, {}
+    checks, fissures, records, doubts, metrics = {}, {}, {}, {}, {}
     lim = eye_checks.limits_for(median_edge, st.radius_range_mm)
     for s in SIDES:
         fit = fits[s]
         loop, lat = loops[s]
         # an eye placed from its texture cuts away the scan's coarse stand-in for the eye (the
         # photographed eye): only the head that stays must lie outside the eyeball
-        checks = eye_checks.check_eye(
+        checks[s] = eye_checks.check_eye(
             V, F if fit.method == "geometry" else F[~fit.region], fit.center, fit.radius,
             fit.forward, V2[loop], lim, fit.residual_rms_mm,
             eye_points=V[np.unique(F[fit.region])] if fit.method == "geometry" else None,
             cornea=fit.cornea, lateral_index=lat,
             standoff_mm=0.0 if fit.method == "geometry" else MARGIN_OFF[0])
-        fissure, doubts = None, []
+        fissures[s], doubts[s] = None, []
         if fit.method == "texture" and texture is not None:
-            fissure, doubts = fissure_doubts(V, F, mesh_arrays, texture, hints[s], fit, V2[loop], st)
-        eyes[s] = {
-            "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
-            "residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
-            "method": fit.method,
-            **placement_record(placements[s], fit),
-            "checks": checks,
-            "cornea": None if fit.cornea is None else {
-                "center": np.asarray(fit.cornea["center"]).tolist(),
-                "radius": fit.cornea["radius"], "n_inliers": fit.cornea["n_inliers"]},
-            "loop_indices": loop.tolist(), "loop_points": V2[loop].tolist(),
-            "lateral_canthus_index": lat,
-            "texture_fissure": fissure,
-            "doubts": doubts,
-        }
+            fissures[s], doubts[s] = fissure_doubts(V, F, mesh_arrays, texture, hints[s], fit, V2[loop], st)
+        records[s] = placement_record(placements[s], fit)
         metrics[s] = {"radius_mm": round(fit.radius, 4), "residual_rms_mm": round(fit.residual_rms_mm, 4),
                       "n_inliers": fit.n_inliers, "method": fit.method,
                       "faces_removed": int(fit.region.sum()), "loop_length": len(loop),
                       "crease_deg": round(fit.crease_deg, 3),
                       "cornea_fitted": fit.cornea is not None,
                       "loop_moved_mean_mm": round(moved.get(s, 0.0), 4),
-                      "doubts": len(doubts)}
-        if fissure is not None:
-            metrics[s].update({"texture_fissure_width_mm": round(fissure["width_mm"], 2),
-                               "loop_width_mm": round(fissure["loop_width_mm"], 2)})
+                      "doubts": len(doubts[s])}
+        if fissures[s] is not None:
+            metrics[s].update({"texture_fissure_width_mm": round(fissures[s]["width_mm"], 2),
+                               "loop_width_mm": round(fissures[s]["loop_width_mm"], 2)})
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
-    asset = asset_eyes(eyes, fits, placements, eyeball, st)
+    asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st)
+    eyes = {}
     for s in SIDES:
-        eyes[s]["checks"].update(pair)
-        metrics[s]["placement"] = "+".join(eyes[s]["placement"])
-        metrics[s]["checks_failed"] = eye_checks.failed(eyes[s]["checks"])
-        metrics[s].update({f"check_{k}": c["value"] for k, c in eyes[s]["checks"].items()})
-        a = asset[s]
-        eyes[s]["scan_sphere"] = {"center": eyes[s]["center"], "radius": eyes[s]["radius"],
-                                  "uncertainty_mm": eyes[s].pop("uncertainty_mm")}
-        eyes[s].update({
-            "center": np.round(a["center"], 6).tolist(), "radius": round(a["radius"], 6),
-            "forward": np.round(a["forward"], 9).tolist(), "eye_size": st.eye_size,
-            "limbus": {"center": np.round(a["limbus"]["center"], 6).tolist(),
-                       "radius": round(a["limbus"]["radius"], 4), "source": a["limbus"]["source"],
-                       "depth_mm": round(a["limbus"]["depth_mm"], 6)},
-            "uncertainty": {k: round(v, 4) for k, v in a["uncertainty"].items()},
-            "uncertainty_mm": {"center": round(a["uncertainty"]["center_mm"], 4),
-                               "radius": round(a["uncertainty"]["radius_mm"], 4)},
-            "iris_at_rest": a["iris"]})
-        eyes[s]["doubts"] = check_doubts(eyes[s]) + a["doubts"] + eyes[s]["doubts"]
-        metrics[s]["doubts"] = len(eyes[s]["doubts"])
+        fit, (loop, lat), a, rec = fits[s], loops[s], asset[s], records[s]
+        checks[s].update(pair)
+        uncertainty = {k: round(v, 4) for k, v in a["uncertainty"].items()}
+        eyes[s] = Eye(
+            side=s, center=np.round(a["center"], 6), radius=round(a["radius"], 6),
+            forward=np.round(a["forward"], 9), loop_indices=loop, loop_points=V2[loop],
+            lateral_canthus_index=lat,
+            limbus={"center": np.round(a["limbus"]["center"], 6).tolist(),
+                    "radius": round(a["limbus"]["radius"], 4), "source": a["limbus"]["source"],
+                    "depth_mm": round(a["limbus"]["depth_mm"], 6)},
+            uncertainty=uncertainty, placement=rec["placement"],
+            doubts=check_doubts(checks[s]) + a["doubts"] + doubts[s],
+            extra={"residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
+                   "method": fit.method,
+                   **{k: v for k, v in rec.items() if k not in ("placement", "uncertainty_mm")},
+                   "checks": checks[s],
+                   "cornea": None if fit.cornea is None else {
+                       "center": np.asarray(fit.cornea["center"]).tolist(),
+                       "radius": fit.cornea["radius"], "n_inliers": fit.cornea["n_inliers"]},
+                   "texture_fissure": fissures[s],
+                   "scan_sphere": {"center": fit.center.tolist(), "radius": fit.radius,
+                                   "uncertainty_mm": rec["uncertainty_mm"]},
+                   "eye_size": st.eye_size,
+                   "uncertainty_mm": {"center": round(a["uncertainty"]["center_mm"], 4),
+                                      "radius": round(a["uncertainty"]["radius_mm"], 4)},
+                   "iris_at_rest": a["iris"]})
+        metrics[s]["placement"] = "+".join(rec["placement"])
+        metrics[s]["checks_failed"] = eye_checks.failed(checks[s])
+        metrics[s].update({f"check_{k}": c["value"] for k, c in checks[s].items()})
+        metrics[s]["doubts"] = len(eyes[s].doubts)
         metrics[s].update({"radius_mm": round(a["radius"], 4),
-                           "scan_sphere_radius_mm": round(fits[s].radius, 4),
-                           "sigma_limbus_mm": eyes[s]["uncertainty"]["limbus_mm"],
-                           "sigma_axis_deg": eyes[s]["uncertainty"]["axis_deg"],
-                           "sigma_center_mm": eyes[s]["uncertainty"]["center_mm"],
+                           "scan_sphere_radius_mm": round(fit.radius, 4),
+                           "sigma_limbus_mm": uncertainty["limbus_mm"],
+                           "sigma_axis_deg": uncertainty["axis_deg"],
+                           "sigma_center_mm": uncertainty["center_mm"],
                            "limbus_source": a["limbus"]["source"],
                            "iris_visible_share": a["iris"]["visible_share"]})
     return eyes, metrics

@@ -30,6 +30,7 @@ from pipeline.placement.eye_fit import eye_surface_distance, local_mesh, median_
 from pipeline.placement.place import judge_pair, place_pair
 from pipeline.remove_eyeballs.fissure_cut import move_loop_onto, openings_at_fissures
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
+from pipeline.results import StageResult
 
 SIDES = ("left", "right")
 
@@ -62,10 +63,18 @@ def order_loop(loop, V, center, forward, side):
 
 @dataclass
 class RemovalResult:
+    """What the stage writes: ``mesh`` (the arrays of mesh.npz, the eyes cut out), ``eyes``
+    (side -> :class:`pipeline.io.eyes_file.Eye`), and ``result`` (its metrics); ``fits``: side
+    -> the placement's :class:`pipeline.placement.eye_fit.EyeFit` (its region on the input)."""
+
     mesh: dict
     eyes: dict
     fits: dict
-    metrics: dict
+    result: StageResult
+
+    @property
+    def metrics(self) -> dict:
+        return self.result.metrics
 
 
 def _lift_off_points(V, F, loop_old, h, tau, reach, k=3):
@@ -273,7 +282,8 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings |
     -------
     RemovalResult
         ``mesh`` (arrays with the eyeball faces removed and vertices re-indexed),
-        ``eyes`` (eyes.json content), ``fits`` (EyeFit per side), ``metrics``.
+        ``eyes`` (:class:`pipeline.io.eyes_file.Eye` per side), ``fits`` (EyeFit per side),
+        ``result`` (the metrics).
     """
     st = st or RemoveEyeballsSettings()
     fits, placements, median_edge = place_near_hints(mesh_arrays, hints, st, source=source,
@@ -362,4 +372,4 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings |
                     "faces_removed": int(remove.sum()), "boundary_loops_in": loops_in,
                     "boundary_loops_out": n_loops_out, "holes_in_openings": absorbed,
                     "edge_manifold_out": meshtopo.is_edge_manifold(F2n)})
-    return RemovalResult(mesh=out, eyes=eyes, fits=fits, metrics=metrics)
+    return RemovalResult(mesh=out, eyes=eyes, fits=fits, result=StageResult(metrics))
