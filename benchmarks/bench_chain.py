@@ -218,7 +218,7 @@ def main():
     runs, cpu_runs = runs["this"], cpu_runs["this"]
 
     metrics = {st: read_stage_metrics(b / f"{st}.metrics.json") for st in STAGES}   # + timings
-    eyes = {s: e.doc for s, e in read_eyes(b / "remove_eyeballs" / "eyes.json").items()}
+    eyes = {s: e.to_doc() for s, e in read_eyes(b / "remove_eyeballs" / "eyes.json").items()}
     accuracy = {}
     for s in ("left", "right"):
         g, e = gt["eyes"][s], eyes[s]

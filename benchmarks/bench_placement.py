@@ -55,7 +55,7 @@ def _today_limbus(e: dict):
     """Where the asset's limbus lay before the human eye: the human cornea and iris placed on the
     scan's fitted sphere (``placed_params`` at its radius), along the same axis."""
     from pipeline.eyeball.geometry import EyeballParams, placed_params
-    from pipeline.remove_eyeballs.human_eye import limbus_depth
+    from pipeline.placement.human_eye import limbus_depth
 
     sph = e.get("scan_sphere") or e
     return (np.asarray(sph["center"], float)

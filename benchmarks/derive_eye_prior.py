@@ -2,10 +2,10 @@
 
     .venv/bin/python -m benchmarks.derive_eye_prior \
         [--source ../shared/reference/unityeyes_eye_region] \
-        [--out pipeline/remove_eyeballs/data/eye_region_prior.npz] [--modes 10] [--check]
+        [--out pipeline/placement/data/eye_region_prior.npz] [--modes 10] [--check]
 
 Not a benchmark (benchmarks/run_all.py leaves it out): a tool run once, whose output is committed.
-The placement (pipeline/remove_eyeballs/eye_prior.py) needs the mean eye region, the first
+The placement (pipeline/placement/prior.py) needs the mean eye region, the first
 ``--modes`` principal components and their coefficients' mean and sd; the file also keeps the
 region's 414 triangles (from ``eye_region.3ds``, whose 229 vertices are in the order of
 ``mesh_mean.txt``) for the tests and pictures. Metres become millimetres here (x 1000, the scale

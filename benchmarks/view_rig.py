@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     ap.add_argument("--side", default="left", choices=("left", "right"))
     a = ap.parse_args(argv)
     m = load_mesh(a.snap / "mesh.npz")
-    eyes = {s: e.doc for s, e in read_eyes(a.snap / "eyes.json", len(m["V"])).items()}
+    eyes = {s: e.to_doc() for s, e in read_eyes(a.snap / "eyes.json", len(m["V"])).items()}
     rig = read_rig(a.rig, n_vertices=len(m["V"]))
     shapes, max_pitch = rig.npz.shapes, rig.max_pitch_deg
     loop = np.asarray(rig.npz.arrays[f"loop_{a.side}"])

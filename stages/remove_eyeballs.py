@@ -1,7 +1,7 @@
 """Stage ``remove_eyeballs``: fit each scanned eyeball and cut it out of the head mesh.
 
     python -m stages.remove_eyeballs build/<scan>/ingest build/<scan>/remove_eyeballs \
-        --prior pipeline/remove_eyeballs/data/eye_region_prior.npz \
+        --prior pipeline/placement/data/eye_region_prior.npz \
         --metrics build/<scan>/remove_eyeballs.metrics.json
 
 Reads ``ingest/mesh.npz``, ``ingest/scan.json`` (eye hints; its ``folder`` is the scan folder
@@ -10,11 +10,11 @@ eye openings, UV/FUV/VC carried), ``eyes.json`` (per eye: center, radius, forwar
 residual_rms_mm, n_inliers, placement (the cues that carried the fit), uncertainty_mm,
 checks, loop_indices, loop_points, lateral_canthus_index, texture_fissure, doubts) and copies
 ``texture.png``. ``--prior`` names the eye-region prior file (default: the one eyerig ships,
-pipeline/remove_eyeballs/data/eye_region_prior.npz; missing or corrupt: an error naming it,
+pipeline/placement/data/eye_region_prior.npz; missing or corrupt: an error naming it,
 never a placement without it). Each
 doubt (an eye placed from little evidence, a failed self-check, a texture-placed opening
 narrower than the texture's fissure) is also printed to stderr as a warning; the eye is still
-published. See pipeline/remove_eyeballs/eye_place.py, eye_prior.py, remove_eyeballs.py.
+published. See pipeline/placement/ (place.py, fit.py, prior.py) and pipeline/remove_eyeballs/remove_eyeballs.py.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.io.scan_file import read_scan_record
-from pipeline.remove_eyeballs.eye_prior import PRIOR_FILE, EyeRegionPrior
+from pipeline.placement.prior import PRIOR_FILE, EyeRegionPrior
 from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 from pipeline.results import StageResult
@@ -59,7 +59,7 @@ def main(argv) -> StageResult:
     parser.add_argument("out", type=Path, help="build/<scan>/remove_eyeballs")
     parser.add_argument("--prior", type=Path, default=PRIOR_FILE,
                         help="the eye-region prior file (default: the one eyerig ships, "
-                             "pipeline/remove_eyeballs/data/eye_region_prior.npz)")
+                             "pipeline/placement/data/eye_region_prior.npz)")
     args = parser.parse_args(argv)
     st = load_settings(RemoveEyeballsSettings, args.params)
     eyeball = load_settings(EyeballSettings, args.params).geometry   # the eye the asset carries
@@ -68,14 +68,14 @@ def main(argv) -> StageResult:
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture,
                           prior=prior.register, eyeball=eyeball)
     for side in ("left", "right"):      # published, but not sure: say so where the user looks
-        for doubt in res.eyes[side]["doubts"]:
+        for doubt in res.eyes[side].doubts:
             print(f"warning: {source}: {side} eye: {doubt}", file=sys.stderr)
     with atomic_dir(args.out) as tmp:
         save_mesh(tmp / "mesh.npz", **res.mesh)
         write_eyes(tmp / "eyes.json", res.eyes)
         if texture is not None:
             shutil.copyfile(tex_path, tmp / "texture.png")
-    return StageResult.from_mixed(res.metrics, args.metrics or default_metrics_path(args.out))
+    return res.result.at(args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

@@ -52,7 +52,7 @@ def main(argv) -> StageResult:
         arrays.update(poly_counts=result.poly_counts, poly_indices=result.poly_indices)
     with atomic_dir(out) as tmp:
         save_mesh(tmp / "mesh.npz", **arrays)
-    return StageResult.from_mixed(result.metrics, args.metrics or default_metrics_path(out))
+    return result.result.at(args.metrics or default_metrics_path(out))
 
 
 if __name__ == "__main__":

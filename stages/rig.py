@@ -26,7 +26,7 @@ from stages._common import default_metrics_path, load_settings, stage_exit, stag
 def _read_inputs(snap: Path):
     mesh_path, eyes_path = snap / "mesh.npz", snap / "eyes.json"
     mesh = read_stage_mesh(mesh_path, required=())
-    eyes = {s: e.doc for s, e in read_eyes(eyes_path).items()}
+    eyes = read_eyes(eyes_path)
     return mesh, eyes, mesh_path, eyes_path
 
 
@@ -47,10 +47,10 @@ def main(argv) -> StageResult:
     params = load_settings(lids.RigSettings, args.params)
     mesh, eyes, mesh_path, eyes_path = _read_inputs(args.snap)
     profile = None if profile_job is None else fork_result(profile_job)[0]
-    arrays, doc, metrics = build_rig(mesh, eyes, params, mesh_path, eyes_path, profile)
+    rig = build_rig(mesh, eyes, params, mesh_path, eyes_path, profile)
     with atomic_dir(args.out) as tmp:
-        write_rig(tmp, arrays, doc)
-    return StageResult.from_mixed(metrics, args.metrics or default_metrics_path(args.out))
+        write_rig(tmp, rig.arrays, rig.doc)
+    return rig.result.at(args.metrics or default_metrics_path(args.out))
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ Reads ``bake/mesh.npz`` (V, F, loop_left, loop_right, UV/FUV...), ``remove_eyeba
 ``eyeball/eyeball.usda`` (customData eyerig.params: r1, r2, apex, seam_blend_mm). Writes
 ``snap/mesh.npz`` (same arrays, V snapped) and ``snap/eyes.json`` (carried over; the loop
 fields re-point at the snapped mesh's loops; pipeline/io/eyes_file.py). See
-pipeline/snap/snap.py (``snap_mesh``).
+pipeline/snap/snap.py (``snap_eyes``).
 """
 
 from __future__ import annotations
@@ -41,23 +41,14 @@ def main(argv) -> StageResult:
     st = load_settings(sn.SnapSettings, args.params)
     mesh_path = args.bake / "mesh.npz"
     mesh = read_stage_mesh(mesh_path)
-    records = read_eyes(args.remove_eyeballs / "eyes.json")
-    eyes = {s: (e.center, e.radius, e.forward) for s, e in records.items()}
+    eyes = read_eyes(args.remove_eyeballs / "eyes.json")
     graph = sn.edge_graph(np.asarray(mesh["V"], float), np.asarray(mesh["F"], np.int64))
     params, _ = fork_result(params_job)
-    out, reports, metrics = sn.snap_mesh(mesh, eyes, params, st, source=str(mesh_path), graph=graph)
-    doc = {}
-    for s, e in records.items():  # loop fields now refer to the snapped mesh
-        loop = np.asarray(out[f"loop_{s}"], np.int64)
-        doc[s] = {**e.doc, "loop_indices": loop.tolist(), "loop_points": out["V"][loop].tolist(),
-                  "lateral_canthus_index": sn.lateral_position(
-                      mesh, s, out["V"][loop], sn.PlacedEye(e.center, e.radius, e.forward)),
-                  "snap": dict(reports[s])}
+    res = sn.snap_eyes(mesh, eyes, params, st, source=str(mesh_path), graph=graph)
     with atomic_dir(args.out) as tmp:
-        save_mesh(tmp / "mesh.npz", **out)
-        write_eyes(tmp / "eyes.json", doc)
-    return StageResult.from_mixed(metrics, args.metrics or default_metrics_path(args.out))
-
+        save_mesh(tmp / "mesh.npz", **res.mesh)
+        write_eyes(tmp / "eyes.json", res.eyes)
+    return res.result.at(args.metrics or default_metrics_path(args.out))
 
 if __name__ == "__main__":
     stage_exit(main)

@@ -14,7 +14,8 @@ import pytest
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.geometry import corners as cn
 from pipeline.geometry import meshtopo
-from pipeline.remove_eyeballs import eye_checks
+from pipeline.io.eyes_file import Eye
+from pipeline.placement import checks as eye_checks
 from pipeline.rig.eye_frame import eye_frames
 from pipeline.rig.lid_shapes import build_lid_shapes
 from pipeline.rig.sweep import sweep_check
@@ -195,7 +196,7 @@ def test_checks_leave_the_corners_out(snapped):
 
 def test_rig_turns_the_strip_with_its_corner_and_keeps_it_inside(snapped):
     mesh, eyes, frames, out, metrics = snapped
-    doc = {e.side: {"center": e.center.tolist(), "radius": R, "forward": e.forward.tolist()} for e in frames}
+    doc = {e.side: Eye(e.side, e.center, R, e.forward) for e in frames}
     E = eye_frames(doc, out, profile=EyeballParams())
     assert all(e.strip is not None and (~e.on_eye).sum() > 0 for e in E)
     V, F = out["V"], out["F"]
@@ -227,7 +228,7 @@ def test_rig_refuses_a_margin_off_the_eye_that_is_no_corner(snapped):
     from pipeline.errors import ScanError
 
     mesh, eyes, frames, out, metrics = snapped
-    doc = {e.side: {"center": e.center.tolist(), "radius": R, "forward": e.forward.tolist()} for e in frames}
+    doc = {e.side: Eye(e.side, e.center, R, e.forward) for e in frames}
     bad = dict(out)
     bad["V"] = out["V"].copy()
     e = frames[0]

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.remove_eyeballs import eye_checks
-from pipeline.remove_eyeballs.eye_checks import CheckLimits, check_eye, check_pair, failed, inside_area
+from pipeline.placement import checks as eye_checks
+from pipeline.placement.checks import CheckLimits, check_eye, check_pair, failed, inside_area
 
 
 def _sphere_patch(center, radius, max_deg, n=40):

@@ -27,11 +27,14 @@ def test_round_trip_keeps_every_key(tmp_path):
     write_eyes(tmp_path / "eyes.json", eyes)
     assert json.loads((tmp_path / "eyes.json").read_text())["schema"] == SCHEMA
     rec = read_eyes(tmp_path / "eyes.json", n_vertices=24)
-    assert rec["left"].radius == 12.0 and np.allclose(rec["left"].forward, [0, 0, 1])
+    assert rec["left"].radius == 12.0 and np.allclose(rec["left"].unit_forward, [0, 0, 1])
     assert rec["right"].loop_indices.dtype == np.int64 and rec["right"].lateral_canthus_index == 6
-    assert rec["left"].doc == eyes["left"]                       # carried unchanged
+    assert rec["left"].to_doc() == {**eyes["left"], "doubts": []}   # every key carried
+    assert rec["left"].extra["checks"] == eyes["left"]["checks"]
+    # the Eye is what is written: written, read and written again, the same bytes
     write_eyes(tmp_path / "again.json", rec)
-    assert (tmp_path / "again.json").read_bytes() == (tmp_path / "eyes.json").read_bytes()
+    write_eyes(tmp_path / "third.json", read_eyes(tmp_path / "again.json"))
+    assert (tmp_path / "third.json").read_bytes() == (tmp_path / "again.json").read_bytes()
 
 
 def test_lateral_canthus_is_the_most_lateral_loop_point():

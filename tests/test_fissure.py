@@ -1,5 +1,5 @@
-"""The fissure a texture shows (pipeline/remove_eyeballs/fissure.py), the eye placed behind it
-(eye_texture.place_from_fissure) and the cut along it (pipeline/remove_eyeballs/fissure_cut.py), on
+"""The fissure a texture shows (pipeline/placement/fissure.py), the eye placed behind it
+(texture.place_from_fissure) and the cut along it (pipeline/remove_eyeballs/fissure_cut.py), on
 constructed inputs with known answers."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import pytest
 
 from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis
-from pipeline.remove_eyeballs import eye_texture as et
-from pipeline.remove_eyeballs import fissure as fs
+from pipeline.placement import texture as et
+from pipeline.placement import fissure as fs
 from pipeline.remove_eyeballs import fissure_cut as fc
 from pipeline.retopo.retopo import subdivide_midpoint
 

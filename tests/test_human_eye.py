@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pipeline.eyeball.geometry import EyeballParams, placed_params
-from pipeline.remove_eyeballs import human_eye
+from pipeline.placement import human_eye
 from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 from fixtures.eye_heads import make_head

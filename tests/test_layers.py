@@ -15,8 +15,9 @@ holds it and finds no cycles. Read bottom up, the floors are:
    inside ``blender/`` so that render and the previews reach Blender through it;
 4. ``geometry``, the shared mesh helpers (triangles, mesh graph, sphere fit, frames);
 5. the shared models, ``eyeball`` and ``synthetic_head`` (side by side: neither imports the other);
-6. the stage packages in DAG order: ``ingest``, ``remove_eyeballs``, ``retopo``, ``bake``,
-   ``snap``, ``rig``, ``usd``, then ``render`` and ``preview`` side by side;
+6. the stage packages in DAG order: ``ingest``, ``placement`` (where the eyes are: the
+   placement ``remove_eyeballs`` calls), ``remove_eyeballs``, ``retopo``, ``bake``, ``snap``,
+   ``rig``, ``usd``, then ``render`` and ``preview`` side by side;
 7. ``blender``, everything that imports bpy (its workers), and beside it ``params_check``, the
    check of all of ``params.yaml`` (it names every stage package's settings class).
 
@@ -44,7 +45,8 @@ FLOORS = [
     {"blender.launch"},
     {"geometry"},
     {"eyeball", "synthetic_head"},
-    {"ingest"}, {"remove_eyeballs"}, {"retopo"}, {"bake"}, {"snap"}, {"rig"}, {"usd"}, {"render", "preview"},
+    {"ingest"}, {"placement"}, {"remove_eyeballs"}, {"retopo"}, {"bake"}, {"snap"}, {"rig"}, {"usd"},
+    {"render", "preview"},
     {"blender", "params_check"},
 ]
 FLOOR = {pkg: k for k, names in enumerate(FLOORS) for pkg in names}
@@ -196,13 +198,13 @@ def test_a_dash_m_edge_is_an_import(tmp_path):
     bad = _tree(tmp_path / "bad", {
         "pipeline/render/shard.py": "import subprocess, sys\n"
                                     "subprocess.Popen([sys.executable, '-m', 'pipeline.blender.render_worker'])\n"})
-    assert wrong_floors(bad) == ["pipeline/render/shard.py (render, floor 13) imports "
-                                 "pipeline.blender.render_worker (blender, floor 14)"]
+    assert wrong_floors(bad) == [f"pipeline/render/shard.py (render, floor {FLOOR['render']}) imports "
+                                 f"pipeline.blender.render_worker (blender, floor {FLOOR['blender']})"]
     assert blender_spawns(bad) == ["pipeline/render/shard.py runs -m pipeline.blender.render_worker"]
     up = _tree(tmp_path / "up", {"pipeline/usd/build.py": "CMD = 'python -m pipeline.render.shard'\n",
                                  "pipeline/render/shard.py": ""})
-    assert wrong_floors(up) == ["pipeline/usd/build.py (usd, floor 12) imports pipeline.render.shard "
-                                "(render, floor 13)"]
+    assert wrong_floors(up) == [f"pipeline/usd/build.py (usd, floor {FLOOR['usd']}) imports pipeline.render.shard "
+                                f"(render, floor {FLOOR['render']})"]
 
 
 def test_the_library_never_imports_the_scripts_tests_or_benchmarks():

@@ -15,8 +15,8 @@ from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.eyes_file import read_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
-from pipeline.remove_eyeballs.eye_fit import eye_surface_distance
-from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
+from pipeline.placement.eye_fit import eye_surface_distance
+from pipeline.placement.prior import EyeRegionPrior
 from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 
@@ -183,7 +183,7 @@ def test_stage_writes_outputs(tmp_path):
     out = tmp_path / "remove_eyeballs"
     metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"]).metrics
     assert metrics["boundary_loops_out"] == 3
-    eyes = {s: e.doc for s, e in read_eyes(out / "eyes.json").items()}
+    eyes = {s: e.to_doc() for s, e in read_eyes(out / "eyes.json").items()}
     m = load_mesh(out / "mesh.npz")
     for s in ("left", "right"):
         for k in ("center", "radius", "forward", "residual_rms_mm", "n_inliers", "loop_indices",
@@ -328,7 +328,7 @@ def test_james_texture_fallback(extra_scan):
     # inside the hexagon of the six annotated eyelid points (inside the true fissure), beyond a
     # sliver at a canthus.
     from pipeline.geometry.frame import eye_basis
-    from pipeline.remove_eyeballs.fissure import points_in_polygon
+    from pipeline.placement.fissure import points_in_polygon
 
     L = np.load(folder / "james_landmarks68.npy")
     groups = json.loads((folder / "james_landmarks68_groups.json").read_text())
@@ -462,8 +462,8 @@ def test_texture_fissure_reads_the_painted_opening():
     from types import SimpleNamespace
 
     from pipeline.geometry.frame import eye_basis
-    from pipeline.remove_eyeballs.eye_texture import texture_fissure
-    from pipeline.remove_eyeballs.remove_eyeballs import _fissure_doubts
+    from pipeline.placement.texture import texture_fissure
+    from pipeline.placement.doubts import fissure_doubts
     from pipeline.synthetic_head import make_synthetic_head
 
     h = make_synthetic_head(seed=3, target_triangles=60_000, texture_size=1024, noise_mm=0.0)
@@ -479,9 +479,9 @@ def test_texture_fissure_reads_the_painted_opening():
         # corners, and the grid adds up to a cell at each end
         assert true_w - 1.0 <= fis["width_mm"] <= true_w + 3.5, (s, fis, true_w)
         fit = SimpleNamespace(center=np.asarray(g["eyeball_sphere"]["center_mm"], float), forward=fwd)
-        rec, doubts = _fissure_doubts(h.V, h.F, arrays, h.texture, h.hints[s], fit, margin, RemoveEyeballsSettings())
+        rec, doubts = fissure_doubts(h.V, h.F, arrays, h.texture, h.hints[s], fit, margin, RemoveEyeballsSettings())
         assert doubts == [] and abs(rec["loop_width_mm"] - true_w) < 1e-9
-        rec, doubts = _fissure_doubts(h.V, h.F, arrays, h.texture, h.hints[s], fit,
+        rec, doubts = fissure_doubts(h.V, h.F, arrays, h.texture, h.hints[s], fit,
                                       _shrunk_about_centroid(margin, 0.6), RemoveEyeballsSettings())
         assert len(doubts) == 1 and f"{0.6 * true_w:.1f} mm wide" in doubts[0], doubts
         assert f"{fis['width_mm']:.1f} mm" in doubts[0]
@@ -489,7 +489,7 @@ def test_texture_fissure_reads_the_painted_opening():
 
 def test_texture_fissure_without_skin_around_reads_nothing():
     """A texture that is one colour everywhere has no fissure (nothing differs from the skin)."""
-    from pipeline.remove_eyeballs.eye_texture import texture_fissure
+    from pipeline.placement.texture import texture_fissure
     from pipeline.synthetic_head import make_synthetic_head
 
     h = make_synthetic_head(seed=3, target_triangles=20_000, texture_size=16, noise_mm=0.0)

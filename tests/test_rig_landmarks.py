@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from fixtures.rig import PITCHES_1DEG, two_eye_region
+from pipeline.io.eyes_file import Eye
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.rig.eye_frame import eye_frames, find_lateral_canthus
@@ -70,16 +73,15 @@ def test_lateral_canthus_from_dense_loop_points_and_mesh_arrays():
     e = eyes[0]
     li = e.lateral_index
     mesh = {"V": V, "F": F, "loop_left": e.loop, "loop_right": eyes[1].loop}
-    base = {s.side: {"center": s.center, "radius": s.radius, "forward": s.forward} for s in eyes}
+    base = {s.side: Eye(s.side, s.center, s.radius, s.forward) for s in eyes}
     # remove_eyeballs carries its dense loop: 100 points, lateral canthus at 37
     dense = np.zeros((100, 3))
     dense[37] = V[e.loop[li]] + 0.2
-    doc = {**base, "left": {**base["left"], "loop_points": dense.tolist(),
-                            "loop_indices": list(range(100)), "lateral_canthus_index": 37}}
+    doc = {**base, "left": replace(base["left"], loop_points=dense, loop_indices=np.arange(100),
+                                   lateral_canthus_index=37)}
     assert eye_frames(doc, mesh)[0].lateral_index == li
     # an index into another loop (different length, no points) is ignored
-    doc = {**base, "left": {**base["left"], "loop_indices": list(range(100)),
-                            "lateral_canthus_index": 37}}
+    doc = {**base, "left": replace(base["left"], loop_indices=np.arange(100), lateral_canthus_index=37)}
     assert eye_frames(doc, mesh)[0].lateral_index == li
     # an explicit mesh array wins
     assert eye_frames(base, {**mesh, "lateral_index_left": np.array(li - 1)})[0] \

@@ -8,6 +8,7 @@ import pytest
 
 from fixtures.rig import PITCHES_1DEG, two_eye_region
 from pipeline.errors import ScanError
+from pipeline.io.eyes_file import Eye
 from pipeline.eyeball.geometry import EyeballParams
 from pipeline.rig import lids
 from pipeline.rig.eye_frame import EyeFrame, eye_frames, rotate_about_axis
@@ -178,8 +179,8 @@ def test_degenerate_triangles_do_not_break_the_rig():
     rig = build_lid_shapes(V, F2, eyes)
     res = sweep_check(V, F2, eyes, rig.shapes, [-25.0, -10.0, 0.0, 10.0, 25.0])
     assert res["flipped_faces"] == 0 and res["max_penetration_mm"] <= 0.1
-    with pytest.raises(ScanError, match="left eye needs center, radius and forward"):
-        eye_frames({"left": {}, "right": {}}, {"V": V, "F": F})
+    with pytest.raises(ScanError, match="no 'left' eye"):
+        eye_frames({}, {"V": V, "F": F})
 
 
 def test_upper_lid_never_crosses_lower_lid_even_with_extreme_gains():
@@ -230,14 +231,12 @@ def test_margin_rides_the_corneal_bulge(radius):
     bad = sweep_check(V, F, eyes, plain.shapes, PITCHES_1DEG)
     assert max(bad["max_gap_mm"], bad["max_penetration_mm"]) > 0.3
     # and the stage validates the margin against the same surface
-    frames = eye_frames({e.side: {"center": e.center, "radius": e.radius,
-                                  "forward": e.forward} for e in eyes},
+    frames = eye_frames({e.side: Eye(e.side, e.center, e.radius, e.forward) for e in eyes},
                         {"V": V, "F": F, "loop_left": eyes[0].loop,
                          "loop_right": eyes[1].loop}, profile=profile)
     assert all(f.profile is profile for f in frames)
     with pytest.raises(ScanError, match="off the eyeball sphere"):
-        eye_frames({e.side: {"center": e.center, "radius": e.radius,
-                             "forward": e.forward} for e in eyes},
+        eye_frames({e.side: Eye(e.side, e.center, e.radius, e.forward) for e in eyes},
                    {"V": V, "F": F, "loop_left": eyes[0].loop, "loop_right": eyes[1].loop})
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fixtures.rig import PITCHES_1DEG, two_eye_region
-from pipeline.io.eyes_file import read_eyes, write_eyes
+from pipeline.io.eyes_file import Eye, read_eyes, write_eyes
 from pipeline.io.meshfile import save_mesh
 from pipeline.io.rig_file import SCHEMA as RIG_SCHEMA
 from pipeline.io.rig_file import read_rig
@@ -85,11 +85,11 @@ def test_stage_reads_lateral_index_from_eyes_json(tmp_path):
     V, F, eyes = two_eye_region()
     # start the right loop elsewhere: a rotated loop must be honoured via the given index
     _write_snap(tmp_path / "snap", V, F, eyes,
-                eyes_override={"left": {"lateral_index": eyes[0].lateral_index}})
-    arrays, doc, m = build_rig(
-        dict(np.load(tmp_path / "snap" / "mesh.npz")),
-        {s: e.doc for s, e in read_eyes(tmp_path / "snap" / "eyes.json").items()},
-        {"sweep_step_deg": 5.0})
+                eyes_override={"left": {"loop_indices": eyes[0].loop.tolist(),
+                                        "lateral_canthus_index": eyes[0].lateral_index}})
+    rig = build_rig(dict(np.load(tmp_path / "snap" / "mesh.npz")),
+                    read_eyes(tmp_path / "snap" / "eyes.json"), {"sweep_step_deg": 5.0})
+    doc = rig.doc
     assert doc["eyes"]["left"]["lateral_index"] == eyes[0].lateral_index
     assert doc["eyes"]["right"]["lateral_index"] == eyes[1].lateral_index
 
@@ -218,11 +218,10 @@ def test_default_rule_matches_icts_visible_lid(extra_scan):
 
 def test_stage_stores_down_mask(region):
     V, F, eyes, _ = region
-    arrays, doc, _ = build_rig({"V": V, "F": F, "loop_left": eyes[0].loop,
-                                          "loop_right": eyes[1].loop},
-                                         {e.side: {"center": e.center, "radius": e.radius,
-                                                   "forward": e.forward} for e in eyes},
-                                         {"sweep_step_deg": 25.0})
+    rig = build_rig({"V": V, "F": F, "loop_left": eyes[0].loop, "loop_right": eyes[1].loop},
+                    {e.side: Eye(e.side, e.center, e.radius, e.forward) for e in eyes},
+                    {"sweep_step_deg": 25.0})
+    arrays, doc = rig.arrays, rig.doc
     m = arrays["lids_down.texture_mask"]
     assert m.shape == (len(V),) and m.min() >= 0 and m.max() == pytest.approx(1.0)
     moved = np.zeros(len(V), bool)

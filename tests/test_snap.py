@@ -134,7 +134,7 @@ def test_stage(tmp_path):
                                     "corner_strip_left", "corner_strip_right"}
     assert np.array_equal(mesh["F"], src["F"]) and np.array_equal(mesh["UV"], src["UV"])
     assert len(mesh["caruncle_faces"]) == 0 and mesh["loop_snap_left"].min() == 1.0
-    eyes = {s: e.doc for s, e in read_eyes(out / "eyes.json").items()}
+    eyes = {s: e.to_doc() for s, e in read_eyes(out / "eyes.json").items()}
     for s in ("left", "right"):
         assert np.allclose(mesh["V"][eyes[s]["loop_indices"]], eyes[s]["loop_points"])
         assert eyes[s]["residual_rms_mm"] == 0.1

@@ -89,7 +89,7 @@ def test_open_eyes_are_right_or_not_sure(scans, tmp_path, name):
         assert "too little of the eyeball shows" in lines[0] or "not sure" in lines[0], lines[0]
         return
     assert r.returncode == 0, r.stderr
-    eyes = {s: e.doc for s, e in read_eyes(tmp_path / "remove_eyeballs" / "eyes.json").items()}
+    eyes = {s: e.to_doc() for s, e in read_eyes(tmp_path / "remove_eyeballs" / "eyes.json").items()}
     truth = json.loads((scan / "ground_truth.json").read_text())["eyes"]
     for side in ("left", "right"):
         e, g = eyes[side], truth[side]

@@ -1,6 +1,6 @@
 """Eyelid corners off the globe: where the lids leave the eyeball, and the strip that closes the gap.
 
-Anatomy (UnityEyes' eye-region files, pipeline/remove_eyeballs/data/README.md: eight SynthesEyes
+Anatomy (UnityEyes' eye-region files, pipeline/placement/data/README.md: eight SynthesEyes
 eye regions registered to their eyeballs): along the lids the margin rests 0.35-2.1 mm outside the 12 mm globe; the
 corners do not. The medial end of the fissure (past the caruncle) lies 3.0-7.4 mm off the globe,
 8.6 +- 0.7 mm in front of the eye centre; the lateral corner 1.2-1.7 mm off it. So where the loop

@@ -1,12 +1,17 @@
-"""A tiny editable triangle mesh for local edits: edge collapses, boundary-edge splits and edge flips.
+"""Local edits of a triangle mesh: a tiny editable mesh (edge collapses, boundary-edge splits and
+edge flips) and hole filling.
 
-Python dicts, for the few hundred edits of the retopology's loop resampling and flip repairs
-(:mod:`pipeline.retopo.eyelid_loop`, :mod:`pipeline.geometry.flips`).
+:class:`TriMesh`: Python dicts, for the few hundred edits of the retopology's loop resampling and
+flip repairs (:mod:`pipeline.retopo.eyelid_loop`, :mod:`pipeline.geometry.flips`).
+:func:`fill_holes_near`: the holes near given points closed with fans (the unmeasured pupils
+that remove_eyeballs closes before it places the eyes).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from pipeline.geometry import meshtopo
 
 
 class TriMesh:
@@ -138,3 +143,71 @@ class TriMesh:
         remap = -np.ones(len(V), dtype=np.int64)
         remap[used] = np.arange(len(used))
         return V[used], remap[F], remap
+
+
+def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
+    """Close the mesh's holes near ``centres`` with a fan around each hole's centroid.
+
+    Scanners often leave the dark pupil and iris unmeasured: a hole in the eye opening. The eye fit
+    and the cut run on the closed surface (:mod:`pipeline.remove_eyeballs.remove_eyeballs` then
+    gives each hole to the opening or to the skin).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    centres : list of (3,) float64
+    near_mm : float
+        A hole is closed when one of its vertices lies this close to a centre ...
+    max_perimeter_mm : float
+        ... and its perimeter is at most this.
+
+    Returns
+    -------
+    V2 : (n + k, 3) float64
+        ``V`` and one centroid vertex per closed hole.
+    F2 : (m + f, 3) int64
+        ``F`` and the fan faces (appended, so face ``i < m`` is still face ``i`` of ``F``).
+    holes : list of (L,) int64
+        The closed holes' loops (vertex ids), in the order of their centroid vertices.
+    hole_of_face : (m + f,) int64
+        -1 for the faces of ``F``, else the hole index.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    C = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    H = meshtopo.boundary_halfedges(F)
+    loops = []
+    if len(H):
+        # each connected piece of the boundary near a centre that is one simple loop
+        bv, Hc = np.unique(H, return_inverse=True)
+        Hc = Hc.reshape(-1, 2)
+        g = coo_matrix((np.ones(len(Hc)), (Hc[:, 0], Hc[:, 1])), shape=(len(bv), len(bv)))
+        _, comp = connected_components(g, directed=False)
+        near = np.linalg.norm(V[bv][:, None, :] - C[None], axis=2).min(axis=1) <= near_mm
+        for k in np.unique(comp[near]):
+            try:
+                loops += meshtopo.boundary_loops(F, only=bv[comp == k], H=H)
+            except ValueError:      # a bow-tie boundary: left as it is
+                pass
+    newV, newF, holes, owner = [], [], [], []
+    for loop in loops:
+        P = V[loop]
+        per = float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum())
+        if per > max_perimeter_mm or len(loop) < 3:
+            continue
+        if np.linalg.norm(P[:, None, :] - C[None], axis=2).min() > near_mm:
+            continue
+        k = len(holes)
+        c = len(V) + k
+        # the boundary half-edge a -> b belongs to a face; the fill face runs b -> a
+        newF.append(np.column_stack([np.roll(loop, -1), loop, np.full(len(loop), c)]))
+        newV.append(P.mean(axis=0))
+        holes.append(np.asarray(loop, dtype=np.int64))
+        owner.append(np.full(len(loop), k))
+    if not holes:
+        return V, F, [], np.full(len(F), -1, dtype=np.int64)
+    V2 = np.concatenate([V, np.asarray(newV)])
+    F2 = np.concatenate([F, *newF]).astype(np.int64)
+    return V2, F2, holes, np.concatenate([np.full(len(F), -1), *owner]).astype(np.int64)

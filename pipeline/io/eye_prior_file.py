@@ -1,7 +1,7 @@
-"""The eye-region prior's data file (``pipeline/remove_eyeballs/data/eye_region_prior.npz``): one
+"""The eye-region prior's data file (``pipeline/placement/data/eye_region_prior.npz``): one
 writer, one reader.
 
-Derived once from the UnityEyes shape model (MIT; ``pipeline/remove_eyeballs/data/README.md``
+Derived once from the UnityEyes shape model (MIT; ``pipeline/placement/data/README.md``
 names the source files and ``benchmarks/derive_eye_prior.py`` derives it) and shipped with the
 package. An uncompressed ``.npz`` of float64 / int64 arrays (``np.savez`` writes its zip entries
 with a fixed date, so the same arrays give the same bytes)::

@@ -1,4 +1,4 @@
-"""``eyes.json``: the eye fits that remove_eyeballs writes and snap carries on, one reader/writer.
+"""``eyes.json``: the serialisation of :class:`Eye`, the one eye type from remove_eyeballs on.
 
 Written by ``remove_eyeballs`` (and re-written by ``snap`` with the loop on the snapped mesh),
 read by ``retopo``, ``snap`` and ``rig``. Layout (mm, head frame)::
@@ -31,37 +31,102 @@ SCHEMA = 1
 SIDES = ("left", "right")
 
 
+#: The keys of an ``eyes.json`` entry in the order they are written: :class:`Eye`'s named
+#: fields and the keys it carries (``extra``) keep this order, so an entry read and written
+#: again is the same bytes; a key this list does not know follows them, in its own order.
+KEY_ORDER = (
+    "center", "radius", "forward",
+    # the scan's fit (remove_eyeballs): what carried it and how sure it is
+    "residual_rms_mm", "n_inliers", "method", "placement", "cue_shares", "anterior_height",
+    "anterior_ring", "limbus_half_angle_deg", "lid_fold_deg", "uncertainty_laplace_mm",
+    "radius_profile", "rival_placements", "checks", "cornea",
+    # the opening
+    "loop_indices", "loop_points", "lateral_canthus_index", "texture_fissure", "doubts",
+    # the asset's eye
+    "scan_sphere", "eye_size", "limbus", "uncertainty", "uncertainty_mm", "iris_at_rest",
+    # the snap's report
+    "snap",
+)
+
+
 @dataclass
-class EyeRecord:
-    """One eye of ``eyes.json``.
+class Eye:
+    """One eye of a head: where the asset's eyeball sits and what is known of it, from
+    remove_eyeballs on (``eyes.json`` is its serialisation: :meth:`from_doc`, :meth:`to_doc`).
 
     Attributes
     ----------
     side : str
+        ``"left"`` (the subject's left, head +X) or ``"right"``.
     center : (3,) float64
+        The eyeball's rotation centre, mm, head frame.
     radius : float
-    forward : (3,) float64, unit
+        The eyeball's radius, mm.
+    forward : (3,) float64
+        The rest gaze (optical axis) as written (unit to the 9 decimals remove_eyeballs keeps;
+        :attr:`unit_forward` is it normalised).
     loop_indices : (L,) int64 or None
-        The eyelid-opening loop, medial canthus first, upper lid first.
+        The eyelid-opening loop on the stage's mesh, medial canthus first, upper lid first.
+    loop_points : (L, 3) float64 or None
+        Its points.
     lateral_canthus_index : int or None
-        Position of the lateral canthus in the loop.
-    doc : dict
-        The whole entry as stored (other keys: placement, checks, residuals, cornea, ...).
+        Position of the lateral canthus in the loop (the medial canthus is position 0).
+    limbus : dict or None
+        The limbus as the scan shows it: ``center``, ``radius``, ``source``, ``depth_mm``.
+    uncertainty : dict or None
+        Calibrated 1-sigma: ``limbus_mm``, ``axis_deg``, ``center_mm``, ``radius_mm``.
+    placement : list of str or None
+        The cues that carried the placement.
+    doubts : list of str
+        What the pipeline is not sure of about this eye, one sentence each (the eye is still
+        published).
+    extra : dict
+        Every other key of the entry, carried unchanged (checks, the scan's sphere, the cornea,
+        the texture fissure, the snap's report, ...).
     """
 
     side: str
     center: np.ndarray
     radius: float
     forward: np.ndarray
-    loop_indices: np.ndarray | None
-    lateral_canthus_index: int | None
-    doc: dict = field(repr=False)
+    loop_indices: np.ndarray | None = None
+    loop_points: np.ndarray | None = None
+    lateral_canthus_index: int | None = None
+    limbus: dict | None = None
+    uncertainty: dict | None = None
+    placement: list | None = None
+    doubts: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict, repr=False)
+
+    #: Entry keys held by named fields (the rest is ``extra``).
+    NAMED = ("center", "radius", "forward", "loop_indices", "loop_points", "lateral_canthus_index",
+             "limbus", "uncertainty", "placement", "doubts")
 
     @property
-    def doubts(self) -> list[str]:
-        """What the pipeline is not sure of about this eye, one sentence each (``doubts``: the
-        placement passed its self-checks, but a measurement says part of it is off)."""
-        return list(self.doc.get("doubts") or [])
+    def unit_forward(self) -> np.ndarray:
+        """(3,) the rest gaze, normalised."""
+        f = np.asarray(self.forward, dtype=np.float64)
+        return f / float(np.linalg.norm(f))
+
+    @classmethod
+    def from_doc(cls, side: str, doc: dict, path="eyes.json", n_vertices: int | None = None) -> "Eye":
+        """The eye of one ``eyes.json`` entry, validated (module doc); ScanError naming ``path``."""
+        return _record(side, doc, path, n_vertices)
+
+    def to_doc(self) -> dict:
+        """The ``eyes.json`` entry: named fields and ``extra`` in :data:`KEY_ORDER` (a named
+        field that is None is left out)."""
+        named = {"center": np.asarray(self.center, float).tolist(), "radius": self.radius,
+                 "forward": np.asarray(self.forward, float).tolist(),
+                 "loop_indices": None if self.loop_indices is None else np.asarray(self.loop_indices).tolist(),
+                 "loop_points": None if self.loop_points is None else np.asarray(self.loop_points, float).tolist(),
+                 "lateral_canthus_index": self.lateral_canthus_index, "limbus": self.limbus,
+                 "uncertainty": self.uncertainty, "placement": self.placement,
+                 "doubts": list(self.doubts)}
+        keep = {k: v for k, v in named.items() if v is not None}
+        keep.update(self.extra)
+        rank = {k: i for i, k in enumerate(KEY_ORDER)}
+        return dict(sorted(keep.items(), key=lambda kv: rank.get(kv[0], len(rank))))
 
 
 def eye_basis(forward) -> np.ndarray:
@@ -140,10 +205,18 @@ def _record(side: str, e, path, n_vertices):
     if doubts is not None and (not isinstance(doubts, list)
                                or not all(isinstance(d, str) and d for d in doubts)):
         raise ScanError(path, f"{side} eye: doubts must be a list of sentences")
-    return EyeRecord(side, c, r, f / n, loop, lat, e)
+    pts = e.get("loop_points")
+    if pts is not None:
+        try:
+            pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+        except (TypeError, ValueError):
+            raise ScanError(path, f"{side} eye: loop_points must be points (3 numbers each)") from None
+    return Eye(side, c, r, f, loop, pts, lat, e.get("limbus"), e.get("uncertainty"),
+               e.get("placement"), list(doubts or []),
+               {k: v for k, v in e.items() if k not in Eye.NAMED})
 
 
-def read_eyes(path, n_vertices: int | None = None) -> dict[str, EyeRecord]:
+def read_eyes(path, n_vertices: int | None = None) -> dict[str, Eye]:
     """Both eyes of an ``eyes.json``, validated (against ``n_vertices`` when given).
 
     Raises
@@ -159,8 +232,8 @@ def read_eyes(path, n_vertices: int | None = None) -> dict[str, EyeRecord]:
 
 
 def write_eyes(path, eyes: dict) -> None:
-    """Write ``{"left": entry, "right": entry}`` (entries as :func:`read_eyes` accepts them, or
-    :class:`EyeRecord`) with the schema number, atomically.
+    """Write ``{"left": Eye, "right": Eye}`` (or entries as :func:`read_eyes` accepts them) with
+    the schema number, atomically.
 
     Raises
     ------
@@ -170,7 +243,7 @@ def write_eyes(path, eyes: dict) -> None:
     out = {"schema": SCHEMA}
     for s in SIDES:
         e = eyes[s]
-        out[s] = e.doc if isinstance(e, EyeRecord) else e
+        out[s] = e.to_doc() if isinstance(e, Eye) else e
         _record(s, out[s], path, None)   # never write what read_eyes would refuse
     write_json(path, out)
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.geometry.flips import move_guarded
-from pipeline.remove_eyeballs.fissure import points_in_polygon
+from pipeline.placement.fissure import points_in_polygon
 
 
 def _outline_distance(Q, poly):
@@ -132,7 +132,7 @@ def refine_along(arrays: dict, outlines: list, edge_mm: float = 0.8, radius_mm: 
         Mesh arrays (``V``, ``F``, optional ``UV``/``FUV``, ``VC``, per-face arrays).
     outlines : list of dict
         ``outline_2d`` (p, 2), ``hint`` (3,), ``basis`` (2, 3) of each fissure
-        (:class:`pipeline.remove_eyeballs.eye_texture.TextureEyeFit`).
+        (:class:`pipeline.placement.texture.TextureEyeFit`).
 
     Returns
     -------
@@ -207,9 +207,9 @@ def move_loop_onto(V, F, loop, fissure: dict, min_cos: float = 0.5) -> float:
 def openings_at_fissures(arrays: dict, fits: dict, edge_mm: float = 0.8):
     """The mesh refined along the fissure of every texture-placed eye (``fit.fissure``), and each
     eye's removal region on it: the faces inside its outline (one piece, no islands: the region
-    cleaning of :mod:`pipeline.remove_eyeballs.eye_fit`), or for an eye placed from geometry its region
+    cleaning of :mod:`pipeline.placement.eye_fit`), or for an eye placed from geometry its region
     carried to the refined faces. Returns ``(arrays, fits)``; without a fissure, the input."""
-    from pipeline.remove_eyeballs.eye_fit import EyeMesh, clean_region
+    from pipeline.placement.eye_fit import EyeMesh, clean_region
 
     outlines = [f.fissure for f in fits.values() if getattr(f, "fissure", None) is not None]
     if not outlines:

@@ -1,16 +1,17 @@
-"""Stage ``remove_eyeballs``: place both eyes, check them, cut the scanned eyes out of the head.
+"""Stage ``remove_eyeballs``: place both eyes, cut the scanned eyes out of the head.
 
-Both eyes are placed together on a local sub-mesh (``fit_eye_pair``: holes near the eyes closed
-for the fit and given to the opening, a scanner's flat fills marked as no evidence) by
-``pipeline.remove_eyeballs.eye_place`` (a MAP fit of an eye model from every cue the scan keeps, with a
-calibrated uncertainty); an eye the geometry cannot place is placed from the colour texture
-(``eye_texture``, coarse scans), cut along the fissure the photograph shows. The regions are cut
-out leaving one simple loop per opening; each loop vertex moves to where the uncut surface lifts
-off the placed eye by ``margin_lift_mm`` (projected onto the eye; flip-guarded; loop vertices on
-a reconstruction-filled crease keep the cut); loops are ordered from the medial canthus over the
-upper lid; the self-checks of ``pipeline.remove_eyeballs.eye_checks`` are recorded. Only what cannot be
-an asset is refused (a closed eye, nothing eye-like near a hint, a cut that leaves no simple
-loop); an eye placed from little evidence, or failing a self-check, is published with a doubt.
+Holes near the eyes are closed for the placement (:func:`pipeline.geometry.mesh_edit.fill_holes_near`)
+and given to the opening; both eyes are placed together on a local sub-mesh by
+:mod:`pipeline.placement` (a MAP fit of an eye model from every cue the scan keeps, with a
+calibrated uncertainty; an eye the geometry cannot place is placed from the colour texture and
+cut along the fissure the photograph shows). The regions are cut out leaving one simple loop per
+opening; each loop vertex moves to where the uncut surface lifts off the placed eye by
+``margin_lift_mm`` (projected onto the eye; flip-guarded; loop vertices on a
+reconstruction-filled crease keep the cut); loops are ordered from the medial canthus over the
+upper lid; then :func:`pipeline.placement.place.judge_pair` says what is published of each eye
+(its self-checks and doubts). Only what cannot be an asset is refused (a closed eye, nothing
+eye-like near a hint, a cut that leaves no simple loop); an eye placed from little evidence, or
+failing a self-check, is published with a doubt.
 """
 
 from __future__ import annotations
@@ -23,12 +24,13 @@ from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
 from pipeline.geometry.flips import move_guarded
 from pipeline.geometry.frame import eye_basis
+from pipeline.geometry.mesh_edit import fill_holes_near
 from pipeline.geometry.spherefit import signed_distance
-from pipeline.remove_eyeballs import eye_checks
-from pipeline.remove_eyeballs.eye_fit import EyeMesh, eye_surface_distance, local_mesh, median_edge_length
-from pipeline.remove_eyeballs.eye_texture import MARGIN_OFF
+from pipeline.placement.eye_fit import eye_surface_distance, local_mesh, median_edge_length
+from pipeline.placement.place import judge_pair, place_pair
 from pipeline.remove_eyeballs.fissure_cut import move_loop_onto, openings_at_fissures
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
+from pipeline.results import StageResult
 
 SIDES = ("left", "right")
 
@@ -61,10 +63,18 @@ def order_loop(loop, V, center, forward, side):
 
 @dataclass
 class RemovalResult:
+    """What the stage writes: ``mesh`` (the arrays of mesh.npz, the eyes cut out), ``eyes``
+    (side -> :class:`pipeline.io.eyes_file.Eye`), and ``result`` (its metrics); ``fits``: side
+    -> the placement's :class:`pipeline.placement.eye_fit.EyeFit` (its region on the input)."""
+
     mesh: dict
     eyes: dict
     fits: dict
-    metrics: dict
+    result: StageResult
+
+    @property
+    def metrics(self) -> dict:
+        return self.result.metrics
 
 
 def _lift_off_points(V, F, loop_old, h, tau, reach, k=3):
@@ -154,74 +164,6 @@ def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5, on_eye
     return move_guarded(V2, F2, loop, target, min_cos, min_area_ratio=0.1)
 
 
-def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
-    """Close the mesh's holes near ``centres`` with a fan around each hole's centroid.
-
-    Scanners often leave the dark pupil and iris unmeasured: a hole in the eye opening. The eye fit
-    and the cut run on the closed surface; :func:`fit_eye_pair` then gives each hole to the
-    opening or to the skin.
-
-    Parameters
-    ----------
-    V : (n, 3) float64
-    F : (m, 3) int64
-    centres : list of (3,) float64
-    near_mm : float
-        A hole is closed when one of its vertices lies this close to a centre ...
-    max_perimeter_mm : float
-        ... and its perimeter is at most this.
-
-    Returns
-    -------
-    V2 : (n + k, 3) float64
-        ``V`` and one centroid vertex per closed hole.
-    F2 : (m + f, 3) int64
-        ``F`` and the fan faces (appended, so face ``i < m`` is still face ``i`` of ``F``).
-    holes : list of (L,) int64
-        The closed holes' loops (vertex ids), in the order of their centroid vertices.
-    hole_of_face : (m + f,) int64
-        -1 for the faces of ``F``, else the hole index.
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    C = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-    H = meshtopo.boundary_halfedges(F)
-    loops = []
-    if len(H):
-        # each connected piece of the boundary near a centre that is one simple loop
-        bv, Hc = np.unique(H, return_inverse=True)
-        Hc = Hc.reshape(-1, 2)
-        g = coo_matrix((np.ones(len(Hc)), (Hc[:, 0], Hc[:, 1])), shape=(len(bv), len(bv)))
-        _, comp = connected_components(g, directed=False)
-        near = np.linalg.norm(V[bv][:, None, :] - C[None], axis=2).min(axis=1) <= near_mm
-        for k in np.unique(comp[near]):
-            try:
-                loops += meshtopo.boundary_loops(F, only=bv[comp == k], H=H)
-            except ValueError:      # a bow-tie boundary: left as it is
-                pass
-    newV, newF, holes, owner = [], [], [], []
-    for loop in loops:
-        P = V[loop]
-        per = float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum())
-        if per > max_perimeter_mm or len(loop) < 3:
-            continue
-        if np.linalg.norm(P[:, None, :] - C[None], axis=2).min() > near_mm:
-            continue
-        k = len(holes)
-        c = len(V) + k
-        # the boundary half-edge a -> b belongs to a face; the fill face runs b -> a
-        newF.append(np.column_stack([np.roll(loop, -1), loop, np.full(len(loop), c)]))
-        newV.append(P.mean(axis=0))
-        holes.append(np.asarray(loop, dtype=np.int64))
-        owner.append(np.full(len(loop), k))
-    if not holes:
-        return V, F, [], np.full(len(F), -1, dtype=np.int64)
-    V2 = np.concatenate([V, np.asarray(newV)])
-    F2 = np.concatenate([F, *newF]).astype(np.int64)
-    return V2, F2, holes, np.concatenate([np.full(len(F), -1), *owner]).astype(np.int64)
-
-
 def _opening_holes(region, F, holes, hole_of_face, n_faces, min_share=0.3):
     """The fitted region on the original faces. A hole whose fill or rim the region reaches
     (``min_share`` of its rim vertices, or half its fill) is part of the opening: the faces
@@ -272,71 +214,17 @@ def _holes_inside(F, remove, H=None):
     return int((~kept).sum())
 
 
-def _fill_faces(V, F, ratio):
-    """(m,) bool: faces far larger than the scan's own (``ratio`` x the median area): a scanner's
-    flat fill across an opening it could not measure, which says nothing about the eye."""
-    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    return A > ratio * max(float(np.median(A)), 1e-12)
-
-
-def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: RemoveEyeballsSettings, source, ignore):
-    """The :class:`EyeFit` of one placed eye: the removal region is the eye-labelled surface
-    (faces whose three vertices are eye, and the unmeasured fills inside it), made one simple
-    loop; a closed eye (little eye surface, or no lid fold around it) is a ScanError."""
-    from pipeline.remove_eyeballs.eye_fit import EyeFit, clean_region, lid_crease_deg, patch_faces
-
-    V, F = mesh.V, mesh.F
-    eye_v = np.zeros(len(V), bool)
-    eye_v[pl.patch.verts[pl.lab]] = True
-    region = eye_v[F].all(axis=1)
-    # flat fills take no side in the cut: they go with the opening when they touch it
-    region |= ignore & eye_v[F].any(axis=1)
-    patch = patch_faces(mesh, hint, st.patch_radius_mm + 5.0)
-    e = pl.eye
-    front = e.c + e.R * e.n
-    seed = region & (np.linalg.norm(mesh.centroids - front, axis=1)
-                     <= np.min(np.linalg.norm(mesh.centroids[region] - front, axis=1), initial=np.inf)
-                     + max(2.0, 2 * mesh.median_edge)) if region.any() else region
-    region = clean_region(mesh, region, seed, patch) if region.any() else region
-    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    area = float(A[region & ~ignore].sum())
-    from pipeline.remove_eyeballs.eye_place import cornea_sphere, surface_residual
-    cornea = cornea_sphere(e)
-    crease = lid_crease_deg(mesh, region) if region.any() else 0.0
-    if area < st.min_open_area_mm2:
-        raise ScanError(source, f"{side} eye looks closed (or too little of the eyeball shows to place "
-                                f"it): {area:.1f} mm2 of eye surface near "
-                                f"{np.round(hint, 2).tolist()} (less than {st.min_open_area_mm2:g})")
-    n_eye = int(np.count_nonzero(pl.lab))
-    if n_eye < st.min_eye_vertices:     # a coarse scan (james: 3 mm faces) cannot show a cornea
-        raise ScanError(source, f"{side} eye: too little of the eyeball shows to place it from the "
-                                f"geometry: {n_eye} scan vertices on the eye surface near "
-                                f"{np.round(hint, 2).tolist()} (fewer than {st.min_eye_vertices})")
-    rv = np.unique(F[region & ~ignore])
-    d, ant, _, _ = surface_residual(V[rv], e)
-    scl = ~ant
-    rms = float(np.sqrt(np.mean(d[scl] ** 2))) if scl.any() else float(np.sqrt(np.mean(d ** 2)))
-    if cornea is not None:
-        cornea = {"center": np.asarray(cornea["center"]), "radius": cornea["radius"],
-                  "n_inliers": int((~scl).sum())}
-    return EyeFit(side=side, center=np.asarray(e.c, float), radius=float(e.R),
-                  forward=np.asarray(e.n, float), residual_rms_mm=rms, n_inliers=int(len(rv)),
-                  method="geometry", region=region, cornea=cornea, crease_deg=float(crease),
-                  capped=False, inliers=rv, radius_sigma=pl.sigma_radius_mm)
-
-
-def fit_eye_pair(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source="mesh", texture=None,
-                 prior=None):
-    """Place both eyes jointly (``pipeline.remove_eyeballs.eye_place``) on the surface around the
-    hints; an eye the geometry cannot place falls back to the colour texture when there is one.
+def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source="mesh",
+                     texture=None, prior=None):
+    """Place both eyes (:func:`pipeline.placement.place.place_pair`) on the surface around the
+    hints, its holes near the eyes closed for the fit; each hole then goes with the opening or
+    the skin (:func:`_opening_holes`).
 
     ``prior``: callable ``(V, F, hint, side) -> {"front", "axis"}`` (the eye-region prior,
-    ``eye_prior.register``) or None. Returns ``(mesh, fits, placements)``: the local
-    :class:`EyeMesh`, per side an :class:`EyeFit` (region on the full mesh) and the
-    :class:`eye_place.Placement` (None for a texture-placed eye)."""
-    from pipeline.remove_eyeballs import eye_place
-    from pipeline.remove_eyeballs.eye_texture import fit_texture
-
+    ``pipeline.placement.prior.EyeRegionPrior.register``) or None. Returns ``(fits,
+    placements, median_edge)``: per side an :class:`EyeFit` (its region on the full mesh) and the
+    :class:`pipeline.placement.uncertainty.Placement` (None for a texture-placed eye), and the
+    scan's median edge length."""
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     median_edge = median_edge_length(V, F)
@@ -348,49 +236,15 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source
     n_local = len(Fs)
     Vs, Fs, holes, hole_of_face = fill_holes_near(Vs, Fs, centres, st.sample_radius_mm,
                                                   st.max_hole_perimeter_mm)
-    mesh = EyeMesh(Vs, Fs, median_edge=median_edge)
-    ignore = (hole_of_face >= 0) | _fill_faces(Vs, Fs, st.fill_face_ratio)
     sub_arrays = {k: (np.asarray(mesh_arrays[k])[faces] if k == "FUV" else mesh_arrays[k])
                   for k in ("UV", "FUV") if k in mesh_arrays}
     if holes and "FUV" in sub_arrays:   # fan faces take the texture corners of a rim face
         rim = np.array([np.flatnonzero(np.isin(Fs[:n_local], loop).any(axis=1))[0] for loop in holes])
         sub_arrays["FUV"] = np.concatenate([sub_arrays["FUV"],
                                             sub_arrays["FUV"][rim[hole_of_face[n_local:]]]])
-    front = None
-    if prior is not None:
-        front = {}
-        for s in SIDES:
-            try:
-                front[s] = {**prior(Vs, Fs, hints[s], s), "sigma": st.prior_front_sigma_mm}
-            except (ValueError, np.linalg.LinAlgError):     # the model did not register here
-                front[s] = None
-    placements = eye_place.place_eyes(
-        Vs, Fs, hints, patch_radius_mm=st.place_patch_mm, radius_range=tuple(st.radius_range_mm),
-        radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
-        prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
-        temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
-        min_fold_deg=st.min_crease_deg)
-    fits = {}
-    for s in SIDES:
-        err = None
-        if placements[s] is not None:
-            try:
-                fits[s] = _fit_from_placement(mesh, placements[s], hints[s], s, st, source, ignore)
-                continue
-            except ScanError as exc:
-                err = exc
-        else:
-            err = ScanError(source, f"{s} eye looks closed (or too little of the eyeball shows to place "
-                                    f"it): no eye surface ringed by a lid fold "
-                                    f"near the hint {np.round(hints[s], 2).tolist()}")
-        has_tex = texture is not None and "UV" in sub_arrays and "FUV" in sub_arrays
-        if not (st.texture_fallback and has_tex):
-            raise err
-        fits[s] = fit_texture(mesh, sub_arrays, texture, hints[s], s, st, source)
-        placements[s] = None
-    for s in SIDES:
-        if front is not None and front.get(s) is not None:
-            fits[s].prior_axis = np.asarray(front[s]["axis"], float)
+    _, fits, placements = place_pair(Vs, Fs, hints, st, median_edge=median_edge,
+                                     filled=hole_of_face >= 0, uv=sub_arrays, texture=texture,
+                                     prior=prior, source=source)
     for fit in fits.values():       # back to full-mesh ids
         region = np.zeros(len(F), bool)
         region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
@@ -398,97 +252,7 @@ def fit_eye_pair(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source
         if fit.inliers is not None:
             inl = np.asarray(fit.inliers, dtype=np.int64)
             fit.inliers = verts[inl[inl < len(verts)]]
-    return mesh, fits, placements
-
-
-def _fissure_doubts(V, F, mesh_arrays, texture, hint, fit, loop_points, st: RemoveEyeballsSettings):
-    """A texture-placed eye's opening against the fissure its texture shows.
-
-    Returns ``(record, doubts)``: the fissure's and the loop's widths along the eye (mm) and a
-    list holding one sentence when the loop spans less than ``texture_fissure_min_share`` of
-    the fissure (its canthi, eyelid landmarks 0 and 6, then lie far inside the true corners)."""
-    from pipeline.geometry.frame import eye_basis
-    from pipeline.remove_eyeballs.eye_texture import texture_fissure
-
-    fis = texture_fissure(V, F, mesh_arrays["UV"], mesh_arrays["FUV"], texture, hint, fit.forward,
-                          radius_mm=st.patch_radius_mm, min_contrast=st.texture_min_contrast)
-    x = (np.asarray(loop_points, float) - fit.center) @ eye_basis(fit.forward)[0]
-    record = {"width_mm": fis["width_mm"], "height_mm": fis["height_mm"],
-              "loop_width_mm": float(x.max() - x.min()), "min_share": st.texture_fissure_min_share}
-    doubts = []
-    if record["loop_width_mm"] < st.texture_fissure_min_share * fis["width_mm"]:
-        doubts.append(f"opening {record['loop_width_mm']:.1f} mm wide where the texture's fissure is "
-                      f"{fis['width_mm']:.1f} mm: the canthi (eyelid landmarks 0 and 6) lie too close "
-                      f"together; the scan is too coarse for its eye opening")
-    return record, doubts
-
-
-def _placement_record(pl, fit):
-    """What carried the fit and how sure it is: ``placement`` (cue names), ``uncertainty_mm``
-    (calibrated 1-sigma: RMS of the 3-D centre error, and of the radius), ``cue_shares``."""
-    if pl is None:      # placed from the colour texture with the radius prior
-        return {"placement": [fit.method, "radius_prior"], "uncertainty_mm": None, "cue_shares": None}
-    return {"placement": list(pl.cues),
-            "uncertainty_mm": {"center": round(pl.sigma_center_mm, 4),
-                               "radius": round(pl.sigma_radius_mm, 4)},
-            "cue_shares": dict(pl.shares), "anterior_height": round(float(pl.eye.ha), 4),
-            "anterior_ring": round(float(pl.eye.hb), 4),
-            "limbus_half_angle_deg": round(float(pl.eye.tl), 3),
-            "lid_fold_deg": round(float(pl.fold_deg), 2),
-            "uncertainty_laplace_mm": {"center": round(pl.sigma_laplace_mm[0], 4),
-                                       "radius": round(pl.sigma_laplace_mm[1], 4),
-                                       "limbus": round(pl.limbus_laplace[0], 4),
-                                       "axis_deg": round(pl.limbus_laplace[1], 3)},
-            "radius_profile": None if pl.profile is None else {
-                "radius": [round(float(r), 3) for r in pl.profile[0]],
-                "energy_above": [round(float(e), 2) for e in pl.profile[1]]},
-            "rival_placements": [{"center": np.round(c, 4).tolist(), "radius": round(float(r), 4),
-                                  "energy_above": round(float(de), 2)} for c, r, de in pl.modes[1:]]}
-
-
-def _placement_doubts(eye: dict, st: RemoveEyeballsSettings) -> list:
-    """Sentences for every failed self-check of the scan's sphere (the asset's eye adds its own:
-    little evidence on the limbus or the axis, an iris outside the opening). The eye is still
-    published."""
-    return ["self-check " + k + ": " + eye_checks.describe(k, eye["checks"][k])
-            for k in eye_checks.failed(eye["checks"])]
-
-
-#: An eye placed from its texture states the anatomy's spread (the fissure's corners against the
-#: eye centre, UnityEyes' eight regions: 0.4-1.9 mm; the gaze prior: within 5 deg of forward).
-TEXTURE_SIGMA = (1.2, 5.0)
-
-
-def _asset_eyes(eyes, fits, placements, eyeball, st: RemoveEyeballsSettings) -> dict:
-    """The asset's eyes (:func:`human_eye.asset_eyes`) from what the scan shows: the fitted eye
-    model's limbus and gaze, or for a texture placement the limbus of its anatomical eye."""
-    from pipeline.eyeball.geometry import EyeballParams, placed_params
-    from pipeline.remove_eyeballs import human_eye
-    from pipeline.remove_eyeballs.eye_place import limbus_center
-
-    geo = eyeball or EyeballParams()
-    scan = {}
-    for s in SIDES:
-        fit, pl = fits[s], placements[s]
-        e = {"center": np.asarray(fit.center, float), "radius": float(fit.radius), "loop_points": np.asarray(eyes[s]["loop_points"], float),
-             "prior_axis": fit.prior_axis}
-        if pl is not None:
-            e.update(limbus_center=limbus_center(pl.eye), axis=np.asarray(pl.eye.n, float),
-                     limbus_radius=float(pl.eye.R * np.sin(np.radians(pl.eye.tl))),
-                     sigma_limbus_mm=pl.sigma_limbus_mm, sigma_axis_deg=pl.sigma_axis_deg,
-                     sigma_radius=pl.sigma_radius_mm, source="geometry")
-        else:
-            here = placed_params(geo, fit.radius)     # the anatomical eye behind the fissure
-            e.update(limbus_center=np.asarray(fit.center) + human_eye.limbus_depth(here) * np.asarray(fit.forward),
-                     axis=np.asarray(fit.forward, float), limbus_radius=human_eye.limbus_radius(here),
-                     sigma_limbus_mm=TEXTURE_SIGMA[0], sigma_axis_deg=TEXTURE_SIGMA[1],
-                     sigma_radius=None, source="texture")
-        scan[s] = e
-    return human_eye.asset_eyes(scan, eye_size=st.eye_size, eyeball=geo,
-                                population=tuple(st.population_radius_mm),
-                                min_iris_visible=st.min_iris_visible,
-                                doubt_limbus_sigma_mm=st.doubt_limbus_sigma_mm,
-                                doubt_axis_sigma_deg=st.doubt_axis_sigma_deg)
+    return fits, placements, median_edge
 
 
 def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings | None = None, *,
@@ -508,21 +272,22 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings |
     texture : (h, w, 3) uint8, optional
         Colour texture (used when geometry alone cannot find the eye).
     prior : callable, optional
-        The eye-region prior (``eye_prior.EyeRegionPrior.register``), or None.
+        The eye-region prior (``pipeline.placement.prior.EyeRegionPrior.register``), or None.
     eyeball : EyeballParams, optional
         The parametric eyeball the asset carries (its ``r1`` and ``iris_radius``; default the
         paper's): the asset's eye is that eyeball anchored at the scan's limbus
-        (:mod:`pipeline.remove_eyeballs.human_eye`).
+        (:mod:`pipeline.placement.human_eye`).
 
     Returns
     -------
     RemovalResult
         ``mesh`` (arrays with the eyeball faces removed and vertices re-indexed),
-        ``eyes`` (eyes.json content), ``fits`` (EyeFit per side), ``metrics``.
+        ``eyes`` (:class:`pipeline.io.eyes_file.Eye` per side), ``fits`` (EyeFit per side),
+        ``result`` (the metrics).
     """
     st = st or RemoveEyeballsSettings()
-    mesh, fits, placements = fit_eye_pair(mesh_arrays, hints, st, source=source, texture=texture,
-                                          prior=prior)
+    fits, placements, median_edge = place_near_hints(mesh_arrays, hints, st, source=source,
+                                                     texture=texture, prior=prior)
     # an eye placed from its texture is cut along the fissure the photograph shows: the faces
     # near that outline are split first (pipeline/remove_eyeballs/fissure_cut.py)
     mesh_arrays, fits = openings_at_fissures(mesh_arrays, fits)
@@ -569,8 +334,7 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings |
     H2 = meshtopo.boundary_halfedges(F2n)
     n_loops_out = meshtopo.boundary_component_count(F2n, H2)
     # region border vertices (old ids) per eye -> loops touching them
-    eyes, metrics, moved, checks = {}, {}, {}, {}
-    lim = eye_checks.limits_for(mesh.median_edge, st.radius_range_mm)
+    loops, moved = {}, {}
     old_ids = np.flatnonzero(used)
     for s in SIDES:
         fit = fits[s]
@@ -593,80 +357,19 @@ def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings |
         elif getattr(fit, "fissure", None) is not None:   # the cut's loop onto the fissure itself
             moved[s] = move_loop_onto(V2, F2n, loop, fit.fissure)
         try:
-            loop, lat = order_loop(loop, V2, fit.center, fit.forward, s)
+            loops[s] = order_loop(loop, V2, fit.center, fit.forward, s)
         except ValueError:      # eye_basis: a gaze straight up or down has no pitch axis
             raise ScanError(source, f"{s} eye: the fitted gaze {np.round(fit.forward, 3).tolist()} "
                                     f"is vertical; not an eye") from None
-        # an eye placed from its texture cuts away the scan's coarse stand-in for the eye (the
-        # photographed eye): only the head that stays must lie outside the eyeball
-        checks[s] = eye_checks.check_eye(
-            V, F if fit.method == "geometry" else F[~fit.region], fit.center, fit.radius,
-            fit.forward, V2[loop], lim, fit.residual_rms_mm,
-            eye_points=V[np.unique(F[fit.region])] if fit.method == "geometry" else None,
-            cornea=fit.cornea, lateral_index=lat,
-            standoff_mm=0.0 if fit.method == "geometry" else MARGIN_OFF[0])
-        fissure, doubts = None, []
-        if fit.method == "texture" and texture is not None:
-            fissure, doubts = _fissure_doubts(V, F, mesh_arrays, texture, hints[s], fit, V2[loop], st)
-        eyes[s] = {
-            "center": fit.center.tolist(), "radius": fit.radius, "forward": fit.forward.tolist(),
-            "residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
-            "method": fit.method,
-            **_placement_record(placements[s], fit),
-            "checks": checks[s],
-            "cornea": None if fit.cornea is None else {
-                "center": np.asarray(fit.cornea["center"]).tolist(),
-                "radius": fit.cornea["radius"], "n_inliers": fit.cornea["n_inliers"]},
-            "loop_indices": loop.tolist(), "loop_points": V2[loop].tolist(),
-            "lateral_canthus_index": lat,
-            "texture_fissure": fissure,
-            "doubts": doubts,
-        }
-        metrics[s] = {"radius_mm": round(fit.radius, 4), "residual_rms_mm": round(fit.residual_rms_mm, 4),
-                      "n_inliers": fit.n_inliers, "method": fit.method,
-                      "faces_removed": int(fit.region.sum()), "loop_length": len(loop),
-                      "crease_deg": round(fit.crease_deg, 3),
-                      "cornea_fitted": fit.cornea is not None,
-                      "loop_moved_mean_mm": round(moved.get(s, 0.0), 4),
-                      "doubts": len(doubts)}
-        if fissure is not None:
-            metrics[s].update({"texture_fissure_width_mm": round(fissure["width_mm"], 2),
-                               "loop_width_mm": round(fissure["loop_width_mm"], 2)})
-    pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
-    asset = _asset_eyes(eyes, fits, placements, eyeball, st)
-    for s in SIDES:
-        eyes[s]["checks"].update(pair)
-        metrics[s]["placement"] = "+".join(eyes[s]["placement"])
-        metrics[s]["checks_failed"] = eye_checks.failed(eyes[s]["checks"])
-        metrics[s].update({f"check_{k}": c["value"] for k, c in eyes[s]["checks"].items()})
-        a = asset[s]
-        eyes[s]["scan_sphere"] = {"center": eyes[s]["center"], "radius": eyes[s]["radius"],
-                                  "uncertainty_mm": eyes[s].pop("uncertainty_mm")}
-        eyes[s].update({
-            "center": np.round(a["center"], 6).tolist(), "radius": round(a["radius"], 6),
-            "forward": np.round(a["forward"], 9).tolist(), "eye_size": st.eye_size,
-            "limbus": {"center": np.round(a["limbus"]["center"], 6).tolist(),
-                       "radius": round(a["limbus"]["radius"], 4), "source": a["limbus"]["source"],
-                       "depth_mm": round(a["limbus"]["depth_mm"], 6)},
-            "uncertainty": {k: round(v, 4) for k, v in a["uncertainty"].items()},
-            "uncertainty_mm": {"center": round(a["uncertainty"]["center_mm"], 4),
-                               "radius": round(a["uncertainty"]["radius_mm"], 4)},
-            "iris_at_rest": a["iris"]})
-        eyes[s]["doubts"] = _placement_doubts(eyes[s], st) + a["doubts"] + eyes[s]["doubts"]
-        metrics[s]["doubts"] = len(eyes[s]["doubts"])
-        metrics[s].update({"radius_mm": round(a["radius"], 4),
-                           "scan_sphere_radius_mm": round(fits[s].radius, 4),
-                           "sigma_limbus_mm": eyes[s]["uncertainty"]["limbus_mm"],
-                           "sigma_axis_deg": eyes[s]["uncertainty"]["axis_deg"],
-                           "sigma_center_mm": eyes[s]["uncertainty"]["center_mm"],
-                           "limbus_source": a["limbus"]["source"],
-                           "iris_visible_share": a["iris"]["visible_share"]})
     if n_loops_out != loops_in - absorbed + 2:
         raise ScanError(source, f"cutting the eyeballs gave {n_loops_out} boundary loops, expected "
                                 f"{loops_in} - {absorbed} holes in the openings + 2")
+    eyes, metrics = judge_pair(V, F, V2, loops, fits, placements, st, median_edge=median_edge,
+                               mesh_arrays=mesh_arrays, hints=hints, texture=texture,
+                               eyeball=eyeball, moved=moved)
     metrics.update({"vertices_in": nV, "faces_in": nF, "vertices_out": int(len(V2)),
                     "faces_out": int(len(F2n)), "vertices_removed": int(nV - len(V2)),
                     "faces_removed": int(remove.sum()), "boundary_loops_in": loops_in,
                     "boundary_loops_out": n_loops_out, "holes_in_openings": absorbed,
                     "edge_manifold_out": meshtopo.is_edge_manifold(F2n)})
-    return RemovalResult(mesh=out, eyes=eyes, fits=fits, metrics=metrics)
+    return RemovalResult(mesh=out, eyes=eyes, fits=fits, result=StageResult(metrics))

@@ -57,6 +57,7 @@ from pipeline.geometry.flips import (collapse_flipped, collapse_short_edges, cou
                                      reference_face_normals, relax, repair_flips, untangle)
 from pipeline.geometry.mesh_edit import TriMesh
 from pipeline.retopo.mesh_clean import clean_mesh
+from pipeline.results import StageResult
 from pipeline.settings import Settings, setting
 
 METHODS = ("quadric", "isotropic")
@@ -104,8 +105,12 @@ class RetopoResult:
     poly_indices: np.ndarray | None
     crop_V: np.ndarray       # the cropped dense surface the result approximates
     crop_F: np.ndarray
-    metrics: dict
+    result: StageResult      # the stage's metrics, and the step times apart
     band: dict | None = None  # side -> (band_rings + 1, loop_points) vertex ids (band: grid), ring 0 = loop
+
+    @property
+    def metrics(self) -> dict:
+        return self.result.metrics
 
 
 # ----------------------------------------------------------------------------- crop
@@ -545,10 +550,10 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
                                      "ids": {k: [int(v.min()), int(v.max()) + 1] for k, v in band_ids.items()},
                                      **band_info} if band_ids else {})},
         "canthus_apex": apex_info,
-        "timings_s": {k: round(v, 4) for k, v in timings.items()},
-        "time_s": round(timings["total_s"], 4),
     })
-    return RetopoResult(Vn, Fn, loops, lateral, poly_counts, poly_indices, Vc, Fc, metrics, band_ids)
+    result = StageResult(metrics, {"timings_s": {k: round(v, 4) for k, v in timings.items()},
+                                   "time_s": round(timings["total_s"], 4)})
+    return RetopoResult(Vn, Fn, loops, lateral, poly_counts, poly_indices, Vc, Fc, result, band_ids)
 
 
 def retopo_metrics(V, F, loops, Vc, Fc, curves, n_samples=50000) -> dict:

@@ -1,13 +1,14 @@
 """The rig stage's work: eyelid blend shapes, landmark curves and the pitch sweep for one scan.
 
-``build_rig`` takes the snapped mesh and its eyes.json entries and returns the arrays of
-``rig.npz``, the ``rig.json`` document and the metrics; the method is in ``lid_shapes`` (the
+``build_rig`` takes the snapped mesh and its eyes and returns the arrays of ``rig.npz``, the
+``rig.json`` document and the metrics (:class:`RigBuild`); the method is in ``lid_shapes`` (the
 shapes), ``sweep`` (the pitch sweep) and ``landmarks``. A sweep that flips a face refuses the scan.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,6 +21,17 @@ from pipeline.rig.folds import relax_folds
 from pipeline.rig.lid_shapes import build_lid_shapes
 from pipeline.rig.sweep import sweep_check
 from pipeline.rig import textures as tex
+from pipeline.results import StageResult
+
+
+@dataclass
+class RigBuild:
+    """What the rig stage writes: ``arrays`` (rig.npz), ``doc`` (rig.json) and ``result`` (its
+    metrics and timings)."""
+
+    arrays: dict
+    doc: dict
+    result: StageResult
 
 
 def _model_corneas(eyes):
@@ -31,16 +43,17 @@ def _model_corneas(eyes):
     return out
 
 
-def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
-              eyes_path="eyes.json", profile=None):
-    """Everything the rig stage computes: (arrays for rig.npz, rig.json dict, metrics dict).
+def build_rig(mesh: dict, placed_eyes: dict, params, mesh_path="mesh.npz",
+              eyes_path="eyes.json", profile=None) -> RigBuild:
+    """Everything the rig stage computes (:class:`RigBuild`) from the snapped mesh and its eyes
+    (side -> :class:`pipeline.io.eyes_file.Eye`, the snap stage's eyes.json).
 
     ``params``: a :class:`pipeline.rig.lids.RigSettings` or its raw ``rig:`` mapping.
     ``profile``: EyeballParams of the parametric eye the margin was snapped to (None = sphere).
     """
     st = params if isinstance(params, lids.RigSettings) else lids.RigSettings.from_params(params)
     lp = st.lid_params()
-    eyes = eye_frames(eyes_json, mesh, eyes_source=str(eyes_path), mesh_source=str(mesh_path),
+    eyes = eye_frames(placed_eyes, mesh, eyes_source=str(eyes_path), mesh_source=str(mesh_path),
                       max_rest_gap_mm=st.max_rest_gap_mm,
                       profile=profile)
     V = np.asarray(mesh["V"], np.float64)
@@ -76,7 +89,7 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
             "center": e.center, "radius": e.radius, "forward": e.forward,
             "pitch_axis": e.axis,
             "lateral_index": e.lateral_index, "loop_length": len(e.loop),
-            "doubts": list(eyes_json[e.side].get("doubts") or []),   # carried from remove_eyeballs
+            "doubts": list(placed_eyes[e.side].doubts),   # carried from remove_eyeballs
         }
         lm_doc[e.side] = {"eyelid_loop_position": lm.loop_position, "eyelid_edges": lm.edge}
 
@@ -148,6 +161,6 @@ def build_rig(mesh: dict, eyes_json: dict, params, mesh_path="mesh.npz",
         "fold_relax_rounds": int(relax_rounds), "fold_relaxed_vertices": int(relaxed),
         **{f"sweep_{k}": v for k, v in sweep.items()},
         **motion,
-        "build_s": round(t_build, 4), "sweep_s": round(t_sweep, 4),
     }
-    return arrays, doc, metrics
+    return RigBuild(arrays, doc, StageResult(metrics, {"build_s": round(t_build, 4),
+                                                       "sweep_s": round(t_sweep, 4)}))

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.geometry.frame import eye_basis
-from pipeline.io.eyes_file import lateral_canthus_index
+from pipeline.io.eyes_file import Eye, lateral_canthus_index
 
 
 @dataclass
@@ -137,14 +137,7 @@ def rotate_about_axis(P, center, axis, angles) -> np.ndarray:
             + a[None, :] * (w @ a)[:, None] * (1.0 - cos))
 
 
-def _first(d: dict, keys):
-    for k in keys:
-        if k in d and d[k] is not None:
-            return d[k]
-    return None
-
-
-def _lateral_index_for_loop(e: dict, mesh: dict, side: str, V, loop, c, f) -> int:
+def _lateral_index_for_loop(e: Eye, mesh: dict, side: str, V, loop, c, f) -> int:
     """Position of the lateral canthus in this mesh's loop.
 
     In order of preference: a mesh array ``lateral_index_<side>``; the eyes.json
@@ -156,8 +149,8 @@ def _lateral_index_for_loop(e: dict, mesh: dict, side: str, V, loop, c, f) -> in
     key = f"lateral_index_{side}"
     if key in mesh:
         return int(np.asarray(mesh[key]).ravel()[0])
-    li = _first(e, ("lateral_index", "lateral_canthus_index", "loop_lateral_index"))
-    pts = e.get("loop_points")
+    li = e.lateral_canthus_index
+    pts = e.loop_points
     if li is not None and pts is not None:
         try:
             pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
@@ -166,7 +159,7 @@ def _lateral_index_for_loop(e: dict, mesh: dict, side: str, V, loop, c, f) -> in
             p = None
         if p is not None and np.isfinite(p).all():
             return int(np.argmin(np.linalg.norm(V[loop] - p, axis=1)))
-    ids = e.get("loop_indices")
+    ids = e.loop_indices
     if li is not None and (ids is None or len(ids) == len(loop)):
         return int(li)
     return find_lateral_canthus(V[loop], c, f, side)
@@ -204,10 +197,9 @@ def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="
     Parameters
     ----------
     eyes : dict
-        ``{"left": {"center": [3], "radius": r, "forward": [3], optional
-        "lateral_index" | "lateral_canthus_index", "loop_points", "loop_indices"},
-        "right": {...}}`` (``center_mm`` / ``radius_mm`` / ``gaze_direction`` accepted too);
-        see :func:`_lateral_index_for_loop` for how the lateral canthus is found.
+        ``{"left": Eye, "right": Eye}`` (:class:`pipeline.io.eyes_file.Eye`, as the snap stage's
+        eyes.json holds them); see :func:`_lateral_index_for_loop` for how the lateral canthus
+        is found.
     mesh : dict
         Arrays ``V``, ``F``, ``loop_left``, ``loop_right`` (ordered margin vertex indices),
         optional ``lateral_index_left`` / ``lateral_index_right``.
@@ -239,22 +231,15 @@ def eye_frames(eyes: dict, mesh: dict, *, eyes_source="eyes.json", mesh_source="
         raise ScanError(mesh_source, f"F must be (m, 3), got {F.shape}")
     if F.min() < 0 or F.max() >= len(V):
         raise ScanError(mesh_source, "F indexes vertices out of range")
-    if not isinstance(eyes, dict):
-        raise ScanError(eyes_source, "must be a JSON object with 'left' and 'right' eyes")
     out = []
     for side in ("left", "right"):
         e = eyes.get(side)
-        if not isinstance(e, dict):
+        if e is None:
             raise ScanError(eyes_source, f"no '{side}' eye")
-        c = _first(e, ("center", "center_mm"))
-        r = _first(e, ("radius", "radius_mm"))
-        f = _first(e, ("forward", "gaze_direction"))
-        if c is None or r is None or f is None:
-            raise ScanError(eyes_source, f"{side} eye needs center, radius and forward")
         try:
-            c = np.asarray(c, dtype=np.float64).reshape(3)
-            f = np.asarray(f, dtype=np.float64).reshape(3)
-            r = float(r)
+            c = np.asarray(e.center, dtype=np.float64).reshape(3)
+            f = np.asarray(e.forward, dtype=np.float64).reshape(3)
+            r = float(e.radius)
         except (TypeError, ValueError):
             raise ScanError(eyes_source, f"{side} eye: center/forward must be 3 numbers, "
                                          f"radius a number") from None

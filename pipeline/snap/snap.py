@@ -23,7 +23,7 @@ outside the eyeball.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -33,6 +33,7 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry.corners import (CORNER_MAX_SHARE, MARGIN_OFF_GLOBE_MM, CornerRuns, close_corners,
                                        corner_weights)
 from pipeline.geometry.flips import untangle
+from pipeline.results import StageResult
 from pipeline.settings import Settings, setting
 
 SIDES = ("left", "right")
@@ -446,6 +447,35 @@ def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz
     metrics["caruncle_faces"] = int(len(out["caruncle_faces"]))
     metrics["edge_manifold_closed"] = meshtopo.is_edge_manifold(out["F"])
     return out, reports, metrics
+
+
+@dataclass
+class SnapResult:
+    """What the snap stage writes: ``mesh`` (the arrays of mesh.npz, ``V`` snapped), ``eyes``
+    (side -> :class:`pipeline.io.eyes_file.Eye`, its loop on the snapped mesh and the snap's
+    report) and ``result`` (its metrics)."""
+
+    mesh: dict
+    eyes: dict
+    result: StageResult
+
+
+def snap_eyes(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz",
+              graph=None) -> SnapResult:
+    """Snap both eyes' loops of a mesh (:func:`snap_mesh`) onto the eyes of ``eyes.json``
+    (side -> :class:`pipeline.io.eyes_file.Eye`); each eye's loop then refers to the snapped
+    mesh and carries the snap's report."""
+    out, reports, metrics = snap_mesh(mesh, {s: (e.center, e.radius, e.unit_forward) for s, e in eyes.items()},
+                                      params, st, source=source, graph=graph)
+    snapped = {}
+    for s, e in eyes.items():
+        loop = np.asarray(out[f"loop_{s}"], np.int64)
+        P = out["V"][loop]
+        snapped[s] = replace(e, loop_indices=loop, loop_points=P,
+                             lateral_canthus_index=lateral_position(
+                                 mesh, s, P, PlacedEye(e.center, e.radius, e.unit_forward)),
+                             extra={**e.extra, "snap": dict(reports[s])})
+    return SnapResult(out, snapped, StageResult(metrics))
 
 
 def lateral_position(mesh: dict, side: str, P, eye: PlacedEye) -> int:

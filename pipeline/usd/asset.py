@@ -37,7 +37,7 @@ radius, cornea, iris and pupil keep their size in mm), built at the referenced
 eyeball's resolution from its own parameters (customData eyerig.params and .resolution) and
 authored over the reference's points, with the Inner blend shapes' offsets; the eye prim's
 customData eyerig.params says which. At rest the eye sits at its centre (anchored at the scan's
-limbus, pipeline/remove_eyeballs/human_eye.py) looking along its forward direction, and rotating the joint rotates it about its centre.
+limbus, pipeline/placement/human_eye.py) looking along its forward direction, and rotating the joint rotates it about its centre.
 """
 
 from __future__ import annotations

@@ -92,7 +92,7 @@ def eye_colour_map(V, F, UV, FUV, texture, hint, view, *, radius_mm=22.0, skin_f
                    core_mm=6.0, cell_mm=0.25, min_contrast=3.0, clip=6.0) -> ColourMap | None:
     """The eye-likeness map around ``hint`` (module doc, step 1); None when the texture shows too
     little skin or too little eye to learn both colours."""
-    from pipeline.remove_eyeballs.texels import colour_z, surface_texels
+    from pipeline.placement.texels import colour_z, surface_texels
 
     V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64)

@@ -10,7 +10,7 @@ are put on the scan's, so its rotation centre lies ``sqrt(r1^2 - iris_radius^2)`
 r1 = 12) behind the scan's limbus centre. With a 16 mm globe the iris would swing 14.5 mm in
 front of the rotation centre instead of about 10, 45 % too far per degree of gaze.
 
-Plain functions on arrays; :func:`asset_eyes` is what ``remove_eyeballs`` calls.
+Plain functions on arrays; :func:`asset_eyes` is what :func:`pipeline.placement.place.judge_pair` calls.
 """
 
 from __future__ import annotations

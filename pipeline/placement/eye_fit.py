@@ -1,7 +1,7 @@
 """What an eye fit is and the mesh helpers around it: :class:`EyeFit` (sphere, gaze, removal
 region), :class:`EyeMesh`, the local sub-mesh around the hints, the region cleaning that
 leaves one simple loop, and the lid-fold measure. The placement itself is
-``pipeline.remove_eyeballs.eye_place`` (geometry) and ``eye_texture`` (colour, coarse scans).
+``pipeline.placement.fit`` (geometry) and ``pipeline.placement.texture`` (colour, coarse scans).
 """
 
 from __future__ import annotations

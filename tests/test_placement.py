@@ -1,5 +1,5 @@
-"""eye_place: the eye model, the segmentation and the joint MAP placement on known heads;
-eye_prior: the eye-region model registered to a surface made from it."""
+"""placement: the eye model, the segmentation and the joint MAP placement on known heads;
+the eye-region prior registered to a surface made from it."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, extra_scans_dir
-from pipeline.remove_eyeballs import eye_place as ep
+from pipeline.placement import cues, fit, model
 from fixtures.eye_heads import make_head
 
 
@@ -18,18 +18,18 @@ def test_cap_height_known_answers():
     sinks below the sclera for a recessed iris."""
     R, tl = 12.0, 30.0
     ca = np.cos(np.radians([0.0, 10.0, 29.9, 30.1, 60.0]))
-    h = ep.cap_height(ca, R, 1.0, tl)
-    assert h[0] == pytest.approx(ep.APEX_FRACTION * R, abs=1e-9)
+    h = model.cap_height(ca, R, 1.0, tl)
+    assert h[0] == pytest.approx(model.APEX_FRACTION * R, abs=1e-9)
     assert h[1] > 0 and abs(h[2]) < 0.02 and h[3] == 0.0 and h[4] == 0.0
-    assert ep.cap_height(ca[:1], R, -0.5, tl)[0] == pytest.approx(-0.5 * ep.APEX_FRACTION * R, abs=1e-9)
+    assert model.cap_height(ca[:1], R, -0.5, tl)[0] == pytest.approx(-0.5 * model.APEX_FRACTION * R, abs=1e-9)
     # the cap's sphere passes through the limbus circle and the apex
-    e = ep.Eye(np.zeros(3), R, np.array([0.0, 0.0, 1.0]), 1.0, tl)
-    cs = ep.cornea_sphere(e)
+    e = model.Eye(np.zeros(3), R, np.array([0.0, 0.0, 1.0]), 1.0, tl)
+    cs = model.cornea_sphere(e)
     limbus = R * np.array([np.sin(np.radians(tl)), 0.0, np.cos(np.radians(tl))])
-    apex = np.array([0.0, 0.0, R * (1 + ep.APEX_FRACTION)])
+    apex = np.array([0.0, 0.0, R * (1 + model.APEX_FRACTION)])
     for q in (limbus, apex):
         assert np.linalg.norm(q - cs["center"]) == pytest.approx(cs["radius"], abs=1e-9)
-    assert ep.cornea_sphere(ep.Eye(np.zeros(3), R, e.n, -0.3, tl)) is None
+    assert model.cornea_sphere(model.Eye(np.zeros(3), R, e.n, -0.3, tl)) is None
 
 
 def test_anterior_ring_known_answers():
@@ -37,9 +37,9 @@ def test_anterior_ring_known_answers():
     limbus and ``hb * APEX_FRACTION * R`` half-way out (s^2 = 1/2)."""
     R, tl, hb = 14.0, 30.0, 0.5
     th = np.radians([0.0, tl / np.sqrt(2.0), tl - 1e-6, tl + 1.0])
-    ring = ep.cap_height(np.cos(th), R, 0.0, tl, hb) - ep.cap_height(np.cos(th), R, 0.0, tl)
+    ring = model.cap_height(np.cos(th), R, 0.0, tl, hb) - model.cap_height(np.cos(th), R, 0.0, tl)
     assert ring[0] == pytest.approx(0.0, abs=1e-9) and abs(ring[2]) < 1e-4 and ring[3] == 0.0
-    assert ring[1] == pytest.approx(hb * ep.APEX_FRACTION * R, rel=1e-6)
+    assert ring[1] == pytest.approx(hb * model.APEX_FRACTION * R, rel=1e-6)
 
 
 def test_fit_recovers_a_ring_shaped_anterior():
@@ -47,20 +47,20 @@ def test_fit_recovers_a_ring_shaped_anterior():
     sphere (a plain cap would bias the radius)."""
     rng = np.random.default_rng(3)
     c, R, n = np.array([0.0, 0.0, 0.0]), 15.0, np.array([0.0, 0.0, 1.0])
-    truth = ep.Eye(c, R, n, 0.15, 29.0, 0.45)
+    truth = model.Eye(c, R, n, 0.15, 29.0, 0.45)
     # a fissure-shaped window of the globe's front: 24 x 10 mm
     xy = rng.uniform([-12.0, -5.0], [12.0, 5.0], (4000, 2))
     xy = xy[(xy[:, 0] / 12.0) ** 2 + (xy[:, 1] / 5.0) ** 2 < 1.0]
     u = np.c_[xy / R, np.sqrt(1.0 - (xy ** 2).sum(axis=1) / R ** 2)]
-    h = ep.cap_height(u @ n, R, truth.ha, truth.tl, truth.hb)
+    h = model.cap_height(u @ n, R, truth.ha, truth.tl, truth.hb)
     P = c + u * (R + h)[:, None] + rng.normal(0.0, 0.02, (len(u), 1)) * u
     F = np.zeros((0, 3), np.int64)
-    p = ep.Patch(P, F, np.full(len(P), 0.1), u, np.zeros((0, 2), np.int64), np.zeros(0), P.mean(axis=0),
+    p = cues.Patch(P, F, np.full(len(P), 0.1), u, np.zeros((0, 2), np.int64), np.zeros(0), P.mean(axis=0),
                  np.arange(len(P)), np.zeros(0, np.int64))
     lab = np.ones(len(P), bool)
-    e = ep.Eye(c + [0.3, -0.2, -0.8], R - 0.8, ep.unit(n + [0.05, 0.0, 0.0]), 0.5, 31.0, 0.0)
+    e = model.Eye(c + [0.3, -0.2, -0.8], R - 0.8, model.unit(n + [0.05, 0.0, 0.0]), 0.5, 31.0, 0.0)
     for _ in range(3):
-        e = ep.fit_eyes([p], [lab], [e], [ep.Cues(radius_prior=(12.0, 3.0))], (10.0, 18.0)).eyes[0]
+        e = fit.fit_eyes([p], [lab], [e], [cues.Cues(radius_prior=(12.0, 3.0))], (10.0, 18.0)).eyes[0]
     assert np.linalg.norm(e.c - c) < 0.15 and abs(e.R - R) < 0.15
     assert e.hb == pytest.approx(truth.hb, abs=0.1) and e.tl == pytest.approx(truth.tl, abs=1.0)
 
@@ -70,29 +70,29 @@ def test_mirror_and_midplane():
     V = mesh["V"].copy()
     V[:, 0] += 1.7                      # the face's midplane at x = 1.7
     h = {s: p + [1.7, 0, 0] for s, p in hints.items()}
-    assert ep.midplane_x(V, h) == pytest.approx(1.7, abs=0.1)
-    assert np.allclose(ep.mirror(ep.mirror([3.0, 1.0, 2.0], 1.7), 1.7), [3.0, 1.0, 2.0])
+    assert cues.midplane_x(V, h) == pytest.approx(1.7, abs=0.1)
+    assert np.allclose(fit.mirror(fit.mirror([3.0, 1.0, 2.0], 1.7), 1.7), [3.0, 1.0, 2.0])
 
 
 def test_segmentation_at_the_true_eye_is_the_opening():
     """Under the true eye the graph cut labels the opening's eye surface as eye and the lids as
     skin, and a lid fold rings it."""
     mesh, hints, gt = make_head(0.5, seed=5)
-    p = ep.build_patch(mesh["V"], mesh["F"], hints["left"], 20.0)
-    e = ep.Eye(gt["left"]["center"], gt["left"]["radius"], np.array([0.0, 0.0, 1.0]), 1.2, 33.0)
-    lab, _ = ep.segment(p, e)
+    p = cues.build_patch(mesh["V"], mesh["F"], hints["left"], 20.0)
+    e = model.Eye(gt["left"]["center"], gt["left"]["radius"], np.array([0.0, 0.0, 1.0]), 1.2, 33.0)
+    lab, _ = cues.segment(p, e)
     x, y = p.V[:, 0] - gt["left"]["center"][0], p.V[:, 1]
     inside = (np.abs(x) < 10.0) & (np.abs(y) < 2.0)        # well inside the almond opening
     outside = (np.abs(y) > 8.0) | (np.abs(x) > 15.0)        # lid and skin
     assert lab[inside].mean() > 0.95 and lab[outside].mean() < 0.02
-    assert ep.fold_deg(p, lab) > 30.0
+    assert cues.fold_deg(p, lab) > 30.0
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed,noise", [(0, 0.0), (1, 0.03)])
 def test_both_eyes_placed_within_their_uncertainty(seed, noise):
     mesh, hints, gt = make_head(0.5, seed=seed, noise=noise)
-    res = ep.place_eyes(mesh["V"], mesh["F"], hints, patch_radius_mm=20.0, radius_range=(10.0, 18.0),
+    res = fit.place_eyes(mesh["V"], mesh["F"], hints, patch_radius_mm=20.0, radius_range=(10.0, 18.0),
                         radius_prior=(12.0, 3.0), seed=0)
     for s in ("left", "right"):
         pl = res[s]
@@ -108,7 +108,7 @@ def test_both_eyes_placed_within_their_uncertainty(seed, noise):
 def test_closed_eyes_have_no_placement():
     """A smooth lid over each eye: no eye surface is ringed by a lid fold."""
     mesh, hints, _ = make_head(0.7, closed=True)
-    res = ep.place_eyes(mesh["V"], mesh["F"], hints, patch_radius_mm=20.0, radius_range=(10.0, 18.0),
+    res = fit.place_eyes(mesh["V"], mesh["F"], hints, patch_radius_mm=20.0, radius_range=(10.0, 18.0),
                         radius_prior=(12.0, 3.0), min_fold_deg=12.0)
     assert res["left"] is None and res["right"] is None
 
@@ -130,7 +130,7 @@ def test_the_shipped_prior_is_the_unityeyes_model(tmp_path):
     import subprocess
     import sys
 
-    from pipeline.remove_eyeballs.eye_prior import PRIOR_FILE, EyeRegionPrior
+    from pipeline.placement.prior import PRIOR_FILE, EyeRegionPrior
 
     d = _unityeyes_dir()
     prior = EyeRegionPrior.load()
@@ -149,7 +149,7 @@ def test_the_shipped_prior_is_the_unityeyes_model(tmp_path):
 def test_the_prior_ships_with_its_licence_and_is_package_data():
     import tomllib
 
-    from pipeline.remove_eyeballs.eye_prior import PRIOR_FILE, EyeRegionPrior
+    from pipeline.placement.prior import PRIOR_FILE, EyeRegionPrior
 
     prior = EyeRegionPrior.load()
     assert prior.mean.shape == (229, 3) and prior.components.shape == (687, 10) and prior.modes == 10
@@ -158,13 +158,13 @@ def test_the_prior_ships_with_its_licence_and_is_package_data():
     assert "MIT License" in lic and "Erroll Wood" in lic and "UnityEyes2" in lic
     root = Path(__file__).resolve().parents[1]
     data = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
-    assert {"data/eye_region_prior.npz", "data/LICENSE-unityeyes.txt"} <= set(data["pipeline.remove_eyeballs"])
+    assert {"data/eye_region_prior.npz", "data/LICENSE-unityeyes.txt"} <= set(data["pipeline.placement"])
 
 
 @pytest.mark.parametrize("content", [None, b"not a zip", b"PK\x03\x04 truncated"])
 def test_a_missing_or_corrupt_prior_is_one_line_naming_the_file(tmp_path, content):
     from pipeline.errors import ScanError
-    from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior
+    from pipeline.placement.prior import EyeRegionPrior
 
     f = tmp_path / "prior.npz"
     if content is not None:
@@ -177,7 +177,7 @@ def test_a_missing_or_corrupt_prior_is_one_line_naming_the_file(tmp_path, conten
 def test_a_prior_of_the_wrong_shape_or_with_nan_is_refused(tmp_path):
     from pipeline.errors import ScanError
     from pipeline.io.eye_prior_file import read_eye_prior
-    from pipeline.remove_eyeballs.eye_prior import PRIOR_FILE
+    from pipeline.placement.prior import PRIOR_FILE
 
     with np.load(PRIOR_FILE) as z:
         good = {k: z[k] for k in z.files}
@@ -195,7 +195,7 @@ def test_prior_registers_its_own_mean_shape():
     registration finds its globe's front within 0.5 mm and its axis within 3 deg."""
     import pymeshlab
 
-    from pipeline.remove_eyeballs.eye_prior import EyeRegionPrior, to_head
+    from pipeline.placement.prior import EyeRegionPrior, to_head
 
     prior = EyeRegionPrior.load()
     # dense enough to fit against: subdivide the coarse region twice
@@ -215,10 +215,10 @@ def test_prior_registers_its_own_mean_shape():
 
 def test_turn_yaws_about_up_then_pitches_up():
     z = np.array([0.0, 0.0, 1.0])
-    np.testing.assert_allclose(ep._turn(z, 30.0, 0.0), [0.5, 0.0, np.sqrt(3) / 2], atol=1e-12)
-    np.testing.assert_allclose(ep._turn(z, 0.0, 20.0), [0.0, np.sin(np.radians(20)), np.cos(np.radians(20))],
+    np.testing.assert_allclose(fit._turn(z, 30.0, 0.0), [0.5, 0.0, np.sqrt(3) / 2], atol=1e-12)
+    np.testing.assert_allclose(fit._turn(z, 0.0, 20.0), [0.0, np.sin(np.radians(20)), np.cos(np.radians(20))],
                                atol=1e-12)
-    v = ep._turn(z, 45.0, -30.0)
+    v = fit._turn(z, 45.0, -30.0)
     assert abs(np.degrees(np.arcsin(v[1])) + 30.0) < 1e-9 and abs(np.degrees(np.arctan2(v[0], v[2])) - 45.0) < 1e-9
 
 
@@ -229,7 +229,7 @@ def test_a_gaze_turned_off_the_priors_forward_is_found():
     too; the ICT heads that needed them are benchmarks/results/placement.md's.)"""
     mesh, hints, gt = make_head(0.5, seed=0, gaze_yaw_deg=25.0)
     fwd = np.array([0.0, 0.0, 1.0])
-    res = ep.place_eyes(mesh["V"], mesh["F"], hints, patch_radius_mm=20.0, radius_range=(10.0, 21.0),
+    res = fit.place_eyes(mesh["V"], mesh["F"], hints, patch_radius_mm=20.0, radius_range=(10.0, 21.0),
                         radius_prior=(12.0, 3.0), seed=0,
                         prior=lambda s: {"front": gt[s]["center"] + 12.0 * fwd, "axis": fwd, "sigma": 4.0})
     for s in ("left", "right"):

@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.io.eye_prior_file import N_VERTICES, read_eye_prior
 
-#: The eye-region prior eyerig ships (pipeline/remove_eyeballs/data/README.md).
+#: The eye-region prior eyerig ships (pipeline/placement/data/README.md).
 PRIOR_FILE = Path(__file__).resolve().parent / "data" / "eye_region_prior.npz"
 SCLERA_RADIUS_MM = 12.05      # the UnityEyes eyeball the model was registered to
 MARGIN = (12, 13, 14, 15, 16, 17, 18, 132, 131, 130, 6, 2, 1, 7, 8, 0)

@@ -1,8 +1,8 @@
 """Texture fallback of the eye fit: the opening from the colour texture, for scans too coarse to show
-the eyeball geometrically (``james``). ``pipeline.remove_eyeballs.eye_fit.find_eye`` calls it when the
+the eyeball geometrically (``james``). :func:`pipeline.placement.place.place_pair` calls it when the
 geometric fit fails and the scan has a texture (:func:`fit_texture`): the palpebral fissure the
 photograph shows, from canthus to canthus, seen along the head's forward axis
-(:mod:`pipeline.remove_eyeballs.fissure`: an almond fitted to how eye-like each texel's colour is), is
+(:mod:`pipeline.placement.fissure`: an almond fitted to how eye-like each texel's colour is), is
 lifted onto the scan surface; the eye is placed behind it by the anatomy of the corners and the
 lid margin around a globe of the prior radius (:func:`place_from_fissure`). The corners lie off
 that globe, as real ones do (:mod:`pipeline.geometry.corners`). ``remove_eyeballs`` then refines
@@ -25,11 +25,11 @@ from pipeline.errors import ScanError
 from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.spherefit import signed_distance
-from pipeline.remove_eyeballs.eye_fit import EyeFit, EyeMesh, lid_crease_deg, patch_faces, unit_vector
-from pipeline.remove_eyeballs.texels import colour_z, surface_texels
+from pipeline.placement.eye_fit import EyeFit, EyeMesh, lid_crease_deg, patch_faces, unit_vector
+from pipeline.placement.texels import colour_z, surface_texels
 
 if TYPE_CHECKING:
-    from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
+    from pipeline.placement.settings import PlacementSettings
 
 
 def texture_fissure(V, F, UV, FUV, texture, hint, forward, *, radius_mm=22.0, skin_from_mm=18.0,
@@ -88,14 +88,14 @@ class TextureEyeFit(EyeFit):
     """An eye placed from the fissure its texture shows. ``fissure``: ``outline`` (k, 3) the
     opening on the scan surface (medial canthus first, upper lid first, lateral canthus at
     ``lateral``), ``outline_2d`` (k, 2) the same seen along ``view`` in the plane ``basis``
-    through ``hint``, ``theta`` the almond's parameters (:mod:`pipeline.remove_eyeballs.fissure`)."""
+    through ``hint``, ``theta`` the almond's parameters (:mod:`pipeline.placement.fissure`)."""
 
     fissure: dict | None = field(default=None, repr=False)
 
 
 #: Where the fissure's corners lie around a 12.05 mm eye (mean, SD; mm), measured on the eight
 #: SynthesEyes eye regions registered to their eyeballs (UnityEyes' eye-region files, MIT; see
-#: pipeline/remove_eyeballs/data/README.md): in front of the centre along the gaze, and from the gaze axis. The
+#: pipeline/placement/data/README.md): in front of the centre along the gaze, and from the gaze axis. The
 #: medial corner is the far end of the caruncle, where the lids meet.
 MEDIAL_CORNER_FWD, MEDIAL_CORNER_AXIS = (8.56, 0.69), (15.19, 1.93)
 LATERAL_CORNER_FWD, LATERAL_CORNER_AXIS = (4.51, 1.18), (12.68, 0.41)
@@ -179,13 +179,13 @@ def place_from_fissure(outline, lateral: int, radius: float, start_forward, fixe
     return c, f, float(r), float(np.sqrt(np.mean(d ** 2))) if len(d) else 0.0
 
 
-def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: RemoveEyeballsSettings, source,
+def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: PlacementSettings, source,
                 fixed_radius=None, n_outline=96):
     """Eye opening from the colour texture (coarse scans): the fissure's outline from canthus to
-    canthus (:mod:`pipeline.remove_eyeballs.fissure`, seen along the head's forward axis), the eye
+    canthus (:mod:`pipeline.placement.fissure`, seen along the head's forward axis), the eye
     placed behind it by the anatomy (:func:`place_from_fissure`, radius: the prior or
     ``fixed_radius``)."""
-    from pipeline.remove_eyeballs import fissure as fs
+    from pipeline.placement import fissure as fs
 
     V, F = mesh.V, mesh.F
     view = np.array([0.0, 0.0, 1.0])          # the head frame's forward axis

@@ -1,0 +1,253 @@
+"""What the scan says about an eye: the surface around a hint, its eye/skin labels and the
+residual blocks each cue adds to the energy (each one optional; none is required).
+
+* the visible sclera and the anterior cap: Gaussian residuals to the model surface of the
+  vertices labelled *eye* (``SIG_SCLERA`` / ``SIG_ANTERIOR``);
+* the skin around the opening: every vertex labelled *skin* must lie outside the globe
+  (one-sided residual beyond ``TAU_INSIDE``), and the eye/skin labels come from a minimum
+  graph cut whose edges are cheap along concave creases (the lid fold around the opening), so
+  the opening's border follows the fold;
+* the eye-region prior (:mod:`pipeline.placement.prior`, the UnityEyes shape model registered
+  to the skin around the eye, when its data are present): where the front of the globe lies;
+* the two eyes together (:func:`midplane_x`, used by :mod:`pipeline.placement.fit`): one
+  radius, and a loose mirror prior on the centres about the face's midplane;
+* a broad population prior on ``R`` (``radius_prior_mm``), on the limbus angle and on the ring.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.placement.model import LIMBUS_DEG, Eye, surface_residual
+
+SIG_SCLERA = 0.15       # mm: scanner noise on the exposed sclera
+SIG_ANTERIOR = 0.15     # mm: as the sclera; a looser cap made a small sphere through the cornea
+                        # (every vertex at the tighter scale) likelier than the true globe
+TAU_INSIDE = 0.35       # mm: skin may lie this far inside the globe (noise) before it is impossible
+SKIN_SPREAD_MM = 10.0   # skin near the eye: anywhere within this of the globe, uniform
+HB_SIGMA = 1.0          # weak prior on the ring (0 = a plain cap)
+CUT_LAMBDA = 2.0        # graph-cut cost per mm of an eye/skin border on smooth skin
+CREASE_DEG = 8.0        # ... falling by e per this many degrees of concave fold
+
+
+@dataclass
+class Patch:
+    """The surface around one hint, with what the energy needs.
+
+    Attributes
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    A : (n,) float64
+        Vertex areas (mm^2; zero for vertices only on ``ignore`` faces).
+    N : (n, 3) float64
+        Unit vertex normals.
+    E : (k, 2) int64
+        Interior edges.
+    w : (k,) float64
+        Cut cost of each edge (cheap along concave folds).
+    hint : (3,) float64
+    verts : (n,) int64
+        Vertex ids in the mesh the patch was cut from.
+    faces : (m,) int64
+        Face ids in that mesh.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    A: np.ndarray
+    N: np.ndarray
+    E: np.ndarray
+    w: np.ndarray
+    hint: np.ndarray
+    verts: np.ndarray
+    faces: np.ndarray
+
+
+def build_patch(V, F, hint, radius_mm, ignore=None) -> Patch:
+    """Faces with centroid within ``radius_mm`` of ``hint``; ``ignore`` (m,) bool marks faces
+    that carry no evidence (a scanner's flat fill across an opening): their vertices get no
+    area unless a measured face shares them."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    hint = np.asarray(hint, dtype=np.float64)
+    faces = np.flatnonzero(np.linalg.norm(V[F].mean(axis=1) - hint, axis=1) < radius_mm)
+    verts, Fs = np.unique(F[faces], return_inverse=True)
+    Fs = Fs.reshape(-1, 3).astype(np.int64)
+    P = V[verts]
+    FN = np.cross(P[Fs[:, 1]] - P[Fs[:, 0]], P[Fs[:, 2]] - P[Fs[:, 0]])
+    fa = 0.5 * np.linalg.norm(FN, axis=1)
+    ign = np.zeros(len(Fs), bool) if ignore is None else np.asarray(ignore, bool)[faces]
+    A = np.zeros(len(P))
+    np.add.at(A, Fs[~ign].ravel(), np.repeat(fa[~ign] / 3.0, 3))
+    VN = np.zeros_like(P)
+    for k in range(3):
+        np.add.at(VN, Fs[:, k], FN)
+    VN = VN / np.maximum(np.linalg.norm(VN, axis=1, keepdims=True), 1e-300)
+    fu = FN / np.maximum(2.0 * fa, 1e-300)[:, None]
+    # interior edges with their two faces; concave when the far vertex of one face lies above
+    # the other's plane (the lid rising off the eye)
+    Ed = np.concatenate([Fs[:, [0, 1]], Fs[:, [1, 2]], Fs[:, [2, 0]]])
+    opp = np.concatenate([Fs[:, 2], Fs[:, 0], Fs[:, 1]])
+    fid = np.tile(np.arange(len(Fs)), 3)
+    key = np.sort(Ed, axis=1)
+    k1 = key[:, 0] * len(P) + key[:, 1]
+    order = np.argsort(k1, kind="stable")
+    same = np.flatnonzero(k1[order][1:] == k1[order][:-1])
+    a, b = order[same], order[same + 1]
+    E = key[a]
+    h = ((P[opp[b]] - P[E[:, 0]]) * fu[fid[a]]).sum(axis=1)
+    fold = np.degrees(np.arccos(np.clip((fu[fid[a]] * fu[fid[b]]).sum(axis=1), -1.0, 1.0)))
+    concave = np.where(h > 0, fold, 0.0)
+    L = np.linalg.norm(P[E[:, 0]] - P[E[:, 1]], axis=1)
+    w = CUT_LAMBDA * L * np.exp(-concave / CREASE_DEG)
+    return Patch(P, Fs, A, VN, E, w, hint, verts, faces)
+
+
+def unary_costs(p: Patch, e: Eye):
+    """Area-weighted negative log-likelihoods of each vertex as eye and as skin, (n,), (n,)."""
+    d, ant, dsph, u = surface_residual(p.V, e)
+    sig = np.where(ant, SIG_ANTERIOR, SIG_SCLERA)
+    eye = 0.5 * (d / sig) ** 2 + np.log(sig * np.sqrt(2.0 * np.pi))
+    eye = np.where((u * p.N).sum(axis=1) > 0.5, np.minimum(eye, 30.0), 30.0)   # eye faces outward
+    skin = np.log(SKIN_SPREAD_MM) + np.where(dsph < -TAU_INSIDE,
+                                             0.5 * ((dsph + TAU_INSIDE) / SIG_SCLERA) ** 2, 0.0)
+    return p.A * eye, p.A * skin
+
+
+def graph_cut(p: Patch, ce, ck):
+    """Minimum cut of the eye/skin labelling: (n,) bool, True = eye."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import breadth_first_order, maximum_flow
+
+    n = len(p.V)
+    S, T = n, n + 1
+    m = np.minimum(ce, ck)
+    rows = np.concatenate([p.E[:, 0], p.E[:, 1], np.full(n, S), np.arange(n)])
+    cols = np.concatenate([p.E[:, 1], p.E[:, 0], np.arange(n), np.full(n, T)])
+    caps = np.concatenate([p.w, p.w, ck - m, ce - m])      # s->i: cost of skin; i->t: of eye
+    caps = np.minimum(np.round(caps * 1000.0), 2 ** 30).astype(np.int32)
+    G = csr_matrix((caps, (rows, cols)), shape=(n + 2, n + 2))
+    flow = maximum_flow(G, S, T).flow
+    res = (G - flow).tocsr()
+    res.data = (res.data > 0).astype(np.int8)
+    res.eliminate_zeros()
+    lab = np.zeros(n + 2, bool)
+    lab[breadth_first_order(res, S, directed=True, return_predecessors=False)] = True
+    return lab[:n]
+
+
+def eye_components(p: Patch, lab, e: Eye, max_angle_deg=70.0):
+    """The eye-labelled components of this eye: the one nearest the front of the globe, and
+    every other wholly within ``max_angle_deg`` of the axis (sclera beyond the limbus, split
+    off by the cap's rim)."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if not lab.any():
+        return lab
+    ok = lab[p.E[:, 0]] & lab[p.E[:, 1]]
+    G = csr_matrix((np.ones(int(ok.sum())), (p.E[ok, 0], p.E[ok, 1])), shape=(len(p.V),) * 2)
+    _, comp = connected_components(G, directed=False)
+    ids = np.flatnonzero(lab)
+    w = p.V[ids] - e.c
+    cosa = (w @ e.n) / np.linalg.norm(w, axis=1)
+    front = e.c + e.R * e.n
+    keep = {int(comp[ids[np.argmin(np.linalg.norm(p.V[ids] - front, axis=1))]])}
+    mins = {}
+    for k, ca in zip(comp[ids], cosa):
+        mins[k] = min(mins.get(k, 1.0), ca)
+    keep |= {int(k) for k, v in mins.items() if v > np.cos(np.radians(max_angle_deg))
+             and np.count_nonzero(comp[ids] == k) >= 2}
+    return lab & np.isin(comp, sorted(keep))
+
+
+def segment(p: Patch, e: Eye):
+    """The eye/skin labelling of ``p`` under ``e`` and its energy (unaries + cut)."""
+    ce, ck = unary_costs(p, e)
+    lab = eye_components(p, graph_cut(p, ce, ck), e)
+    cut = lab[p.E[:, 0]] != lab[p.E[:, 1]]
+    return lab, float(ce[lab].sum() + ck[~lab].sum() + p.w[cut].sum())
+
+
+@dataclass
+class Cues:
+    """Fixed inputs of one eye's least squares besides its patch and labels."""
+
+    front: np.ndarray | None = None     # eye-region prior: front of the globe (3,)
+    axis: np.ndarray | None = None      # ... along this unit axis
+    front_sigma: float = 4.0
+    radius_prior: tuple = (12.0, 3.0)
+
+
+def residual_blocks(p: Patch, lab, e: Eye, cues: Cues, anterior=None):
+    """Residual blocks (name -> array) of one eye; ``anterior`` (n,) bool fixes which eye
+    vertices count as anterior (default: where the eye's dome stands off the sclera)."""
+    d, ant, dsph, _ = surface_residual(p.V, e)
+    sa = np.sqrt(p.A)
+    if anterior is None:
+        anterior = ant
+    out = {"sclera": sa[lab & ~anterior] * d[lab & ~anterior] / SIG_SCLERA,
+           "anterior": sa[lab & anterior] * d[lab & anterior] / SIG_ANTERIOR,
+           "skin": sa[~lab] * np.minimum(dsph[~lab] + TAU_INSIDE, 0.0) / SIG_SCLERA}
+    if cues.front is not None:
+        out["prior"] = (e.c + e.R * cues.axis - cues.front) / cues.front_sigma
+    out["radius_prior"] = np.array([(e.R - cues.radius_prior[0]) / cues.radius_prior[1]])
+    out["limbus_prior"] = np.array([(e.tl - LIMBUS_DEG[0]) / LIMBUS_DEG[1]])
+    out["ring_prior"] = np.array([e.hb / HB_SIGMA])
+    return out
+
+
+def fold_deg(p: Patch, lab, radius_mm=2.0):
+    """How sharply the surface folds where the eye surface meets the skin, degrees: median over
+    the border vertices of the angle between the mean normal of eye vertices and of skin
+    vertices within ``radius_mm``. An open eye is ringed by a fold (the lids rise off the
+    globe); a sphere laid over a closed lid, or over the cheek, continues smoothly into the skin."""
+    from scipy.spatial import cKDTree
+
+    if not lab.any() or lab.all():
+        return 0.0
+    border = np.unique(np.concatenate([p.E[lab[p.E[:, 0]] & ~lab[p.E[:, 1]], 0],
+                                       p.E[lab[p.E[:, 1]] & ~lab[p.E[:, 0]], 1]]))
+    if len(border) == 0:
+        return 0.0
+    ie, ik = np.flatnonzero(lab), np.flatnonzero(~lab)
+    te, tk = cKDTree(p.V[ie]), cKDTree(p.V[ik])
+    angles = []
+    for a, b in zip(te.query_ball_point(p.V[border], radius_mm), tk.query_ball_point(p.V[border], radius_mm)):
+        if a and b:
+            na, nb = p.N[ie[a]].sum(axis=0), p.N[ik[b]].sum(axis=0)
+            c = na @ nb / max(np.linalg.norm(na) * np.linalg.norm(nb), 1e-12)
+            angles.append(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    return float(np.median(angles)) if angles else 0.0
+
+
+def midplane_x(V, hints, reach_mm=40.0, max_points=6000):
+    """x of the face's mirror plane (normal +X, the head frame's left-right axis): the
+    reflection that best overlays the surface around the eyes on itself (1-D search)."""
+    from scipy.spatial import cKDTree
+
+    mid = 0.5 * (np.asarray(hints["left"], float) + np.asarray(hints["right"], float))
+    sel = np.flatnonzero((np.abs(V[:, 1] - mid[1]) < reach_mm) & (V[:, 2] > mid[2] - reach_mm)
+                         & (np.abs(V[:, 0] - mid[0]) < 2.5 * reach_mm))
+    P = V[sel][:: max(1, len(sel) // max_points)]
+    if len(P) < 10:
+        return float(mid[0])
+    tree = cKDTree(P)
+
+    def cost(xm):
+        Q = P.copy()
+        Q[:, 0] = 2.0 * xm - Q[:, 0]
+        return float(np.mean(np.minimum(tree.query(Q)[0], 3.0) ** 2))
+    xs = np.linspace(mid[0] - 4.0, mid[0] + 4.0, 33)
+    x0 = xs[int(np.argmin([cost(x) for x in xs]))]
+    xs = np.linspace(x0 - 0.3, x0 + 0.3, 25)
+    return float(xs[int(np.argmin([cost(x) for x in xs]))])
+
+
+PRIOR_BLOCKS = ("prior", "radius_prior", "limbus_prior", "ring_prior")
+CUE_NAMES = {"sclera": "sclera", "anterior": "cornea_or_iris", "skin": "skin",
+             "prior": "eye_region_prior", "radius_prior": "radius_prior", "pair": "pair",
+             "limbus_prior": "limbus_prior", "ring_prior": "ring_prior"}

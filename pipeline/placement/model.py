@@ -1,0 +1,90 @@
+"""The eye model the placement fits: a sclera sphere and, around the gaze, an anterior cap.
+
+Per eye: a sclera sphere (centre ``c``, radius ``R``) and, around the gaze ``n``, an anterior
+cap: a sphere through the limbus circle (half-angle ``tl`` off the axis, so the limbus scales
+with the globe: 29 +- 1.5 deg in people, 27-33 in ICT-FaceKit's eyes) and an apex
+``ha * APEX_FRACTION * R`` above the sclera, plus a ring ``hb`` that stands highest half-way
+between axis and limbus. ``ha`` = 1 is a scanned cornea (the human apex stands 1.0 mm above a
+12 mm sclera), < 0 a recessed iris; the iris seen through a transparent cornea is a low ring
+(``ha`` ~ 0.1-0.3, ``hb`` ~ 0.3-0.5: the pupil lies deeper than the iris around it). Without
+the ring, that shape biased the radius by about 1 mm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+APEX_FRACTION = 0.1     # corneal apex above the sclera sphere, in units of R (people 0.08, ICT 0.13)
+HA_RANGE = (-1.0, 1.6)  # anterior height: recessed iris .. a prominent cornea
+HB_RANGE = (-1.0, 1.6)  # anterior ring: the iris seen through a clear cornea stands highest off the axis
+LIMBUS_DEG = (30.5, 2.0)        # prior on the limbus half-angle, deg (people 29 +- 1.5, ICT 30-34)
+LIMBUS_RANGE = (24.0, 37.0)
+
+
+def unit(v):
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+@dataclass
+class Eye:
+    """One eye of the model: centre (3,), radius, unit gaze (3,), anterior height."""
+
+    c: np.ndarray
+    R: float
+    n: np.ndarray
+    ha: float = 0.5
+    tl: float = LIMBUS_DEG[0]
+    hb: float = 0.0
+
+
+def _cap(R, ha, tl):
+    """The anterior cap's sphere: centre offset along the axis and radius (mm)."""
+    a = np.radians(tl)
+    rl, zl = R * np.sin(a), R * np.cos(a)
+    apex = R * (1.0 + APEX_FRACTION * ha)
+    # centre on the axis at z0: (apex - z0)^2 = rl^2 + (zl - z0)^2
+    z0 = (apex ** 2 - rl ** 2 - zl ** 2) / (2.0 * (apex - zl))
+    return z0, apex - z0
+
+
+def cap_height(cos_alpha, R, ha, tl, hb=0.0):
+    """Height (mm) of the anterior cap above the sclera sphere along the rays at ``cos_alpha``
+    from the axis (0 outside the limbus; negative for a recessed iris), (n,): the sphere
+    through the limbus circle and the apex, plus a ring ``hb * APEX_FRACTION * R * 4 s^2
+    (1 - s^2)`` (``s`` = angle / ``tl``) peaking half-way out: the iris seen through a clear
+    cornea stands off the sclera most between pupil and limbus."""
+    ca = np.clip(cos_alpha, -1.0, 1.0)
+    z0, r = _cap(R, ha, tl)
+    t = z0 * ca + np.sqrt(np.maximum(r * r - z0 * z0 * (1.0 - ca * ca), 0.0))
+    s2 = (np.arccos(ca) / np.radians(tl)) ** 2
+    ring = hb * APEX_FRACTION * R * 4.0 * s2 * (1.0 - s2)
+    return np.where(ca > np.cos(np.radians(tl)), t - R + ring, 0.0)
+
+
+def cornea_sphere(e: Eye):
+    """The anterior cap as a sphere for the rest of the pipeline, or None when it is flat or
+    recessed (the sclera sphere is then the whole eye surface)."""
+    if e.ha <= 0.05:
+        return None
+    z0, r = _cap(e.R, e.ha, e.tl)
+    return {"center": np.asarray(e.c) + z0 * np.asarray(e.n), "radius": float(r)}
+
+
+def surface_residual(P, e: Eye):
+    """Signed distance (mm) of ``P`` (n, 3) off the eye model, whether each point lies on the
+    anterior cap (inside the limbus), the plain distance off the sclera sphere, and unit
+    directions from the centre."""
+    w = P - e.c
+    nw = np.maximum(np.linalg.norm(w, axis=1), 1e-9)
+    ca = (w @ e.n) / nw
+    h = cap_height(ca, e.R, e.ha, e.tl, e.hb)
+    ant = ca > np.cos(np.radians(e.tl))
+    return nw - e.R - h, ant, nw - e.R, w / nw[:, None]
+
+
+def limbus_center(e: Eye) -> np.ndarray:
+    """Centre of the eye model's limbus circle (the rim of its anterior cap), (3,)."""
+    return np.asarray(e.c, float) + e.R * np.cos(np.radians(e.tl)) * np.asarray(e.n, float)

@@ -1,0 +1,277 @@
+"""Both eyes of a scan placed and judged: the placement's face to the stage.
+
+:func:`place_pair` places both eyes together on the surface around the hints (the joint MAP fit
+of :mod:`pipeline.placement.fit`, the eye-region prior of :mod:`pipeline.placement.prior`; an eye
+the geometry cannot place falls back to the colour texture, :mod:`pipeline.placement.texture`).
+The stage then cuts the openings; :func:`judge_pair` takes each cut loop and says what the
+published eye is: the self-checks (:mod:`pipeline.placement.checks`), the asset's eye anchored
+at the scan's limbus (:mod:`pipeline.placement.human_eye`), and every doubt
+(:mod:`pipeline.placement.doubts`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.errors import ScanError
+from pipeline.io.eyes_file import Eye
+from pipeline.placement import checks as eye_checks
+from pipeline.placement.doubts import check_doubts, fissure_doubts
+from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease_deg, patch_faces
+from pipeline.placement.fit import place_eyes
+from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
+from pipeline.placement.settings import PlacementSettings
+from pipeline.placement.texture import MARGIN_OFF, fit_texture
+
+SIDES = ("left", "right")
+
+
+def fill_faces(V, F, ratio):
+    """(m,) bool: faces far larger than the scan's own (``ratio`` x the median area): a scanner's
+    flat fill across an opening it could not measure, which says nothing about the eye."""
+    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    return A > ratio * max(float(np.median(A)), 1e-12)
+
+
+def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, source, ignore):
+    """The :class:`EyeFit` of one placed eye: the removal region is the eye-labelled surface
+    (faces whose three vertices are eye, and the unmeasured fills inside it), made one simple
+    loop; a closed eye (little eye surface, or no lid fold around it) is a ScanError."""
+    V, F = mesh.V, mesh.F
+    eye_v = np.zeros(len(V), bool)
+    eye_v[pl.patch.verts[pl.lab]] = True
+    region = eye_v[F].all(axis=1)
+    # flat fills take no side in the cut: they go with the opening when they touch it
+    region |= ignore & eye_v[F].any(axis=1)
+    patch = patch_faces(mesh, hint, st.patch_radius_mm + 5.0)
+    e = pl.eye
+    front = e.c + e.R * e.n
+    seed = region & (np.linalg.norm(mesh.centroids - front, axis=1)
+                     <= np.min(np.linalg.norm(mesh.centroids[region] - front, axis=1), initial=np.inf)
+                     + max(2.0, 2 * mesh.median_edge)) if region.any() else region
+    region = clean_region(mesh, region, seed, patch) if region.any() else region
+    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    area = float(A[region & ~ignore].sum())
+    cornea = cornea_sphere(e)
+    crease = lid_crease_deg(mesh, region) if region.any() else 0.0
+    if area < st.min_open_area_mm2:
+        raise ScanError(source, f"{side} eye looks closed (or too little of the eyeball shows to place "
+                                f"it): {area:.1f} mm2 of eye surface near "
+                                f"{np.round(hint, 2).tolist()} (less than {st.min_open_area_mm2:g})")
+    n_eye = int(np.count_nonzero(pl.lab))
+    if n_eye < st.min_eye_vertices:     # a coarse scan (james: 3 mm faces) cannot show a cornea
+        raise ScanError(source, f"{side} eye: too little of the eyeball shows to place it from the "
+                                f"geometry: {n_eye} scan vertices on the eye surface near "
+                                f"{np.round(hint, 2).tolist()} (fewer than {st.min_eye_vertices})")
+    rv = np.unique(F[region & ~ignore])
+    d, ant, _, _ = surface_residual(V[rv], e)
+    scl = ~ant
+    rms = float(np.sqrt(np.mean(d[scl] ** 2))) if scl.any() else float(np.sqrt(np.mean(d ** 2)))
+    if cornea is not None:
+        cornea = {"center": np.asarray(cornea["center"]), "radius": cornea["radius"],
+                  "n_inliers": int((~scl).sum())}
+    return EyeFit(side=side, center=np.asarray(e.c, float), radius=float(e.R),
+                  forward=np.asarray(e.n, float), residual_rms_mm=rms, n_inliers=int(len(rv)),
+                  method="geometry", region=region, cornea=cornea, crease_deg=float(crease),
+                  capped=False, inliers=rv, radius_sigma=pl.sigma_radius_mm)
+
+
+def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, filled=None,
+               uv=None, texture=None, prior=None, source="mesh"):
+    """Place both eyes jointly (:func:`pipeline.placement.fit.place_eyes`) on the surface around
+    the hints; an eye the geometry cannot place falls back to the colour texture when there is one.
+
+    ``V``, ``F``: the surface around the hints (the stage's local sub-mesh, its holes near the
+    eyes closed); ``median_edge``: the whole scan's median edge length; ``filled`` (m,) bool: the
+    faces that close a hole (no evidence, like a scanner's flat fills); ``uv``: ``UV``/``FUV``
+    of those faces, when the scan has a texture; ``prior``: callable ``(V, F, hint, side) ->
+    {"front", "axis"}`` (the eye-region prior, ``prior.EyeRegionPrior.register``) or None.
+    Returns ``(mesh, fits, placements)``: the :class:`EyeMesh`, per side an :class:`EyeFit`
+    (its region on ``F``) and the :class:`pipeline.placement.uncertainty.Placement` (None for
+    a texture-placed eye)."""
+    mesh = EyeMesh(V, F, median_edge=median_edge)
+    ignore = fill_faces(V, F, st.fill_face_ratio)
+    if filled is not None:
+        ignore = filled | ignore
+    uv = uv or {}
+    front = None
+    if prior is not None:
+        front = {}
+        for s in SIDES:
+            try:
+                front[s] = {**prior(V, F, hints[s], s), "sigma": st.prior_front_sigma_mm}
+            except (ValueError, np.linalg.LinAlgError):     # the model did not register here
+                front[s] = None
+    placements = place_eyes(
+        V, F, hints, patch_radius_mm=st.place_patch_mm, radius_range=tuple(st.radius_range_mm),
+        radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
+        prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
+        temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
+        min_fold_deg=st.min_crease_deg)
+    fits = {}
+    for s in SIDES:
+        err = None
+        if placements[s] is not None:
+            try:
+                fits[s] = _fit_from_placement(mesh, placements[s], hints[s], s, st, source, ignore)
+                continue
+            except ScanError as exc:
+                err = exc
+        else:
+            err = ScanError(source, f"{s} eye looks closed (or too little of the eyeball shows to place "
+                                    f"it): no eye surface ringed by a lid fold "
+                                    f"near the hint {np.round(hints[s], 2).tolist()}")
+        has_tex = texture is not None and "UV" in uv and "FUV" in uv
+        if not (st.texture_fallback and has_tex):
+            raise err
+        fits[s] = fit_texture(mesh, uv, texture, hints[s], s, st, source)
+        placements[s] = None
+    for s in SIDES:
+        if front is not None and front.get(s) is not None:
+            fits[s].prior_axis = np.asarray(front[s]["axis"], float)
+    return mesh, fits, placements
+
+
+def placement_record(pl, fit):
+    """What carried the fit and how sure it is: ``placement`` (cue names), ``uncertainty_mm``
+    (calibrated 1-sigma: RMS of the 3-D centre error, and of the radius), ``cue_shares``."""
+    if pl is None:      # placed from the colour texture with the radius prior
+        return {"placement": [fit.method, "radius_prior"], "uncertainty_mm": None, "cue_shares": None}
+    return {"placement": list(pl.cues),
+            "uncertainty_mm": {"center": round(pl.sigma_center_mm, 4),
+                               "radius": round(pl.sigma_radius_mm, 4)},
+            "cue_shares": dict(pl.shares), "anterior_height": round(float(pl.eye.ha), 4),
+            "anterior_ring": round(float(pl.eye.hb), 4),
+            "limbus_half_angle_deg": round(float(pl.eye.tl), 3),
+            "lid_fold_deg": round(float(pl.fold_deg), 2),
+            "uncertainty_laplace_mm": {"center": round(pl.sigma_laplace_mm[0], 4),
+                                       "radius": round(pl.sigma_laplace_mm[1], 4),
+                                       "limbus": round(pl.limbus_laplace[0], 4),
+                                       "axis_deg": round(pl.limbus_laplace[1], 3)},
+            "radius_profile": None if pl.profile is None else {
+                "radius": [round(float(r), 3) for r in pl.profile[0]],
+                "energy_above": [round(float(e), 2) for e in pl.profile[1]]},
+            "rival_placements": [{"center": np.round(c, 4).tolist(), "radius": round(float(r), 4),
+                                  "energy_above": round(float(de), 2)} for c, r, de in pl.modes[1:]]}
+
+
+#: An eye placed from its texture states the anatomy's spread (the fissure's corners against the
+#: eye centre, UnityEyes' eight regions: 0.4-1.9 mm; the gaze prior: within 5 deg of forward).
+TEXTURE_SIGMA = (1.2, 5.0)
+
+
+def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettings) -> dict:
+    """The asset's eyes (:func:`human_eye.asset_eyes`) from what the scan shows: the fitted eye
+    model's limbus and gaze, or for a texture placement the limbus of its anatomical eye."""
+    from pipeline.eyeball.geometry import EyeballParams, placed_params
+    from pipeline.placement import human_eye
+
+    geo = eyeball or EyeballParams()
+    scan = {}
+    for s in SIDES:
+        fit, pl = fits[s], placements[s]
+        e = {"center": np.asarray(fit.center, float), "radius": float(fit.radius), "loop_points": np.asarray(loop_points[s], float),
+             "prior_axis": fit.prior_axis}
+        if pl is not None:
+            e.update(limbus_center=limbus_center(pl.eye), axis=np.asarray(pl.eye.n, float),
+                     limbus_radius=float(pl.eye.R * np.sin(np.radians(pl.eye.tl))),
+                     sigma_limbus_mm=pl.sigma_limbus_mm, sigma_axis_deg=pl.sigma_axis_deg,
+                     sigma_radius=pl.sigma_radius_mm, source="geometry")
+        else:
+            here = placed_params(geo, fit.radius)     # the anatomical eye behind the fissure
+            e.update(limbus_center=np.asarray(fit.center) + human_eye.limbus_depth(here) * np.asarray(fit.forward),
+                     axis=np.asarray(fit.forward, float), limbus_radius=human_eye.limbus_radius(here),
+                     sigma_limbus_mm=TEXTURE_SIGMA[0], sigma_axis_deg=TEXTURE_SIGMA[1],
+                     sigma_radius=None, source="texture")
+        scan[s] = e
+    return human_eye.asset_eyes(scan, eye_size=st.eye_size, eyeball=geo,
+                                population=tuple(st.population_radius_mm),
+                                min_iris_visible=st.min_iris_visible,
+                                doubt_limbus_sigma_mm=st.doubt_limbus_sigma_mm,
+                                doubt_axis_sigma_deg=st.doubt_axis_sigma_deg)
+
+
+def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: PlacementSettings, *,
+               median_edge: float, mesh_arrays=None, hints=None, texture=None, eyeball=None,
+               moved=None):
+    """What is published of each placed eye once the stage has cut its opening.
+
+    ``V``, ``F``: the uncut head (faces split along a texture fissure included); ``V2``: the cut
+    head's vertices; ``loops``: side -> ``(loop, lateral_index)``, the opening's loop (ids of
+    ``V2``, ordered from the medial canthus) and where its lateral canthus lies; ``fits``,
+    ``placements``: :func:`place_pair`'s, regions on ``F``; ``mesh_arrays``, ``hints``,
+    ``texture``: for a texture-placed eye, the fissure its texture shows; ``moved``: side -> the
+    mean move of the loop onto the margin (mm). Returns ``(eyes, metrics)``: per side the
+    :class:`pipeline.io.eyes_file.Eye` (the asset's eye anchored at the scan's limbus, the
+    scan's sphere, the self-checks and every doubt) and the eye's metrics.
+    """
+    moved = moved or {}
+    checks, fissures, records, doubts, metrics = {}, {}, {}, {}, {}
+    lim = eye_checks.limits_for(median_edge, st.radius_range_mm)
+    for s in SIDES:
+        fit = fits[s]
+        loop, lat = loops[s]
+        # an eye placed from its texture cuts away the scan's coarse stand-in for the eye (the
+        # photographed eye): only the head that stays must lie outside the eyeball
+        checks[s] = eye_checks.check_eye(
+            V, F if fit.method == "geometry" else F[~fit.region], fit.center, fit.radius,
+            fit.forward, V2[loop], lim, fit.residual_rms_mm,
+            eye_points=V[np.unique(F[fit.region])] if fit.method == "geometry" else None,
+            cornea=fit.cornea, lateral_index=lat,
+            standoff_mm=0.0 if fit.method == "geometry" else MARGIN_OFF[0])
+        fissures[s], doubts[s] = None, []
+        if fit.method == "texture" and texture is not None:
+            fissures[s], doubts[s] = fissure_doubts(V, F, mesh_arrays, texture, hints[s], fit, V2[loop], st)
+        records[s] = placement_record(placements[s], fit)
+        metrics[s] = {"radius_mm": round(fit.radius, 4), "residual_rms_mm": round(fit.residual_rms_mm, 4),
+                      "n_inliers": fit.n_inliers, "method": fit.method,
+                      "faces_removed": int(fit.region.sum()), "loop_length": len(loop),
+                      "crease_deg": round(fit.crease_deg, 3),
+                      "cornea_fitted": fit.cornea is not None,
+                      "loop_moved_mean_mm": round(moved.get(s, 0.0), 4),
+                      "doubts": len(doubts[s])}
+        if fissures[s] is not None:
+            metrics[s].update({"texture_fissure_width_mm": round(fissures[s]["width_mm"], 2),
+                               "loop_width_mm": round(fissures[s]["loop_width_mm"], 2)})
+    pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
+    asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st)
+    eyes = {}
+    for s in SIDES:
+        fit, (loop, lat), a, rec = fits[s], loops[s], asset[s], records[s]
+        checks[s].update(pair)
+        uncertainty = {k: round(v, 4) for k, v in a["uncertainty"].items()}
+        eyes[s] = Eye(
+            side=s, center=np.round(a["center"], 6), radius=round(a["radius"], 6),
+            forward=np.round(a["forward"], 9), loop_indices=loop, loop_points=V2[loop],
+            lateral_canthus_index=lat,
+            limbus={"center": np.round(a["limbus"]["center"], 6).tolist(),
+                    "radius": round(a["limbus"]["radius"], 4), "source": a["limbus"]["source"],
+                    "depth_mm": round(a["limbus"]["depth_mm"], 6)},
+            uncertainty=uncertainty, placement=rec["placement"],
+            doubts=check_doubts(checks[s]) + a["doubts"] + doubts[s],
+            extra={"residual_rms_mm": fit.residual_rms_mm, "n_inliers": fit.n_inliers,
+                   "method": fit.method,
+                   **{k: v for k, v in rec.items() if k not in ("placement", "uncertainty_mm")},
+                   "checks": checks[s],
+                   "cornea": None if fit.cornea is None else {
+                       "center": np.asarray(fit.cornea["center"]).tolist(),
+                       "radius": fit.cornea["radius"], "n_inliers": fit.cornea["n_inliers"]},
+                   "texture_fissure": fissures[s],
+                   "scan_sphere": {"center": fit.center.tolist(), "radius": fit.radius,
+                                   "uncertainty_mm": rec["uncertainty_mm"]},
+                   "eye_size": st.eye_size,
+                   "uncertainty_mm": {"center": round(a["uncertainty"]["center_mm"], 4),
+                                      "radius": round(a["uncertainty"]["radius_mm"], 4)},
+                   "iris_at_rest": a["iris"]})
+        metrics[s]["placement"] = "+".join(rec["placement"])
+        metrics[s]["checks_failed"] = eye_checks.failed(checks[s])
+        metrics[s].update({f"check_{k}": c["value"] for k, c in checks[s].items()})
+        metrics[s]["doubts"] = len(eyes[s].doubts)
+        metrics[s].update({"radius_mm": round(a["radius"], 4),
+                           "scan_sphere_radius_mm": round(fit.radius, 4),
+                           "sigma_limbus_mm": uncertainty["limbus_mm"],
+                           "sigma_axis_deg": uncertainty["axis_deg"],
+                           "sigma_center_mm": uncertainty["center_mm"],
+                           "limbus_source": a["limbus"]["source"],
+                           "iris_visible_share": a["iris"]["visible_share"]})
+    return eyes, metrics
