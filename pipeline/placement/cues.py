@@ -30,7 +30,7 @@ SKIN_SPREAD_MM = 10.0   # skin near the eye: anywhere within this of the globe, 
 HB_SIGMA = 1.0          # weak prior on the ring (0 = a plain cap)
 CUT_LAMBDA = 2.0        # graph-cut cost per mm of an eye/skin border on smooth skin
 CREASE_DEG = 8.0        # ... falling by e per this many degrees of concave fold
-COARSE_VERTICES = 3000  # the eye is searched on a patch of at most about this many vertices (coarse_patch)
+COARSE_VERTICES = 1500  # the eye is searched on a patch of at most about this many vertices (coarse_patch)
 
 
 @dataclass
