@@ -164,6 +164,23 @@ def test_closed_eyes_fail():
     assert "closed.npz" in msg and "\n" not in msg and ("closed" in msg or "no eyeball" in msg)
 
 
+@pytest.mark.slow
+def test_closed_textured_eyes_are_refused_as_closed():
+    """Closed lids with a texture that shows only skin: the texture fallback finds no eye either,
+    and the one-line refusal says closed (it said "no eyeball surface found")."""
+    from fixtures.unseen.metrics import says_closed
+
+    mesh, hints, _ = make_head(0.7, closed=True)
+    lo, hi = mesh["V"][:, :2].min(axis=0), mesh["V"][:, :2].max(axis=0)
+    mesh = {**mesh, "UV": (mesh["V"][:, :2] - lo) / (hi - lo), "FUV": mesh["F"]}
+    skin = np.empty((64, 64, 3), np.uint8)
+    skin[:] = (188, 140, 120)
+    with pytest.raises(ScanError) as exc:
+        remove_eyeballs(mesh, hints, RemoveEyeballsSettings(), source="closed_textured.obj", texture=skin)
+    msg = str(exc.value)
+    assert "closed_textured.obj" in msg and "\n" not in msg and says_closed(msg), msg
+
+
 def _ingested_head(tmp_path) -> Path:
     """An ingest folder of the open test head."""
     mesh, hints, _ = make_head(0.7)

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry.spherefit import sphere_from_normals
-from pipeline.placement.cues import (PRIOR_BLOCKS, Cues, Patch, build_patch, fold_deg, midplane_x,
+from pipeline.placement.cues import (COARSE_VERTICES, PRIOR_BLOCKS, Cues, Patch, build_patch, coarse_patch, fold_deg, midplane_x,
                                      residual_blocks, segment, unary_costs)
 from pipeline.placement.model import HA_RANGE, HB_RANGE, LIMBUS_RANGE, Eye, limbus_center, surface_residual, unit
 from pipeline.placement.uncertainty import jacobian_blocks, laplace, placement_of, share_radius
@@ -264,15 +264,19 @@ def polish(p: Patch, found, cues: Cues, radius_range, keep=POLISH_KEEP, iters=PO
 
 def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prior=None,
                ignore=None, seed=0, temperature=20.0, sigma_scale=1.0, shared_radius_z=2.5,
-               sym_sigma_mm=1.0, min_fold_deg=20.0):
+               sym_sigma_mm=1.0, min_fold_deg=20.0, coarse_vertices=COARSE_VERTICES):
     """Place both eyes (module doc). ``prior``: callable ``(side) -> dict(front, axis, sigma)``
-    or None. Only local optima ringed by a lid fold of ``min_fold_deg`` count as an open eye;
+    or None. The search runs on each patch simplified to about ``coarse_vertices``
+    (:func:`pipeline.placement.cues.coarse_patch`; a patch with fill faces as it is), and the
+    placed eye then labels the full patch. Only local optima ringed by a lid fold of ``min_fold_deg`` count as an open eye;
     an eye with none is returned as None (closed, or nothing eye-like near the hint).
     Returns ``{side: Placement or None}``."""
     rng = np.random.default_rng(seed)
-    patches, cues, modes = {}, {}, {}
+    patches, full, cues, modes = {}, {}, {}, {}
     for s in SIDES:
-        patches[s] = build_patch(V, F, hints[s], patch_radius_mm, ignore)
+        full[s] = build_patch(V, F, hints[s], patch_radius_mm, ignore)
+        filled = ignore is not None and bool(np.asarray(ignore, bool)[full[s].faces].any())
+        patches[s] = full[s] if filled else coarse_patch(full[s], coarse_vertices)
         pr = prior(s) if prior is not None else None
         cues[s] = Cues(front=None if pr is None else pr["front"], axis=None if pr is None else pr["axis"],
                        front_sigma=4.0 if pr is None else pr["sigma"], radius_prior=radius_prior)
@@ -283,8 +287,8 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
         modes[s] = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()
                            and _inside_range(m.eye.R, radius_range)), key=lambda m: m.energy)
     if not all(modes[s] for s in SIDES):
-        return {s: None if not modes[s] else placement_of(patches[s], modes[s], None, temperature,
-                                                          sigma_scale) for s in SIDES}
+        return {s: None if not modes[s] else _on_full(placement_of(patches[s], modes[s], None, temperature,
+                                                                   sigma_scale), full[s]) for s in SIDES}
     best = {s: modes[s][0] for s in SIDES}
     # one radius for the two eyes when they agree; then a joint fit with a loose mirror prior
     sr = {s: float(np.sqrt(max(best[s].fit.cov[3, 3], 1e-6))) for s in SIDES}
@@ -300,9 +304,19 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
         m0 = Mode(e, lab, energy, fit, fold_deg(patches[s], lab))
         radii = np.arange(np.ceil(radius_range[0]), radius_range[1] + 1e-9, 1.0)
         prof = radius_profile(patches[s], e, cues[s], radii)
-        out[s] = placement_of(patches[s], [m0] + modes[s][1:], (fit, i, agree), temperature,
-                              sigma_scale, prof)
+        out[s] = _on_full(placement_of(patches[s], [m0] + modes[s][1:], (fit, i, agree), temperature,
+                                       sigma_scale, prof), full[s])
     return share_radius(out)
+
+
+def _on_full(pl, full: Patch):
+    """``pl`` with the scan's own patch, labelled under its eye: the cut follows the scan's
+    vertices, whichever copy the eye was searched on."""
+    from dataclasses import replace
+
+    if pl.patch is full:
+        return pl
+    return replace(pl, patch=full, lab=segment(full, pl.eye)[0])
 
 
 def radius_profile(p: Patch, e: Eye, cues: Cues, radii, iters=2):

@@ -21,7 +21,7 @@ from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease
 from pipeline.placement.fit import place_eyes
 from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
 from pipeline.placement.settings import PlacementSettings
-from pipeline.placement.texture import MARGIN_OFF, fit_texture
+from pipeline.placement.texture import MARGIN_OFF, NoEyeInTexture, fit_texture
 
 SIDES = ("left", "right")
 
@@ -124,7 +124,14 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         has_tex = texture is not None and "UV" in uv and "FUV" in uv
         if not (st.texture_fallback and has_tex):
             raise err
-        fits[s] = fit_texture(mesh, uv, texture, hints[s], s, st, source)
+        try:
+            fits[s] = fit_texture(mesh, uv, texture, hints[s], s, st, source)
+        except NoEyeInTexture:
+            if placements[s] is None:     # neither the geometry nor the texture shows an eye
+                raise ScanError(source, f"{s} eye looks closed: no eye surface ringed by a lid fold, and no "
+                                        f"eye colours in the texture, near the hint "
+                                        f"{np.round(hints[s], 2).tolist()}") from None
+            raise
         placements[s] = None
     for s in SIDES:
         if front is not None and front.get(s) is not None:

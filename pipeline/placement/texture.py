@@ -83,6 +83,10 @@ def texture_fissure(V, F, UV, FUV, texture, hint, forward, *, radius_mm=22.0, sk
             "height_mm": float((ys.max() - ys.min() + 1) * cell_mm), "cells": int(len(xs))}
 
 
+class NoEyeInTexture(ScanError):
+    """The texture shows no eye colours near the hint (no sclera or iris against the skin)."""
+
+
 @dataclass
 class TextureEyeFit(EyeFit):
     """An eye placed from the fissure its texture shows. ``fissure``: ``outline`` (k, 3) the
@@ -192,7 +196,7 @@ def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: PlacementSe
     cmap = fs.eye_colour_map(V, F, mesh_arrays["UV"], mesh_arrays["FUV"], texture, hint, view,
                              radius_mm=st.patch_radius_mm, min_contrast=st.texture_min_contrast)
     if cmap is None:
-        raise ScanError(source, f"{side} eye: no eyeball surface found near the hint "
+        raise NoEyeInTexture(source, f"{side} eye: no eyeball surface found near the hint "
                                 f"{np.round(hint, 2).tolist()} (geometry and texture)")
     theta, _ = fs.fit_almond(cmap, 1.0 if side == "left" else -1.0)
     Q = fs.almond_points(theta, n_outline)
@@ -210,7 +214,7 @@ def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: PlacementSe
     front = (meshtopo.face_normals(V, F) @ view) > 0
     region = patch & front & fs.points_in_polygon((mesh.centroids - hint) @ cmap.basis.T, Q)
     if region.sum() < 2:
-        raise ScanError(source, f"{side} eye: no eyeball surface found near the hint "
+        raise NoEyeInTexture(source, f"{side} eye: no eyeball surface found near the hint "
                                 f"{np.round(hint, 2).tolist()} (geometry and texture)")
     rv = np.unique(F[region])
     dd = np.full(len(V), np.nan)
