@@ -163,7 +163,7 @@ def main():
     from scipy.spatial import cKDTree
 
     for s in SIDES:
-        e, g = res.eyes[s], gt[s]
+        e, g = res.eyes[s].to_doc(), gt[s]
         M = np.asarray(g["eyelid_margin"]["points_mm"], float)
         c, rad = np.asarray(e["center"]), float(e["radius"])
         near = np.linalg.norm(V[F].mean(axis=1) - M.mean(axis=0), axis=1) < 20.0

@@ -98,7 +98,7 @@ def measure(build: Path, rs: RetopoSettings, ss: sn.SnapSettings) -> dict:
         m = {"V": r.V, "F": r.F, **{f"loop_{s}": r.loops[s] for s in SIDES}}
         m.update({f"lateral_index_{s}": np.array([r.lateral[s]]) for s in SIDES
                   if r.lateral.get(s) is not None})
-        snapped, _, met = sn.snap_mesh(m, {s: (e.center, e.radius, e.forward)
+        snapped, _, met = sn.snap_mesh(m, {s: (e.center, e.radius, e.unit_forward)
                                            for s, e in records.items()}, params, ss)
         runs[label] = (r, snapped["V"], met)
     out = {"scan": name, "truth": str(gt_path) if gt_path else None}

@@ -77,7 +77,7 @@ def sweep(args):
         try:
             res = remove_eyeballs({"V": h.V, "F": h.F}, hints, SETTINGS, source="synthetic")
             for s in ("left", "right"):
-                row[s] = eye_errors(res.eyes[s], h.ground_truth["eyes"][s])
+                row[s] = eye_errors(res.eyes[s].to_doc(), h.ground_truth["eyes"][s])
         except ScanError as exc:
             row["left"] = row["right"] = {"error": str(exc)}
         row["time_s"] = time.perf_counter() - t0
@@ -99,7 +99,7 @@ def sweep(args):
             res = remove_eyeballs(r.mesh, hints, SETTINGS, source=name)
             row["time_s"] = time.perf_counter() - t0
             for s in ("left", "right"):
-                row[s] = eye_errors(res.eyes[s], gt[s], ("eyeball_sphere", "anterior_sclera_sphere"))
+                row[s] = eye_errors(res.eyes[s].to_doc(), gt[s], ("eyeball_sphere", "anterior_sclera_sphere"))
             rows.append(row)
             print(f"{row['case']:<28} {row['triangles']:>7}  {row['time_s']:5.1f} s  "
                   f"L: {_fmt(row['left'])}   R: {_fmt(row['right'])}", flush=True)
@@ -145,7 +145,7 @@ def main():
             times.append(time.perf_counter() - t0)
         row = {"triangles": int(len(h.F)), "median_s": float(np.median(times)), "runs_s": times}
         for s in ("left", "right"):
-            row[s] = eye_errors(res.eyes[s], h.ground_truth["eyes"][s])
+            row[s] = eye_errors(res.eyes[s].to_doc(), h.ground_truth["eyes"][s])
         rows.append(row)
         print(f"{row['triangles']:>8} tris  {row['median_s']:6.2f} s  " + "  ".join(
             f"{s}: c {row[s]['center_error_mm']:.3f} r {row[s]['radius_error_mm']:+.3f} "

@@ -99,7 +99,7 @@ def test_a_12mm_eye_is_placed_within_0_2mm_and_1deg():
     mesh, hints, gt = make_head(0.5, seed=1, noise=0.02)
     res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
     for s in ("left", "right"):
-        e = res.eyes[s]
+        e = res.eyes[s].to_doc()
         assert e["radius"] == 12.0 and e["eye_size"] == "human"
         assert np.linalg.norm(np.array(e["center"]) - gt[s]["center"]) <= 0.2, (s, e["center"])
         assert np.degrees(np.arccos(min(1.0, e["forward"][2]))) <= 1.0
@@ -110,9 +110,9 @@ def test_a_12mm_eye_is_placed_within_0_2mm_and_1deg():
 def test_unequal_scan_spheres_give_one_human_size_or_the_fitted_ones():
     mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 14.0))
     res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
-    assert res.eyes["left"]["radius"] == res.eyes["right"]["radius"] == 12.0
+    assert res.eyes["left"].radius == res.eyes["right"].radius == 12.0
     fitted = remove_eyeballs(mesh, hints, RemoveEyeballsSettings(eye_size="fitted"))
     for s in ("left", "right"):
-        e = fitted.eyes[s]
+        e = fitted.eyes[s].to_doc()
         assert e["radius"] == pytest.approx(e["scan_sphere"]["radius"], abs=1e-5)
         assert abs(e["radius"] - gt[s]["radius"]) <= 0.5

@@ -38,7 +38,7 @@ def test_ground_truth_and_topology(step, seed, noise):
     assert len(loops) == 3
     on_loop = np.zeros(len(out["V"]), bool)
     for s in ("left", "right"):
-        on_loop[res.eyes[s]["loop_indices"]] = True
+        on_loop[res.eyes[s].loop_indices] = True
     orig = set(map(tuple, mesh["V"].tolist()))
     same = np.array([tuple(v) in orig for v in out["V"].tolist()])
     assert same[~on_loop].all()
@@ -48,7 +48,7 @@ def test_ground_truth_and_topology(step, seed, noise):
     assert (n_out[:, 2] > -0.2).all()  # height field facing +Z
     assert out["FUV"].shape == out["F"].shape and out["FUV"].max() < len(out["UV"])
     for s in ("left", "right"):
-        e = res.eyes[s]
+        e = res.eyes[s].to_doc()
         sph = e["scan_sphere"]      # the sphere the scan shows (the asset's eye is the human one)
         assert np.linalg.norm(np.array(sph["center"]) - gt[s]["center"]) <= 0.5
         assert abs(sph["radius"] - gt[s]["radius"]) <= 0.5
@@ -78,11 +78,11 @@ def test_different_eye_sizes_are_kept():
     mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 13.0))
     res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
     for s in ("left", "right"):
-        sph = res.eyes[s]["scan_sphere"]
+        sph = res.eyes[s].to_doc()["scan_sphere"]
         assert abs(sph["radius"] - gt[s]["radius"]) <= 0.3, (s, sph["radius"])
         assert np.linalg.norm(np.array(sph["center"]) - gt[s]["center"]) <= 0.5
         # the asset's eyes are one human size whatever the scan's spheres
-        assert res.eyes[s]["radius"] == 12.0
+        assert res.eyes[s].radius == 12.0
 
 
 @pytest.mark.slow
@@ -100,7 +100,7 @@ def test_an_unmeasured_pupil_hole_is_part_of_the_opening():
     res = remove_eyeballs(holed, hints, RemoveEyeballsSettings())
     assert res.metrics["boundary_loops_out"] == 3                   # outer border + 2 openings
     for s in ("left", "right"):
-        sph = res.eyes[s]["scan_sphere"]
+        sph = res.eyes[s].to_doc()["scan_sphere"]
         assert np.linalg.norm(np.array(sph["center"]) - gt[s]["center"]) <= 0.5
         assert abs(sph["radius"] - gt[s]["radius"]) <= 0.5
 
@@ -112,10 +112,10 @@ def test_eyes_of_unequal_size_beyond_anatomy_are_published_with_a_doubt():
     mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 15.0))
     res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings(), source="unequal.npz")
     for s in ("left", "right"):
-        assert abs(res.eyes[s]["scan_sphere"]["radius"] - gt[s]["radius"]) <= 0.5
+        assert abs(res.eyes[s].to_doc()["scan_sphere"]["radius"] - gt[s]["radius"]) <= 0.5
         assert any(d.startswith("self-check radii_agree: the two eyes' radii differ by 2.")
                    or d.startswith("self-check radii_agree: the two eyes' radii differ by 3.")
-                   for d in res.eyes[s]["doubts"]), res.eyes[s]["doubts"]
+                   for d in res.eyes[s].doubts), res.eyes[s].doubts
 
 
 @pytest.mark.slow
@@ -123,7 +123,7 @@ def test_eyes_json_records_placement_and_checks():
     mesh, hints, gt = make_head(0.5, seed=1, noise=0.02)
     res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings())
     for s in ("left", "right"):
-        e = res.eyes[s]
+        e = res.eyes[s].to_doc()
         # the whole eye shows: the sclera and the cornea carried the fit
         assert {"sclera", "cornea_or_iris"} <= set(e["placement"]), e["placement"]
         assert abs(sum(e["cue_shares"].values()) - 1.0) < 1e-3
@@ -272,7 +272,7 @@ def _gt_errors(folder, res):
     gt = json.loads((folder / "ground_truth.json").read_text())["eyes"]
     out = {}
     for s in ("left", "right"):
-        e, g = res.eyes[s], gt[s]
+        e, g = res.eyes[s].to_doc(), gt[s]
         sph = e["scan_sphere"]
         c = np.array(sph["center"])
         errs = [(np.linalg.norm(c - g[k]["center_mm"]), abs(sph["radius"] - g[k]["radius_mm"]))
@@ -303,7 +303,7 @@ def test_ict_neutral(extra_scan):
         # 0.5 mm bound (measured 1.93/1.80 mm): the true margin lies at the base of the lid
         # rim, 1.6 mm (0.4-3.4) under the scan's Poisson-filled crease, where no scan surface is
         assert cerr <= 1.0 and rerr <= 1.0, (s, cerr, rerr)
-        e, g = res.eyes[s], gt[s]["eyeball_sphere"]
+        e, g = res.eyes[s].to_doc(), gt[s]["eyeball_sphere"]
         sph = e["scan_sphere"]
         assert np.linalg.norm(np.array(sph["center"]) - g["center_mm"]) <= 2 * sph["uncertainty_mm"]["center"] + 0.1
         assert any("cornea_shows" in d for d in e["doubts"]), e["doubts"]
@@ -335,7 +335,7 @@ def test_james_texture_fallback(extra_scan):
     res = remove_eyeballs(r.mesh, hints, RemoveEyeballsSettings(), source="james.obj", texture=tex)
     assert res.metrics["boundary_loops_out"] == res.metrics["boundary_loops_in"] + 2
     for s in ("left", "right"):
-        e = res.eyes[s]
+        e = res.eyes[s].to_doc()
         assert e["method"] == "texture" and e["residual_rms_mm"] < 2.0
         assert np.linalg.norm(np.array(e["center"]) - hints[s]) < 20.0
     # The opening follows the fissure the photograph shows, corner to corner (the cut along its
@@ -352,7 +352,7 @@ def test_james_texture_fallback(extra_scan):
     V, F = res.mesh["V"], res.mesh["F"]
     B = eye_basis(np.array([0.0, 0.0, 1.0]))[:2]
     for s, group in (("left", "reye"), ("right", "leye")):
-        e = res.eyes[s]
+        e = res.eyes[s].to_doc()
         lm = L[groups[group]]
         med, lat = (lm[0], lm[3]) if s == "left" else (lm[3], lm[0])
         P = np.asarray(e["loop_points"])
@@ -403,7 +403,7 @@ def test_synthetic_head_ground_truth(seed, triangles, noise, shape):
     assert res.metrics["boundary_loops_out"] == res.metrics["boundary_loops_in"] + 2
     assert res.metrics["edge_manifold_out"]
     for s in ("left", "right"):
-        g, e = h.ground_truth["eyes"][s], res.eyes[s]
+        g, e = h.ground_truth["eyes"][s], res.eyes[s].to_doc()
         sph = e["scan_sphere"]
         assert np.linalg.norm(np.array(sph["center"]) - g["eyeball_sphere"]["center_mm"]) <= 0.5
         assert abs(sph["radius"] - g["eyeball_sphere"]["radius_mm"]) <= 0.5

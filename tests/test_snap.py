@@ -305,7 +305,7 @@ def _one_after_the_other(mesh, eyes, st):
 def _two_eye_mesh(tmp_path):
     bake, rem, _ = _write_inputs(tmp_path)
     mesh = load_mesh(bake / "mesh.npz")
-    eyes = {s: (e.center, e.radius, e.forward) for s, e in read_eyes(rem / "eyes.json").items()}
+    eyes = {s: (e.center, e.radius, e.unit_forward) for s, e in read_eyes(rem / "eyes.json").items()}
     return mesh, eyes
 
 
