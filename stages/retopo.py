@@ -33,9 +33,9 @@ def main(argv) -> StageResult:
     in_dir = Path(args.in_dir)
     mesh_path = in_dir / "mesh.npz"
     mesh = read_stage_mesh(mesh_path)
-    eyes = read_eye_loops(in_dir / "eyes.json", len(mesh["V"]))
+    eyes = read_eye_loops(in_dir / "eyes.json", len(mesh.V))
     try:
-        result = retopologize(mesh["V"], mesh["F"], eyes, settings)
+        result = retopologize(mesh.V, mesh.F, eyes, settings)
     except ValueError as exc:
         raise ScanError(mesh_path, str(exc)) from None
     out = Path(args.out_dir)

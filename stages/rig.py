@@ -25,7 +25,7 @@ from stages._common import default_metrics_path, load_settings, stage_exit, stag
 
 def _read_inputs(snap: Path):
     mesh_path, eyes_path = snap / "mesh.npz", snap / "eyes.json"
-    mesh = read_stage_mesh(mesh_path, required=())
+    mesh = read_stage_mesh(mesh_path)
     eyes = read_eyes(eyes_path)
     return mesh, eyes, mesh_path, eyes_path
 

@@ -42,7 +42,7 @@ def main(argv) -> StageResult:
     mesh_path = args.bake / "mesh.npz"
     mesh = read_stage_mesh(mesh_path)
     eyes = read_eyes(args.remove_eyeballs / "eyes.json")
-    graph = sn.edge_graph(np.asarray(mesh["V"], float), np.asarray(mesh["F"], np.int64))
+    graph = sn.edge_graph(np.asarray(mesh.V, float), np.asarray(mesh.F, np.int64))
     params, _ = fork_result(params_job)
     res = sn.snap_eyes(mesh, eyes, params, st, source=str(mesh_path), graph=graph)
     with atomic_dir(args.out) as tmp:

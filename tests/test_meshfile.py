@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import ScanError
-from pipeline.io.meshfile import SCHEMA, load_mesh, read_stage_mesh, save_mesh
+from pipeline.io.meshfile import SCHEMA, StageMesh, load_mesh, read_stage_mesh, save_mesh
 
 
 def _tet():
@@ -56,3 +56,33 @@ def test_other_schema_or_garbage_refused(tmp_path):
         read_stage_mesh(tmp_path / "junk.npz")
     with pytest.raises(ScanError, match="not found"):
         read_stage_mesh(tmp_path / "missing.npz")
+
+
+def test_stage_mesh_names_its_arrays_and_keeps_the_file_order(tmp_path):
+    V, F = _tet()
+    save_mesh(tmp_path / "mesh.npz", V=V, F=F, loop_left=np.array([0, 1, 2]), extra=np.arange(5),
+              UV=np.zeros((4, 2)), FUV=F)
+    m = read_stage_mesh(tmp_path / "mesh.npz")
+    assert isinstance(m, StageMesh)
+    assert np.array_equal(m.F, F) and np.array_equal(m.loop_left, [0, 1, 2])
+    assert m.loop_right is None and "loop_right" not in m and m.get("loop_right") is None
+    assert np.array_equal(m.extra["extra"], np.arange(5))      # an unnamed array, by key too
+    assert np.array_equal(m["extra"], np.arange(5))
+    assert list(m) == ["V", "F", "loop_left", "extra", "UV", "FUV"]   # the file's order
+    with pytest.raises(KeyError):
+        m["VC"]
+    # a library's copy with one more array writes the read arrays back in their order
+    save_mesh(tmp_path / "plus.npz", {**m, "caruncle_faces": np.zeros(0, np.int64)})
+    assert list(load_mesh(tmp_path / "plus.npz")) == list(m) + ["caruncle_faces"]
+    save_mesh(tmp_path / "again.npz", m)
+    assert (tmp_path / "again.npz").read_bytes() == (tmp_path / "mesh.npz").read_bytes()
+    assert "V=(4, 3)" in repr(m)
+
+
+def test_stage_mesh_always_has_V_and_F(tmp_path):
+    V, F = _tet()
+    np.savez(tmp_path / "noF.npz", V=V, schema=np.asarray(SCHEMA, np.int64))
+    with pytest.raises(ScanError, match=r"needs arrays V and F and loop_left \(missing F, loop_left"):
+        read_stage_mesh(tmp_path / "noF.npz", required=("loop_left",))
+    with pytest.raises(ValueError, match="named arrays"):
+        StageMesh(V=V, F=F, extra={"UV": np.zeros((4, 2))})

@@ -21,6 +21,7 @@ smoothing offset.
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -93,7 +94,7 @@ def _dense_colour(dense: dict, texture, face, bary):
     return None
 
 
-def dense_scene(V, dense: dict, settings: BakeSettings = BakeSettings()) -> DenseScene:
+def dense_scene(V, dense: Mapping, settings: BakeSettings = BakeSettings()) -> DenseScene:
     """The Embree scene of the part of the dense scan that rays from the low-poly mesh ``V``
     (n, 3) can reach: faces with a vertex in its bounding box padded by ``max_distance_mm`` + 1.
     Its BVH is built here (one ray is cast), so it can be made while the mesh is unwrapped.
@@ -167,7 +168,7 @@ def displacement_map(tx: Texels, disp, weights, res: int):
     return dimg, disp_w
 
 
-def colour_map(tx: Texels, dense: dict, texture, hface, hbary, weights, res: int):
+def colour_map(tx: Texels, dense: Mapping, texture, hface, hbary, weights, res: int):
     """The padded (res, res, 3) uint8 colour map from the scan at the texels' hits, or None
     (a scan without texture or vertex colours)."""
     _, (grow, sy, sx) = weights
@@ -194,7 +195,7 @@ def bake_metrics(tx: Texels, disp_w, n_miss: int, colour: str | None, res: int) 
     }
 
 
-def colour_source(dense: dict, texture, cimg) -> str | None:
+def colour_source(dense: Mapping, texture, cimg) -> str | None:
     """Where the colour map came from: ``texture``, ``vertex_colours`` or None."""
     if cimg is None:
         return None

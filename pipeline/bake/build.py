@@ -53,8 +53,8 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     """
     s = settings
     retopo_dir, dense_dir, out_dir = Path(retopo_dir), Path(dense_dir), Path(out_dir)
-    low = read_stage_mesh(retopo_dir / "mesh.npz", required=("V", "F", "loop_left", "loop_right"))
-    V, F = np.asarray(low["V"], dtype=np.float64), np.asarray(low["F"], dtype=np.int64)
+    low = read_stage_mesh(retopo_dir / "mesh.npz", required=("loop_left", "loop_right"))
+    V, F = np.asarray(low.V, dtype=np.float64), np.asarray(low.F, dtype=np.int64)
     t = {}
     t0 = time.perf_counter()
     # the xatlas unwrap (holds the GIL) runs beside: loading the scan and its texture, the
@@ -62,9 +62,9 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     uv_job = fork_call(unwrap, V, F, s.resolution, s.uv_padding_texels)
     dense = read_stage_mesh(dense_dir / "mesh.npz")
     texture = _texture(dense_dir / "texture.png")
-    loops = {"left": low["loop_left"], "right": low["loop_right"]}
+    loops = {"left": low.loop_left, "right": low.loop_right}
     t1 = time.perf_counter()
-    baseline = reconstruction_baseline(V, F, dense["V"], dense["F"], levels=s.subdivision_levels,
+    baseline = reconstruction_baseline(V, F, dense.V, dense.F, levels=s.subdivision_levels,
                                        n_samples=s.metric_samples)
     baseline_s = time.perf_counter() - t1
     t1 = time.perf_counter()
@@ -84,7 +84,7 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     t1 = time.perf_counter()
     dimg, disp_w = displacement_map(tx, disp, weights, res)
     # the accuracy metric needs the final displacement map: beside the colour map and the writes
-    error_job = fork_call(reconstruction_error, V, F, UV, FUV, dimg, dense["V"], dense["F"],
+    error_job = fork_call(reconstruction_error, V, F, UV, FUV, dimg, dense.V, dense.F,
                           levels=s.subdivision_levels, n_samples=s.metric_samples, baseline=baseline)
     cimg = colour_map(tx, dense, texture, hface, hbary, weights, res)
     t["maps_s"] = time.perf_counter() - t1

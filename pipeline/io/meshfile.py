@@ -14,14 +14,22 @@ Polygon meshes (quad-dominant retopology) add ``poly_counts`` (p,) int64 and
 layout; ``F`` is then their fan triangulation. Eyelid-opening loops are
 ``loop_left`` / ``loop_right`` (L,) int64 vertex indices. Any other array is kept as is.
 
+Later stages add ``lateral_index_left`` / ``lateral_index_right`` (1,) int64 and, with the
+grid band, ``band_left`` / ``band_right`` (rings + 1, L) int64 (retopo); ``loop_snap_left`` /
+``loop_snap_right`` (L,) float64, ``corner_strip_left`` / ``corner_strip_right`` (k, 2) int64
+and ``caruncle_faces`` (c,) int64 (snap).
+
 The file carries ``schema`` (a 0-d int64, :data:`SCHEMA`), written by :func:`save_mesh` and
 left out of the dict :func:`load_mesh` returns. A stage reads its input mesh with
 :func:`read_stage_mesh`, which checks the schema and the arrays above (shapes, finite
-positions, indices inside the mesh) and refuses anything else with one line naming the file.
+positions, indices inside the mesh), refuses anything else with one line naming the file, and
+returns a :class:`StageMesh`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -41,15 +49,98 @@ _DTYPES = {
 }
 
 
-def save_mesh(path, **arrays) -> None:
+# the arrays a StageMesh names (every other array rides in ``extra``)
+_NAMED = ("V", "F", "UV", "FUV", "VC", "poly_counts", "poly_indices", "loop_left", "loop_right",
+          "lateral_index_left", "lateral_index_right", "band_left", "band_right", "loop_snap_left",
+          "loop_snap_right", "corner_strip_left", "corner_strip_right", "caruncle_faces")
+_NAMED_SET = frozenset(_NAMED)
+
+
+@dataclass(frozen=True, eq=False)
+class StageMesh(Mapping):
+    """One ``mesh.npz`` as read by a stage: the arrays of the module docstring by name (None
+    when the file has none), any other array in ``extra``.
+
+    It is also a read-only mapping of the arrays present (``mesh["V"]``, ``"UV" in mesh``,
+    ``dict(mesh)``, ``save_mesh(path, **mesh)``), iterated in the file's order: libraries that
+    copy a mesh into a dict and add arrays write them back in the same order, so a stage that
+    changes nothing writes the same bytes.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    UV: np.ndarray | None = None
+    FUV: np.ndarray | None = None
+    VC: np.ndarray | None = None
+    poly_counts: np.ndarray | None = None
+    poly_indices: np.ndarray | None = None
+    loop_left: np.ndarray | None = None
+    loop_right: np.ndarray | None = None
+    lateral_index_left: np.ndarray | None = None
+    lateral_index_right: np.ndarray | None = None
+    band_left: np.ndarray | None = None
+    band_right: np.ndarray | None = None
+    loop_snap_left: np.ndarray | None = None
+    loop_snap_right: np.ndarray | None = None
+    corner_strip_left: np.ndarray | None = None
+    corner_strip_right: np.ndarray | None = None
+    caruncle_faces: np.ndarray | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    # names in the order they came (the file's); names set but not listed follow, named first
+    order: tuple[str, ...] = field(default=(), repr=False)
+
+    def __post_init__(self):
+        clash = (_NAMED_SET | {"schema"}).intersection(self.extra)
+        if clash:
+            raise ValueError(f"StageMesh.extra holds named arrays {sorted(clash)}")
+        present = [k for k in _NAMED if getattr(self, k) is not None] + list(self.extra)
+        keys = [k for k in self.order if k in present]
+        keys += [k for k in present if k not in keys]
+        object.__setattr__(self, "_keys", tuple(keys))
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> StageMesh:
+        """The StageMesh of named arrays (a ``load_mesh`` dict; ``schema`` is dropped)."""
+        arrays = {k: v for k, v in arrays.items() if k != "schema"}
+        named = {k: arrays[k] for k in _NAMED if k in arrays}
+        extra = {k: v for k, v in arrays.items() if k not in _NAMED_SET}
+        return cls(**named, extra=extra, order=tuple(arrays))
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        if key in _NAMED_SET:
+            value = getattr(self, key)
+            if value is None:
+                raise KeyError(key)
+            return value
+        return self.extra[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+    def __repr__(self) -> str:      # names and shapes: the arrays themselves bury a traceback
+        return "StageMesh(" + ", ".join(f"{k}={self[k].shape}" for k in self) + ")"
+
+    # arrays do not compare to one truth value: two meshes are equal only when they are one
+    __eq__ = object.__eq__
+    __hash__ = object.__hash__
+
+
+def save_mesh(path, mesh: Mapping | None = None, /, **arrays) -> None:
     """Atomically write named arrays to ``path`` (an uncompressed ``.npz``).
 
     Parameters
     ----------
     path : str or os.PathLike
+    mesh : StageMesh or mapping, optional
+        Arrays to write (in its order), before any keyword arrays.
     **arrays : numpy.ndarray
-        At least ``V`` and ``F``; standard names are cast to their dtype.
+        At least ``V`` and ``F`` (with ``mesh``); standard names are cast to their dtype.
     """
+    if mesh is not None:
+        arrays = {**mesh, **arrays}
     if "V" not in arrays or "F" not in arrays:
         raise ValueError("save_mesh needs at least V and F")
     out = {k: np.ascontiguousarray(v, dtype=_DTYPES.get(k)) for k, v in arrays.items() if k != "schema"}
@@ -76,7 +167,7 @@ def _load_with_schema(path) -> tuple[int | None, dict[str, np.ndarray]]:
     return (int(a) if a.shape == () and a.dtype.kind in "iu" else -1), arrays
 
 
-def check_mesh(mesh: dict, path) -> None:
+def check_mesh(mesh: Mapping, path) -> None:
     """Refuse (ScanError, one line naming ``path``) arrays that break the layout above."""
     from pipeline.errors import ScanError
 
@@ -124,14 +215,15 @@ def check_mesh(mesh: dict, path) -> None:
             indices(f"loop_{side}", mesh[f"loop_{side}"], 0, n, "vertices")
 
 
-def read_stage_mesh(path, required=("V", "F")) -> dict[str, np.ndarray]:
+def read_stage_mesh(path, required=("V", "F")) -> StageMesh:
     """:func:`load_mesh` for a stage's input: missing, unreadable or incomplete is a ScanError.
 
     Parameters
     ----------
     path : str or os.PathLike
     required : tuple of str
-        Array names that must be present.
+        Array names that must be present besides ``V`` and ``F`` (always required: a
+        StageMesh has them).
     """
     from pipeline.errors import ScanError
 
@@ -145,8 +237,9 @@ def read_stage_mesh(path, required=("V", "F")) -> dict[str, np.ndarray]:
     if schema != SCHEMA:
         raise ScanError(path, f"has mesh schema {schema}, this eyerig reads schema {SCHEMA} "
                               f"(rebuild it with the stage that wrote it)")
+    required = ("V", "F") + tuple(k for k in required if k not in ("V", "F"))
     missing = [k for k in required if k not in mesh]
     if missing:
         raise ScanError(path, f"needs arrays {' and '.join(required)} (missing {', '.join(missing)})")
     check_mesh(mesh, path)
-    return mesh
+    return StageMesh.from_arrays(mesh)

@@ -16,6 +16,7 @@ failing a self-check, is published with a doubt.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -255,13 +256,13 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
     return fits, placements, median_edge
 
 
-def remove_eyeballs(mesh_arrays: dict, hints: dict, st: RemoveEyeballsSettings | None = None, *,
+def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSettings | None = None, *,
                     source="mesh", texture=None, prior=None, eyeball=None) -> RemovalResult:
     """Fit both eyes and cut the scanned eyeball surface out of the head mesh.
 
     Parameters
     ----------
-    mesh_arrays : dict
+    mesh_arrays : StageMesh or dict
         ``V`` (n,3) float64 mm head frame, ``F`` (m,3) int64, optional ``UV``/``FUV``/``VC``
         and other per-face/per-vertex arrays (carried through).
     hints : dict

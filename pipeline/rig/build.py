@@ -8,6 +8,7 @@ shapes), ``sweep`` (the pitch sweep) and ``landmarks``. A sweep that flips a fac
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +44,7 @@ def _model_corneas(eyes):
     return out
 
 
-def build_rig(mesh: dict, placed_eyes: dict, params, mesh_path="mesh.npz",
+def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
               eyes_path="eyes.json", profile=None) -> RigBuild:
     """Everything the rig stage computes (:class:`RigBuild`) from the snapped mesh and its eyes
     (side -> :class:`pipeline.io.eyes_file.Eye`, the snap stage's eyes.json).

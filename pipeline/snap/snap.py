@@ -23,6 +23,7 @@ outside the eyeball.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
@@ -460,7 +461,7 @@ class SnapResult:
     result: StageResult
 
 
-def snap_eyes(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz",
+def snap_eyes(mesh: Mapping, eyes: dict, params, st: SnapSettings, source="mesh.npz",
               graph=None) -> SnapResult:
     """Snap both eyes' loops of a mesh (:func:`snap_mesh`) onto the eyes of ``eyes.json``
     (side -> :class:`pipeline.io.eyes_file.Eye`); each eye's loop then refers to the snapped

@@ -78,16 +78,17 @@ class UsdInputs:
 def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) -> UsdInputs:
     """Load and check everything the asset needs (ScanError on a missing/inconsistent input)."""
     mesh_path = snap / "mesh.npz"
-    mesh = read_stage_mesh(mesh_path, required=())
-    for k in ("V", "F", "UV", "FUV"):
+    mesh = read_stage_mesh(mesh_path)
+    for k in ("UV", "FUV"):
         if k not in mesh:
             raise ScanError(mesh_path, f"has no {k} array (the asset needs UVs from bake)")
-    V, F = np.asarray(mesh["V"], np.float64), np.asarray(mesh["F"], np.int64)
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
     if not np.all(np.isfinite(V)):
         raise ScanError(mesh_path, "has non-finite vertex coordinates")
     if F.size and (F.min() < 0 or F.max() >= len(V)):
         raise ScanError(mesh_path, "face indices out of range")
-    caruncle = np.asarray(mesh.get("caruncle_faces", np.zeros(0, np.int64)))
+    caruncle = mesh.caruncle_faces
+    caruncle = np.zeros(0, np.int64) if caruncle is None else np.asarray(caruncle)
     if caruncle.ndim != 1 or caruncle.dtype.kind not in "iu" or \
             (caruncle.size and (caruncle.min() < 0 or caruncle.max() >= len(F))):
         raise ScanError(mesh_path, "caruncle_faces must be face indices of F")
@@ -98,7 +99,7 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
         eyes[side]["doubts"] = list(e.doc.get("doubts") or [])
     maps = read_bake(bake)
     scan = read_scan_record(ingest)
-    return UsdInputs(V=V, F=F, UV=mesh["UV"], FUV=mesh["FUV"], shapes=r.npz.shapes, curves=r.npz.curves,
+    return UsdInputs(V=V, F=F, UV=mesh.UV, FUV=mesh.FUV, shapes=r.npz.shapes, curves=r.npz.curves,
                      max_pitch_deg=r.max_pitch_deg, eyes=eyes, scan=scan, color=maps.color,
                      displacement=maps.displacement, eyeball=_need(eyeball / "eyeball.usda"),
                      caruncle=caruncle.astype(np.int64))
