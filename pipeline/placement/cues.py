@@ -81,15 +81,16 @@ def build_patch(V, F, hint, radius_mm, ignore=None) -> Patch:
 
 
 def coarse_patch(p: Patch, max_vertices: int = COARSE_VERTICES) -> Patch:
-    """``p`` simplified to about ``max_vertices`` vertices (quadric edge collapse, its border kept),
-    or ``p`` itself when it has no more. Not for a patch with faces that carry no evidence (a
-    fill's faces would merge with measured ones). The eye is searched on this copy: the energy is area-weighted
-    and its cut cost is per mm, so it keeps its scale, while a 1.4M-triangle scan's 12k-vertex
-    patch (0.4 mm edges) costs the least squares five times what ~1 mm edges do. The copy's
+    """``p`` simplified to about ``max_vertices`` vertices (quadric edge collapse, its border
+    kept), or ``p`` itself when it has no more vertices, or no more than twice as many faces (the
+    collapse's target). Not for a patch with faces that carry no evidence (a fill's faces would
+    merge with measured ones). The eye is searched on this copy: the energy is area-weighted and
+    its cut cost is per mm, so it keeps its scale, while a 1.4M-triangle scan's 12k-vertex patch
+    (0.4 mm edges) makes every least-squares step pay for edges the model cannot use. The copy's
     ``verts`` and ``faces`` are empty: it is cut from no mesh; label the full patch instead."""
     import fast_simplification
 
-    if len(p.V) <= max_vertices:
+    if len(p.V) <= max_vertices or len(p.F) <= 2 * int(max_vertices):
         return p
     Vd, Fd = fast_simplification.simplify(p.V, p.F.astype(np.int32), target_count=2 * int(max_vertices),
                                           preserve_border=True)
