@@ -29,6 +29,7 @@ import pytest
 
 from fixtures import gazeml_unityeyes as gz
 from fixtures import make_render_asset
+from fixtures.eth_xgaze import eth_normalization_R
 from pipeline.render import asset as ra
 from pipeline.render import camera as cam
 from pipeline.render import conventions as cv
@@ -63,18 +64,6 @@ def eth_head(head):
     M = rodrigues(np.asarray(head).reshape(1, 3))
     Zv = M[:, 2]
     return np.array([math.asin(Zv[1]), math.atan2(Zv[0], Zv[2])])
-
-
-def eth_normalization_R(hR, et):
-    """ETH-XGaze ``normalizeData``: the rotation of the normalised camera looking at ``et``."""
-    distance = np.linalg.norm(et)
-    hRx = hR[:, 0]
-    forward = (et / distance).reshape(3)
-    down = np.cross(forward, hRx)
-    down /= np.linalg.norm(down)
-    right = np.cross(down, forward)
-    right /= np.linalg.norm(right)
-    return np.c_[right, down, forward].T
 
 
 def mpii_convert_gaze(vector):

@@ -16,6 +16,7 @@ import pytest
 from PIL import Image
 
 from fixtures import make_render_asset
+from fixtures.eth_xgaze import eth_normalization_R
 from pipeline.io.seg_file import palette
 from pipeline.render import asset as ra
 from pipeline.render import formats as lf
@@ -45,13 +46,7 @@ def _eth_xgaze_W(label, e_cv, focal_norm, distance_norm, roi):
     z_scale = distance_norm / distance
     cam_norm = np.array([[focal_norm, 0, roi[0] / 2], [0, focal_norm, roi[1] / 2], [0, 0, 1.0]])
     S = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, z_scale]])
-    hRx = hR[:, 0]
-    forward = (e_cv / distance).reshape(3)
-    down = np.cross(forward, hRx)
-    down /= np.linalg.norm(down)
-    right = np.cross(down, forward)
-    right /= np.linalg.norm(right)
-    R = np.c_[right, down, forward].T
+    R = eth_normalization_R(hR, e_cv)
     return np.dot(np.dot(cam_norm, S), np.dot(R, np.linalg.inv(cam))), R
 
 
