@@ -43,7 +43,8 @@ UNSEEN_WORK = ROOT / "benchmarks" / "out" / "unseen"
 REPORT = ROOT / "benchmarks" / "out" / "run_all.json"
 NOT_BENCHMARKS = {"__init__", "run_all", "results_files",   # the runner and what benchmarks share
                   "derive_eye_prior",                    # a tool: derives the shipped eye-region prior
-                  "bench_dataset_presets"}               # compares with another checkout: needs --base
+                  "bench_dataset_presets",               # compares with another checkout: needs --base
+                  "bench_quick"}                         # make bench-quick: bench_chain + render vs budget.yaml
 
 
 @dataclass(frozen=True)
