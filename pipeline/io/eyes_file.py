@@ -248,15 +248,11 @@ def write_eyes(path, eyes: dict) -> None:
     write_json(path, out)
 
 
-def read_eye_loops(path, n_vertices: int) -> dict:
-    """What retopo needs of an ``eyes.json``: ``{side: {"center", "loop_indices"[,
-    "lateral_canthus_index"]}}``, validated against the mesh's ``n_vertices``; an eye without
-    its loop is refused in one line."""
-    out = {}
-    for side, e in read_eyes(path, n_vertices).items():
+def read_eye_loops(path, n_vertices: int) -> dict[str, Eye]:
+    """Both eyes of an ``eyes.json`` as :func:`read_eyes` gives them, for retopo, which cuts
+    along the loops: an eye without its ``loop_indices`` is refused in one line."""
+    eyes = read_eyes(path, n_vertices)
+    for side, e in eyes.items():
         if e.loop_indices is None:
             raise ScanError(path, f"{side} eye: no loop_indices (write it with remove_eyeballs)")
-        out[side] = {"center": e.center, "loop_indices": e.loop_indices}
-        if e.lateral_canthus_index is not None:
-            out[side]["lateral_canthus_index"] = e.lateral_canthus_index
-    return out
+    return eyes
