@@ -82,7 +82,8 @@ class Eye:
         published).
     extra : dict
         Every other key of the entry, carried unchanged (checks, the scan's sphere, the cornea,
-        the texture fissure, the snap's report, ...).
+        the texture fissure, the snap's report, ...; read from rig.json: the rig's ``surface``,
+        ``joint``, ``pitch_axis``, ...).
     """
 
     side: str
@@ -107,6 +108,16 @@ class Eye:
         """(3,) the rest gaze, normalised."""
         f = np.asarray(self.forward, dtype=np.float64)
         return f / float(np.linalg.norm(f))
+
+    @property
+    def model_radius(self) -> float | None:
+        """``r1`` of the parametric eye the rig's eyelid margin follows (rig.json's
+        ``surface.parametric_eye``, checked by :func:`pipeline.io.rig_file.read_rig`); None: a
+        sphere, or an eye that no rig has read (eyes.json has no ``surface``)."""
+        surface = self.extra.get("surface")
+        if isinstance(surface, dict) and "parametric_eye" in surface:
+            return float(surface["parametric_eye"]["r1"])
+        return None
 
     @classmethod
     def from_doc(cls, side: str, doc: dict, path="eyes.json", n_vertices: int | None = None) -> "Eye":
