@@ -40,7 +40,7 @@ import numpy as np
 
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.atomic import write_json
-from pipeline.io.eyes_file import read_eye_loops, read_eyes
+from pipeline.io.eyes_file import read_eye_loops
 from pipeline.io.meshfile import read_stage_mesh
 from pipeline.retopo.eyelid_loop import margin_jag, margin_teeth, polyline_arclength
 from pipeline.retopo.retopo import RetopoSettings, retopologize
@@ -79,7 +79,6 @@ def measure(build: Path, rs: RetopoSettings, ss: sn.SnapSettings) -> dict:
     re_dir = build / "remove_eyeballs"
     mesh = read_stage_mesh(re_dir / "mesh.npz")
     eyes = read_eye_loops(re_dir / "eyes.json", len(mesh["V"]))
-    records = read_eyes(re_dir / "eyes.json")
     eyeball = _first(root / "rigged_assets" / "eyeball", root / "eyeball")
     params = read_eyeball_params(eyeball)
     gt_path = _first(root / "raw_scans" / name / "ground_truth.json",
@@ -99,12 +98,12 @@ def measure(build: Path, rs: RetopoSettings, ss: sn.SnapSettings) -> dict:
         m.update({f"lateral_index_{s}": np.array([r.lateral[s]]) for s in SIDES
                   if r.lateral.get(s) is not None})
         snapped, _, met = sn.snap_mesh(m, {s: (e.center, e.radius, e.unit_forward)
-                                           for s, e in records.items()}, params, ss)
+                                           for s, e in eyes.items()}, params, ss)
         runs[label] = (r, snapped["V"], met)
     out = {"scan": name, "truth": str(gt_path) if gt_path else None}
     for s in SIDES:
-        cut = mesh["V"][eyes[s]["loop_indices"]]
-        row = {"jag_p95_mm": {"cut": _p95(cut, (0, eyes[s].get("lateral_canthus_index")))}}
+        cut = mesh["V"][eyes[s].loop_indices]
+        row = {"jag_p95_mm": {"cut": _p95(cut, (0, eyes[s].lateral_canthus_index))}}
         for label, (r, Vs, met) in runs.items():
             loop, lat = r.loops[s], r.lateral.get(s)
             row["jag_p95_mm"][f"retopo_{label}"] = _p95(r.V[loop], (0, lat))

@@ -243,10 +243,7 @@ def test_stage_cli(tmp_path):
     dense = tmp_path / "remove_eyeballs"
     dense.mkdir()
     save_mesh(dense / "mesh.npz", V=V, F=F, VC=np.full((len(V), 3), 180, np.uint8))
-    write_eyes(dense / "eyes.json", {k: {"center": e["center"].tolist(), "radius": 12.0,
-                                         "forward": [0.0, 0.0, 1.0],
-                                         "loop_indices": e["loop_indices"].tolist()}
-                                     for k, e in eyes.items()})
+    write_eyes(dense / "eyes.json", eyes)
     params = tmp_path / "params.yaml"
     params.write_text("retopo:\n  target_polygons: 1500\n  loop_points: 32\nbake:\n  resolution: 512\n"
                       "  metric_samples: 20000\n")

@@ -277,13 +277,13 @@ def test_blender_mesh_uvs_materials_and_shape_keys(asset, blender_import):
 def test_blender_armature_and_eyes_follow_bones(asset, blender_import):
     from pipeline.geometry.frame import eye_basis
 
-    rig = read_rig(asset["build"] / "rig").doc
+    rig = read_rig(asset["build"] / "rig")
     data, meta = blender_import(asset)
     arm_name, arm = next(iter(meta["armatures"].items()))
     assert {"eye_left", "eye_right"} <= set(arm["bones"])
     for side in SIDES:
-        e = rig["eyes"][side]
-        c_mm = np.asarray(e["center"])
+        e = rig.eyes[side]
+        c_mm = e.center
         head = np.asarray(arm["heads"][arm["bones"].index(f"eye_{side}")])
         assert np.abs(head - c_mm).max() < 1e-3                  # armature space = stage mm
         eyes = _eye_objects(meta, side)
@@ -299,9 +299,9 @@ def test_blender_armature_and_eyes_follow_bones(asset, blender_import):
             np.testing.assert_allclose(np.linalg.norm(W - c, axis=1),
                                        0.001 * np.linalg.norm(local, axis=1), atol=1e-6)
         W, local = data[f"{outer}.world"], data[f"{outer}.basis"]
-        assert np.linalg.norm(local, axis=1).min() == pytest.approx(e["radius"], abs=1e-3)   # sclera
+        assert np.linalg.norm(local, axis=1).min() == pytest.approx(e.radius, abs=1e-3)   # sclera
         apex = W[np.argmax(local[:, 2])] - c                      # corneal apex direction
-        f = np.asarray(e["forward"], float)
+        f = e.forward
         a = np.radians(POSE_DEG if side == "left" else 0.0)     # bone turned about its pitch axis
         errs = []
         for sign in (1.0, -1.0):

@@ -115,7 +115,7 @@ class Scene:
 
         self.paths = paths
         rig = read_rig(paths["rig"])
-        self.rig, self.shapes, self.eyes = rig.npz.arrays, rig.npz.shapes, rig.doc["eyes"]
+        self.rig, self.shapes, self.eyes = rig.npz.arrays, rig.npz.shapes, rig.eyes
         self.V = load_mesh(paths["snap"] / "mesh.npz")["V"]
         stage = Usd.Stage.Open(str(paths["asset"]))
         self.inner = {}
@@ -150,14 +150,14 @@ class Scene:
         B, Pin, offs, ids = self.inner[side]
         Q = Pin + sum(float(blend.get(k, 0.0)) * o for k, o in offs.items())
         Qh = Q @ B[:3, :3] + B[3, :3]
-        c = np.asarray(self.eyes[side]["center"])
+        c = self.eyes[side].center
         Qh = (Qh - c) @ quat_to_matrix(q).T + c
         return np.concatenate([lid, Qh[ids["iris"]], Qh[ids["pupil"]]])
 
     def spec(self, index, out_dir, side="left", pitch=0.0, yaw=0.0, cam_yaw=0.0, scale=32.0,
              blend=None, **kw) -> dict:
         e = self.eyes[side]
-        c, f = np.asarray(e["center"]), np.asarray(e["forward"])
+        c, f = e.center, e.forward
         cy = math.radians(cam_yaw)
         zc = np.array([math.sin(cy), 0.0, math.cos(cy)])
         xc = np.cross([0.0, 1.0, 0.0], zc)
@@ -288,7 +288,7 @@ def test_lashes_are_visible_and_follow_the_lid(setup):
     n_up = LASHES["upper"]["count"]
     loop = scene.rig["loop_left"]
     li = int(np.flatnonzero(loop == scene.rig["landmarks.left.edge"][6, 0])[0])
-    f = np.asarray(scene.eyes["left"]["forward"])
+    f = scene.eyes["left"].forward
     for pitch in (-25.0, 25.0):
         P = lids.evaluate_shapes(scene.V, scene.shapes, lids.lid_weights(pitch))[loop]
         pts, rad = lash_curves(P, li, f, rng)

@@ -43,7 +43,7 @@ def check_result(r, V, eyes, n_loop):
         steps = {(pos[int(lp[(k + 1) % n_loop])] - pos[int(lp[k])]) % n_loop for k in range(n_loop)}
         assert steps in ({1}, {n_loop - 1})
         # on the scan's loop curve, starting at the medial canthus, upper lid first
-        curve = V[e["loop_indices"]]
+        curve = V[e.loop_indices]
         assert project_to_polyline(r.V[lp], curve)[2].max() < 1e-6
         assert np.linalg.norm(r.V[lp[0]] - curve[0]) < 0.5
         assert r.V[lp[n_loop // 4], 1] > r.V[lp, 1].mean()
@@ -112,10 +112,7 @@ def test_settings_validation():
 def write_input(folder, V, F, eyes):
     folder.mkdir(parents=True)
     save_mesh(folder / "mesh.npz", V=V, F=F)
-    write_eyes(folder / "eyes.json", {k: {"center": e["center"].tolist(), "radius": 12.0,
-                                          "forward": [0.0, 0.0, 1.0],
-                                          "loop_indices": e["loop_indices"].tolist()}
-                                      for k, e in eyes.items()})
+    write_eyes(folder / "eyes.json", eyes)
 
 
 def run_stage(*args):
@@ -151,7 +148,7 @@ def test_degenerate_input_faces_and_tiny_target(patch):
     V, F, eyes = patch
     V = V.copy()
     # make ~1 % of the scan's triangles zero-area (vertices moved onto a neighbour), away from the loops
-    loopset = set(np.concatenate([e["loop_indices"] for e in eyes.values()]).tolist())
+    loopset = set(np.concatenate([e.loop_indices for e in eyes.values()]).tolist())
     rng = np.random.default_rng(3)
     for f in rng.choice(len(F), len(F) // 100, replace=False):
         a, b = F[f, 0], F[f, 1]
@@ -214,7 +211,7 @@ def test_eye_rings(patch, method, kw):
         assert r.metrics["eye_rings"][side]["quads"] == 3 * n
         rings, nq = ring_structure(r, side)
         assert len(rings) >= 4 and nq >= 3 * n       # loop + 3 rings, n quads between each pair
-        curve = V[e["loop_indices"]]
+        curve = V[e.loop_indices]
         d = [np.mean(project_to_polyline(r.V[np.asarray(g)], curve)[2]) for g in rings[:4]]
         for k, g in enumerate(rings[:4]):
             assert len(g) == n and len(set(g)) == n

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -134,7 +136,7 @@ def test_two_heads_have_the_same_band_ids(patch):
     s = RetopoSettings(method="quadric", target_polygons=1500, loop_points=32, band="grid",
                        band_rings=4, band_width_mm=6.0)
     r1 = retopologize(V, F, eyes, s)
-    r2 = retopologize(V2 * 1.05, F, {k: {**e, "center": np.asarray(e["center"]) * 1.05} for k, e in eyes.items()}, s)
+    r2 = retopologize(V2 * 1.05, F, {k: replace(e, center=e.center * 1.05) for k, e in eyes.items()}, s)
     for side in ("left", "right"):
         assert np.array_equal(r1.band[side], r2.band[side])
         assert np.array_equal(r1.loops[side], r2.loops[side])

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import ScanError
+from pipeline.io.eyes_file import Eye
 from pipeline.io.rig_file import SCHEMA, read_rig, read_rig_arrays, write_rig
 from pipeline.rig import lids
 
@@ -48,6 +49,9 @@ def test_round_trip(tmp_path):
     rig = read_rig(tmp_path, n_vertices=N)
     assert rig.max_pitch_deg == 25.0 and rig.doc["note"] == "kept"
     assert rig.eyes["left"].model_radius == 12.0 and rig.eyes["right"].model_radius is None
+    # rig.json's eyes are the one eye type, read as an eyes.json entry is (rig's keys in extra)
+    assert all(isinstance(e, Eye) and e.side == s for s, e in rig.eyes.items())
+    assert rig.eyes["left"].extra["joint"] == "eye_left" and rig.eyes["left"].radius == 12.5
     np.testing.assert_array_equal(rig.eyes["left"].center, [30.0, 0.0, 70.0])
     assert [s.name for s in rig.npz.shapes] == [lids.SHAPE_UP, lids.SHAPE_DOWN]
     assert set(rig.npz.arrays) == set(arrays)

@@ -82,7 +82,8 @@ class Eye:
         published).
     extra : dict
         Every other key of the entry, carried unchanged (checks, the scan's sphere, the cornea,
-        the texture fissure, the snap's report, ...).
+        the texture fissure, the snap's report, ...; read from rig.json: the rig's ``surface``,
+        ``joint``, ``pitch_axis``, ...).
     """
 
     side: str
@@ -107,6 +108,16 @@ class Eye:
         """(3,) the rest gaze, normalised."""
         f = np.asarray(self.forward, dtype=np.float64)
         return f / float(np.linalg.norm(f))
+
+    @property
+    def model_radius(self) -> float | None:
+        """``r1`` of the parametric eye the rig's eyelid margin follows (rig.json's
+        ``surface.parametric_eye``, checked by :func:`pipeline.io.rig_file.read_rig`); None: a
+        sphere, or an eye that no rig has read (eyes.json has no ``surface``)."""
+        surface = self.extra.get("surface")
+        if isinstance(surface, dict) and "parametric_eye" in surface:
+            return float(surface["parametric_eye"]["r1"])
+        return None
 
     @classmethod
     def from_doc(cls, side: str, doc: dict, path="eyes.json", n_vertices: int | None = None) -> "Eye":
@@ -248,15 +259,11 @@ def write_eyes(path, eyes: dict) -> None:
     write_json(path, out)
 
 
-def read_eye_loops(path, n_vertices: int) -> dict:
-    """What retopo needs of an ``eyes.json``: ``{side: {"center", "loop_indices"[,
-    "lateral_canthus_index"]}}``, validated against the mesh's ``n_vertices``; an eye without
-    its loop is refused in one line."""
-    out = {}
-    for side, e in read_eyes(path, n_vertices).items():
+def read_eye_loops(path, n_vertices: int) -> dict[str, Eye]:
+    """Both eyes of an ``eyes.json`` as :func:`read_eyes` gives them, for retopo, which cuts
+    along the loops: an eye without its ``loop_indices`` is refused in one line."""
+    eyes = read_eyes(path, n_vertices)
+    for side, e in eyes.items():
         if e.loop_indices is None:
             raise ScanError(path, f"{side} eye: no loop_indices (write it with remove_eyeballs)")
-        out[side] = {"center": e.center, "loop_indices": e.loop_indices}
-        if e.lateral_canthus_index is not None:
-            out[side]["lateral_canthus_index"] = e.lateral_canthus_index
-    return out
+    return eyes

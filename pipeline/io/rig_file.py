@@ -37,35 +37,12 @@ from pipeline.errors import ScanError
 from pipeline.io import docfile as df
 from pipeline.io.atomic import write_json
 from pipeline.io.blend_shapes import shapes_from_arrays
+from pipeline.io.eyes_file import Eye
 
 SCHEMA = 1
 SIDES = ("left", "right")
 RIG_JSON, RIG_NPZ = "rig.json", "rig.npz"
 N_EYELID = 12
-
-
-@dataclass
-class RigEye:
-    """One eye of ``rig.json["eyes"]``.
-
-    Attributes
-    ----------
-    side : str
-    center : (3,) float64, mm
-    radius : float, mm
-    forward : (3,) float64 (as stored; not normalised)
-    model_radius : float or None
-        ``r1`` of the parametric eye the margin follows (None: a sphere).
-    doc : dict
-        The whole entry as stored.
-    """
-
-    side: str
-    center: np.ndarray
-    radius: float
-    forward: np.ndarray
-    model_radius: float | None
-    doc: dict = field(repr=False)
 
 
 @dataclass
@@ -89,7 +66,8 @@ class RigArrays:
 @dataclass
 class Rig:
     """The whole rig product: ``rig.json`` (``doc``, ``eyes``, ``max_pitch_deg``) and
-    ``rig.npz`` (``npz``)."""
+    ``rig.npz`` (``npz``). ``eyes``: side -> :class:`pipeline.io.eyes_file.Eye`, read from
+    ``rig.json["eyes"]`` (the rig's keys in ``extra``; ``model_radius`` from its surface)."""
 
     folder: Path
     doc: dict = field(repr=False)
@@ -191,21 +169,22 @@ def read_rig_arrays(path, n_vertices: int | None = None, against: str = "the mes
     return RigArrays(path=path, arrays=arrays, shapes=shapes, curves=curves)
 
 
-def _eye(doc: dict, side: str, path: Path) -> RigEye:
+def _eye(doc: dict, side: str, path: Path) -> Eye:
+    # rig.json's own checks first, so its messages name the key path (eyes.<side>.<key>);
+    # Eye.from_doc then reads the entry as it reads an eyes.json one (rig's keys in ``extra``)
     pre = f"eyes.{side}"
     e = df.field(doc, pre, path, dict)
-    center = df.array_field(doc, pre + ".center", (3,), path)
+    df.array_field(doc, pre + ".center", (3,), path)
     forward = df.array_field(doc, pre + ".forward", (3,), path)
     if np.linalg.norm(forward) < 1e-9:
         raise ScanError(path, f"{pre}.forward is the zero vector")
-    radius = df.number(doc, pre + ".radius", path, low=0.0, high=100.0)
+    df.number(doc, pre + ".radius", path, low=0.0, high=100.0)
     surface = e.get("surface", "sphere")
-    model_radius = None
     if isinstance(surface, dict) and "parametric_eye" in surface:
-        model_radius = df.number(doc, pre + ".surface.parametric_eye.r1", path, low=0.0)
+        df.number(doc, pre + ".surface.parametric_eye.r1", path, low=0.0)
     elif surface != "sphere":
         raise ScanError(path, f"{pre}.surface must be \"sphere\" or {{\"parametric_eye\": {{...}}}}")
-    return RigEye(side, center, radius, forward, model_radius, e)
+    return Eye.from_doc(side, e, path)
 
 
 def read_rig(folder, n_vertices: int | None = None, against: str = "the mesh") -> Rig:

@@ -122,8 +122,8 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
     ----------
     V : (n, 3) float64, F : (m, 3) int64
         Dense head with eye openings.
-    eyes : dict
-        ``side -> {"center": (3,), "loop_indices": (k,)}``.
+    eyes : dict of str -> pipeline.io.eyes_file.Eye
+        Both eyes, each with its ``loop_indices``.
 
     Returns
     -------
@@ -134,14 +134,14 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
 
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
-    C = np.array([eyes[k]["center"] for k in eyes], dtype=np.float64)
+    C = np.array([e.center for e in eyes.values()], dtype=np.float64)
     lo = np.array([C[:, 0].min() - s.margin_lateral_mm, C[:, 1].min() - s.margin_below_mm,
                    C[:, 2].min() - s.margin_back_mm])
     hi = np.array([C[:, 0].max() + s.margin_lateral_mm, C[:, 1].max() + s.margin_above_mm, np.inf])
     inside = np.all((V >= lo) & (V <= hi), axis=1)
     keep = inside[F].all(axis=1)
     Fk = F[keep]
-    loop_vs = np.concatenate([np.asarray(eyes[k]["loop_indices"], dtype=np.int64) for k in eyes])
+    loop_vs = np.concatenate([np.asarray(e.loop_indices, dtype=np.int64) for e in eyes.values()])
     if not inside[loop_vs].all():
         raise ValueError("an eyelid loop reaches outside the crop box; increase the retopo margins")
     # keep the connected component(s) that contain the eyelid loops
@@ -335,9 +335,9 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     ----------
     V : (n, 3) float64, F : (m, 3) int64
         Dense head with eye openings (mm, head frame).
-    eyes : dict
-        ``{"left": {"center": (3,), "loop_indices": (k,) ordered}, "right": {...}}``
-        (``remove_eyeballs``' eyes.json).
+    eyes : dict of str -> pipeline.io.eyes_file.Eye
+        ``{"left": Eye, "right": Eye}`` (``remove_eyeballs``' eyes.json), each with its ordered
+        ``loop_indices`` and, when known, ``lateral_canthus_index``.
     settings : RetopoSettings
 
     Returns
@@ -351,9 +351,9 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     inv = {int(v): i for i, v in enumerate(vmap)}
     curves, lateral, apex_info = {}, {}, {}
     for side, e in eyes.items():
-        li = np.asarray(e["loop_indices"], dtype=np.int64)
+        li = np.asarray(e.loop_indices, dtype=np.int64)
         curves[side] = np.asarray(V, dtype=np.float64)[li]
-        lateral[side] = e.get("lateral_canthus_index")
+        lateral[side] = e.lateral_canthus_index
         if s.canthus_apex and lateral[side] is not None:
             curves[side], lateral[side], apex_info[side] = canthus_apex(
                 curves[side], lateral[side], s.canthus_window_mm, s.canthus_max_reach_mm)
@@ -388,7 +388,7 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     cbl = mc.boundary_loops(Fc)
     eye_loop_lengths = []
     for side, e in eyes.items():
-        li = set(int(inv[int(v)]) for v in e["loop_indices"] if int(v) in inv)
+        li = set(int(inv[int(v)]) for v in e.loop_indices if int(v) in inv)
         eye_loop_lengths += [len(b) for b in cbl if li & set(map(int, b))][:1]
     Vr, Fr, refine_levels = refine_coarse_crop(Vc, Fc, (3 * s.loop_points + 3) // 4, eye_loop_lengths)
     if s.method == "quadric":

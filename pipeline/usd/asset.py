@@ -225,8 +225,8 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     V : (n, 3) float64 mm ; F : (m, 3) int64 ; UV : (k, 2) ; FUV : (m, 3) per-corner UV indices
     shapes : list of pipeline.rig.lids.BlendShape (lids_up, lids_down with inbetweens)
     landmark_curves : dict side -> (points (12, 3) mm, list of BlendShape on points 0..11)
-    eyes : dict side -> {"center": (3,), "radius": r, "forward": (3,)}; the eye is placed at
-                             the fitted radius (eyes.json; see the module docstring)
+    eyes : dict side -> pipeline.io.eyes_file.Eye (center, radius, forward); the eye is placed
+                             at the fitted radius (eyes.json; see the module docstring)
     eyeball_ref : str        asset path of eyeball.usda relative to this layer (``./eyeball/eyeball.usda``)
     metadata : dict          stored as customData["eyerig"] on the default prim
     caruncle_faces : (k,) int, optional  faces of F given the caruncle material (none: no subset)
@@ -266,7 +266,7 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     # skeleton: head + one joint per eye
     skel = UsdSkel.Skeleton.Define(stage, rp + "/Skel")
     skel.CreateJointsAttr(list(JOINTS))
-    J = {s: eye_frame_matrix(eyes[s]["center"], eyes[s]["forward"]) for s in SIDES}
+    J = {s: eye_frame_matrix(eyes[s].center, eyes[s].forward) for s in SIDES}
     world = [np.eye(4), J["left"], J["right"]]
     skel.CreateBindTransformsAttr(Vt.Matrix4dArray([_gf(M) for M in world]))
     skel.CreateRestTransformsAttr(Vt.Matrix4dArray([_gf(M) for M in world]))   # parent = identity
@@ -301,8 +301,8 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
         p = eye_prims[side]
         Usd.ModelAPI(p).SetKind(Kind.Tokens.subcomponent)
         p.GetChild("Skel").SetActive(False)
-        _place_eye(p, model, float(eyes[side]["radius"]), eyeball_ref)
-        G = _gf(eye_frame_matrix(eyes[side]["center"], eyes[side]["forward"]))
+        _place_eye(p, model, float(eyes[side].radius), eyeball_ref)
+        G = _gf(eye_frame_matrix(eyes[side].center, eyes[side].forward))
         for child in p.GetChildren():
             if child.IsA(UsdGeom.Mesh):
                 api = UsdSkel.BindingAPI.Apply(child)
@@ -311,9 +311,9 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
                 api.CreateJointWeightsPrimvar(True, 1).Set([1.0])
                 api.CreateGeomBindTransformAttr().Set(G)
         p.SetDocumentation(f"Subject's {side} eye: {eyeball_ref} placed at radius "
-                           f"{float(eyes[side]['radius']):.4f} mm (sclera; cornea, iris and pupil "
+                           f"{float(eyes[side].radius):.4f} mm (sclera; cornea, iris and pupil "
                            f"keep their size) and rigidly skinned to joint {JOINTS[j]} (centre "
-                           f"{list(map(float, eyes[side]['center']))} mm)")
+                           f"{list(map(float, eyes[side].center))} mm)")
 
     # landmarks
     UsdGeom.Scope.Define(stage, rp + "/Landmarks")

@@ -48,8 +48,9 @@ class UsdInputs:
         The eyelid landmark curves and their shapes (rig).
     max_pitch_deg : float
         The pitch-to-weight rule's limit (rig).
-    eyes : dict side -> {"center", "radius", "forward", "doubts"}
-        The rig's eyes as stored (the asset's metadata repeats them).
+    eyes : dict side -> pipeline.io.eyes_file.Eye
+        The rig's eyes as stored (the asset's metadata repeats their centre, radius, forward
+        and doubts).
     scan : ScanRecord
         ingest's record: name, source hash, licence.
     color, displacement : Path
@@ -93,14 +94,10 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
             (caruncle.size and (caruncle.min() < 0 or caruncle.max() >= len(F))):
         raise ScanError(mesh_path, "caruncle_faces must be face indices of F")
     r = read_rig(rig, n_vertices=len(V), against=str(mesh_path))
-    eyes = {}
-    for side, e in r.eyes.items():        # the values as stored (the asset metadata repeats them)
-        eyes[side] = {k: e.doc[k] for k in ("center", "radius", "forward")}
-        eyes[side]["doubts"] = list(e.doc.get("doubts") or [])
     maps = read_bake(bake)
     scan = read_scan_record(ingest)
     return UsdInputs(V=V, F=F, UV=mesh.UV, FUV=mesh.FUV, shapes=r.npz.shapes, curves=r.npz.curves,
-                     max_pitch_deg=r.max_pitch_deg, eyes=eyes, scan=scan, color=maps.color,
+                     max_pitch_deg=r.max_pitch_deg, eyes=r.eyes, scan=scan, color=maps.color,
                      displacement=maps.displacement, eyeball=_need(eyeball / "eyeball.usda"),
                      caruncle=caruncle.astype(np.int64))
 
@@ -124,10 +121,10 @@ def build(inp: UsdInputs, out_dir: Path, name: str, all_params: dict, package: b
         "pipeline_version": pipeline.__version__,
         "units": "mm", "frame": "head frame: +Y up, +Z out of the face, +X subject's left",
         "weight_rule": lids.weight_rule(inp.max_pitch_deg),
-        "eyes": {s: {"joint": f"head/eye_{s}", "center_mm": list(map(float, e["center"])),
-                     "radius_mm": float(e["radius"]), "forward": list(map(float, e["forward"])),
+        "eyes": {s: {"joint": f"head/eye_{s}", "center_mm": list(map(float, e.center)),
+                     "radius_mm": float(e.radius), "forward": list(map(float, e.forward)),
                      # USD cannot type an empty list: no key means nothing doubted
-                     **({"doubts": list(e["doubts"])} if e.get("doubts") else {})}
+                     **({"doubts": list(e.doubts)} if e.doubts else {})}
                  for s, e in inp.eyes.items()},
         "displacement": DISPLACEMENT_DOC,
         "params": json.loads(json.dumps(all_params)),
