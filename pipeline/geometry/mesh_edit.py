@@ -4,7 +4,9 @@ edge flips) and hole filling.
 :class:`TriMesh`: Python dicts, for the few hundred edits of the retopology's loop resampling and
 flip repairs (:mod:`pipeline.retopo.eyelid_loop`, :mod:`pipeline.geometry.flips`).
 :func:`fill_holes_near`: the holes near given points closed with fans (the unmeasured pupils
-that remove_eyeballs closes before it places the eyes).
+that remove_eyeballs closes before it places the eyes). :func:`fill_holes_smooth`: given holes
+closed with patches that continue the surface round them (the scanner's holes in the skin that
+retopo fills inside its crop).
 """
 
 from __future__ import annotations
@@ -211,3 +213,148 @@ def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
     V2 = np.concatenate([V, np.asarray(newV)])
     F2 = np.concatenate([F, *newF]).astype(np.int64)
     return V2, F2, holes, np.concatenate([np.full(len(F), -1), *owner]).astype(np.int64)
+
+
+def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5):
+    """Close each boundary loop in ``loops`` with a patch that continues the surface round it.
+
+    Scanners leave small holes in the skin (a shadowed pore, a specular spot). Left open they are
+    black spots in every render, and a flat fan over one reads as a dent on a curved brow. Here a
+    hole gets a polar grid: the loop's vertices on the unit circle by arc length, concentric
+    rings inside at the same angles (about one ring per mean loop edge length) and a fan at the
+    centre. The grid's interior is placed, in the plane of the surrounding faces' mean normal, by
+    the harmonic extension of the loop (each inner vertex the mean of its neighbours, so the
+    rings follow a jagged loop smoothly), and lifted onto a quadratic height field fitted to the
+    vertices within ``neighbourhood`` hole radii of the centroid.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    loops : list of (L,) int64
+        Boundary loops of ``F`` (either direction; each is oriented by its boundary half-edges).
+    neighbourhood : float
+        The height field's support radius, in hole radii.
+
+    Returns
+    -------
+    V2 : (n + k, 3) float64
+        ``V`` and the fill's vertices (appended).
+    F2 : (m + f, 3) int64
+        ``F`` and the fill faces (appended, so face ``i < m`` is still face ``i`` of ``F``),
+        oriented like the faces round each hole.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import spsolve
+
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    if not loops:
+        return V, F
+    H = meshtopo.boundary_halfedges(F)
+    n = len(V)
+    keys = set((H[:, 0] * n + H[:, 1]).tolist())
+    FN = meshtopo.face_normals(V, F, normalize=False)
+    newV, newF = [], []
+    nv = n
+    for loop in loops:
+        L = np.asarray(loop, dtype=np.int64)
+        m = len(L)
+        if m < 3:
+            continue
+        if int(L[0]) * n + int(L[1]) not in keys:     # the half-edge a -> b must belong to a face
+            L = L[::-1]
+        P = V[L]
+        c = P.mean(axis=0)
+        nrm = FN[np.isin(F, L).any(axis=1)].sum(axis=0)
+        nrm /= np.linalg.norm(nrm)
+        e1 = P[0] - c
+        e1 -= nrm * (e1 @ nrm)
+        e1 /= np.linalg.norm(e1)
+        B = np.stack([e1, np.cross(nrm, e1), nrm])          # rows: local x, y, height
+        P2 = (P - c) @ B[:2].T
+        r = float(np.linalg.norm(P2, axis=1).mean())
+        near = np.linalg.norm(V - c, axis=1) <= neighbourhood * r + 1e-12
+        Q = (V[near] - c) @ B.T
+        A = np.column_stack([np.ones(len(Q)), Q[:, 0], Q[:, 1], Q[:, 0] ** 2, Q[:, 0] * Q[:, 1], Q[:, 1] ** 2])
+        coef = np.linalg.lstsq(A, Q[:, 2], rcond=None)[0] if len(Q) >= 6 else np.r_[Q[:, 2].mean(), np.zeros(5)]
+        edge = float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).mean())
+        rings = max(0, int(round(r / max(edge, 1e-12))) - 1)
+        # the polar grid in local ids: 0..m-1 the loop, then the rings, the centre last
+        k_in = rings * m + 1
+        faces = []
+        outer = np.arange(m)
+        for k in range(rings):
+            ring = m + k * m + np.arange(m)
+            a, b, ri, rj = outer, np.roll(outer, -1), ring, np.roll(ring, -1)
+            faces += [np.column_stack([b, a, ri]), np.column_stack([b, ri, rj])]
+            outer = ring
+        centre = m + k_in - 1
+        faces.append(np.column_stack([np.roll(outer, -1), outer, np.full(m, centre)]))
+        G = np.concatenate(faces)
+        # harmonic extension (uniform weights) of the loop's plane coordinates into the grid
+        E = np.concatenate([G[:, [0, 1]], G[:, [1, 2]], G[:, [2, 0]]])
+        E = np.unique(np.sort(E, axis=1), axis=0)
+        N = m + k_in
+        W = coo_matrix((np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
+                       shape=(N, N)).tocsr()
+        Lap = (coo_matrix((np.asarray(W.sum(axis=1)).ravel(), (np.arange(N), np.arange(N))), shape=(N, N))
+               - W).tocsr()
+        inner = np.arange(m, N)
+        rhs = -(Lap[inner][:, :m] @ P2)
+        XY = np.atleast_2d(spsolve(Lap[inner][:, inner].tocsc(), rhs)).reshape(-1, 2)
+        h = np.column_stack([np.ones(len(XY)), XY[:, 0], XY[:, 1], XY[:, 0] ** 2, XY[:, 0] * XY[:, 1],
+                             XY[:, 1] ** 2]) @ coef
+        G = _unfold_fill(G, np.concatenate([P2, XY]))
+        newV.append(c + XY @ B[:2] + h[:, None] * B[2])
+        glob = np.concatenate([L, nv + np.arange(k_in)])
+        newF.append(glob[G])
+        nv += k_in
+    if not newF:
+        return V, F
+    return np.concatenate([V, *newV]), np.concatenate([F, *newF]).astype(np.int64)
+
+
+def _signed_areas(XY, T):
+    p, q, r = XY[T[:, 0]], XY[T[:, 1]], XY[T[:, 2]]
+    return 0.5 * ((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0]))
+
+
+def _unfold_fill(G, XY):
+    """Flip interior edges of the fill grid ``G`` (plane coordinates ``XY``, counter-clockwise
+    positive) while a face has a non-positive signed area and a flip of one of its edges leaves
+    both new faces larger than the worse of the two old ones. A loop edge that points at the
+    centre (a scanner's staircase) lies in line with the ring vertex inside it, and the quad
+    beside it only unfolds with its neighbour's diagonal."""
+    G = [list(map(int, f)) for f in G]
+    for _ in range(4 * len(G)):         # one flip per round; each strictly improves a bad face
+        A = _signed_areas(XY, np.asarray(G))
+        bad = np.flatnonzero(A <= 0)
+        if not len(bad):
+            break
+        owner = {}
+        for fi, f in enumerate(G):
+            for k in range(3):
+                owner[(f[k], f[(k + 1) % 3])] = fi
+        changed = False
+        for fi in bad.tolist():
+            f = G[fi]
+            for k in range(3):
+                u, v, w = f[k], f[(k + 1) % 3], f[(k + 2) % 3]
+                gj = owner.get((v, u))                  # the face across u -> v
+                if gj is None or gj == fi:
+                    continue
+                g = G[gj]
+                x = next(t for t in g if t != u and t != v)
+                n1, n2 = [w, u, x], [w, x, v]           # the edge u-v becomes w-x
+                new = _signed_areas(XY, np.asarray([n1, n2]))
+                if new.min() > min(A[fi], A[gj]) and new.min() > 0:
+                    G[fi], G[gj] = n1, n2
+                    A[fi], A[gj] = new
+                    changed = True
+                    break
+            if changed:
+                break
+        if not changed:
+            break
+    return np.asarray(G, dtype=np.int64)

@@ -55,7 +55,7 @@ from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polylin
                                           project_to_polyline, resample_loop, smooth_margin)
 from pipeline.geometry.flips import (collapse_flipped, collapse_short_edges, count_flipped, delaunay_flips, flip_slivers, mirror_flipped,
                                      reference_face_normals, relax, repair_flips, untangle)
-from pipeline.geometry.mesh_edit import TriMesh
+from pipeline.geometry.mesh_edit import TriMesh, fill_holes_smooth
 from pipeline.retopo.mesh_clean import clean_mesh
 from pipeline.results import StageResult
 from pipeline.settings import Settings, setting
@@ -93,6 +93,7 @@ class RetopoSettings(Settings):
     canthus_max_reach_mm: float = setting(3.0, ge=0, le=20)  # an apex farther beyond the scan's corner is not trusted
     margin_smooth_mm: float = setting(3.0, ge=0, le=20)      # eyelid_loop.smooth_margin bandwidth (0 = off)
     margin_smooth_max_move_mm: float = setting(2.0, gt=0, le=20)  # no margin point moves farther
+    fill_holes_mm: float = setting(60.0, ge=0, le=1000)      # scanner holes in the crop up to this perimeter are filled (0 = off)
 
 
 @dataclass
@@ -163,6 +164,36 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
         Fc = rep[Fc]
         Fc = Fc[(Fc[:, 0] != Fc[:, 1]) & (Fc[:, 1] != Fc[:, 2]) & (Fc[:, 0] != Fc[:, 2])]
     return Vc, Fc, vmap
+
+
+def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float) -> list:
+    """The crop's boundary loops that are holes of the scan itself: neither an eye opening (a loop
+    through ``eye_vertices``, crop ids) nor made by the crop (a loop through a vertex that lost a
+    face to it), with a perimeter of at most ``max_perimeter_mm``.
+
+    Parameters
+    ----------
+    Vc (p, 3), Fc (q, 3), vmap (p,) : :func:`crop_eye_region`'s crop
+    F : (m, 3) int64   the dense head's faces (before the crop)
+    eye_vertices : (k,) int64   the eye loops' vertices in crop ids
+    max_perimeter_mm : float
+
+    Returns
+    -------
+    list of (L,) int64 loops in crop ids
+    """
+    n = int(max(int(np.asarray(F).max()) + 1, int(vmap.max()) + 1))
+    lost = np.bincount(np.asarray(F).ravel(), minlength=n) > np.bincount(vmap[Fc].ravel(), minlength=n)
+    eye = np.zeros(len(Vc), dtype=bool)
+    eye[np.asarray(eye_vertices, dtype=np.int64)] = True
+    holes = []
+    for lp in mc.boundary_loops(Fc):
+        if eye[lp].any() or lost[vmap[lp]].any():
+            continue
+        P = Vc[lp]
+        if float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum()) <= max_perimeter_mm:
+            holes.append(lp)
+    return holes
 
 
 # ----------------------------------------------------------------------------- cleaning
@@ -362,6 +393,14 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
             curves[side], lateral[side] = smooth_margin(curves[side], lateral[side],
                                                         s.margin_smooth_mm,
                                                         s.margin_smooth_max_move_mm)
+    holes = []
+    if s.fill_holes_mm > 0:
+        # left open, a scanner's hole in the skin stays a hole of the asset (a black spot in
+        # every render); filled here it is remeshed like the skin round it, and the bake's rays
+        # over it miss the scan and take the rim's colour at about zero displacement
+        eye_vs = [inv[int(v)] for e in eyes.values() for v in e.loop_indices if int(v) in inv]
+        holes = scan_holes(Vc, Fc, vmap, F, eye_vs, s.fill_holes_mm)
+        Vc, Fc = fill_holes_smooth(Vc, Fc, holes)
     timings["crop_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -543,6 +582,7 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         "vertices": int(len(Vn)),
         "crop_faces": int(len(Fc)),
         "crop_subdivisions": int(refine_levels),
+        "scan_holes_filled": len(holes),
         "delaunay_flips": int(n_delaunay),
         "short_edges_collapsed": int(n_short),
         "eye_rings": ring_info,
