@@ -28,7 +28,7 @@ def tiny(tmp_path_factory):
 def _margin(smp, s) -> float:
     """The smallest distance (px) of a landmark or an iris ring point to the image border."""
     P = sp.framing_points(smp.landmarks_cam)
-    uv = sp.project_camera(P, {"ortho_scale_mm": smp.camera["ortho_scale_mm"]}, s.width, s.height)
+    uv = smp.spec.camera.project(P, s.width, s.height)
     return float(np.min([uv[:, 0], s.width - uv[:, 0], uv[:, 1], s.height - uv[:, 1]]))
 
 

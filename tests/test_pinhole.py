@@ -21,9 +21,9 @@ from pipeline.render import camera as cam
 from pipeline.render import labels as lb
 from pipeline.render import refraction as rf
 from pipeline.render import sampling as sp
-from pipeline.render.camera import quat_to_matrix
+from pipeline.render.camera import Camera, quat_to_matrix
 from pipeline.render.settings import PINHOLE_KEYS, PRESETS, RenderSettings
-from pipeline.render.spec import CameraSpec, RenderSpec
+from pipeline.render.spec import RenderSpec
 
 #: A frontal view with everything random pinned (sampling's override keys).
 FRONT = {"polar_deg": 0.0, "azimuth_deg": 0.0, "jitter": np.zeros(2), "gaze_pitch_deg": 0.0, "gaze_yaw_deg": 0.0,
@@ -53,33 +53,32 @@ def test_projection_known_answers():
     np.testing.assert_array_equal(K, [[500, 0, 60], [0, 500, 40], [0, 0, 1]])
     # OpenGL camera frame: on the axis -> principal point; +x right, +y up (image v down)
     P = np.array([[0.0, 0.0, -100.0], [10.0, 0.0, -100.0], [0.0, 10.0, -200.0]])
-    uv = cam.project_camera(P, {"type": "pinhole", "K": K}, 120, 80)
+    pinhole = Camera(np.eye(4).tolist(), K=K)
+    uv = pinhole.project(P, 120, 80)
     np.testing.assert_allclose(uv, [[60, 40], [110, 40], [60, 15]], atol=1e-12)
     # the same through OpenCV's axes and a label-style camera description
     R, t = cam.opencv_extrinsics(np.eye(4))
     np.testing.assert_array_equal(R, np.diag([1.0, -1.0, -1.0]))
     Xc = P @ R.T + t
     np.testing.assert_allclose((Xc @ K.T)[:, :2] / Xc[:, 2:], uv, atol=1e-12)
-    np.testing.assert_allclose(cam.project_camera(P, {"intrinsics": {"K": K.tolist()}}, 120, 80), uv)
-    np.testing.assert_allclose(cam.camera_projection({"K": K}, 120, 80), [[500, 0, -60, 0], [0, -500, -40, 0],
-                                                                         [0, 0, -1, 0]])
+    label_block = {"type": "pinhole", "world_to_camera": np.eye(4).tolist(), "intrinsics": {"K": K.tolist()}}
+    np.testing.assert_allclose(Camera.from_dict(label_block).project(P, 120, 80), uv)
+    np.testing.assert_allclose(pinhole.projection(120, 80), [[500, 0, -60, 0], [0, -500, -40, 0], [0, 0, -1, 0]])
     # OpenCV's pixel convention: centres at integers
     np.testing.assert_array_equal(cam.opencv_pixel_K(K)[:2, 2], [59.5, 39.5])
-    # orthographic descriptions go to the orthographic projection, bit for bit
+    # an orthographic camera goes to the orthographic projection, bit for bit
     Q = np.random.default_rng(0).normal(size=(5, 3)) * 10
-    assert np.array_equal(cam.project_camera(Q, {"ortho_scale_mm": 32.0}, 120, 80), cam.project(Q, 32.0, 120, 80))
-    assert np.array_equal(cam.project_camera(Q, CameraSpec(np.eye(4).tolist(), 32.0), 120, 80),
-                          cam.project(Q, 32.0, 120, 80))
+    assert np.array_equal(Camera(np.eye(4).tolist(), 32.0).project(Q, 120, 80), cam.project(Q, 32.0, 120, 80))
 
 
 def test_pixel_rays_project_back_to_their_pixels():
     px = np.array([[0.0, 0.0], [60.0, 40.0], [119.5, 3.25], [17.0, 79.0]])
-    for c in ({"type": "pinhole", "K": cam.intrinsics(90.0, 70.0, 30.0)}, {"ortho_scale_mm": 32.0}):
-        O, D = cam.pixel_rays(px, c, 120, 80)
+    for c in (Camera(np.eye(4).tolist(), K=cam.intrinsics(90.0, 70.0, 30.0)), Camera(np.eye(4).tolist(), 32.0)):
+        O, D = c.pixel_rays(px, 120, 80)
         np.testing.assert_allclose(np.linalg.norm(D, axis=1), 1.0)
         assert np.all(D[:, 2] < 0)                                            # forward = -z
         for t in (5.0, 250.0):
-            np.testing.assert_allclose(cam.project_camera(O + t * D, c, 120, 80), px, atol=1e-9)
+            np.testing.assert_allclose(c.project(O + t * D, 120, 80), px, atol=1e-9)
 
 
 def test_crop_intrinsics_are_the_sensor_K_shifted():
@@ -139,8 +138,8 @@ def test_pinhole_landmarks_reproject_within_0_01_px(asset, preset):
         # the same through head_to_pixel
         Hp = np.c_[lab["landmarks"]["head_mm"], np.ones(28)] @ np.asarray(c["head_to_pixel"]).T
         assert np.abs(Hp[:, :2] / Hp[:, 2:] - px).max() < 0.01
-        # project_camera on the label's own camera block is the label's px
-        assert np.abs(cam.project_camera(lab["landmarks"]["camera_mm"], c, s.width, s.height) - px).max() < 1e-9
+        # the label's own camera block, read as a Camera, projects to the label's px
+        assert np.abs(Camera.from_dict(c).project(lab["landmarks"]["camera_mm"], s.width, s.height) - px).max() < 1e-9
         # the OpenCV extrinsics are the OpenGL ones with y and z flipped
         W = np.asarray(c["world_to_camera"])
         np.testing.assert_allclose(np.asarray(c["opencv"]["world_to_camera"]), np.diag([1, -1, -1, 1]) @ W)

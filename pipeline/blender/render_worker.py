@@ -103,8 +103,8 @@ from pipeline.blender.seg_passes import SegPasses
 from pipeline.blender.scene import add_inbetween_keys, evaluated_vertices, find_image, import_usd
 from pipeline.blender.world import EnvironmentWorld
 from pipeline.eyeball.textures import IRIS_COLORS, SCLERA_TINTS, VEINS  # the asset's variants (no bpy)
-from pipeline.render.camera import quat_to_matrix
-from pipeline.render.spec import EYE_BLENDS, SIDES, CameraSpec, RenderSpec
+from pipeline.render.camera import Camera, quat_to_matrix
+from pipeline.render.spec import EYE_BLENDS, SIDES, RenderSpec
 
 REPLY_PREFIX = "@@render@@ "
 CAMERA_PULLBACK_M = 0.25
@@ -462,7 +462,7 @@ class Worker:
         for kb in self.skin_keys:
             kb.value = flat.get(kb.name, 0.0)
 
-    def _set_camera(self, cam: CameraSpec, width: int, height: int) -> None:
+    def _set_camera(self, cam: Camera, width: int, height: int) -> None:
         from mathutils import Matrix
 
         C = camera_to_head(cam.world_to_camera)

@@ -14,14 +14,15 @@ forward = :data:`GL_TO_CV` of the OpenGL axes): ``[u, v, 1] ~ K @ GL_TO_CV @ p_c
 principal point is ``(W / 2, H / 2)``; OpenCV's own pixel convention (centres at integers) is
 ``K`` with ``cx - 0.5, cy - 0.5`` (:func:`opencv_pixel_K`). A crop at integer offset ``(x0, y0)``
 of a sensor image has ``K_crop = K_sensor`` with ``cx - x0, cy - y0`` (:func:`crop_intrinsics`).
-:func:`project_camera` projects with either kind from a camera description (a label's camera
-block, a sample's camera dict or a :class:`pipeline.render.spec.CameraSpec`), and
-:func:`pixel_rays` gives the camera ray of a pixel.
+:class:`Camera` is a camera of either kind, read once from whatever describes it (the worker
+spec's wire layout, a label's camera block: :meth:`Camera.from_dict`); it projects
+(:meth:`Camera.project`) and gives the camera ray of a pixel (:meth:`Camera.pixel_rays`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -190,68 +191,128 @@ def project_pinhole(points_cam, K) -> np.ndarray:
     return H[:, :2] / H[:, 2:]
 
 
-def _getter(camera):
-    return (lambda k: camera.get(k)) if isinstance(camera, dict) else (lambda k: getattr(camera, k, None))
+def _need(cond: bool, message: str) -> None:
+    if not cond:
+        raise ValueError(message)
 
 
-def camera_kind(camera) -> str:
-    """``ortho`` | ``pinhole`` of a camera description (see :func:`camera_projection`)."""
-    get = _getter(camera)
-    kind = get("type") or get("kind")
-    if kind in ("orthographic", "ortho"):
-        return "ortho"
-    if kind == "pinhole" or get("K") is not None or get("intrinsics") is not None:
-        return "pinhole"
-    if get("ortho_scale_mm") is not None:
-        return "ortho"
-    raise ValueError("camera description has neither ortho_scale_mm nor K")
+def _matrix(x, shape: tuple, key: str) -> np.ndarray:
+    try:
+        M = np.asarray(x, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{key} must be {shape[0]} x {shape[1]} numbers, got {x!r}") from None
+    _need(M.shape == shape and bool(np.all(np.isfinite(M))), f"{key} must be {shape[0]} x {shape[1]} finite numbers")
+    return M
 
 
-def camera_K(camera) -> np.ndarray:
-    """(3, 3) ``K`` of a pinhole camera description (``K`` or ``intrinsics.K``)."""
-    get = _getter(camera)
-    K = get("K")
-    if K is None:
-        K = (get("intrinsics") or {}).get("K")
-    if K is None:
-        raise ValueError("pinhole camera description has no K")
-    return np.asarray(K, float)
+@dataclass(frozen=True)
+class Camera:
+    """The camera of one image: ``world_to_camera`` (4, 4) head mm -> camera mm (OpenGL axes),
+    and exactly one of the image width in mm (``ortho_scale_mm``: orthographic) or the
+    intrinsics ``K`` (3, 3: pinhole, square pixels, no skew; pixels as in the labels, centres
+    at +0.5). Matrices are kept as nested lists, the values the wire carries.
 
+    Wire layout (the worker's spec, pipeline/render/spec.py; :meth:`to_dict`):
+    ``{"world_to_camera", "ortho_scale_mm"}`` or ``{"type": "pinhole", "world_to_camera", "K"}``.
+    :meth:`from_dict` also reads a label's ``camera`` block (pipeline/render/labels.py:
+    ``type`` ``orthographic`` with ``ortho_scale_mm``, or ``pinhole`` with ``intrinsics.K``) and
+    any mapping of these keys (a sample's camera dict, a job dict).
 
-def camera_projection(camera, width: int, height: int) -> np.ndarray:
-    """(3, 4) OpenGL camera mm -> homogeneous pixels of either camera kind.
-
-    ``camera``: a dict or object with ``ortho_scale_mm`` (orthographic) or ``K`` /
-    ``intrinsics.K`` (pinhole; ``type`` may say which): a label's ``camera`` block, a sample's
-    camera dict, a :class:`pipeline.render.spec.CameraSpec`.
+    Raises
+    ------
+    ValueError
+        Naming the problem: a matrix of the wrong shape or not finite, both or neither of
+        ``ortho_scale_mm`` and ``K``, a scale <= 0, a ``K`` Blender's camera cannot be (skew,
+        two focal lengths).
     """
-    if camera_kind(camera) == "pinhole":
-        return pinhole_projection_matrix(camera_K(camera))
-    return projection_matrix(_getter(camera)("ortho_scale_mm"), width, height)
 
+    world_to_camera: list
+    ortho_scale_mm: float | None = None
+    K: list | None = None
 
-def project_camera(points_cam, camera, width: int, height: int) -> np.ndarray:
-    """(n, 2) pixels (origin top-left, pixel centres at +0.5) of (n, 3) OpenGL camera-frame mm
-    points, with either camera kind (``camera`` as in :func:`camera_projection`). A pinhole
-    camera sees only points in front of it (``z < 0``); those behind project to mirrored pixels,
-    so mask them first."""
-    if camera_kind(camera) == "ortho":
-        return project(points_cam, _getter(camera)("ortho_scale_mm"), width, height)
-    return project_pinhole(points_cam, camera_K(camera))
+    def __post_init__(self):
+        for k in ("world_to_camera", "K"):
+            # arrays become the lists that a caller would have written on the wire (tolist() is exact)
+            if isinstance(getattr(self, k), np.ndarray):
+                object.__setattr__(self, k, getattr(self, k).tolist())
+        _matrix(self.world_to_camera, (4, 4), "camera.world_to_camera")
+        _need((self.ortho_scale_mm is None) != (self.K is None),
+              "camera needs exactly one of ortho_scale_mm and K, got "
+              + ("both" if self.K is not None else "neither"))
+        if self.K is None:
+            try:
+                s = float(self.ortho_scale_mm)
+            except (TypeError, ValueError):
+                raise ValueError(f"camera.ortho_scale_mm must be a number, got {self.ortho_scale_mm!r}") from None
+            _need(math.isfinite(s), f"camera.ortho_scale_mm must be finite, got {self.ortho_scale_mm!r}")
+            _need(s > 0, "camera.ortho_scale_mm must be > 0")
+            return
+        K = _matrix(self.K, (3, 3), "camera.K")
+        _need(K[0, 0] > 0, f"camera.K focal length must be > 0, got {K[0, 0]:g}")
+        # Blender's camera has one focal length (square pixels) and no skew
+        _need(bool(K[1, 1] == K[0, 0] and K[0, 1] == 0 and K[1, 0] == 0 and np.all(K[2] == [0, 0, 1])),
+              "camera.K must be [[f, 0, cx], [0, f, cy], [0, 0, 1]] (square pixels, no skew)")
 
+    @property
+    def kind(self) -> str:
+        """``ortho`` | ``pinhole`` (:data:`CAMERA_KINDS`)."""
+        return "ortho" if self.K is None else "pinhole"
 
-def pixel_rays(px, camera, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    """Camera rays of (n, 2) pixel positions, either camera kind: (n, 3) origins and (n, 3) unit
-    directions in the OpenGL camera frame (``origin + t * direction``, t > 0, projects to
-    ``px``): orthographic rays start on the image plane z = 0 and run along -z, pinhole rays
-    start at the camera centre."""
-    px = np.atleast_2d(np.asarray(px, float))
-    if camera_kind(camera) == "ortho":
-        ow, oh = ortho_size(_getter(camera)("ortho_scale_mm"), width, height)
-        O = np.c_[(px[:, 0] / width - 0.5) * ow, (0.5 - px[:, 1] / height) * oh, np.zeros(len(px))]
-        return O, np.broadcast_to([0.0, 0.0, -1.0], O.shape).copy()
-    d = np.c_[px, np.ones(len(px))] @ np.linalg.inv(camera_K(camera)).T @ GL_TO_CV
-    return np.zeros((len(px), 3)), d / np.linalg.norm(d, axis=1, keepdims=True)
+    def to_dict(self) -> dict:
+        """The wire layout (class doc)."""
+        if self.K is None:
+            return {"world_to_camera": self.world_to_camera, "ortho_scale_mm": self.ortho_scale_mm}
+        return {"type": "pinhole", "world_to_camera": self.world_to_camera, "K": self.K}
+
+    @classmethod
+    def from_dict(cls, cam) -> "Camera":
+        """A camera from its wire layout or a label's ``camera`` block (class doc); other keys
+        are ignored. ``type`` (``ortho`` | ``orthographic`` | ``pinhole``) may be absent: then a
+        ``K`` (or ``intrinsics.K``) makes it pinhole."""
+        _need(isinstance(cam, dict), "camera must be a JSON object")
+        kind = cam.get("type")
+        _need(kind in (None, "ortho", "orthographic", "pinhole"),
+              f"camera.type {kind!r} not in ('ortho', 'orthographic', 'pinhole')")
+        K = cam.get("K")
+        if K is None and isinstance(cam.get("intrinsics"), dict):
+            K = cam["intrinsics"].get("K")
+        scale = cam.get("ortho_scale_mm")
+        if kind == "pinhole":
+            _need(scale is None, "camera: a pinhole camera has no ortho_scale_mm")
+            _need(K is not None, "camera: a pinhole camera needs K")
+        elif kind is not None:
+            _need(K is None, "camera: an orthographic camera has no K")
+            _need(scale is not None, "camera: an orthographic camera needs ortho_scale_mm")
+        _need("world_to_camera" in cam, "camera has no world_to_camera")
+        return cls(cam["world_to_camera"], scale, K)
+
+    def projection(self, width: int, height: int) -> np.ndarray:
+        """(3, 4) OpenGL camera mm -> homogeneous pixels (:func:`projection_matrix` or
+        :func:`pinhole_projection_matrix`)."""
+        if self.K is None:
+            return projection_matrix(self.ortho_scale_mm, width, height)
+        return pinhole_projection_matrix(self.K)
+
+    def project(self, points_cam, width: int, height: int) -> np.ndarray:
+        """(n, 2) pixels (origin top-left, pixel centres at +0.5) of (n, 3) OpenGL camera-frame mm
+        points. A pinhole camera sees only points in front of it (``z < 0``); those behind
+        project to mirrored pixels, so mask them first."""
+        if self.K is None:
+            return project(points_cam, self.ortho_scale_mm, width, height)
+        return project_pinhole(points_cam, self.K)
+
+    def pixel_rays(self, px, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        """Camera rays of (n, 2) pixel positions: (n, 3) origins and (n, 3) unit directions in the
+        OpenGL camera frame (``origin + t * direction``, t > 0, projects to ``px``): orthographic
+        rays start on the image plane z = 0 and run along -z, pinhole rays start at the camera
+        centre."""
+        px = np.atleast_2d(np.asarray(px, float))
+        if self.K is None:
+            ow, oh = ortho_size(self.ortho_scale_mm, width, height)
+            O = np.c_[(px[:, 0] / width - 0.5) * ow, (0.5 - px[:, 1] / height) * oh, np.zeros(len(px))]
+            return O, np.broadcast_to([0.0, 0.0, -1.0], O.shape).copy()
+        d = np.c_[px, np.ones(len(px))] @ np.linalg.inv(np.asarray(self.K, float)).T @ GL_TO_CV
+        return np.zeros((len(px), 3)), d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def point_in_polygon(pt, poly) -> bool:

@@ -25,7 +25,7 @@ asset, so the test must be cheap and must not miss a visible gap:
 
 Cameras: the rasteriser takes a projection function of camera-frame points (OpenGL axes, the
 camera looks down -Z) to pixels, so it serves the orthographic camera
-and the pinhole one (:func:`pipeline.render.camera.project_camera`). A perspective projection maps
+and the pinhole one (:meth:`pipeline.render.camera.Camera.project`). A perspective projection maps
 triangles to triangles only when all three vertices are in front of the camera: with ``near_mm``
 set, a triangle with a vertex nearer than that (``z > -near_mm``) is refused (it covers nothing,
 which can only under-count coverage); sphere silhouettes are then the cone's tangent circle.
@@ -38,7 +38,7 @@ import math
 import numpy as np
 
 from pipeline.render import asset as ra
-from pipeline.render.camera import camera_kind, project_camera, to_camera
+from pipeline.render.camera import to_camera
 
 #: Cycles' default pixel filter width is 1.5 px: samples reach 0.75 px from the pixel centre.
 FILTER_RADIUS_PX = 0.75
@@ -244,16 +244,16 @@ NEAR_MM = 1.0
 
 def sample_uncovered(asset, smp, width: int, height: int) -> float:
     """Uncovered area (px^2) of a sample (:class:`pipeline.render.sampling.Sample`), either camera
-    kind (:func:`pipeline.render.camera.project_camera` of the sample's camera).
+    kind (the camera of the sample's spec, :class:`pipeline.render.camera.Camera`).
 
     With true displacement (``skin_detail`` ``displacement``) the skin's border moves by up to
     the asset's displacement amplitude, so the margin grows by that many pixels.
     """
-    camera = smp.camera
-    perspective = camera_kind(camera) == "pinhole"
+    camera = smp.spec.camera
+    perspective = camera.kind == "pinhole"
     margin = MARGIN_PX
     if smp.spec.quality.skin_detail == "displacement":
-        margin += float(asset.displacement_amplitude_mm) / float(camera["mm_per_px"])
-    tris = scene_triangles(asset, smp.spec.lid_weights, camera["world_to_camera"], perspective)
-    return frame_uncovered(tris, lambda P: project_camera(P, camera, width, height), width, height,
+        margin += float(asset.displacement_amplitude_mm) / float(smp.camera["mm_per_px"])
+    tris = scene_triangles(asset, smp.spec.lid_weights, camera.world_to_camera, perspective)
+    return frame_uncovered(tris, lambda P: camera.project(P, width, height), width, height,
                            near_mm=NEAR_MM if perspective else None, margin_px=margin)

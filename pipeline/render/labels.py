@@ -67,16 +67,16 @@ def camera_block(smp: sp.Sample, settings: RenderSettings) -> dict:
     """The label's ``camera`` block: orthographic (as before the pinhole camera) or pinhole
     (intrinsics, the sensor and crop, OpenCV extrinsics); both give ``projection`` (3, 4), camera
     mm -> homogeneous px, and ``head_to_pixel``."""
-    c = smp.camera
-    W2C = np.asarray(c["world_to_camera"], float)
+    c, camera = smp.camera, smp.spec.camera
+    W2C = np.asarray(camera.world_to_camera, float)
     spherical = {"eye": smp.side, "polar_deg": c["polar_deg"], "azimuth_deg": c["azimuth_deg"],
                  "distance_mm": c["distance_mm"], "polar_axis": "the eye's rest forward (0 = frontal view)"}
-    if c.get("type") != "pinhole":
-        P = cam.projection_matrix(c["ortho_scale_mm"], settings.width, settings.height)
-        ow, oh = cam.ortho_size(c["ortho_scale_mm"], settings.width, settings.height)
+    if camera.kind == "ortho":
+        P = camera.projection(settings.width, settings.height)
+        ow, oh = cam.ortho_size(camera.ortho_scale_mm, settings.width, settings.height)
         return {
             "type": "orthographic",
-            "ortho_scale_mm": c["ortho_scale_mm"], "image_width_mm": ow, "image_height_mm": oh,
+            "ortho_scale_mm": camera.ortho_scale_mm, "image_width_mm": ow, "image_height_mm": oh,
             "mm_per_px": c["mm_per_px"],
             "world_to_camera": W2C.tolist(),
             "projection": P.tolist(),
@@ -85,8 +85,8 @@ def camera_block(smp: sp.Sample, settings: RenderSettings) -> dict:
             "spherical": spherical,
             "framing_shift_mm": c["jitter_mm"],
         }
-    K, Ks = np.asarray(c["K"], float), np.asarray(c["K_sensor"], float)
-    P = cam.pinhole_projection_matrix(K)
+    K, Ks = np.asarray(camera.K, float), np.asarray(c["K_sensor"], float)
+    P = camera.projection(settings.width, settings.height)
     Rcv, tcv = cam.opencv_extrinsics(W2C)
     f, (w, h) = float(K[0, 0]), (settings.width, settings.height)
     sw, sh = c["sensor_px"]
@@ -134,7 +134,7 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
         "scan": scan,
         "image": {"file": sp.png_name(smp.index), "width": settings.width, "height": settings.height,
                   "pixels": "origin top-left, pixel centres at +0.5"},
-        "frames": FRAMES_PINHOLE if smp.camera.get("type") == "pinhole" else FRAMES,
+        "frames": FRAMES_PINHOLE if smp.spec.camera.kind == "pinhole" else FRAMES,
         "seed": {"seed": settings.seed, "index": smp.index, "attempts": smp.attempts,
                  "rng": "numpy.random.default_rng([seed, index, attempt]), attempt = attempts - 1"},
         "preset": settings.preset,
@@ -195,12 +195,10 @@ def apparent_job(smp: sp.Sample, eye, settings: RenderSettings) -> dict:
     from pipeline.render.camera import quat_to_matrix
 
     R = quat_to_matrix(smp.spec.eye_rotation[smp.side])
-    lens = ({"type": "pinhole", "K": np.asarray(smp.camera["K"]).tolist()} if smp.camera.get("type") == "pinhole"
-            else {"ortho_scale_mm": smp.camera["ortho_scale_mm"]})
-    return {"points_head": smp.landmarks_head[12:28].tolist(),
-            "world_to_camera": np.asarray(smp.camera["world_to_camera"]).tolist(),
+    # the camera in its wire layout, which apparent_landmarks reads back with Camera.from_dict
+    return {"points_head": smp.landmarks_head[12:28].tolist(), **smp.spec.camera.to_dict(),
             "model_to_head": eye.model_to_head(R).tolist(), "eyeball_params": dict(eye.eyeball_params),
-            "ior": eye.cornea_ior, **lens,
+            "ior": eye.cornea_ior,
             "width": settings.width, "height": settings.height, "order": APPARENT_ORDER}
 
 

@@ -47,6 +47,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.render import conventions as conv
+from pipeline.render.camera import Camera, opencv_pixel_K, ortho_size
 
 #: Mask value of a normalised pixel whose source lies outside the rendered image.
 OUTSIDE = 255
@@ -66,14 +67,6 @@ def eye_center_camera(label: dict, center: str = "eyeball") -> np.ndarray:
     return np.asarray(label["eyes"][label["gaze"]["eye"]]["center_camera_mm"], float)
 
 
-def camera_K(label: dict) -> np.ndarray | None:
-    """(3, 3) the image's intrinsics in OpenCV pixels (centres at integers); None when orthographic."""
-    cam = label["camera"]
-    if cam.get("type") != "pinhole":
-        return None
-    return np.asarray(cam["intrinsics"]["K_pixel_centres_at_integers"], float)
-
-
 def normalization(label: dict, size_px=(128, 128), focal_px: float = 1800.0, distance_mm: float = 600.0,
                   center: str = "eyeball") -> dict:
     """The normalisation of one labelled image (module doc): ``R``, ``S``, ``K_norm``, the warp in
@@ -83,18 +76,18 @@ def normalization(label: dict, size_px=(128, 128), focal_px: float = 1800.0, dis
     e = conv.to_opencv(e_gl)
     hR = np.asarray(label["conventions"]["eth_xgaze"]["head_rotation_opencv"], float)
     K_norm = np.array([[focal_px, 0.0, w / 2.0], [0.0, focal_px, h / 2.0], [0.0, 0.0, 1.0]])
-    K = camera_K(label)
+    camera = Camera.from_dict(label["camera"])
     dist = float(np.linalg.norm(e))
-    if K is not None:
+    if camera.kind == "pinhole":
+        K = opencv_pixel_K(camera.K)           # OpenCV pixels (centres at integers), as ETH-XGaze's K
         R = conv.eth_normalization(hR, e / dist)
         S = np.diag([1.0, 1.0, distance_mm / dist])
         W = K_norm @ S @ R @ np.linalg.inv(K)
     else:                                  # the limit of a camera receding along its axis (module doc)
         R = conv.eth_normalization(hR, (0.0, 0.0, 1.0))
         S = None
-        cam = label["camera"]
-        a = label["image"]["width"] / float(cam["image_width_mm"])          # px per mm
         W_img, H_img = label["image"]["width"], label["image"]["height"]
+        a = W_img / ortho_size(camera.ortho_scale_mm, W_img, H_img)[0]          # px per mm
         # OpenCV px -> camera mm (x right, y down) relative to the eye centre
         to_mm = np.array([[1.0 / a, 0.0, (0.5 - W_img / 2.0) / a - e[0]],
                           [0.0, 1.0 / a, (0.5 - H_img / 2.0) / a - e[1]],
@@ -107,7 +100,7 @@ def normalization(label: dict, size_px=(128, 128), focal_px: float = 1800.0, dis
     return {"R": R, "S": S, "K_norm": K_norm, "warp_opencv": W, "warp": _HALF @ W @ _HALF_INV,
             "center_camera_mm": e_gl, "center_opencv_mm": e, "distance_mm": dist, "center": center,
             "size_px": (w, h), "focal_px": float(focal_px), "distance_norm_mm": float(distance_mm),
-            "orthographic": K is None}
+            "orthographic": camera.kind == "ortho"}
 
 
 def apply_h(H, px) -> np.ndarray:

@@ -176,7 +176,7 @@ def apparent_points_camera(points_head, world_to_camera, model_to_head, params: 
                            ior: float = CORNEA_IOR, pinhole: bool = False) -> np.ndarray:
     """(n, 3) camera-frame mm points on the rays along which the camera sees ``points_head``
     through the cornea (NaN rows where not seen): orthographic ``(x, y, 0)``, pinhole
-    ``(x, y, z_P)``; project them with :func:`pipeline.render.camera.project_camera`."""
+    ``(x, y, z_P)``; project them with :meth:`pipeline.render.camera.Camera.project`."""
     xy = apparent_projection(points_head, world_to_camera, model_to_head, params, ior, pinhole=pinhole)
     if not pinhole:
         return np.c_[xy, np.zeros(len(xy))]

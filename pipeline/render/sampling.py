@@ -76,11 +76,10 @@ from pipeline.eyeball.textures import SCLERA_TINTS as _SCLERA_TINTS
 from pipeline.render import asset as ra
 from pipeline.render import coverage
 from pipeline.render import formats
-from pipeline.render.camera import (crop_intrinsics, direction_from_angles, eye_angles, intrinsics, look_at, matrix_to_quat,
-                                     ortho_size, point_in_polygon, project_camera, project_pinhole, rotation_between,
-                                     to_camera)
+from pipeline.render.camera import (Camera, crop_intrinsics, direction_from_angles, eye_angles, intrinsics, look_at, matrix_to_quat,
+                                     ortho_size, point_in_polygon, project_pinhole, rotation_between, to_camera)
 from pipeline.render.settings import RenderSettings
-from pipeline.render.spec import CameraSpec, EyeConfiguration, Lighting, Quality, RenderSpec
+from pipeline.render.spec import EyeConfiguration, Lighting, Quality, RenderSpec
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 
@@ -262,7 +261,8 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
     view /= np.linalg.norm(view)
     if s.camera == "pinhole":
         pin = pinhole_camera(asset, s, side, view, d)
-        W2C, lens = pin["world_to_camera"], {"K": pin["K"]}
+        W2C = pin["world_to_camera"]
+        cam = Camera(W2C.tolist(), K=pin["K"].tolist())
     else:
         pos0 = eye.center + s.camera_distance_mm * view
         W2C = look_at(pos0, eye.center, B[1])
@@ -270,7 +270,7 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
         shift = W2C[0, :3] * d["jitter"][0] + W2C[1, :3] * d["jitter"][1]
         pos = pos0 + shift
         W2C = look_at(pos, eye.center + shift, B[1])
-        lens = {"ortho_scale_mm": d["ortho_scale_mm"]}
+        cam = Camera(W2C.tolist(), d["ortho_scale_mm"])
 
     # gaze: eye contact + offsets, clipped; the other eye parallel
     p0, y0 = eye_angles(view, B)
@@ -309,20 +309,18 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
             # the same draw with the framing moved: the camera's direction, the gaze and all else stay
             return pose_sample(asset, s, index, attempt, png, {**(overrides or {}), "jitter": fit[0],
                                                                 "ortho_scale_mm": fit[1], "_framed": True})
-    L_px = project_camera(L_cam, lens, s.width, s.height)
+    L_px = cam.project(L_cam, s.width, s.height)
     pc_cam = to_camera(ra.pupil_center(asset, side, blend, rots[side])[None], W2C)
-    pc_px = project_camera(pc_cam, lens, s.width, s.height)[0]
-    poly_px = project_camera(to_camera(ra.posed_lid_polygon(asset, side, lw), W2C), lens, s.width, s.height)
-    eye_geometry = _eye_geometry(asset, W2C, lens, s, blend)
+    pc_px = cam.project(pc_cam, s.width, s.height)[0]
+    poly_px = cam.project(to_camera(ra.posed_lid_polygon(asset, side, lw), W2C), s.width, s.height)
+    eye_geometry = _eye_geometry(asset, cam, s, blend)
     if s.camera == "pinhole":          # the footprint of a pixel at the landmarks' median depth
         mm_per_px = float(np.median(-L_cam[:, 2])) / d["focal_px"]
-        cam_spec = CameraSpec(W2C.tolist(), None, pin["K"].tolist())
     else:
         mm_per_px = ortho_size(d["ortho_scale_mm"], s.width, s.height)[0] / s.width
-        cam_spec = CameraSpec(W2C.tolist(), d["ortho_scale_mm"])
     spec = RenderSpec(
         index=int(index), png=str(png), width=int(s.width), height=int(s.height), eye=side,
-        camera=cam_spec,
+        camera=cam,
         eye_rotation={sd: gaze[sd]["rotation_wxyz"] for sd in ra.SIDES},
         lid_weights={k: float(v) for k, v in lw.items()},
         eyeball=EyeConfiguration(d["iris_color"], d["sclera_tint"], d["veins"], blend),
@@ -344,7 +342,7 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
                   pupil_center_px=pc_px, lid_polygon_px=poly_px, eye_geometry=eye_geometry)
 
 
-def _eye_geometry(asset: ra.RenderAsset, W2C, lens: dict, s: RenderSettings, blend: dict) -> dict:
+def _eye_geometry(asset: ra.RenderAsset, cam: Camera, s: RenderSettings, blend: dict) -> dict:
     """Per side, what the asset says of the eye (the label's ``eyes.<side>``): its rotation centre
     (the gaze origin) in the head frame, the camera frame and pixels, its radius and the distance
     from the centre to the plane of its iris landmarks (:func:`pipeline.render.asset.iris_plane_distance`);
@@ -352,11 +350,11 @@ def _eye_geometry(asset: ra.RenderAsset, W2C, lens: dict, s: RenderSettings, ble
     out = {}
     for sd in ra.SIDES:
         eye = asset.eyes[sd]
-        c_cam = to_camera(np.asarray(eye.center, float)[None], W2C)
-        seen = "K" not in lens or c_cam[0, 2] < 0          # a pinhole camera sees only what lies in front of it
+        c_cam = to_camera(np.asarray(eye.center, float)[None], cam.world_to_camera)
+        seen = cam.kind == "ortho" or c_cam[0, 2] < 0          # a pinhole camera sees only what lies in front of it
         out[sd] = {"center_head_mm": [float(v) for v in eye.center],
                    "center_camera_mm": [float(v) for v in c_cam[0]],
-                   "center_px": ([float(v) for v in project_camera(c_cam, lens, s.width, s.height)[0]]
+                   "center_px": ([float(v) for v in cam.project(c_cam, s.width, s.height)[0]]
                                  if seen else None),
                    "radius_mm": float(eye.radius),
                    "center_to_iris_plane_mm": ra.iris_plane_distance(eye, blend)}

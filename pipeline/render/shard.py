@@ -175,11 +175,12 @@ def apparent_landmarks(job: dict) -> dict:
     """Label fields of the iris/pupil landmarks as seen through the cornea (see labels.apparent_job)."""
     from pipeline.eyeball.geometry import EyeballParams
     from pipeline.render import refraction as rf
-    from pipeline.render import camera as cam
+    from pipeline.render.camera import Camera
 
-    pts = rf.apparent_points_camera(job["points_head"], job["world_to_camera"], job["model_to_head"],
-                                    EyeballParams.from_dict(job["eyeball_params"]), job["ior"], "K" in job)
-    px = cam.project_camera(pts, job, job["width"], job["height"])
+    camera = Camera.from_dict(job)
+    pts = rf.apparent_points_camera(job["points_head"], camera.world_to_camera, job["model_to_head"],
+                                    EyeballParams.from_dict(job["eyeball_params"]), job["ior"], camera.kind == "pinhole")
+    px = camera.project(pts, job["width"], job["height"])
     px = [None if not np.all(np.isfinite(p)) else [float(p[0]), float(p[1])] for p in px]
     return {"apparent_px": px, "apparent_order": job["order"]}
 

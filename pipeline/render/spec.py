@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.render.camera import Camera
+
 SIDES = ("left", "right")
 SKIN_DETAIL = ("displacement", "bump", "none")
 EYE_BLENDS = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
@@ -56,58 +58,6 @@ def _finite(x, key: str) -> float:
         raise ValueError(f"{key} must be a number, got {x!r}") from None
     _need(math.isfinite(v), f"{key} must be finite, got {x!r}")
     return v
-
-
-@dataclass(frozen=True)
-class CameraSpec:
-    """The camera: ``world_to_camera`` (4, 4) head mm -> camera mm, and either the image width
-    in mm (``ortho_scale_mm``: orthographic) or the intrinsics ``K`` (3, 3: pinhole, square
-    pixels, no skew; pixels as in the labels, centres at +0.5; pipeline/render/camera.py).
-
-    Wire layout: ``{"world_to_camera", "ortho_scale_mm"}`` or ``{"type": "pinhole",
-    "world_to_camera", "K"}`` (:meth:`to_dict`)."""
-
-    world_to_camera: list
-    ortho_scale_mm: float | None = None
-    K: list | None = None
-
-    def __post_init__(self):
-        M = np.asarray(self.world_to_camera, float)
-        _need(M.shape == (4, 4) and bool(np.all(np.isfinite(M))), "camera.world_to_camera must be 4 x 4 finite numbers")
-        _need((self.ortho_scale_mm is None) != (self.K is None), "camera needs either ortho_scale_mm or K")
-        if self.K is None:
-            s = _finite(self.ortho_scale_mm, "camera.ortho_scale_mm")
-            _need(s > 0, "camera.ortho_scale_mm must be > 0")
-            return
-        try:
-            K = np.asarray(self.K, float)
-        except (TypeError, ValueError):
-            raise ValueError(f"camera.K must be 3 x 3 numbers, got {self.K!r}") from None
-        _need(K.shape == (3, 3) and bool(np.all(np.isfinite(K))), "camera.K must be 3 x 3 finite numbers")
-        _need(K[0, 0] > 0, f"camera.K focal length must be > 0, got {K[0, 0]:g}")
-        # Blender's camera has one focal length (square pixels) and no skew
-        _need(bool(K[1, 1] == K[0, 0] and K[0, 1] == 0 and K[1, 0] == 0 and np.all(K[2] == [0, 0, 1])),
-              "camera.K must be [[f, 0, cx], [0, f, cy], [0, 0, 1]] (square pixels, no skew)")
-
-    @property
-    def kind(self) -> str:
-        """``ortho`` | ``pinhole``."""
-        return "ortho" if self.K is None else "pinhole"
-
-    def to_dict(self) -> dict:
-        if self.K is None:
-            return {"world_to_camera": self.world_to_camera, "ortho_scale_mm": self.ortho_scale_mm}
-        return {"type": "pinhole", "world_to_camera": self.world_to_camera, "K": self.K}
-
-    @classmethod
-    def from_dict(cls, cam) -> "CameraSpec":
-        _need(isinstance(cam, dict), "camera must be a JSON object")
-        kind = cam.get("type", "ortho")
-        _need(kind in ("ortho", "pinhole"), f"camera.type {kind!r} not in ('ortho', 'pinhole')")
-        if kind == "pinhole":
-            _need("ortho_scale_mm" not in cam, "camera: a pinhole camera has no ortho_scale_mm")
-            return cls(cam["world_to_camera"], None, cam["K"])
-        return cls(cam["world_to_camera"], cam["ortho_scale_mm"])
 
 
 @dataclass(frozen=True)
@@ -178,7 +128,7 @@ class RenderSpec:
     width: int
     height: int
     eye: str
-    camera: CameraSpec
+    camera: Camera
     eye_rotation: dict
     lid_weights: dict
     eyeball: EyeConfiguration
@@ -241,7 +191,7 @@ class RenderSpec:
         try:
             cam, eb, light = d["camera"], d["eyeball"], d["lighting"]
             return cls(index=d["index"], png=d["png"], width=d["width"], height=d["height"], eye=d["eye"],
-                       camera=CameraSpec.from_dict(cam),
+                       camera=Camera.from_dict(cam),
                        eye_rotation=dict(d["eye_rotation"]), lid_weights=dict(d["lid_weights"]),
                        eyeball=EyeConfiguration(eb["iris_color"], eb["sclera_tint"], eb["veins"],
                                                 dict(eb.get("blend", {}))),

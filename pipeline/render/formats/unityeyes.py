@@ -223,18 +223,18 @@ def points_job(asset, smp) -> dict:
 
 def _crop_px(asset, smp, j) -> tuple:
     """GazeML's loader's interior margin and caruncle points of ``smp`` in the image (px)."""
-    W2C, scale = smp.camera["world_to_camera"], smp.camera["ortho_scale_mm"]
+    camera = smp.spec.camera
     w, h = smp.spec.width, smp.spec.height
 
     def px(P):
-        return cam.project(cam.to_camera(P, W2C), scale, w, h)
+        return camera.project(cam.to_camera(P, camera.world_to_camera), w, h)
 
     return px(j["interior_head_mm"]), px(j["caruncle_head_mm"]), w, h
 
 
 def accepts(asset, smp) -> bool:
     """GazeML's crop of the drawn sample lies inside the image (else the sampler draws again)."""
-    if "K" in smp.camera:
+    if smp.spec.camera.kind == "pinhole":
         return False                                 # settings refuse this; never write it
     interior, caruncle, w, h = _crop_px(asset, smp, points_job(asset, smp))
     return _inside(gazeml_crop(interior, caruncle), w, h)
