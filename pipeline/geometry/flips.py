@@ -19,9 +19,10 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry.mesh_edit import TriMesh
 
 
-def reference_face_normals(V, F, ref_V, ref_F):
-    """Per face, the normalised sum of the reference surface's normals nearest its three vertices."""
-    _, fi, _ = mc.closest_points(V, ref_V, ref_F)
+def reference_face_normals(V, F, ref_V, ref_F, nearest_faces=None):
+    """Per face, the normalised sum of the reference surface's normals nearest its three vertices
+    (``nearest_faces``: the reference face nearest each vertex, when already known)."""
+    fi = mc.closest_points(V, ref_V, ref_F)[1] if nearest_faces is None else nearest_faces
     vn = mc.face_normals(ref_V, np.asarray(ref_F)[fi])
     n = vn[F].sum(axis=1)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
@@ -354,9 +355,10 @@ def collapse_short_edges(V, F, loops, fixed, min_len: float, min_cos: float = 0.
     return Vn, Fn, {k: remap[v] for k, v in loops.items()}, n
 
 
-def count_flipped(V, F, ref_V, ref_F):
-    """Faces whose normal points against the reference surface's nearby normals."""
-    R = reference_face_normals(V, F, ref_V, ref_F)
+def count_flipped(V, F, ref_V, ref_F, nearest_faces=None):
+    """Faces whose normal points against the reference surface's nearby normals
+    (``nearest_faces``: :func:`reference_face_normals`')."""
+    R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces)
     return int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, F), R) <= 0))
 
 
