@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
-from pipeline.geometry.flips import collapse_short_edges, delaunay_flips
+from pipeline.geometry.flips import _corner_deg, _delaunay_tests, collapse_short_edges, delaunay_flips
+from pipeline.geometry.mesh_edit import TriMesh
 from pipeline.retopo.retopo import refine_coarse_crop
 
 
@@ -79,6 +80,31 @@ def test_delaunay_flips_keep_a_crease():
     V[14, 2] = 0.2
     F2, n = delaunay_flips(V, F, max_dihedral_deg=20.0)
     assert n == 1 and _not_delaunay(V, F2) == []
+
+
+def test_delaunay_tests_vectorised_agree_with_the_scalar_test():
+    """The flips' Delaunay tests, computed for all edges at once, give the scalar test's answer on
+    every edge they decide, and decide every interior edge but those at the threshold (a grid
+    with exact 90 + 90 deg cells sits on it: the scalar test decides those)."""
+    rng = np.random.default_rng(3)
+    for jitter in (0.0, 0.1, 0.3):
+        V, F = _grid(8)
+        V = V + np.concatenate([rng.normal(scale=jitter, size=(len(V), 2)), np.zeros((len(V), 1))], axis=1)
+        tm = TriMesh(V, F)
+        tests = _delaunay_tests(V, tm)
+        for (b, a, c, d), ok in tests.items():
+            assert ok == (_corner_deg(V, b, a, c) + _corner_deg(V, d, a, c) <= 180.0 + 1e-6)
+        interior = 0
+        for fi, f in tm.F.items():
+            for k in range(3):
+                b, a, c = f[k], f[(k + 1) % 3], f[(k + 2) % 3]
+                twins = [g for g in tm.vf[a] & tm.vf[c] if g != fi]
+                if len(twins) == 1:
+                    d = [v for v in tm.F[twins[0]] if v not in (a, c)][0]
+                    interior += 1
+                    total = _corner_deg(V, b, a, c) + _corner_deg(V, d, a, c)
+                    assert (b, a, c, d) in tests or abs(total - 180.0) < 1e-3
+        assert interior > 0 and (jitter == 0.0 or len(tests) == interior)
 
 
 def test_collapse_short_edges_merges_the_free_end():

@@ -271,10 +271,23 @@ def falloff_weights(V, F, P, face, loops, falloff_mm):
 
 
 def _interpolate(bary, X, corners):
-    """sum_j bary[:, j] X[corners[:, j]], (k, c): corner by corner (no (k, 3, c) temporary)."""
-    out = bary[:, 0, None] * X[corners[:, 0]]
-    out += bary[:, 1, None] * X[corners[:, 1]]
-    out += bary[:, 2, None] * X[corners[:, 2]]
+    """sum_j bary[:, j] X[corners[:, j]], (k, c): corner by corner (no (k, 3, c) temporary) and
+    column by column: gathers from one contiguous column of X and contiguous (k,) temporaries
+    take under half the time of (k, c) row gathers (millions of texels), with the same sums in
+    the same order, so the same bits."""
+    X = np.asarray(X)
+    out = np.empty((len(bary), X.shape[1]), dtype=np.result_type(bary, X))
+    b = [np.ascontiguousarray(bary[:, j]) for j in range(3)]
+    c = [np.ascontiguousarray(corners[:, j]) for j in range(3)]
+    tmp = np.empty(len(bary), dtype=out.dtype)
+    for col in range(X.shape[1]):
+        x = np.ascontiguousarray(X[:, col])
+        o = np.multiply(b[0], x.take(c[0]))
+        np.multiply(b[1], x.take(c[1]), out=tmp)
+        o += tmp
+        np.multiply(b[2], x.take(c[2]), out=tmp)
+        o += tmp
+        out[:, col] = o
     return out
 
 

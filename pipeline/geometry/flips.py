@@ -19,9 +19,10 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry.mesh_edit import TriMesh
 
 
-def reference_face_normals(V, F, ref_V, ref_F):
-    """Per face, the normalised sum of the reference surface's normals nearest its three vertices."""
-    _, fi, _ = mc.closest_points(V, ref_V, ref_F)
+def reference_face_normals(V, F, ref_V, ref_F, nearest_faces=None):
+    """Per face, the normalised sum of the reference surface's normals nearest its three vertices
+    (``nearest_faces``: the reference face nearest each vertex, when already known)."""
+    fi = mc.closest_points(V, ref_V, ref_F)[1] if nearest_faces is None else nearest_faces
     vn = mc.face_normals(ref_V, np.asarray(ref_F)[fi])
     n = vn[F].sum(axis=1)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
@@ -169,6 +170,48 @@ def _corner_deg(P, at, u, w):
     return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 
+def _delaunay_tests(V, tm: TriMesh, margin_deg=1e-4) -> dict:
+    """:func:`delaunay_flips`' test (are the angles facing edge a-c from b and d at most 180 deg?)
+    of every manifold interior edge of ``tm``, keyed (b, a, c, d) as the flip loop reads them.
+
+    Vectorised over the edges, the sums can differ from :func:`_corner_deg`'s scalar ones in the
+    last bits (acos near 180 deg amplifies that to ~1e-6 deg): sums within ``margin_deg`` of the
+    threshold are left out, so the scalar test decides those, and the flips are the same."""
+    fids = np.array(list(tm.F), dtype=np.int64)
+    if len(fids) == 0:
+        return {}
+    Fa = np.array([tm.F[i] for i in fids], dtype=np.int64)
+    m = len(Fa)
+    b = Fa.ravel()                                          # half-edge (face j, corner k): b, a, c
+    a = np.roll(Fa, -1, axis=1).ravel()
+    c = np.roll(Fa, -2, axis=1).ravel()
+    lo, hi = np.minimum(a, c), np.maximum(a, c)
+    key = lo * (int(max(hi.max(), 0)) + 1) + hi
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    start = np.r_[True, ks[1:] != ks[:-1]]
+    run = np.diff(np.r_[np.flatnonzero(start), len(ks)])
+    two = np.repeat(run == 2, run)                          # edges with exactly two faces
+    first = order[start & two]
+    second = order[np.r_[start[1:], True] & two]
+    h = np.concatenate([first, second])                     # each half-edge and its twin's
+    t = np.concatenate([second, first])
+    P = np.asarray(V, dtype=np.float64)
+
+    def corner(at, u, w):
+        x, y = P[u] - P[at], P[w] - P[at]
+        cs = np.einsum("ij,ij->i", x, y) / np.maximum(np.linalg.norm(x, axis=1) * np.linalg.norm(y, axis=1), 1e-300)
+        return np.degrees(np.arccos(np.clip(cs, -1.0, 1.0)))
+
+    d = b[t]
+    total = corner(b[h], a[h], c[h]) + corner(d, a[h], c[h])
+    sure = np.abs(total - (180.0 + 1e-6)) > margin_deg
+    ok = total <= 180.0 + 1e-6
+    sel = np.flatnonzero(sure)
+    return dict(zip(zip(b[h][sel].tolist(), a[h][sel].tolist(), c[h][sel].tolist(), d[sel].tolist()),
+                    ok[sel].tolist()))
+
+
 def delaunay_flips(V, F, max_dihedral_deg=20.0, min_cos=0.5, passes=8):
     """Flip interior edges that are not locally Delaunay (the two angles facing the edge sum past
     180 deg) where its two faces are nearly coplanar, until none is left (or ``passes``).
@@ -198,6 +241,9 @@ def delaunay_flips(V, F, max_dihedral_deg=20.0, min_cos=0.5, passes=8):
         on_border[lp] = True
     cos_dih = math.cos(math.radians(max_dihedral_deg))
     n_flips = 0
+    # the vertices never move, so an edge's Delaunay test and its two faces' dihedral test give
+    # the same answer on every pass: each is computed once (every pass re-tests every edge)
+    delaunay_ok, dihedral = _delaunay_tests(V, tm), {}
     for _ in range(passes):
         flipped = 0
         for fi in list(tm.F):
@@ -211,16 +257,27 @@ def delaunay_flips(V, F, max_dihedral_deg=20.0, min_cos=0.5, passes=8):
                     continue
                 g = twins[0]
                 d = [v for v in tm.F[g] if v not in (a, c)][0]
-                if _corner_deg(V, b, a, c) + _corner_deg(V, d, a, c) <= 180.0 + 1e-6:
+                ok = delaunay_ok.get((b, a, c, d))
+                if ok is None:
+                    ok = delaunay_ok[(b, a, c, d)] = (_corner_deg(V, b, a, c) + _corner_deg(V, d, a, c)
+                                                      <= 180.0 + 1e-6)
+                if ok:
                     continue
                 if any(len(tm.vf[v]) <= (2 if on_border[v] else 3) for v in (a, c)):
                     continue
-                n1, _ = tm.normal(f)
-                n2, _ = tm.normal(tm.F[g])
-                if float(n1 @ n2) < cos_dih:
+                key = (tuple(f), tuple(tm.F[g]))
+                ref = dihedral.get(key, False)
+                if ref is False:
+                    n1, _ = tm.normal(f)
+                    n2, _ = tm.normal(tm.F[g])
+                    if float(n1 @ n2) < cos_dih:
+                        ref = None
+                    else:
+                        ref = n1 + n2
+                        ref = ref / max(float(np.linalg.norm(ref)), 1e-300)
+                    dihedral[key] = ref
+                if ref is None:
                     continue
-                ref = n1 + n2
-                ref = ref / max(float(np.linalg.norm(ref)), 1e-300)
                 if tm.flip_edge(fi, a, c, ref=ref, min_cos=min_cos):
                     flipped += 1
                     break
@@ -298,9 +355,10 @@ def collapse_short_edges(V, F, loops, fixed, min_len: float, min_cos: float = 0.
     return Vn, Fn, {k: remap[v] for k, v in loops.items()}, n
 
 
-def count_flipped(V, F, ref_V, ref_F):
-    """Faces whose normal points against the reference surface's nearby normals."""
-    R = reference_face_normals(V, F, ref_V, ref_F)
+def count_flipped(V, F, ref_V, ref_F, nearest_faces=None):
+    """Faces whose normal points against the reference surface's nearby normals
+    (``nearest_faces``: :func:`reference_face_normals`')."""
+    R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces)
     return int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, F), R) <= 0))
 
 

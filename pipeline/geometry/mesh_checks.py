@@ -159,25 +159,29 @@ def check_mesh(V, F, area_tol=1e-10) -> MeshReport:
     )
 
 
-_TREES: list = []          # small cache of libigl AABB trees: [(key, V, F, tree)]
+_TREES: list = []          # small cache of libigl AABB trees: [(V copy, F copy, tree)]
+
+
+def _same_bits(a, b) -> bool:
+    """``a`` and ``b`` hold the same bytes (same shape and dtype): -0.0 and 0.0 differ, a NaN equals itself."""
+    return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(
+        a.reshape(-1).view(np.uint8), b.reshape(-1).view(np.uint8))
 
 
 def _tree(V, F):
-    """libigl AABB tree of (V, F), cached by content (a few trees are kept)."""
-    import hashlib
-
+    """libigl AABB tree of (V, F), cached by content (a few trees are kept, each with its own
+    copy of the arrays it was built on: a byte comparison with them costs a fraction of hashing,
+    and the repairs look the same scan up dozens of times)."""
     import igl
 
-    h = hashlib.blake2b(digest_size=16)
-    h.update(memoryview(V).cast("B"))
-    h.update(memoryview(F).cast("B"))
-    key = (V.shape, F.shape, h.hexdigest())
-    for k, v, f, t in _TREES:
-        if k == key:
+    for v, f, t in _TREES:
+        if _same_bits(V, v) and _same_bits(F, f):
             return v, f, t
+    V, F = V.copy(), F.copy()
+    V.flags.writeable = F.flags.writeable = False
     t = igl.AABB()
     t.init(V, F)
-    _TREES.insert(0, (key, V, F, t))
+    _TREES.insert(0, (V, F, t))
     del _TREES[4:]
     return V, F, t
 

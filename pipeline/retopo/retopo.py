@@ -359,6 +359,24 @@ def _isotropic(V, F, target_len, iterations):
                       np.asarray(m.face_matrix(), dtype=np.int64))
 
 
+def _flip_counter(ref_V, ref_F):
+    """:func:`count_flipped` against (ref_V, ref_F), remembering each vertex set's nearest scan
+    faces: the repairs ask again and again about the same positions (unchanged by a pass that
+    found nothing to do, or with two candidate face sets), and that query is the count's cost."""
+    import hashlib
+
+    nearest = {}
+
+    def count(V, F):
+        V = np.ascontiguousarray(V, dtype=np.float64)
+        key = (V.shape, hashlib.blake2b(memoryview(V).cast("B"), digest_size=16).digest())
+        if key not in nearest:
+            nearest[key] = mc.closest_points(V, ref_V, ref_F)[1]
+        return count_flipped(V, F, ref_V, ref_F, nearest_faces=nearest[key])
+
+    return count
+
+
 def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     """Crop the dense head to the eye region and remesh it (see module docstring).
 
@@ -500,18 +518,19 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         loops = {k: remap[v] for k, v in loops.items()}
     timings["loops_s"] = time.perf_counter() - t2
 
+    flipped = _flip_counter(Vc, Fc)
     t3 = time.perf_counter()
     fixed = np.unique(np.concatenate([np.concatenate(mc.boundary_loops(Fn))]))
     Vn = relax(Vn, Fn, fixed, Vc, Fc, iterations=s.relax_iterations)
     for _ in range(3):
-        if count_flipped(Vn, Fn, Vc, Fc):   # repair remaining flips next to the (fixed) loops
+        if flipped(Vn, Fn):             # repair remaining flips next to the (fixed) loops
             Vn = repair_flips(Vn, Fn, fixed, Vc, Fc)
-        if count_flipped(Vn, Fn, Vc, Fc):   # slivers at the loop: move the free corner inside
+        if flipped(Vn, Fn):             # slivers at the loop: move the free corner inside
             Vn = mirror_flipped(Vn, Fn, fixed, Vc, Fc)
-        if count_flipped(Vn, Fn, Vc, Fc):   # still flipped: collapse their free vertex into a neighbour
+        if flipped(Vn, Fn):             # still flipped: collapse their free vertex into a neighbour
             Vn, Fn, loops = collapse_flipped(Vn, Fn, loops, fixed, Vc, Fc)
             fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
-    if count_flipped(Vn, Fn, Vc, Fc):       # last resort: slide free corners into their kernel
+    if flipped(Vn, Fn):                 # last resort: slide free corners into their kernel
         free = np.ones(len(Vn), dtype=bool)
         free[fixed] = False
         R = reference_face_normals(Vn, Fn, Vc, Fc)
@@ -533,11 +552,11 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
     for _ in range(2):
         Fd, k = delaunay_flips(Vn, Fn)
-        if k and count_flipped(Vn, Fd, Vc, Fc) <= count_flipped(Vn, Fn, Vc, Fc):
+        if k and flipped(Vn, Fd) <= flipped(Vn, Fn):
             Fn, n_delaunay = Fd, n_delaunay + k
             Vn = relax(Vn, Fn, fixed, Vc, Fc, iterations=s.relax_iterations)
     Fs = flip_slivers(Vn, Fn, Vc, Fc)
-    if len(Fs) == len(Fn) and count_flipped(Vn, Fs, Vc, Fc) <= count_flipped(Vn, Fn, Vc, Fc):
+    if len(Fs) == len(Fn) and flipped(Vn, Fs) <= flipped(Vn, Fn):
         Fn = Fs
     timings["relax_quads_s"] = time.perf_counter() - t3
 
