@@ -145,6 +145,30 @@ def unary_costs(p: Patch, e: Eye):
     return p.A * eye, p.A * skin
 
 
+def _cut_structure(p: Patch):
+    """The cut graph's CSR layout on ``p`` (its edges never change, only their capacities):
+    ``(indices, indptr, slot)``, ``slot`` the CSR entry of each edge of the edge list (an edge
+    listed twice, on a non-manifold patch, sums its capacities as the coordinate form did).
+    Made once per patch; building the sparse matrix from coordinates every cut was most of
+    a cut's time (a placement makes several hundred)."""
+    got = _CUT_STRUCTURES.get(id(p))
+    if got is not None and got[0] is p:
+        return got[1]
+    n = len(p.V)
+    rows = np.concatenate([p.E[:, 0], p.E[:, 1], np.full(n, n), np.arange(n)])
+    cols = np.concatenate([p.E[:, 1], p.E[:, 0], np.arange(n), np.full(n, n + 1)])
+    keys, slot = np.unique(rows * (n + 2) + cols, return_inverse=True)
+    indptr = np.searchsorted(keys // (n + 2), np.arange(n + 3)).astype(np.int32)
+    out = ((keys % (n + 2)).astype(np.int32), indptr, slot.ravel())
+    if len(_CUT_STRUCTURES) > 64:
+        _CUT_STRUCTURES.clear()
+    _CUT_STRUCTURES[id(p)] = (p, out)
+    return out
+
+
+_CUT_STRUCTURES: dict = {}
+
+
 def graph_cut(p: Patch, ce, ck):
     """Minimum cut of the eye/skin labelling: (n,) bool, True = eye."""
     from scipy.sparse import csr_matrix
@@ -153,11 +177,11 @@ def graph_cut(p: Patch, ce, ck):
     n = len(p.V)
     S, T = n, n + 1
     m = np.minimum(ce, ck)
-    rows = np.concatenate([p.E[:, 0], p.E[:, 1], np.full(n, S), np.arange(n)])
-    cols = np.concatenate([p.E[:, 1], p.E[:, 0], np.arange(n), np.full(n, T)])
     caps = np.concatenate([p.w, p.w, ck - m, ce - m])      # s->i: cost of skin; i->t: of eye
     caps = np.minimum(np.round(caps * 1000.0), 2 ** 30).astype(np.int32)
-    G = csr_matrix((caps, (rows, cols)), shape=(n + 2, n + 2))
+    indices, indptr, slot = _cut_structure(p)
+    caps = np.bincount(slot, weights=caps, minlength=len(indices)).astype(np.int32)
+    G = csr_matrix((caps, indices, indptr), shape=(n + 2, n + 2))
     flow = maximum_flow(G, S, T).flow
     res = (G - flow).tocsr()
     res.data = (res.data > 0).astype(np.int8)
