@@ -27,6 +27,10 @@ REFINE_ITERS = 3
 POLISH_KEEP, POLISH_ITERS = 2, 4   # the best local optima refined further (polish)
 RESTARTS_KEEP = 4                  # turned gazes refined in full after one round each
 NP = 8                  # parameters per eye besides the radius: c (3), gaze (2), ha, tl, hb
+# least-squares stops: a relative change of 1e-5 in a cost of ~1e3 is 0.01 of an energy whose
+# rivals are weighed at a temperature of 5, and a step of 1e-5 of |x| (~80, the centre in mm)
+# is under 1 micron and 0.05 deg; scipy's 1e-8 ran over a quarter of the fits to max_nfev for nothing
+FIT_FTOL, FIT_XTOL = 1e-5, 1e-5
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -132,7 +136,8 @@ def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm
     # the steps keep scipy's forward differences, not jac_blocks: which local optimum the search
     # ends in rests on them (on 13 unseen heads the exact Jacobian moved 6 of 26 eyes into another
     # basin, 5 of them further off; central differences moved eyes of the two heads tried too)
-    res = least_squares(f, x0, loss="soft_l1", f_scale=2.0, max_nfev=max_nfev, bounds=(lo, hi))
+    res = least_squares(f, x0, loss="soft_l1", f_scale=2.0, max_nfev=max_nfev, bounds=(lo, hi),
+                        ftol=FIT_FTOL, xtol=FIT_XTOL)
     es = unpack(res.x)
     # Laplace approximation on (c, R) of every eye
     cols = []
@@ -277,17 +282,43 @@ def gaze_restarts(p: Patch, found, cues: Cues, radius_range, min_fold_deg):
     first = [refine(p, Eye(e.c, e.R, _turn(e.n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1)
              for yaw, pitch in GAZE_RESTARTS_DEG]
     first.sort(key=lambda t: t.energy)
-    return [refine(p, t.eye, cues, radius_range, iters=REFINE_ITERS - 1) for t in first[:RESTARTS_KEEP]]
+    return _refine_each(p, [t.eye for t in first[:RESTARTS_KEEP]], cues, radius_range, REFINE_ITERS - 1)
+
+
+TWIN_MM, TWIN_DEG = 1e-2, 5e-2      # two starts this close end where one ends (the refinement is deterministic)
+
+
+def _twins(a: Eye, b: Eye) -> bool:
+    return (float(np.max(np.abs(np.asarray(a.c) - b.c))) < TWIN_MM and abs(a.R - b.R) < TWIN_MM
+            and float(np.degrees(np.arccos(np.clip(np.dot(a.n, b.n), -1.0, 1.0)))) < TWIN_DEG
+            and abs(a.ha - b.ha) < TWIN_MM and abs(a.tl - b.tl) < TWIN_DEG and abs(a.hb - b.hb) < TWIN_MM)
+
+
+def _refine_each(p: Patch, starts, cues: Cues, radius_range, iters):
+    """:func:`refine` from each start, once per set of twins (turned gazes that fell back into
+    one basin within the first round, or polish's two best when they are one optimum: refining
+    each again repeated the same fits); a twin's result is a copy of the first one's."""
+    from dataclasses import replace
+
+    done, out = [], []
+    for e in starts:
+        m = next((m for e0, m in done if _twins(e0, e)), None)
+        if m is None:
+            m = refine(p, e, cues, radius_range, iters=iters)
+            done.append((e, m))
+        else:
+            m = replace(m)
+        out.append(m)
+    return out
 
 
 def polish(p: Patch, found, cues: Cues, radius_range, keep=POLISH_KEEP, iters=POLISH_ITERS):
     """The ``keep`` lowest local optima refined further (``iters`` more rounds of cut and least
     squares): three rounds leave a start near the true gaze short of its basin's floor, above a
     wrong gaze's (an ICT head looking in: 2764 against 2720 after three, 2678 after eight)."""
-    order = sorted(range(len(found)), key=lambda i: found[i].energy)
+    order = sorted(range(len(found)), key=lambda i: found[i].energy)[:keep]
     out = list(found)
-    for i in order[:keep]:
-        m = refine(p, found[i].eye, cues, radius_range, iters=iters)
+    for i, m in zip(order, _refine_each(p, [found[i].eye for i in order], cues, radius_range, iters)):
         if m.energy < found[i].energy:
             out[i] = m
     return out
