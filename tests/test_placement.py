@@ -273,3 +273,38 @@ def test_the_coarse_search_places_as_the_full_one_and_labels_the_full_patch():
         assert np.linalg.norm(b.eye.c - a.eye.c) < 0.1
         assert np.degrees(np.arccos(np.clip(a.eye.n @ b.eye.n, -1.0, 1.0))) < 0.5
         assert np.mean(a.lab != b.lab) < 0.02
+
+
+def test_residual_jacobians_match_finite_differences():
+    """The analytic partials of every residual block (the fit's Laplace step reads them) agree
+    with central differences of the blocks, off the kinks (skin at the globe's surface, the limbus)."""
+    rng = np.random.default_rng(5)
+    e = model.Eye(np.array([1.0, -2.0, 3.0]), 12.5, model.unit(np.array([0.3, -0.2, 1.0])), 0.8, 31.0, 0.35)
+    u = model.unit(rng.normal(size=(600, 3)) * [1.0, 1.0, 0.4] + [0.0, 0.0, 1.0])
+    P = e.c + u * (e.R + rng.normal(0.0, 0.8, (len(u), 1)))
+    p = cues.Patch(P, np.zeros((0, 3), np.int64), rng.uniform(0.05, 0.3, len(P)), u, np.zeros((0, 2), np.int64),
+                   np.zeros(0), P.mean(axis=0), np.arange(len(P)), np.zeros(0, np.int64))
+    lab = (u @ e.n > 0.6) & (rng.uniform(size=len(P)) < 0.8)
+    cu = cues.Cues(front=e.c + 12.0 * e.n + 0.5, axis=e.n, front_sigma=4.0, radius_prior=(12.0, 3.0))
+    ant = model.surface_residual(P, e)[1]
+    J = cues.residual_jacobians(p, lab, e, cu, ant)
+
+    def blocks(x):
+        ex = model.Eye(x[0:3], x[3], x[4:7], x[7], x[8], x[9])
+        return cues.residual_blocks(p, lab, ex, cu, ant)
+    x = np.r_[e.c, e.R, e.n, e.ha, e.tl, e.hb]
+    h = 1e-6
+    num = {k: np.zeros((len(v), 10)) for k, v in blocks(x).items()}
+    for j in range(10):
+        bp, bq = blocks(x + h * np.eye(10)[j]), blocks(x - h * np.eye(10)[j])
+        for k in num:
+            num[k][:, j] = (bp[k] - bq[k]) / (2 * h)
+    d, _, dsph, w = model.surface_residual(P, e)
+    far = (np.abs(dsph + cues.TAU_INSIDE) > 1e-3) & (np.abs(np.degrees(np.arccos(np.clip(w @ e.n, -1, 1))) - e.tl) > 1e-3)
+    rows = {"sclera": far[lab & ~ant], "anterior": far[lab & ant], "skin": far[~lab]}
+    assert list(J) == list(num)
+    for k in num:
+        r = rows.get(k, np.ones(len(num[k]), bool))
+        assert r.sum() > 0.9 * len(r) and J[k].shape == num[k].shape
+        np.testing.assert_allclose(J[k][r], num[k][r], rtol=1e-5, atol=1e-5 * max(1.0, np.abs(num[k]).max()))
+    assert (np.abs(J["anterior"][:, 7:10]) > 0).any() and (np.abs(J["skin"]) > 0).any()

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.placement.model import LIMBUS_DEG, Eye, surface_residual
+from pipeline.placement.model import LIMBUS_DEG, Eye, cap_height_partials, surface_residual
 
 SIG_SCLERA = 0.15       # mm: scanner noise on the exposed sclera
 SIG_ANTERIOR = 0.15     # mm: as the sclera; a looser cap made a small sphere through the cornea
@@ -145,6 +145,30 @@ def unary_costs(p: Patch, e: Eye):
     return p.A * eye, p.A * skin
 
 
+def _cut_structure(p: Patch):
+    """The cut graph's CSR layout on ``p`` (its edges never change, only their capacities):
+    ``(indices, indptr, slot)``, ``slot`` the CSR entry of each edge of the edge list (an edge
+    listed twice, on a non-manifold patch, sums its capacities as the coordinate form did).
+    Made once per patch; building the sparse matrix from coordinates every cut was most of
+    a cut's time (a placement makes several hundred)."""
+    got = _CUT_STRUCTURES.get(id(p))
+    if got is not None and got[0] is p:
+        return got[1]
+    n = len(p.V)
+    rows = np.concatenate([p.E[:, 0], p.E[:, 1], np.full(n, n), np.arange(n)])
+    cols = np.concatenate([p.E[:, 1], p.E[:, 0], np.arange(n), np.full(n, n + 1)])
+    keys, slot = np.unique(rows * (n + 2) + cols, return_inverse=True)
+    indptr = np.searchsorted(keys // (n + 2), np.arange(n + 3)).astype(np.int32)
+    out = ((keys % (n + 2)).astype(np.int32), indptr, slot.ravel())
+    if len(_CUT_STRUCTURES) > 64:
+        _CUT_STRUCTURES.clear()
+    _CUT_STRUCTURES[id(p)] = (p, out)
+    return out
+
+
+_CUT_STRUCTURES: dict = {}
+
+
 def graph_cut(p: Patch, ce, ck):
     """Minimum cut of the eye/skin labelling: (n,) bool, True = eye."""
     from scipy.sparse import csr_matrix
@@ -153,11 +177,11 @@ def graph_cut(p: Patch, ce, ck):
     n = len(p.V)
     S, T = n, n + 1
     m = np.minimum(ce, ck)
-    rows = np.concatenate([p.E[:, 0], p.E[:, 1], np.full(n, S), np.arange(n)])
-    cols = np.concatenate([p.E[:, 1], p.E[:, 0], np.arange(n), np.full(n, T)])
     caps = np.concatenate([p.w, p.w, ck - m, ce - m])      # s->i: cost of skin; i->t: of eye
     caps = np.minimum(np.round(caps * 1000.0), 2 ** 30).astype(np.int32)
-    G = csr_matrix((caps, (rows, cols)), shape=(n + 2, n + 2))
+    indices, indptr, slot = _cut_structure(p)
+    caps = np.bincount(slot, weights=caps, minlength=len(indices)).astype(np.int32)
+    G = csr_matrix((caps, indices, indptr), shape=(n + 2, n + 2))
     flow = maximum_flow(G, S, T).flow
     res = (G - flow).tocsr()
     res.data = (res.data > 0).astype(np.int8)
@@ -225,6 +249,55 @@ def residual_blocks(p: Patch, lab, e: Eye, cues: Cues, anterior=None):
     out["radius_prior"] = np.array([(e.R - cues.radius_prior[0]) / cues.radius_prior[1]])
     out["limbus_prior"] = np.array([(e.tl - LIMBUS_DEG[0]) / LIMBUS_DEG[1]])
     out["ring_prior"] = np.array([e.hb / HB_SIGMA])
+    return out
+
+
+JAC_COLUMNS = ("cx", "cy", "cz", "R", "nx", "ny", "nz", "ha", "tl", "hb")
+
+
+def residual_jacobians(p: Patch, lab, e: Eye, cues: Cues, anterior=None):
+    """The partials of :func:`residual_blocks` (same names, same rows) along the eye's
+    ``JAC_COLUMNS``: centre, radius, gaze (as a free 3-vector: a fit chains it to its own
+    parametrisation), anterior height, limbus angle, ring. Analytic: the fit's least squares
+    took a finite-difference Jacobian, ten residual evaluations a step, most of its time."""
+    w = p.V - e.c
+    nw = np.maximum(np.linalg.norm(w, axis=1), 1e-9)
+    u = w / nw[:, None]
+    n = np.asarray(e.n, float)
+    ca = u @ n
+    _, dh = cap_height_partials(ca, e.R, e.ha, e.tl, e.hb)
+    if anterior is None:
+        anterior = ca > np.cos(np.radians(e.tl))
+    sa = np.sqrt(p.A)
+    # d (distance off the model) = |w| - R - h(ca, R, ha, tl, hb), ca = u . n
+    dca_dc = -(n[None, :] - ca[:, None] * u) / nw[:, None]
+    Jd = np.empty((len(w), 10))
+    Jd[:, 0:3] = -u - dh[:, :1] * dca_dc
+    Jd[:, 3] = -1.0 - dh[:, 1]
+    Jd[:, 4:7] = -dh[:, :1] * u
+    Jd[:, 7:10] = -dh[:, 2:5]
+    out = {}
+    m = lab & ~anterior
+    out["sclera"] = Jd[m] * (sa[m] / SIG_SCLERA)[:, None]
+    m = lab & anterior
+    out["anterior"] = Jd[m] * (sa[m] / SIG_ANTERIOR)[:, None]
+    m = ~lab
+    on = (nw[m] - e.R + TAU_INSIDE) < 0.0          # skin inside the globe: min(dsph + tau, 0)
+    Js = np.zeros((int(m.sum()), 10))
+    Js[:, 0:3] = -u[m]
+    Js[:, 3] = -1.0
+    out["skin"] = Js * (np.where(on, sa[m], 0.0) / SIG_SCLERA)[:, None]
+    if cues.front is not None:
+        Jp = np.zeros((3, 10))
+        Jp[:, 0:3] = np.eye(3) / cues.front_sigma
+        Jp[:, 3] = np.asarray(cues.axis, float) / cues.front_sigma
+        out["prior"] = Jp
+    out["radius_prior"] = np.zeros((1, 10))
+    out["radius_prior"][0, 3] = 1.0 / cues.radius_prior[1]
+    out["limbus_prior"] = np.zeros((1, 10))
+    out["limbus_prior"][0, 8] = 1.0 / LIMBUS_DEG[1]
+    out["ring_prior"] = np.zeros((1, 10))
+    out["ring_prior"][0, 9] = 1.0 / HB_SIGMA
     return out
 
 

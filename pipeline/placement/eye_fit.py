@@ -85,8 +85,14 @@ class EyeMesh:
 
 
 def median_edge_length(V, F):
-    e = V[F[:, [1, 2, 0]]] - V[F]
-    return float(np.median(np.linalg.norm(e, axis=2)))
+    # one edge of every face at a time, its squares summed in norm's order (the same value): the
+    # (m, 3, 3) gathers and norm over the whole scan took about a second of remove_eyeballs at 1.4M faces
+    V = np.asarray(V)
+    L = np.empty((3, len(F)), dtype=np.result_type(V.dtype, np.float16))
+    for k in range(3):
+        e = V[F[:, (k + 1) % 3]] - V[F[:, k]]
+        L[k] = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
+    return float(np.median(L))
 
 
 def local_mesh(V, F, hints, radius):

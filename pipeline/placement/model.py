@@ -88,3 +88,47 @@ def surface_residual(P, e: Eye):
 def limbus_center(e: Eye) -> np.ndarray:
     """Centre of the eye model's limbus circle (the rim of its anterior cap), (3,)."""
     return np.asarray(e.c, float) + e.R * np.cos(np.radians(e.tl)) * np.asarray(e.n, float)
+
+
+def _cap_partials(R, ha, tl, step=1e-6):
+    """``(z0, r)`` of :func:`_cap` and their partials in ``(R, ha, tl)``, (2, 3): central
+    differences of the scalar function (cheap, and exact to ~1e-9 here)."""
+    out = np.empty((2, 3))
+    for j, (dR, dh, dt) in enumerate(((step, 0, 0), (0, step, 0), (0, 0, step))):
+        a = np.array(_cap(R + dR, ha + dh, tl + dt))
+        b = np.array(_cap(R - dR, ha - dh, tl - dt))
+        out[:, j] = (a - b) / (2.0 * step)
+    return np.array(_cap(R, ha, tl)), out
+
+
+def cap_height_partials(cos_alpha, R, ha, tl, hb=0.0):
+    """:func:`cap_height` and its partials along ``cos_alpha``, ``R``, ``ha``, ``tl`` and
+    ``hb``: ``(h, dh)``, ``dh`` (n, 5). Analytic Jacobians of the fit need them; the limbus
+    itself (where the cap meets the sphere at height 0) is a kink, its one-sided slope taken."""
+    ca = np.clip(cos_alpha, -1.0, 1.0)
+    (z0, r), dzr = _cap_partials(R, ha, tl)
+    q = np.maximum(r * r - z0 * z0 * (1.0 - ca * ca), 0.0)
+    sq = np.sqrt(q)
+    isq = np.where(sq > 1e-12, 1.0 / np.maximum(sq, 1e-12), 0.0)
+    t = z0 * ca + sq
+    tlr = np.radians(tl)
+    a = np.arccos(ca)
+    s2 = (a / tlr) ** 2
+    k = hb * APEX_FRACTION * R * 4.0
+    ring = k * s2 * (1.0 - s2)
+    inside = ca > np.cos(tlr)
+    h = np.where(inside, t - R + ring, 0.0)
+    sin_a = np.sqrt(np.maximum(1.0 - ca * ca, 0.0))
+    a_over_sin = np.where(sin_a > 1e-9, a / np.maximum(sin_a, 1e-300), 1.0)
+    dt_dca = z0 + z0 * z0 * ca * isq
+    dt_dz0 = ca - z0 * (1.0 - ca * ca) * isq
+    dt_dr = r * isq
+    dring_ds2 = k * (1.0 - 2.0 * s2)
+    dh = np.empty((len(ca), 5))
+    dh[:, 0] = dt_dca + dring_ds2 * (-2.0 / tlr ** 2) * a_over_sin
+    dh[:, 1] = dt_dz0 * dzr[0, 0] + dt_dr * dzr[1, 0] - 1.0 + ring / R
+    dh[:, 2] = dt_dz0 * dzr[0, 1] + dt_dr * dzr[1, 1]
+    dh[:, 3] = dt_dz0 * dzr[0, 2] + dt_dr * dzr[1, 2] + dring_ds2 * (-2.0 * s2 / tl)
+    dh[:, 4] = APEX_FRACTION * R * 4.0 * s2 * (1.0 - s2)
+    dh[~inside] = 0.0
+    return h, dh

@@ -16,26 +16,6 @@ from pipeline.placement.model import Eye, limbus_center
 SIDES = ("left", "right")
 
 
-def jacobian_blocks(blocks, x, h=1e-4):
-    """Per residual block, its Jacobian (rows x len(x)) by central differences."""
-    names = None
-    Js = None
-    for j in range(len(x)):
-        xp, xq = x.copy(), x.copy()
-        xp[j] += h
-        xq[j] -= h
-        bp, ep = blocks(xp)
-        bq, eq = blocks(xq)
-        flat_p = [(f"{i}:{n}", v) for i, b in enumerate(bp) for n, v in b.items()] + list(ep.items())
-        flat_q = [(f"{i}:{n}", v) for i, b in enumerate(bq) for n, v in b.items()] + list(eq.items())
-        if names is None:
-            names = [n for n, _ in flat_p]
-            Js = {n: np.zeros((len(v), len(x))) for n, v in flat_p}
-        for (n, vp), (_, vq) in zip(flat_p, flat_q):
-            Js[n][:, j] = (vp - vq) / (2 * h)
-    return Js
-
-
 def laplace(Js, x, cols, nR, k):
     """Covariance of (c, R) per eye from the Gauss-Newton information, and each cue's share
     of that information (trace over the eye's c and R)."""
