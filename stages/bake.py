@@ -26,12 +26,18 @@ def _no_huge_pages() -> None:
     of the stage's ~26 s CPU (kernel page zeroing and compaction), with 4 KiB pages ~3 s; the
     arrays and so the bytes written are the same either way. The setting is the process's
     (the forked helpers inherit it)."""
-    import numpy as np
+    import importlib
 
-    core = getattr(np, "_core", None) or np.core
-    setter = getattr(core.multiarray, "_set_madvise_hugepage", None)
-    if setter is not None:
-        setter(False)
+    # numpy 2 names it numpy._core; 1.26 has numpy.core, and a numpy._core whose attributes
+    # appear only once its submodules are imported (what another import did decides which)
+    for name in ("numpy._core.multiarray", "numpy.core.multiarray"):
+        try:
+            setter = getattr(importlib.import_module(name), "_set_madvise_hugepage", None)
+        except ImportError:
+            continue
+        if setter is not None:
+            setter(False)
+            return
 
 
 def main(argv):
