@@ -186,6 +186,11 @@ def _tree(V, F):
     return V, F, t, _TREES[0][3]
 
 
+# a mesh's vertices are asked about again; the bake's one-off queries of 0.2-1M texels or samples
+# are not kept (their copies cost more in page faults than any reuse could save)
+_REMEMBER_POINTS = 1 << 16
+
+
 def closest_points(P, V, F):
     """Closest points on mesh (V, F) to points P (libigl AABB tree, cached per mesh).
 
@@ -217,7 +222,7 @@ def closest_points(P, V, F):
         if len(moved):
             s1, f1, c1 = tree.squared_distance(V, F, np.ascontiguousarray(P[moved]))
             sq[moved], fi[moved], C[moved] = s1, f1, c1
-    if moved is None or len(moved):
+    if (moved is None or len(moved)) and len(P) <= _REMEMBER_POINTS:
         if len(last) >= 4 and len(P) not in last:
             last.pop(next(iter(last)))
         last[len(P)] = (P.copy(), sq, fi.copy(), C.copy())
