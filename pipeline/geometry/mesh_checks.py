@@ -159,7 +159,7 @@ def check_mesh(V, F, area_tol=1e-10) -> MeshReport:
     )
 
 
-_TREES: list = []          # small cache of libigl AABB trees: [(V copy, F copy, tree)]
+_TREES: list = []          # small cache of libigl AABB trees: [(V copy, F copy, tree, last queries)]
 
 
 def _same_bits(a, b) -> bool:
@@ -174,16 +174,21 @@ def _tree(V, F):
     and the repairs look the same scan up dozens of times)."""
     import igl
 
-    for v, f, t in _TREES:
+    for v, f, t, q in _TREES:
         if _same_bits(V, v) and _same_bits(F, f):
-            return v, f, t
+            return v, f, t, q
     V, F = V.copy(), F.copy()
     V.flags.writeable = F.flags.writeable = False
     t = igl.AABB()
     t.init(V, F)
-    _TREES.insert(0, (V, F, t))
+    _TREES.insert(0, (V, F, t, {}))
     del _TREES[4:]
-    return V, F, t
+    return V, F, t, _TREES[0][3]
+
+
+# a mesh's vertices are asked about again; the bake's one-off queries of 0.2-1M texels or samples
+# are not kept (their copies cost more in page faults than any reuse could save)
+_REMEMBER_POINTS = 1 << 16
 
 
 def closest_points(P, V, F):
@@ -200,9 +205,28 @@ def closest_points(P, V, F):
     F = np.ascontiguousarray(F, dtype=np.int64)
     if len(P) == 0:
         return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-    V, F, tree = _tree(V, F)
-    sq, fi, C = tree.squared_distance(V, F, P)
-    return np.sqrt(np.maximum(sq, 0.0)), np.asarray(fi, dtype=np.int64), np.asarray(C)
+    V, F, tree, last = _tree(V, F)
+    # the retopo repairs ask about a whole mesh's vertices again and again with a few of them
+    # moved (a flip count per candidate move, a repair round): the points whose bytes equal
+    # those of the last query with as many points keep its answers. Each point's answer is its
+    # own (libigl queries them one by one from the root), so the results are the same bytes.
+    prev = last.get(len(P))
+    if prev is None:
+        moved = None
+        sq, fi, C = tree.squared_distance(V, F, P)
+        sq, fi, C = np.asarray(sq, dtype=np.float64), np.asarray(fi, dtype=np.int64), np.asarray(C)
+    else:
+        P0, sq, fi, C = prev
+        moved = np.flatnonzero((P.view(np.uint64) != P0.view(np.uint64)).any(axis=1))
+        sq, fi, C = sq.copy(), fi.copy(), C.copy()
+        if len(moved):
+            s1, f1, c1 = tree.squared_distance(V, F, np.ascontiguousarray(P[moved]))
+            sq[moved], fi[moved], C[moved] = s1, f1, c1
+    if (moved is None or len(moved)) and len(P) <= _REMEMBER_POINTS:
+        if len(last) >= 4 and len(P) not in last:
+            last.pop(next(iter(last)))
+        last[len(P)] = (P.copy(), sq, fi.copy(), C.copy())
+    return np.sqrt(np.maximum(sq, 0.0)), fi, C
 
 
 def sample_surface(V, F, n, seed=0):
