@@ -18,30 +18,7 @@ from pipeline.io.atomic import atomic_dir
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
 
-def _no_huge_pages() -> None:
-    """Stop numpy asking for transparent huge pages for its arrays over 4 MiB (madvise).
-
-    The bake makes and drops dozens of 25-150 MB temporaries (3.2M texels on a 1.4M-triangle
-    head): on the farm's machines each new one faulted in as huge pages cost ~8 s of system time
-    of the stage's ~26 s CPU (kernel page zeroing and compaction), with 4 KiB pages ~3 s; the
-    arrays and so the bytes written are the same either way. The setting is the process's
-    (the forked helpers inherit it)."""
-    import importlib
-
-    # numpy 2 names it numpy._core; 1.26 has numpy.core, and a numpy._core whose attributes
-    # appear only once its submodules are imported (what another import did decides which)
-    for name in ("numpy._core.multiarray", "numpy.core.multiarray"):
-        try:
-            setter = getattr(importlib.import_module(name), "_set_madvise_hugepage", None)
-        except ImportError:
-            continue
-        if setter is not None:
-            setter(False)
-            return
-
-
 def main(argv):
-    _no_huge_pages()
     parser = stage_parser(__doc__.splitlines()[0])
     parser.add_argument("retopo_dir", type=Path, help="build/<scan>/retopo")
     parser.add_argument("dense_dir", type=Path, help="build/<scan>/remove_eyeballs")

@@ -86,3 +86,13 @@ def test_importing_the_package_pins_nothing():
     r = subprocess.run([sys.executable, "-c", "import os, pipeline, numpy; print(os.environ.get('OPENBLAS_CORETYPE'))"],
                        cwd=ROOT, env=_env({}), capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and r.stdout.strip() == "None"
+
+
+def test_a_pipeline_program_runs_without_numpys_huge_page_advice():
+    # a `python -m stages.*` program: pipeline/__init__.py sees argv[0] == "-m"
+    code = ("import sys; sys.argv = ['-m']; import pipeline; import numpy.core.multiarray as m; "
+            "print(m._set_madvise_hugepage(False))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       env={k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"})
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "False"      # the advice was already off when numpy loaded
