@@ -102,7 +102,7 @@ def test_snap_leaves_the_canthus_off_the_globe_and_the_lids_on_it(snapped):
         P0, P1 = mesh["V"][e.loop], out["V"][e.loop]
         w = out[f"loop_snap_{s}"]
         assert np.array_equal(P1[0], P0[0])                       # the canthus keeps its place
-        d = sn.PlacedEye(e.center, R, e.forward, EyeballParams()).signed_distance(P1)
+        d = sn.EyeballSurface(e.center, R, e.forward, EyeballParams()).signed_distance(P1)
         assert np.abs(d[w >= 1]).max() < 1e-6                     # the lids rest on the eye
         assert d[0] > 3.5 and np.all(d[w < 1] > 0)                # the corner stands off it
         assert metrics[s]["corner_vertices"] == int((w < 1).sum()) > 0

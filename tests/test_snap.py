@@ -43,7 +43,7 @@ def lid_ring(lift0=0.3, theta0=42.0, theta1=75.0, n_around=72, n_rings=14, flat=
 
 
 def _eye():
-    return sn.PlacedEye(CENTER, R, np.array([0, 0, 1.0]), EyeballParams())
+    return sn.EyeballSurface(CENTER, R, np.array([0, 0, 1.0]), EyeballParams())
 
 
 @pytest.mark.parametrize("lift0", [0.3, 1.5, -0.6])
@@ -297,7 +297,7 @@ def _one_after_the_other(mesh, eyes, st):
     G = sn.edge_graph(V0, F)
     V, metrics = V0, {}
     for s in sn.SIDES:
-        eye = sn.PlacedEye(*eyes[s], EyeballParams())
+        eye = sn.EyeballSurface(*eyes[s], EyeballParams())
         V, _, metrics[s], _, _ = sn._snap_side(V, V0, F, np.asarray(mesh[f"loop_{s}"]), eye, st, G)
     return V, metrics
 
@@ -325,9 +325,9 @@ def test_snap_mesh_equals_one_eye_after_the_other(case, tmp_path):
     V0, F = np.asarray(mesh["V"], float), np.asarray(mesh["F"], np.int64)
     G = sn.edge_graph(V0, F)
     first = sn._snap_side(V0, V0, F, np.asarray(mesh["loop_left"]),
-                          sn.PlacedEye(*eyes["left"], EyeballParams()), st, G)[0]
+                          sn.EyeballSurface(*eyes["left"], EyeballParams()), st, G)[0]
     second = sn._snap_side(V0, V0, F, np.asarray(mesh["loop_right"]),
-                           sn.PlacedEye(*eyes["right"], EyeballParams()), st, G)[3]
+                           sn.EyeballSurface(*eyes["right"], EyeballParams()), st, G)[3]
     # the premise: which of snap_mesh's two branches this case takes
     assert sn._independent(G, F, second, V0, first) == (case == "apart")
     out, _, metrics = sn.snap_mesh(mesh, eyes, EyeballParams(), st)

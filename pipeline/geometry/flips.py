@@ -397,7 +397,7 @@ def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, m
         Vertices that may move.
     keep_out : callable, optional
         ``keep_out(P) -> (Q, N, d)`` closest surface points, unit normals and signed distances
-        (e.g. :meth:`pipeline.snap.snap.PlacedEye.closest`); moved vertices stay on the outer
+        (e.g. :meth:`pipeline.snap.snap.EyeballSurface.closest`); moved vertices stay on the outer
         side of the surface's tangent plane at their closest point (outside a convex surface).
     rounds : int
     max_step : float, optional

@@ -68,8 +68,10 @@ class SnapSettings(Settings):
 
 
 @dataclass
-class PlacedEye:
-    """The eyeball placed in the head: centre (3,), radius (mm), unit forward (3,), params."""
+class EyeballSurface:
+    """The outer surface of the eyeball an :class:`pipeline.io.eyes_file.Eye` places (centre (3,),
+    radius mm, unit forward (3,)), with the eyeball's ``params`` (None: the sphere): the solid
+    the lids are snapped onto and measured against, not a second record of the eye."""
 
     center: np.ndarray
     radius: float
@@ -87,7 +89,7 @@ class PlacedEye:
         return self.closest(P)[2]
 
 
-def _ray_hit(eye: PlacedEye, P, N, max_move, samples):
+def _ray_hit(eye: EyeballSurface, P, N, max_move, samples):
     """Parameter t (n,) of the crossing of P + t N with the surface nearest t = 0 (nan if none)."""
     ts = np.linspace(-max_move, max_move, samples)
     n = len(P)
@@ -158,7 +160,7 @@ def smoothstep_falloff(dist, radius):
     return x * x * (3.0 - 2.0 * x)
 
 
-def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=None, weight=None):
+def snap_loop(V, F, loop, eye: EyeballSurface, st: SnapSettings | None = None, graph=None, weight=None):
     """Snap one eyelid loop (and its falloff zone) onto the eye.
 
     Parameters
@@ -167,7 +169,7 @@ def snap_loop(V, F, loop, eye: PlacedEye, st: SnapSettings | None = None, graph=
     F : (m, 3) int64
     loop : (L,) int64
         Margin vertex indices.
-    eye : PlacedEye
+    eye : EyeballSurface
     st : SnapSettings
     graph : scipy.sparse matrix, optional
         Edge-length graph of (V, F).
@@ -275,16 +277,16 @@ def flipped_faces(V0, V1, F):
     return int(_flipped_mask(V0, V1, F).sum())
 
 
-def rotated(eye: PlacedEye, pitch_deg, yaw_deg) -> PlacedEye:
+def rotated(eye: EyeballSurface, pitch_deg, yaw_deg) -> EyeballSurface:
     """The eye turned by pitch (up +) and yaw (toward head +X +) about its centre."""
     p, y = np.radians(pitch_deg), np.radians(yaw_deg)
     Rx = np.array([[1, 0, 0], [0, np.cos(p), np.sin(p)], [0, -np.sin(p), np.cos(p)]])
     Ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
     f = Ry @ Rx @ np.asarray(eye.forward, float)
-    return PlacedEye(eye.center, eye.radius, f / np.linalg.norm(f), eye.params)
+    return EyeballSurface(eye.center, eye.radius, f / np.linalg.norm(f), eye.params)
 
 
-def margin_report(V, loop, eye: PlacedEye, st: SnapSettings, n_steps=5, on_eye=None):
+def margin_report(V, loop, eye: EyeballSurface, st: SnapSettings, n_steps=5, on_eye=None):
     """Gap/penetration of the margin at rest and over the anatomical rotation range.
 
     ``on_eye`` (L,) bool: the loop vertices snapped onto the eye (the corners off the globe are
@@ -319,7 +321,7 @@ def margin_report(V, loop, eye: PlacedEye, st: SnapSettings, n_steps=5, on_eye=N
             "rotated_gap_max_mm": gmax, "rotated_inside_max_mm": imax, "meets_cornea": cornea}
 
 
-def _snap_side(V_in, V0, F, loop, eye: PlacedEye, st: SnapSettings, G, lateral_index=None):
+def _snap_side(V_in, V0, F, loop, eye: EyeballSurface, st: SnapSettings, G, lateral_index=None):
     """One eye's snap of ``V_in`` (n, 3): (snapped (n, 3), margin report, metrics, moved
     vertices, corner runs).
 
@@ -416,7 +418,7 @@ def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz
             raise ScanError(source, f"{key} is not a list of >= 3 vertex indices")
         loops[s] = loop
     G = edge_graph(V, F) if graph is None else graph
-    placed = {s: PlacedEye(*eyes[s], params) for s in SIDES}
+    placed = {s: EyeballSurface(*eyes[s], params) for s in SIDES}
     lateral = {s: lateral_position(mesh, s, V[loops[s]], placed[s]) for s in SIDES}
     first, second = SIDES
     job = fork_call(_snap_side, V, V, F, loops[first], placed[first], st, G, lateral[first])
@@ -474,12 +476,12 @@ def snap_eyes(mesh: Mapping, eyes: dict, params, st: SnapSettings, source="mesh.
         P = out["V"][loop]
         snapped[s] = replace(e, loop_indices=loop, loop_points=P,
                              lateral_canthus_index=lateral_position(
-                                 mesh, s, P, PlacedEye(e.center, e.radius, e.unit_forward)),
+                                 mesh, s, P, EyeballSurface(e.center, e.radius, e.unit_forward)),
                              extra={**e.extra, "snap": dict(reports[s])})
     return SnapResult(out, snapped, StageResult(metrics))
 
 
-def lateral_position(mesh: dict, side: str, P, eye: PlacedEye) -> int:
+def lateral_position(mesh: dict, side: str, P, eye: EyeballSurface) -> int:
     """Position of the lateral canthus in ``loop_<side>``: retopo's ``lateral_index_<side>``, else
     the loop point farthest toward the eye's lateral side."""
     from pipeline.io.eyes_file import lateral_canthus_index
