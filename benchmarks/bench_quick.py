@@ -19,7 +19,8 @@ and in wall seconds per image (the README's figure). Exit status 1 when a figure
 change that slows a stage cannot land unseen; say so in its closing note with the side-by-side
 ratio (``bench_chain --compare CHECKOUT``), or raise the budget in the same commit, with the reason.
 
-Writes the figures, budgets and ratios to ``--out`` (a DVC metrics file: ``dvc metrics show``).
+Writes the figures, budgets and ratios to ``--out`` (JSON; not a DVC metrics file: ``dvc metrics
+show`` keeps to the stages' headlines, 120 columns).
 """
 
 from __future__ import annotations
