@@ -220,9 +220,8 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5):
 
     Scanners leave small holes in the skin (a shadowed pore, a specular spot). Left open they are
     black spots in every render, and a flat fan over one reads as a dent on a curved brow. Here a
-    hole gets a polar grid: the loop's vertices on the unit circle by arc length, concentric
-    rings inside at the same angles (about one ring per mean loop edge length) and a fan at the
-    centre. The grid's interior is placed, in the plane of the surrounding faces' mean normal, by
+    hole gets a polar grid: concentric rings of as many vertices as the loop (about one ring
+    per mean loop edge length) and a fan at the centre. The grid's interior is placed, in the plane of the surrounding faces' mean normal, by
     the harmonic extension of the loop (each inner vertex the mean of its neighbours, so the
     rings follow a jagged loop smoothly), and lifted onto a quadratic height field fitted to the
     vertices within ``neighbourhood`` hole radii of the centroid.
