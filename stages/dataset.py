@@ -110,15 +110,8 @@ def main(argv=None) -> int:
             err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
             if err is not None:
                 raise err
-            note = pl.resize_note(args.out, fp, args.n)
-            if note:
-                print(note, file=sys.stderr)
-            if args.overwrite and fp.state == "new":
-                print(f"note: --overwrite: no earlier dataset in {args.out}, nothing goes", file=sys.stderr)
-            elif args.overwrite:
-                what = "; ".join(fp.differences) or "the same plan"
-                print(f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {args.out} go ({what})",
-                      file=sys.stderr)
+            for line in pl.run_notes(args.out, fp, args.n, overwrite=args.overwrite):
+                print(line, file=sys.stderr)
 
             def dashboard(url):
                 print(dashboard_text(url), file=sys.stderr)

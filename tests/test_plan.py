@@ -133,6 +133,12 @@ def test_another_n_is_the_same_plan_grown_or_shrunk(two, tmp_path):
     assert sorted(p.relative_to(out).as_posix() for p in fp.remove) == sorted(
         [f"{i:06d}{e}" for i in range(5, 8) for e in IMAGE_FILES] + ["index.jsonl", "contact_sheet.png", *pl.OWN_FILES])
     assert pl.resize_note(out, fp, 5).endswith(f"images 5..7 go ({3 * len(IMAGE_FILES)} files)")
+    notes = pl.run_notes(out, fp, 5, overwrite=True)      # the resize first, then what --overwrite removes
+    assert len(notes) == 2 and notes[0] == pl.resize_note(out, fp, 5)
+    assert notes[1] == f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {out} go (the same plan)"
+    assert pl.run_notes(out, fp, 8) == []                 # the same length, no --overwrite: nothing to say
+    assert pl.run_notes(tmp_path / "new", pl.inspect_dataset(tmp_path / "new", assets, assign, st), 5,
+                        overwrite=True) == [f"note: --overwrite: no earlier dataset in {tmp_path / 'new'}, nothing goes"]
     ds.prepare_dataset(out, assets, assign, st)
     kept = _snapshot(out)
     assert all(kept[k] == before[k] for k in before if k[:6].isdigit() and int(k[:6]) < 5)

@@ -146,6 +146,18 @@ def resize_note(out: Path, fp: FolderPlan, n: int) -> str | None:
     return f"note: {out}: n {fp.old_n} -> {n}: the same plan shrunk, images {n}..{fp.old_n - 1} go ({gone} files)"
 
 
+def run_notes(out: Path, fp: FolderPlan, n: int, overwrite: bool = False) -> list[str]:
+    """The lines a run into ``out`` (inspected as ``fp``) prints before it renders: how another
+    length changes the same plan, and what ``--overwrite`` removes."""
+    notes = [line for line in (resize_note(out, fp, n),) if line]
+    if overwrite and fp.state == "new":
+        notes.append(f"note: --overwrite: no earlier dataset in {out}, nothing goes")
+    elif overwrite:
+        what = "; ".join(fp.differences) or "the same plan"
+        notes.append(f"note: --overwrite: {len(fp.remove)} files of the earlier dataset in {out} go ({what})")
+    return notes
+
+
 def refusal(out: Path, fp: FolderPlan, overwrite: bool = False, resume: bool = False) -> ScanError | None:
     """The error that refuses a run into ``out`` (inspected as ``fp``), None when it may go:
     ``--resume`` continues only a dataset of the same plan; another plan needs ``overwrite``."""
