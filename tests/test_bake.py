@@ -13,9 +13,9 @@ import trimesh
 from PIL import Image
 
 from fixtures import face_patch
-from pipeline.bake.bake import BakeSettings, bake_maps, reconstruction_error, subdivide_displaced
+from pipeline.bake.bake import BakeSettings, atlas_unwrap, bake_maps, reconstruction_error, subdivide_displaced
 from pipeline.io.exr import preview_16bit, read_exr, write_exr
-from pipeline.bake.uv import dilate, rasterize, sample_bilinear, unwrap
+from pipeline.bake.uv import UnwrapError, _check_simple_boundary, conformal_unwrap, dilate, rasterize, sample_bilinear, unwrap
 from pipeline.io.bake_file import read_bake, read_displacement
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
@@ -60,6 +60,76 @@ def test_unwrap_and_rasterize_cover_each_texel_once():
     uv = np.einsum("kj,kjc->kc", bary, UV[FUV[face]])
     assert np.allclose(uv[:, 0] * 256 - 0.5, cols, atol=1e-6)
     assert np.allclose((1 - uv[:, 1]) * 256 - 0.5, rows, atol=1e-6)
+
+
+def _plate_with_two_holes(n=61, bend=0.0):
+    """A 60 x 30 mm grid with two round openings (radius 6 mm at x = +-15), bent into a cylinder of
+    curvature ``bend`` (1/mm) about the y axis; returns V, F and the two openings' vertex rings."""
+    x, y = np.meshgrid(np.linspace(-30, 30, n), np.linspace(-15, 15, (n + 1) // 2))
+    P = np.stack([x.ravel(), y.ravel()], 1)
+    from scipy.spatial import Delaunay
+
+    tri = Delaunay(P).simplices
+    c = P[tri].mean(1)
+    keep = (np.hypot(c[:, 0] - 15, c[:, 1]) > 6) & (np.hypot(c[:, 0] + 15, c[:, 1]) > 6)
+    F = tri[keep]
+    used, F = np.unique(F, return_inverse=True)
+    P, F = P[used], F.reshape(-1, 3)
+    if bend:
+        V = np.stack([np.sin(bend * P[:, 0]) / bend, P[:, 1], (np.cos(bend * P[:, 0]) - 1) / bend], 1)
+    else:
+        V = np.column_stack([P, np.zeros(len(P))])
+    ring = [np.nonzero(np.abs(np.hypot(P[:, 0] - cx, P[:, 1]) - 6.5) < 0.6)[0] for cx in (15, -15)]
+    return V, F.astype(np.int64), ring
+
+
+def test_conformal_unwrap_of_a_flat_plate_is_a_similarity_per_chart():
+    """A flat plate's conformal map is the plate itself, scaled and turned: every triangle keeps
+    its shape and one scale (the same in both charts), each texel is covered once, and the two
+    halves become two charts (one seam, down the middle)."""
+    V, F, _ = _plate_with_two_holes()
+    side = (V[F].mean(1)[:, 0] > 0).astype(int)
+    UV, FUV = conformal_unwrap(V, F, side, 512, 4)
+    assert FUV.shape == F.shape and UV.min() >= 4 / 512 - 1e-12 and UV.max() <= 1 - 4 / 512 + 1e-12
+    a3 = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    e1, e2 = UV[FUV[:, 1]] - UV[FUV[:, 0]], UV[FUV[:, 2]] - UV[FUV[:, 0]]
+    a2 = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    assert (a2 > 0).all()                                          # the faces' winding is kept
+    scale = a2 / a3
+    assert np.ptp(scale) / scale.mean() < 1e-6                     # one scale: the same in both charts
+    # half the plate is 30 x 30 mm, side by side: 60 mm across the 1 - 3 gaps of the atlas
+    assert np.isclose(np.sqrt(scale.mean()), (1 - 3 * 4 / 512) / 60.0, rtol=1e-6)
+    assert len(np.unique(FUV[side == 0])) + len(np.unique(FUV[side == 1])) == len(UV)   # a seam: no UV shared
+    rows, cols, _, _ = rasterize(UV, FUV, 512, 512)
+    assert len(rows) == pytest.approx(a2.sum() * 512 ** 2, rel=0.02)   # each texel once: no overlap
+
+
+def test_conformal_unwrap_of_a_bent_plate_keeps_angles():
+    """Bent into a cylinder (developable), the map is still isometric up to one scale."""
+    V, F, _ = _plate_with_two_holes(bend=1 / 25.0)
+    UV, FUV = conformal_unwrap(V, F, (V[F].mean(1)[:, 0] > 0).astype(int), 1024, 4)
+    a3 = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    e1, e2 = UV[FUV[:, 1]] - UV[FUV[:, 0]], UV[FUV[:, 2]] - UV[FUV[:, 0]]
+    scale = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) / a3
+    assert np.ptp(scale) / scale.mean() < 1e-3
+
+
+def test_atlas_unwrap_falls_back_to_xatlas_where_no_chart_opens():
+    """A closed surface has no boundary for a conformal chart: xatlas unwraps it, and says why."""
+    V, F = smooth_sphere(2)
+    UV, FUV, method = atlas_unwrap(V, F, [], BakeSettings(resolution=256))
+    assert method.startswith("xatlas (a closed chart") and FUV.shape == F.shape
+    Vp, Fp, rings = _plate_with_two_holes()
+    assert atlas_unwrap(Vp, Fp, rings, BakeSettings(resolution=256))[2] == "conformal"
+    assert atlas_unwrap(Vp, Fp, rings, BakeSettings(resolution=256, unwrap="xatlas"))[2] == "xatlas"
+
+
+def test_a_boundary_that_crosses_itself_is_refused():
+    """Two boundary edges crossing (a chart folded over itself) raise; touching at a vertex does not."""
+    UV = np.array([[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0], [4.0, 0.0]])
+    with pytest.raises(UnwrapError, match="1 boundary edges cross"):
+        _check_simple_boundary(UV, np.array([[0, 1], [2, 3]]))
+    _check_simple_boundary(UV, np.array([[0, 2], [2, 4], [2, 1]]))
 
 
 def test_displacement_matches_analytic_bump(sphere_bake):

@@ -28,7 +28,7 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.bake.raycast import DenseScene, cast_both_ways
-from pipeline.bake.uv import dilation_sources, rasterize, sample_bilinear, unwrap
+from pipeline.bake.uv import UnwrapError, conformal_unwrap, dilation_sources, rasterize, sample_bilinear, unwrap
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.ramps import smoothstep
 from pipeline.settings import Settings, setting
@@ -42,6 +42,7 @@ class BakeSettings(Settings):
 
     resolution: int = setting(2048, ge=16, le=16384)            # map side, texels
     uv_padding_texels: int = setting(8, ge=0, le=256)           # gap between UV charts
+    unwrap: str = setting("conformal", choices=("conformal", "xatlas"))   # conformal: a chart per half (xatlas where not one-to-one)
     padding_texels: int = setting(6, ge=0, le=256)              # dilation past island borders
     max_distance_mm: float = setting(4.0, gt=0, le=100)         # ray length each way
     falloff_mm: float = setting(2.0, ge=0, le=100)              # displacement fades to 0 over this distance from the eyelid loops
@@ -122,6 +123,30 @@ class Texels:
     P: np.ndarray
     N: np.ndarray
     mask: np.ndarray
+
+
+def atlas_unwrap(V, F, loops, s: BakeSettings):
+    """UV atlas of the low-poly eye region: ``(UV, FUV, method)``.
+
+    ``conformal``: one conformal chart per half, split halfway between the two openings'
+    centres (:func:`pipeline.bake.uv.conformal_unwrap`; a single chart where there are not two
+    openings); ``xatlas`` where a chart is not one-to-one, or when asked for.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    if s.unwrap == "conformal":
+        centres = [V[np.asarray(lp, dtype=np.int64)].mean(axis=0) for lp in loops if len(lp)]
+        side = np.zeros(len(F), dtype=np.int64)
+        if len(centres) == 2:
+            axis = centres[0] - centres[1]
+            side = ((V[F].mean(axis=1) - 0.5 * (centres[0] + centres[1])) @ axis > 0).astype(np.int64)
+        try:
+            return (*conformal_unwrap(V, F, side, s.resolution, s.uv_padding_texels), "conformal")
+        except UnwrapError as exc:
+            method = f"xatlas ({exc})"
+    else:
+        method = "xatlas"
+    return (*unwrap(V, F, s.resolution, s.uv_padding_texels), method)
 
 
 def atlas_texels(V, F, UV, FUV, res: int) -> Texels:
@@ -229,8 +254,9 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     F = np.asarray(F, dtype=np.int64)
     t = {}
     t0 = time.perf_counter()
+    method = "given"
     if UV is None:
-        UV, FUV = unwrap(V, F, s.resolution, s.uv_padding_texels)
+        UV, FUV, method = atlas_unwrap(V, F, list(loops.values()), s)
     t["unwrap_s"] = time.perf_counter() - t0
     res = int(s.resolution)
     t1 = time.perf_counter()
@@ -250,7 +276,7 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     cimg = colour_map(tx, dense, texture, hface, hbary, weights, res)
     t["maps_s"] = time.perf_counter() - t5
     t["total_s"] = time.perf_counter() - t0
-    metrics = bake_metrics(tx, disp_w, n_miss, colour_source(dense, texture, cimg), res)
+    metrics = {**bake_metrics(tx, disp_w, n_miss, colour_source(dense, texture, cimg), res), "unwrap": method}
     return BakeResult(UV, FUV, dimg, cimg, tx.mask, metrics, {k: round(v, 4) for k, v in t.items()})
 
 

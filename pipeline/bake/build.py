@@ -3,10 +3,10 @@ bake product (pipeline/io/bake_file.py) and measure the reconstruction error.
 
 The steps are the algorithm's (pipeline/bake/bake.py); independent ones run side by side through
 the process helper (pipeline/fork.py, ``EYERIG_SERIAL=1`` turns it off, with the same bytes):
-the xatlas unwrap (which holds the GIL) while the dense scan and its texture load, the
-UV-independent half of the accuracy metric runs and the Embree scene of the scan is built; the
-texels' falloff weights and padding while the rays are cast; the UV-dependent half of the
-metric while the colour map is made and the maps are written.
+the unwrap while the dense scan and its texture load, the UV-independent half of the accuracy
+metric runs and the Embree scene of the scan is built; the texels' falloff weights and padding
+while the rays are cast; the UV-dependent half of the metric while the colour map is made and
+the maps are written.
 """
 
 from __future__ import annotations
@@ -16,10 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.bake.bake import (BakeSettings, atlas_texels, bake_metrics, cast_texels, colour_map, colour_source,
-                                dense_scene, displacement_map, reconstruction_baseline, reconstruction_error,
-                                texel_weights)
-from pipeline.bake.uv import unwrap
+from pipeline.bake.bake import (BakeSettings, atlas_texels, atlas_unwrap, bake_metrics, cast_texels, colour_map,
+                                colour_source, dense_scene, displacement_map, reconstruction_baseline,
+                                reconstruction_error, texel_weights)
 from pipeline.errors import ScanError
 from pipeline.fork import fork_call, fork_result
 from pipeline.io.bake_file import write_bake
@@ -57,12 +56,12 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     V, F = np.asarray(low.V, dtype=np.float64), np.asarray(low.F, dtype=np.int64)
     t = {}
     t0 = time.perf_counter()
-    # the xatlas unwrap (holds the GIL) runs beside: loading the scan and its texture, the
-    # UV-independent half of the accuracy metric and the ray-casting BVH
-    uv_job = fork_call(unwrap, V, F, s.resolution, s.uv_padding_texels)
+    loops = {"left": low.loop_left, "right": low.loop_right}
+    # the unwrap (xatlas, where it runs, holds the GIL) runs beside: loading the scan and its
+    # texture, the UV-independent half of the accuracy metric and the ray-casting BVH
+    uv_job = fork_call(atlas_unwrap, V, F, list(loops.values()), s)
     dense = read_stage_mesh(dense_dir / "mesh.npz")
     texture = _texture(dense_dir / "texture.png")
-    loops = {"left": low.loop_left, "right": low.loop_right}
     t1 = time.perf_counter()
     baseline = reconstruction_baseline(V, F, dense.V, dense.F, levels=s.subdivision_levels,
                                        n_samples=s.metric_samples)
@@ -70,7 +69,7 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     t1 = time.perf_counter()
     scene = dense_scene(V, dense, s)
     t["scene_s"] = time.perf_counter() - t1
-    (UV, FUV), t["unwrap_s"] = fork_result(uv_job)
+    (UV, FUV, method), t["unwrap_s"] = fork_result(uv_job)
     res = int(s.resolution)
     t1 = time.perf_counter()
     tx = atlas_texels(V, F, UV, FUV, res)
@@ -95,5 +94,5 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     err, recon_s = fork_result(error_job)
     t["reconstruction_error_s"] = baseline_s + recon_s
     timings = {k: round(v, 4) for k, v in t.items()}
-    return StageResult({**bake_metrics(tx, disp_w, n_miss, colour, res), "reconstruction": err},
+    return StageResult({**bake_metrics(tx, disp_w, n_miss, colour, res), "unwrap": method, "reconstruction": err},
                        {"timings_s": timings, "time_s": timings["total_s"]})

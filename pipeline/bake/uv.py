@@ -1,4 +1,10 @@
-"""UV unwrapping of the low-poly eye region (xatlas) and texel rasterisation (numpy)."""
+"""UV unwrapping of the low-poly eye region and texel rasterisation (numpy).
+
+Two unwraps: :func:`conformal_unwrap`, one least-squares conformal chart per half of the eye
+region (the halves split between the two openings), packed side by side: milliseconds, and
+seams only down the middle; and :func:`unwrap` (xatlas), seconds, for any mesh, the fallback
+where a conformal chart is not one-to-one.
+"""
 
 from __future__ import annotations
 
@@ -40,6 +46,145 @@ def unwrap(V, F, resolution=2048, padding=4, seed_options=None):
     if len(idx) != len(F) or not np.array_equal(vmap[idx], F):
         raise RuntimeError("xatlas changed the face order or topology")
     return np.asarray(uvs, dtype=np.float64), idx
+
+
+class UnwrapError(ValueError):
+    """A conformal chart that is not one-to-one (a flipped triangle, a boundary crossing itself)."""
+
+
+def _chart_lscm(V, F):
+    """Least-squares conformal map of one connected chart, scaled to millimetres (its UV area
+    equals its surface area) and turned to its smallest bounding rectangle, corner at the origin.
+
+    Raises
+    ------
+    UnwrapError
+        When the chart has no boundary, a triangle flips, or its boundary crosses itself.
+    """
+    import igl
+
+    from pipeline.geometry.meshtopo import boundary_halfedges
+
+    H = boundary_halfedges(F)
+    if len(H) == 0:
+        raise UnwrapError("a closed chart has no boundary to open it at")
+    # pins: the two boundary vertices farthest apart (a pair near each other leaves the scale ill-posed)
+    b = np.unique(H)
+    P = V[b]
+    i = int(np.argmax(np.linalg.norm(P - P[0], axis=1)))
+    j = int(np.argmax(np.linalg.norm(P - P[i], axis=1)))
+    UV, _ = igl.lscm(V, F, np.array([b[i], b[j]]), np.array([[0.0, 0.0], [1.0, 0.0]]))
+    UV = np.asarray(UV, dtype=np.float64)
+    e1, e2 = UV[F[:, 1]] - UV[F[:, 0]], UV[F[:, 2]] - UV[F[:, 0]]
+    a2 = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    if not np.isfinite(UV).all() or not (np.all(a2 > 0) or np.all(a2 < 0)):
+        raise UnwrapError(f"{int(min((a2 <= 0).sum(), (a2 >= 0).sum()))} triangles flip in the conformal map")
+    if a2[0] < 0:                                    # mirrored: keep the faces' winding
+        UV[:, 0] *= -1.0
+    a3 = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    UV *= np.sqrt(a3.sum() / np.abs(a2).sum())
+    _check_simple_boundary(UV, H)
+    from scipy.spatial import ConvexHull
+
+    hull = UV[ConvexHull(UV).vertices]
+    best = None
+    for e in np.diff(np.vstack([hull, hull[:1]]), axis=0):   # the smallest rectangle has a hull edge on a side
+        c, s = e / np.linalg.norm(e)
+        R = np.array([[c, s], [-s, c]])
+        Q = hull @ R.T
+        area = float(np.prod(Q.max(0) - Q.min(0)))
+        if best is None or area < best[0]:
+            best = (area, R)
+    UV = UV @ best[1].T
+    return UV - UV.min(axis=0)
+
+
+def _check_simple_boundary(UV, H):
+    """Raise :class:`UnwrapError` when two boundary edges of the chart ``UV`` cross (edges that
+    share a vertex are not compared)."""
+    A, B = UV[H[:, 0]], UV[H[:, 1]]
+    lo, hi = np.minimum(A, B), np.maximum(A, B)
+    for k in range(0, len(H), 256):                  # (256, k) blocks: memory stays small
+        sl = slice(k, k + 256)
+        near = np.all((lo[sl, None] <= hi[None]) & (lo[None] <= hi[sl, None]), axis=2)
+        near &= ~((H[sl, None, 0] == H[None, :, 0]) | (H[sl, None, 0] == H[None, :, 1])
+                  | (H[sl, None, 1] == H[None, :, 0]) | (H[sl, None, 1] == H[None, :, 1]))
+        i, j = np.nonzero(near)
+        i += k
+
+        def orient(p, q, r):
+            return np.sign((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0]))
+
+        cross = ((orient(A[i], B[i], A[j]) * orient(A[i], B[i], B[j]) < 0)
+                 & (orient(A[j], B[j], A[i]) * orient(A[j], B[j], B[i]) < 0))
+        if cross.any():
+            raise UnwrapError(f"{int(cross.sum()) // 2} boundary edges cross in the conformal map")
+
+
+def conformal_unwrap(V, F, side, resolution=2048, padding=4):
+    """One least-squares conformal chart per connected piece of each side, packed into [0, 1]^2.
+
+    A conformal map keeps the texels square and, unlike xatlas' many charts, leaves seams only
+    where ``side`` changes; both eye openings are free boundaries, so nothing around them is cut.
+
+    Parameters
+    ----------
+    V : (n, 3) float64, F : (m, 3) int64
+    side : (m,) int
+        The chart group of each face (e.g. which side of the face's midline); a group's connected
+        pieces are charts of their own.
+    resolution : int
+        Atlas texels per side; with ``padding``, the gap between charts and round the border.
+
+    Returns
+    -------
+    UV : (k, 2) float64 in [0, 1], origin bottom-left
+    FUV : (m, 3) int64 per-corner indices into UV, same face order as ``F``
+
+    Raises
+    ------
+    UnwrapError
+        When a chart is not one-to-one (use :func:`unwrap` then).
+    """
+    from pipeline.geometry.meshtopo import face_components_by_vertex
+
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    side = np.asarray(side)
+    charts = []
+    for g in np.unique(side):
+        fg = np.nonzero(side == g)[0]
+        _, lab = face_components_by_vertex(F[fg], len(V))
+        for c in np.unique(lab):                  # (vertices outside the group are components too)
+            faces = fg[lab == c]
+            verts, local = np.unique(F[faces], return_inverse=True)
+            charts.append((faces, verts, _chart_lscm(V[verts], local.reshape(-1, 3))))
+    # shelf packing, tallest first: rows left to right; the scale is the largest that fits
+    order = sorted(range(len(charts)), key=lambda k: -charts[k][2][:, 1].max())
+    size = np.array([charts[k][2].max(axis=0) for k in order])          # (c, 2) mm
+    gap = float(padding) / float(resolution)
+
+    def place(scale):
+        pos, x, y, row_h = [], gap, gap, 0.0
+        for w, h in size * scale:
+            if x + w + gap > 1.0 and x > gap:                          # next row
+                x, y, row_h = gap, y + row_h + gap, 0.0
+            pos.append((x, y))
+            x, row_h = x + w + gap, max(row_h, h)
+        fits = all(px + w + gap <= 1.0 + 1e-12 for (px, _), w in zip(pos, size[:, 0] * scale))
+        return fits and y + row_h + gap <= 1.0 + 1e-12, pos
+
+    lo, hi = 0.0, (1.0 - 2 * gap) / float(size.max())
+    for _ in range(40):                                                # bisection on the scale
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if place(mid)[0] else (lo, mid)
+    pos = place(lo)[1]
+    UV, FUV, k0 = [], np.zeros_like(F), 0
+    for (faces, verts, uv), p in zip((charts[k] for k in order), pos):
+        UV.append(uv * lo + np.asarray(p))
+        FUV[faces] = np.searchsorted(verts, F[faces]) + k0
+        k0 += len(verts)
+    return np.concatenate(UV), FUV
 
 
 def rasterize(UV, FUV, width, height):
