@@ -520,44 +520,17 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
 
     flipped = _flip_counter(Vc, Fc)
     t3 = time.perf_counter()
-
-    def in_band(Vn, loops):
-        """(n,) bool: with the grid band, the vertices it will cut away for sure (within half its
-        width of a loop; the cut reaches the outer ring, ``band_width_mm`` out along the surface):
-        nothing there is worth repairing."""
-        inside = np.zeros(len(Vn), dtype=bool)
-        if s.band == "grid":
-            from scipy.spatial import cKDTree
-
-            pts = []
-            for lp in loops.values():
-                A = Vn[lp]
-                B = np.roll(A, -1, axis=0)
-                t = np.linspace(0.0, 1.0, 8, endpoint=False)[None, :, None]
-                pts.append((A[:, None] + t * (B - A)[:, None]).reshape(-1, 3))
-            d, _ = cKDTree(np.concatenate(pts)).query(Vn)
-            inside = d < 0.5 * s.band_width_mm
-        return inside
-
-    def held(Vn, Fn, loops):
-        """The vertices the repairs leave alone: the borders, and :func:`in_band`'s."""
-        return np.union1d(np.concatenate(mc.boundary_loops(Fn)), np.flatnonzero(in_band(Vn, loops)))
-
-    def outside_flips(Vn, Fn, fixed):
-        """Flipped faces the repairs can reach (with the grid band, not those it cuts away)."""
-        return flipped(Vn, Fn[~np.isin(Fn, fixed).all(axis=1)] if s.band == "grid" else Fn)
-
-    fixed = held(Vn, Fn, loops)
+    fixed = np.unique(np.concatenate([np.concatenate(mc.boundary_loops(Fn))]))
     Vn = relax(Vn, Fn, fixed, Vc, Fc, iterations=s.relax_iterations)
     for _ in range(3):
-        if outside_flips(Vn, Fn, fixed):             # repair remaining flips next to the (fixed) loops
+        if flipped(Vn, Fn):             # repair remaining flips next to the (fixed) loops
             Vn = repair_flips(Vn, Fn, fixed, Vc, Fc)
-        if outside_flips(Vn, Fn, fixed):             # slivers at the loop: move the free corner inside
+        if flipped(Vn, Fn):             # slivers at the loop: move the free corner inside
             Vn = mirror_flipped(Vn, Fn, fixed, Vc, Fc)
-        if outside_flips(Vn, Fn, fixed):             # still flipped: collapse their free vertex into a neighbour
+        if flipped(Vn, Fn):             # still flipped: collapse their free vertex into a neighbour
             Vn, Fn, loops = collapse_flipped(Vn, Fn, loops, fixed, Vc, Fc)
-            fixed = held(Vn, Fn, loops)
-    if outside_flips(Vn, Fn, fixed):                 # last resort: slide free corners into their kernel
+            fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
+    if flipped(Vn, Fn):                 # last resort: slide free corners into their kernel
         free = np.ones(len(Vn), dtype=bool)
         free[fixed] = False
         R = reference_face_normals(Vn, Fn, Vc, Fc)
@@ -576,12 +549,9 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     Vn, Fn, loops, n_short = collapse_short_edges(Vn, Fn, loops, fixed,
                                                   s.min_edge_fraction * float(np.median(elen)))
     if n_short:
-        fixed = held(Vn, Fn, loops)
+        fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
     for _ in range(2):
-        # with the grid band, only the faces it keeps: the band's edges are a border to the flips
-        cut = in_band(Vn, loops)[Fn].any(axis=1)
-        Fd, k = delaunay_flips(Vn, Fn[~cut])
-        Fd = np.concatenate([Fd, Fn[cut]])
+        Fd, k = delaunay_flips(Vn, Fn)
         if k and flipped(Vn, Fd) <= flipped(Vn, Fn):
             Fn, n_delaunay = Fd, n_delaunay + k
             Vn = relax(Vn, Fn, fixed, Vc, Fc, iterations=s.relax_iterations)
