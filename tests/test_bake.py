@@ -269,6 +269,29 @@ def test_falloff_zero_at_loop_and_padding():
     assert m.sum() > b.mask.sum() and np.all(img[m] == 1.0)
 
 
+def test_falloff_widens_round_a_loop_vertex_off_the_scan():
+    """A loop vertex ``g`` mm off the scan fades the displacement over ``per_mm * g`` round it
+    (a canthus apex under the skin: the skin slopes into it); elsewhere the fade is
+    ``falloff_mm`` from the loop, as without gaps."""
+    from pipeline.bake.bake import falloff_weights
+
+    t = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+    V = np.c_[10.0 * np.cos(t), 5.0 * np.sin(t), np.zeros(32)]        # a flat opening in z = 0
+    loop = np.arange(32)
+    P = np.array([[13.0, 0.0, 0.0],      # 3 mm beyond vertex 0 (the 'apex', 2 mm off the scan)
+                  [-13.0, 0.0, 0.0],     # 3 mm beyond vertex 16 (on the scan)
+                  [10.5, 0.0, 0.0]])     # 0.5 mm beyond vertex 0
+    F = np.array([[0, 1, 2]])
+    face = np.zeros(len(P), dtype=np.int64)
+    gaps = [np.where(loop == 0, 2.0, 0.0)]
+    plain = falloff_weights(V, F, P, face, [loop], 2.0)
+    wide = falloff_weights(V, F, P, face, [loop], 2.0, gaps, per_mm=2.0)
+    assert plain[0] == 1.0 and plain[1] == 1.0          # 3 mm > falloff_mm: full displacement
+    assert 0.0 < wide[0] < 0.9 and wide[1] == 1.0       # only round the vertex off the scan
+    assert wide[2] < plain[2] < 1.0
+    np.testing.assert_array_equal(falloff_weights(V, F, P, face, [loop], 2.0, gaps, per_mm=0.0), plain)
+
+
 def test_stage_steps_side_by_side_give_the_algorithms_bytes(tmp_path, monkeypatch):
     """bake_scan runs bake_maps' steps with the independent ones in forked children
     (pipeline/fork.py); switched off (EYERIG_SERIAL=1) every file it writes is the same bytes,

@@ -139,3 +139,24 @@ def test_refine_when_an_opening_has_fewer_vertices_than_the_loop():
     assert levels == 0 and np.array_equal(F0, F)
     _, _, levels = refine_coarse_crop(V, F, 64, [15])
     assert levels == 3
+
+
+def test_relax_of_a_few_free_vertices_ignores_the_rest_of_the_mesh():
+    """relax works on the faces round its free vertices only (the band's zip relaxes a few
+    hundred vertices of thousands): a fixed part far away, joined or not, changes nothing."""
+    from pipeline.geometry.flips import relax
+
+    V, F = _pushed_grid()
+    free = [14, 15, 20]
+    fixed = np.setdiff1d(np.arange(len(V)), free)
+    alone = relax(V, F, fixed, V, F, iterations=3)
+    # the same grid next to a second, fixed grid (another component) and its reference
+    V2, F2 = _grid()
+    V2 = V2 + [20.0, 0.0, 0.0]
+    Vb = np.concatenate([V, V2])
+    Fb = np.concatenate([F, F2 + len(V)])
+    both = relax(Vb, Fb, np.concatenate([fixed, len(V) + np.arange(len(V2))]), Vb, Fb, iterations=3)
+    np.testing.assert_array_equal(both[:len(V)], alone)
+    np.testing.assert_array_equal(both[len(V):], V2)
+    assert np.abs(alone[free] - V[free]).max() > 1e-3           # the free ones did move
+    np.testing.assert_array_equal(alone[fixed], V[fixed])

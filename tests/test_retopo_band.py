@@ -159,8 +159,8 @@ def test_former_folding_identity_rigs_without_a_fold(tmp_path):
         pytest.skip("rigged_assets/eyeball is not built (dvc repro eyeball)")
     params = tmp_path / "params.yaml"
     text = (root / "params.yaml").read_text()
-    assert "\n  band: march " in text
-    params.write_text(text.replace("\n  band: march ", "\n  band: grid  "))     # grid is opt-in
+    assert "\n  band: grid " in text                 # the default (issue 30)
+    params.write_text(text)
     run = [sys.executable, "-m"]
     subprocess.run(run + ["stages.identities", "--n", "2", "--no-repro", "--params", str(params)],
                    check=True, cwd=root, capture_output=True)

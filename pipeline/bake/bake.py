@@ -9,7 +9,8 @@ barycentric coordinates, which look up the scan's colour (texture through its
 per-corner UVs, or vertex colours). Texels whose rays both miss fall back to
 the closest point on the scan and are counted. The displacement fades to zero
 at the eyelid margin (smoothstep over ``falloff_mm`` of distance from the
-loops) so the snapped lids stay on the eyeball. Maps are padded past island
+loops, or over ``falloff_per_mm`` times the nearby loop's distance off the scan where that is
+longer) so the snapped lids stay on the eyeball. Maps are padded past island
 borders by ``padding_texels``.
 
 The base surface is the *flat* low-poly mesh with interpolated normals
@@ -46,6 +47,7 @@ class BakeSettings(Settings):
     padding_texels: int = setting(6, ge=0, le=256)              # dilation past island borders
     max_distance_mm: float = setting(4.0, gt=0, le=100)         # ray length each way
     falloff_mm: float = setting(2.0, ge=0, le=100)              # displacement fades to 0 over this distance from the eyelid loops
+    falloff_per_mm: float = setting(2.0, ge=0, le=100)          # ... or over this many times the loop's distance off the scan, where longer
     subdivision_levels: int = setting(2, ge=0, le=4)            # evaluation: midpoint subdivision levels (x4 faces each)
     metric_samples: int = setting(100000, ge=100, le=10_000_000)
 
@@ -177,10 +179,17 @@ def cast_texels(scene: DenseScene, tx: Texels, s: BakeSettings):
     return disp, scene.face_ids[hface], hbary, n_miss       # back to the scan's own face indices
 
 
-def texel_weights(V, F, tx: Texels, loops, s: BakeSettings):
-    """The texels' displacement weights (:func:`falloff_weights`) and the atlas padding
-    (:func:`~pipeline.bake.uv.dilation_sources`): they need the texels only, not the rays."""
-    return falloff_weights(V, F, tx.P, tx.face, loops, s.falloff_mm), dilation_sources(tx.mask, s.padding_texels)
+def texel_weights(V, F, tx: Texels, loops, s: BakeSettings, gaps=None):
+    """The texels' displacement weights (:func:`falloff_weights`; ``gaps``: :func:`loop_gaps`)
+    and the atlas padding (:func:`~pipeline.bake.uv.dilation_sources`): they need the texels
+    only, not the rays."""
+    return (falloff_weights(V, F, tx.P, tx.face, loops, s.falloff_mm, gaps, s.falloff_per_mm),
+            dilation_sources(tx.mask, s.padding_texels))
+
+
+def loop_gaps(V, loops, dense_V, dense_F):
+    """Each loop vertex's distance (mm) to the dense scan: a list of (len(loop),) arrays."""
+    return [mc.closest_points(V[np.asarray(l, dtype=np.int64)], dense_V, dense_F)[0] for l in loops]
 
 
 def displacement_map(tx: Texels, disp, weights, res: int):
@@ -263,7 +272,8 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     tx = atlas_texels(V, F, UV, FUV, res)
     t["rasterize_s"] = time.perf_counter() - t1
     t2 = time.perf_counter()
-    weights = texel_weights(V, F, tx, list(loops.values()), s)
+    gaps = loop_gaps(V, list(loops.values()), dense["V"], dense["F"]) if s.falloff_per_mm > 0 else None
+    weights = texel_weights(V, F, tx, list(loops.values()), s, gaps)
     t["weights_padding_s"] = time.perf_counter() - t2
     t3 = time.perf_counter()
     scene = scene if scene is not None else dense_scene(V, dense, s)
@@ -280,19 +290,34 @@ def bake_maps(V, F, loops, dense: dict, texture=None, settings: BakeSettings = B
     return BakeResult(UV, FUV, dimg, cimg, tx.mask, metrics, {k: round(v, 4) for k, v in t.items()})
 
 
-def falloff_weights(V, F, P, face, loops, falloff_mm):
+def falloff_weights(V, F, P, face, loops, falloff_mm, gaps=None, per_mm=0.0):
     """Displacement weights (k,) of texels at ``P`` (k, 3) on faces ``face`` (k,) of the low-poly
     mesh (V, F): a smoothstep from 0 on the eyelid ``loops`` (vertex index lists) to 1 at
-    ``falloff_mm`` from them."""
+    ``falloff_mm`` from them, and round each loop vertex that lies off the scan (``gaps``: one
+    (len(loop),) array of distances per loop) from 0 at the vertex to 1 at ``per_mm`` times its
+    gap, where that is longer; the smaller weight wins.
+
+    Why the gap: a loop vertex placed off the scan (a canthus apex, up to ~2.5 mm under the skin
+    of the fissure's corner) would have the skin beside it baked back onto the scan within
+    ``falloff_mm``: a wall that hides the canthus from the front. The skin should reach the loop
+    no steeper than ``1 : per_mm``."""
     lp = [V[np.asarray(l, dtype=np.int64)] for l in loops]
     w = np.ones(len(P))
     if falloff_mm > 0 and lp:
+        Q, rad = np.zeros((0, 3)), np.zeros(0)
+        if gaps is not None and per_mm > 0:
+            rad = per_mm * np.concatenate([np.asarray(g, float) for g in gaps])
+            Q, rad = np.concatenate(lp)[rad > falloff_mm], rad[rad > falloff_mm]
+        reach = max(falloff_mm, float(rad.max(initial=0.0)))
         # only faces that can reach within falloff of a loop need the per-texel distance
         dv = distance_to_polylines(V, lp)
         elen = np.linalg.norm(V[F] - np.roll(V[F], 1, axis=1), axis=2).max(axis=1)
-        near_face = dv[F].min(axis=1) <= falloff_mm + elen
+        near_face = dv[F].min(axis=1) <= reach + elen
         sel = near_face[face]
-        w[sel] = smoothstep(0.0, 1.0, distance_to_polylines(P[sel], lp) / falloff_mm)
+        ws = smoothstep(0.0, 1.0, distance_to_polylines(P[sel], lp) / falloff_mm)
+        for q, r in zip(Q, rad):
+            np.minimum(ws, smoothstep(0.0, 1.0, np.linalg.norm(P[sel] - q, axis=1) / r), out=ws)
+        w[sel] = ws
     return w
 
 

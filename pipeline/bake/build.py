@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.bake.bake import (BakeSettings, atlas_texels, atlas_unwrap, bake_metrics, cast_texels, colour_map,
-                                colour_source, dense_scene, displacement_map, reconstruction_baseline,
+                                colour_source, dense_scene, displacement_map, loop_gaps, reconstruction_baseline,
                                 reconstruction_error, texel_weights)
 from pipeline.errors import ScanError
 from pipeline.fork import fork_call, fork_result
@@ -75,7 +75,8 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     tx = atlas_texels(V, F, UV, FUV, res)
     t["rasterize_s"] = time.perf_counter() - t1
     # the falloff weights and the padding need the texels only: beside the ray casting
-    weights_job = fork_call(texel_weights, V, F, tx, list(loops.values()), s)
+    gaps = loop_gaps(V, list(loops.values()), dense.V, dense.F) if s.falloff_per_mm > 0 else None
+    weights_job = fork_call(texel_weights, V, F, tx, list(loops.values()), s, gaps)
     t1 = time.perf_counter()
     disp, hface, hbary, n_miss = cast_texels(scene, tx, s)
     t["raycast_s"] = time.perf_counter() - t1

@@ -292,7 +292,8 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
     """Elliptic smoothing of one eye's band grid ``G`` (R + 1, S, 3) on the dense surface.
 
     The outer ring is put at ``d[-1]`` from the loop along the loop's outward direction (square
-    to the loop in the scan's mean tangent plane within 3 mm; the harmonic map's own outer ring
+    to the loop in the opening's plane: normal to the scan's faces within 3 mm of the loop,
+    summed round the whole loop; the harmonic map's own outer ring
     lies as little as 4.4 mm out where its spokes are skewed, ict_neutral's lower lids), and its
     nodes then only slide along it (on its ``outer_half``-neighbour moving average). Rings
     1 .. R - 1 move (Jacobi sweeps, ``step`` of the way, within the scan's tangent plane at the
@@ -327,7 +328,11 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
     G[0] = C0
     nf = mc.face_normals(ref_V, ref_F, normalize=False)
     tree = cKDTree(ref_V[ref_F].mean(axis=1))
-    N = np.stack([nf[ix].sum(axis=0) if len(ix) else np.zeros(3) for ix in tree.query_ball_point(loop, 3.0)])
+    # one normal for the whole opening: beside a canthus apex in the fissure's corner the scan's
+    # own tangent plane is a wall, and a spoke square to the loop in it climbs the wall in front
+    # of the canthus (the band then hides it from the front, and snap moves the loop vertices
+    # next to it along the wall's normals, across the fissure)
+    N = _unit(sum(nf[ix].sum(axis=0) for ix in tree.query_ball_point(loop, 3.0) if len(ix))[None])
     out = np.cross(_unit(loop - np.roll(loop, 1, axis=0)) + _unit(np.roll(loop, -1, axis=0) - loop), N)
     out = _unit(out)
     if np.sum(np.einsum("ij,ij->i", out, G[-1] - G[0])) < 0:

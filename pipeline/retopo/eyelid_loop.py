@@ -26,12 +26,16 @@ def project_to_polyline(X, P):
     A, B = Q[:-1], Q[1:]
     AB = B - A
     L2 = np.maximum(np.einsum("ij,ij->i", AB, AB), 1e-300)
-    t = np.clip(np.einsum("kij,ij->ki", X[:, None, :] - A[None], AB) / L2, 0, 1)
-    C = A[None] + t[..., None] * AB[None]
-    d = np.linalg.norm(C - X[:, None, :], axis=2)
-    j = np.argmin(d, axis=1)
+    XA = X[:, None, :] - A[None]
+    p = np.einsum("kij,ij->ki", XA, AB)
+    t = np.clip(p / L2, 0, 1)
+    # squared distances without the (k, m, 3) closest points: smooth_grid projects its outer
+    # ring onto a 512-segment line in every sweep
+    j = np.argmin(np.einsum("kij,kij->ki", XA, XA) - t * (2.0 * p - t * L2), axis=1)
     k = np.arange(len(X))
-    return s[j] + t[k, j] * np.sqrt(L2[j]), C[k, j], d[k, j]
+    tj = t[k, j]
+    C = A[j] + tj[:, None] * AB[j]
+    return s[j] + tj * np.sqrt(L2[j]), C, np.linalg.norm(C - X, axis=1)
 
 
 def closed_moving_average(P, half: int):

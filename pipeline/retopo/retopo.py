@@ -27,7 +27,7 @@ the loop is not reached by splitting each opening edge into a fan of slivers; ed
 leave a loop vertex with a single triangle (an "ear" with three loop corners, inverted on the
 convex opening).
 
-With ``band: grid`` (opt-in) the faces round each loop are then cut away and replaced by a
+With ``band: grid`` (the default) the faces round each loop are then cut away and replaced by a
 built band of quads, ``band_rings`` rings of ``loop_points`` vertices with fixed ids
 (:func:`pipeline.retopo.eye_band.add_eye_bands`; docs/retopo.md). With ``band: march`` and
 ``eye_rings`` > 0 (off by default), :func:`add_eye_rings` instead gives each loop concentric
@@ -81,7 +81,7 @@ class RetopoSettings(Settings):
     quad_max_angle_dev_deg: float = setting(50.0, ge=0, le=90)
     relax_iterations: int = setting(4, ge=0, le=1000)
     min_edge_fraction: float = setting(0.2, ge=0, le=0.9)    # after the repairs, collapse edges shorter than this x the median (0 = off)
-    band: Literal["grid", "march"] = "march"                 # grid: eye_band.add_eye_bands; march: the repairs + eye_rings
+    band: Literal["grid", "march"] = "grid"                  # grid: eye_band.add_eye_bands; march: the repairs + eye_rings
     band_rings: int = setting(6, ge=1, le=50)                # grid band: rings outside the loop (the same in every asset)
     band_width_mm: float = setting(8.0, gt=0, le=50)         # grid band: loop to outer ring along each spoke
     band_param_mm: float = setting(20.0, gt=0, le=100)       # grid band: dense surface parametrised round the opening
