@@ -127,11 +127,13 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         try:
             fits[s] = fit_texture(mesh, uv, texture, hints[s], s, st, source)
         except NoEyeInTexture:
-            if placements[s] is None:     # neither the geometry nor the texture shows an eye
-                raise ScanError(source, f"{s} eye looks closed: no eye surface ringed by a lid fold, and no "
-                                        f"eye colours in the texture, near the hint "
-                                        f"{np.round(hints[s], 2).tolist()}") from None
-            raise
+            # neither the geometry nor the texture shows an eye: skin across the opening, whatever
+            # the scan's kind (a coarse scan's geometry may offer a sliver of "eye" the texture
+            # then shows to be skin)
+            why = ("no eye surface ringed by a lid fold" if placements[s] is None
+                   else "too little eye surface to place it from the geometry")
+            raise ScanError(source, f"{s} eye looks closed: {why}, and no eye colours in the "
+                                    f"texture, near the hint {np.round(hints[s], 2).tolist()}") from None
         placements[s] = None
     for s in SIDES:
         if front is not None and front.get(s) is not None:
