@@ -181,6 +181,47 @@ def test_closed_textured_eyes_are_refused_as_closed():
     assert "closed_textured.obj" in msg and "\n" not in msg and says_closed(msg), msg
 
 
+@pytest.mark.slow
+def test_a_closed_textured_scan_is_refused_as_closed(extra_scan, tmp_path, capsys):
+    """A real textured scan with its eyes closed: ``james`` (coarse, placed from its photograph)
+    with each eye painted over in the texture with the skin around it (skin across the opening;
+    the coarse geometry unchanged, so it still offers a sliver of "eye"). The stage refuses it
+    in one line naming the scan folder and saying closed (it said "no eyeball surface found
+    near the hint (geometry and texture)")."""
+    from PIL import Image, ImageDraw
+
+    from fixtures.unseen.metrics import says_closed
+    from stages._common import run_stage
+    from stages.ingest import main as ingest_main
+    from stages.remove_eyeballs import main
+
+    folder = extra_scan("james")
+    ing = tmp_path / "ingest"
+    assert run_stage(ingest_main, [str(folder), str(ing), "--params", "none.yaml"]) == 0
+    m = load_mesh(ing / "mesh.npz")
+    V, F, UV, FUV = m["V"], m["F"], m["UV"], m["FUV"]
+    hints = {s: np.asarray(e["hint"], float) for s, e in json.loads((ing / "scan.json").read_text())["eyes"].items()}
+    img = Image.open(ing / "texture.png").convert("RGB")
+    tex = np.asarray(img)
+    h, w = tex.shape[:2]
+    draw = ImageDraw.Draw(img)
+    c = V[F].mean(axis=1)
+    for hint in hints.values():
+        d, front = np.linalg.norm((c - hint)[:, :2], axis=1), np.abs(c[:, 2] - hint[2]) < 25.0
+        px = np.clip((UV[FUV[front & (d > 16) & (d < 22)]].reshape(-1, 2) * [w - 1, h - 1]).astype(int),
+                     0, [w - 1, h - 1])
+        skin = tuple(int(v) for v in np.median(tex[h - 1 - px[:, 1], px[:, 0]], axis=0))
+        for f in np.flatnonzero(front & (d < 15)):
+            draw.polygon([(float(u), float(h - 1 - v)) for u, v in UV[FUV[f]] * [w - 1, h - 1]], fill=skin)
+    img.save(ing / "texture.png")
+    capsys.readouterr()
+    assert run_stage(main, [str(ing), str(tmp_path / "out"), "--params", "none.yaml"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {folder}: "), err
+    assert says_closed(err[0]) and "eye looks closed" in err[0], err[0]
+    assert not (tmp_path / "out").exists()
+
+
 def _ingested_head(tmp_path) -> Path:
     """An ingest folder of the open test head."""
     mesh, hints, _ = make_head(0.7)

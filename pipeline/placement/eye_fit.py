@@ -28,7 +28,7 @@ class EyeFit:
         RMS distance of the sclera inliers to the sphere.
     n_inliers : int
     method : str
-        ``"geometry"`` or ``"texture"``.
+        ``"geometry"``, ``"texture"`` or ``"fill"`` (behind a scanner's flat fill).
     region : (m,) bool
         Faces to remove.
     cornea : dict or None

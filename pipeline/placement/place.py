@@ -2,7 +2,9 @@
 
 :func:`place_pair` places both eyes together on the surface around the hints (the joint MAP fit
 of :mod:`pipeline.placement.fit`, the eye-region prior of :mod:`pipeline.placement.prior`; an eye
-the geometry cannot place falls back to the colour texture, :mod:`pipeline.placement.texture`).
+the geometry cannot place falls back to the colour texture, :mod:`pipeline.placement.texture`;
+an opening a scanner filled flat is placed behind the fill's boundary,
+:mod:`pipeline.placement.fill`).
 The stage then cuts the openings; :func:`judge_pair` takes each cut loop and says what the
 published eye is: the self-checks (:mod:`pipeline.placement.checks`), the asset's eye anchored
 at the scan's limbus (:mod:`pipeline.placement.human_eye`), and every doubt
@@ -18,6 +20,7 @@ from pipeline.io.eyes_file import Eye
 from pipeline.placement import checks as eye_checks
 from pipeline.placement.doubts import check_doubts, fissure_doubts
 from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease_deg, patch_faces
+from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_from_fill
 from pipeline.placement.fit import place_eyes
 from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
 from pipeline.placement.settings import PlacementSettings
@@ -80,6 +83,9 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
                uv=None, texture=None, prior=None, source="mesh"):
     """Place both eyes jointly (:func:`pipeline.placement.fit.place_eyes`) on the surface around
     the hints; an eye the geometry cannot place falls back to the colour texture when there is one.
+    An opening a scanner filled flat (:func:`pipeline.placement.fill.find_flat_fill`) is placed
+    behind the fill's boundary instead (:func:`pipeline.placement.fill.fit_from_fill`; the
+    search is skipped when both are).
 
     ``V``, ``F``: the surface around the hints (the stage's local sub-mesh, its holes near the
     eyes closed); ``median_edge``: the whole scan's median edge length; ``filled`` (m,) bool: the
@@ -102,7 +108,9 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
                 front[s] = {**prior(V, F, hints[s], s), "sigma": st.prior_front_sigma_mm}
             except (ValueError, np.linalg.LinAlgError):     # the model did not register here
                 front[s] = None
-    placements = place_eyes(
+    # an opening a scanner filled flat: its boundary is the fissure (pipeline/placement/fill.py)
+    fills = {s: find_flat_fill(V, F, hints[s], median_edge, exclude=filled) for s in SIDES}
+    placements = {s: None for s in SIDES} if all(fills.values()) else place_eyes(
         V, F, hints, patch_radius_mm=st.place_patch_mm, radius_range=tuple(st.radius_range_mm),
         radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
         prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
@@ -110,6 +118,9 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         min_fold_deg=st.min_crease_deg)
     fits = {}
     for s in SIDES:
+        if fills[s] is not None:
+            fits[s], placements[s] = fit_from_fill(mesh, fills[s], s, st.radius_prior_mm), None
+            continue
         err = None
         if placements[s] is not None:
             try:
@@ -127,11 +138,13 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         try:
             fits[s] = fit_texture(mesh, uv, texture, hints[s], s, st, source)
         except NoEyeInTexture:
-            if placements[s] is None:     # neither the geometry nor the texture shows an eye
-                raise ScanError(source, f"{s} eye looks closed: no eye surface ringed by a lid fold, and no "
-                                        f"eye colours in the texture, near the hint "
-                                        f"{np.round(hints[s], 2).tolist()}") from None
-            raise
+            # neither the geometry nor the texture shows an eye: skin across the opening, whatever
+            # the scan's kind (a coarse scan's geometry may offer a sliver of "eye" the texture
+            # then shows to be skin)
+            why = ("no eye surface ringed by a lid fold" if placements[s] is None
+                   else "too little eye surface to place it from the geometry")
+            raise ScanError(source, f"{s} eye looks closed: {why}, and no eye colours in the "
+                                    f"texture, near the hint {np.round(hints[s], 2).tolist()}") from None
         placements[s] = None
     for s in SIDES:
         if front is not None and front.get(s) is not None:
@@ -184,12 +197,13 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
                      limbus_radius=float(pl.eye.R * np.sin(np.radians(pl.eye.tl))),
                      sigma_limbus_mm=pl.sigma_limbus_mm, sigma_axis_deg=pl.sigma_axis_deg,
                      sigma_radius=pl.sigma_radius_mm, source="geometry")
-        else:
-            here = placed_params(geo, fit.radius)     # the anatomical eye behind the fissure
+        else:       # the anatomical eye behind the fissure (photographed, or a flat fill's boundary)
+            here = placed_params(geo, fit.radius)
+            sigma = FILL_SIGMA if fit.method == "fill" else TEXTURE_SIGMA
             e.update(limbus_center=np.asarray(fit.center) + human_eye.limbus_depth(here) * np.asarray(fit.forward),
                      axis=np.asarray(fit.forward, float), limbus_radius=human_eye.limbus_radius(here),
-                     sigma_limbus_mm=TEXTURE_SIGMA[0], sigma_axis_deg=TEXTURE_SIGMA[1],
-                     sigma_radius=None, source="texture")
+                     sigma_limbus_mm=sigma[0], sigma_axis_deg=sigma[1],
+                     sigma_radius=None, source=fit.method)
         scan[s] = e
     return human_eye.asset_eyes(scan, eye_size=st.eye_size, eyeball=geo,
                                 population=tuple(st.population_radius_mm),

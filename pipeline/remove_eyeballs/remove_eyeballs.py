@@ -4,7 +4,8 @@ Holes near the eyes are closed for the placement (:func:`pipeline.geometry.mesh_
 and given to the opening; both eyes are placed together on a local sub-mesh by
 :mod:`pipeline.placement` (a MAP fit of an eye model from every cue the scan keeps, with a
 calibrated uncertainty; an eye the geometry cannot place is placed from the colour texture and
-cut along the fissure the photograph shows). The regions are cut out leaving one simple loop per
+cut along the fissure the photograph shows; an opening a scanner filled flat is cut along the
+fill's boundary, :mod:`pipeline.placement.fill`). The regions are cut out leaving one simple loop per
 opening; each loop vertex moves to where the uncut surface lifts off the placed eye by
 ``margin_lift_mm`` (projected onto the eye; flip-guarded; loop vertices on a
 reconstruction-filled crease keep the cut); loops are ordered from the medial canthus over the

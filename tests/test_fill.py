@@ -1,0 +1,98 @@
+"""A flat-filled eye opening (pipeline/placement/fill.py): found, cut away, its boundary the
+opening loop, the eye placed behind it with a doubt; an open eye, a blink and a small fill over
+the iris are not taken for one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fixtures.eye_heads import make_head
+from fixtures.truth import truth_limbus
+from fixtures.unseen.cases import _synthetic_labels, fill_openings
+from fixtures.unseen.metrics import true_canthi
+from pipeline.geometry.mesh_checks import closed_polyline_distance
+from pipeline.placement.eye_fit import median_edge_length
+from pipeline.placement.fill import find_flat_fill
+from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
+from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
+
+SIDES = ("left", "right")
+
+
+@pytest.fixture(scope="module")
+def head():
+    """The procedural head (seed 3, 60k triangles) and its eyeball vertices (1 left, 2 right)."""
+    from pipeline.synthetic_head import make_synthetic_head
+
+    h = make_synthetic_head(seed=3, target_triangles=60_000, texture_size=16, noise_mm=0.0)
+    return h, _synthetic_labels(h)
+
+
+def _hints(h):
+    return {s: np.asarray(h.hints[s], float) for s in SIDES}
+
+
+@pytest.mark.slow
+def test_a_flat_filled_opening_becomes_an_asset(head):
+    """The eyeball removed and each opening closed with flat triangles (as the benchmark's
+    ``filled`` family, ear-clipped across the hole): both eyes are published, placed behind the
+    fill's boundary with a doubt and a stated uncertainty, the fill cut away and its boundary
+    the opening loop, the eye's limbus within 2 sigma of the truth."""
+    h, labels = head
+    V, F, _ = fill_openings(np.asarray(h.V, float), np.asarray(h.F, np.int64), labels)
+    res = remove_eyeballs({"V": V, "F": F}, _hints(h), RemoveEyeballsSettings(), source="filled.ply")
+    me = median_edge_length(V, F)
+    V2, F2 = res.mesh["V"], res.mesh["F"]
+    for s in SIDES:
+        e, g = res.eyes[s].to_doc(), h.ground_truth["eyes"][s]
+        assert e["method"] == "fill" and e["limbus"]["source"] == "fill"
+        assert e["placement"] == ["fill", "radius_prior"] and e["radius"] == 12.0
+        assert any(d.startswith("placed from little evidence (fill)") for d in e["doubts"]), e["doubts"]
+        assert e["uncertainty"]["limbus_mm"] == 4.0 and e["uncertainty"]["axis_deg"] == 20.0
+        # the loop is the fill's boundary: where the scan's own (dense) surface begins, close to
+        # the true margin (measured 1.5 mm mean: the scan's eye ends before the true corners)
+        L = np.asarray(e["loop_points"])
+        assert closed_polyline_distance(L, np.asarray(g["eyelid_margin"]["points_mm"], float)).mean() <= 2.0
+        med, lat, _ = true_canthi(g, s)
+        # the procedural head's true corners lie past its globe (docs/known-gaps.md): 3.8-5.6
+        li = e["lateral_canthus_index"]
+        assert np.linalg.norm(L[0] - med) <= 6.5 and np.linalg.norm(L[li] - lat) <= 6.5
+        lt, gaze = truth_limbus(g)
+        # measured 1.8 mm and 5-9 deg; stated 4 mm and 20 deg (a fill shows nothing of the gaze)
+        assert np.linalg.norm(np.asarray(e["limbus"]["center"]) - lt) <= 2.5
+        assert np.degrees(np.arccos(np.clip(np.dot(e["forward"], gaze), -1, 1))) <= 12.0
+        # the fill left with the cut: no face of the kept head near the eye is fill-sized
+        near = np.linalg.norm(V2[F2].mean(axis=1) - lt, axis=1) < 20.0
+        E = np.stack([np.linalg.norm(V2[F2[:, (k + 1) % 3]] - V2[F2[:, k]], axis=1) for k in range(3)], 1)
+        assert not (near & (E.max(axis=1) > 3.0 * me)).any()
+    assert res.metrics["boundary_loops_out"] == res.metrics["boundary_loops_in"] + 2
+
+
+@pytest.mark.slow
+def test_an_open_eye_and_an_iris_fill_are_not_fills(head):
+    """The open eye (a dense eyeball surface) has no flat fill, and neither has one whose iris
+    only the scanner filled flat (10 mm across: the sclera is left to the geometry)."""
+    h, labels = head
+    V, F = np.asarray(h.V, float), np.asarray(h.F, np.int64)
+    me = median_edge_length(V, F)
+    for s in SIDES:
+        assert find_flat_fill(V, F, _hints(h)[s], me) is None
+    iris = np.zeros_like(labels)
+    for k, s in ((1, "left"), (2, "right")):
+        g = h.ground_truth["eyes"][s]
+        lt, _ = truth_limbus(g)
+        iris[(labels == k) & (np.linalg.norm(V - lt, axis=1) < 5.0)] = k
+    V2, F2, _ = fill_openings(V, F, iris)
+    assert len(F2) < len(F)       # the iris holes were cut and filled
+    for s in SIDES:
+        assert find_flat_fill(V2, F2, _hints(h)[s], median_edge_length(V2, F2)) is None
+
+
+def test_a_blink_is_not_a_fill():
+    """Skin across the opening, as dense as the rest: no fill, and the stage still says closed
+    (tests/test_remove_eyeballs.py)."""
+    mesh, hints, _ = make_head(0.7, closed=True)
+    V, F = mesh["V"], mesh["F"]
+    for s in SIDES:
+        assert find_flat_fill(V, F, hints[s], median_edge_length(V, F)) is None
