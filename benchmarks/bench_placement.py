@@ -143,7 +143,7 @@ def page(results: Path) -> str:
         rows = [("all", doc["summary"])] + sorted(doc.get("per_family", {}).items())
         prev = results / f"placement_{name}_before.json"     # the same cases before the last change
         if prev.is_file():
-            rows.append(("all, before the gaze restarts", json.loads(prev.read_text())["summary"]))
+            rows.append(("all, before the iris plane and the opening test", json.loads(prev.read_text())["summary"]))
         for fam, sm in rows:
             out.append(f"| {fam} | " + " | ".join("–" if sm.get(k) is None else str(sm[k]) for k, _ in cols) + " |")
         out.append("")

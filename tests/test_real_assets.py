@@ -157,8 +157,10 @@ def test_doubts_reach_the_asset_only_where_measured(asset):
     openings follow the fissure it shows; 18 mm openings against a 31.5 mm fissure were doubted
     before issue 21);
     ict_neutral's eyes are, by the one self-check they fail (cornea_shows: its scanner
-    flattened the cornea and the eye is placed 1 mm small); what the metadata says matches the
-    stage's count."""
+    flattened the cornea and the eye is placed 1 mm small) and, where the iris plane moved the
+    limbus (docs/remove_eyeballs.md), by their stated sigma (its truth: limbus 0.5-0.6 mm and
+    axis 2.9-3.1 deg off; 1.1 mm undoubted before); what the metadata says matches the stage's
+    count."""
     from pxr import Usd
 
     stage = Usd.Stage.Open(str(asset["usda"]))
@@ -166,7 +168,9 @@ def test_doubts_reach_the_asset_only_where_measured(asset):
     doubts = {s: list(eyes[s].get("doubts") or []) for s in SIDES}
     assert asset["metrics"]["remove_eyeballs"]["left"]["doubts"] == len(doubts["left"])
     if asset["name"] == "ict_neutral":
-        assert all(len(d) == 1 and "cornea_shows" in d[0] for d in doubts.values()), doubts
+        assert all(any("cornea_shows" in x for x in d) and all(
+            "cornea_shows" in x or x.startswith("placed from little evidence (geometry)") for x in d)
+            for d in doubts.values()), doubts
     elif asset["name"] == "james":
         # placed from its photograph: the anatomy's spread (limbus +-1.2 mm, axis +-5 deg) is
         # more than the doubt thresholds, and nothing else is doubted

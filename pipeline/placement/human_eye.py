@@ -135,6 +135,17 @@ def iris_in_opening(loop_points, limbus_center, axis, iris_radius: float, n: int
             "opening_half_width_mm": round(float(0.5 * np.ptp(poly[:, 0])), 4)}
 
 
+def iris_hidden(iris: dict, min_visible: float) -> bool:
+    """Whether an eye's iris at rest (:func:`iris_in_opening`) is no iris the scan shows: less
+    than ``min_visible`` of it inside the opening, or its centre further from the opening's
+    centroid than the opening's half-width (turned past a corner). An iris centre outside the
+    opening but within that reach is a look up or down: the lid covers the iris's centre, and
+    the truth of ICT-FaceKit heads looking up 27-28 deg lies there (its centre above the upper
+    lid, 25 % of a 5.9 mm iris inside, 6-7 mm off the centroid of an opening 10-13 mm wide)."""
+    return (iris["visible_share"] < min_visible
+            or iris["offset_mm"] > iris["opening_half_width_mm"])
+
+
 def opening_limbus(loop_points, axis) -> np.ndarray:
     """The limbus centre an eye placed from its opening alone gets: the iris centred in the
     opening (the centroid of the lid margin seen along ``axis``), ``OPENING_LIMBUS_DEPTH_MM``
@@ -199,7 +210,7 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         sl, sa, source = float(e["sigma_limbus_mm"]), float(e["sigma_axis_deg"]), e["source"]
         doubts = []
         iris = iris_in_opening(e["loop_points"], lc, ax, ir)
-        if not iris["center_inside"] or iris["visible_share"] < min_iris_visible:
+        if iris_hidden(iris, min_iris_visible):
             # an iris behind a lid or in a corner at rest is no eye a scan shows: the opening
             # and the eye region's forward place it instead (the 57 deg turn into the nose)
             was = iris

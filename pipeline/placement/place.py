@@ -180,9 +180,38 @@ def placement_record(pl, fit):
 TEXTURE_SIGMA = (1.2, 5.0)
 
 
-def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettings) -> dict:
-    """The asset's eyes (:func:`human_eye.asset_eyes`) from what the scan shows: the fitted eye
-    model's limbus and gaze, or for a texture placement the limbus of its anatomical eye."""
+def scan_limbus(pl, st: PlacementSettings) -> dict:
+    """The limbus a geometry placement ``pl`` shows: the eye model's (``limbus_fit: model``) or
+    its refit with the iris plane on the labelled eye surface (``iris_plane``,
+    :func:`pipeline.placement.iris_cap.refit_limbus`). Returns ``center`` (3,), ``axis`` (3,),
+    ``radius``, ``record`` (what the refit found, for eyes.json; None for ``model``) and
+    ``spread`` (mm, deg): how far the refit moved the model's limbus centre and turned its axis
+    (0 when the model's is kept). Two models of one eye surface that disagree by that much say
+    the limbus is no surer: the stated sigma takes it in quadrature (:func:`asset_eyes`)."""
+    from pipeline.placement.iris_cap import refit_limbus
+
+    if st.limbus_fit == "model":
+        return {"center": limbus_center(pl.eye), "axis": np.asarray(pl.eye.n, float),
+                "radius": float(pl.eye.R * np.sin(np.radians(pl.eye.tl))), "record": None,
+                "spread": (0.0, 0.0)}
+    lc, ax, cap, used = refit_limbus(pl.patch.V[pl.lab], pl.eye, radius_range=tuple(st.radius_range_mm))
+    rec = None if cap is None else {
+        "used": bool(used), "limbus_center": np.round(cap.limbus_center, 4).tolist(),
+        "axis": np.round(cap.n, 6).tolist(), "radius": round(cap.R, 4), "limbus_half_angle_deg": round(cap.tl, 3),
+        "iris_height_mm": round(cap.hp, 4), "iris_flat_mm": round(cap.rp, 4), "rms_mm": round(cap.rms_mm, 4)}
+    radius = cap.limbus_radius if used else float(pl.eye.R * np.sin(np.radians(pl.eye.tl)))
+    spread = (0.0, 0.0)
+    if used:
+        spread = (float(np.linalg.norm(lc - limbus_center(pl.eye))),
+                  float(np.degrees(np.arccos(np.clip(np.dot(ax, pl.eye.n), -1.0, 1.0)))))
+    return {"center": np.asarray(lc, float), "axis": np.asarray(ax, float), "radius": float(radius),
+            "record": rec, "spread": spread}
+
+
+def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettings, limbi=None) -> dict:
+    """The asset's eyes (:func:`human_eye.asset_eyes`) from what the scan shows: the scan's
+    limbus and gaze (``limbi``: side -> :func:`scan_limbus`, computed when None), or for a
+    texture placement the limbus of its anatomical eye."""
     from pipeline.eyeball.geometry import EyeballParams, placed_params
     from pipeline.placement import human_eye
 
@@ -193,9 +222,10 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
         e = {"center": np.asarray(fit.center, float), "radius": float(fit.radius), "loop_points": np.asarray(loop_points[s], float),
              "prior_axis": fit.prior_axis}
         if pl is not None:
-            e.update(limbus_center=limbus_center(pl.eye), axis=np.asarray(pl.eye.n, float),
-                     limbus_radius=float(pl.eye.R * np.sin(np.radians(pl.eye.tl))),
-                     sigma_limbus_mm=pl.sigma_limbus_mm, sigma_axis_deg=pl.sigma_axis_deg,
+            lim = (limbi or {}).get(s) or scan_limbus(pl, st)
+            e.update(limbus_center=lim["center"], axis=lim["axis"], limbus_radius=lim["radius"],
+                     sigma_limbus_mm=float(np.hypot(pl.sigma_limbus_mm, lim["spread"][0])),
+                     sigma_axis_deg=float(np.hypot(pl.sigma_axis_deg, lim["spread"][1])),
                      sigma_radius=pl.sigma_radius_mm, source="geometry")
         else:       # the anatomical eye behind the fissure (photographed, or a flat fill's boundary)
             here = placed_params(geo, fit.radius)
@@ -227,7 +257,7 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
     scan's sphere, the self-checks and every doubt) and the eye's metrics.
     """
     moved = moved or {}
-    checks, fissures, records, doubts, metrics = {}, {}, {}, {}, {}
+    checks, fissures, records, doubts, metrics, limbi = {}, {}, {}, {}, {}, {}
     lim = eye_checks.limits_for(median_edge, st.radius_range_mm)
     for s in SIDES:
         fit = fits[s]
@@ -244,6 +274,9 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
         if fit.method == "texture" and texture is not None:
             fissures[s], doubts[s] = fissure_doubts(V, F, mesh_arrays, texture, hints[s], fit, V2[loop], st)
         records[s] = placement_record(placements[s], fit)
+        if placements[s] is not None:
+            limbi[s] = scan_limbus(placements[s], st)
+            records[s]["iris_plane"] = limbi[s]["record"]
         metrics[s] = {"radius_mm": round(fit.radius, 4), "residual_rms_mm": round(fit.residual_rms_mm, 4),
                       "n_inliers": fit.n_inliers, "method": fit.method,
                       "faces_removed": int(fit.region.sum()), "loop_length": len(loop),
@@ -255,7 +288,7 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
             metrics[s].update({"texture_fissure_width_mm": round(fissures[s]["width_mm"], 2),
                                "loop_width_mm": round(fissures[s]["loop_width_mm"], 2)})
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
-    asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st)
+    asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st, limbi)
     eyes = {}
     for s in SIDES:
         fit, (loop, lat), a, rec = fits[s], loops[s], asset[s], records[s]

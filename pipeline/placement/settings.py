@@ -36,6 +36,7 @@ class PlacementSettings(Settings):
     # the asset's eye (pipeline.placement.human_eye): the parametric eyeball (eyeball.geometry)
     # anchored at the scan's limbus; its size: the paper's r1, a population size, or the scan's sphere
     eye_size: Literal["human", "population", "fitted"] = "human"
+    limbus_fit: Literal["iris_plane", "model"] = "iris_plane"   # the scan's limbus: refit with the iris plane, or the eye model's
     population_radius_mm: tuple[float, float] = setting((11.7, 0.45), gt=0, le=100, min_len=2, max_len=2)
     min_iris_visible: float = setting(0.05, ge=0, le=1)          # less of the iris inside the opening at rest: placed from the opening
     doubt_limbus_sigma_mm: float = setting(0.5, gt=0, le=100)    # a limbus centre less sure than this is published with a doubt

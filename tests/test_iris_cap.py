@@ -1,0 +1,95 @@
+"""The iris-plane refit of the limbus (pipeline/placement/iris_cap.py): known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.placement import iris_cap
+from pipeline.placement.model import Eye, limbus_center, surface_residual
+
+
+def _frame(n):
+    n = np.asarray(n, float) / np.linalg.norm(n)
+    u = np.cross(n, [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    return u, np.cross(n, u), n
+
+
+def _iris_eye_points(c, R, n, tl, hp, rp, noise=0.0, seed=0, reach_deg=50.0, k=1500):
+    """Points on the iris-plane eye (iris_cap's module doc): the sclera out to ``reach_deg``
+    off the axis, the flat iris and its ramp to the limbus."""
+    rng = np.random.default_rng(seed)
+    u, v, n = _frame(n)
+    t = np.radians(tl)
+    zl, rl = R * np.cos(t), R * np.sin(t)
+    # the disc inside the limbus: rho uniform in area
+    rho = rl * np.sqrt(rng.uniform(0.0, 1.0, k))
+    phi = rng.uniform(0.0, 2 * np.pi, k)
+    h = np.where(rho <= rp, hp, hp * (rl - rho) / (rl - rp))
+    disc = c + np.outer(zl + h, n) + np.outer(rho * np.cos(phi), u) + np.outer(rho * np.sin(phi), v)
+    # the sclera from the limbus out
+    a = np.radians(rng.uniform(tl, reach_deg, k))
+    phi = rng.uniform(0.0, 2 * np.pi, k)
+    d = (np.outer(np.cos(a), n) + np.outer(np.sin(a) * np.cos(phi), u) + np.outer(np.sin(a) * np.sin(phi), v))
+    P = np.vstack([disc, c + R * d])
+    if noise:
+        P = P + rng.normal(0.0, noise, P.shape)
+    return P
+
+
+def test_residual_known_answers():
+    c, n = np.zeros(3), np.array([0.0, 0.0, 1.0])
+    R, tl, hp, rp = 14.0, 30.0, 2.5, 4.0
+    zl, rl = R * np.cos(np.radians(30.0)), 7.0
+    P = np.array([[0.0, 0.0, zl + hp],            # on the iris plane, on the axis
+                  [3.0, 0.0, zl + hp + 1.0],      # 1 mm in front of the iris plane
+                  [5.5, 0.0, zl + 1.25],          # half-way down the ramp (rp 4 .. rl 7)
+                  [0.0, 8.0, np.sqrt(R ** 2 - 64.0)],   # on the sclera outside the limbus
+                  [0.0, -9.0, np.sqrt(15.0 ** 2 - 81.0)]])  # 1 mm outside the sclera
+    d = iris_cap.iris_cap_residual(P, c, n, R, tl, hp, rp)
+    assert np.allclose(d, [0.0, 1.0, 0.0, 0.0, 1.0], atol=1e-9)
+    cap = iris_cap.IrisCap(c=c, R=R, n=n, tl=tl, hp=hp, rp=rp, rms_mm=0.0, n_points=0)
+    assert np.allclose(cap.limbus_center, [0.0, 0.0, zl]) and cap.limbus_radius == pytest.approx(rl)
+
+
+def test_fit_recovers_a_known_iris_eye_from_a_start_off_it():
+    c = np.array([31.0, 34.0, 78.0])
+    n = np.array([np.sin(np.radians(12.0)), np.sin(np.radians(-6.0)), 1.0])
+    n /= np.linalg.norm(n)
+    R, tl, hp, rp = 14.5, 32.0, 2.6, 4.6
+    P = _iris_eye_points(c, R, n, tl, hp, rp, noise=0.03)
+    start = Eye(c + np.array([0.6, -0.4, -1.0]), 13.5, np.array([0.0, 0.0, 1.0]), 0.3, 29.0, 0.3)
+    got = iris_cap.fit_iris_cap(P, start)
+    truth = c + R * np.cos(np.radians(tl)) * n
+    assert np.linalg.norm(got.limbus_center - truth) < 0.1
+    assert np.degrees(np.arccos(min(1.0, float(got.n @ n)))) < 0.5
+    assert got.hp == pytest.approx(hp, abs=0.1) and got.rp == pytest.approx(rp, abs=0.3)
+    assert got.rms_mm < 0.05
+    with pytest.raises(ValueError, match="too few"):
+        iris_cap.fit_iris_cap(P[:5], start)
+
+
+def test_refit_takes_an_iris_and_keeps_the_model_on_a_dome_cornea():
+    c, n = np.array([30.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    # an iris eye placed 1 mm and 5 deg off: the refit is taken
+    P = _iris_eye_points(c, 14.0, n, 31.0, 2.5, 4.5, noise=0.03, seed=1)
+    turned = np.array([np.sin(np.radians(5.0)), 0.0, np.cos(np.radians(5.0))])
+    placed = Eye(c + [0.0, 0.0, -1.0], 14.0, turned, 0.3, 31.0, 0.4)
+    lc, ax, cap, used = iris_cap.refit_limbus(P, placed)
+    assert used and cap is not None
+    assert np.linalg.norm(lc - (c + 14.0 * np.cos(np.radians(31.0)) * n)) < 0.15
+    assert np.degrees(np.arccos(min(1.0, float(ax @ n)))) < 0.6
+    # the paper's eye with its dome cornea, as the placement's model fits it: the iris plane
+    # explains it far worse, so the model's limbus stands
+    dome = Eye(c, 12.0, n, 1.0, 30.0, 0.0)
+    rng = np.random.default_rng(2)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d[d @ n > np.cos(np.radians(50.0))]
+    Q = c + 12.0 * d
+    Q = Q + (surface_residual(Q, dome)[0] * -1.0)[:, None] * d     # onto the model's surface
+    Q = Q + rng.normal(0.0, 0.02, Q.shape)
+    lc, ax, cap, used = iris_cap.refit_limbus(Q, dome)
+    assert not used and cap is not None and cap.rms_mm > iris_cap.MAX_RMS_RATIO * 0.02
+    assert np.allclose(lc, limbus_center(dome)) and np.allclose(ax, n)
