@@ -81,3 +81,25 @@ def test_standard_view_is_the_srgb_oetf_rounded():
     assert out.dtype == np.uint8
     # exposure in stops: one stop up = twice the linear light
     assert np.array_equal(standard_view_srgb8(lin[:, 1:2] / 2, exposure=1.0), out[:, 1:2])
+
+
+def test_the_normal_prefilter_quality_is_its_own():
+    """``normal_quality`` (the render worker's FAST normal prefilter): its own filters, kept beside
+    the device default's; at HIGH the pixels are those of a device built all HIGH."""
+    path = _lib_or_skip()
+    clean, noisy, albedo, normal = _scene()
+    rng = np.random.default_rng(3)
+    normal = normal + 0.2 * rng.normal(size=normal.shape)       # a noisy normal pass to prefilter
+    high = Denoiser(path, threads=1)
+    fast = Denoiser(path, threads=1, normal_quality="FAST")
+    a = high.denoise(noisy, albedo, normal)
+    b = fast.denoise(noisy, albedo, normal)
+    assert np.array_equal(fast.denoise(noisy, albedo, normal, normal_quality="HIGH"), a)
+    assert np.array_equal(fast.denoise(noisy, albedo, normal), b)           # both filter sets kept
+    assert np.mean((b - clean) ** 2) < np.mean((noisy - clean) ** 2) / 10
+    with pytest.raises(ValueError, match="normal_quality"):
+        fast.denoise(noisy, albedo, normal, normal_quality="BEST")
+    with pytest.raises(ValueError, match="quality"):
+        Denoiser(path, normal_quality="BEST")
+    high.close()
+    fast.close()

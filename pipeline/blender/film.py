@@ -43,16 +43,19 @@ def write_png_rgb(path, rgb8) -> None:
         f.write(buf.getvalue())
 
 
-def write_film_png(path, passes: dict, exposure: float, denoiser=None, prefilter: str = "ACCURATE"):
+def write_film_png(path, passes: dict, exposure: float, denoiser=None, prefilter: str = "ACCURATE",
+                   normal_quality: str | None = None):
     """The worker's PNG at ``path`` from the render's ``passes`` (:func:`render_passes`): the
     noisy colour, denoised by ``denoiser`` (a :class:`pipeline.blender.oidn.Denoiser`, with the
-    denoising albedo and normal) when given, through the Standard view at ``exposure`` stops.
+    denoising albedo and normal; ``normal_quality`` for its normal prefilter, None = the
+    denoiser's own) when given, through the Standard view at ``exposure`` stops.
     Returns the denoiser's wall and CPU seconds (0 without it)."""
     rgb = passes["Combined"][..., :3]
     t_den = c_den = 0.0
     if denoiser is not None:
         t0, c0 = time.perf_counter(), time.process_time()
-        rgb = denoiser.denoise(rgb, passes["Denoising Albedo"], passes["Denoising Normal"], prefilter)
+        rgb = denoiser.denoise(rgb, passes["Denoising Albedo"], passes["Denoising Normal"], prefilter,
+                                normal_quality)
         t_den, c_den = time.perf_counter() - t0, time.process_time() - c0
     write_png_rgb(path, standard_view_srgb8(rgb, exposure))
     return t_den, c_den

@@ -24,6 +24,13 @@ material-bind subsets: ``Cornea`` and ``ScleraCoat`` on the outer mesh,
 from __future__ import annotations
 
 CORNEA_IOR = 1.376
+# the eyeball's textures (iris 512 px over 12 mm; sclera colour and bump height 1024 x 512 over the globe:
+# 0.02-0.07 mm per texel) are sampled bilinearly: every preset's pixel is wider (>= 0.1 mm, near_eye at 33.5 mm),
+# so bicubic gave the same image (bench frame +0.00 dB) for four times the texel reads; the coat's bump reads its
+# height three times per shading point on every ray through the coat: 6 % of an image's CPU (issue 32,
+# benchmarks/results/render_speed.md). The skin's displacement map stays bicubic: its texels are not
+# below every preset's pixel, and its bump would show their facets.
+EYE_TEXTURE_INTERPOLATION = "Linear"
 SKIN_TONE = (0.75, 0.6, 0.55, 1.0)         # skin base colour where no colour map was baked
 
 
@@ -68,7 +75,7 @@ def _coat(mat, bump_image=None, bump_distance_mm: float = 0.16, strength: float 
         uv.uv_map = "st"
         img = nt.nodes.new("ShaderNodeTexImage")
         img.image = bump_image
-        img.interpolation = "Cubic"
+        img.interpolation = EYE_TEXTURE_INTERPOLATION
         bump = nt.nodes.new("ShaderNodeBump")
         bump.inputs["Strength"].default_value = strength
         # height texel 0..1 spans 8 noise amplitudes (textures.sclera_bump_maps); world units = metres
@@ -103,7 +110,7 @@ def _tinted_map(nt, image, tint, base_color_input, interpolation=None):
 def _textured(mat, image, tint=(1.0, 1.0, 1.0), roughness=0.5, subsurface=0.0):
     nt, out = new_tree(mat)
     b = principled(nt, **{"Roughness": roughness, "Specular IOR Level": 0.3})
-    tex, mul = _tinted_map(nt, image, tint, b.inputs["Base Color"], "Cubic")
+    tex, mul = _tinted_map(nt, image, tint, b.inputs["Base Color"], EYE_TEXTURE_INTERPOLATION)
     if subsurface:
         b.inputs["Subsurface Weight"].default_value = subsurface
         b.inputs["Subsurface Radius"].default_value = (1.0, 0.3, 0.2)

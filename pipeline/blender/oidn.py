@@ -3,13 +3,17 @@
 Cycles builds a new OIDN device and new filters for every render it denoises (device start,
 weight loading, network set-up): about a third of the denoiser's CPU time at 120 x 80. The
 render worker renders without Cycles' denoiser and calls :class:`Denoiser` on the render's
-noisy colour, albedo and normal passes instead, doing what Cycles' ``OIDNDenoiser`` does:
+noisy colour, albedo and normal passes instead, doing what Cycles' ``OIDNDenoiser`` does
+(but for the normal prefilter's quality where the caller chooses its own):
 
 * prefilter ``ACCURATE``: the albedo and the normal are denoised first, each by its own ``RT``
-  filter, and the colour filter is told its auxiliary images are clean (``cleanAux``);
+  filter, and the colour filter is told its auxiliary images are clean (``cleanAux``); the
+  albedo and normal filters have their own quality (``aux_quality`` / ``normal_quality``:
+  Cycles runs both at the colour's);
   ``NONE``: raw auxiliary images, ``cleanAux``; ``FAST``: raw auxiliary images, no ``cleanAux``;
 * colour filter: ``hdr`` on (linear scene-referred input, OIDN picks the exposure itself),
-  ``quality`` HIGH unless asked otherwise;
+  ``quality`` HIGH unless asked otherwise (at HIGH OIDN runs its large albedo and normal
+  prefilter networks, BALANCED and FAST both its small ones: the same pixels);
 * the CPU device with ``setAffinity`` off (Blender's own threads share the cores);
 * the rows bottom-up, as they lie in Cycles' render buffers. The network is not symmetric
   under a vertical flip (the image is padded at one side to its block size): fed top-down,
@@ -81,15 +85,20 @@ class Denoiser:
     path : the OIDN shared library (default :func:`library_path`)
     threads : OIDN worker threads (0 = OIDN's default, all cores)
     quality : ``HIGH`` | ``BALANCED`` | ``FAST`` of the colour filter
-    aux_quality : the same for the albedo / normal prefilters (default = ``quality``)
+    aux_quality : the same for the albedo prefilter (default = ``quality``)
+    normal_quality : the same for the normal prefilter (default = ``aux_quality``)
     """
 
-    def __init__(self, path=None, threads: int = 0, quality: str = "HIGH", aux_quality: str | None = None):
-        if quality not in QUALITY or (aux_quality or quality) not in QUALITY:
+    def __init__(self, path=None, threads: int = 0, quality: str = "HIGH", aux_quality: str | None = None,
+                 normal_quality: str | None = None):
+        aux_quality = aux_quality or quality
+        normal_quality = normal_quality or aux_quality
+        if any(q not in QUALITY for q in (quality, aux_quality, normal_quality)):
             raise ValueError(f"OIDN quality must be one of {tuple(QUALITY)}")
         self.path = Path(path) if path is not None else library_path()
         self.lib = _load(self.path)
-        self.quality, self.aux_quality = QUALITY[quality], QUALITY[aux_quality or quality]
+        self.quality, self.aux_quality = QUALITY[quality], QUALITY[aux_quality]
+        self.normal_quality = QUALITY[normal_quality]
         lib = self.lib
         self.device = lib.oidnNewDevice(DEVICE_TYPE_CPU)
         if not self.device:
@@ -103,7 +112,7 @@ class Denoiser:
             raise OidnUnavailable(f"{self.path}: CPU device: {err}")
         self.size = None
         self.buf = {}
-        self.filters = {}        # prefilter -> [filters in execution order]
+        self.filters = {}        # (prefilter, normal quality) -> [filters in execution order]
 
     def _error(self, device) -> str:
         msg = ctypes.c_char_p()
@@ -127,12 +136,13 @@ class Denoiser:
         lib.oidnCommitFilter(f)
         return f
 
-    def _filters(self, prefilter: str) -> list:
-        if prefilter not in self.filters:
-            q, qa = self.quality, self.aux_quality
+    def _filters(self, prefilter: str, normal_quality: int) -> list:
+        key = (prefilter, normal_quality)
+        if key not in self.filters:
+            q, qa, qn = self.quality, self.aux_quality, normal_quality
             if prefilter == "ACCURATE":
                 fs = [self._filter({"albedo": "albedo", "output": "albedo_clean"}, qa),
-                      self._filter({"normal": "normal", "output": "normal_clean"}, qa),
+                      self._filter({"normal": "normal", "output": "normal_clean"}, qn),
                       self._filter({"color": "color", "albedo": "albedo_clean", "normal": "normal_clean",
                                     "output": "output"}, q, hdr=True, cleanAux=True)]
             else:
@@ -141,14 +151,19 @@ class Denoiser:
             err = self._error(self.device)
             if err:
                 raise RuntimeError(f"OIDN filter set-up ({prefilter}): {err}")
-            self.filters[prefilter] = fs
-        return self.filters[prefilter]
+            self.filters[key] = fs
+        return self.filters[key]
 
-    def denoise(self, color, albedo, normal, prefilter: str = "ACCURATE") -> np.ndarray:
+    def denoise(self, color, albedo, normal, prefilter: str = "ACCURATE", normal_quality: str | None = None) -> np.ndarray:
         """Denoised (H, W, 3) float32 colour from the noisy colour, albedo and normal (each (H, W, 3),
-        linear, any float dtype, top row first). Filters are built on the first call for a size and kept."""
+        linear, any float dtype, top row first); ``normal_quality`` overrides the device's normal
+        prefilter quality for this call. Filters are built on the first call for a size (and
+        prefilter, normal quality) and kept."""
         if prefilter not in PREFILTERS:
             raise ValueError(f"prefilter {prefilter!r} not in {PREFILTERS}")
+        if normal_quality is not None and normal_quality not in QUALITY:
+            raise ValueError(f"normal_quality {normal_quality!r} not in {tuple(QUALITY)}")
+        qn = self.normal_quality if normal_quality is None else QUALITY[normal_quality]
         c = np.asarray(color)
         if c.ndim != 3 or c.shape[2] != 3 or c.shape[0] < 1 or c.shape[1] < 1:
             raise ValueError(f"colour must be (H, W, 3), got {c.shape}")
@@ -164,7 +179,7 @@ class Denoiser:
         np.copyto(self.buf["color"], c[::-1], casting="unsafe")       # bottom-up, as Cycles (module doc)
         np.copyto(self.buf["albedo"], np.asarray(albedo)[::-1], casting="unsafe")
         np.copyto(self.buf["normal"], np.asarray(normal)[::-1], casting="unsafe")
-        for f in self._filters(prefilter):
+        for f in self._filters(prefilter, qn):
             self.lib.oidnExecuteFilter(f)
         err = self._error(self.device)
         if err:

@@ -74,11 +74,12 @@ and Blender writes the PNG, as before.
 
 Render settings (see benchmarks/bench_render_quality.py for the measured trade-off): CPU
 Cycles, samples / denoise / seed from the spec, OpenImageDenoise with albedo + normal passes
-and the ACCURATE prefilter, adaptive sampling (threshold 0.02), single-scatter GGX on every
+and the ACCURATE prefilter (colour and albedo networks HIGH, the normal's FAST:
+:data:`DENOISE_QUALITY`), adaptive sampling (threshold 0.02), single-scatter GGX on every
 Principled BSDF, light paths limited to what the cornea needs (:data:`LIGHT_PATHS`), one
 tile for the whole image, persistent render data, blue-noise sampling and no light tree
 (:data:`CYCLES`). Optional spec keys (tests/benchmarks): ``denoiser``, ``lashes``, ``skin_subdivision``, ``adaptive_sampling``,
-``adaptive_threshold``, ``denoise_prefilter``, the :data:`LIGHT_PATHS` names and ``cycles``
+``adaptive_threshold``, ``denoise_prefilter``, ``denoise_normal_quality`` (``HIGH``: Cycles' own filters), the :data:`LIGHT_PATHS` names and ``cycles``
 (``{scene.cycles property: value}`` for that image only; the defaults come back on the next).
 """
 
@@ -113,6 +114,10 @@ ADAPTIVE_THRESHOLD = 0.02
 WORLD_MAP_RESOLUTION = 256
 DENOISERS = ("worker", "cycles")  # the worker's own persistent OIDN filters (default) | Cycles' per render
 DENOISE_PREFILTER = "ACCURATE"   # OIDN albedo/normal prefilter: +0.7 dB at 16 spp for ~0.3 CPU-s
+# OIDN quality of the colour, albedo-prefilter and normal-prefilter networks. The normal at FAST (OIDN's small
+# network) gives the same PSNR on bench_render_quality's frame for ~0.03 CPU-s less per image; the albedo at
+# FAST loses 0.07 dB, the colour at BALANCED 0.4 dB (issue 32, benchmarks/results/render_speed.md)
+DENOISE_QUALITY = {"quality": "HIGH", "aux_quality": "HIGH", "normal_quality": "FAST"}
 BSDF_DISTRIBUTION = "GGX"        # single-scatter GGX on every Principled BSDF (multi-scatter: ~1.3x time)
 # Measured on bench_render_quality's frame, same 2048-spp reference (benchmarks/bench_render_split.py):
 # blue-noise sample pattern = +0.5 dB after OIDN at the same samples (what lets 10 spp replace 12);
@@ -405,7 +410,7 @@ class Worker:
         from pipeline.blender.oidn import Denoiser, OidnUnavailable
 
         try:
-            self.oidn = Denoiser(library, threads=threads)
+            self.oidn = Denoiser(library, threads=threads, **DENOISE_QUALITY)
         except OidnUnavailable as exc:
             self.oidn = None
             print(f"render_worker: {exc}; denoising with Cycles' own denoiser", file=sys.stderr, flush=True)
@@ -572,7 +577,8 @@ class Worker:
             passes = render_passes(bpy, self.scene, png.with_name(f".{png.stem}.passes{os.getpid()}.exr"))
         if own:
             t_den, c_den = write_film_png(tmp, passes, self.scene.view_settings.exposure,
-                                          self.oidn if denoise else None, prefilter)
+                                          self.oidn if denoise else None, prefilter,
+                                          over.get("denoise_normal_quality"))
         t_render, c_render = time.perf_counter() - t1, time.process_time() - c1
         if not tmp.is_file():
             raise RuntimeError("Blender wrote no image")

@@ -41,7 +41,7 @@ SKIN_DETAIL = ("displacement", "bump", "none")
 EYE_BLENDS = ("pupil_dilate", "pupil_constrict", "iris_large", "iris_small")
 #: Optional per-image settings of the worker (tests and benchmarks), by name.
 OVERRIDES = ("denoiser", "lashes", "skin_subdivision", "adaptive_sampling", "adaptive_threshold",
-             "denoise_prefilter", "max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces",
+             "denoise_prefilter", "denoise_normal_quality", "max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces",
              "transparent_max_bounces", "volume_bounces", "cycles")
 MAX_SIZE_PX, MAX_SAMPLES, N_LANDMARKS = 8192, 1 << 16, 28
 
