@@ -52,18 +52,19 @@ def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3):
     A = meshtopo.vertex_adjacency(F, len(V))
     deg = np.asarray(A.sum(axis=1)).ravel()
     near = None
+    closest = mc.closest_points_on(ref_V, ref_F)        # the scan's tree looked up once, not per pass
     for _ in range(iterations):
         N = mc.vertex_normals(V, F)
         if near is None:                    # later passes: the faces the projection below landed on
             near = np.zeros(len(V), dtype=np.int64)
-            near[used] = mc.closest_points(V[used], ref_V, ref_F)[1]
+            near[used] = closest(V[used])[1]
         R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces=near)
         d0 = np.einsum("ij,ij->i", mc.face_normals(V, F), R)
         L = (A @ V) / np.maximum(deg, 1)[:, None] - V
         L -= np.einsum("ij,ij->i", L, N)[:, None] * N
         Vn = V.copy()
         Vn[free] += step * L[free]
-        _, fi, C = mc.closest_points(Vn[free], ref_V, ref_F)
+        _, fi, C = closest(Vn[free])
         Vn[free] = C
         # a projected vertex lies on face fi: no second query of where it now is. Not the same
         # answer by construction (a point on an edge ties with the face across it), but the same
