@@ -29,6 +29,7 @@ import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.flips import reference_face_normals, relax
+from pipeline.geometry.meshtopo import has_halfedge
 
 # the circles of the parameter plane. A harmonic map between annuli is not one-to-one in general
 # (on a round annulus of radii 5 and 25 mm mapped onto radii 1 and 2, x = (A r + B / r) cos t
@@ -134,10 +135,9 @@ def harmonic_annulus(V, F, inner, outer):
     n = len(V)
     inner, outer = np.asarray(inner), np.asarray(outer)
     # both loops run the way the faces wind along the inner one (the outer one then against)
-    he = set(map(tuple, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]).tolist()))
-    if (int(inner[0]), int(inner[1])) not in he:
+    if not has_halfedge(F, inner[0], inner[1]):
         inner = inner[::-1]
-    if (int(outer[1]), int(outer[0])) not in he:
+    if not has_halfedge(F, outer[1], outer[0]):
         outer = outer[::-1]
     j0 = int(np.argmin(np.linalg.norm(V[outer] - V[inner[0]], axis=1)))
     # the faces run along the inner loop counter-clockwise seen from outside the annulus: the
@@ -515,9 +515,8 @@ def _inside_polygon(P, poly):
 
 def _oriented_border(F, loop):
     """The closed vertex loop ``loop`` walked the way the faces ``F`` run along it."""
-    he = set(map(tuple, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]).tolist()))
     loop = np.asarray(loop, dtype=np.int64)
-    return loop if (int(loop[0]), int(loop[1])) in he else loop[::-1]
+    return loop if has_halfedge(F, loop[0], loop[1]) else loop[::-1]
 
 
 def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_iterations=4):
