@@ -30,3 +30,23 @@ def test_closest_points_after_a_few_points_moved_match_a_fresh_query():
         assert g.tobytes() == f.tobytes() and a.tobytes() == f.tobytes()
     got[2][:] = 0.0                                    # the caller's arrays are its own
     assert mc.closest_points(Q, V, F)[2].tobytes() == fresh[2].tobytes()
+
+
+def test_same_bits_compares_every_byte():
+    """The tree cache's byte comparison: chunked 8-byte words, a difference in the last chunk or
+    in an odd-sized array's tail found, -0.0 told from 0.0, a NaN equal to itself."""
+    from pipeline.geometry.mesh_checks import _same_bits
+
+    a = np.random.default_rng(0).random((100_000, 3))
+    assert _same_bits(a, a.copy()) and not _same_bits(a, a.reshape(3, -1).copy())
+    b = a.copy()
+    b[-1, 2] = np.nextafter(b[-1, 2], 2.0)
+    assert not _same_bits(a, b)
+    z, nz = np.zeros(4), np.zeros(4)
+    nz[3] = -0.0
+    assert not _same_bits(z, nz) and _same_bits(np.full(3, np.nan), np.full(3, np.nan))
+    c = np.arange(7, dtype=np.uint8)
+    d = c.copy()
+    d[6] = 9
+    assert _same_bits(c, c.copy()) and not _same_bits(c, d)
+    assert not _same_bits(np.zeros(3, dtype=np.int64), np.zeros(3))

@@ -85,13 +85,15 @@ def test_delaunay_flips_keep_a_crease():
 def test_delaunay_tests_vectorised_agree_with_the_scalar_test():
     """The flips' Delaunay tests, computed for all edges at once, give the scalar test's answer on
     every edge they decide, and decide every interior edge but those at the threshold (a grid
-    with exact 90 + 90 deg cells sits on it: the scalar test decides those)."""
+    with exact 90 + 90 deg cells sits on it: the scalar test decides those). A face left out of
+    the faces to visit has no interior edge the scalar test fails or leaves at the threshold."""
     rng = np.random.default_rng(3)
     for jitter in (0.0, 0.1, 0.3):
         V, F = _grid(8)
         V = V + np.concatenate([rng.normal(scale=jitter, size=(len(V), 2)), np.zeros((len(V), 1))], axis=1)
         tm = TriMesh(V, F)
-        tests = _delaunay_tests(V, tm)
+        tests, visit = _delaunay_tests(V, tm)
+        assert _delaunay_tests(V, tm, keyed=False) == ({}, visit)
         for (b, a, c, d), ok in tests.items():
             assert ok == (_corner_deg(V, b, a, c) + _corner_deg(V, d, a, c) <= 180.0 + 1e-6)
         interior = 0
@@ -104,7 +106,28 @@ def test_delaunay_tests_vectorised_agree_with_the_scalar_test():
                     interior += 1
                     total = _corner_deg(V, b, a, c) + _corner_deg(V, d, a, c)
                     assert (b, a, c, d) in tests or abs(total - 180.0) < 1e-3
+                    if fi not in visit:
+                        assert tests[(b, a, c, d)] and total <= 180.0 + 1e-6
         assert interior > 0 and (jitter == 0.0 or len(tests) == interior)
+
+
+def test_delaunay_flips_same_as_visiting_every_face(monkeypatch):
+    """Skipping the faces with no edge to flip (and the vectorised tests) flips the same edges in
+    the same order as visiting every face with scalar tests, on jittered grids with slivers."""
+    from pipeline.geometry import flips
+
+    rng = np.random.default_rng(5)
+    cases = []
+    for jitter in (0.2, 0.35):
+        V, F = _grid(14)
+        V = V + np.concatenate([rng.normal(scale=jitter, size=(len(V), 2)),
+                                rng.normal(scale=0.05, size=(len(V), 1))], axis=1)
+        cases.append((V, F, delaunay_flips(V, F)))
+    # every face visited, no test known beforehand: each decided by the scalar test in the loop
+    monkeypatch.setattr(flips, "_delaunay_tests", lambda V, tm, **kw: ({}, set(tm.F)))
+    for V, F, (F2, n) in cases:
+        F1, n1 = delaunay_flips(V, F)
+        assert n == n1 and n > 10 and np.array_equal(F1, F2)
 
 
 def test_collapse_short_edges_merges_the_free_end():

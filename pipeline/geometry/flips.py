@@ -52,18 +52,19 @@ def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3):
     A = meshtopo.vertex_adjacency(F, len(V))
     deg = np.asarray(A.sum(axis=1)).ravel()
     near = None
+    closest = mc.closest_points_on(ref_V, ref_F)        # the scan's tree looked up once, not per pass
     for _ in range(iterations):
         N = mc.vertex_normals(V, F)
         if near is None:                    # later passes: the faces the projection below landed on
             near = np.zeros(len(V), dtype=np.int64)
-            near[used] = mc.closest_points(V[used], ref_V, ref_F)[1]
+            near[used] = closest(V[used])[1]
         R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces=near)
         d0 = np.einsum("ij,ij->i", mc.face_normals(V, F), R)
         L = (A @ V) / np.maximum(deg, 1)[:, None] - V
         L -= np.einsum("ij,ij->i", L, N)[:, None] * N
         Vn = V.copy()
         Vn[free] += step * L[free]
-        _, fi, C = mc.closest_points(Vn[free], ref_V, ref_F)
+        _, fi, C = closest(Vn[free])
         Vn[free] = C
         # a projected vertex lies on face fi: no second query of where it now is. Not the same
         # answer by construction (a point on an edge ties with the face across it), but the same
@@ -189,16 +190,19 @@ def _corner_deg(P, at, u, w):
     return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 
-def _delaunay_tests(V, tm: TriMesh, margin_deg=1e-4) -> dict:
+def _delaunay_tests(V, tm: TriMesh, margin_deg=1e-4, keyed=True):
     """:func:`delaunay_flips`' test (are the angles facing edge a-c from b and d at most 180 deg?)
-    of every manifold interior edge of ``tm``, keyed (b, a, c, d) as the flip loop reads them.
+    of the manifold interior edges of ``tm``, keyed (b, a, c, d) as the flip loop reads them, and
+    the set of face ids with an edge that fails the test or is left to the scalar test: the faces
+    a pass has to visit (every other face's three edges are either not shared by exactly two
+    faces or Delaunay, and the loop passes them by). ``keyed=False``: the set alone (an empty dict).
 
     Vectorised over the edges, the sums can differ from :func:`_corner_deg`'s scalar ones in the
     last bits (acos near 180 deg amplifies that to ~1e-6 deg): sums within ``margin_deg`` of the
     threshold are left out, so the scalar test decides those, and the flips are the same."""
     fids = np.array(list(tm.F), dtype=np.int64)
     if len(fids) == 0:
-        return {}
+        return {}, set()
     Fa = np.array([tm.F[i] for i in fids], dtype=np.int64)
     m = len(Fa)
     b = Fa.ravel()                                          # half-edge (face j, corner k): b, a, c
@@ -226,9 +230,14 @@ def _delaunay_tests(V, tm: TriMesh, margin_deg=1e-4) -> dict:
     total = corner(b[h], a[h], c[h]) + corner(d, a[h], c[h])
     sure = np.abs(total - (180.0 + 1e-6)) > margin_deg
     ok = total <= 180.0 + 1e-6
-    sel = np.flatnonzero(sure)
-    return dict(zip(zip(b[h][sel].tolist(), a[h][sel].tolist(), c[h][sel].tolist(), d[sel].tolist()),
-                    ok[sel].tolist()))
+    # a face with a repeated corner is always visited (its edges' twin counts are not the
+    # half-edge counts above)
+    visit = (Fa[:, 0] == Fa[:, 1]) | (Fa[:, 1] == Fa[:, 2]) | (Fa[:, 0] == Fa[:, 2])
+    visit[h[~(sure & ok)] // 3] = True
+    sel = np.flatnonzero(sure) if keyed else np.zeros(0, dtype=np.int64)
+    return (dict(zip(zip(b[h][sel].tolist(), a[h][sel].tolist(), c[h][sel].tolist(), d[sel].tolist()),
+                     ok[sel].tolist())),
+            set(fids[visit].tolist()))
 
 
 def delaunay_flips(V, F, max_dihedral_deg=20.0, min_cos=0.5, passes=8):
@@ -261,12 +270,17 @@ def delaunay_flips(V, F, max_dihedral_deg=20.0, min_cos=0.5, passes=8):
     cos_dih = math.cos(math.radians(max_dihedral_deg))
     n_flips = 0
     # the vertices never move, so an edge's Delaunay test and its two faces' dihedral test give
-    # the same answer on every pass: each is computed once (every pass re-tests every edge)
-    delaunay_ok, dihedral = _delaunay_tests(V, tm), {}
+    # the same answer on every pass: each is computed once (all edges at once on the first pass)
+    delaunay_ok, dihedral = {}, {}
     for _ in range(passes):
         flipped = 0
+        # only the faces with an edge that may flip, and those a flip of this pass has touched
+        # (every face round its four corners: their edges' twins or opposite corners changed),
+        # can flip anything: the others are passed by, the same faces visited in the same order
+        tests, visit = _delaunay_tests(V, tm, keyed=not delaunay_ok)
+        delaunay_ok.update(tests)
         for fi in list(tm.F):
-            if fi not in tm.F:
+            if fi not in visit or fi not in tm.F:
                 continue
             for k in range(3):
                 f = tm.F[fi]
@@ -299,6 +313,8 @@ def delaunay_flips(V, F, max_dihedral_deg=20.0, min_cos=0.5, passes=8):
                     continue
                 if tm.flip_edge(fi, a, c, ref=ref, min_cos=min_cos):
                     flipped += 1
+                    for v in tm.F[fi] + tm.F[g]:
+                        visit.update(tm.vf[v])
                     break
         n_flips += flipped
         if flipped == 0:

@@ -163,9 +163,16 @@ _TREES: list = []          # small cache of libigl AABB trees: [(V copy, F copy,
 
 
 def _same_bits(a, b) -> bool:
-    """``a`` and ``b`` hold the same bytes (same shape and dtype): -0.0 and 0.0 differ, a NaN equals itself."""
-    return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(
-        a.reshape(-1).view(np.uint8), b.reshape(-1).view(np.uint8))
+    """``a`` and ``b`` hold the same bytes (same shape and dtype): -0.0 and 0.0 differ, a NaN equals itself.
+    Compared as 8-byte words where the size allows, in chunks, stopping at the first that differs
+    (a relaxed copy of a mesh is told from the cached one without reading all of it)."""
+    if a.shape != b.shape or a.dtype != b.dtype:
+        return False
+    x, y = a.reshape(-1).view(np.uint8), b.reshape(-1).view(np.uint8)
+    if len(x) % 8 == 0:
+        x, y = x.view(np.uint64), y.view(np.uint64)
+    step = 1 << 16
+    return all(np.array_equal(x[i:i + step], y[i:i + step]) for i in range(0, len(x), step))
 
 
 def _tree(V, F):
@@ -200,33 +207,48 @@ def closest_points(P, V, F):
     face : (k,) int64 face index of the closest point
     C : (k, 3) float64 closest points
     """
-    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    if len(np.asarray(P).reshape(-1, 3)) == 0:
+        return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    return closest_points_on(V, F)(P)
+
+
+def closest_points_on(V, F):
+    """:func:`closest_points` on the mesh (V, F) as a function of the points alone: the cached
+    tree is looked up once (a byte comparison of V and F, ~1 ms on a 1.4M-triangle scan's crop),
+    not on every call. Same answers, same bytes; for loops that ask about one surface hundreds of
+    times (the band's smoothing sweeps, relax). The caller must not change V or F in place
+    between calls."""
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
-    if len(P) == 0:
-        return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
     V, F, tree, last = _tree(V, F)
-    # the retopo repairs ask about a whole mesh's vertices again and again with a few of them
-    # moved (a flip count per candidate move, a repair round): the points whose bytes equal
-    # those of the last query with as many points keep its answers. Each point's answer is its
-    # own (libigl queries them one by one from the root), so the results are the same bytes.
-    prev = last.get(len(P))
-    if prev is None:
-        moved = None
-        sq, fi, C = tree.squared_distance(V, F, P)
-        sq, fi, C = np.asarray(sq, dtype=np.float64), np.asarray(fi, dtype=np.int64), np.asarray(C)
-    else:
-        P0, sq, fi, C = prev
-        moved = np.flatnonzero((P.view(np.uint64) != P0.view(np.uint64)).any(axis=1))
-        sq, fi, C = sq.copy(), fi.copy(), C.copy()
-        if len(moved):
-            s1, f1, c1 = tree.squared_distance(V, F, np.ascontiguousarray(P[moved]))
-            sq[moved], fi[moved], C[moved] = s1, f1, c1
-    if (moved is None or len(moved)) and len(P) <= _REMEMBER_POINTS:
-        if len(last) >= 4 and len(P) not in last:
-            last.pop(next(iter(last)))
-        last[len(P)] = (P.copy(), sq, fi.copy(), C.copy())
-    return np.sqrt(np.maximum(sq, 0.0)), fi, C
+
+    def query(P):
+        P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+        if len(P) == 0:
+            return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        # the retopo repairs ask about a whole mesh's vertices again and again with a few of them
+        # moved (a flip count per candidate move, a repair round): the points whose bytes equal
+        # those of the last query with as many points keep its answers. Each point's answer is its
+        # own (libigl queries them one by one from the root), so the results are the same bytes.
+        prev = last.get(len(P))
+        if prev is None:
+            moved = None
+            sq, fi, C = tree.squared_distance(V, F, P)
+            sq, fi, C = np.asarray(sq, dtype=np.float64), np.asarray(fi, dtype=np.int64), np.asarray(C)
+        else:
+            P0, sq, fi, C = prev
+            moved = np.flatnonzero((P.view(np.uint64) != P0.view(np.uint64)).any(axis=1))
+            sq, fi, C = sq.copy(), fi.copy(), C.copy()
+            if len(moved):
+                s1, f1, c1 = tree.squared_distance(V, F, np.ascontiguousarray(P[moved]))
+                sq[moved], fi[moved], C[moved] = s1, f1, c1
+        if (moved is None or len(moved)) and len(P) <= _REMEMBER_POINTS:
+            if len(last) >= 4 and len(P) not in last:
+                last.pop(next(iter(last)))
+            last[len(P)] = (P.copy(), sq, fi.copy(), C.copy())
+        return np.sqrt(np.maximum(sq, 0.0)), fi, C
+
+    return query
 
 
 def sample_surface(V, F, n, seed=0):

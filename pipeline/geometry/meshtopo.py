@@ -90,6 +90,12 @@ def face_components_by_vertex(F, n_vertices: int):
     return n, vlabels[F[:, 0]].astype(np.int64)
 
 
+def has_halfedge(F, a, b) -> bool:
+    """Whether some face of ``F`` (m, 3) runs from vertex ``a`` to ``b`` (the directed edge a -> b)."""
+    F = np.asarray(F)
+    return bool(np.any((F == a) & (np.roll(F, -1, axis=1) == b)))
+
+
 def boundary_halfedges(F, face_order: bool = False):
     """Directed edges (a, b) of faces whose opposite (b, a) belongs to no face, (k, 2) int64.
 

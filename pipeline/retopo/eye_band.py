@@ -29,6 +29,7 @@ import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.flips import reference_face_normals, relax
+from pipeline.geometry.meshtopo import has_halfedge
 
 # the circles of the parameter plane. A harmonic map between annuli is not one-to-one in general
 # (on a round annulus of radii 5 and 25 mm mapped onto radii 1 and 2, x = (A r + B / r) cos t
@@ -134,10 +135,9 @@ def harmonic_annulus(V, F, inner, outer):
     n = len(V)
     inner, outer = np.asarray(inner), np.asarray(outer)
     # both loops run the way the faces wind along the inner one (the outer one then against)
-    he = set(map(tuple, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]).tolist()))
-    if (int(inner[0]), int(inner[1])) not in he:
+    if not has_halfedge(F, inner[0], inner[1]):
         inner = inner[::-1]
-    if (int(outer[1]), int(outer[0])) not in he:
+    if not has_halfedge(F, outer[1], outer[0]):
         outer = outer[::-1]
     j0 = int(np.argmin(np.linalg.norm(V[outer] - V[inner[0]], axis=1)))
     # the faces run along the inner loop counter-clockwise seen from outside the annulus: the
@@ -323,7 +323,8 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
     am = 2.0 / ((h[:-1] + h[1:]) * h[:-1])                         # weight of ring k - 1
     ap = 2.0 / ((h[:-1] + h[1:]) * h[1:])                          # ... ring k + 1
     loop = G[0].copy()
-    _, _, C0 = mc.closest_points(loop, ref_V, ref_F)
+    closest = mc.closest_points_on(ref_V, ref_F)        # the scan's tree looked up once, not per sweep
+    _, _, C0 = closest(loop)
     lift = loop - C0
     G[0] = C0
     nf = mc.face_normals(ref_V, ref_F, normalize=False)
@@ -343,12 +344,12 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
     t = (np.arange(sub) / sub)[None, :, None]
     base = (1 - t) * G[0][:, None] + t * np.roll(G[0], -1, axis=0)[:, None]
     dirs = _unit((1 - t) * out[:, None] + t * np.roll(out, -1, axis=0)[:, None])
-    dense = mc.closest_points((base + d[-1] * dirs).reshape(-1, 3), ref_V, ref_F)[2]
+    dense = closest((base + d[-1] * dirs).reshape(-1, 3))[2]
     outer_line = closed_moving_average(dense, outer_half * sub) if outer_half else dense
     G[R] = dense[::sub]
     line_len = float(polyline_arclength(outer_line)[0][-1])
     G[R] = project_to_polyline(G[R], outer_line)[1]
-    _, fcur, _ = mc.closest_points(G[1:R].reshape(-1, 3), ref_V, ref_F)      # faces under the nodes
+    _, fcur, _ = closest(G[1:R].reshape(-1, 3))      # faces under the nodes
     for _ in range(iterations):
         before = G.copy()
         tau = np.linalg.norm(np.roll(G, -1, axis=1) - G, axis=2).mean(axis=1)
@@ -364,7 +365,7 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
         for k in range(1, min(R, push_rings + 1)):
             short = push * d[k] - np.einsum("ij,ij->i", P[k - 1] - G[0], out)
             P[k - 1] += np.clip(short, 0.0, None)[:, None] * out
-        _, fcur, C = mc.closest_points(P.reshape(-1, 3), ref_V, ref_F)
+        _, fcur, C = closest(P.reshape(-1, 3))
         G[1:R] = C.reshape(P.shape)
         # the outer ring's nodes: along the line by the step's component along the ring
         aR, bR = 1.0 / h[-1] ** 2, 1.0 / tau[R] ** 2
@@ -372,7 +373,7 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
         tR = _unit(np.roll(G[R], -1, axis=0) - np.roll(G[R], 1, axis=0))
         s_on = np.unwrap(2.0 * np.pi * project_to_polyline(G[R], outer_line)[0] / line_len) * line_len / (2.0 * np.pi)
         s_on += step * np.einsum("ij,ij->i", newR - G[R], tR)
-        G[R] = mc.closest_points(point_at_arclength(outer_line, s_on), ref_V, ref_F)[2]
+        G[R] = closest(point_at_arclength(outer_line, s_on))[2]
         if np.abs(G - before).max() < tol:
             break
     fade = np.clip(1.0 - d / d[-1], 0.0, 1.0) ** lift_power
@@ -514,9 +515,8 @@ def _inside_polygon(P, poly):
 
 def _oriented_border(F, loop):
     """The closed vertex loop ``loop`` walked the way the faces ``F`` run along it."""
-    he = set(map(tuple, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]).tolist()))
     loop = np.asarray(loop, dtype=np.int64)
-    return loop if (int(loop[0]), int(loop[1])) in he else loop[::-1]
+    return loop if has_halfedge(F, loop[0], loop[1]) else loop[::-1]
 
 
 def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_iterations=4):

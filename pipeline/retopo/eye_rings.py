@@ -12,6 +12,7 @@ import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.flips import count_flipped, relax, repair_flips
+from pipeline.geometry.meshtopo import has_halfedge
 
 
 def _band_faces(V, F, loop, radius, locked):
@@ -235,8 +236,7 @@ def _ring_one_eye(V, F, Q_all, lp, ref_V, ref_F, rings, h, relax_iterations, fli
     band = band[:len(F)]
     Fb, Fk = F[band], F[~band]
     # loop direction of the faces at the loop: the quads must keep it
-    he = set(map(tuple, np.concatenate([Fb[:, [0, 1]], Fb[:, [1, 2]], Fb[:, [2, 0]]]).tolist()))
-    Lh = lp if (int(lp[0]), int(lp[1])) in he else lp[::-1]
+    Lh = lp if has_halfedge(Fb, lp[0], lp[1]) else lp[::-1]
     lp_set = set(map(int, lp))
     B = next(b for b in mc.boundary_loops(Fb) if not set(map(int, b)) & lp_set)
     B = B[::-1]                     # the rest's faces run along B the way the band's run along the loop
