@@ -76,6 +76,8 @@ BENCHMARKS = (
     Benchmark("compare_ict_lids", needs=("scans",)),
     Benchmark("bench_rig", needs=("scans",)),
     Benchmark("bench_chain", modest=("--repeats", "1")),
+    # all 20 even when modest: a shorter run would overwrite the page's 20-identity counts
+    Benchmark("bench_identities", args=("--work", str(ROOT / "benchmarks" / "out" / "identities"))),
     Benchmark("bench_unseen_scans", args=("--scanify", "{scanify}", "--ict", "{scans}/ict_facekit"),
               needs=("scans", "scanify")),
     Benchmark("view_eye_sections", needs=("unseen_work",)),
