@@ -176,17 +176,12 @@ def _touching(F, faces, other):
     """(m,) bool: the faces of ``other`` edge-connected (within ``other``) to one that shares a
     vertex with ``faces``: whole closed holes that touch the fill, even at one vertex (left out,
     their rim would pinch the opening's loop into a bow-tie)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     idx = np.flatnonzero(other)
     if len(idx) == 0:
         return np.zeros(len(F), bool)
     on = np.zeros(int(F.max()) + 1, bool)
     on[F[faces].ravel()] = True
-    pairs, _ = meshtopo.face_adjacency(F[idx], len(on))
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(idx), len(idx)))
-    _, comp = connected_components(g, directed=False)
+    comp = meshtopo.face_components(len(idx), meshtopo.face_adjacency(F[idx], len(on))[0])
     hit = np.unique(comp[on[F[idx]].any(axis=1)])
     out = np.zeros(len(F), bool)
     out[idx[np.isin(comp, hit)]] = True
