@@ -295,3 +295,32 @@ def test_the_usd_stage_starts_no_blender(tmp_path, monkeypatch):
     assert run_stage(usd_stage.main, usd_argv(inp)) == 0
     assert not (inp["out"] / "preview.png").exists()
     assert "preview_s" not in read_stage_metrics(inp["metrics"])
+
+
+def test_the_band_ids_are_in_the_asset_metadata(tmp_path):
+    """A mesh with retopo's grid round each opening (``band_<side>``: ids ``e * R * S + k * S + i``)
+    gives the asset customData ``eyerig.band`` with its counts and id ranges; a band whose ids
+    break the rule (the older ``march`` band) gives none."""
+    from pxr import Usd
+
+    from pipeline.io.meshfile import load_mesh, save_mesh
+    from pipeline.usd.build import band_record
+
+    inp = make_inputs(tmp_path)
+    path = inp["dirs"]["snap"] / "mesh.npz"
+    mesh = dict(load_mesh(path))
+    rings, spokes = 3, 8
+    mesh["band_left"] = np.arange(rings * spokes).reshape(rings, spokes)
+    mesh["band_right"] = mesh["band_left"] + rings * spokes
+    save_mesh(path, **mesh)
+    assert run_stage(usd_stage.main, usd_argv(inp)) == 0
+    stage = Usd.Stage.Open(str(inp["out"] / "tiny.usda"))
+    band = stage.GetDefaultPrim().GetCustomDataByKey("eyerig")["band"]
+    assert (band["rings"], band["spokes"], band["lateral_canthus_spoke"]) == (3, 8, 4)
+    assert list(band["left_vertex_ids"]) == [0, 23] and list(band["right_vertex_ids"]) == [24, 47]
+    assert "ring 0 is the eyelid margin" in band["vertex_id"]
+
+    shuffled = {"left": mesh["band_left"][:, ::-1], "right": mesh["band_right"]}
+    assert band_record(shuffled, len(mesh["V"])) is None
+    assert band_record({"left": mesh["band_left"], "right": mesh["band_right"]}, 40) is None   # ids past V
+    assert band_record(None, 100) is None

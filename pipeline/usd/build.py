@@ -59,6 +59,9 @@ class UsdInputs:
         ``rigged_assets/eyeball/eyeball.usda``, copied into the asset, which references the copy.
     caruncle : (c,) int64
         Faces of ``F`` that take the caruncle material (snap's corner strips; may be empty).
+    band : dict side -> (R + 1, S) int64, optional
+        The grid of rings and spokes round each opening (retopo's ``band_<side>``), when the
+        mesh has one.
     """
 
     V: np.ndarray
@@ -74,6 +77,31 @@ class UsdInputs:
     displacement: Path
     eyeball: Path
     caruncle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    band: dict | None = None
+
+
+def band_record(band: dict | None, n_vertices: int) -> dict | None:
+    """The asset's ``customData eyerig.band``: how the rings and spokes round each opening are
+    numbered, so that a user can put any two assets into correspondence there (docs/retopo.md).
+
+    None when the mesh has no band or its ids do not follow the one rule (the older ``march``
+    band): then the asset claims no correspondence.
+    """
+    if not band or set(band) != {"left", "right"}:
+        return None
+    L, R = (np.asarray(band[s]) for s in ("left", "right"))
+    if L.ndim != 2 or L.shape != R.shape:
+        return None
+    rings, spokes = L.shape
+    n = rings * spokes
+    if not (np.array_equal(L.ravel(), np.arange(n)) and np.array_equal(R.ravel(), np.arange(n, 2 * n))
+            and 2 * n <= n_vertices):
+        return None
+    return {"rings": int(rings), "spokes": int(spokes),
+            "vertex_id": "eye * rings * spokes + ring * spokes + spoke (eye 0 left, 1 right); ring 0 "
+                         "is the eyelid margin, spoke 0 its medial canthus, upper lid first",
+            "lateral_canthus_spoke": int(spokes // 2),
+            "left_vertex_ids": [0, int(n - 1)], "right_vertex_ids": [int(n), int(2 * n - 1)]}
 
 
 def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) -> UsdInputs:
@@ -99,7 +127,9 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
     return UsdInputs(V=V, F=F, UV=mesh.UV, FUV=mesh.FUV, shapes=r.npz.shapes, curves=r.npz.curves,
                      max_pitch_deg=r.max_pitch_deg, eyes=r.eyes, scan=scan, color=maps.color,
                      displacement=maps.displacement, eyeball=_need(eyeball / "eyeball.usda"),
-                     caruncle=caruncle.astype(np.int64))
+                     caruncle=caruncle.astype(np.int64),
+                     band=({"left": mesh.band_left, "right": mesh.band_right}
+                           if mesh.band_left is not None and mesh.band_right is not None else None))
 
 
 def build(inp: UsdInputs, out_dir: Path, name: str, all_params: dict, package: bool = True) -> StageResult:
@@ -129,6 +159,9 @@ def build(inp: UsdInputs, out_dir: Path, name: str, all_params: dict, package: b
         "displacement": DISPLACEMENT_DOC,
         "params": json.loads(json.dumps(all_params)),
     }
+    band = band_record(inp.band, len(inp.V))
+    if band is not None:
+        meta["band"] = band
     t0 = time.perf_counter()
     try:
         usda = write_scan_asset(out_dir / f"{name}.usda", name=name, V=inp.V, F=inp.F, UV=inp.UV,
