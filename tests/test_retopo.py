@@ -368,3 +368,41 @@ def test_bow_tie_in_the_scan_is_split_not_refused(patch):
     Vc, Fc, vmap = crop_eye_region(V, Fb, eyes, RetopoSettings())
     hole = [b for b in mc.boundary_loops(Fc) if len(b) < 10]
     assert len(hole) == 1 and len(hole[0]) == 6 and np.count_nonzero(vmap[hole[0]] == v) == 2
+
+
+def test_untangle_leaves_the_band_zone_alone():
+    """With the grid band, retopo's last-resort untangle never counts a face within
+    band_width_mm of a loop as bad and never moves its vertices (it slid them off the scan,
+    past the band's outer ring, on ident_s1_013): a face turned over there stays as it is for
+    the band to cut away, while one turned over beyond the zone is untangled."""
+    from pipeline.geometry.flips import untangle
+    from pipeline.retopo.retopo import band_zone
+
+    # a flat 21 x 21 grid (1 mm), a square 'loop' round its left part, normals +z
+    n = 21
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    F = np.concatenate([np.stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel()], 1),
+                        np.stack([idx[:-1, :-1].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()], 1)])
+    loop = np.array([idx[8, 2], idx[8, 4], idx[10, 4], idx[10, 2]])
+    near, faces = band_zone(V, F, {"left": loop}, 3.0)
+    assert near[idx[9, 6]] and not near[idx[9, 8]]           # 2 mm and 4 mm right of the loop
+    assert faces.sum() == np.isin(F, np.flatnonzero(near)).any(axis=1).sum()
+    # turn a face over on each side: push a vertex across its neighbours
+    Vb = V.copy()
+    Vb[idx[9, 5], 0] += 1.6                                   # within the zone
+    Vb[idx[9, 15], 0] += 1.6                                  # 11 mm out
+    R = np.tile([0.0, 0.0, 1.0], (len(F), 1))
+    bad = lambda P: np.flatnonzero(np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])[:, 2] <= 0)  # noqa: E731
+    before = bad(Vb)
+    assert np.isin(F[before], idx[9, 5]).any() and np.isin(F[before], idx[9, 15]).any()
+    border = np.zeros(len(V), dtype=bool)
+    border[np.concatenate(mc.boundary_loops(F))] = True
+    free = ~border & ~near
+    floor = np.where(faces, -np.inf, 0.0)
+    V2, moved = untangle(Vb, F, R, free, min_projected=floor)
+    after = bad(V2)
+    assert not np.isin(F[after], idx[9, 15]).any()           # untangled beyond the zone
+    assert (V2[near] == Vb[near]).all() and not np.isin(moved, np.flatnonzero(near)).any()
+    assert np.isin(F[after], idx[9, 5]).any()                 # left for the band

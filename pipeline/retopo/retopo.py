@@ -393,6 +393,23 @@ def _flip_counter(ref_V, ref_F):
     return count
 
 
+def band_zone(V, F, loops, width):
+    """What the grid band will replace, before it is built: the vertices within ``width`` mm
+    (straight line) of a loop's polyline and the faces with a corner among them. The band's
+    outer ring lies ``width`` out along the surface, never nearer in a straight line, so the
+    zone covers the band (and a little past it where the skin curves).
+
+    Returns
+    -------
+    near : (n,) bool ; faces : (m,) bool
+    """
+    V = np.asarray(V, dtype=np.float64)
+    near = np.zeros(len(V), dtype=bool)
+    for lp in loops.values():
+        near |= project_to_polyline(V, V[np.asarray(lp)])[2] < width
+    return near, near[np.asarray(F)].any(axis=1)
+
+
 def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     """Crop the dense head to the eye region and remesh it (see module docstring).
 
@@ -562,10 +579,7 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
             # outer ring, where the cut then followed that crumpled remesh 9-14 mm out and its zip
             # kept 30 faces turned over. Those faces are left as they are (never counted bad) and
             # their vertices held; the band cuts them away
-            by_loop = np.zeros(len(Vn), dtype=bool)
-            for lp in loops.values():
-                by_loop |= project_to_polyline(Vn, Vn[lp])[2] < s.band_width_mm
-            replaced = by_loop[Fn].any(axis=1)
+            by_loop, replaced = band_zone(Vn, Fn, loops, s.band_width_mm)
             free &= ~by_loop
             floor = np.where(replaced, -np.inf, floor)
         Vn, _ = untangle(Vn, Fn, R, free, min_projected=floor)
