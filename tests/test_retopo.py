@@ -15,7 +15,7 @@ from pipeline.geometry.flips import count_flipped
 from pipeline.io.eyes_file import write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 from pipeline.retopo.eyelid_loop import project_to_polyline
-from pipeline.retopo.retopo import RetopoSettings, clean_mesh, retopologize
+from pipeline.retopo.retopo import RetopoSettings, clean_mesh, crop_eye_region, retopologize
 from stages._common import read_stage_metrics
 
 
@@ -321,3 +321,88 @@ def test_canthus_apex_keeps_what_it_is_unsure_of():
     coarse = P[:: len(P) // 10]
     Q, k, info = canthus_apex(coarse, int(np.argmax(coarse[:, 0])), window=(1.0, 2.0))
     assert info["lateral"] == {"moved": False, "reach_mm": None, "why": "lid shorter than the window"}
+
+
+def test_split_fans_known_answers():
+    from pipeline.geometry import meshtopo
+
+    # two triangles touching at vertex 0 only: a bow-tie, two boundary loops through one vertex
+    F = np.array([[0, 1, 2], [0, 3, 4]])
+    with pytest.raises(ValueError, match="bow-ties"):
+        mc.boundary_loops(F)
+    F2, parent = meshtopo.split_fans(F)
+    assert F2.tolist() == [[0, 1, 2], [5, 3, 4]] and parent.tolist() == [0, 1, 2, 3, 4, 0]
+    assert sorted(len(b) for b in mc.boundary_loops(F2)) == [3, 3]
+    # a fan round vertex 0 (4 faces, 0-1-2-3-4) keeps its single id; the pinned triangle gets a copy
+    F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 5, 6]])
+    F2, parent = meshtopo.split_fans(F)
+    assert (F2[:3] == F[:3]).all() and F2[3].tolist() == [7, 5, 6] and parent[7] == 0
+    # a manifold mesh comes back unchanged
+    F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1]])
+    F2, parent = meshtopo.split_fans(F)
+    assert (F2 == F).all() and parent.tolist() == [0, 1, 2, 3]
+
+
+def test_bow_tie_in_the_scan_is_split_not_refused(patch):
+    """Two holes of the scan that touch at one vertex (a bow-tie: two boundary loops through it)
+    used to stop retopo ("4 boundary vertices are bow-ties", id308_halfblink's crop); each fan
+    now gets its own copy of the vertex, so the two triangular holes become one hole of six
+    boundary vertices (the vertex twice, as its two copies), which is filled, and the result is
+    the usual manifold mesh with the crop border and the two openings as its only boundaries."""
+    V, F, eyes = patch
+    loopset = set(np.concatenate([e.loop_indices for e in eyes.values()]).tolist())
+    # a vertex between the eyes, away from every boundary: drop two of its faces sharing only it
+    bnd = set(np.concatenate(mc.boundary_loops(F)).tolist())
+    cand = [v for v in np.argsort(np.linalg.norm(V[:, :2] - [0.0, 50.0], axis=1))[:200]
+            if int(v) not in bnd and int(v) not in loopset]
+    v = int(cand[0])
+    fan = np.flatnonzero((F == v).any(axis=1))
+    f1 = fan[0]
+    f2 = next(f for f in fan[1:] if len(set(F[f1].tolist()) & set(F[f].tolist())) == 1)
+    Fb = np.delete(F, [f1, f2], axis=0)
+    with pytest.raises(ValueError, match="bow-ties"):
+        mc.boundary_loops(Fb)
+    r = retopologize(V, Fb, eyes, RetopoSettings(method="quadric", target_polygons=1500, loop_points=32))
+    check_result(r, V, eyes, 32)
+    assert r.metrics["scan_holes_filled"] == 1
+    Vc, Fc, vmap = crop_eye_region(V, Fb, eyes, RetopoSettings())
+    hole = [b for b in mc.boundary_loops(Fc) if len(b) < 10]
+    assert len(hole) == 1 and len(hole[0]) == 6 and np.count_nonzero(vmap[hole[0]] == v) == 2
+
+
+def test_untangle_leaves_the_band_zone_alone():
+    """With the grid band, retopo's last-resort untangle never counts a face within
+    band_width_mm of a loop as bad and never moves its vertices (it slid them off the scan,
+    past the band's outer ring, on ident_s1_013): a face turned over there stays as it is for
+    the band to cut away, while one turned over beyond the zone is untangled."""
+    from pipeline.geometry.flips import untangle
+    from pipeline.retopo.retopo import band_zone
+
+    # a flat 21 x 21 grid (1 mm), a square 'loop' round its left part, normals +z
+    n = 21
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    F = np.concatenate([np.stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel()], 1),
+                        np.stack([idx[:-1, :-1].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()], 1)])
+    loop = np.array([idx[8, 2], idx[8, 4], idx[10, 4], idx[10, 2]])
+    near, faces = band_zone(V, F, {"left": loop}, 3.0)
+    assert near[idx[9, 6]] and not near[idx[9, 8]]           # 2 mm and 4 mm right of the loop
+    assert faces.sum() == np.isin(F, np.flatnonzero(near)).any(axis=1).sum()
+    # turn a face over on each side: push a vertex across its neighbours
+    Vb = V.copy()
+    Vb[idx[9, 5], 0] += 1.6                                   # within the zone
+    Vb[idx[9, 15], 0] += 1.6                                  # 11 mm out
+    R = np.tile([0.0, 0.0, 1.0], (len(F), 1))
+    bad = lambda P: np.flatnonzero(np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])[:, 2] <= 0)  # noqa: E731
+    before = bad(Vb)
+    assert np.isin(F[before], idx[9, 5]).any() and np.isin(F[before], idx[9, 15]).any()
+    border = np.zeros(len(V), dtype=bool)
+    border[np.concatenate(mc.boundary_loops(F))] = True
+    free = ~border & ~near
+    floor = np.where(faces, -np.inf, 0.0)
+    V2, moved = untangle(Vb, F, R, free, min_projected=floor)
+    after = bad(V2)
+    assert not np.isin(F[after], idx[9, 15]).any()           # untangled beyond the zone
+    assert (V2[near] == Vb[near]).all() and not np.isin(moved, np.flatnonzero(near)).any()
+    assert np.isin(F[after], idx[9, 5]).any()                 # left for the band

@@ -172,6 +172,54 @@ def boundary_loops(F, only=None, H=None):
     return loops
 
 
+def split_fans(F, n_vertices=None):
+    """Give each fan of faces round a vertex its own copy of the vertex: a vertex whose faces fall
+    into several groups that share no edge through it (a bow-tie, where two boundary loops touch,
+    or two cones meeting at a point) becomes one vertex per group. The surface is unchanged (the
+    copies sit where the vertex was); its boundary loops then never touch. Edges with more than
+    two faces are left as they are (their faces stay in one fan).
+
+    Parameters
+    ----------
+    F : (m, 3) int64
+    n_vertices : int, optional (default ``F.max() + 1``)
+
+    Returns
+    -------
+    F2 : (m, 3) int64
+        ``F`` with the corners of every fan but a vertex's first (lowest face) renumbered.
+    parent : (n2,) int64
+        The original vertex of every vertex of ``F2``: ``arange(n)`` then one entry per copy.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    F = np.asarray(F, dtype=np.int64)
+    n = (int(F.max()) + 1 if len(F) else 0) if n_vertices is None else int(n_vertices)
+    if len(F) == 0:
+        return F.copy(), np.arange(n, dtype=np.int64)
+    pairs, ev = face_adjacency(F, n)
+    # two faces sharing the edge (a, b) join their corners at a and at b into one fan
+    corner = lambda f, v: 3 * f + np.argmax(F[f] == v[:, None], axis=1)     # noqa: E731
+    rows = np.concatenate([corner(pairs[:, 0], ev[:, 0]), corner(pairs[:, 0], ev[:, 1])])
+    cols = np.concatenate([corner(pairs[:, 1], ev[:, 0]), corner(pairs[:, 1], ev[:, 1])])
+    m3 = 3 * len(F)
+    _, lab = connected_components(coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)),
+                                             shape=(m3, m3)), directed=False)
+    v = F.ravel()
+    # one fan per (vertex, component): fan index of every corner, its vertex and first corner
+    _, first, fan = np.unique(v * m3 + lab, return_index=True, return_inverse=True)
+    fan_v = v[first]
+    # the fan whose first corner comes first (the lowest face) keeps the vertex's id
+    by = np.lexsort((first, fan_v))
+    extra = np.zeros(len(first), dtype=bool)
+    extra[by[1:]] = fan_v[by[1:]] == fan_v[by[:-1]]
+    new_id = fan_v.copy()
+    new_id[by[extra[by]]] = n + np.arange(int(extra.sum()))
+    parent = np.concatenate([np.arange(n, dtype=np.int64), fan_v[by[extra[by]]]])
+    return new_id[fan.ravel()].reshape(-1, 3), parent
+
+
 def is_edge_manifold(F) -> bool:
     """True when every edge has at most two faces and opposite orientations where it has two."""
     F = np.asarray(F, dtype=np.int64)

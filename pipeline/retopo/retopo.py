@@ -49,6 +49,7 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
+from pipeline.geometry import meshtopo
 from pipeline.retopo.eye_band import add_eye_bands
 from pipeline.retopo.eye_rings import add_eye_rings
 from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
@@ -163,6 +164,21 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
         rep = first[inv.ravel()]
         Fc = rep[Fc]
         Fc = Fc[(Fc[:, 0] != Fc[:, 1]) & (Fc[:, 1] != Fc[:, 2]) & (Fc[:, 0] != Fc[:, 2])]
+    # bow-ties: a vertex whose faces form two fans touching only there, where two boundary loops
+    # meet (the box cut through a scan's thin tongue of faces: id308_halfblink's crop has 4 on its
+    # lower edge; a scan may bring its own). Every step after this walks boundary loops, so each
+    # fan gets its own copy of the vertex (same position: the surface is unchanged), and a piece
+    # that only hung on by such a vertex is dropped with the other components away from the eyes
+    Fc, parent = meshtopo.split_fans(Fc, len(Vc))
+    if len(parent) > len(Vc):
+        Vc, vmap = Vc[parent], vmap[parent]
+        _, lab = connected_components(meshtopo.vertex_adjacency(Fc, len(Vc)), directed=False)
+        want = np.unique(lab[np.isin(vmap, loop_vs)])
+        Fc = Fc[np.isin(lab[Fc[:, 0]], want)]
+        used = np.unique(Fc)
+        remap = -np.ones(len(Vc), dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        Vc, Fc, vmap = Vc[used], remap[Fc], vmap[used]
     return Vc, Fc, vmap
 
 
@@ -377,6 +393,23 @@ def _flip_counter(ref_V, ref_F):
     return count
 
 
+def band_zone(V, F, loops, width):
+    """What the grid band will replace, before it is built: the vertices within ``width`` mm
+    (straight line) of a loop's polyline and the faces with a corner among them. The band's
+    outer ring lies ``width`` out along the surface, never nearer in a straight line, so the
+    zone covers the band (and a little past it where the skin curves).
+
+    Returns
+    -------
+    near : (n,) bool ; faces : (m,) bool
+    """
+    V = np.asarray(V, dtype=np.float64)
+    near = np.zeros(len(V), dtype=bool)
+    for lp in loops.values():
+        near |= project_to_polyline(V, V[np.asarray(lp)])[2] < width
+    return near, near[np.asarray(F)].any(axis=1)
+
+
 def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     """Crop the dense head to the eye region and remesh it (see module docstring).
 
@@ -397,7 +430,6 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     t0 = time.perf_counter()
     timings = {}
     Vc, Fc, vmap = crop_eye_region(V, F, eyes, s)
-    inv = {int(v): i for i, v in enumerate(vmap)}
     curves, lateral, apex_info = {}, {}, {}
     for side, e in eyes.items():
         li = np.asarray(e.loop_indices, dtype=np.int64)
@@ -416,7 +448,8 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         # left open, a scanner's hole in the skin stays a hole of the asset (a black spot in
         # every render); filled here it is remeshed like the skin round it, and the bake's rays
         # over it miss the scan and take the rim's colour at about zero displacement
-        eye_vs = [inv[int(v)] for e in eyes.values() for v in e.loop_indices if int(v) in inv]
+        # every crop copy of a loop vertex (a bow-tie on the opening has one per fan)
+        eye_vs = np.flatnonzero(np.isin(vmap, np.concatenate([np.asarray(e.loop_indices) for e in eyes.values()])))
         holes = scan_holes(Vc, Fc, vmap, F, eye_vs, s.fill_holes_mm)
         Vc, Fc = fill_holes_smooth(Vc, Fc, holes)
     timings["crop_s"] = time.perf_counter() - t0
@@ -445,7 +478,7 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     cbl = mc.boundary_loops(Fc)
     eye_loop_lengths = []
     for side, e in eyes.items():
-        li = set(int(inv[int(v)]) for v in e.loop_indices if int(v) in inv)
+        li = set(np.flatnonzero(np.isin(vmap, np.asarray(e.loop_indices))).tolist())
         eye_loop_lengths += [len(b) for b in cbl if li & set(map(int, b))][:1]
     Vr, Fr, refine_levels = refine_coarse_crop(Vc, Fc, (3 * s.loop_points + 3) // 4, eye_loop_lengths)
     if s.method == "quadric":
@@ -539,6 +572,16 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         # the faces around them keep a quarter of the typical face area (no new slivers)
         near = np.isin(Fn, bad_v).any(axis=1)
         floor = np.where(near, 0.25 * float(np.median(np.linalg.norm(nf, axis=1))), 0.0)
+        if s.band == "grid":
+            # the grid band replaces the faces within band_width_mm of each loop: untangling them
+            # only slid their vertices off the scan (its moves are tangential, never projected
+            # back), up to 3.8 mm beside ident_s1_013's right lateral canthus and past the band's
+            # outer ring, where the cut then followed that crumpled remesh 9-14 mm out and its zip
+            # kept 30 faces turned over. Those faces are left as they are (never counted bad) and
+            # their vertices held; the band cuts them away
+            by_loop, replaced = band_zone(Vn, Fn, loops, s.band_width_mm)
+            free &= ~by_loop
+            floor = np.where(replaced, -np.inf, floor)
         Vn, _ = untangle(Vn, Fn, R, free, min_projected=floor)
     # slivers left by the loop placement and the repairs (a vertex almost on the edge of two
     # others, up to 15 mm long on unseen heads) fold in the lid sweep: flip them away, relax

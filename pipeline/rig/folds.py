@@ -87,3 +87,44 @@ def relax_folds(V, F, shapes, eyes, pitches_deg, max_pitch_deg: float, rounds: i
             best = (len(bad), shapes, r, int(touched.sum()))
     # smoothing next to a margin can also turn a face over: keep the round with the fewest folds
     return best[1], best[2], best[3]
+
+
+def fold_sites(V, F, faces, mesh, eyes, limit: int = 3) -> list[str]:
+    """Where the faces ``faces`` (indices into F) lie, for a refusal message: per face, its eye,
+    its place in that eye's band (``band_<side>`` of the mesh, (R + 1, S) vertex ids, when the
+    retopology built one: the face's ring and spoke, the lowest ring among its band corners; a
+    face of the zip or the remesh is named by the band spoke nearest it) and its centroid in mm.
+    At most ``limit`` faces, nearest the eyes first (a fold by the loop is the one that shows).
+
+    Returns
+    -------
+    list of str, e.g. ``"left eye ring 2 spoke 45 at (32.3, 33.3, 96.8) mm"``
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) == 0 or not eyes:
+        return []
+    C = V[F[faces]].mean(axis=1)
+    # nearest eye (distance to its loop's vertices) and that distance
+    d = np.stack([np.linalg.norm(C[:, None] - V[e.loop][None], axis=2).min(axis=1) for e in eyes])
+    which, dist = d.argmin(axis=0), d.min(axis=0)
+    out = []
+    for k in np.argsort(dist, kind="stable")[:limit]:
+        e = eyes[int(which[k])]
+        where = f"{e.side} eye"
+        band = mesh.get(f"band_{e.side}") if hasattr(mesh, "get") else None
+        if band is not None and np.size(band):
+            band = np.asarray(band, dtype=np.int64)
+            pos = {int(v): (r, s) for (r, s), v in np.ndenumerate(band)}
+            corners = [pos[int(v)] for v in F[faces[k]] if int(v) in pos]
+            if corners:
+                r, s = min(corners)
+                where += f" ring {r} spoke {s}"
+            else:                  # outside the band: its nearest spoke on the outer ring
+                s = int(np.linalg.norm(V[band[-1]] - C[k], axis=1).argmin())
+                where += f" outside the band by spoke {s}"
+        else:
+            where += f" {dist[k]:.1f} mm from the loop"
+        out.append(where + " at (" + ", ".join(f"{x:.1f}" for x in C[k]) + ") mm")
+    return out
