@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 CANTHUS_MM = 2.0            # issue 30: canthi within 2 mm of the truth
 VARIANTS = {"": {}, "hooded": {"eye_shape": "hooded"}, "dark": {"skin_tone": 0.8}}
-DEFAULT_CASES = ("7", "3:hooded", "11:dark", "20")
+DEFAULT_CASES = ("7", "3:hooded", "11:dark", "20", "5")
 
 
 def _cpu() -> float:

@@ -199,8 +199,8 @@ def _painted_eye(theta, caruncle_share=0.14, size=1024, seed=0):
 def test_the_fissure_runs_on_through_the_caruncle_to_the_medial_canthus():
     """The eye's colour is learnt from the sclera and iris at the hint, which the pink caruncle is
     not like: the first almond stops at the caruncle, ~3.5 mm short of the medial canthus (the
-    far end of the caruncle, where the lids meet). The second fit learns the corner's pink tissue
-    too (redder than the skin, unlike a lash line or a shadow) and reaches the canthus."""
+    far end of the caruncle, where the lids meet). The second fit learns the corner's tissue too
+    (redder or brighter than the skin, unlike a lash line or a shadow) and reaches the canthus."""
     theta = np.array([-13.0, 0.0, 13.5, 0.5, 6.0, 3.8, 0.45, 0.5, 1.0])
     arr = _textured_sheet()
     tex = _painted_eye(theta)
@@ -209,7 +209,14 @@ def test_the_fissure_runs_on_through_the_caruncle_to_the_medial_canthus():
     first, _ = fs.fit_almond(cm, 1.0)
     assert np.linalg.norm(first[0:2] - theta[0:2]) > 2.5          # stopped at the caruncle
     pink = fs.corner_tissue(cm, first)
-    assert pink.sum() * (0.5 * cm.cell_mm) ** 2 >= fs.POCKET_MIN_AREA_MM2 and (cm.q[pink, 0] < -8.0).all()   # medial only
+    assert pink.sum() * (0.5 * cm.cell_mm) ** 2 >= fs.POCKET_MIN_AREA_MM2
+    # the caruncle, and the sclera past the first almond's ends: all of it eye, none of it skin
+    big = theta.copy()
+    big[4:6] += 0.3
+    big[0] -= 0.3
+    big[2] += 0.3
+    assert fs.points_in_polygon(cm.q[pink], fs.almond_points(big, 256)).all()
+    assert (cm.q[pink, 0] < -8.0).mean() > 0.5                       # most of it medial
     before = cm.llr.copy()
     fit, _ = fs.fit_fissure(cm, 1.0)
     assert np.linalg.norm(fit[0:2] - theta[0:2]) < 1.0, fit
@@ -219,7 +226,7 @@ def test_the_fissure_runs_on_through_the_caruncle_to_the_medial_canthus():
 
 @pytest.mark.slow
 def test_an_eye_without_pink_corners_is_fitted_as_before():
-    """No tissue redder than the skin by the corners: the first almond stands (james: learning the
+    """No tissue redder (or brighter) than the skin by the corners: the first almond stands (james: learning the
     eye anew from inside it moved a corner onto the shadow by the nose), and a fissure painted
     whole is found whole."""
     theta = np.array([-13.0, 0.0, 13.5, 0.5, 6.0, 3.8, 0.45, 0.5, 1.0])
@@ -227,7 +234,8 @@ def test_an_eye_without_pink_corners_is_fitted_as_before():
     tex = _painted_eye(theta, caruncle_share=0.0, size=512)
     cm = fs.eye_colour_map(arr["V"], arr["F"], arr["UV"], arr["FUV"], tex, np.zeros(3), np.array([0.0, 0.0, 1.0]))
     first, _ = fs.fit_almond(cm, 1.0)
-    assert fs.corner_tissue(cm, first).sum() == 0
+    # slivers of sclera past the ends (0.9 mm^2) are too little to learn from
+    assert fs.corner_tissue(cm, first).sum() * (0.5 * cm.cell_mm) ** 2 < fs.POCKET_MIN_AREA_MM2
     fit, _ = fs.fit_fissure(cm, 1.0)
     np.testing.assert_array_equal(fit, first)
     for k in (slice(0, 2), slice(2, 4)):

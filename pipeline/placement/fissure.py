@@ -280,20 +280,28 @@ POCKET_REACH_MM, POCKET_OFF_LINE_MM, POCKET_MIN_AREA_MM2 = 6.0, 3.5, 2.0
 #: How much redder than the skin (robust SDs of the ring's red chromaticity) the corners' tissue
 #: is: the ring's own 99th percentile lies at 2-2.3, and on ``james`` the lid and nasal skin past
 #: the first almond's corners reaches 3-4.5 (at most 0.8 mm^2 of it over 5); the procedural
-#: caruncle and fornix read 7.5-8.5.
-POCKET_MIN_Z = 5.0
+#: caruncle and fornix read 7.5-8.5. On a dark skin that tissue is as red as the skin but
+#: brighter: by 4.2-4.5 robust SDs of the ring's log brightness (floor 0.1) on the procedural dark
+#: head; no texel by ``james``'s corners is brighter than its skin by more than 1.2.
+POCKET_MIN_Z, POCKET_MIN_BRIGHT_Z = 5.0, 3.0
 
 
-def corner_tissue(cmap: ColourMap, theta, min_z=POCKET_MIN_Z):
+def _robust_z(values, ring, floor):
+    mu = np.median(values[ring])
+    return (values - mu) / (1.4826 * np.median(np.abs(values[ring] - mu)) + floor)
+
+
+def corner_tissue(cmap: ColourMap, theta, min_z=POCKET_MIN_Z, min_bright_z=POCKET_MIN_BRIGHT_Z):
     """(k,) bool: the texels of the pink tissue in the fissure's corners (the caruncle medially,
     the fornix laterally) near the corners of a first almond ``theta``: redder than the skin (red
-    chromaticity over ``min_z`` robust SDs above the ring's) and not inside that almond.
+    chromaticity over ``min_z`` robust SDs above the ring's) or brighter (log brightness over
+    ``min_bright_z``), and not inside that almond.
 
     The eye's colour is learnt from the sclera and iris at the hint, which the caruncle is not
     like; the skin's from the ring, which it is not like either, so the first almond ends at the
     caruncle's lateral edge, 3-5 mm short of the medial canthus (the far end of the caruncle,
-    where the lids meet). Redness tells that tissue from the lash line and the shadows by the
-    nose: a darkened skin keeps the skin's chromaticity."""
+    where the lids meet). Redness or brightness tells that tissue from the lash line and the
+    shadows by the nose: they are darker than the skin, with its chromaticity."""
     m, l = np.asarray(theta[0:2], float), np.asarray(theta[2:4], float)
     d = l - m
     L = max(float(np.linalg.norm(d)), 1e-9)
@@ -302,11 +310,10 @@ def corner_tissue(cmap: ColourMap, theta, min_z=POCKET_MIN_Z):
     off = np.abs((cmap.q - m) @ np.array([-u[1], u[0]]))
     reach = POCKET_REACH_MM / L
     ends = (((s > -reach) & (s < 0.3)) | ((s > 0.85) & (s < 1.0 + reach))) & (off < POCKET_OFF_LINE_MM)
-    red = cmap.X[:, 1]
-    mu = np.median(red[cmap.ring])
-    mad = 1.4826 * np.median(np.abs(red[cmap.ring] - mu)) + 0.005
+    unlike = ((_robust_z(cmap.X[:, 1], cmap.ring, 0.005) > min_z)
+              | (_robust_z(cmap.X[:, 0], cmap.ring, 0.1) > min_bright_z))
     inside = points_in_polygon(cmap.q, almond_points(theta, 128))
-    return ends & ((red - mu) / mad > min_z) & ~inside & ~cmap.ring
+    return ends & unlike & ~inside & ~cmap.ring
 
 
 def _skin_z(cmap: ColourMap):
