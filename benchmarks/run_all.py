@@ -70,6 +70,7 @@ BENCHMARKS = (
     Benchmark("bench_holes"),
     Benchmark("bench_eyeball", modest=("--repeats", "1")),
     Benchmark("bench_remove_eyeballs", modest=("--repeats", "1")),
+    Benchmark("bench_textured_only", modest=("--cases", "7", "3:hooded", "11:dark")),
     Benchmark("bench_eyelid_margin", args=("--scans", "{scans}"), needs=("scans",)),
     Benchmark("bench_retopo", modest=("--runs", "1")),
     Benchmark("bench_bake", modest=("--runs", "1")),

@@ -171,3 +171,72 @@ def test_the_cut_follows_the_outline():
     # onto the outline (a move that would turn a face over is halved: a few stop short)
     assert moved > 0 and np.mean(d < 1e-6) > 0.9 and d.max() < 0.1
     assert np.abs(q[:, 0].min() - (-13.0)) < 0.4 and np.abs(q[:, 0].max() - 14.0) < 0.4   # half an edge
+
+
+def _painted_eye(theta, caruncle_share=0.14, size=1024, seed=0):
+    """The textured sheet with an eye painted in its texture (1 mm = 0.01 UV, about 10 px): skin
+    around, the almond ``theta`` white, an iris-coloured disc at its middle, and the medial
+    ``caruncle_share`` of the fissure (along the chord from the medial canthus) pink, as the
+    procedural head and a photograph show the caruncle."""
+    rng = np.random.default_rng(seed)
+    px = (np.arange(size) + 0.5) / size
+    U, W = np.meshgrid(px, px[::-1])                   # row 0 = v 1
+    Q = np.stack([(U - 0.5) * 100.0, (W - 0.5) * 100.0], -1).reshape(-1, 2)   # mm on the sheet
+    img = np.empty((size * size, 3))
+    img[:] = (205.0, 150.0, 125.0)
+    inside = fs.points_in_polygon(Q, fs.almond_points(theta, 256))
+    m, l = theta[0:2], theta[2:4]
+    s = (Q - m) @ (l - m) / float((l - m) @ (l - m))
+    mid = 0.5 * (m + l) + np.array([0.0, 1.0])
+    img[inside] = (236.0, 226.0, 218.0)
+    img[inside & (np.linalg.norm(Q - mid, axis=1) < 5.8)] = (70.0, 95.0, 120.0)
+    img[inside & (s < caruncle_share)] = (200.0, 105.0, 105.0)
+    img += rng.normal(0.0, 4.0, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8).reshape(size, size, 3)
+
+
+@pytest.mark.slow
+def test_the_fissure_runs_on_through_the_caruncle_to_the_medial_canthus():
+    """The eye's colour is learnt from the sclera and iris at the hint, which the pink caruncle is
+    not like: the first almond stops at the caruncle, ~3.5 mm short of the medial canthus (the
+    far end of the caruncle, where the lids meet). The second fit learns the corner's tissue too
+    (redder or brighter than the skin, unlike a lash line or a shadow) and reaches the canthus."""
+    theta = np.array([-13.0, 0.0, 13.5, 0.5, 6.0, 3.8, 0.45, 0.5, 1.0])
+    arr = _textured_sheet()
+    tex = _painted_eye(theta)
+    view = np.array([0.0, 0.0, 1.0])
+    cm = fs.eye_colour_map(arr["V"], arr["F"], arr["UV"], arr["FUV"], tex, np.zeros(3), view)
+    first, _ = fs.fit_almond(cm, 1.0)
+    assert np.linalg.norm(first[0:2] - theta[0:2]) > 2.5          # stopped at the caruncle
+    pink = fs.corner_tissue(cm, first)
+    assert pink.sum() * (0.5 * cm.cell_mm) ** 2 >= fs.POCKET_MIN_AREA_MM2
+    # the caruncle, and the sclera past the first almond's ends: all of it eye, none of it skin
+    big = theta.copy()
+    big[4:6] += 0.3
+    big[0] -= 0.3
+    big[2] += 0.3
+    assert fs.points_in_polygon(cm.q[pink], fs.almond_points(big, 256)).all()
+    assert (cm.q[pink, 0] < -8.0).mean() > 0.5                       # most of it medial
+    before = cm.llr.copy()
+    fit, _ = fs.fit_fissure(cm, 1.0)
+    assert np.linalg.norm(fit[0:2] - theta[0:2]) < 1.0, fit
+    assert np.linalg.norm(fit[2:4] - theta[2:4]) < 1.0, fit
+    np.testing.assert_array_equal(cm.llr, before)           # the caller's map is left as it was
+
+
+@pytest.mark.slow
+def test_an_eye_without_pink_corners_is_fitted_as_before():
+    """No tissue redder (or brighter) than the skin by the corners: the first almond stands (james: learning the
+    eye anew from inside it moved a corner onto the shadow by the nose), and a fissure painted
+    whole is found whole."""
+    theta = np.array([-13.0, 0.0, 13.5, 0.5, 6.0, 3.8, 0.45, 0.5, 1.0])
+    arr = _textured_sheet()
+    tex = _painted_eye(theta, caruncle_share=0.0, size=512)
+    cm = fs.eye_colour_map(arr["V"], arr["F"], arr["UV"], arr["FUV"], tex, np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    first, _ = fs.fit_almond(cm, 1.0)
+    # slivers of sclera past the ends (0.9 mm^2) are too little to learn from
+    assert fs.corner_tissue(cm, first).sum() * (0.5 * cm.cell_mm) ** 2 < fs.POCKET_MIN_AREA_MM2
+    fit, _ = fs.fit_fissure(cm, 1.0)
+    np.testing.assert_array_equal(fit, first)
+    for k in (slice(0, 2), slice(2, 4)):
+        assert np.linalg.norm(fit[k] - theta[k]) < 1.0, fit

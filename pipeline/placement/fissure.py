@@ -14,7 +14,10 @@ opening comes from the photograph. Seen along the face's normal at the eye:
    peak free), placed where the soft inside of the outline gathers the most eye-like texels.
    A model rather than a threshold: the lash line, a shadow by the nose or a highlight on the
    lower lid cannot pull the corners away, and the corners are the lids' meeting points, not
-   the end of a blob.
+   the end of a blob. :func:`fit_fissure`: where the ends of that almond show pink tissue (the
+   caruncle, the lateral fornix: unlike the sclera and iris the eye's colour was learnt from,
+   and redder than any skin), the almond is fitted again with it as eye-like, so the corners
+   are the far ends of the caruncle and the fornix, where the lids meet.
 3. :func:`lift`: outline points onto the scan surface, along the viewing direction.
 
 The iris (:func:`iris_centre`) is the darkest iris-sized disc inside the outline.
@@ -126,13 +129,18 @@ def eye_colour_map(V, F, UV, FUV, texture, hint, view, *, radius_mm=22.0, skin_f
     return relearn(cmap, core)
 
 
-def relearn(cmap: ColourMap, eye) -> ColourMap:
+def relearn(cmap: ColourMap, eye, pocket=None) -> ColourMap:
     """The map with the eye's colour learnt from the texels ``eye`` ((k,) bool, or an outline
-    (p, 2) whose inside they are), the skin's from the ring as before."""
+    (p, 2) whose inside they are), the skin's from the ring as before. ``pocket`` ((k,) bool,
+    optional): the texels of a second eye colour (the corners' pink tissue, :func:`corner_tissue`);
+    a texel then is as eye-like as the likelier of the two."""
     eye = np.asarray(eye)
     if eye.dtype != bool:
         eye = points_in_polygon(cmap.q, eye) & ~cmap.ring
-    llr = np.clip(_gauss_loglik(cmap.X, eye) - _gauss_loglik(cmap.X, cmap.ring), -cmap.clip, cmap.clip)
+    ll_eye = _gauss_loglik(cmap.X, eye)
+    if pocket is not None:
+        ll_eye = np.maximum(ll_eye, _gauss_loglik(cmap.X, pocket))
+    llr = np.clip(ll_eye - _gauss_loglik(cmap.X, cmap.ring), -cmap.clip, cmap.clip)
     n = cmap.llr.shape[0]
     ij = np.clip(((cmap.q + cmap.radius_mm) / cmap.cell_mm).astype(np.int64), 0, n - 1)
     cnt = np.zeros((n, n))
@@ -197,7 +205,7 @@ def _soft_inside(theta, Q, tau):
     return (sig((gu - t) / tau) * sig((t + gl) / tau) * sig(s * span / tau) * sig((1.0 - s) * span / tau))
 
 
-def fit_almond(cmap: ColourMap, lateral_sign: float, init_half_width=None):
+def fit_almond(cmap: ColourMap, lateral_sign: float, init_half_width=None, start=None):
     """The almond (module doc, step 2) fitted to the map.
 
     Parameters
@@ -207,6 +215,8 @@ def fit_almond(cmap: ColourMap, lateral_sign: float, init_half_width=None):
         +1 when the lateral side is toward +x of the map (the subject's left eye), -1 otherwise.
     init_half_width : float, optional
         Start half-width, mm (default: the extent of the eye-like region through the hint).
+    start : (9,) float64, optional
+        An almond to start from instead (a first fit's, :func:`fit_fissure`).
 
     Returns
     -------
@@ -239,7 +249,8 @@ def fit_almond(cmap: ColourMap, lateral_sign: float, init_half_width=None):
         xm = 0.5 * (x0 + x1)
         x0, x1 = xm - init_half_width, xm + init_half_width
     med, lat = (x0, x1) if lateral_sign > 0 else (x1, x0)
-    theta0 = np.array([med, yc, lat, yc, hu0, hl0, 0.5, 0.5, 1.0])
+    theta0 = np.array([med, yc, lat, yc, hu0, hl0, 0.5, 0.5, 1.0]) if start is None \
+        else np.asarray(start, float)
     wm, ws = FISSURE_WIDTH_MM, FISSURE_WIDTH_SIGMA_MM
     tau = 1.5 * cmap.cell_mm
     cell_area = cmap.cell_mm ** 2
@@ -260,6 +271,85 @@ def fit_almond(cmap: ColourMap, lateral_sign: float, init_half_width=None):
         if best is None or res.fun < best.fun:
             best = res
     return best.x, -float(best.fun)
+
+
+#: How far past each fitted corner, along the canthal line, the corners' tissue is looked for
+#: (mm; the caruncle is 3-5 mm long), how far off that line (mm), and how little of it (mm^2 of
+#: surface; a procedural caruncle shows 20-40) is no tissue to learn a colour from.
+POCKET_REACH_MM, POCKET_OFF_LINE_MM, POCKET_MIN_AREA_MM2 = 6.0, 3.5, 2.0
+#: How much redder than the skin (robust SDs of the ring's red chromaticity) the corners' tissue
+#: is: the ring's own 99th percentile lies at 2-2.3, and on ``james`` the lid and nasal skin past
+#: the first almond's corners reaches 3-4.5 (at most 0.8 mm^2 of it over 5); the procedural
+#: caruncle and fornix read 7.5-8.5. On a dark skin that tissue is as red as the skin but
+#: brighter: by 4.2-4.5 robust SDs of the ring's log brightness (floor 0.1) on the procedural dark
+#: head; no texel by ``james``'s corners is brighter than its skin by more than 1.2.
+POCKET_MIN_Z, POCKET_MIN_BRIGHT_Z = 5.0, 3.0
+
+
+def _robust_z(values, ring, floor):
+    mu = np.median(values[ring])
+    return (values - mu) / (1.4826 * np.median(np.abs(values[ring] - mu)) + floor)
+
+
+def corner_tissue(cmap: ColourMap, theta, min_z=POCKET_MIN_Z, min_bright_z=POCKET_MIN_BRIGHT_Z):
+    """(k,) bool: the texels of the pink tissue in the fissure's corners (the caruncle medially,
+    the fornix laterally) near the corners of a first almond ``theta``: redder than the skin (red
+    chromaticity over ``min_z`` robust SDs above the ring's) or brighter (log brightness over
+    ``min_bright_z``), and not inside that almond.
+
+    The eye's colour is learnt from the sclera and iris at the hint, which the caruncle is not
+    like; the skin's from the ring, which it is not like either, so the first almond ends at the
+    caruncle's lateral edge, 3-5 mm short of the medial canthus (the far end of the caruncle,
+    where the lids meet). Redness or brightness tells that tissue from the lash line and the
+    shadows by the nose: they are darker than the skin, with its chromaticity."""
+    m, l = np.asarray(theta[0:2], float), np.asarray(theta[2:4], float)
+    d = l - m
+    L = max(float(np.linalg.norm(d)), 1e-9)
+    u = d / L
+    s = (cmap.q - m) @ u / L
+    off = np.abs((cmap.q - m) @ np.array([-u[1], u[0]]))
+    reach = POCKET_REACH_MM / L
+    ends = (((s > -reach) & (s < 0.3)) | ((s > 0.85) & (s < 1.0 + reach))) & (off < POCKET_OFF_LINE_MM)
+    unlike = ((_robust_z(cmap.X[:, 1], cmap.ring, 0.005) > min_z)
+              | (_robust_z(cmap.X[:, 0], cmap.ring, 0.1) > min_bright_z))
+    inside = points_in_polygon(cmap.q, almond_points(theta, 128))
+    return ends & unlike & ~inside & ~cmap.ring
+
+
+def _skin_z(cmap: ColourMap):
+    """(k,) robust z-score of each texel's colour features from the ring's (the skin), as
+    :func:`pipeline.placement.texels.colour_z` on the map's log brightness (floor 0.1: a tenth
+    brighter or darker) and red and blue chromaticity (floor 0.005)."""
+    mu = np.median(cmap.X[cmap.ring], axis=0)
+    mad = 1.4826 * np.median(np.abs(cmap.X[cmap.ring] - mu), axis=0) + np.array([0.1, 0.005, 0.005])
+    return np.sqrt((((cmap.X - mu) / mad) ** 2).sum(axis=1))
+
+
+def fit_fissure(cmap: ColourMap, lateral_sign: float, min_contrast=3.0):
+    """The almond (:func:`fit_almond`); where its ends show the corners' pink tissue
+    (:func:`corner_tissue`, at least ``POCKET_MIN_AREA_MM2`` of it), fitted again from there with
+    the eye's colours learnt anew: from the texels inside the first almond that differ from the
+    skin by ``min_contrast`` (the sclera as well as the iris the hint sits on) and from that
+    tissue, so the outline runs on through the caruncle to the canthi. Returns ``(theta,
+    score)``.
+
+    Without such tissue the first almond stands: on ``james`` (no corner redder than its skin by
+    ``POCKET_MIN_Z``) learning the eye anew from inside its first almond, lashes and the shadow by
+    the nose included, moved the right eye's medial corner 1.5 mm on past its annotation."""
+    theta, score = fit_almond(cmap, lateral_sign)
+    pocket = corner_tissue(cmap, theta)
+    # the map's texels sample the surface every half cell (surface_texels' step)
+    if pocket.sum() * (0.5 * cmap.cell_mm) ** 2 < POCKET_MIN_AREA_MM2:
+        return theta, score
+    eye = points_in_polygon(cmap.q, almond_points(theta, 128)) & ~cmap.ring & (_skin_z(cmap) > min_contrast)
+    if eye.sum() < 50:
+        return theta, score
+    saved = cmap.llr
+    relearn(cmap, eye, pocket)
+    try:
+        return fit_almond(cmap, lateral_sign, start=theta)
+    finally:
+        cmap.llr = saved        # the caller's map stays the first one
 
 
 def iris_centre(cmap: ColourMap, outline, radius_mm=IRIS_RADIUS_MM):

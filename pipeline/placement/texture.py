@@ -198,7 +198,7 @@ def fit_texture(mesh: EyeMesh, mesh_arrays, texture, hint, side, st: PlacementSe
     if cmap is None:
         raise NoEyeInTexture(source, f"{side} eye: no eyeball surface found near the hint "
                                 f"{np.round(hint, 2).tolist()} (geometry and texture)")
-    theta, _ = fs.fit_almond(cmap, 1.0 if side == "left" else -1.0)
+    theta, _ = fs.fit_fissure(cmap, 1.0 if side == "left" else -1.0)
     Q = fs.almond_points(theta, n_outline)
     P = fs.lift(V, F, Q, hint, view, cmap.basis)
     lateral = n_outline // 2
