@@ -361,3 +361,63 @@ def test_stage_cli(tmp_path):
     metrics = json.loads((tmp_path / "b.json").read_text())
     assert metrics["reconstruction"]["mean_error_removed"] > 0.7
     assert metrics["missed_texel_fraction"] < 0.05
+
+
+def test_faces_touching_box_finds_a_face_across_the_box_without_a_corner_in_it():
+    from pipeline.bake.bake import faces_near_box, faces_touching_box
+
+    V = np.array([[-10, -10, 0], [10, -10, 0], [0, 10, 0],            # spans the box, no corner inside
+                  [20, 20, 20], [21, 20, 20], [20, 21, 20],           # far away
+                  [0.5, 0.5, 0.5], [30, 0, 0], [0, 30, 0]], float)    # one corner inside
+    F = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+    lo, hi = np.full(3, -1.0), np.full(3, 1.0)
+    assert faces_touching_box(V, F, lo, hi).tolist() == [0, 2]
+    assert faces_near_box(V, F, lo, hi).tolist() == [2]
+
+
+def test_closest_distances_from_the_faces_round_the_points_equal_the_whole_meshs():
+    """Same bits as libigl on the whole scan, whether the first search box holds the answers or
+    has to grow (a point 6 mm off the scan, past the 1 mm reach)."""
+    from pipeline.bake.bake import closest_distances, loop_gaps
+    from pipeline.geometry import mesh_checks as mc
+
+    Vd, Fd = bumpy_sphere(5)
+    rng = np.random.default_rng(3)
+    n = rng.standard_normal((40, 3))
+    P = n / np.linalg.norm(n, axis=1, keepdims=True) * (R + rng.uniform(-0.8, 0.8, (40, 1)))
+    P[:3] = [[0, 0, R + 6.0], [0, 0, 0.0], [R, 0, 0]]                 # off the scan, the centre, on it
+    d = closest_distances(P, Vd, Fd, reach=1.0)
+    assert np.array_equal(d, mc.closest_points(P, Vd, Fd)[0])
+    assert d[0] > 5.0 and d[1] > R - 1
+    # the loop gaps come back per loop, in the loops' order
+    V = P[:10]
+    gaps = loop_gaps(V, [np.array([3, 1, 2]), np.array([0, 9])], Vd, Fd)
+    assert [len(g) for g in gaps] == [3, 2]
+    assert np.array_equal(np.concatenate(gaps), mc.closest_points(V[[3, 1, 2, 0, 9]], Vd, Fd)[0])
+
+
+def test_chunked_cast_and_colour_match_one_batch(monkeypatch):
+    """The per-texel steps run in pieces of raycast.CHUNK texels, on two threads: the same bits as
+    one piece (each texel's rays and colour are its own), with pieces that do not divide the count."""
+    import pipeline.bake.raycast as rc
+    from pipeline.bake.bake import dense_scene
+
+    Vd, Fd = bumpy_sphere(4)
+    VC = (np.abs(Vd) * 10 % 255).astype(np.uint8)
+    V, F = smooth_sphere(2)
+    s = BakeSettings(resolution=128, falloff_mm=0.0, max_distance_mm=1.0)
+    UV, FUV = unwrap(V, F, s.resolution, s.uv_padding_texels)
+    scene = dense_scene(V, {"V": Vd, "F": Fd}, s)
+    P = V[F].mean(axis=1) * 1.01
+    N = P / np.linalg.norm(P, axis=1, keepdims=True)
+    ref = bake_maps(V, F, {}, {"V": Vd, "F": Fd, "VC": VC}, None, s, UV=UV, FUV=FUV)
+    one = rc.cast_both_ways(scene, P, N, 1.0)
+    monkeypatch.setattr(rc, "CHUNK", 97)
+    monkeypatch.setattr(rc.in_chunks, "__defaults__", (97,))
+    calls = []
+    rc.in_chunks(300, lambda a, b: calls.append((a, b)))
+    assert sorted(calls) == [(0, 97), (97, 194), (194, 291), (291, 300)]
+    for x, y in zip(rc.cast_both_ways(scene, P, N, 1.0), one):
+        assert np.array_equal(x, y, equal_nan=True)
+    small = bake_maps(V, F, {}, {"V": Vd, "F": Fd, "VC": VC}, None, s, UV=UV, FUV=FUV)
+    assert np.array_equal(small.displacement, ref.displacement) and np.array_equal(small.color, ref.color)
