@@ -293,9 +293,9 @@ def test_falloff_widens_round_a_loop_vertex_off_the_scan():
 
 
 def test_stage_steps_side_by_side_give_the_algorithms_bytes(tmp_path, monkeypatch):
-    """bake_scan runs bake_maps' steps with the independent ones in forked children
-    (pipeline/fork.py); switched off (EYERIG_SERIAL=1) every file it writes is the same bytes,
-    and its maps are bake_maps' own."""
+    """bake_scan runs bake_maps' steps with the independent ones on threads side by side;
+    switched off (EYERIG_SERIAL=1) every file it writes is the same bytes, and its maps are
+    bake_maps' own."""
     from pipeline.bake.build import bake_scan
 
     Vd, Fd = bumpy_sphere(5)

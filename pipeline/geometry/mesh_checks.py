@@ -6,6 +6,7 @@ Heavy helpers (libigl) are imported lazily.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -160,6 +161,7 @@ def check_mesh(V, F, area_tol=1e-10) -> MeshReport:
 
 
 _TREES: list = []          # small cache of libigl AABB trees: [(V copy, F copy, tree, last queries)]
+_TREES_LOCK = threading.Lock()
 
 
 def _same_bits(a, b) -> bool:
@@ -178,19 +180,21 @@ def _same_bits(a, b) -> bool:
 def _tree(V, F):
     """libigl AABB tree of (V, F), cached by content (a few trees are kept, each with its own
     copy of the arrays it was built on: a byte comparison with them costs a fraction of hashing,
-    and the repairs look the same scan up dozens of times)."""
+    and the repairs look the same scan up dozens of times). The cache is locked: threads may
+    look trees up side by side (the bake's steps); a tree itself is only read by queries."""
     import igl
 
-    for v, f, t, q in _TREES:
-        if _same_bits(V, v) and _same_bits(F, f):
-            return v, f, t, q
-    V, F = V.copy(), F.copy()
-    V.flags.writeable = F.flags.writeable = False
-    t = igl.AABB()
-    t.init(V, F)
-    _TREES.insert(0, (V, F, t, {}))
-    del _TREES[4:]
-    return V, F, t, _TREES[0][3]
+    with _TREES_LOCK:
+        for v, f, t, q in _TREES:
+            if _same_bits(V, v) and _same_bits(F, f):
+                return v, f, t, q
+        V, F = V.copy(), F.copy()
+        V.flags.writeable = F.flags.writeable = False
+        t = igl.AABB()
+        t.init(V, F)
+        _TREES.insert(0, (V, F, t, {}))
+        del _TREES[4:]
+        return V, F, t, _TREES[0][3]
 
 
 # a mesh's vertices are asked about again; the bake's one-off queries of 0.2-1M texels or samples
