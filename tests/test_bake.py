@@ -421,3 +421,25 @@ def test_chunked_cast_and_colour_match_one_batch(monkeypatch):
         assert np.array_equal(x, y, equal_nan=True)
     small = bake_maps(V, F, {}, {"V": Vd, "F": Fd, "VC": VC}, None, s, UV=UV, FUV=FUV)
     assert np.array_equal(small.displacement, ref.displacement) and np.array_equal(small.color, ref.color)
+
+
+@pytest.mark.parametrize("iterations", [1, 3, 6, 40])
+def test_padding_on_the_masks_box_is_the_whole_images(iterations):
+    """dilation_sources transforms only the mask's bounding box grown by the padding: the same
+    padded texels and the same source of each (ties between equally near texels included) as
+    scipy's transform of the whole image, with the box at a border or not."""
+    from scipy import ndimage
+
+    from pipeline.bake.uv import dilation_sources
+
+    rng = np.random.default_rng(iterations)
+    masks = [np.pad(rng.random((60, 50)) > 0.9, ((30, 5), (0, 70))),      # sparse: many ties
+             np.pad(rng.random((40, 40)) > 0.3, ((0, 0), (90, 2))),
+             np.zeros((20, 30), bool)]
+    masks[2][7, 29] = True
+    for mask in masks:
+        grow, sy, sx = dilation_sources(mask, iterations)
+        dist, (iy, ix) = ndimage.distance_transform_edt(~mask, return_indices=True)
+        full = ~mask & (dist <= iterations)
+        assert np.array_equal(grow, full) and grow.any()
+        assert np.array_equal(sy, iy[full]) and np.array_equal(sx, ix[full])

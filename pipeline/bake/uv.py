@@ -273,9 +273,19 @@ def dilation_sources(mask, iterations):
     if not mask.any() or iterations <= 0:
         none = np.zeros(0, dtype=np.int64)
         return np.zeros_like(mask), none, none
-    dist, (iy, ix) = ndimage.distance_transform_edt(~mask, return_indices=True)
-    grow = (~mask) & (dist <= iterations)
-    return grow, iy[grow], ix[grow]
+    # the transform runs on the mask's bounding box grown by the padding (the atlas leaves a
+    # third of a 2048 map's columns empty): texels farther out are never padded, and texels
+    # outside the mask hold no feature, so every row's and column's candidates, and so the
+    # nearest texel chosen (ties included), are those of the whole image
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    r0, r1 = max(rows[0] - iterations - 1, 0), min(rows[-1] + iterations + 2, mask.shape[0])
+    c0, c1 = max(cols[0] - iterations - 1, 0), min(cols[-1] + iterations + 2, mask.shape[1])
+    box = mask[r0:r1, c0:c1]
+    dist, (iy, ix) = ndimage.distance_transform_edt(~box, return_indices=True)
+    grow_box = (~box) & (dist <= iterations)
+    grow = np.zeros_like(mask)
+    grow[r0:r1, c0:c1] = grow_box
+    return grow, iy[grow_box] + r0, ix[grow_box] + c0
 
 
 def dilate(img, mask, iterations):
