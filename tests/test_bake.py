@@ -443,3 +443,47 @@ def test_padding_on_the_masks_box_is_the_whole_images(iterations):
         full = ~mask & (dist <= iterations)
         assert np.array_equal(grow, full) and grow.any()
         assert np.array_equal(sy, iy[full]) and np.array_equal(sx, ix[full])
+
+
+def _rasterize_by_boxes(UV, FUV, res):
+    """Reference: every texel centre of each triangle's bounding box tested, triangle by triangle
+    (the first triangle keeps a texel), sorted row-major."""
+    hits = {}
+    for f, tri in enumerate(np.asarray(UV, float)[FUV]):
+        X, Y = tri[:, 0] * res - 0.5, (1.0 - tri[:, 1]) * res - 0.5
+        (ax, bx, cx), (ay, by, cy) = X, Y
+        det = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
+        if abs(det) <= 1e-14:
+            continue
+        inv = 1.0 / det                                            # as rasterize rounds them
+        a0, b0 = (by - cy) * inv, (cx - bx) * inv
+        a1, b1 = (cy - ay) * inv, (ax - cx) * inv
+        c0, c1 = -(a0 * cx + b0 * cy), -(a1 * cx + b1 * cy)
+        for y in range(max(int(np.ceil(Y.min())), 0), min(int(np.floor(Y.max())), res - 1) + 1):
+            for x in range(max(int(np.ceil(X.min())), 0), min(int(np.floor(X.max())), res - 1) + 1):
+                l0, l1 = a0 * x + b0 * y + c0, a1 * x + b1 * y + c1
+                if min(l0, l1, 1.0 - l0 - l1) >= -1e-9:
+                    hits.setdefault((y, x), f)
+    keys = sorted(hits)
+    return [k[0] for k in keys], [k[1] for k in keys], [hits[k] for k in keys]
+
+
+def test_rasterize_row_spans_find_every_texel_of_the_bounding_boxes():
+    """rasterize tests only the columns each triangle's row can reach: the texels (and which
+    triangle keeps a shared one) of testing the whole bounding boxes, slivers, edges through
+    texel centres and near-horizontal edges included."""
+    rng = np.random.default_rng(5)
+    k, res = 120, 48
+    UV = rng.random((3 * k, 2)) * rng.choice([0.05, 0.3], (3 * k, 1))
+    UV[0::3] += rng.random((k, 2)) * 0.7
+    UV[1::3], UV[2::3] = UV[0::3] + (UV[1::3] - 0.1), UV[0::3] + (UV[2::3] - 0.1)
+    UV[3:30:3, 1] = UV[4:31:3, 1] + 1e-13                         # near-horizontal edges
+    UV[30:60] = (np.round(UV[30:60] * res - 0.5) + 0.5) / res      # corners on texel centres
+    UV[61:90:3] = UV[60:90:3] + 1e-9 * rng.standard_normal((10, 2))   # slivers
+    UV = np.clip(UV, 0.0, 1.0)
+    FUV = np.arange(3 * k).reshape(-1, 3)
+    FUV = np.concatenate([FUV, FUV[::-1]])                        # every texel shared: first wins
+    rows, cols, face, bary = rasterize(UV, FUV, res, res)
+    ref = _rasterize_by_boxes(UV, FUV, res)
+    assert len(rows) > 500
+    assert rows.tolist() == ref[0] and cols.tolist() == ref[1] and face.tolist() == ref[2]
