@@ -487,3 +487,17 @@ def test_rasterize_row_spans_find_every_texel_of_the_bounding_boxes():
     ref = _rasterize_by_boxes(UV, FUV, res)
     assert len(rows) > 500
     assert rows.tolist() == ref[0] and cols.tolist() == ref[1] and face.tolist() == ref[2]
+
+
+def test_preview_in_pieces_is_the_float64_formula():
+    """preview_16bit quantises a piece at a time: the same pixels as the whole float64 image's
+    round((a - lo) / scale), lo and scale from the masked texels, over several pieces."""
+    rng = np.random.default_rng(2)
+    a = (rng.standard_normal((700, 600)) * 0.4).astype(np.float32)      # 420k px: two pieces
+    mask = rng.random(a.shape) > 0.3
+    q, scale, offset = preview_16bit(a, mask)
+    a64 = a.astype(np.float64)
+    lo, hi = a64[mask].min(), a64[mask].max()
+    assert offset == lo and scale == (hi - lo) / 65535.0
+    assert np.array_equal(q, np.clip(np.round((a64 - lo) / scale), 0, 65535).astype(np.uint16))
+    assert q[mask].min() == 0 and q[mask].max() == 65535
