@@ -293,9 +293,9 @@ def test_falloff_widens_round_a_loop_vertex_off_the_scan():
 
 
 def test_stage_steps_side_by_side_give_the_algorithms_bytes(tmp_path, monkeypatch):
-    """bake_scan runs bake_maps' steps with the independent ones in forked children
-    (pipeline/fork.py); switched off (EYERIG_SERIAL=1) every file it writes is the same bytes,
-    and its maps are bake_maps' own."""
+    """bake_scan runs bake_maps' steps with the independent ones on threads side by side;
+    switched off (EYERIG_SERIAL=1) every file it writes is the same bytes, and its maps are
+    bake_maps' own."""
     from pipeline.bake.build import bake_scan
 
     Vd, Fd = bumpy_sphere(5)
@@ -361,3 +361,143 @@ def test_stage_cli(tmp_path):
     metrics = json.loads((tmp_path / "b.json").read_text())
     assert metrics["reconstruction"]["mean_error_removed"] > 0.7
     assert metrics["missed_texel_fraction"] < 0.05
+
+
+def test_faces_touching_box_finds_a_face_across_the_box_without_a_corner_in_it():
+    from pipeline.bake.bake import faces_near_box, faces_touching_box
+
+    V = np.array([[-10, -10, 0], [10, -10, 0], [0, 10, 0],            # spans the box, no corner inside
+                  [20, 20, 20], [21, 20, 20], [20, 21, 20],           # far away
+                  [0.5, 0.5, 0.5], [30, 0, 0], [0, 30, 0]], float)    # one corner inside
+    F = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+    lo, hi = np.full(3, -1.0), np.full(3, 1.0)
+    assert faces_touching_box(V, F, lo, hi).tolist() == [0, 2]
+    assert faces_near_box(V, F, lo, hi).tolist() == [2]
+
+
+def test_closest_distances_from_the_faces_round_the_points_equal_the_whole_meshs():
+    """Same bits as libigl on the whole scan, whether the first search box holds the answers or
+    has to grow (a point 6 mm off the scan, past the 1 mm reach)."""
+    from pipeline.bake.bake import closest_distances, loop_gaps
+    from pipeline.geometry import mesh_checks as mc
+
+    Vd, Fd = bumpy_sphere(5)
+    rng = np.random.default_rng(3)
+    n = rng.standard_normal((40, 3))
+    P = n / np.linalg.norm(n, axis=1, keepdims=True) * (R + rng.uniform(-0.8, 0.8, (40, 1)))
+    P[:3] = [[0, 0, R + 6.0], [0, 0, 0.0], [R, 0, 0]]                 # off the scan, the centre, on it
+    d = closest_distances(P, Vd, Fd, reach=1.0)
+    assert np.array_equal(d, mc.closest_points(P, Vd, Fd)[0])
+    assert d[0] > 5.0 and d[1] > R - 1
+    # the loop gaps come back per loop, in the loops' order
+    V = P[:10]
+    gaps = loop_gaps(V, [np.array([3, 1, 2]), np.array([0, 9])], Vd, Fd)
+    assert [len(g) for g in gaps] == [3, 2]
+    assert np.array_equal(np.concatenate(gaps), mc.closest_points(V[[3, 1, 2, 0, 9]], Vd, Fd)[0])
+
+
+def test_chunked_cast_and_colour_match_one_batch(monkeypatch):
+    """The per-texel steps run in pieces of raycast.CHUNK texels, on two threads: the same bits as
+    one piece (each texel's rays and colour are its own), with pieces that do not divide the count."""
+    import pipeline.bake.raycast as rc
+    from pipeline.bake.bake import dense_scene
+
+    Vd, Fd = bumpy_sphere(4)
+    VC = (np.abs(Vd) * 10 % 255).astype(np.uint8)
+    V, F = smooth_sphere(2)
+    s = BakeSettings(resolution=128, falloff_mm=0.0, max_distance_mm=1.0)
+    UV, FUV = unwrap(V, F, s.resolution, s.uv_padding_texels)
+    scene = dense_scene(V, {"V": Vd, "F": Fd}, s)
+    P = V[F].mean(axis=1) * 1.01
+    N = P / np.linalg.norm(P, axis=1, keepdims=True)
+    ref = bake_maps(V, F, {}, {"V": Vd, "F": Fd, "VC": VC}, None, s, UV=UV, FUV=FUV)
+    one = rc.cast_both_ways(scene, P, N, 1.0)
+    monkeypatch.setattr(rc, "CHUNK", 97)
+    monkeypatch.setattr(rc.in_chunks, "__defaults__", (97,))
+    calls = []
+    rc.in_chunks(300, lambda a, b: calls.append((a, b)))
+    assert sorted(calls) == [(0, 97), (97, 194), (194, 291), (291, 300)]
+    for x, y in zip(rc.cast_both_ways(scene, P, N, 1.0), one):
+        assert np.array_equal(x, y, equal_nan=True)
+    small = bake_maps(V, F, {}, {"V": Vd, "F": Fd, "VC": VC}, None, s, UV=UV, FUV=FUV)
+    assert np.array_equal(small.displacement, ref.displacement) and np.array_equal(small.color, ref.color)
+
+
+@pytest.mark.parametrize("iterations", [1, 3, 6, 40])
+def test_padding_on_the_masks_box_is_the_whole_images(iterations):
+    """dilation_sources transforms only the mask's bounding box grown by the padding: the same
+    padded texels and the same source of each (ties between equally near texels included) as
+    scipy's transform of the whole image, with the box at a border or not."""
+    from scipy import ndimage
+
+    from pipeline.bake.uv import dilation_sources
+
+    rng = np.random.default_rng(iterations)
+    masks = [np.pad(rng.random((60, 50)) > 0.9, ((30, 5), (0, 70))),      # sparse: many ties
+             np.pad(rng.random((40, 40)) > 0.3, ((0, 0), (90, 2))),
+             np.zeros((20, 30), bool)]
+    masks[2][7, 29] = True
+    for mask in masks:
+        grow, sy, sx = dilation_sources(mask, iterations)
+        dist, (iy, ix) = ndimage.distance_transform_edt(~mask, return_indices=True)
+        full = ~mask & (dist <= iterations)
+        assert np.array_equal(grow, full) and grow.any()
+        assert np.array_equal(sy, iy[full]) and np.array_equal(sx, ix[full])
+
+
+def _rasterize_by_boxes(UV, FUV, res):
+    """Reference: every texel centre of each triangle's bounding box tested, triangle by triangle
+    (the first triangle keeps a texel), sorted row-major."""
+    hits = {}
+    for f, tri in enumerate(np.asarray(UV, float)[FUV]):
+        X, Y = tri[:, 0] * res - 0.5, (1.0 - tri[:, 1]) * res - 0.5
+        (ax, bx, cx), (ay, by, cy) = X, Y
+        det = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
+        if abs(det) <= 1e-14:
+            continue
+        inv = 1.0 / det                                            # as rasterize rounds them
+        a0, b0 = (by - cy) * inv, (cx - bx) * inv
+        a1, b1 = (cy - ay) * inv, (ax - cx) * inv
+        c0, c1 = -(a0 * cx + b0 * cy), -(a1 * cx + b1 * cy)
+        for y in range(max(int(np.ceil(Y.min())), 0), min(int(np.floor(Y.max())), res - 1) + 1):
+            for x in range(max(int(np.ceil(X.min())), 0), min(int(np.floor(X.max())), res - 1) + 1):
+                l0, l1 = a0 * x + b0 * y + c0, a1 * x + b1 * y + c1
+                if min(l0, l1, 1.0 - l0 - l1) >= -1e-9:
+                    hits.setdefault((y, x), f)
+    keys = sorted(hits)
+    return [k[0] for k in keys], [k[1] for k in keys], [hits[k] for k in keys]
+
+
+def test_rasterize_row_spans_find_every_texel_of_the_bounding_boxes():
+    """rasterize tests only the columns each triangle's row can reach: the texels (and which
+    triangle keeps a shared one) of testing the whole bounding boxes, slivers, edges through
+    texel centres and near-horizontal edges included."""
+    rng = np.random.default_rng(5)
+    k, res = 120, 48
+    UV = rng.random((3 * k, 2)) * rng.choice([0.05, 0.3], (3 * k, 1))
+    UV[0::3] += rng.random((k, 2)) * 0.7
+    UV[1::3], UV[2::3] = UV[0::3] + (UV[1::3] - 0.1), UV[0::3] + (UV[2::3] - 0.1)
+    UV[3:30:3, 1] = UV[4:31:3, 1] + 1e-13                         # near-horizontal edges
+    UV[30:60] = (np.round(UV[30:60] * res - 0.5) + 0.5) / res      # corners on texel centres
+    UV[61:90:3] = UV[60:90:3] + 1e-9 * rng.standard_normal((10, 2))   # slivers
+    UV = np.clip(UV, 0.0, 1.0)
+    FUV = np.arange(3 * k).reshape(-1, 3)
+    FUV = np.concatenate([FUV, FUV[::-1]])                        # every texel shared: first wins
+    rows, cols, face, bary = rasterize(UV, FUV, res, res)
+    ref = _rasterize_by_boxes(UV, FUV, res)
+    assert len(rows) > 500
+    assert rows.tolist() == ref[0] and cols.tolist() == ref[1] and face.tolist() == ref[2]
+
+
+def test_preview_in_pieces_is_the_float64_formula():
+    """preview_16bit quantises a piece at a time: the same pixels as the whole float64 image's
+    round((a - lo) / scale), lo and scale from the masked texels, over several pieces."""
+    rng = np.random.default_rng(2)
+    a = (rng.standard_normal((700, 600)) * 0.4).astype(np.float32)      # 420k px: two pieces
+    mask = rng.random(a.shape) > 0.3
+    q, scale, offset = preview_16bit(a, mask)
+    a64 = a.astype(np.float64)
+    lo, hi = a64[mask].min(), a64[mask].max()
+    assert offset == lo and scale == (hi - lo) / 65535.0
+    assert np.array_equal(q, np.clip(np.round((a64 - lo) / scale), 0, 65535).astype(np.uint16))
+    assert q[mask].min() == 0 and q[mask].max() == 65535

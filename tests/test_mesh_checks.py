@@ -50,3 +50,27 @@ def test_same_bits_compares_every_byte():
     d[6] = 9
     assert _same_bits(c, c.copy()) and not _same_bits(c, d)
     assert not _same_bits(np.zeros(3, dtype=np.int64), np.zeros(3))
+
+
+def test_many_points_asked_in_morton_order_get_libigls_own_answers():
+    """Over _SORT_FROM points go to libigl along a Morton curve and come back in the caller's
+    order: the bits libigl gives each point asked in the caller's order (a NaN point included)."""
+    import igl
+
+    V, F = _grid(40)
+    rng = np.random.default_rng(1)
+    P = rng.random((mc._SORT_FROM + 500, 3)) * [1.2, 1.2, 0.6] - [0.1, 0.1, 0.3]
+    P[7] = [np.nan, 0.5, 0.5]
+    order = mc._morton_order(P)
+    assert sorted(order.tolist()) == list(range(len(P))) and not np.array_equal(order, np.arange(len(P)))
+    # neighbours in the order are near in space: far shorter steps than the random order's
+    step = np.linalg.norm(np.diff(P[order[order != 7]], axis=0), axis=1).mean()
+    assert step < 0.25 * np.linalg.norm(np.diff(P[np.arange(len(P)) != 7], axis=0), axis=1).mean()
+    tree = igl.AABB()
+    tree.init(V, F)
+    sq, fi, C = tree.squared_distance(V, F, P)
+    mc._TREES.clear()
+    d, f, c = mc.closest_points(P, V, F)
+    ok = np.arange(len(P)) != 7
+    assert np.sqrt(np.maximum(sq[ok], 0)).tobytes() == d[ok].tobytes()
+    assert np.asarray(fi)[ok].tobytes() == f[ok].tobytes() and np.asarray(C)[ok].tobytes() == c[ok].tobytes()

@@ -28,7 +28,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from pipeline.bake.raycast import DenseScene, cast_both_ways
+from pipeline.bake.raycast import DenseScene, cast_both_ways, in_chunks
 from pipeline.bake.uv import UnwrapError, conformal_unwrap, dilation_sources, rasterize, sample_bilinear, unwrap
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.ramps import smoothstep
@@ -154,10 +154,16 @@ def atlas_unwrap(V, F, loops, s: BakeSettings):
 def atlas_texels(V, F, UV, FUV, res: int) -> Texels:
     """Rasterize the atlas: every texel's point and normal on the flat low-poly surface."""
     rows, cols, face, bary = rasterize(UV, FUV, res, res)
-    VN = mc.vertex_normals(V, F)
-    PN = _interpolate(bary, np.hstack([V, VN]), F[face])     # position and normal in one pass
+    X = np.hstack([V, mc.vertex_normals(V, F)])
+    PN = np.empty((len(face), 6))
+
+    def part(a, b):            # position and normal in one pass, a piece at a time (CHUNK)
+        pn = _interpolate(bary[a:b], X, F[face[a:b]])
+        pn[:, 3:] /= np.maximum(np.linalg.norm(pn[:, 3:], axis=1, keepdims=True), 1e-300)
+        PN[a:b] = pn
+
+    in_chunks(len(face), part)
     P, N = PN[:, :3], PN[:, 3:]
-    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
     mask = np.zeros((res, res), dtype=bool)
     mask[rows, cols] = True
     return Texels(rows, cols, face, bary, P, N, mask)
@@ -187,9 +193,55 @@ def texel_weights(V, F, tx: Texels, loops, s: BakeSettings, gaps=None):
             dilation_sources(tx.mask, s.padding_texels))
 
 
-def loop_gaps(V, loops, dense_V, dense_F):
-    """Each loop vertex's distance (mm) to the dense scan: a list of (len(loop),) arrays."""
-    return [mc.closest_points(V[np.asarray(l, dtype=np.int64)], dense_V, dense_F)[0] for l in loops]
+def loop_gaps(V, loops, dense_V, dense_F, reach=3.0):
+    """Each loop vertex's distance (mm) to the dense scan: a list of (len(loop),) arrays.
+
+    The distances are :func:`closest_distances`' (the scan's faces round the loops only: the same
+    values as against the whole scan, whose AABB tree of 1.4M faces cost 1.2 of bake's 8.6 CPU-s)."""
+    loops = [np.asarray(l, dtype=np.int64) for l in loops]
+    if not loops:
+        return []
+    d = closest_distances(V[np.concatenate(loops)], dense_V, dense_F, reach)
+    return np.split(d, np.cumsum([len(l) for l in loops])[:-1])
+
+
+def faces_touching_box(V, F, lo, hi):
+    """Indices of faces whose bounding box meets the axis-aligned box [lo, hi]: every face with a
+    point in the box is one (unlike :func:`faces_near_box`, which asks for a vertex inside)."""
+    V = np.asarray(V)
+    code = np.zeros(len(V), dtype=np.uint8)          # bit 2a: below the box on axis a, 2a+1: above
+    for a in range(3):
+        code |= (V[:, a] < lo[a]).view(np.uint8) << (2 * a)
+        code |= (V[:, a] > hi[a]).view(np.uint8) << (2 * a + 1)
+    c = code[np.asarray(F)]
+    # a face misses the box exactly when all three corners lie beyond the same side of it
+    return np.flatnonzero((c[:, 0] & c[:, 1] & c[:, 2]) == 0)
+
+
+def closest_distances(P, V, F, reach=1.0):
+    """Distances (k,) from points ``P`` (k, 3) to the mesh (V, F), the same values as
+    ``mc.closest_points(P, V, F)[0]``, from the faces round the points only.
+
+    The faces whose bounding box meets the points' box grown by ``reach`` are searched; every
+    other face lies more than ``reach`` from every point (beyond the grown box along some axis),
+    so where all the distances found are within ``reach`` they are the whole mesh's. Otherwise
+    ``reach`` grows fourfold and the search is repeated (the whole mesh at the latest)."""
+    P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    if len(P) == 0:
+        return np.zeros(0)
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    while True:
+        near = faces_touching_box(V, F, lo - reach, hi + reach)
+        if len(near) == len(F):
+            return mc.closest_points(P, V, F)[0]
+        if len(near):
+            used, Fc = np.unique(F[near], return_inverse=True)
+            d = mc.closest_points(P, V[used], Fc.reshape(-1, 3))[0]
+            if d.max() <= reach:
+                return d
+        reach *= 4.0
 
 
 def displacement_map(tx: Texels, disp, weights, res: int):
@@ -204,13 +256,20 @@ def displacement_map(tx: Texels, disp, weights, res: int):
 
 def colour_map(tx: Texels, dense: Mapping, texture, hface, hbary, weights, res: int):
     """The padded (res, res, 3) uint8 colour map from the scan at the texels' hits, or None
-    (a scan without texture or vertex colours)."""
+    (a scan without texture or vertex colours). Looked up in pieces of :data:`CHUNK` texels
+    (each texel's colour is its own: the same bytes as in one batch, without its temporaries)."""
     _, (grow, sy, sx) = weights
-    col = _dense_colour(dense, texture, hface, hbary)
-    if col is None:
+    if _dense_colour(dense, texture, hface[:0], hbary[:0]) is None:
         return None
+    col = np.empty((len(hface), 3), dtype=np.uint8)
+
+    def part(a, b):
+        c = _dense_colour(dense, texture, hface[a:b], hbary[a:b])
+        col[a:b] = np.clip(np.round(c), 0, 255)
+
+    in_chunks(len(hface), part)
     cimg = np.zeros((res, res, 3), dtype=np.uint8)
-    cimg[tx.rows, tx.cols] = np.clip(np.round(col), 0, 255).astype(np.uint8)
+    cimg[tx.rows, tx.cols] = col
     cimg[grow] = cimg[sy, sx]
     return cimg
 

@@ -1,12 +1,16 @@
 """The bake stage's work: read the low-poly mesh and the dense scan, unwrap, bake, write the
 bake product (pipeline/io/bake_file.py) and measure the reconstruction error.
 
-The steps are the algorithm's (pipeline/bake/bake.py); independent ones run side by side through
-the process helper (pipeline/fork.py, ``EYERIG_SERIAL=1`` turns it off, with the same bytes):
-the unwrap while the dense scan and its texture load, the UV-independent half of the accuracy
-metric runs and the Embree scene of the scan is built; the texels' falloff weights and padding
-while the rays are cast; the UV-dependent half of the metric while the colour map is made and
-the maps are written.
+The steps are the algorithm's (pipeline/bake/bake.py); independent ones run side by side on
+threads (libigl, Embree, scipy's trees and distance transform and numpy's big loops let go of the
+GIL; ``EYERIG_SERIAL=1`` turns it off, with the same bytes): the unwrap while the dense scan and
+its texture load, the UV-independent half of the accuracy metric runs and the Embree scene of the
+scan is built; the texels' falloff weights and padding while the rays are cast; the UV-dependent
+half of the metric while the colour map is made and the maps are written. They ran in forked
+children (pipeline/fork.py) until issue 32's second bake round: the children's copy-on-write
+page faults and the pickled weights cost 0.7-1.0 CPU-s of the stage's 6.4 on the 1.4M head.
+Threads share one tree cache (pipeline.geometry.mesh_checks, locked): no two steps that run
+side by side ask it about the same mesh.
 """
 
 from __future__ import annotations
@@ -20,10 +24,36 @@ from pipeline.bake.bake import (BakeSettings, atlas_texels, atlas_unwrap, bake_m
                                 colour_source, dense_scene, displacement_map, loop_gaps, reconstruction_baseline,
                                 reconstruction_error, texel_weights)
 from pipeline.errors import ScanError
-from pipeline.fork import fork_call, fork_result
+from pipeline.fork import forking
 from pipeline.io.bake_file import write_bake
 from pipeline.io.meshfile import read_stage_mesh
 from pipeline.results import StageResult
+
+
+def _beside(fn, *args, **kwargs):
+    """Start ``fn(*args, **kwargs)`` on a thread beside this one (or, switched off: no side by
+    side, pipeline.fork.forking(), nothing yet); returns a job for :func:`_result`."""
+    if not forking():
+        return None, fn, args, kwargs
+    from concurrent.futures import ThreadPoolExecutor
+
+    def timed():
+        t0 = time.perf_counter()
+        return fn(*args, **kwargs), time.perf_counter() - t0
+
+    pool = ThreadPoolExecutor(1)
+    job = pool.submit(timed)
+    pool.shutdown(wait=False)
+    return job, fn, args, kwargs
+
+
+def _result(job):
+    """(value, seconds) of a :func:`_beside` job (its exception raised here)."""
+    future, fn, args, kwargs = job
+    if future is not None:
+        return future.result()
+    t0 = time.perf_counter()
+    return fn(*args, **kwargs), time.perf_counter() - t0
 
 
 def _texture(path: Path):
@@ -57,9 +87,10 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     t = {}
     t0 = time.perf_counter()
     loops = {"left": low.loop_left, "right": low.loop_right}
-    # the unwrap (xatlas, where it runs, holds the GIL) runs beside: loading the scan and its
-    # texture, the UV-independent half of the accuracy metric and the ray-casting BVH
-    uv_job = fork_call(atlas_unwrap, V, F, list(loops.values()), s)
+    # the unwrap runs beside (libigl's lscm lets go of the GIL; xatlas, where it runs, holds it):
+    # loading the scan and its texture, the UV-independent half of the accuracy metric and the
+    # ray-casting BVH
+    uv_job = _beside(atlas_unwrap, V, F, list(loops.values()), s)
     dense = read_stage_mesh(dense_dir / "mesh.npz")
     texture = _texture(dense_dir / "texture.png")
     t1 = time.perf_counter()
@@ -69,30 +100,30 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     t1 = time.perf_counter()
     scene = dense_scene(V, dense, s)
     t["scene_s"] = time.perf_counter() - t1
-    (UV, FUV, method), t["unwrap_s"] = fork_result(uv_job)
+    (UV, FUV, method), t["unwrap_s"] = _result(uv_job)
     res = int(s.resolution)
     t1 = time.perf_counter()
     tx = atlas_texels(V, F, UV, FUV, res)
     t["rasterize_s"] = time.perf_counter() - t1
     # the falloff weights and the padding need the texels only: beside the ray casting
     gaps = loop_gaps(V, list(loops.values()), dense.V, dense.F) if s.falloff_per_mm > 0 else None
-    weights_job = fork_call(texel_weights, V, F, tx, list(loops.values()), s, gaps)
+    weights_job = _beside(texel_weights, V, F, tx, list(loops.values()), s, gaps)
     t1 = time.perf_counter()
     disp, hface, hbary, n_miss = cast_texels(scene, tx, s)
     t["raycast_s"] = time.perf_counter() - t1
-    weights, t["weights_padding_s"] = fork_result(weights_job)
+    weights, t["weights_padding_s"] = _result(weights_job)
     t1 = time.perf_counter()
     dimg, disp_w = displacement_map(tx, disp, weights, res)
     # the accuracy metric needs the final displacement map: beside the colour map and the writes
-    error_job = fork_call(reconstruction_error, V, F, UV, FUV, dimg, dense.V, dense.F,
-                          levels=s.subdivision_levels, n_samples=s.metric_samples, baseline=baseline)
+    error_job = _beside(reconstruction_error, V, F, UV, FUV, dimg, dense.V, dense.F,
+                        levels=s.subdivision_levels, n_samples=s.metric_samples, baseline=baseline)
     cimg = colour_map(tx, dense, texture, hface, hbary, weights, res)
     t["maps_s"] = time.perf_counter() - t1
     colour = colour_source(dense, texture, cimg)
     mesh = {**{k: v for k, v in low.items() if k not in ("UV", "FUV")}, "UV": UV, "FUV": FUV}
     write_bake(out_dir, mesh, dimg, tx.mask, cimg, resolution=res, falloff_mm=s.falloff_mm, colour_source=colour)
     t["total_s"] = time.perf_counter() - t0
-    err, recon_s = fork_result(error_job)
+    err, recon_s = _result(error_job)
     t["reconstruction_error_s"] = baseline_s + recon_s
     timings = {k: round(v, 4) for k, v in t.items()}
     return StageResult({**bake_metrics(tx, disp_w, n_miss, colour, res), "unwrap": method, "reconstruction": err},

@@ -79,12 +79,38 @@ def _bary(u, v):
     return bary
 
 
+#: texels per piece of the chunked per-texel steps: 64k texels' temporaries (a few MB) stay in
+#: the cache and are reused by the allocator; whole-array steps over the 2M texels of a 2048
+#: map made and dropped 50-100 MB temporaries, and their page faults (kernel time) cost as much
+#: as the arithmetic
+CHUNK = 1 << 16
+
+
+def in_chunks(k: int, fn, chunk: int = CHUNK) -> None:
+    """Call ``fn(a, b)`` for consecutive ranges [a, b) covering ``range(k)``, ``chunk`` long,
+    on up to two threads (numpy and Embree release the GIL). ``fn`` writes its own part of
+    preallocated outputs, so the results do not depend on the order or the threads."""
+    bounds = list(range(0, k, chunk)) + [k]
+    parts = list(zip(bounds[:-1], bounds[1:]))
+    n_threads = max(1, min(os.cpu_count() or 1, 2, len(parts)))
+    if n_threads == 1:
+        for a, b in parts:
+            fn(a, b)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(n_threads) as ex:
+        for _ in ex.map(lambda ab: fn(*ab), parts):      # re-raises a part's exception
+            pass
+
+
 def cast_both_ways(scene: DenseScene, P, N, max_dist, eps=1e-3):
     """Signed distance along the normal to the nearest surface hit, searching both directions.
 
     Rays start ``eps`` behind the point (so a surface through the point itself is
     found, not skipped by float32 rounding) and run ``max_dist + eps``; of the
-    forward and backward hits the nearer one wins.
+    forward and backward hits the nearer one wins. Cast in pieces of :data:`CHUNK` points
+    (each point's rays and answer are its own, so the same bits as in one batch).
 
     Returns
     -------
@@ -94,15 +120,29 @@ def cast_both_ways(scene: DenseScene, P, N, max_dist, eps=1e-3):
     P = np.asarray(P, dtype=np.float64)
     N = np.asarray(N, dtype=np.float64)
     k = len(P)
-    o = np.concatenate([P - eps * N, P + eps * N])
-    o -= scene.origin
-    d = np.concatenate([N, -N])
-    tfar, face, u, v = scene.trace(o, d, max_dist + eps)
-    # the nearer of the two hits, chosen first: only k of the 2k rays get float64 barycentrics
-    hit = face >= 0
-    t = np.where(hit, tfar.astype(np.float64), np.nan)
-    tf, tb = t[:k] - eps, t[k:] - eps
-    use_b = np.isnan(tf) | (~np.isnan(tb) & (np.abs(tb) < np.abs(tf)))
-    disp = np.where(use_b, -tb, tf)
-    sel = np.where(use_b, np.arange(k) + k, np.arange(k))
-    return disp, face[sel].astype(np.int64), _bary(u[sel], v[sel])
+    disp = np.empty(k)
+    face = np.empty(k, dtype=np.int64)
+    bary = np.empty((k, 3))
+
+    def part(a, b):
+        p, n, m = P[a:b], N[a:b], b - a
+        # forward rays from p - eps n, backward ones from p + eps n, re-centred in float64 and
+        # then rounded to float32 (as Embree takes them)
+        o = np.empty((2 * m, 3), dtype=np.float32)
+        o[:m] = (p - eps * n) - scene.origin
+        o[m:] = (p + eps * n) - scene.origin
+        d = np.empty((2 * m, 3), dtype=np.float32)
+        d[:m] = n
+        np.negative(n, out=d[m:])
+        tfar, f, u, v = scene.trace(o, d, max_dist + eps)
+        # the nearer of the two hits, chosen first: only m of the 2m rays get float64 barycentrics
+        t = np.where(f >= 0, tfar.astype(np.float64), np.nan)
+        tf, tb = t[:m] - eps, t[m:] - eps
+        use_b = np.isnan(tf) | (~np.isnan(tb) & (np.abs(tb) < np.abs(tf)))
+        disp[a:b] = np.where(use_b, -tb, tf)
+        sel = np.where(use_b, np.arange(m) + m, np.arange(m))
+        face[a:b] = f[sel]
+        bary[a:b] = _bary(u[sel], v[sel])
+
+    in_chunks(k, part)
+    return disp, face, bary

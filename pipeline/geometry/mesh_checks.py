@@ -6,6 +6,7 @@ Heavy helpers (libigl) are imported lazily.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -160,6 +161,7 @@ def check_mesh(V, F, area_tol=1e-10) -> MeshReport:
 
 
 _TREES: list = []          # small cache of libigl AABB trees: [(V copy, F copy, tree, last queries)]
+_TREES_LOCK = threading.Lock()
 
 
 def _same_bits(a, b) -> bool:
@@ -178,24 +180,67 @@ def _same_bits(a, b) -> bool:
 def _tree(V, F):
     """libigl AABB tree of (V, F), cached by content (a few trees are kept, each with its own
     copy of the arrays it was built on: a byte comparison with them costs a fraction of hashing,
-    and the repairs look the same scan up dozens of times)."""
+    and the repairs look the same scan up dozens of times). The cache is locked: threads may
+    look trees up side by side (the bake's steps); a tree itself is only read by queries."""
     import igl
 
-    for v, f, t, q in _TREES:
-        if _same_bits(V, v) and _same_bits(F, f):
-            return v, f, t, q
-    V, F = V.copy(), F.copy()
-    V.flags.writeable = F.flags.writeable = False
-    t = igl.AABB()
-    t.init(V, F)
-    _TREES.insert(0, (V, F, t, {}))
-    del _TREES[4:]
-    return V, F, t, _TREES[0][3]
+    with _TREES_LOCK:
+        for v, f, t, q in _TREES:
+            if _same_bits(V, v) and _same_bits(F, f):
+                return v, f, t, q
+        V, F = V.copy(), F.copy()
+        V.flags.writeable = F.flags.writeable = False
+        t = igl.AABB()
+        t.init(V, F)
+        _TREES.insert(0, (V, F, t, {}))
+        del _TREES[4:]
+        return V, F, t, _TREES[0][3]
 
 
 # a mesh's vertices are asked about again; the bake's one-off queries of 0.2-1M texels or samples
 # are not kept (their copies cost more in page faults than any reuse could save)
 _REMEMBER_POINTS = 1 << 16
+
+
+# queries of more points than this go to libigl in Morton order (below)
+_SORT_FROM = 4096
+
+
+def _morton_order(P):
+    """An order of the points ``P`` (k, 3) along a Morton (Z-order) curve of a 1024³ grid over
+    their box: neighbours in the order are near in space (non-finite coordinates count as the
+    box's corner)."""
+    finite = np.isfinite(P)
+    lo = np.where(finite, P, np.inf).min(axis=0)
+    lo = np.where(np.isfinite(lo), lo, 0.0)
+    span = np.where(finite, P - lo, 0.0)
+    scale = 1023.0 / max(float(span.max()), 1e-300)
+    q = np.clip(span * scale, 0, 1023).astype(np.uint64)
+    code = np.zeros(len(P), dtype=np.uint64)
+    for a in range(3):                     # spread the 10 bits of each axis 3 apart, interleave
+        x = q[:, a]
+        x = (x | (x << np.uint64(16))) & np.uint64(0x030000FF)
+        x = (x | (x << np.uint64(8))) & np.uint64(0x0300F00F)
+        x = (x | (x << np.uint64(4))) & np.uint64(0x030C30C3)
+        x = (x | (x << np.uint64(2))) & np.uint64(0x09249249)
+        code |= x << np.uint64(a)
+    return np.argsort(code, kind="stable")
+
+
+def _squared_distance(tree, V, F, P):
+    """libigl's ``tree.squared_distance(V, F, P)`` as (sq float64, face int64, C float64), in the
+    points' order. Many points are asked in Morton order: libigl answers each point on its own
+    (from the root of the tree, so the same bits in any order), and points near each other walk
+    the same branches while they are in the cache. Sampled points come in random order: 100k of
+    them on a 150-200k-face mesh took 0.30 CPU-s as they came, 0.10 s in this order."""
+    if len(P) < _SORT_FROM:
+        sq, fi, C = tree.squared_distance(V, F, P)
+        return np.asarray(sq, dtype=np.float64), np.asarray(fi, dtype=np.int64), np.asarray(C)
+    order = _morton_order(P)
+    sq_o, fi_o, C_o = tree.squared_distance(V, F, np.ascontiguousarray(P[order]))
+    sq, fi, C = np.empty(len(P)), np.empty(len(P), dtype=np.int64), np.empty((len(P), 3))
+    sq[order], fi[order], C[order] = sq_o, fi_o, C_o
+    return sq, fi, C
 
 
 def closest_points(P, V, F):
@@ -233,14 +278,13 @@ def closest_points_on(V, F):
         prev = last.get(len(P))
         if prev is None:
             moved = None
-            sq, fi, C = tree.squared_distance(V, F, P)
-            sq, fi, C = np.asarray(sq, dtype=np.float64), np.asarray(fi, dtype=np.int64), np.asarray(C)
+            sq, fi, C = _squared_distance(tree, V, F, P)
         else:
             P0, sq, fi, C = prev
             moved = np.flatnonzero((P.view(np.uint64) != P0.view(np.uint64)).any(axis=1))
             sq, fi, C = sq.copy(), fi.copy(), C.copy()
             if len(moved):
-                s1, f1, c1 = tree.squared_distance(V, F, np.ascontiguousarray(P[moved]))
+                s1, f1, c1 = _squared_distance(tree, V, F, np.ascontiguousarray(P[moved]))
                 sq[moved], fi[moved], C[moved] = s1, f1, c1
         if (moved is None or len(moved)) and len(P) <= _REMEMBER_POINTS:
             if len(last) >= 4 and len(P) not in last:

@@ -52,11 +52,18 @@ def preview_16bit(img, mask=None):
     -------
     (H, W) uint16, scale (float), offset (float)
     """
-    a = np.asarray(img, dtype=np.float64)
+    a = np.asarray(img)
+    if a.dtype.kind != "f":
+        a = a.astype(np.float64)
     vals = a[mask] if mask is not None and mask.any() else a.ravel()
+    # min and max of the image's own floats: the same numbers as of their float64 copies
     lo, hi = float(vals.min()), float(vals.max())
     if hi <= lo:
         hi = lo + 1e-6
     scale = (hi - lo) / 65535.0
-    q = np.clip(np.round((a - lo) / scale), 0, 65535).astype(np.uint16)
+    q = np.empty(a.shape, dtype=np.uint16)
+    flat_a, flat_q = a.reshape(-1), q.reshape(-1)
+    n = 1 << 18
+    for i in range(0, flat_a.size, n):     # in float64 a piece at a time: no 32 MB temporaries
+        flat_q[i:i + n] = np.clip(np.round((flat_a[i:i + n].astype(np.float64) - lo) / scale), 0, 65535)
     return q, scale, lo
