@@ -102,7 +102,8 @@ def _crossings(P, Q=None):
     """Crossing edge pairs of the closed 2D polygon P (non-adjacent edges), or between the edges
     of P and those of Q."""
     def side(p, q, r):
-        return np.sign((q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0]))
+        u, v = q - p, r - p
+        return np.sign(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
     if Q is None:
         i, j = np.triu_indices(len(P), 2)
         keep = ~((i == 0) & (j == len(P) - 1))

@@ -9,10 +9,13 @@ the dense annulus between the scan's opening and a closed curve about ``param_mm
 onto the unit circle and the outer border onto the circle of radius 2, each by arc length
 (:func:`harmonic_annulus`). Spoke ``i`` is the radial segment through the loop vertex's image;
 the grid points are found on it by 3D arc length and mapped back into the dense triangle that
-holds them (barycentric). That first grid is skewed where the opening is far from round (the
-spokes of a lower lid run along it, the canthi crowd) and cuts the tip off a canthus apex;
-:func:`smooth_grid` then solves for it on the scan (elliptic smoothing with the grading kept,
-the outer ring at ``width`` from the loop, the tip held out). Nothing is repaired afterwards:
+holds them (barycentric). The outer ring is put on a line star-shaped round the parameter
+plane's centre, where each ray first gets ``width`` from the loop: simple and round the opening
+once by construction (the loop offset by the width crosses itself where the loop turns inwards
+sharply). That first grid is skewed where the opening is far from round (the spokes of a lower
+lid run along it, the canthi crowd) and cuts the tip off a canthus apex; :func:`smooth_grid`
+then solves for it on the scan (elliptic smoothing with the grading kept, the outer ring's
+nodes sliding along that line in spoke order, the tip held out). Nothing is repaired afterwards:
 where a face still comes out flipped against the dense surface the metrics say which ring and
 spoke (:func:`band_report`).
 
@@ -43,8 +46,9 @@ PARAM_OUTER = 2.0
 # SMOOTH_ITERATIONS Jacobi sweeps, fewer once no node moves SMOOTH_TOL_MM; rings 1 ..
 # SMOOTH_PUSH_RINGS kept SMOOTH_PUSH x their distance out along the loop's outward direction; the
 # loop's height over the scan fades out as (1 - d / width) ** SMOOTH_LIFT_POWER; the outer ring's
-# nodes slide along build_band's outer line. ZIP_ROUNDS: relax and re-zip rounds of the cut border; CUT_NEAR: the margins (x the
-# outer ring's mean edge) tried for the cut, each eye keeping the one with the best zip
+# nodes slide along build_band's outer line. ZIP_ROUNDS: relax and re-zip rounds of the cut
+# border; CUT_NEAR: the margins (x the outer ring's mean edge) tried for the cut, each eye keeping
+# the one with the best zip
 SMOOTH_ITERATIONS = 250
 SMOOTH_TOL_MM = 1e-3
 SMOOTH_PUSH = 0.6
@@ -311,10 +315,12 @@ def _opening_normal(loop, ref_V, ref_F, radius=3.0):
     return _unit(sum(nf[ix].sum(axis=0) for ix in tree.query_ball_point(loop, radius) if len(ix))[None])[0]
 
 
-def _star_radii(to3d, th, loop, normal, width, K=240, chunk=64):
+def _star_radii(to3d, th, loop, normal, width, coarse=48, fine=12):
     """(M,) parameter radius, on the ray from the centre at each angle ``th``, where the ray's
     image first lies ``width`` from the placed ``loop`` in the opening's plane (normal ``normal``);
-    a ray whose image never gets that far keeps 0.9 of the parameter annulus.
+    a ray whose image never gets that far keeps 0.9 of the parameter annulus. Found on ``coarse``
+    radii (spaced like the spokes' samples, dense near the opening), then on ``fine`` ones
+    between the two coarse radii that bracket the crossing.
 
     Why a star: a curve r = rho(theta) with rho > 0 is simple and goes round the centre once, and
     the harmonic map is one-to-one, so its image is a simple closed line round the opening. The
@@ -329,23 +335,28 @@ def _star_radii(to3d, th, loop, normal, width, K=240, chunk=64):
 
     # the loop as dense points: the distance to a polyline, 16 samples an edge
     t = (np.arange(16) / 16.0)[None, :, None]
-    dense = ((1 - t) * loop[:, None] + t * np.roll(loop, -1, axis=0)[:, None]).reshape(-1, 3)
-    tree = cKDTree(flat(dense))
-    rad = PARAM_INNER + (PARAM_OUTER * 0.999 - PARAM_INNER) * np.linspace(0.0, 1.0, K) ** 2
-    rho = np.full(len(th), 0.9 * PARAM_OUTER)
-    for a in range(0, len(th), chunk):
-        c = np.stack([np.cos(th[a:a + chunk]), np.sin(th[a:a + chunk])], axis=1)
-        P = to3d((rad[None, :, None] * c[:, None, :]).reshape(-1, 2))
-        dist = tree.query(flat(P))[0].reshape(len(c), K)
-        far = dist >= width
-        for m in np.flatnonzero(far.any(axis=1)):
-            k = int(np.argmax(far[m]))
-            if k == 0:
-                rho[a + m] = rad[0]
-                continue
-            f = (width - dist[m, k - 1]) / max(dist[m, k] - dist[m, k - 1], 1e-300)
-            rho[a + m] = rad[k - 1] + f * (rad[k] - rad[k - 1])
-    return rho
+    tree = cKDTree(flat(((1 - t) * loop[:, None] + t * np.roll(loop, -1, axis=0)[:, None]).reshape(-1, 3)))
+    c = np.stack([np.cos(th), np.sin(th)], axis=1)
+
+    def dist(radii):                                  # (M, k) radii along each ray -> distances
+        return tree.query(flat(to3d((radii[..., None] * c[:, None, :]).reshape(-1, 2))))[0].reshape(radii.shape)
+
+    def first(r, dd):
+        """Radius of the first crossing of ``width`` along each row (NaN where none)."""
+        far = dd >= width
+        k = np.argmax(far, axis=1)
+        rows = np.arange(len(r))
+        k0 = np.maximum(k - 1, 0)
+        f = np.clip((width - dd[rows, k0]) / np.maximum(dd[rows, k] - dd[rows, k0], 1e-300), 0.0, 1.0)
+        return np.where(far.any(axis=1), r[rows, k0] + f * (r[rows, k] - r[rows, k0]), np.nan), k
+
+    rad = PARAM_INNER + (PARAM_OUTER * 0.999 - PARAM_INNER) * np.linspace(0.0, 1.0, coarse) ** 2
+    R = np.broadcast_to(rad, (len(th), coarse))
+    _, k = first(R, dist(R))
+    lo, hi = rad[np.maximum(k - 1, 0)], rad[k]
+    Rf = lo[:, None] + (hi - lo)[:, None] * np.linspace(0.0, 1.0, fine)[None]
+    rho, _ = first(Rf, dist(Rf))
+    return np.where(np.isnan(rho), 0.9 * PARAM_OUTER, rho)
 
 
 def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL_MM,
