@@ -84,6 +84,63 @@ def test_smoothing_keeps_the_polar_grid_and_pulls_a_cut_tip_out():
     assert np.linalg.norm(Gs2[1, 0]) > np.linalg.norm(G2[0, 0]) + 0.5 * d[1]
 
 
+def _notched_disk(b=30.0, n_th=720, n_t=64):
+    """A flat disk of radius ``b`` whose hole is round (radius 6) but for a tongue of the surface
+    3.5 mm deep and about 2 mm wide poking into it at angle 0: the opening's loop turns inwards
+    much more sharply than a band width there. A structured polar mesh (z = 0)."""
+    th = 2 * np.pi * np.arange(n_th) / n_th
+    rh = 6.0 - 3.5 * np.exp(-(np.angle(np.exp(1j * th)) / 0.2) ** 2)
+    r = rh[None] + (np.linspace(0, 1, n_t) ** 1.5)[:, None] * (b - rh[None])
+    P = np.stack([r * np.cos(th)[None], r * np.sin(th)[None], 0 * r], -1).reshape(-1, 3)
+    ids = np.arange(n_t * n_th).reshape(n_t, n_th)
+    a, nb, c, d = ids[:-1], np.roll(ids[:-1], -1, 1), np.roll(ids[1:], -1, 1), ids[1:]
+    F = np.concatenate([np.stack([a, nb, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return P, F, ids[0]
+
+
+def _crossings(P, Q=None):
+    """Crossing edge pairs of the closed 2D polygon P (non-adjacent edges), or between the edges
+    of P and those of Q."""
+    def side(p, q, r):
+        u, v = q - p, r - p
+        return np.sign(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
+    if Q is None:
+        i, j = np.triu_indices(len(P), 2)
+        keep = ~((i == 0) & (j == len(P) - 1))
+        i, j, Q = i[keep], j[keep], P
+    else:
+        i, j = (x.ravel() for x in np.meshgrid(np.arange(len(P)), np.arange(len(Q)), indexing="ij"))
+    A, B, C, D = P[i], np.roll(P, -1, axis=0)[i], Q[j], np.roll(Q, -1, axis=0)[j]
+    return int(np.count_nonzero((side(A, B, C) != side(A, B, D)) & (side(C, D, A) != side(C, D, B))))
+
+
+def test_outer_ring_is_simple_and_the_rings_nested_beside_a_sharp_notch():
+    """Known answer: beside a tongue poking into the opening the loop offset by the band width
+    crosses itself (the swallowtail that folded id309_squint_up's outer rings); the outer ring
+    slides along build_band's star-shaped line instead: simple, every ring nested in the next,
+    the outer ring the width from the loop all round, no band face turned over."""
+    from pipeline.retopo.eye_band import _inside_polygon
+    from pipeline.retopo.eyelid_loop import point_at_arclength, polyline_arclength
+
+    V, F, hole = _notched_disk()
+    S, rings, width = 64, 6, 8.0
+    perim = polyline_arclength(V[hole])[0][-1]
+    loop = point_at_arclength(V[hole], perim * np.arange(S) / S)
+    out = np.cross([0.0, 0.0, 1.0], np.roll(loop, -1, axis=0) - np.roll(loop, 1, axis=0))
+    out /= np.linalg.norm(out, axis=1, keepdims=True) * np.sign(np.sum(out * loop))
+    assert _crossings((loop + width * out)[:, :2]) > 0                  # the offset: a swallowtail
+    G, info = build_band(loop, V, F, hole, rings, width, perim / S, 20.0)
+    G = smooth_grid(G, info["ring_distances_mm"], V, F, info["_outer_line"])
+    assert np.array_equal(G[0], loop)
+    assert all(_crossings(G[k][:, :2]) == 0 for k in range(rings + 1))
+    assert all(_inside_polygon(G[k][:, :2], G[k + 1][:, :2]).all() for k in range(rings))
+    assert all(_crossings(G[k][:, :2], G[k + 1][:, :2]) == 0 for k in range(rings))
+    gap = np.linalg.norm(G[-1][:, None, :2] - loop[None, :, :2], axis=2).min(axis=1)
+    assert np.abs(gap - width).max() < 0.2
+    Q = split_quads(G.reshape(-1, 3), grid_quads(0, rings, S), V, F)
+    assert band_report(G.reshape(-1, 3), Q, V, F, S, 0)["flipped_faces"] == 0
+
+
 def test_zip_strip_maxmin_is_a_strip_no_worse_than_the_greedy_one():
     from pipeline.retopo.eye_rings import _zip_strip
 

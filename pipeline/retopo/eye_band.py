@@ -9,10 +9,13 @@ the dense annulus between the scan's opening and a closed curve about ``param_mm
 onto the unit circle and the outer border onto the circle of radius 2, each by arc length
 (:func:`harmonic_annulus`). Spoke ``i`` is the radial segment through the loop vertex's image;
 the grid points are found on it by 3D arc length and mapped back into the dense triangle that
-holds them (barycentric). That first grid is skewed where the opening is far from round (the
-spokes of a lower lid run along it, the canthi crowd) and cuts the tip off a canthus apex;
-:func:`smooth_grid` then solves for it on the scan (elliptic smoothing with the grading kept,
-the outer ring at ``width`` from the loop, the tip held out). Nothing is repaired afterwards:
+holds them (barycentric). The outer ring is put on a line star-shaped round the parameter
+plane's centre, where each ray first gets ``width`` from the loop: simple and round the opening
+once by construction (the loop offset by the width crosses itself where the loop turns inwards
+sharply). That first grid is skewed where the opening is far from round (the spokes of a lower
+lid run along it, the canthi crowd) and cuts the tip off a canthus apex; :func:`smooth_grid`
+then solves for it on the scan (elliptic smoothing with the grading kept, the outer ring's
+nodes sliding along that line in spoke order, the tip held out). Nothing is repaired afterwards:
 where a face still comes out flipped against the dense surface the metrics say which ring and
 spoke (:func:`band_report`).
 
@@ -42,16 +45,20 @@ PARAM_OUTER = 2.0
 # smooth_grid (measured on ict_neutral, ident_s0_001, synthetic_head: docs/retopo.md): at most
 # SMOOTH_ITERATIONS Jacobi sweeps, fewer once no node moves SMOOTH_TOL_MM; rings 1 ..
 # SMOOTH_PUSH_RINGS kept SMOOTH_PUSH x their distance out along the loop's outward direction; the
-# loop's height over the scan fades out as (1 - d / width) ** SMOOTH_LIFT_POWER; the outer ring is
-# the loop offset by the width, its nodes sliding along its SMOOTH_OUTER_HALF-neighbour moving
-# average. ZIP_ROUNDS: relax and re-zip rounds of the cut border; CUT_NEAR: the margins (x the
-# outer ring's mean edge) tried for the cut, each eye keeping the one with the best zip
+# loop's height over the scan fades out as (1 - d / width) ** SMOOTH_LIFT_POWER; the outer ring's
+# nodes slide along build_band's outer line. ZIP_ROUNDS: relax and re-zip rounds of the cut
+# border; CUT_NEAR: the margins (x the outer ring's mean edge) tried for the cut, each eye keeping
+# the one with the best zip
 SMOOTH_ITERATIONS = 250
 SMOOTH_TOL_MM = 1e-3
 SMOOTH_PUSH = 0.6
 SMOOTH_PUSH_RINGS = 2
 SMOOTH_LIFT_POWER = 2.0
-SMOOTH_OUTER_HALF = 1
+# the outer line (build_band): OUTER_LINE_SUB samples per spoke, its radii in the parameter plane
+# averaged over OUTER_LINE_HALF samples each side (one spoke's spacing, as the offset line's 3-vertex
+# moving average was)
+OUTER_LINE_SUB = 8
+OUTER_LINE_HALF = 8
 ZIP_ROUNDS = 3
 CUT_NEAR = (0.0, 0.5, 0.8)
 
@@ -265,7 +272,6 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     G = np.zeros((rings + 1, S, 3))
     G[0] = targets
     short = []
-    r_outer = np.zeros(S)
     for i in range(S):
         k0 = int(np.argmin(np.linalg.norm(Q[i] - targets[i], axis=1)))
         di = d
@@ -274,7 +280,18 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
             short.append(i)
         r = np.interp(arc[i, k0] + di[1:], arc[i], rad)
         G[1:, i] = to3d(r[:, None] * dirs[i][None]) + (1.0 - di[1:] / di[-1])[:, None] * (targets[i] - Q[i, k0])
-        r_outer[i] = r[-1]
+    # the outer ring: on a line star-shaped about the parameter plane's centre (simple, round the
+    # opening once, whatever the loop's shape), the spokes' own angles on it
+    sgn = 1.0 if np.sum(dang) >= 0 else -1.0
+    M = OUTER_LINE_SUB * S
+    th = ang[0] + sgn * 2.0 * np.pi * np.arange(M) / M
+    rho = _star_radii(to3d, th, targets, _opening_normal(targets, ref_V, ref_F), width)
+    rho = sum(np.roll(rho, j) for j in range(-OUTER_LINE_HALF, OUTER_LINE_HALF + 1)) / (2 * OUTER_LINE_HALF + 1)
+    uv_line = rho[:, None] * np.stack([np.cos(th), np.sin(th)], axis=1)
+    outer_line = to3d(uv_line)
+    ti = np.mod(sgn * (np.unwrap(ang) - ang[0]), 2.0 * np.pi) * M / (2.0 * np.pi)
+    r_outer = np.interp(ti, np.arange(M + 1), np.append(rho, rho[0]))
+    G[-1] = to3d(r_outer[:, None] * dirs)
     info = {"region_faces": int(len(Fr)), "region_mm": round(radius, 3),
             "param_inverted_triangles": param_flips,
             "ring_distances_mm": [round(float(x), 4) for x in d],
@@ -282,20 +299,74 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
             # the images must go round the circle one way, once: a spoke out of order crosses
             "spokes_out_of_order": np.flatnonzero(np.sign(dang) != np.sign(np.sum(dang))).tolist(),
             # for the cut (add_eye_bands): the region, its point locator and map, the outer ring
-            "_param": (Fr, loc, X, r_outer[:, None] * dirs)}
+            "_param": (Fr, loc, X, r_outer[:, None] * dirs),
+            # for smooth_grid: the line the outer ring's nodes slide along, in spoke order
+            "_outer_line": outer_line}
     return G, info
 
 
-def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL_MM, push=SMOOTH_PUSH,
-                push_rings=SMOOTH_PUSH_RINGS, lift_power=SMOOTH_LIFT_POWER,
-                outer_half=SMOOTH_OUTER_HALF, step=1.0):
+def _opening_normal(loop, ref_V, ref_F, radius=3.0):
+    """(3,) unit normal of the opening's plane: the sum of the scan's face normals (area-weighted)
+    within ``radius`` mm of the loop's vertices, round the whole loop."""
+    from scipy.spatial import cKDTree
+
+    nf = mc.face_normals(ref_V, ref_F, normalize=False)
+    tree = cKDTree(ref_V[ref_F].mean(axis=1))
+    return _unit(sum(nf[ix].sum(axis=0) for ix in tree.query_ball_point(loop, radius) if len(ix))[None])[0]
+
+
+def _star_radii(to3d, th, loop, normal, width, coarse=48, fine=12):
+    """(M,) parameter radius, on the ray from the centre at each angle ``th``, where the ray's
+    image first lies ``width`` from the placed ``loop`` in the opening's plane (normal ``normal``);
+    a ray whose image never gets that far keeps 0.9 of the parameter annulus. Found on ``coarse``
+    radii (spaced like the spokes' samples, dense near the opening), then on ``fine`` ones
+    between the two coarse radii that bracket the crossing.
+
+    Why a star: a curve r = rho(theta) with rho > 0 is simple and goes round the centre once, and
+    the harmonic map is one-to-one, so its image is a simple closed line round the opening. The
+    loop offset by the width is not: where the loop turns inwards more sharply than the width the
+    offset crosses itself (a swallowtail) and ring nodes placed along it run backwards
+    (id309_squint_up, id301_neutral: docs/retopo.md). The first crossing of the distance along
+    each ray is the offset with its swallowtails cut off."""
+    from scipy.spatial import cKDTree
+
+    def flat(P):
+        return P - np.outer(P @ normal, normal)
+
+    # the loop as dense points: the distance to a polyline, 16 samples an edge
+    t = (np.arange(16) / 16.0)[None, :, None]
+    tree = cKDTree(flat(((1 - t) * loop[:, None] + t * np.roll(loop, -1, axis=0)[:, None]).reshape(-1, 3)))
+    c = np.stack([np.cos(th), np.sin(th)], axis=1)
+
+    def dist(radii):                                  # (M, k) radii along each ray -> distances
+        return tree.query(flat(to3d((radii[..., None] * c[:, None, :]).reshape(-1, 2))))[0].reshape(radii.shape)
+
+    def first(r, dd):
+        """Radius of the first crossing of ``width`` along each row (NaN where none)."""
+        far = dd >= width
+        k = np.argmax(far, axis=1)
+        rows = np.arange(len(r))
+        k0 = np.maximum(k - 1, 0)
+        f = np.clip((width - dd[rows, k0]) / np.maximum(dd[rows, k] - dd[rows, k0], 1e-300), 0.0, 1.0)
+        return np.where(far.any(axis=1), r[rows, k0] + f * (r[rows, k] - r[rows, k0]), np.nan), k
+
+    rad = PARAM_INNER + (PARAM_OUTER * 0.999 - PARAM_INNER) * np.linspace(0.0, 1.0, coarse) ** 2
+    R = np.broadcast_to(rad, (len(th), coarse))
+    _, k = first(R, dist(R))
+    lo, hi = rad[np.maximum(k - 1, 0)], rad[k]
+    Rf = lo[:, None] + (hi - lo)[:, None] * np.linspace(0.0, 1.0, fine)[None]
+    rho, _ = first(Rf, dist(Rf))
+    return np.where(np.isnan(rho), 0.9 * PARAM_OUTER, rho)
+
+
+def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL_MM,
+                push=SMOOTH_PUSH, push_rings=SMOOTH_PUSH_RINGS, lift_power=SMOOTH_LIFT_POWER, step=1.0):
     """Elliptic smoothing of one eye's band grid ``G`` (R + 1, S, 3) on the dense surface.
 
-    The outer ring is put at ``d[-1]`` from the loop along the loop's outward direction (square
-    to the loop in the opening's plane: normal to the scan's faces within 3 mm of the loop,
-    summed round the whole loop; the harmonic map's own outer ring
-    lies as little as 4.4 mm out where its spokes are skewed, ict_neutral's lower lids), and its
-    nodes then only slide along it (on its ``outer_half``-neighbour moving average). Rings
+    The outer ring's nodes only slide along ``outer_line`` (a closed polyline on the scan that runs
+    the way the spokes are numbered: :func:`build_band`'s, simple by construction, about ``d[-1]``
+    out; None: the polyline through ``G[-1]``), and they stay in spoke order on it: a node never
+    moves more than 0.45 of the way to its neighbour along the line. Rings
     1 .. R - 1 move (Jacobi sweeps, ``step`` of the way, within the scan's tangent plane at the
     node, then back onto the scan: an average across a crease, the lateral canthus in a V-shaped
     groove, would otherwise land on the other wall) towards the discrete Laplace equation's
@@ -309,10 +380,7 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
     over them fades out over the band afterwards, as ``(1 - d / d[-1]) ** lift_power``. Ring 0
     (the loop) is held. Stops after ``iterations`` sweeps or once no node moved ``tol`` mm.
     """
-    from scipy.spatial import cKDTree
-
-    from pipeline.retopo.eyelid_loop import (closed_moving_average, point_at_arclength, polyline_arclength,
-                                             project_to_polyline)
+    from pipeline.retopo.eyelid_loop import point_at_arclength, polyline_arclength, project_to_polyline
 
     G = np.array(G, dtype=np.float64)
     R = G.shape[0] - 1
@@ -327,28 +395,21 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
     _, _, C0 = closest(loop)
     lift = loop - C0
     G[0] = C0
-    nf = mc.face_normals(ref_V, ref_F, normalize=False)
-    tree = cKDTree(ref_V[ref_F].mean(axis=1))
     # one normal for the whole opening: beside a canthus apex in the fissure's corner the scan's
     # own tangent plane is a wall, and a spoke square to the loop in it climbs the wall in front
     # of the canthus (the band then hides it from the front, and snap moves the loop vertices
     # next to it along the wall's normals, across the fissure)
-    N = _unit(sum(nf[ix].sum(axis=0) for ix in tree.query_ball_point(loop, 3.0) if len(ix))[None])
-    out = np.cross(_unit(loop - np.roll(loop, 1, axis=0)) + _unit(np.roll(loop, -1, axis=0) - loop), N)
-    out = _unit(out)
+    N = _opening_normal(loop, ref_V, ref_F)
+    out = _unit(np.cross(_unit(loop - np.roll(loop, 1, axis=0)) + _unit(np.roll(loop, -1, axis=0) - loop), N))
     if np.sum(np.einsum("ij,ij->i", out, G[-1] - G[0])) < 0:
         out = -out
-    # the outer line: the loop offset by the width, with the direction turning along each loop
-    # edge (round a canthus apex it sweeps the corner instead of cutting it), smoothed
-    sub = 8
-    t = (np.arange(sub) / sub)[None, :, None]
-    base = (1 - t) * G[0][:, None] + t * np.roll(G[0], -1, axis=0)[:, None]
-    dirs = _unit((1 - t) * out[:, None] + t * np.roll(out, -1, axis=0)[:, None])
-    dense = closest((base + d[-1] * dirs).reshape(-1, 3))[2]
-    outer_line = closed_moving_average(dense, outer_half * sub) if outer_half else dense
-    G[R] = dense[::sub]
+    outer_line = G[R].copy() if outer_line is None else np.asarray(outer_line, dtype=np.float64)
     line_len = float(polyline_arclength(outer_line)[0][-1])
-    G[R] = project_to_polyline(G[R], outer_line)[1]
+    # the nodes' arc length along the line, kept from sweep to sweep (never re-projected: a line
+    # that comes near itself would hand a node to the other side) and increasing with the spoke
+    s0 = project_to_polyline(G[R], outer_line)[0]
+    s_on = s0[0] + np.concatenate([[0.0], np.cumsum(np.mod(np.diff(s0), line_len))])
+    G[R] = closest(point_at_arclength(outer_line, s_on))[2]
     _, fcur, _ = closest(G[1:R].reshape(-1, 3))      # faces under the nodes
     for _ in range(iterations):
         before = G.copy()
@@ -371,8 +432,8 @@ def smooth_grid(G, d, ref_V, ref_F, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL
         aR, bR = 1.0 / h[-1] ** 2, 1.0 / tau[R] ** 2
         newR = (aR * G[R - 1] + bR * (np.roll(G[R], 1, axis=0) + np.roll(G[R], -1, axis=0))) / (aR + 2.0 * bR)
         tR = _unit(np.roll(G[R], -1, axis=0) - np.roll(G[R], 1, axis=0))
-        s_on = np.unwrap(2.0 * np.pi * project_to_polyline(G[R], outer_line)[0] / line_len) * line_len / (2.0 * np.pi)
-        s_on += step * np.einsum("ij,ij->i", newR - G[R], tR)
+        gap = np.diff(np.append(s_on, s_on[0] + line_len))          # to the next node along the line
+        s_on = s_on + np.clip(step * np.einsum("ij,ij->i", newR - G[R], tR), -0.45 * np.roll(gap, 1), 0.45 * gap)
         G[R] = closest(point_at_arclength(outer_line, s_on))[2]
         if np.abs(G - before).max() < tol:
             break
@@ -567,7 +628,7 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         first = float(np.mean(np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)))
         G, info = build_band(P, ref_V, ref_F, dense_loops[holes[side]], rings, width, first,
                              param_mm, locked)
-        G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F)
+        G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F, info.pop("_outer_line"))
         params[side] = info.pop("_param")
         grids[side], infos[side] = G, info
     # the cut and zip, for each eye with the remesh's vertices within each of CUT_NEAR x the
