@@ -202,6 +202,26 @@ def test_untangle_respects_keep_out_even_when_it_cannot_unfold():
     assert sn.flipped_faces(V, V3, F) == 0
 
 
+def test_untangle_keeps_each_vertex_within_max_total_of_its_start():
+    """A dragged vertex goes back only as far as ``max_total`` allows (per tangent coordinate),
+    and no further however many rounds run: the rounds' steps do not add up past it."""
+    V, F = _grid()
+    n0 = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    free = np.zeros(len(V), bool)
+    free[[12, 13, 7]] = True
+    V1 = V.copy()
+    V1[12] += [2.5, 0.3, 0.0]
+    V2, _ = untangle(V1, F, n0, free)                       # no limit: unfolded, 1.5+ mm back
+    assert sn.flipped_faces(V, V2, F) == 0 and np.abs(V2[12] - V1[12]).max() > 1.4
+    V3, _ = untangle(V1, F, n0, free, rounds=60, max_total=0.4)
+    assert np.abs(V3 - V1).max() <= 0.4 + 1e-9
+    per_vertex = np.full(len(V), 0.4)
+    per_vertex[12] = 5.0                                    # a per-vertex limit: only 12 may go far
+    V4, _ = untangle(V1, F, n0, free, max_total=per_vertex)
+    assert sn.flipped_faces(V, V4, F) == 0
+    assert np.abs(np.delete(V4 - V1, 12, axis=0)).max() <= 0.4 + 1e-9
+
+
 def test_snap_untangles_a_fan_of_slivers_at_the_margin():
     """Loop vertices joined to the rest by thin fans (few interior vertices, as coarse scans
     give): snapping used to fold them; the free corners are slid back into their kernels."""

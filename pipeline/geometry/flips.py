@@ -397,7 +397,8 @@ def count_flipped(V, F, ref_V, ref_F, nearest_faces=None):
     return int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, F), R) <= 0))
 
 
-def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, min_projected=None):
+def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, min_projected=None,
+             max_total=None):
     """Move free vertices of flipped faces tangentially until no face points against its reference.
 
     A face (a, b, v) with ``a``, ``b`` held has normal ``(b - a) x (v - a)``, whose dot product
@@ -429,6 +430,11 @@ def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, m
         Largest move per coordinate and round, mm (default: the vertex's longest edge).
     min_projected : (m,) float64, optional
         Smallest acceptable doubled projected area per face, mm^2 (default 0: flips only).
+    max_total : float or (n,) float64, optional
+        Farthest a vertex may end from where it started, per tangent coordinate, mm (default:
+        no limit). The rounds' steps add up: a vertex whose faces cannot all clear keeps taking
+        its least-violation step, and without a limit walked 49 mm off id309_squint_up's upper
+        lid (30 rounds of its 1.7 mm edges) into the middle of the face.
 
     Returns
     -------
@@ -447,6 +453,8 @@ def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, m
     order = np.argsort(F.ravel(), kind="stable")
     starts = np.searchsorted(F.ravel()[order], np.arange(len(V) + 1))
     moved = set()
+    start = V.copy()
+    limit = None if max_total is None else np.broadcast_to(np.asarray(max_total, np.float64), (len(V),))
 
     def faces_of(v):
         return order[starts[v]:starts[v + 1]] // 3
@@ -496,6 +504,12 @@ def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, m
             step = max_step
             if step is None:
                 step = float(np.max(np.linalg.norm(V[F[fs]] - x0, axis=2)))
+            box = [(-step, step), (-step, step)]
+            if limit is not None:
+                # the tangent coordinates of the way already gone, kept within +-limit in all
+                o = E.T @ (x0 - start[v])
+                box = [(max(-step, min(0.0, -limit[v] - o[i])), min(step, max(0.0, limit[v] - o[i])))
+                       for i in range(2)]
             A_ub, b_ub = [], []
             if keep_out is not None:
                 Q, Nq, _ = keep_out(x0[None])
@@ -503,7 +517,7 @@ def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, m
                 A_ub.append(np.concatenate([-(Nq[0] @ E), [0.0]]))
                 b_ub.append(float(Nq[0] @ (x0 - Q[0])))
             ko_rows = [np.array(A_ub)] if A_ub else []
-            bounds = [(-step, step), (-step, step), (None, step)]
+            bounds = box + [(None, step)]
             A1 = np.hstack([-A, np.ones((len(A), 1))])
 
             def max_clearance(s0, floor=None):
@@ -543,8 +557,10 @@ def untangle(V, F, ref_normals, free, keep_out=None, rounds=30, max_step=None, m
                 ko = np.array(A_ub)[:, :2]
                 A_ub2.append(np.hstack([ko, -ko]))
                 b_ub2.append(np.array(b_ub))
+            # (ab+, ab-) >= 0 within the same box: ab+ <= max(hi, 0), ab- <= max(-lo, 0)
             lp2 = linprog(np.ones(4), A_ub=np.vstack(A_ub2), b_ub=np.concatenate(b_ub2),
-                          bounds=[(0, step)] * 4, method="highs")
+                          bounds=[(0, max(box[0][1], 0.0)), (0, max(box[1][1], 0.0)),
+                                  (0, max(-box[0][0], 0.0)), (0, max(-box[1][0], 0.0))], method="highs")
             ab = (lp2.x[:2] - lp2.x[2:]) if lp2.status == 0 else lp1.x[:2]
             V[v] = x0 + E @ ab
             moved.add(int(v))

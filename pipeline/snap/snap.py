@@ -259,7 +259,13 @@ def snap_loop(V, F, loop, eye: EyeballSurface, st: SnapSettings | None = None, g
     n0u = n0 / np.maximum(np.linalg.norm(n0, axis=1, keepdims=True), 1e-300)
     n2 = np.cross(V2[F[:, 1]] - V2[F[:, 0]], V2[F[:, 2]] - V2[F[:, 0]])
     if free.any() and (np.einsum("ij,ij->i", n2, n0u) <= need).any():
-        V2, um = untangle(V2, F, n0, free, keep_out=eye.closest, min_projected=need)
+        # each vertex stays within its longest rest edge of where the relax left it: the
+        # untangle is a local correction, and its steps over 30 rounds otherwise add up (one
+        # vertex of id309_squint_up's upper lid walked 49 mm into the middle of the face)
+        E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+        reach_v = np.zeros(len(V))
+        np.maximum.at(reach_v, E.ravel(), np.repeat(np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1), 2))
+        V2, um = untangle(V2, F, n0, free, keep_out=eye.closest, min_projected=need, max_total=reach_v)
         untangled = len(um)
     return V2, {"moved": moved, "grazing": int(graze.sum()), "pushed_out": pushed,
                 "relax_iterations": relax_iters, "untangled": untangled,
