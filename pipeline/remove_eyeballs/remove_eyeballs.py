@@ -150,7 +150,9 @@ def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5, on_eye
     """
     loop_old = old_ids[loop]
     L = V[loop_old]
-    reach = 2.0 * median_edge_length(V2, F2[np.isin(F2, loop).any(axis=1)])
+    on_loop = np.zeros(len(V2), bool)     # np.isin over the whole cut mesh sorted all its indices
+    on_loop[loop] = True
+    reach = 2.0 * median_edge_length(V2, F2[on_loop[F2].any(axis=1)])
     lo, hi = L.min(axis=0) - reach - 1.0, L.max(axis=0) + reach + 1.0
     box = np.flatnonzero(((V >= lo) & (V <= hi)).all(axis=1))
     h = np.full(len(V), np.nan)
@@ -297,7 +299,10 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     if (fits["left"].region & fits["right"].region).any():
         raise ScanError(source, "the two eye regions overlap (hints too close or wrong)")
-    H_in = meshtopo.boundary_halfedges(F)
+    # one sort of the scan's directed edges gives its boundary and whether it is edge-manifold;
+    # the cut mesh's boundary follows from it by a look-up near the openings (meshtopo.cut_boundary_mask)
+    open_in, repeated = meshtopo.boundary_mask(F)
+    H_in = meshtopo.halfedges_of(F, open_in)
     loops_in = meshtopo.boundary_component_count(F, H_in)
     remove = fits["left"].region | fits["right"].region
     absorbed = _holes_inside(F, remove, H_in)
@@ -333,7 +338,7 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
         out["UV"] = out["UV"][usedt]
         out["FUV"] = rt[out["FUV"]]
     V2, F2n = out["V"], out["F"]
-    H2 = meshtopo.boundary_halfedges(F2n)
+    H2 = meshtopo.halfedges_of(F2n, meshtopo.cut_boundary_mask(F, open_in, remove))
     n_loops_out = meshtopo.boundary_component_count(F2n, H2)
     # region border vertices (old ids) per eye -> loops touching them
     loops, moved = {}, {}
@@ -373,5 +378,6 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
                     "faces_out": int(len(F2n)), "vertices_removed": int(nV - len(V2)),
                     "faces_removed": int(remove.sum()), "boundary_loops_in": loops_in,
                     "boundary_loops_out": n_loops_out, "holes_in_openings": absorbed,
-                    "edge_manifold_out": meshtopo.is_edge_manifold(F2n)})
+                    # removing faces repeats no directed edge: an edge-manifold scan stays one
+                    "edge_manifold_out": True if not repeated else meshtopo.is_edge_manifold(F2n)})
     return RemovalResult(mesh=out, eyes=eyes, fits=fits, result=StageResult(metrics))
