@@ -287,7 +287,10 @@ class ResidualRows:
         # the gaze over the whole patch (one BLAS call per row, as there), the cap only where
         # it is read (the eye vertices; the skin's residual is the plain sphere's)
         w = self.V[None, :, :] - c[:, None, :]
-        nw = np.maximum(np.linalg.norm(w, axis=2), 1e-9)
+        # np.linalg.norm's sum of squares, in its order (x, then y, then z), without its reduce
+        # over a length-3 axis
+        wx, wy, wz = w[:, :, 0], w[:, :, 1], w[:, :, 2]
+        nw = np.maximum(np.sqrt(wx * wx + wy * wy + wz * wz), 1e-9)
         wn = np.matmul(w, n[:, :, None])[:, :, 0]
         nwe = nw[:, self.eye]
         ca = np.clip(wn[:, self.eye] / nwe, -1.0, 1.0)

@@ -231,12 +231,12 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
     scan's median edge length."""
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
-    median_edge = median_edge_length(V, F)
+    median_edge, max_edge = median_edge_length(V, F, with_max=True)
     # everything a fit reads lies within the patch of its hint, plus a few edge rings: fit on
     # that sub-mesh, which keeps the full mesh's face/vertex order, and map regions back
     reach = max(st.patch_radius_mm, st.place_patch_mm) + 5.0 + 6.0 * median_edge + max(2.0, 1.5 * median_edge)
     centres = [np.asarray(hints[s], float) for s in SIDES]
-    Vs, Fs, faces, verts = local_mesh(V, F, centres, reach)
+    Vs, Fs, faces, verts = local_mesh(V, F, centres, reach, max_edge=max_edge)
     n_local = len(Fs)
     Vs, Fs, holes, hole_of_face = fill_holes_near(Vs, Fs, centres, st.sample_radius_mm,
                                                   st.max_hole_perimeter_mm)
