@@ -139,7 +139,8 @@ def unary_costs(p: Patch, e: Eye):
     d, ant, dsph, u = surface_residual(p.V, e)
     sig = np.where(ant, SIG_ANTERIOR, SIG_SCLERA)
     eye = 0.5 * (d / sig) ** 2 + np.log(sig * np.sqrt(2.0 * np.pi))
-    eye = np.where((u * p.N).sum(axis=1) > 0.5, np.minimum(eye, 30.0), 30.0)   # eye faces outward
+    un = u * p.N                        # summed x, y, z as sum(axis=1) does, without its reduce
+    eye = np.where(un[:, 0] + un[:, 1] + un[:, 2] > 0.5, np.minimum(eye, 30.0), 30.0)   # eye faces outward
     skin = np.log(SKIN_SPREAD_MM) + np.where(dsph < -TAU_INSIDE,
                                              0.5 * ((dsph + TAU_INSIDE) / SIG_SCLERA) ** 2, 0.0)
     return p.A * eye, p.A * skin
