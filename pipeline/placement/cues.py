@@ -267,7 +267,12 @@ class ResidualRows:
         lab = np.asarray(lab, bool)
         anterior = np.asarray(anterior, bool)
         sa = np.sqrt(p.A)
-        self.V = p.V
+        # the rows' points padded to an even count: each row's block of the stack then starts
+        # 16-byte aligned like the fresh array surface_residual makes, and OpenBLAS's product
+        # with the gaze (3 values per point, every other point aligned) rounds as it does there;
+        # an odd count shifted every other row by 8 bytes and changed last bits
+        self.n = len(p.V)
+        self.V = np.vstack([p.V, np.zeros((len(p.V) % 2, 3))])
         self.cues = cues
         self.eye, self.skin = np.flatnonzero(lab), ~lab
         self.scl, self.ant = ~anterior[lab], anterior[lab]      # among the eye vertices
@@ -290,9 +295,10 @@ class ResidualRows:
         w = self.V[None, :, :] - c[:, None, :]
         # np.linalg.norm's sum of squares, in its order (x, then y, then z), without its reduce
         # over a length-3 axis
+        wn = np.matmul(w, n[:, :, None])[:, :self.n, 0]
+        w = w[:, :self.n]
         wx, wy, wz = w[:, :, 0], w[:, :, 1], w[:, :, 2]
         nw = np.maximum(np.sqrt(wx * wx + wy * wy + wz * wz), 1e-9)
-        wn = np.matmul(w, n[:, :, None])[:, :, 0]
         nwe = nw[:, self.eye]
         ca = np.clip(wn[:, self.eye] / nwe, -1.0, 1.0)
         t = z0 * ca + np.sqrt(np.maximum(r * r - z0 * z0 * (1.0 - ca * ca), 0.0))
