@@ -55,13 +55,26 @@ def mirror(c, xm):
     return c
 
 
-@dataclass
 class FitResult:
-    eyes: list
-    cov: np.ndarray
-    shares: list          # per eye: {cue: share of the information on (c, R)}
-    cost: float
-    limbus_cov: list = None   # per eye: (6, 6) covariance of (limbus centre, unit gaze)
+    """One least-squares fit: ``eyes``, ``cost``, and its Laplace approximation: ``cov`` (the
+    centres and radii), ``shares`` (per eye: {cue: share of the information on (c, R)}),
+    ``limbus_cov`` (per eye: (6, 6) covariance of (limbus centre, unit gaze)). The Laplace part
+    is made when first read (``laplace_of()`` -> (cov, shares, limbus_cov)): the search makes
+    about 120 fits and reads it of the few it keeps (the same numbers whenever it is made)."""
+
+    def __init__(self, eyes, cost, laplace_of):
+        self.eyes, self.cost = eyes, cost
+        self._laplace_of, self._laplace = laplace_of, None
+
+    def _get(self, i):
+        if self._laplace is None:
+            self._laplace = self._laplace_of()
+            self._laplace_of = None
+        return self._laplace[i]
+
+    cov = property(lambda self: self._get(0))
+    shares = property(lambda self: self._get(1))
+    limbus_cov = property(lambda self: self._get(2))
 
 
 def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm=None,
@@ -156,28 +169,31 @@ def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm
     res = least_squares(f, x0, jac=jac, loss="soft_l1", f_scale=2.0, max_nfev=max_nfev, bounds=(lo, hi),
                         ftol=FIT_FTOL, xtol=FIT_XTOL)
     es = unpack(res.x)
-    # Laplace approximation on (c, R) of every eye
-    cols = []
-    for i in range(k):
-        b = nR + NP * i
-        cols.append([b, b + 1, b + 2, (0 if nR == 1 else i) if nR else None])
-    J_full = jac_blocks(res.x)
-    cov, shares, C = laplace(J_full, res.x, cols, nR, k)
-    # what a scan shows best is the front of the eye: the limbus centre and the gaze, with their
-    # covariance from the same Laplace approximation (the asset's eye is anchored there)
-    lcov = []
-    for i in range(k):
-        def g(x, i=i):
-            e = unpack(x)[i]
-            return np.concatenate([limbus_center(e), e.n])
-        J = np.zeros((6, len(res.x)))
-        for j in range(len(res.x)):
-            xp, xq = res.x.copy(), res.x.copy()
-            xp[j] += 1e-5
-            xq[j] -= 1e-5
-            J[:, j] = (g(xp) - g(xq)) / 2e-5
-        lcov.append(J @ C @ J.T if np.isfinite(C).all() else np.full((6, 6), np.inf))
-    return FitResult(es, cov, shares, float(res.cost), lcov)
+
+    def laplace_of():
+        # Laplace approximation on (c, R) of every eye
+        cols = []
+        for i in range(k):
+            b = nR + NP * i
+            cols.append([b, b + 1, b + 2, (0 if nR == 1 else i) if nR else None])
+        J_full = jac_blocks(res.x)
+        cov, shares, C = laplace(J_full, res.x, cols, nR, k)
+        # what a scan shows best is the front of the eye: the limbus centre and the gaze, with their
+        # covariance from the same Laplace approximation (the asset's eye is anchored there)
+        lcov = []
+        for i in range(k):
+            def g(x, i=i):
+                e = unpack(x)[i]
+                return np.concatenate([limbus_center(e), e.n])
+            J = np.zeros((6, len(res.x)))
+            for j in range(len(res.x)):
+                xp, xq = res.x.copy(), res.x.copy()
+                xp[j] += 1e-5
+                xq[j] -= 1e-5
+                J[:, j] = (g(xp) - g(xq)) / 2e-5
+            lcov.append(J @ C @ J.T if np.isfinite(C).all() else np.full((6, 6), np.inf))
+        return cov, shares, lcov
+    return FitResult(es, float(res.cost), laplace_of)
 
 
 def forward_differences(f_rows, x, f0, lo, hi):
