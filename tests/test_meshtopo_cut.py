@@ -74,6 +74,8 @@ def test_a_repeated_half_edge_is_not_edge_manifold():
     fin = np.array([[0, 1, 2], [1, 0, 3], [1, 0, 4]])        # three faces on one edge
     assert not meshtopo.is_edge_manifold(fin) and meshtopo.boundary_mask(fin)[1]
     assert meshtopo.is_edge_manifold(np.zeros((0, 3), np.int64))
+    for F in (tri, flipped, fin, np.vstack([_grid(3)[1], [[0, 1, 20]]])):   # either path: the definition
+        np.testing.assert_array_equal(meshtopo.halfedges_of(F, meshtopo.boundary_mask(F)[0]), _direct(F))
 
 
 def test_local_mesh_near_its_hints_is_the_whole_scans_selection():

@@ -102,16 +102,40 @@ def boundary_mask(F):
     ``open`` (3, m) bool: row ``k`` holds the edges ``F[:, k] -> F[:, (k + 1) % 3]``, True where
     no face runs the other way. ``repeated``: some directed half-edge belongs to two faces,
     which is exactly when ``F`` is not edge-manifold (:func:`is_edge_manifold`; three faces on
-    one edge repeat a direction too). One sort of the directed edges gives both."""
+    one edge repeat a direction too).
+
+    One sort of the edges, each keyed by its two vertices and its direction: an interior edge
+    of an edge-manifold mesh is two adjacent keys that differ in the direction only, a boundary
+    edge one key alone; the few lone keys are then looked up among the half-edges between
+    boundary vertices (a search of every half-edge among all of them took as long as the sort).
+    """
     F = np.asarray(F, dtype=np.int64)
     if len(F) == 0:
         return np.zeros((3, 0), bool), False
     n = int(F.max()) + 1
     a, b = F.T, np.roll(F, -1, axis=1).T
-    sf = np.sort((a * n + b).ravel())     # (b, a) exists iff rev is among the sorted fwd keys
-    rev = (b * n + a).ravel()
-    i = np.minimum(np.searchsorted(sf, rev), len(sf) - 1)
-    return (sf[i] != rev).reshape(3, -1), bool((sf[1:] == sf[:-1]).any())
+    key = ((np.minimum(a, b) * n + np.maximum(a, b)) * 2 + (a > b)).ravel()
+    s = np.sort(key)
+    if (s[1:] == s[:-1]).any():                 # a repeated direction: not edge-manifold
+        rev = (b * n + a).ravel()
+        sf = np.sort((a * n + b).ravel())
+        i = np.minimum(np.searchsorted(sf, rev), len(sf) - 1)
+        return (sf[i] != rev).reshape(3, -1), True
+    und = s >> 1
+    alone = np.ones(len(s), bool)
+    alone[1:] &= und[1:] != und[:-1]
+    alone[:-1] &= und[:-1] != und[1:]
+    lone = s[alone]                             # sorted keys of the boundary half-edges
+    open_ = np.zeros(key.shape, bool)
+    if len(lone):
+        on = np.zeros(n, bool)
+        u = lone >> 1
+        on[u // n] = True
+        on[u % n] = True
+        cand = np.flatnonzero(on[a.ravel()] & on[b.ravel()])
+        j = np.minimum(np.searchsorted(lone, key[cand]), len(lone) - 1)
+        open_[cand] = lone[j] == key[cand]
+    return open_.reshape(3, -1), False
 
 
 def cut_boundary_mask(F, open_, remove):
