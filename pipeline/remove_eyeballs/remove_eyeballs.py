@@ -106,7 +106,8 @@ def _lift_off_points(V, F, loop_old, h, tau, reach, k=3):
     from scipy.spatial import cKDTree
 
     ok = np.isfinite(h)
-    Fl = F[ok[F].all(axis=1)]
+    first = np.flatnonzero(ok[F[:, 0]])     # h is known near the loop only: test the few faces
+    Fl = F[first[ok[F[first, 1]] & ok[F[first, 2]]]]   # whose first corner has it (same faces)
     E = np.concatenate([Fl[:, [0, 1]], Fl[:, [1, 2]], Fl[:, [2, 0]]])
     E = np.unique(np.sort(E, axis=1), axis=0)
     ha, hb = h[E[:, 0]], h[E[:, 1]]
