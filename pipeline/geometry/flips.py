@@ -565,7 +565,7 @@ def move_guarded(V, F, loop, target, min_cos=0.5, min_area_ratio=0.1, halvings=4
     start = V[loop].copy()
     on = np.zeros(len(V), bool)         # a vertex mask: np.isin sorted the whole mesh's indices
     on[loop] = True
-    Fa = F[on[F].any(axis=1)]
+    Fa = F[meshtopo.faces_touching(F, on)]
 
     def normals(X):
         return np.cross(X[Fa[:, 1]] - X[Fa[:, 0]], X[Fa[:, 2]] - X[Fa[:, 0]])

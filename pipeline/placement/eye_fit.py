@@ -118,7 +118,7 @@ def local_mesh(V, F, hints, radius, max_edge=None):
         near = np.zeros(len(V), bool)
         for h in hints:
             near |= ((V - h) ** 2).sum(axis=1) < reach * reach
-        cand = np.flatnonzero(near[F].any(axis=1))
+        cand = np.flatnonzero(meshtopo.faces_touching(F, near))
     Fc = F if cand is None else F[cand]
     c = V[Fc].mean(axis=1)
     sel = np.zeros(len(Fc), bool)

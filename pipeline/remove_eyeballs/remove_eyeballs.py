@@ -153,7 +153,7 @@ def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5, on_eye
     L = V[loop_old]
     on_loop = np.zeros(len(V2), bool)     # np.isin over the whole cut mesh sorted all its indices
     on_loop[loop] = True
-    reach = 2.0 * median_edge_length(V2, F2[on_loop[F2].any(axis=1)])
+    reach = 2.0 * median_edge_length(V2, F2[meshtopo.faces_touching(F2, on_loop)])
     lo, hi = L.min(axis=0) - reach - 1.0, L.max(axis=0) + reach + 1.0
     box = np.flatnonzero(((V >= lo) & (V <= hi)).all(axis=1))
     h = np.full(len(V), np.nan)
@@ -202,7 +202,7 @@ def _holes_inside(F, remove, H=None):
     n = int(F.max()) + 1
     on_boundary = np.zeros(n, bool)
     on_boundary[H[:, 0]] = True
-    near = np.flatnonzero(on_boundary[F].any(axis=1))
+    near = np.flatnonzero(meshtopo.faces_touching(F, on_boundary))
     Fn = F[near]
     E = np.concatenate([Fn[:, [0, 1]], Fn[:, [1, 2]], Fn[:, [2, 0]]])
     fid = np.tile(near, 3)
