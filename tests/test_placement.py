@@ -308,3 +308,66 @@ def test_residual_jacobians_match_finite_differences():
         assert r.sum() > 0.9 * len(r) and J[k].shape == num[k].shape
         np.testing.assert_allclose(J[k][r], num[k][r], rtol=1e-5, atol=1e-5 * max(1.0, np.abs(num[k]).max()))
     assert (np.abs(J["anterior"][:, 7:10]) > 0).any() and (np.abs(J["skin"]) > 0).any()
+
+
+def _synthetic_eye_patch(n_points, seed=5):
+    """A patch of points around a known eye (eye vertices on the globe, skin off it), its
+    labels, cues and anterior mask, for the residual tests below."""
+    rng = np.random.default_rng(seed)
+    e = model.Eye(np.array([1.0, -2.0, 3.0]), 12.5, model.unit(np.array([0.3, -0.2, 1.0])), 0.8, 31.0, 0.35)
+    u = model.unit(rng.normal(size=(n_points, 3)) * [1.0, 1.0, 0.4] + [0.0, 0.0, 1.0])
+    P = e.c + u * (e.R + rng.normal(0.0, 0.8, (len(u), 1)))
+    p = cues.Patch(P, np.zeros((0, 3), np.int64), rng.uniform(0.05, 0.3, len(P)), u, np.zeros((0, 2), np.int64),
+                   np.zeros(0), P.mean(axis=0), np.arange(len(P)), np.zeros(0, np.int64))
+    lab = (u @ e.n > 0.6) & (rng.uniform(size=len(P)) < 0.8)
+    cu = cues.Cues(front=e.c + 12.0 * e.n + 0.5, axis=e.n, front_sigma=4.0, radius_prior=(12.0, 3.0))
+    return e, p, lab, cu, model.surface_residual(P, e)[1]
+
+
+@pytest.mark.parametrize("n_points", [600, 601])
+def test_residual_rows_are_residual_blocks_bit_for_bit(n_points):
+    """The stacked rows the fits evaluate are the blocks, every bit, in every row of the stack
+    (an odd number of points once shifted every other row's alignment and its last bits)."""
+    e, p, lab, cu, ant = _synthetic_eye_patch(n_points)
+    rows = cues.ResidualRows(p, lab, cu, ant)
+    rng = np.random.default_rng(1)
+    b = 9
+    C = e.c + rng.normal(0.0, 0.5, (b, 3))
+    N = model.unit(e.n + rng.normal(0.0, 0.1, (b, 3)))
+    R, ha = [float(v) for v in e.R + rng.normal(0.0, 0.5, b)], [float(v) for v in rng.uniform(0.0, 1.2, b)]
+    tl, hb = [float(v) for v in rng.uniform(26.0, 34.0, b)], [float(v) for v in rng.uniform(-0.5, 0.5, b)]
+    got = rows(C, R, N, ha, tl, hb)
+    for j in range(b):
+        ref = cues.residual_blocks(p, lab, model.Eye(C[j], R[j], N[j], ha[j], tl[j], hb[j]), cu, ant)
+        np.testing.assert_array_equal(got[j], np.concatenate(list(ref.values())))
+        np.testing.assert_array_equal(rows(C[j:j + 1], R[j:j + 1], N[j:j + 1], ha[j:j + 1], tl[j:j + 1],
+                                           hb[j:j + 1])[0], got[j])
+
+
+def test_forward_differences_are_scipys_two_point_jacobian():
+    """The stacked Jacobian is scipy's '2-point' one (same steps, also turned at a bound), so
+    least_squares takes the same steps with it: the same optimum, bit for bit."""
+    from scipy.optimize import least_squares
+    from scipy.optimize._numdiff import approx_derivative
+
+    e, p, lab, cu, ant = _synthetic_eye_patch(601)
+    rows = cues.ResidualRows(p, lab, cu, ant)
+
+    def f_rows(X):
+        return rows(X[:, 0:3], [float(x[3]) for x in X], np.array([fit._vec(x[4:6]) for x in X]),
+                    [float(x[6]) for x in X], [float(x[7]) for x in X], [float(x[8]) for x in X])
+
+    def f(x):
+        return f_rows(x[None, :])[0]
+    x0 = np.r_[e.c + 0.3, 12.0, fit._angles(e.n) + 0.05, 0.5, 30.0, 0.1]
+    lo = np.r_[e.c - 15.0, 10.0, 0.0, -np.pi - 1.0, -1.0, 24.0, -1.0]
+    hi = np.r_[e.c + 15.0, 21.0, np.radians(60.0), np.pi + 1.0, 1.6, 37.0, 1.6]
+    for x in (x0, np.r_[x0[:3], 21.0 - 1e-9, x0[4:]]):          # the second: R at its upper bound
+        f0 = f(x)
+        ref = approx_derivative(f, x, method="2-point", f0=f0, bounds=(lo, hi))
+        np.testing.assert_array_equal(fit.forward_differences(f_rows, x, f0, lo, hi), ref)
+    a = least_squares(f, x0, loss="soft_l1", f_scale=2.0, bounds=(lo, hi), ftol=1e-5, xtol=1e-5)
+    b = least_squares(f, x0, jac=lambda x: fit.forward_differences(f_rows, x, f(x), lo, hi), loss="soft_l1",
+                      f_scale=2.0, bounds=(lo, hi), ftol=1e-5, xtol=1e-5)
+    np.testing.assert_array_equal(a.x, b.x)
+    assert a.cost == b.cost

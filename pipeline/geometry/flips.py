@@ -579,7 +579,9 @@ def move_guarded(V, F, loop, target, min_cos=0.5, min_area_ratio=0.1, halvings=4
     the mean move, mm."""
     loop = np.asarray(loop)
     start = V[loop].copy()
-    Fa = F[np.isin(F, loop).any(axis=1)]
+    on = np.zeros(len(V), bool)         # a vertex mask: np.isin sorted the whole mesh's indices
+    on[loop] = True
+    Fa = F[meshtopo.faces_touching(F, on)]
 
     def normals(X):
         return np.cross(X[Fa[:, 1]] - X[Fa[:, 0]], X[Fa[:, 2]] - X[Fa[:, 0]])

@@ -39,6 +39,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pipeline.geometry.corners import CORNER_MAX_SHARE, MARGIN_OFF_GLOBE_MM, corner_weights
+from pipeline.geometry.meshtopo import faces_touching
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ def inside_area(V, F, center, radius, forward, around, lim: CheckLimits, rms=0.0
     near = np.linalg.norm(V - around, axis=1) < lim.radius_mm
     if not near.any():
         return 0.0
-    Fn = F[near[F].any(axis=1)]          # the faces around the neighbourhood give its areas
+    Fn = F[faces_touching(F, near)]      # the faces around the neighbourhood give its areas
     a = vertex_areas(V, Fn)[near]
     w = V[near] - center
     nw = np.linalg.norm(w, axis=1)

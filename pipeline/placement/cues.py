@@ -139,7 +139,8 @@ def unary_costs(p: Patch, e: Eye):
     d, ant, dsph, u = surface_residual(p.V, e)
     sig = np.where(ant, SIG_ANTERIOR, SIG_SCLERA)
     eye = 0.5 * (d / sig) ** 2 + np.log(sig * np.sqrt(2.0 * np.pi))
-    eye = np.where((u * p.N).sum(axis=1) > 0.5, np.minimum(eye, 30.0), 30.0)   # eye faces outward
+    un = u * p.N                        # summed x, y, z as sum(axis=1) does, without its reduce
+    eye = np.where(un[:, 0] + un[:, 1] + un[:, 2] > 0.5, np.minimum(eye, 30.0), 30.0)   # eye faces outward
     skin = np.log(SKIN_SPREAD_MM) + np.where(dsph < -TAU_INSIDE,
                                              0.5 * ((dsph + TAU_INSIDE) / SIG_SCLERA) ** 2, 0.0)
     return p.A * eye, p.A * skin
@@ -250,6 +251,72 @@ def residual_blocks(p: Patch, lab, e: Eye, cues: Cues, anterior=None):
     out["limbus_prior"] = np.array([(e.tl - LIMBUS_DEG[0]) / LIMBUS_DEG[1]])
     out["ring_prior"] = np.array([e.hb / HB_SIGMA])
     return out
+
+
+class ResidualRows:
+    """:func:`residual_blocks` of one eye, concatenated, for many eyes at once: the patch, the
+    labels and the anterior mask stay fixed through one least-squares fit, so what depends only
+    on them (``sqrt(A)``, the masks) is made once, and the forward differences' eyes (one per
+    parameter) are evaluated as one stack instead of one call each (most of a fit's time was the
+    Python around numpy's calls on ~1,500 vertices). Each row is bit for bit
+    ``np.concatenate(list(residual_blocks(p, lab, e, cues, anterior).values()))``: the same
+    operations element by element, the cap's scalars made one eye at a time by
+    :func:`pipeline.placement.model._cap` (``tests/test_placement.py`` holds the equality)."""
+
+    def __init__(self, p: Patch, lab, cues: Cues, anterior):
+        lab = np.asarray(lab, bool)
+        anterior = np.asarray(anterior, bool)
+        sa = np.sqrt(p.A)
+        # the rows' points padded to an even count: each row's block of the stack then starts
+        # 16-byte aligned like the fresh array surface_residual makes, and OpenBLAS's product
+        # with the gaze (3 values per point, every other point aligned) rounds as it does there;
+        # an odd count shifted every other row by 8 bytes and changed last bits
+        self.n = len(p.V)
+        self.V = np.vstack([p.V, np.zeros((len(p.V) % 2, 3))])
+        self.cues = cues
+        self.eye, self.skin = np.flatnonzero(lab), ~lab
+        self.scl, self.ant = ~anterior[lab], anterior[lab]      # among the eye vertices
+        self.sa_scl, self.sa_ant, self.sa_skin = sa[lab & ~anterior], sa[lab & anterior], sa[~lab]
+
+    def __call__(self, c, R, n, ha, tl, hb):
+        """Rows for ``b`` eyes: ``c`` (b, 3), ``n`` (b, 3) unit gazes, ``R``, ``ha``, ``tl``,
+        ``hb``: sequences of ``b`` Python floats. Returns (b, rows)."""
+        from pipeline.placement.model import APEX_FRACTION, _cap
+
+        b = len(R)
+        Rc = np.array(R, dtype=np.float64)[:, None]
+        tlc = np.array(tl, dtype=np.float64)[:, None]
+        caps = [_cap(R[j], ha[j], tl[j]) for j in range(b)]
+        z0 = np.array([z for z, _ in caps], dtype=np.float64)[:, None]
+        r = np.array([q for _, q in caps], dtype=np.float64)[:, None]
+        # surface_residual and cap_height, row by row as they compute them; the product with
+        # the gaze over the whole patch (one BLAS call per row, as there), the cap only where
+        # it is read (the eye vertices; the skin's residual is the plain sphere's)
+        w = self.V[None, :, :] - c[:, None, :]
+        # np.linalg.norm's sum of squares, in its order (x, then y, then z), without its reduce
+        # over a length-3 axis
+        wn = np.matmul(w, n[:, :, None])[:, :self.n, 0]
+        w = w[:, :self.n]
+        wx, wy, wz = w[:, :, 0], w[:, :, 1], w[:, :, 2]
+        nw = np.maximum(np.sqrt(wx * wx + wy * wy + wz * wz), 1e-9)
+        nwe = nw[:, self.eye]
+        ca = np.clip(wn[:, self.eye] / nwe, -1.0, 1.0)
+        t = z0 * ca + np.sqrt(np.maximum(r * r - z0 * z0 * (1.0 - ca * ca), 0.0))
+        s2 = (np.arccos(ca) / np.radians(tlc)) ** 2
+        k = np.array([hb[j] * APEX_FRACTION * R[j] * 4.0 for j in range(b)], dtype=np.float64)[:, None]
+        ring = k * s2 * (1.0 - s2)
+        h = np.where(ca > np.cos(np.radians(tlc)), t - Rc + ring, 0.0)
+        d = nwe - Rc - h
+        cu = self.cues
+        cols = [self.sa_scl * d[:, self.scl] / SIG_SCLERA,
+                self.sa_ant * d[:, self.ant] / SIG_ANTERIOR,
+                self.sa_skin * np.minimum(nw[:, self.skin] - Rc + TAU_INSIDE, 0.0) / SIG_SCLERA]
+        if cu.front is not None:
+            cols.append((c + Rc * cu.axis - cu.front) / cu.front_sigma)
+        cols.append((Rc - cu.radius_prior[0]) / cu.radius_prior[1])
+        cols.append((tlc - LIMBUS_DEG[0]) / LIMBUS_DEG[1])
+        cols.append(np.array(hb, dtype=np.float64)[:, None] / HB_SIGMA)
+        return np.concatenate(cols, axis=1)
 
 
 JAC_COLUMNS = ("cx", "cy", "cz", "R", "nx", "ny", "nz", "ha", "tl", "hb")

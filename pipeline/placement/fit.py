@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry.spherefit import sphere_from_normals
-from pipeline.placement.cues import (COARSE_VERTICES, PRIOR_BLOCKS, Cues, Patch, build_patch, coarse_patch, fold_deg, midplane_x,
-                                     residual_blocks, residual_jacobians, segment, unary_costs)
+from pipeline.placement.cues import (COARSE_VERTICES, PRIOR_BLOCKS, Cues, Patch, ResidualRows, build_patch, coarse_patch,
+                                     fold_deg, midplane_x, residual_blocks, residual_jacobians, segment, unary_costs)
 from pipeline.placement.model import HA_RANGE, HB_RANGE, LIMBUS_RANGE, Eye, limbus_center, surface_residual, unit
 from pipeline.placement.uncertainty import laplace, placement_of, share_radius
 
@@ -55,13 +55,26 @@ def mirror(c, xm):
     return c
 
 
-@dataclass
 class FitResult:
-    eyes: list
-    cov: np.ndarray
-    shares: list          # per eye: {cue: share of the information on (c, R)}
-    cost: float
-    limbus_cov: list = None   # per eye: (6, 6) covariance of (limbus centre, unit gaze)
+    """One least-squares fit: ``eyes``, ``cost``, and its Laplace approximation: ``cov`` (the
+    centres and radii), ``shares`` (per eye: {cue: share of the information on (c, R)}),
+    ``limbus_cov`` (per eye: (6, 6) covariance of (limbus centre, unit gaze)). The Laplace part
+    is made when first read (``laplace_of()`` -> (cov, shares, limbus_cov)): the search makes
+    about 120 fits and reads it of the few it keeps (the same numbers whenever it is made)."""
+
+    def __init__(self, eyes, cost, laplace_of):
+        self.eyes, self.cost = eyes, cost
+        self._laplace_of, self._laplace = laplace_of, None
+
+    def _get(self, i):
+        if self._laplace is None:
+            self._laplace = self._laplace_of()
+            self._laplace_of = None
+        return self._laplace[i]
+
+    cov = property(lambda self: self._get(0))
+    shares = property(lambda self: self._get(1))
+    limbus_cov = property(lambda self: self._get(2))
 
 
 def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm=None,
@@ -86,18 +99,35 @@ def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm
 
     # which eye vertices are anterior is decided once per fit, so the blocks keep their sizes
     ant = [surface_residual(patches[i].V, eyes[i])[1] for i in range(k)]
+    rows = [ResidualRows(patches[i], labs[i], cues[i], ant[i]) for i in range(k)]
 
-    def blocks(x):
-        es = unpack(x)
-        bl = [residual_blocks(patches[i], labs[i], es[i], cues[i], ant[i]) for i in range(k)]
-        extra = {}
+    def f_rows(X):
+        """The residual vector of every row of ``X`` (b, len(x)), (b, m): every eye's
+        :func:`residual_blocks` concatenated, then the mirror prior on the centres (``pair``)."""
+        out = []
+        for i in range(k):
+            b = nR + NP * i
+            R = [fixed_radius if nR == 0 else float(x[0 if nR == 1 else i]) for x in X]
+            out.append(rows[i](X[:, b:b + 3], R, np.array([_vec(x[b + 3:b + 5]) for x in X]),
+                               [float(x[b + 5]) for x in X], [float(x[b + 6]) for x in X],
+                               [float(x[b + 7]) for x in X]))
         if xm is not None and k == 2:
-            extra["pair"] = (es[1].c - mirror(es[0].c, xm))[1:] / sym_sigma
-        return bl, extra
+            c0, c1 = X[:, nR:nR + 3], X[:, nR + NP:nR + NP + 3]
+            out.append((c1 - mirror(c0, xm))[:, 1:] / sym_sigma)
+        return np.concatenate(out, axis=1)
+
+    last = {}
 
     def f(x):
-        bl, extra = blocks(x)
-        return np.concatenate([v for b in bl for v in b.values()] + list(extra.values()))
+        r = f_rows(x[None, :])[0]
+        last["x"], last["f"] = x.copy(), r
+        return r
+
+    def jac(x):
+        """scipy's forward differences ('2-point', the step and its turn at a bound as
+        ``approx_derivative`` takes them), every shifted x evaluated in one stack."""
+        f0 = last["f"] if "x" in last and np.array_equal(last["x"], x) else f(x)
+        return forward_differences(f_rows, x, f0, lo, hi)
 
     def jac_blocks(x):
         """The partials of ``blocks`` along ``x``, named as the Laplace step reads them."""
@@ -136,31 +166,53 @@ def fit_eyes(patches, labs, eyes, cues, radius_range, *, shared_radius=False, xm
     # the steps keep scipy's forward differences, not jac_blocks: which local optimum the search
     # ends in rests on them (on 13 unseen heads the exact Jacobian moved 6 of 26 eyes into another
     # basin, 5 of them further off; central differences moved eyes of the two heads tried too)
-    res = least_squares(f, x0, loss="soft_l1", f_scale=2.0, max_nfev=max_nfev, bounds=(lo, hi),
+    res = least_squares(f, x0, jac=jac, loss="soft_l1", f_scale=2.0, max_nfev=max_nfev, bounds=(lo, hi),
                         ftol=FIT_FTOL, xtol=FIT_XTOL)
     es = unpack(res.x)
-    # Laplace approximation on (c, R) of every eye
-    cols = []
-    for i in range(k):
-        b = nR + NP * i
-        cols.append([b, b + 1, b + 2, (0 if nR == 1 else i) if nR else None])
-    J_full = jac_blocks(res.x)
-    cov, shares, C = laplace(J_full, res.x, cols, nR, k)
-    # what a scan shows best is the front of the eye: the limbus centre and the gaze, with their
-    # covariance from the same Laplace approximation (the asset's eye is anchored there)
-    lcov = []
-    for i in range(k):
-        def g(x, i=i):
-            e = unpack(x)[i]
-            return np.concatenate([limbus_center(e), e.n])
-        J = np.zeros((6, len(res.x)))
-        for j in range(len(res.x)):
-            xp, xq = res.x.copy(), res.x.copy()
-            xp[j] += 1e-5
-            xq[j] -= 1e-5
-            J[:, j] = (g(xp) - g(xq)) / 2e-5
-        lcov.append(J @ C @ J.T if np.isfinite(C).all() else np.full((6, 6), np.inf))
-    return FitResult(es, cov, shares, float(res.cost), lcov)
+
+    def laplace_of():
+        # Laplace approximation on (c, R) of every eye
+        cols = []
+        for i in range(k):
+            b = nR + NP * i
+            cols.append([b, b + 1, b + 2, (0 if nR == 1 else i) if nR else None])
+        J_full = jac_blocks(res.x)
+        cov, shares, C = laplace(J_full, res.x, cols, nR, k)
+        # what a scan shows best is the front of the eye: the limbus centre and the gaze, with their
+        # covariance from the same Laplace approximation (the asset's eye is anchored there)
+        lcov = []
+        for i in range(k):
+            def g(x, i=i):
+                e = unpack(x)[i]
+                return np.concatenate([limbus_center(e), e.n])
+            J = np.zeros((6, len(res.x)))
+            for j in range(len(res.x)):
+                xp, xq = res.x.copy(), res.x.copy()
+                xp[j] += 1e-5
+                xq[j] -= 1e-5
+                J[:, j] = (g(xp) - g(xq)) / 2e-5
+            lcov.append(J @ C @ J.T if np.isfinite(C).all() else np.full((6, 6), np.inf))
+        return cov, shares, lcov
+    return FitResult(es, float(res.cost), laplace_of)
+
+
+def forward_differences(f_rows, x, f0, lo, hi):
+    """The Jacobian scipy's ``least_squares`` takes with ``jac='2-point'`` and bounds ``(lo,
+    hi)`` at ``x`` (``f0`` = f(x)), (m, len(x)), with every shifted x evaluated by one call of
+    ``f_rows`` ((b, len(x)) -> (b, m)): the same steps (scipy's ``_compute_absolute_step``
+    and ``_adjust_scheme_to_bounds``), the same shifted points and quotients, so the same
+    numbers, the same layout, and the fits end where they ended
+    (``tests/test_placement.py`` compares it with ``approx_derivative``)."""
+    from scipy.optimize._numdiff import _adjust_scheme_to_bounds, _compute_absolute_step
+
+    h = _compute_absolute_step(None, x, f0, "2-point")
+    h, _ = _adjust_scheme_to_bounds(x, h, 1, "1-sided", lo, hi)
+    n = len(x)
+    X = np.repeat(x[None, :], n, axis=0)
+    X[np.arange(n), np.arange(n)] = x + h
+    dx = (x + h) - x
+    JT = (f_rows(X) - f0) / dx[:, None]
+    return JT.T
 
 
 def hypotheses(p: Patch, cues: Cues, radius_range, rng, n_pairs=1500, keep=3, min_fold_deg=15.0,

@@ -106,7 +106,8 @@ def _lift_off_points(V, F, loop_old, h, tau, reach, k=3):
     from scipy.spatial import cKDTree
 
     ok = np.isfinite(h)
-    Fl = F[ok[F].all(axis=1)]
+    first = np.flatnonzero(ok[F[:, 0]])     # h is known near the loop only: test the few faces
+    Fl = F[first[ok[F[first, 1]] & ok[F[first, 2]]]]   # whose first corner has it (same faces)
     E = np.concatenate([Fl[:, [0, 1]], Fl[:, [1, 2]], Fl[:, [2, 0]]])
     E = np.unique(np.sort(E, axis=1), axis=0)
     ha, hb = h[E[:, 0]], h[E[:, 1]]
@@ -150,7 +151,9 @@ def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5, on_eye
     """
     loop_old = old_ids[loop]
     L = V[loop_old]
-    reach = 2.0 * median_edge_length(V2, F2[np.isin(F2, loop).any(axis=1)])
+    on_loop = np.zeros(len(V2), bool)     # np.isin over the whole cut mesh sorted all its indices
+    on_loop[loop] = True
+    reach = 2.0 * median_edge_length(V2, F2[meshtopo.faces_touching(F2, on_loop)])
     lo, hi = L.min(axis=0) - reach - 1.0, L.max(axis=0) + reach + 1.0
     box = np.flatnonzero(((V >= lo) & (V <= hi)).all(axis=1))
     h = np.full(len(V), np.nan)
@@ -199,7 +202,7 @@ def _holes_inside(F, remove, H=None):
     n = int(F.max()) + 1
     on_boundary = np.zeros(n, bool)
     on_boundary[H[:, 0]] = True
-    near = np.flatnonzero(on_boundary[F].any(axis=1))
+    near = np.flatnonzero(meshtopo.faces_touching(F, on_boundary))
     Fn = F[near]
     E = np.concatenate([Fn[:, [0, 1]], Fn[:, [1, 2]], Fn[:, [2, 0]]])
     fid = np.tile(near, 3)
@@ -229,12 +232,12 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
     scan's median edge length."""
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
-    median_edge = median_edge_length(V, F)
+    median_edge, max_edge = median_edge_length(V, F, with_max=True)
     # everything a fit reads lies within the patch of its hint, plus a few edge rings: fit on
     # that sub-mesh, which keeps the full mesh's face/vertex order, and map regions back
     reach = max(st.patch_radius_mm, st.place_patch_mm) + 5.0 + 6.0 * median_edge + max(2.0, 1.5 * median_edge)
     centres = [np.asarray(hints[s], float) for s in SIDES]
-    Vs, Fs, faces, verts = local_mesh(V, F, centres, reach)
+    Vs, Fs, faces, verts = local_mesh(V, F, centres, reach, max_edge=max_edge)
     n_local = len(Fs)
     Vs, Fs, holes, hole_of_face = fill_holes_near(Vs, Fs, centres, st.sample_radius_mm,
                                                   st.max_hole_perimeter_mm)
@@ -297,7 +300,10 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     if (fits["left"].region & fits["right"].region).any():
         raise ScanError(source, "the two eye regions overlap (hints too close or wrong)")
-    H_in = meshtopo.boundary_halfedges(F)
+    # one sort of the scan's directed edges gives its boundary and whether it is edge-manifold;
+    # the cut mesh's boundary follows from it by a look-up near the openings (meshtopo.cut_boundary_mask)
+    open_in, repeated = meshtopo.boundary_mask(F)
+    H_in = meshtopo.halfedges_of(F, open_in)
     loops_in = meshtopo.boundary_component_count(F, H_in)
     remove = fits["left"].region | fits["right"].region
     absorbed = _holes_inside(F, remove, H_in)
@@ -333,7 +339,7 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
         out["UV"] = out["UV"][usedt]
         out["FUV"] = rt[out["FUV"]]
     V2, F2n = out["V"], out["F"]
-    H2 = meshtopo.boundary_halfedges(F2n)
+    H2 = meshtopo.halfedges_of(F2n, meshtopo.cut_boundary_mask(F, open_in, remove))
     n_loops_out = meshtopo.boundary_component_count(F2n, H2)
     # region border vertices (old ids) per eye -> loops touching them
     loops, moved = {}, {}
@@ -373,5 +379,6 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
                     "faces_out": int(len(F2n)), "vertices_removed": int(nV - len(V2)),
                     "faces_removed": int(remove.sum()), "boundary_loops_in": loops_in,
                     "boundary_loops_out": n_loops_out, "holes_in_openings": absorbed,
-                    "edge_manifold_out": meshtopo.is_edge_manifold(F2n)})
+                    # removing faces repeats no directed edge: an edge-manifold scan stays one
+                    "edge_manifold_out": True if not repeated else meshtopo.is_edge_manifold(F2n)})
     return RemovalResult(mesh=out, eyes=eyes, fits=fits, result=StageResult(metrics))
