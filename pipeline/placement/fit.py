@@ -26,6 +26,7 @@ SIDES = ("left", "right")
 REFINE_ITERS = 3
 POLISH_KEEP, POLISH_ITERS = 2, 4   # the best local optima refined further (polish)
 RESTARTS_KEEP = 4                  # turned gazes refined in full after one round each
+RIVAL_MM = 3.0                     # an optimum this far from the best is another basin: restarted too
 NP = 8                  # parameters per eye besides the radius: c (3), gaze (2), ha, tl, hb
 # least-squares stops: a relative change of 1e-5 in a cost of ~1e3 is 0.01 of an energy whose
 # rivals are weighed at a temperature of 5, and a step of 1e-5 of |x| (~80, the centre in mm)
@@ -272,15 +273,24 @@ def gaze_restarts(p: Patch, found, cues: Cues, radius_range, min_fold_deg):
     turned 20-45 deg from it (looking in, out, down; ICT's eyes rest 5-10 deg out) sits in
     another basin of the least squares; the energy tells them apart (on the unseen heads a
     start at the true gaze ended lower in every case that had gone astray)."""
-    ok = [m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()]
+    ok = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()), key=lambda m: m.energy)
     if not ok:
         return []
-    m = min(ok, key=lambda m: m.energy)
-    e = m.eye
+    # from the best optimum and from the best one in another place (a rival basin, its centre
+    # RIVAL_MM away): a start whose gaze the eye region's forward turned 20 deg off can end
+    # above a wrong sphere (ident_s1_000's hooded right eye: the true eye's start ended at 3449,
+    # a sphere through the lower lid 8 mm low at 3369, and only the turned gazes from the true
+    # eye's start reach its floor, 3083)
+    starts = [(ok[0].eye, ok[0].eye.n)]
+    rival = next((m for m in ok[1:] if np.linalg.norm(m.eye.c - ok[0].eye.c) > RIVAL_MM), None)
+    if rival is not None:
+        # turned about the gaze every start took (the eye region's forward), not the rival's
+        # own: that one had wandered 50 deg up into the hood
+        starts.append((rival.eye, rival.eye.n if cues.axis is None else np.asarray(cues.axis, float)))
     # one round from every turned gaze, then the full refinement of the few lowest: most turned
     # starts fall back into the start's basin or wander off within one round
-    first = [refine(p, Eye(e.c, e.R, _turn(e.n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1)
-             for yaw, pitch in GAZE_RESTARTS_DEG]
+    first = [refine(p, Eye(e.c, e.R, _turn(n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1)
+             for e, n in starts for yaw, pitch in GAZE_RESTARTS_DEG]
     first.sort(key=lambda t: t.energy)
     return _refine_each(p, [t.eye for t in first[:RESTARTS_KEEP]], cues, radius_range, REFINE_ITERS - 1)
 
