@@ -368,7 +368,7 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
                                 f"{loops_in} - {absorbed} holes in the openings + 2")
     eyes, metrics = judge_pair(V, F, V2, loops, fits, placements, st, median_edge=median_edge,
                                mesh_arrays=mesh_arrays, hints=hints, texture=texture,
-                               eyeball=eyeball, moved=moved)
+                               eyeball=eyeball, moved=moved, source=source)
     metrics.update({"vertices_in": nV, "faces_in": nF, "vertices_out": int(len(V2)),
                     "faces_out": int(len(F2n)), "vertices_removed": int(nV - len(V2)),
                     "faces_removed": int(remove.sum()), "boundary_loops_in": loops_in,
