@@ -276,17 +276,22 @@ def gaze_restarts(p: Patch, found, cues: Cues, radius_range, min_fold_deg):
     ok = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()), key=lambda m: m.energy)
     if not ok:
         return []
-    # from the best optimum and from the best one in another place (a rival basin, its centre
-    # RIVAL_MM away): a start whose gaze the eye region's forward turned 20 deg off can end
-    # above a wrong sphere (ident_s1_000's hooded right eye: the true eye's start ended at 3449,
-    # a sphere through the lower lid 8 mm low at 3369, and only the turned gazes from the true
-    # eye's start reach its floor, 3083)
+    # from the best optimum and from one in another place (a rival basin, its centre RIVAL_MM
+    # away): a start whose gaze the eye region's forward turned 20 deg off can end above a wrong
+    # sphere (ident_s1_000's hooded right eye: the true eye's start ended at 3449 with its gaze
+    # wandered 70 deg off, a sphere through the lower lid 8 mm low at 3369, and only turned
+    # gazes from the true eye's start reach its floor, 3083)
     starts = [(ok[0].eye, ok[0].eye.n)]
-    rival = next((m for m in ok[1:] if np.linalg.norm(m.eye.c - ok[0].eye.c) > RIVAL_MM), None)
-    if rival is not None:
-        # turned about the gaze every start took (the eye region's forward), not the rival's
-        # own: that one had wandered 50 deg up into the hood
-        starts.append((rival.eye, rival.eye.n if cues.axis is None else np.asarray(cues.axis, float)))
+    rivals = [m for m in ok[1:] if np.linalg.norm(m.eye.c - ok[0].eye.c) > RIVAL_MM]
+    if rivals:
+        axis = None if cues.axis is None else np.asarray(cues.axis, float)
+        # the rival the eye-region prior points to (its globe's front nearest the prior's), else
+        # the lowest: a lower rival through a half-blinked lower lid (id308_halfblink, 7 mm
+        # below the prior's front) only leads the restarts to a lower wrong optimum
+        rival = rivals[0] if cues.front is None or axis is None else min(
+            rivals, key=lambda m: float(np.linalg.norm(m.eye.c + m.eye.R * axis - cues.front)))
+        # turned about the gaze every start took (the eye region's forward), not the rival's own
+        starts.append((rival.eye, rival.eye.n if axis is None else axis))
     # one round from every turned gaze, then the full refinement of the few lowest: most turned
     # starts fall back into the start's basin or wander off within one round
     first = [refine(p, Eye(e.c, e.R, _turn(n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1)
