@@ -578,3 +578,83 @@ def test_stage_warns_of_each_doubt_and_still_publishes(extra_scan, tmp_path, cap
     eyes = read_eyes(tmp_path / "out" / "eyes.json")
     # beside the texture placement's own (limbus +-1.2 mm, axis +-5 deg: the anatomy's spread)
     assert all(sum("texture's fissure" in d for d in eyes[s].doubts) == 1 for s in ("left", "right"))
+
+
+@pytest.fixture(scope="module")
+def hooded_identity(tmp_path_factory):
+    """``ident_s1_000`` (seed 1, index 0: eye_shape 0.98, the most hooded draw; issue 30) as
+    ``benchmarks.bench_identities`` makes it: the scan, its ingest and the params file. The
+    stages run as ``python -m`` (pinned kernels, as dvc runs them: the search's basins rest on
+    the last bits)."""
+    import subprocess
+    import sys
+
+    from benchmarks.bench_identities import write_params
+    from pipeline.synthetic_head.identities import DEFAULT_TRIANGLES, draw_identity, identity_name
+
+    root = Path(__file__).resolve().parents[1]
+    work = tmp_path_factory.mktemp("ident_s1_000")
+    name = identity_name(1, 0)
+    params = write_params(work, 1, {name: draw_identity(1, 0, DEFAULT_TRIANGLES)})
+    scan, ingest = work / "scans" / name, work / "ingest"
+    for cmd in (["stages.synthetic_head", str(scan), "--identity", name],
+                ["stages.ingest", str(scan), str(ingest)]):
+        subprocess.run([sys.executable, "-m", *cmd, "--params", str(params), "--metrics", str(work / "m.json")],
+                       cwd=root, check=True, capture_output=True)
+    return {"root": root, "work": work, "scan": scan, "ingest": ingest, "params": params}
+
+
+def _remove_eyeballs(ident, out, rival_restarts=True):
+    """The stage on the identity's ingest in a pinned subprocess; ``rival_restarts=False``
+    searches as before issue 30's fix (restarts from the best optimum only)."""
+    import subprocess
+    import sys
+
+    import os
+
+    script = ident["work"] / "run_stage.py"
+    rival = "fit.RIVAL_MM" if rival_restarts else "float('inf')"
+    script.write_text("from pipeline.kernels import pin_process\npin_process()\n"
+                      f"import pipeline.placement.fit as fit\nfit.RIVAL_MM = {rival}\n"
+                      "from stages._common import stage_exit\nfrom stages.remove_eyeballs import main\n"
+                      "stage_exit(main)\n")
+    return subprocess.run([sys.executable, str(script), str(ident["ingest"]), str(out), "--params",
+                           str(ident["params"]), "--metrics", str(ident["work"] / "re.json")],
+                          cwd=ident["root"], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ident["root"])})
+
+
+@pytest.mark.slow
+def test_the_hooded_identity_is_placed_at_its_limbus(hooded_identity):
+    """Issue 30: ident_s1_000's right eye was placed 9.2 mm off (a sphere through the lower lid,
+    its loop cut below it); with the rival basin restarted it lies at the truth and its loop
+    on it."""
+    out = hooded_identity["work"] / "re"
+    r = _remove_eyeballs(hooded_identity, out)
+    assert r.returncode == 0, r.stderr
+    truth = json.loads((hooded_identity["scan"] / "ground_truth.json").read_text())["eyes"]
+    eyes = json.loads((out / "eyes.json").read_text())
+    for s in ("left", "right"):
+        lim = np.array(eyes[s]["limbus"]["center"]) - truth[s]["limbus"]["center_mm"]
+        assert np.linalg.norm(lim) < 1.0 and eyes[s]["limbus"]["source"] == "geometry", (s, lim)
+        assert eyes[s]["checks"]["loop_on_sphere"]["ok"] and "loop_on_eye" not in eyes[s]["checks"]
+        margin = np.array(truth[s]["eyelid_margin"]["points_mm"])
+        loop = np.array(eyes[s]["loop_points"])
+        assert loop[:, 1].min() > margin[:, 1].min() - 1.5      # not cut below the lower lid
+
+
+@pytest.mark.slow
+def test_a_loop_that_follows_no_eye_is_refused(hooded_identity):
+    """The search before the fix puts ident_s1_000's right eye on a sphere through the lower lid
+    and cuts a 25-vertex loop below it: loop_on_sphere fails (1.52 mm) and the eye placed from
+    that opening has the loop 2.4 mm inside it. Refused in one line naming the scan folder, the
+    eye and both checks; nothing written."""
+    out = hooded_identity["work"] / "re_old"
+    r = _remove_eyeballs(hooded_identity, out, rival_restarts=False)
+    assert r.returncode == 2, r.stderr
+    err = [ln for ln in r.stderr.strip().splitlines() if not ln.startswith("warning:")]
+    assert len(err) == 1 and err[0].startswith(f"error: {hooded_identity['scan']}: right eye: "
+                                               f"self-check loop_on_sphere: the eyelid loop lies "), err
+    assert "self-check loop_on_eye: the eyelid loop lies" in err[0] and "inside the eye the asset" in err[0]
+    assert "(placed from the opening): the cut follows no eye behind these lids" in err[0]
+    assert not out.exists()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -260,4 +261,8 @@ def test_stage_refuses_a_rig_whose_sweep_flips_faces(tmp_path, capsys):
     assert run_stage(rig_stage.main, [str(snap), str(out), "--params", str(params)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "flips" in err[0] and "mesh.npz" in err[0]
+    # where: the upper lids fold looking up (gain 1.0 there), near the margin, with the pitch
+    assert re.search(r"worst on the (left|right) eye's upper lid: a face turned \d+ deg at pitch \+\d+(\.\d+)? deg"
+                     r" \(over from \+\d+(\.\d+)? deg\), ring \d+ out from loop vertex \d+ of 48", err[0]), err[0]
+    assert "mm in the head frame" in err[0] and "the first at pitch +" in err[0]
     assert not out.exists()
