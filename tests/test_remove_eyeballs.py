@@ -658,3 +658,32 @@ def test_a_loop_that_follows_no_eye_is_refused(hooded_identity):
     assert "self-check loop_on_eye: the eyelid loop lies" in err[0] and "inside the eye the asset" in err[0]
     assert "(placed from the opening): the cut follows no eye behind these lids" in err[0]
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_a_loop_the_published_eye_holds_is_a_doubt_not_a_refusal(monkeypatch):
+    """The right eye's fitted sphere moved 3 mm down under its (true) cut: loop_on_sphere fails,
+    but the eye the asset carries (re-anchored at the limbus the scan shows) holds the loop, so
+    the eye is published with both doubts and loop_on_eye in its checks."""
+    from dataclasses import replace
+
+    import pipeline.placement.place as place
+    from pipeline.placement.model import Eye
+
+    real = place.place_eyes
+
+    def lowered(*a, **k):
+        out = real(*a, **k)
+        e = out["right"].eye
+        out["right"] = replace(out["right"], eye=Eye(np.asarray(e.c) + [0.0, -3.0, 0.0], e.R, e.n, e.ha, e.tl, e.hb))
+        return out
+
+    monkeypatch.setattr(place, "place_eyes", lowered)
+    mesh, hints, _ = make_head(0.7)
+    res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings(), source="lowered.npz")
+    right = res.eyes["right"].to_doc()
+    assert not right["checks"]["loop_on_sphere"]["ok"] and right["checks"]["loop_on_eye"]["ok"]
+    assert any(d.startswith("self-check loop_on_sphere: the eyelid loop lies ") for d in right["doubts"])
+    assert any(d.startswith("the eyelid loop missed the fitted sphere, but the eye the asset carries")
+               for d in right["doubts"]), right["doubts"]
+    assert "loop_on_eye" not in res.eyes["left"].to_doc()["checks"]

@@ -318,6 +318,11 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                                         f"{eye_checks.describe('loop_on_eye', checks[s]['loop_on_eye'])} "
                                         f"(placed from the {asset[s]['limbus']['source']}): the cut follows "
                                         f"no eye behind these lids")
+            # repaired: published, and says by what
+            doubts[s].append(f"the eyelid loop missed the fitted sphere, but the eye the asset carries "
+                             f"(placed from the {asset[s]['limbus']['source']}) holds it (loop_on_eye: "
+                             f"{checks[s]['loop_on_eye']['value']:.2f} mm inside it at most, limit "
+                             f"{checks[s]['loop_on_eye']['limit']} mm)")
     eyes = {}
     for s in SIDES:
         fit, (loop, lat), a, rec = fits[s], loops[s], asset[s], records[s]
