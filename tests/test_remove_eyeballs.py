@@ -675,7 +675,8 @@ def test_a_loop_the_published_eye_holds_is_a_doubt_not_a_refusal(monkeypatch):
     def lowered(*a, **k):
         out = real(*a, **k)
         e = out["right"].eye
-        out["right"] = replace(out["right"], eye=Eye(np.asarray(e.c) + [0.0, -3.0, 0.0], e.R, e.n, e.ha, e.tl, e.hb))
+        low = Eye(np.asarray(e.c) + [0.0, -3.0, 0.0], e.R, e.n, e.ha, e.tl, e.hb)
+        out["right"] = replace(out["right"], eye=low)
         return out
 
     monkeypatch.setattr(place, "place_eyes", lowered)

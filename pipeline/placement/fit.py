@@ -5,7 +5,8 @@ Search: sphere hypotheses from pairs of oriented vertices near the hint (and alo
 axis), ranked by the graph-cut energy; the best few are refined by alternating the cut and a
 robust least-squares fit of ``(c, R, n, ha, tl)`` (EM). The best of them is refitted again from
 gazes turned up to 45 deg away (:func:`gaze_restarts`; the least squares does not cross from
-the eye region's forward to a gaze turned in, out or down), and the two lowest are polished.
+the eye region's forward to a gaze turned in, out or down), and so is the rival optimum more
+than ``RIVAL_MM`` away that the eye-region prior points to; the two lowest are polished.
 Then the joint fit of both eyes (one radius when they agree, a loose mirror prior on the
 centres); its uncertainty is :mod:`pipeline.placement.uncertainty`'s.
 """
@@ -268,9 +269,10 @@ def _turn(n, yaw_deg, pitch_deg):
 
 
 def gaze_restarts(p: Patch, found, cues: Cues, radius_range, min_fold_deg):
-    """The best local optimum refitted from gazes turned in, out, up and down
-    (``GAZE_RESTARTS_DEG``). Every start takes the eye region's forward as its gaze, but a gaze
-    turned 20-45 deg from it (looking in, out, down; ICT's eyes rest 5-10 deg out) sits in
+    """The best local optimum (and a rival in another basin, below) refitted from gazes turned
+    in, out, up and down (``GAZE_RESTARTS_DEG``). Every start takes the eye region's forward as
+    its gaze, but a gaze turned 20-45 deg from it (looking in, out, down; ICT's eyes rest 5-10
+    deg out) sits in
     another basin of the least squares; the energy tells them apart (on the unseen heads a
     start at the true gaze ended lower in every case that had gone astray)."""
     ok = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()), key=lambda m: m.energy)
