@@ -583,19 +583,21 @@ def test_stage_warns_of_each_doubt_and_still_publishes(extra_scan, tmp_path, cap
 @pytest.fixture(scope="module")
 def hooded_identity(tmp_path_factory):
     """``ident_s1_000`` (seed 1, index 0: eye_shape 0.98, the most hooded draw; issue 30) as
-    ``benchmarks.bench_identities`` makes it: the scan, its ingest and the params file. The
-    stages run as ``python -m`` (pinned kernels, as dvc runs them: the search's basins rest on
-    the last bits)."""
+    ``stages.identities`` draws it and ``benchmarks.bench_identities`` makes it (./params.yaml
+    with the identity): the scan, its ingest and the params file. The stages run as ``python
+    -m`` (pinned kernels, as dvc runs them: the search's basins rest on the last bits)."""
     import subprocess
     import sys
 
-    from benchmarks.bench_identities import write_params
     from pipeline.synthetic_head.identities import DEFAULT_TRIANGLES, draw_identity, identity_name
 
     root = Path(__file__).resolve().parents[1]
     work = tmp_path_factory.mktemp("ident_s1_000")
     name = identity_name(1, 0)
-    params = write_params(work, 1, {name: draw_identity(1, 0, DEFAULT_TRIANGLES)})
+    blocks = yaml.safe_load((root / "params.yaml").read_text())
+    blocks["identities"] = json.loads(json.dumps({name: draw_identity(1, 0, DEFAULT_TRIANGLES)}))
+    params = work / "params.yaml"
+    params.write_text(yaml.safe_dump(blocks, sort_keys=False))
     scan, ingest = work / "scans" / name, work / "ingest"
     for cmd in (["stages.synthetic_head", str(scan), "--identity", name],
                 ["stages.ingest", str(scan), str(ingest)]):
