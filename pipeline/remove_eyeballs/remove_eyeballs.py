@@ -11,8 +11,9 @@ opening; each loop vertex moves to where the uncut surface lifts off the placed 
 reconstruction-filled crease keep the cut); loops are ordered from the medial canthus over the
 upper lid; then :func:`pipeline.placement.place.judge_pair` says what is published of each eye
 (its self-checks and doubts). Only what cannot be an asset is refused (a closed eye, nothing
-eye-like near a hint, a cut that leaves no simple loop); an eye placed from little evidence, or
-failing a self-check, is published with a doubt.
+eye-like near a hint, a cut that leaves no simple loop, a loop that misses the fitted sphere and
+cuts into the eye the asset would carry: ``loop_on_eye``); an eye placed from little evidence, or
+failing another self-check, is published with a doubt.
 """
 
 from __future__ import annotations
