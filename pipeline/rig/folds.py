@@ -182,4 +182,4 @@ def describe_folds(rep: dict) -> str:
             f"{w['pitch_deg']:+g} deg (over from {w['first_pitch_deg']:+g} deg), {ring} out from loop vertex "
             f"{w['loop_vertex']} of {w['loop_length']} ({w['margin_mm']:.1f} mm off the margin), at "
             f"({', '.join(f'{x:.1f}' for x in w['position_mm'])}) mm in the head frame; faces turning over "
-            f"per lid: {lids}; the first at pitch {rep['first_pitch_deg']:+g} deg")
+            f"at some pitch, per lid: {lids}; the first at pitch {rep['first_pitch_deg']:+g} deg")
