@@ -14,7 +14,8 @@ pipeline/placement/data/eye_region_prior.npz; missing or corrupt: an error namin
 never a placement without it). Each
 doubt (an eye placed from little evidence, a failed self-check, a texture-placed opening
 narrower than the texture's fissure) is also printed to stderr as a warning; the eye is still
-published. See pipeline/placement/ (place.py, fit.py, prior.py) and pipeline/remove_eyeballs/remove_eyeballs.py.
+published. A loop that misses the fitted sphere and lies inside the eye the asset would carry
+(``loop_on_eye``) follows no eye: the scan is refused in one line naming it. See pipeline/placement/ (place.py, fit.py, prior.py) and pipeline/remove_eyeballs/remove_eyeballs.py.
 """
 
 from __future__ import annotations

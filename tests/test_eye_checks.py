@@ -136,3 +136,28 @@ def test_limits_follow_the_scan_resolution():
     assert coarse.max_loop_off_mm == 2.0 and coarse.inside_noise_mm == 1.0
     assert coarse.max_inside_area_mm2 == pytest.approx(2 * 0.433 * 16.0)
     assert coarse.radius_range_mm == (11.0, 17.0)
+
+
+def test_a_loop_inside_the_eye_fails_loop_on_eye():
+    """loop_on_eye (asked of the eye the asset carries once loop_on_sphere failed): a loop on
+    the sclera or standing off it passes; one cut 2 mm into the eye (or into its cornea) fails
+    with the depth as its value."""
+    from pipeline.placement.checks import loop_inside_eye
+
+    cc, rc = C + 5.5 * FWD, 8.0                     # the paper's cornea on a 12 mm eye
+    lim = CheckLimits()
+    t = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    th = np.radians(40.0)                           # on the sclera, beyond the limbus (33 deg)
+    on = C + R * np.column_stack([np.sin(th) * np.cos(t), np.sin(th) * np.sin(t), np.full_like(t, np.cos(th))])
+    assert loop_inside_eye(on, C, R, FWD, cc, rc, lim)["value"] == pytest.approx(0.0, abs=1e-9)
+    off = C + (on - C) * (R + 1.5) / R              # a margin standing 1.5 mm off
+    assert loop_inside_eye(off, C, R, FWD, cc, rc, lim)["ok"]
+    inside = C + (on - C) * (R - 2.0) / R
+    ch = loop_inside_eye(inside, C, R, FWD, cc, rc, lim)
+    assert not ch["ok"] and ch["value"] == pytest.approx(2.0, abs=1e-6) and ch["limit"] == 1.0
+    small = _loop(C, R, deg=12.0)                   # a small loop on the sclera sphere lies in the cornea
+    depth = rc - np.linalg.norm(small - cc, axis=1)
+    ch = loop_inside_eye(small, C, R, FWD, cc, rc, lim)
+    assert not ch["ok"] and ch["value"] == pytest.approx(float(np.percentile(depth, 90)), abs=1e-4)
+    assert eye_checks.describe("loop_on_eye", ch).startswith("the eyelid loop lies ")
+    assert "inside the eye the asset would carry" in eye_checks.describe("loop_on_eye", ch)

@@ -578,3 +578,115 @@ def test_stage_warns_of_each_doubt_and_still_publishes(extra_scan, tmp_path, cap
     eyes = read_eyes(tmp_path / "out" / "eyes.json")
     # beside the texture placement's own (limbus +-1.2 mm, axis +-5 deg: the anatomy's spread)
     assert all(sum("texture's fissure" in d for d in eyes[s].doubts) == 1 for s in ("left", "right"))
+
+
+@pytest.fixture(scope="module")
+def hooded_identity(tmp_path_factory):
+    """``ident_s1_000`` (seed 1, index 0: eye_shape 0.98, the most hooded draw; issue 30) as
+    ``stages.identities`` draws it and ``benchmarks.bench_identities`` makes it (./params.yaml
+    with the identity): the scan, its ingest and the params file. The stages run as ``python
+    -m`` (pinned kernels, as dvc runs them: the search's basins rest on the last bits)."""
+    import subprocess
+    import sys
+
+    from pipeline.synthetic_head.identities import DEFAULT_TRIANGLES, draw_identity, identity_name
+
+    root = Path(__file__).resolve().parents[1]
+    work = tmp_path_factory.mktemp("ident_s1_000")
+    name = identity_name(1, 0)
+    blocks = yaml.safe_load((root / "params.yaml").read_text())
+    blocks["identities"] = json.loads(json.dumps({name: draw_identity(1, 0, DEFAULT_TRIANGLES)}))
+    params = work / "params.yaml"
+    params.write_text(yaml.safe_dump(blocks, sort_keys=False))
+    scan, ingest = work / "scans" / name, work / "ingest"
+    for cmd in (["stages.synthetic_head", str(scan), "--identity", name],
+                ["stages.ingest", str(scan), str(ingest)]):
+        subprocess.run([sys.executable, "-m", *cmd, "--params", str(params), "--metrics", str(work / "m.json")],
+                       cwd=root, check=True, capture_output=True)
+    return {"root": root, "work": work, "scan": scan, "ingest": ingest, "params": params}
+
+
+def _remove_eyeballs(ident, out, rival_restarts=True):
+    """The stage on the identity's ingest in a pinned subprocess; ``rival_restarts=False``
+    searches as before issue 30's fix (restarts from the best optimum only)."""
+    import subprocess
+    import sys
+
+    import os
+
+    script = ident["work"] / "run_stage.py"
+    rival = "fit.RIVAL_MM" if rival_restarts else "float('inf')"
+    script.write_text("from pipeline.kernels import pin_process\npin_process()\n"
+                      f"import pipeline.placement.fit as fit\nfit.RIVAL_MM = {rival}\n"
+                      "from stages._common import stage_exit\nfrom stages.remove_eyeballs import main\n"
+                      "stage_exit(main)\n")
+    return subprocess.run([sys.executable, str(script), str(ident["ingest"]), str(out), "--params",
+                           str(ident["params"]), "--metrics", str(ident["work"] / "re.json")],
+                          cwd=ident["root"], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ident["root"])})
+
+
+@pytest.mark.slow
+def test_the_hooded_identity_is_placed_at_its_limbus(hooded_identity):
+    """Issue 30: ident_s1_000's right eye was placed 9.2 mm off (a sphere through the lower lid,
+    its loop cut below it); with the rival basin restarted it lies at the truth and its loop
+    on it."""
+    out = hooded_identity["work"] / "re"
+    r = _remove_eyeballs(hooded_identity, out)
+    assert r.returncode == 0, r.stderr
+    truth = json.loads((hooded_identity["scan"] / "ground_truth.json").read_text())["eyes"]
+    eyes = json.loads((out / "eyes.json").read_text())
+    for s in ("left", "right"):
+        lim = np.array(eyes[s]["limbus"]["center"]) - truth[s]["limbus"]["center_mm"]
+        assert np.linalg.norm(lim) < 1.0 and eyes[s]["limbus"]["source"] == "geometry", (s, lim)
+        assert eyes[s]["checks"]["loop_on_sphere"]["ok"] and "loop_on_eye" not in eyes[s]["checks"]
+        margin = np.array(truth[s]["eyelid_margin"]["points_mm"])
+        loop = np.array(eyes[s]["loop_points"])
+        assert loop[:, 1].min() > margin[:, 1].min() - 1.5      # not cut below the lower lid
+
+
+@pytest.mark.slow
+def test_a_loop_that_follows_no_eye_is_refused(hooded_identity):
+    """The search before the fix puts ident_s1_000's right eye on a sphere through the lower lid
+    and cuts a 25-vertex loop below it: loop_on_sphere fails (1.52 mm) and the eye placed from
+    that opening has the loop 2.4 mm inside it. Refused in one line naming the scan folder, the
+    eye and both checks; nothing written."""
+    out = hooded_identity["work"] / "re_old"
+    r = _remove_eyeballs(hooded_identity, out, rival_restarts=False)
+    assert r.returncode == 2, r.stderr
+    err = [ln for ln in r.stderr.strip().splitlines() if not ln.startswith("warning:")]
+    assert len(err) == 1 and err[0].startswith(f"error: {hooded_identity['scan']}: right eye: "
+                                               f"self-check loop_on_sphere: the eyelid loop lies "), err
+    assert "self-check loop_on_eye: the eyelid loop lies" in err[0] and "inside the eye the asset" in err[0]
+    assert "(placed from the opening): the cut follows no eye behind these lids" in err[0]
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_a_loop_the_published_eye_holds_is_a_doubt_not_a_refusal(monkeypatch):
+    """The right eye's fitted sphere moved 3 mm down under its (true) cut: loop_on_sphere fails,
+    but the eye the asset carries (re-anchored at the limbus the scan shows) holds the loop, so
+    the eye is published with both doubts and loop_on_eye in its checks."""
+    from dataclasses import replace
+
+    import pipeline.placement.place as place
+    from pipeline.placement.model import Eye
+
+    real = place.place_eyes
+
+    def lowered(*a, **k):
+        out = real(*a, **k)
+        e = out["right"].eye
+        low = Eye(np.asarray(e.c) + [0.0, -3.0, 0.0], e.R, e.n, e.ha, e.tl, e.hb)
+        out["right"] = replace(out["right"], eye=low)
+        return out
+
+    monkeypatch.setattr(place, "place_eyes", lowered)
+    mesh, hints, _ = make_head(0.7)
+    res = remove_eyeballs(mesh, hints, RemoveEyeballsSettings(), source="lowered.npz")
+    right = res.eyes["right"].to_doc()
+    assert not right["checks"]["loop_on_sphere"]["ok"] and right["checks"]["loop_on_eye"]["ok"]
+    assert any(d.startswith("self-check loop_on_sphere: the eyelid loop lies ") for d in right["doubts"])
+    assert any(d.startswith("the eyelid loop missed the fitted sphere, but the eye the asset carries")
+               for d in right["doubts"]), right["doubts"]
+    assert "loop_on_eye" not in res.eyes["left"].to_doc()["checks"]

@@ -261,35 +261,8 @@ def test_stage_refuses_a_rig_whose_sweep_flips_faces(tmp_path, capsys):
     assert run_stage(rig_stage.main, [str(snap), str(out), "--params", str(params)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "flips" in err[0] and "mesh.npz" in err[0]
-    # it says where: the eye, how far from its loop (no band in this mesh) and the place in mm
-    assert re.search(r"(left|right) eye \d+\.\d mm from the loop at \(-?\d+\.\d, -?\d+\.\d, -?\d+\.\d\) mm",
-                     err[0]), err[0]
-    assert "or the scan itself folds there" in err[0]
+    # where: the upper lids fold looking up (gain 1.0 there), near the margin, with the pitch
+    assert re.search(r"worst on the (left|right) eye's upper lid: a face turned \d+ deg at pitch \+\d+(\.\d+)? deg"
+                     r" \(over from \+\d+(\.\d+)? deg\), ring \d+ out from loop vertex \d+ of 48", err[0]), err[0]
+    assert "mm in the head frame" in err[0] and "the first at pitch +" in err[0]
     assert not out.exists()
-
-
-def test_fold_sites_name_the_band_ring_and_spoke():
-    """fold_sites names a face of the band by its eye, ring and spoke (the lowest ring among its
-    band corners), one of the remesh by the band spoke nearest it, and gives the centroid in mm."""
-    from types import SimpleNamespace
-
-    from pipeline.rig.folds import fold_sites
-
-    S, R = 8, 2
-    a = 2 * np.pi * np.arange(S) / S
-    ring = lambda r: np.stack([r * np.cos(a), r * np.sin(a), np.zeros(S)], axis=1)   # noqa: E731
-    V = np.concatenate([ring(1.0), ring(2.0), ring(3.0), [[10.0, 0.0, 0.0], [10.0, 1.0, 0.0]]])
-    ids = np.arange((R + 1) * S).reshape(R + 1, S)
-    F = np.array([[ids[1, 2], ids[1, 3], ids[2, 3]],       # ring 1 spoke 2
-                  [ids[2, 0], 24, 25]])                    # a zip face: outer ring, spoke 0
-    far = np.array([[24, 25, ids[2, 0]]])
-    eye = SimpleNamespace(side="left", loop=ids[0])
-    sites = fold_sites(V, np.concatenate([F, far]), [0, 1], {"band_left": ids}, [eye])
-    c0 = V[F[0]].mean(axis=0)
-    assert sites[0] == "left eye ring 1 spoke 2 at (" + ", ".join(f"{x:.1f}" for x in c0) + ") mm"
-    assert sites[1].startswith("left eye ring 2 spoke 0 at (")
-    # a face with no band corner: the nearest outer-ring spoke
-    V2 = np.concatenate([V, [[9.0, 0.5, 0.0]]])
-    F2 = np.array([[24, 25, 26]])
-    assert fold_sites(V2, F2, [0], {"band_left": ids}, [eye])[0].startswith("left eye outside the band by spoke 0 at (")
-    assert fold_sites(V, F, [], {"band_left": ids}, [eye]) == []

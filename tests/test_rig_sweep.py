@@ -151,3 +151,34 @@ def test_rest_cornea_intrusion_is_the_worse_eye():
     both = sweep_check(V, F, eyes, shapes, [0.0], corneas=corneas)["rest_cornea_intrusion_mm"]
     assert len(per_eye) == 2 and per_eye["left"] != per_eye["right"]
     assert both == max(per_eye.values())
+
+
+def test_fold_report_names_the_eye_lid_ring_and_pitch_of_a_constructed_fold():
+    """One vertex of the right eye's lower lid, three edge rings out below loop vertex 36 (the
+    lowest of 48), pulled 2.5 times across its inner neighbour by lids_down: the faces around it
+    turn over looking down, and the report says so (pipeline/rig/folds.py)."""
+    from pipeline.io.blend_shapes import BlendShape
+    from pipeline.rig.folds import describe_folds, fold_report
+
+    V, F, eyes = two_eye_region(radius=12.0)
+    right = eyes[1]
+    n_loop = len(right.loop)
+    base = int(right.loop[0])                    # the right eye's ring 0 starts here
+    v, u = base + 3 * n_loop + 36, base + 2 * n_loop + 36
+    shape = BlendShape(name=lids.SHAPE_DOWN, point_indices=np.array([v]),
+                       offsets=2.5 * (V[u] - V[v])[None])
+    rest = fold_report(V, F, eyes, [], PITCHES_1DEG, 25.0)
+    assert rest is None                          # nothing moves, nothing folds
+    rep = fold_report(V, F, eyes, [shape], PITCHES_1DEG, 25.0)
+    assert rep is not None and list(rep["per_lid"]) == ["right lower lid"]
+    w = rep["worst"]
+    assert (w["side"], w["lid"], w["loop_length"]) == ("right", "lower lid", n_loop)
+    assert (w["loop_vertex"], w["ring"]) == (36, 2)              # the faces between rings 2 and 3
+    # it crosses its inner neighbour at 0.4 of lids_down: pitch -10 deg, and only looking down
+    assert w["turn_deg"] > 90.0 and -11.0 <= w["first_pitch_deg"] <= -9.0 and -25.0 <= w["pitch_deg"] < 0.0
+    assert rep["first_pitch_deg"] == w["first_pitch_deg"] and rep["faces"] >= 2
+    assert np.linalg.norm(np.array(w["position_mm"]) - V[v]) < 3.0 and w["position_mm"][0] < 0
+    msg = describe_folds(rep)
+    assert msg.startswith("worst on the right eye's lower lid: a face turned ")
+    assert f"out from loop vertex {w['loop_vertex']} of {n_loop}" in msg and "mm in the head frame" in msg
+    assert f"at pitch {w['pitch_deg']:+g} deg (over from {w['first_pitch_deg']:+g} deg)" in msg

@@ -27,6 +27,8 @@ canthus standing farther off than a lid margin can is a corner
   A sphere that runs flush through the middle of the opening and its sides has swallowed the
   cornea: it is too small and too far forward, with a low residual.
 - ``radii_agree`` (pair): the two eyes of one head have radii within ``max_radius_diff_mm``.
+- ``loop_on_eye`` (:func:`loop_inside_eye`, asked only when ``loop_on_sphere`` failed): the lids'
+  part of the loop does not lie inside the eye the asset carries (after the fallbacks).
 
 Each check returns its measured value and whether it passed, so the stage can record them in
 ``eyes.json`` and the metrics and refuse (or fall back) with one line naming the failed check.
@@ -232,6 +234,28 @@ def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=
     return out
 
 
+def loop_inside_eye(loop_points, center, radius, forward, cornea_center, cornea_radius,
+                    lim: CheckLimits, lateral_index=None) -> dict:
+    """``loop_on_eye``: how deep the lids' part of the eyelid loop lies inside an eye (the
+    sclera sphere and its corneal sphere; corners left out as in :func:`check_eye`), the 90th
+    percentile, against ``max_loop_off_mm``. A lid margin rests on the eye or stands off it
+    (a lifted margin, a corner, an eye placed from its opening behind it); it cannot lie inside
+    it. The stage asks this of the eye the asset carries once ``loop_on_sphere`` has failed on the
+    fitted sphere: an eye that holds the loop repairs it (a doubt), one the loop cuts into is no
+    eye behind this cut (ident_s1_000's right eye before the rival restarts: a loop cut below
+    the lower lid lay 2.4 mm inside the eye placed from it)."""
+    center = np.asarray(center, float)
+    L = np.asarray(loop_points, float)
+    off = np.minimum(np.linalg.norm(L - center, axis=1) - float(radius),
+                     np.linalg.norm(L - np.asarray(cornea_center, float), axis=1) - float(cornea_radius))
+    lids = np.ones(len(L), bool)
+    if lateral_index is not None and len(L) >= 3:
+        lids = corner_weights(L, off, lateral_index, lim.corner_off_globe_mm, lim.corner_max_share).on_eye
+    depth = float(np.percentile(np.maximum(-off[lids], 0.0), 90)) if lids.any() else 0.0
+    return {"value": round(depth, 4), "limit": round(lim.max_loop_off_mm, 3),
+            "ok": depth <= lim.max_loop_off_mm}
+
+
 def check_pair(radii: dict, lim: CheckLimits) -> dict:
     """``radii_agree``: the two eyes' radii differ by at most ``max_radius_diff_mm``."""
     diff = abs(float(radii["left"]) - float(radii["right"]))
@@ -262,6 +286,9 @@ def describe(name: str, check: dict) -> str:
                 f"far forward")
     if name == "loop_on_sphere":
         return f"the eyelid loop lies {v:.2f} mm off the eyeball (90th percentile, limit {lim} mm)"
+    if name == "loop_on_eye":
+        return (f"the eyelid loop lies {v:.2f} mm inside the eye the asset would carry (90th "
+                f"percentile, limit {lim} mm)")
     if name == "radii_agree":
         return f"the two eyes' radii differ by {v:.2f} mm (limit {lim} mm)"
     return name

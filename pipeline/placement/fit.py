@@ -5,7 +5,8 @@ Search: sphere hypotheses from pairs of oriented vertices near the hint (and alo
 axis), ranked by the graph-cut energy; the best few are refined by alternating the cut and a
 robust least-squares fit of ``(c, R, n, ha, tl)`` (EM). The best of them is refitted again from
 gazes turned up to 45 deg away (:func:`gaze_restarts`; the least squares does not cross from
-the eye region's forward to a gaze turned in, out or down), and the two lowest are polished.
+the eye region's forward to a gaze turned in, out or down), and so is the rival optimum more
+than ``RIVAL_MM`` away that the eye-region prior points to; the two lowest are polished.
 Then the joint fit of both eyes (one radius when they agree, a loose mirror prior on the
 centres); its uncertainty is :mod:`pipeline.placement.uncertainty`'s.
 """
@@ -26,6 +27,7 @@ SIDES = ("left", "right")
 REFINE_ITERS = 3
 POLISH_KEEP, POLISH_ITERS = 2, 4   # the best local optima refined further (polish)
 RESTARTS_KEEP = 4                  # turned gazes refined in full after one round each
+RIVAL_MM = 3.0                     # an optimum this far from the best is another basin: restarted too
 NP = 8                  # parameters per eye besides the radius: c (3), gaze (2), ha, tl, hb
 # least-squares stops: a relative change of 1e-5 in a cost of ~1e3 is 0.01 of an energy whose
 # rivals are weighed at a temperature of 5, and a step of 1e-5 of |x| (~80, the centre in mm)
@@ -319,20 +321,35 @@ def _turn(n, yaw_deg, pitch_deg):
 
 
 def gaze_restarts(p: Patch, found, cues: Cues, radius_range, min_fold_deg):
-    """The best local optimum refitted from gazes turned in, out, up and down
-    (``GAZE_RESTARTS_DEG``). Every start takes the eye region's forward as its gaze, but a gaze
-    turned 20-45 deg from it (looking in, out, down; ICT's eyes rest 5-10 deg out) sits in
+    """The best local optimum (and a rival in another basin, below) refitted from gazes turned
+    in, out, up and down (``GAZE_RESTARTS_DEG``). Every start takes the eye region's forward as
+    its gaze, but a gaze turned 20-45 deg from it (looking in, out, down; ICT's eyes rest 5-10
+    deg out) sits in
     another basin of the least squares; the energy tells them apart (on the unseen heads a
     start at the true gaze ended lower in every case that had gone astray)."""
-    ok = [m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()]
+    ok = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()), key=lambda m: m.energy)
     if not ok:
         return []
-    m = min(ok, key=lambda m: m.energy)
-    e = m.eye
+    # from the best optimum and from one in another place (a rival basin, its centre RIVAL_MM
+    # away): a start whose gaze the eye region's forward turned 20 deg off can end above a wrong
+    # sphere (ident_s1_000's hooded right eye: the true eye's start ended at 3449 with its gaze
+    # wandered 70 deg off, a sphere through the lower lid 8 mm low at 3369, and only turned
+    # gazes from the true eye's start reach its floor, 3083)
+    starts = [(ok[0].eye, ok[0].eye.n)]
+    rivals = [m for m in ok[1:] if np.linalg.norm(m.eye.c - ok[0].eye.c) > RIVAL_MM]
+    if rivals:
+        axis = None if cues.axis is None else np.asarray(cues.axis, float)
+        # the rival the eye-region prior points to (its globe's front nearest the prior's), else
+        # the lowest: a lower rival through a half-blinked lower lid (id308_halfblink, 7 mm
+        # below the prior's front) only leads the restarts to a lower wrong optimum
+        rival = rivals[0] if cues.front is None or axis is None else min(
+            rivals, key=lambda m: float(np.linalg.norm(m.eye.c + m.eye.R * axis - cues.front)))
+        # turned about the gaze every start took (the eye region's forward), not the rival's own
+        starts.append((rival.eye, rival.eye.n if axis is None else axis))
     # one round from every turned gaze, then the full refinement of the few lowest: most turned
     # starts fall back into the start's basin or wander off within one round
-    first = [refine(p, Eye(e.c, e.R, _turn(e.n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1)
-             for yaw, pitch in GAZE_RESTARTS_DEG]
+    first = [refine(p, Eye(e.c, e.R, _turn(n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1)
+             for e, n in starts for yaw, pitch in GAZE_RESTARTS_DEG]
     first.sort(key=lambda t: t.energy)
     return _refine_each(p, [t.eye for t in first[:RESTARTS_KEEP]], cues, radius_range, REFINE_ITERS - 1)
 

@@ -242,9 +242,23 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
                                 doubt_axis_sigma_deg=st.doubt_axis_sigma_deg)
 
 
+def loop_on_asset_eye(loop_points, asset_eye: dict, eyeball, lim, lateral_index) -> dict:
+    """:func:`pipeline.placement.checks.loop_inside_eye` on the eye the asset carries
+    (``asset_eye``: one side of :func:`asset_eyes`; its sclera and its cornea, the eyeball
+    ``eyeball`` placed at its radius). After ``loop_on_sphere`` failed on the fitted sphere, this
+    says whether the fallbacks (the opening's eye, the human eye anchored at the limbus) left
+    an eye the loop can rest on."""
+    from pipeline.eyeball.geometry import EyeballParams, placed_params
+
+    geo = placed_params(eyeball or EyeballParams(), float(asset_eye["radius"]))
+    c, n = np.asarray(asset_eye["center"], float), np.asarray(asset_eye["forward"], float)
+    return eye_checks.loop_inside_eye(loop_points, c, geo.r1, n, c + (geo.apex - geo.r2) * n, geo.r2,
+                                      lim, lateral_index)
+
+
 def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: PlacementSettings, *,
                median_edge: float, mesh_arrays=None, hints=None, texture=None, eyeball=None,
-               moved=None):
+               moved=None, source="mesh"):
     """What is published of each placed eye once the stage has cut its opening.
 
     ``V``, ``F``: the uncut head (faces split along a texture fissure included); ``V2``: the cut
@@ -255,6 +269,11 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
     mean move of the loop onto the margin (mm). Returns ``(eyes, metrics)``: per side the
     :class:`pipeline.io.eyes_file.Eye` (the asset's eye anchored at the scan's limbus, the
     scan's sphere, the self-checks and every doubt) and the eye's metrics.
+
+    An eye whose loop fails ``loop_on_sphere`` is published (with that doubt) only when the eye
+    the asset carries, after the fallbacks, holds the loop (:func:`loop_on_asset_eye`);
+    otherwise the cut follows no eye and the scan is a ScanError naming ``source``, the eye and
+    both checks.
     """
     moved = moved or {}
     checks, fissures, records, doubts, metrics, limbi = {}, {}, {}, {}, {}, {}
@@ -289,6 +308,21 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                                "loop_width_mm": round(fissures[s]["loop_width_mm"], 2)})
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
     asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st, limbi)
+    for s in SIDES:
+        if not checks[s]["loop_on_sphere"]["ok"]:
+            checks[s]["loop_on_eye"] = loop_on_asset_eye(V2[loops[s][0]], asset[s], eyeball, lim, loops[s][1])
+            if not checks[s]["loop_on_eye"]["ok"]:
+                raise ScanError(source, f"{s} eye: self-check loop_on_sphere: "
+                                        f"{eye_checks.describe('loop_on_sphere', checks[s]['loop_on_sphere'])}, "
+                                        f"and self-check loop_on_eye: "
+                                        f"{eye_checks.describe('loop_on_eye', checks[s]['loop_on_eye'])} "
+                                        f"(placed from the {asset[s]['limbus']['source']}): the cut follows "
+                                        f"no eye behind these lids")
+            # repaired: published, and says by what
+            doubts[s].append(f"the eyelid loop missed the fitted sphere, but the eye the asset carries "
+                             f"(placed from the {asset[s]['limbus']['source']}) holds it (loop_on_eye: "
+                             f"{checks[s]['loop_on_eye']['value']:.2f} mm inside it at most, limit "
+                             f"{checks[s]['loop_on_eye']['limit']} mm)")
     eyes = {}
     for s in SIDES:
         fit, (loop, lat), a, rec = fits[s], loops[s], asset[s], records[s]

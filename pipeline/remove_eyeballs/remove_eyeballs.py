@@ -11,8 +11,9 @@ opening; each loop vertex moves to where the uncut surface lifts off the placed 
 reconstruction-filled crease keep the cut); loops are ordered from the medial canthus over the
 upper lid; then :func:`pipeline.placement.place.judge_pair` says what is published of each eye
 (its self-checks and doubts). Only what cannot be an asset is refused (a closed eye, nothing
-eye-like near a hint, a cut that leaves no simple loop); an eye placed from little evidence, or
-failing a self-check, is published with a doubt.
+eye-like near a hint, a cut that leaves no simple loop, a loop that misses the fitted sphere and
+cuts into the eye the asset would carry: ``loop_on_eye``); an eye placed from little evidence, or
+failing another self-check, is published with a doubt.
 """
 
 from __future__ import annotations
@@ -374,7 +375,7 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
                                 f"{loops_in} - {absorbed} holes in the openings + 2")
     eyes, metrics = judge_pair(V, F, V2, loops, fits, placements, st, median_edge=median_edge,
                                mesh_arrays=mesh_arrays, hints=hints, texture=texture,
-                               eyeball=eyeball, moved=moved)
+                               eyeball=eyeball, moved=moved, source=source)
     metrics.update({"vertices_in": nV, "faces_in": nF, "vertices_out": int(len(V2)),
                     "faces_out": int(len(F2n)), "vertices_removed": int(nV - len(V2)),
                     "faces_removed": int(remove.sum()), "boundary_loops_in": loops_in,

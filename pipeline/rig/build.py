@@ -18,7 +18,7 @@ from pipeline.eyeball.geometry import EyeballParams, placed_params
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.rig.eye_frame import eye_frames
-from pipeline.rig.folds import fold_sites, flipped_faces, relax_folds
+from pipeline.rig.folds import describe_folds, fold_report, relax_folds
 from pipeline.rig.lid_shapes import build_lid_shapes
 from pipeline.rig.sweep import sweep_check
 from pipeline.rig import textures as tex
@@ -99,13 +99,12 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
                         corneas=_model_corneas(eyes), fork=True)
     t_sweep = time.perf_counter() - t0
     if sweep["flipped_faces"]:
-        # a face that turns over while the eye moves is a visible fold in every render; the
-        # message says where (eye, band ring and spoke, mm), so that a fold of the scan itself
-        # (id309_squint_up's lower lid crease) can be told from the eye fit's or the loop's
-        sites = fold_sites(V, F, flipped_faces(V, F, rig.shapes, pitches, lp.max_pitch_deg), mesh, eyes)
+        # a face that turns over while the eye moves is a visible fold in every render; say where
+        # (eye, lid, band ring, head-frame position, pitch), so the fold can be found
+        rep = fold_report(V, F, eyes, rig.shapes, pitches, lp.max_pitch_deg)
+        where = "" if rep is None else f": {describe_folds(rep)}"
         raise ScanError(mesh_path, f"the eyelid sweep over pitch +-{lp.max_pitch_deg:g} deg flips "
-                                   f"{sweep['flipped_faces']} faces (a fold in the lids"
-                                   + (f": {'; '.join(sites)}" if sites else "") + "); "
+                                   f"{sweep['flipped_faces']} faces (a fold in the lids){where}; "
                                    f"the eye fit or the eyelid loop is wrong, or the scan itself folds there")
 
     # margin motion at the extremes (mean vertical displacement per lid, mm)

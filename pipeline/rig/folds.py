@@ -89,42 +89,97 @@ def relax_folds(V, F, shapes, eyes, pitches_deg, max_pitch_deg: float, rounds: i
     return best[1], best[2], best[3]
 
 
-def fold_sites(V, F, faces, mesh, eyes, limit: int = 3) -> list[str]:
-    """Where the faces ``faces`` (indices into F) lie, for a refusal message: per face, its eye,
-    its place in that eye's band (``band_<side>`` of the mesh, (R + 1, S) vertex ids, when the
-    retopology built one: the face's ring and spoke, the lowest ring among its band corners; a
-    face of the zip or the remesh is named by the band spoke nearest it) and its centroid in mm.
-    At most ``limit`` faces, nearest the eyes first (a fold by the loop is the one that shows).
+def _ring_of(F, n, loop, verts, max_rings=60) -> int | None:
+    """Edge rings from ``loop`` to the nearest of ``verts``: 0 when one is a loop vertex (the
+    band's first ring), k when k edges lead there; None beyond ``max_rings``."""
+    A = vertex_adjacency(F, n)
+    reached = np.zeros(n, bool)
+    reached[loop] = True
+    for k in range(max_rings + 1):
+        if reached[verts].any():
+            return k
+        reached |= (A @ reached.astype(np.float64)) > 0
+    return None
 
-    Returns
-    -------
-    list of str, e.g. ``"left eye ring 2 spoke 45 at (32.3, 33.3, 96.8) mm"``
-    """
+
+def _lid_of(k: int, lateral_index: int) -> str:
+    """Which part of a loop (medial canthus first, upper lid, lateral canthus, lower lid) its
+    vertex ``k`` lies on."""
+    if k == 0:
+        return "medial canthus"
+    if k == lateral_index:
+        return "lateral canthus"
+    return "upper lid" if k < lateral_index else "lower lid"
+
+
+def fold_report(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float) -> dict | None:
+    """Where the lid sweep folds: the faces the sweep counts (:func:`pipeline.rig.sweep.sweep_check`:
+    a vertex moved by a shape, a normal turned by 90 degrees or more at some pitch), each given
+    to the eye and lid whose loop vertex lies nearest its centroid.
+
+    Returns None when no face turns over, else a dict: ``faces`` (how many turn at some pitch),
+    ``per_lid`` (``"<side> <lid>"`` -> count), ``first_pitch_deg`` (the pitch nearest rest at
+    which a face turns), and ``worst``: the face that turns furthest (``face``, ``turn_deg``,
+    ``pitch_deg`` where it turns furthest, ``first_pitch_deg`` where it first turns, ``side``,
+    ``lid``, ``loop_vertex`` (its loop position, medial canthus 0) and ``loop_length``, ``ring``
+    (edge rings out from the loop: the band's ring, 0 = touching the margin),
+    ``margin_mm`` (its centroid's distance from that loop vertex) and ``position_mm`` (the
+    centroid in the head frame)). The refusal names these, so a fold can be found."""
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
-    faces = np.asarray(faces, dtype=np.int64)
-    if len(faces) == 0 or not eyes:
-        return []
-    C = V[F[faces]].mean(axis=1)
-    # nearest eye (distance to its loop's vertices) and that distance
-    d = np.stack([np.linalg.norm(C[:, None] - V[e.loop][None], axis=2).min(axis=1) for e in eyes])
-    which, dist = d.argmin(axis=0), d.min(axis=0)
-    out = []
-    for k in np.argsort(dist, kind="stable")[:limit]:
-        e = eyes[int(which[k])]
-        where = f"{e.side} eye"
-        band = mesh.get(f"band_{e.side}") if hasattr(mesh, "get") else None
-        if band is not None and np.size(band):
-            band = np.asarray(band, dtype=np.int64)
-            pos = {int(v): (r, s) for (r, s), v in np.ndenumerate(band)}
-            corners = [pos[int(v)] for v in F[faces[k]] if int(v) in pos]
-            if corners:
-                r, s = min(corners)
-                where += f" ring {r} spoke {s}"
-            else:                  # outside the band: its nearest spoke on the outer ring
-                s = int(np.linalg.norm(V[band[-1]] - C[k], axis=1).argmin())
-                where += f" outside the band by spoke {s}"
-        else:
-            where += f" {dist[k]:.1f} mm from the loop"
-        out.append(where + " at (" + ", ".join(f"{x:.1f}" for x in C[k]) + ") mm")
-    return out
+    n0 = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    l0 = np.linalg.norm(n0, axis=1)
+    moved = np.zeros(len(V), bool)
+    for s in shapes:
+        moved[s.point_indices] = True
+    check = (l0 > 1e-12) & moved[F].any(axis=1)
+    worst_cos = np.full(len(F), np.inf)
+    worst_pitch = np.zeros(len(F))
+    first = np.full(len(F), np.nan)
+    # nearest rest first, so a face's first pitch is the smallest turn of the eye that folds it
+    for p in sorted(pitches_deg, key=lambda q: (abs(q), q)):
+        P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch_deg))
+        n1 = np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])
+        cos = np.einsum("ij,ij->i", n0, n1) / np.maximum(l0 * np.linalg.norm(n1, axis=1), 1e-300)
+        cos = np.where(check, cos, np.inf)
+        flip = cos <= 0
+        first[flip & np.isnan(first)] = p
+        better = cos < worst_cos
+        worst_cos[better], worst_pitch[better] = cos[better], p
+    bad = np.flatnonzero(~np.isnan(first))
+    if len(bad) == 0:
+        return None
+    C = V[F[bad]].mean(axis=1)
+    # every flipped face to the eye and loop vertex nearest it
+    dist = np.stack([np.min(np.linalg.norm(C[:, None] - V[e.loop][None], axis=2), axis=1) for e in eyes])
+    owner = np.argmin(dist, axis=0)
+    per_lid: dict[str, int] = {}
+    for i, f in enumerate(bad):
+        e = eyes[owner[i]]
+        k = int(np.argmin(np.linalg.norm(V[e.loop] - C[i], axis=1)))
+        key = f"{e.side} {_lid_of(k, e.lateral_index)}"
+        per_lid[key] = per_lid.get(key, 0) + 1
+    j = int(np.argmin(worst_cos[bad]))
+    f, e = int(bad[j]), eyes[owner[j]]
+    k = int(np.argmin(np.linalg.norm(V[e.loop] - C[j], axis=1)))
+    earliest = bad[np.argmin(np.abs(first[bad]))]
+    return {"faces": int(len(bad)), "per_lid": dict(sorted(per_lid.items(), key=lambda t: -t[1])),
+            "first_pitch_deg": float(first[earliest]),
+            "worst": {"face": f, "turn_deg": float(np.degrees(np.arccos(np.clip(worst_cos[f], -1.0, 1.0)))),
+                      "pitch_deg": float(worst_pitch[f]), "first_pitch_deg": float(first[f]),
+                      "side": e.side, "lid": _lid_of(k, e.lateral_index), "loop_vertex": k,
+                      "loop_length": int(len(e.loop)), "ring": _ring_of(F, len(V), e.loop, F[f]),
+                      "margin_mm": float(np.linalg.norm(C[j] - V[e.loop[k]])),
+                      "position_mm": [round(float(x), 2) for x in C[j]]}}
+
+
+def describe_folds(rep: dict) -> str:
+    """One clause for the refusal: where the worst flipped face lies and at which pitch."""
+    w = rep["worst"]
+    ring = "beyond 60 rings" if w["ring"] is None else f"ring {w['ring']}"
+    lids = ", ".join(f"{k} {v}" for k, v in rep["per_lid"].items())
+    return (f"worst on the {w['side']} eye's {w['lid']}: a face turned {w['turn_deg']:.0f} deg at pitch "
+            f"{w['pitch_deg']:+g} deg (over from {w['first_pitch_deg']:+g} deg), {ring} out from loop vertex "
+            f"{w['loop_vertex']} of {w['loop_length']} ({w['margin_mm']:.1f} mm off the margin), at "
+            f"({', '.join(f'{x:.1f}' for x in w['position_mm'])}) mm in the head frame; faces turning over "
+            f"at some pitch, per lid: {lids}; the first at pitch {rep['first_pitch_deg']:+g} deg")
