@@ -150,14 +150,18 @@ def main():
     pfile = work / "chain_params.yaml"
     pfile.write_text(yaml.safe_dump(params, sort_keys=False))
     sides = {"this": (ROOT, b, cmds)}
+    pfiles = {"this": pfile}
     if args.compare:
         import shutil
 
         cw = work / "compare"
         if not (cw / "eyeball" / "eyeball.usda").exists():
             shutil.copytree(eyeball, cw / "eyeball", dirs_exist_ok=True)
-        sides["compare"] = (Path(args.compare).resolve(), cw / "build",
-                            stage_commands(scan, cw / "build", cw / "eyeball"))
+        other = Path(args.compare).resolve()
+        sides["compare"] = (other, cw / "build", stage_commands(scan, cw / "build", cw / "eyeball"))
+        # each checkout with the params.yaml it ships (an older one knows fewer keys)
+        pfiles["compare"] = work / "compare_params.yaml"
+        pfiles["compare"].write_text((other / "params.yaml").read_text())
     runs, cpu_runs, loads = {k: [] for k in sides}, {k: [] for k in sides}, []
     for rep in range(args.repeats):
         times = {k: {} for k in sides}
@@ -169,7 +173,7 @@ def main():
             for side in order:
                 cwd, bb, cc = sides[side]
                 cmd = py + [str(c) for c in cc[st]] + ["--metrics", str(bb / f"{st}.metrics.json"),
-                                                       "--params", str(pfile)]
+                                                       "--params", str(pfiles[side])]
                 times[side][st], cpu[side][st] = timed_run(cmd, cwd)
         for side in sides:
             times[side]["total"] = sum(times[side][s] for s in STAGES)
