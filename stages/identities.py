@@ -54,6 +54,7 @@ from pipeline.synthetic_head.identities import DEFAULT_TRIANGLES, add_identities
 from pipeline.synthetic_head.identity_files import (OUTPUT_FOLDERS, remove, repro_command,  # noqa: F401
                                                     repro_env, repro_invocation)
 
+
 def checked_params(text: str, source) -> dict:
     """``text`` read as params.yaml is read (no repeated key) and checked whole; ScanError otherwise."""
     from pipeline.io.strict_yaml import DuplicateKeyError, load_strict
