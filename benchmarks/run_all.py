@@ -85,6 +85,9 @@ BENCHMARKS = (
     Benchmark("bench_unseen_oracle", needs=("unseen_work",)),
     Benchmark("bench_placement", args=("--set", "all", "--skip-missing"), needs=("unseen_work",)),
     Benchmark("bench_usd", needs=("synthetic_build",)),
+    # the home asset, and every asset the unseen run above left
+    Benchmark("bench_see_through", args=(f"synthetic_head={SYNTH_ASSET.parent}:{SYNTH_BUILD / 'rig'}",
+                                         "--unseen", str(UNSEEN_WORK)), needs=("synthetic_asset",)),
     # the README's figures come from the three home scans and six procedural heads (its command)
     Benchmark("bench_margin_smoothness", args=(str(SYNTH_BUILD), "--out", str(
         ROOT / "benchmarks" / "out" / "margin_smoothness_synthetic_head.json")),

@@ -161,3 +161,15 @@ def test_a_loop_inside_the_eye_fails_loop_on_eye():
     assert not ch["ok"] and ch["value"] == pytest.approx(float(np.percentile(depth, 90)), abs=1e-4)
     assert eye_checks.describe("loop_on_eye", ch).startswith("the eyelid loop lies ")
     assert "inside the eye the asset would carry" in eye_checks.describe("loop_on_eye", ch)
+
+
+def test_a_loop_round_part_of_an_eye_fails_opening_wide():
+    """A loop 8 mm across (id311_look_right's right eye: the cut went round the cornea of an eye
+    placed in a wrong basin) is no fissure; the true opening (about 20 mm here) passes."""
+    V, F = _sphere_patch(C, R + 0.1, 70.0)
+    lim = CheckLimits()
+    wide = check_eye(V, F, C, R, FWD, _loop(C, R), lim)["opening_wide"]
+    assert wide["ok"] and wide["value"] == pytest.approx(2 * R * np.sin(np.radians(55.0)), rel=0.02)
+    small = check_eye(V, F, C, R, FWD, _loop(C, R, deg=20.0), lim)["opening_wide"]
+    assert not small["ok"] and small["value"] == pytest.approx(2 * R * np.sin(np.radians(20.0)), rel=0.02)
+    assert "spans 8.2 mm" in eye_checks.describe("opening_wide", small)

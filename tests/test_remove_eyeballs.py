@@ -139,7 +139,7 @@ def test_eyes_json_records_placement_and_checks():
         sph = e["scan_sphere"]
         err = np.linalg.norm(np.array(sph["center"]) - gt[s]["center"])
         assert err <= 2 * sph["uncertainty_mm"]["center"] + 0.05, (err, sph)
-        assert set(e["checks"]) == {"inside", "radius_in_range", "opening_fits", "opening_convex",
+        assert set(e["checks"]) == {"inside", "radius_in_range", "opening_fits", "opening_wide", "opening_convex",
                                     "loop_on_sphere", "cornea_shows", "radii_agree"}
         assert all(c["ok"] for c in e["checks"].values())
         assert res.metrics[s]["checks_failed"] == []

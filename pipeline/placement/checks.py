@@ -12,6 +12,13 @@ around them, so each fit is checked against it (``check_eye``, ``check_pair``):
 - ``radius_in_range``: the radius lies in the anatomical range.
 - ``opening_fits``: the lids' part of the opening loop (a chord of the eyeball at its widest) is
   not wider than the eyeball's diameter.
+- ``opening_wide``: the whole loop spans at least ``min_opening_mm`` (no palpebral fissure is
+  narrower: adults' are 27 +- 1.7 mm, a newborn's about 18; a squint or a blink closes the
+  opening vertically, not across). A narrower loop is a cut round part of the eye (an eye placed
+  in a wrong basin, its surface labelled skin beside it): the stage refuses it
+  (:func:`pipeline.placement.place.judge_pair`), since a globe behind it leaves the scanned eye
+  as skin and the opening open (``id311_look_right``: a loop 8 mm wide, the preview black
+  through it).
 - ``loop_on_sphere``: the lids' part of the eyelid loop lies on the eyeball, sclera or fitted
   cornea (the margin is where lid meets eye).
 
@@ -55,6 +62,7 @@ class CheckLimits:
     cone_depth_mm: float = 2.0       # ... up to this deep
     radius_range_mm: tuple = (10.0, 21.0)
     max_width_ratio: float = 1.0     # opening width / eyeball diameter
+    min_opening_mm: float = 14.0     # the loop's span, at least (a newborn's fissure is ~18 mm)
     max_loop_off_mm: float = 1.0     # 90th percentile of |loop - sphere|
     min_convex_fill: float = 0.9     # loop area / convex hull area, seen along the gaze, less a
     edge_mm: float = 0.0             # strip a tenth of the scan's edge wide along the loop
@@ -204,6 +212,7 @@ def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=
                               lim.corner_max_share).on_eye
     Ll = L[lids]
     width = float(np.max(np.linalg.norm(Ll[:, None] - Ll[None], axis=2))) if len(Ll) > 1 else 0.0
+    span = float(np.max(np.linalg.norm(L[:, None] - L[None], axis=2))) if len(L) > 1 else 0.0
     off = np.abs(off[lids] - standoff_mm)
     max_ratio = lim.max_width_ratio * (1.0 + (lim.corner_off_globe_mm / radius if lateral_index is not None
                                               else 0.0))
@@ -219,6 +228,8 @@ def check_eye(V, F, center, radius, forward, loop_points, lim: CheckLimits, rms=
                             "ok": bool(lo <= radius <= hi)},
         "opening_fits": {"value": round(width / (2 * radius), 4), "limit": round(max_ratio, 4),
                          "ok": width <= max_ratio * 2 * radius},
+        "opening_wide": {"value": round(span, 3), "limit": lim.min_opening_mm,
+                         "ok": span >= lim.min_opening_mm},
         "opening_convex": {"value": round(fill, 4), "limit": round(min_fill, 4),
                            "ok": fill >= min_fill},
         "loop_on_sphere": {"value": round(float(np.percentile(off, 90)), 4),
@@ -277,6 +288,9 @@ def describe(name: str, check: dict) -> str:
         return f"radius {v:.2f} mm outside {lim[0]:g}-{lim[1]:g} mm"
     if name == "opening_fits":
         return f"the opening is {v:.2f} x the eyeball's diameter"
+    if name == "opening_wide":
+        return (f"the eyelid loop spans {v:.1f} mm, narrower than any eye's fissure (limit {lim:g} "
+                f"mm): the cut went round part of an eye, not its opening")
     if name == "opening_convex":
         return (f"the eyelid loop fills {100 * v:.0f} % of its convex hull (limit "
                 f"{100 * lim:.0f} %: a notch, or scanned eyeball left on a lid)")

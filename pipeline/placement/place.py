@@ -273,7 +273,7 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
     An eye whose loop fails ``loop_on_sphere`` is published (with that doubt) only when the eye
     the asset carries, after the fallbacks, holds the loop (:func:`loop_on_asset_eye`);
     otherwise the cut follows no eye and the scan is a ScanError naming ``source``, the eye and
-    both checks.
+    both checks. So is a loop narrower than any eye's fissure (``opening_wide``).
     """
     moved = moved or {}
     checks, fissures, records, doubts, metrics, limbi = {}, {}, {}, {}, {}, {}
@@ -306,6 +306,12 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
         if fissures[s] is not None:
             metrics[s].update({"texture_fissure_width_mm": round(fissures[s]["width_mm"], 2),
                                "loop_width_mm": round(fissures[s]["loop_width_mm"], 2)})
+        if not checks[s]["opening_wide"]["ok"]:
+            # a globe behind a loop this narrow leaves the rest of the scanned eye as skin and
+            # the opening open beside it: no asset can be built on that cut
+            raise ScanError(source, f"{s} eye: self-check opening_wide: "
+                                    f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])} "
+                                    f"(eye placed from the {fit.method})")
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
     asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st, limbi)
     for s in SIDES:

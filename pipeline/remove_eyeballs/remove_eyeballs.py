@@ -12,7 +12,8 @@ reconstruction-filled crease keep the cut); loops are ordered from the medial ca
 upper lid; then :func:`pipeline.placement.place.judge_pair` says what is published of each eye
 (its self-checks and doubts). Only what cannot be an asset is refused (a closed eye, nothing
 eye-like near a hint, a cut that leaves no simple loop, a loop that misses the fitted sphere and
-cuts into the eye the asset would carry: ``loop_on_eye``); an eye placed from little evidence, or
+cuts into the eye the asset would carry: ``loop_on_eye``, a loop narrower than any eye's fissure:
+``opening_wide``); an eye placed from little evidence, or
 failing another self-check, is published with a doubt.
 """
 
