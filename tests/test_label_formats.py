@@ -326,6 +326,7 @@ def test_an_image_too_small_for_gazemls_crop_is_drawn_again_or_refused(tiny):
     with pytest.raises(sp.RejectionError) as ei:
         sp.make_sample(tiny["asset"], s, 0, "/x.png")
     assert "\n" not in str(ei.value) and f"a label format's own rule in {s.max_attempts})" in str(ei.value)
+    assert str(ei.value).endswith("the eye, canthus to canthus, is too wide for a label format's crop at this framing")
 
 
 @pytest.mark.parametrize("params", [

@@ -411,10 +411,14 @@ def make_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, png, overr
         raise RejectionError(f"{asset.name}, preset {s.preset}: sample {index}: pupil outside the eyelid polygon "
                              f"in all {s.max_attempts} attempts")
     wide = f", the eye wider than the widest framing in {n_frame}" if n_frame else ""
+    # say what to change: a format's crop (GazeML's 1.5 eye widths) outgrowing the image is the
+    # eye's width against the framing, not the asset's extent
+    why = ("the eye, canthus to canthus, is too wide for a label format's crop at this framing"
+           if n_format >= max(n_background, n_frame) else "the asset's eye region is too small for this framing")
     raise RejectionError(f"{asset.name}, preset {s.preset}: sample {index}: no attempt of {s.max_attempts} "
                          f"is usable (pupil outside the eyelid polygon in {n_pupil}, frame reaching past the "
                          f"asset (background) in {n_background}, a label format's own rule in {n_format}{wide}); "
-                         f"the asset's eye region is too small for this framing")
+                         f"{why}")
 
 
 def png_name(index: int) -> str:
