@@ -8,16 +8,17 @@ the lids or turned into a corner at rest. A render sees through where a ray cros
 meets neither the eyeball nor skin: the eye-region crop is one open sheet, so past the opening
 lies background. Per asset and eye this rasterises (``pipeline.render.coverage``, the sampler's
 own coverage test: posed skin triangles, back faces included, and the eyeball's silhouette) what
-orthographic cameras see of the rectangle round the posed opening (the corneal cap, turned with
-the gaze, included: a margin may rest on it), for
+orthographic cameras see of the posed opening (the corneal cap, turned with the gaze,
+included: a margin may rest on it), for
 
 * gaze pitch -25, 0 and +25 deg, the lids following (the rig's pitch-to-weight rule), and
 * five views: the head's front, 35 deg to either side (the preview's three-quarter view) and
   20 deg above and below,
 
-and reports the uncovered area (mm^2) inside that rectangle: the opening's bounding box, which
-the skin round the loop covers wherever the globe does not show. Above ``SEE_THROUGH_MM2`` (a
-quarter of a default render's pixel) a view sees through. The iris at rest, seen from the head's front: the share of its disc (pupil centre to
+and reports the uncovered area (mm^2) inside the opening (the loop's polygon in that view),
+which the globe, the cornea or the lids must cover. Above ``SEE_THROUGH_MM2`` (a quarter of a
+default render's pixel) a view sees through. Past the loop an uncovered pixel is the crop's
+edge seen at a grazing angle, which the sampler keeps out of every render; it is not counted. The iris at rest, seen from the head's front: the share of its disc (pupil centre to
 the iris landmarks, 3 rings of 8 points and the centre) that skin nearer the camera than the iris
 covers; an iris more than half hidden is counted.
 
@@ -34,6 +35,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+from matplotlib.path import Path as Polygon
 
 from pipeline.render import asset as ra
 from pipeline.render.camera import direction_from_angles, look_at, project, rotation_between, to_camera
@@ -91,9 +94,11 @@ def cornea_cap(eye, pitch_deg: float, n_theta: int = 32, n_phi: int = 360) -> np
                            np.stack([a, c, e], -2).reshape(-1, 3, 3)])
 
 
-def opening_uncovered(asset, side: str, pitch: float, towards) -> float:
-    """mm^2 of the posed opening's bounding box (seen from ``towards``) that neither skin nor
-    either eyeball covers."""
+def opening_uncovered(asset, side: str, pitch: float, towards, step_px: float = 0.5) -> float:
+    """mm^2 of the posed opening (the lid loop's polygon seen from ``towards``) that neither skin
+    nor either eyeball covers: what a ray through the opening would pass. Past the loop, an
+    uncovered pixel is the asset's edge (the crop seen at a grazing angle), which the render's
+    sampler keeps out of frame; it is not counted here."""
     lw = lid_weights(pitch, asset.max_pitch_deg)
     loop = ra.posed_lid_polygon(asset, side, lw)
     centre = loop.mean(axis=0)
@@ -105,11 +110,15 @@ def opening_uncovered(asset, side: str, pitch: float, towards) -> float:
         for e in asset.eyes.values()] + [
         to_camera(cornea_cap(e, pitch).reshape(-1, 3), M).reshape(-1, 3, 3) for e in asset.eyes.values()])
     T = proj(tris.reshape(-1, 3)).reshape(-1, 3, 2)
-    box = proj(to_camera(loop, M))
-    x0, y0 = box.min(axis=0)
-    x1, y1 = box.max(axis=0)
+    poly = proj(to_camera(loop, M))
+    (x0, y0), (x1, y1) = poly.min(axis=0), poly.max(axis=0)
+    xs = np.arange(x0, x1 + step_px, step_px)
+    ys = np.arange(y0, y1 + step_px, step_px)
+    gx, gy = np.meshgrid(xs, ys)
+    inside = Polygon(poly).contains_points(np.column_stack([gx.ravel(), gy.ravel()])).reshape(gx.shape)
+    hole = inside & ~covered_points(T, xs, ys)
     px_mm = scale / PX
-    return uncovered_area(T, x0, x1, y0, y1) * px_mm * px_mm
+    return float(hole.sum()) * step_px * step_px * px_mm * px_mm
 
 
 def iris_hidden_share(asset, side: str) -> float:

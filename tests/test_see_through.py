@@ -41,3 +41,34 @@ def test_view_directions_are_unit_and_front_is_the_head_forward():
         v = view_direction(yaw, pitch)
         assert np.linalg.norm(v) == pytest.approx(1.0)
         assert math.degrees(math.acos(v[2])) == pytest.approx(abs(yaw) + abs(pitch))
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    from pipeline.render import asset as ra
+    from tests.fixtures.assets import make_render_asset
+
+    made = make_render_asset(tmp_path_factory.mktemp("see_through"))
+    return ra.load_render_asset(made["asset_dir"], made["rig_dir"])
+
+
+def test_an_opening_the_eye_does_not_fill_is_seen_through_by_its_uncovered_area(tiny):
+    """The tiny asset's skin left out: a globe whose silhouette covers its square 16-vertex loop
+    (20 mm wide, corners up to 15.9 mm from the eye's centre) leaves nothing; the asset's own
+    12.5 mm globe leaves the corners; a 0.5 mm one leaves the loop's area less its own disc
+    (front view, orthographic)."""
+    from dataclasses import replace
+
+    from benchmarks.bench_see_through import opening_uncovered
+
+    bare = replace(tiny, skin_faces=np.zeros((0, 3), np.int64))
+    front = view_direction(0.0, 0.0)
+    big = replace(bare, eyes={**bare.eyes, "left": replace(bare.eyes["left"], radius=17.0)})
+    assert opening_uncovered(big, "left", 0.0, front) == 0.0
+    assert opening_uncovered(bare, "left", 0.0, front) > 5.0
+    small = replace(bare, eyes={**bare.eyes, "left": replace(bare.eyes["left"], radius=0.5)})
+    xy = tiny.skin_rest[tiny.eyes["left"].loop][:, :2]
+    area = 0.5 * abs(np.dot(xy[:, 0], np.roll(xy[:, 1], -1)) - np.dot(xy[:, 1], np.roll(xy[:, 0], -1)))
+    assert opening_uncovered(small, "left", 0.0, front) == pytest.approx(area - math.pi * 0.25, rel=0.02)
+    # the skin across the tiny asset's openings covers them whatever the eye
+    assert opening_uncovered(replace(tiny, eyes=small.eyes), "left", 0.0, front) == 0.0
