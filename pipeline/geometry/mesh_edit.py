@@ -20,8 +20,10 @@ class TriMesh:
     """Tiny editable triangle mesh for boundary collapses/splits (Python dicts; a few hundred ops)."""
 
     def __init__(self, V, F):
-        self.V = [np.asarray(v, dtype=np.float64) for v in V]
-        self.F = {i: list(map(int, f)) for i, f in enumerate(F)}
+        # rows of one float64 array and faces from one tolist(): the same values as converting
+        # each row on its own, without a numpy call per row (13k faces, 9 meshes a retopo)
+        self.V = list(np.asarray(V, dtype=np.float64))
+        self.F = dict(enumerate(np.asarray(F, dtype=np.int64).reshape(-1, 3).tolist()))
         self.vf = {}
         for fi, f in self.F.items():
             for v in f:

@@ -60,10 +60,13 @@ def resample_loop(tm: TriMesh, loop, n, curve=None):
     """Collapse/split boundary edges until the loop has ``n`` vertices; returns the new loop list."""
     loop = list(map(int, loop))
     guard = 0
+    # a collapse moves no vertex: the positions are gathered once, not per collapse (the crop
+    # border's coarsening is a thousand of them)
+    Vs = np.array(tm.V) if len(loop) > n else None
     while len(loop) > n and guard < 100000:
         guard += 1
         k = len(loop)
-        P = np.array([tm.V[v] for v in loop])
+        P = Vs[loop]
         el = np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)   # edge i -> i+1
         cost = el + np.roll(el, 1)
         done = False
