@@ -186,7 +186,8 @@ def _tree(V, F):
 
     with _TREES_LOCK:
         for v, f, t, q in _TREES:
-            if _same_bits(V, v) and _same_bits(F, f):
+            # faces first: the band's regions share the crop's vertices and differ in face count
+            if _same_bits(F, f) and _same_bits(V, v):
                 return v, f, t, q
         V, F = V.copy(), F.copy()
         V.flags.writeable = F.flags.writeable = False
