@@ -223,7 +223,7 @@ def _delaunay_tests(V, tm: TriMesh, margin_deg=1e-4, keyed=True):
     fids = np.array(list(tm.F), dtype=np.int64)
     if len(fids) == 0:
         return {}, set()
-    Fa = np.array([tm.F[i] for i in fids], dtype=np.int64)
+    Fa = np.array(list(tm.F.values()), dtype=np.int64)        # in fids' order
     m = len(Fa)
     b = Fa.ravel()                                          # half-edge (face j, corner k): b, a, c
     a = np.roll(Fa, -1, axis=1).ravel()
@@ -350,7 +350,8 @@ def collapse_flipped(V, F, loops, fixed, ref_V, ref_F):
     tm = TriMesh(V, F)
     for f in bad:
         face = F[f]
-        fi = [k for k, g in tm.F.items() if list(g) == list(face)]
+        fl = face.tolist()                  # one list, not a numpy conversion per face compared
+        fi = [k for k, g in tm.F.items() if g == fl]
         if not fi:
             continue
         if any(tm.flip_edge(fi[0], int(face[i]), int(face[(i + 1) % 3]), R[f]) for i in range(3)):

@@ -174,22 +174,25 @@ class _Locator:
         from scipy.spatial import cKDTree
 
         self.X, self.F, self.k = X, F, min(k, len(F))
-        self.tree = cKDTree(X[F].mean(axis=1))
+        self.XF = X[F]                       # (m, 3, 2) every triangle's corners, gathered once
+        self.tree = cKDTree(self.XF.mean(axis=1))
 
     def locate(self, P):
         _, cand = self.tree.query(P, k=self.k)
         cand = cand.reshape(len(P), -1)
-        A, B, C = (self.X[self.F[cand, c]] for c in range(3))
+        T = self.XF[cand]
+        A, B, C = T[:, :, 0], T[:, :, 1], T[:, :, 2]
         v0, v1, v2 = B - A, C - A, P[:, None, :] - A
         den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
         den = np.where(np.abs(den) < 1e-300, 1e-300, den)
         b1 = (v2[..., 0] * v1[..., 1] - v2[..., 1] * v1[..., 0]) / den
         b2 = (v0[..., 0] * v2[..., 1] - v0[..., 1] * v2[..., 0]) / den
-        bary = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
-        score = bary.min(axis=-1)            # >= 0 inside; otherwise the least-outside candidate
+        # >= 0 inside; otherwise the least-outside candidate (argmax: a zero's sign never matters)
+        score = np.minimum(np.minimum(1.0 - b1 - b2, b1), b2)
         best = np.argmax(score, axis=1)
         r = np.arange(len(P))
-        bb = np.clip(bary[r, best], 0.0, None)
+        b1, b2 = b1[r, best], b2[r, best]
+        bb = np.clip(np.stack([1.0 - b1 - b2, b1, b2], axis=-1), 0.0, None)
         return cand[r, best], bb / bb.sum(axis=1, keepdims=True)
 
 
