@@ -11,6 +11,8 @@ retopo fills inside its crop).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from pipeline.geometry import meshtopo
@@ -44,7 +46,7 @@ class TriMesh:
         u0, u1, u2 = (P[1] - P[0]).tolist()
         w0, w1, w2 = (P[2] - P[0]).tolist()
         n = np.array([u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0])
-        ln = np.linalg.norm(n)
+        ln = math.sqrt(float(n.dot(n)))      # np.linalg.norm's own sqrt(n.dot(n))
         return n / ln if ln > 0 else n, 0.5 * ln
 
     def neighbours(self, v):

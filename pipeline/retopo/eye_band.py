@@ -662,7 +662,8 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     # The remesh's vertices inside each outer ring are the same for every margin tried
     inside = {side: _inside_ring(V, grids[side][-1], ref_V, params[side][0], params[side][2])
               for side in sides}
-    args = (V, F, loops, grids, inside, ref_V, ref_F, rings, S, relax_iterations)
+    args = (V, F, loops, grids, inside, _band_quads(grids, rings, S, ref_V, ref_F), ref_V, ref_F, rings, S,
+            relax_iterations)
     tried, best = {}, {}
     for near in CUT_NEAR:
         try:
@@ -692,9 +693,31 @@ def _inside_ring(V, ring, ref_V, Fr, X):
     return _inside_polygon(to_uv(V), to_uv(ring))
 
 
-def _cut_and_zip(V, F, loops, grids, inside_ring, ref_V, ref_F, rings, S, relax_iterations, near):
+def _band_quads(grids, rings, S, ref_V, ref_F):
+    """Per side of ``grids``: the band's quads numbered as :func:`_cut_and_zip` numbers the band
+    vertices (first, eye by eye), whether they are wound against the grid, and their
+    :func:`band_report`. The cut never moves a band vertex, so these are the same for every cut
+    margin tried."""
+    sides = list(grids)
+    nb = (rings + 1) * S
+    Vb = np.concatenate([grids[s].reshape(-1, 3) for s in sides])
+    out = {}
+    for e, side in enumerate(sides):
+        base = e * nb
+        Q = grid_quads(base, rings, S)
+        T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
+        R = reference_face_normals(Vb, T, ref_V, ref_F)
+        reverse = np.sum(np.einsum("ij,ij->i", mc.face_normals(Vb, T), R)) < 0
+        Q = split_quads(Vb, grid_quads(base, rings, S, reverse), ref_V, ref_F)
+        out[side] = (Q, reverse, band_report(Vb, Q, ref_V, ref_F, S, base))
+    return out
+
+
+def _cut_and_zip(V, F, loops, grids, inside_ring, band_quads, ref_V, ref_F, rings, S, relax_iterations,
+                 near):
     """:func:`add_eye_bands`' cut, renumbering, zip and border relaxation for the grids ``grids``
-    (``inside_ring``: side -> :func:`_inside_ring` of the remesh's vertices and the outer ring);
+    (``inside_ring``: side -> :func:`_inside_ring` of the remesh's vertices and the outer ring;
+    ``band_quads``: :func:`_band_quads`);
     ``near``: side -> the margin (x the outer ring's mean edge) within which remesh vertices by
     the outer ring are cut away too. Returns V2, F2, Q, band_ids, per-side figures and per-side
     zip scores (:func:`_zip_score`)."""
@@ -737,11 +760,7 @@ def _cut_and_zip(V, F, loops, grids, inside_ring, ref_V, ref_F, rings, S, relax_
     for e, side in enumerate(sides):
         base = e * nb
         band_ids[side] = base + np.arange(nb).reshape(rings + 1, S)
-        Q = grid_quads(base, rings, S)
-        T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
-        R = reference_face_normals(V2, T, ref_V, ref_F)
-        reverse = np.sum(np.einsum("ij,ij->i", mc.face_normals(V2, T), R)) < 0
-        Q = split_quads(V2, grid_quads(base, rings, S, reverse), ref_V, ref_F)
+        Q, reverse, _ = band_quads[side]
         quads.append(Q)
         outer = band_ids[side][-1][::-1] if reverse else band_ids[side][-1]
         B = _oriented_border(remap[Fk], remap[borders[side]])
@@ -772,7 +791,7 @@ def _cut_and_zip(V, F, loops, grids, inside_ring, ref_V, ref_F, rings, S, relax_
     F2 = np.concatenate(tris)
     info, scores = {}, {}
     for e, side in enumerate(sides):
-        info[side] = band_report(V2, quads[e], ref_V, ref_F, S, e * nb)
+        info[side] = dict(band_quads[side][2])
         zt = tris[1 + e]
         scores[side] = _zip_score(V2, zt, ref_V, ref_F)
         info[side].update(zip_triangles=int(len(zt)), border_vertices=int(len(zips[e][1])),
