@@ -40,13 +40,17 @@ def reference_face_normals(V, F, ref_V, ref_F, nearest_faces=None):
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
-def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3):
+def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3, memo=None):
     """Tangential Laplacian smoothing of free vertices, reprojected onto the reference surface.
 
     A face's orientation is judged against the reference surface's normals; a
     step that would turn a face further than ``min_dot`` (cosine) away from the
     reference, and away from where it was, is reverted for that face's vertices,
     so relaxing never creates flipped faces and can repair existing ones.
+
+    ``memo``: optional dict kept by a caller that relaxes the same pieces of mesh against one
+    reference surface again (the band's cut margins): the result of each local problem (the faces
+    round the free vertices, renumbered), keyed by its bytes.
     """
     V_all = np.asarray(V, dtype=np.float64).copy()
     if iterations <= 0:
@@ -68,6 +72,17 @@ def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3):
     F = remap[F]
     V = V_all[used]
     free = free[used]
+    key = None
+    if memo is not None:
+        import hashlib
+
+        h = hashlib.blake2b(repr((iterations, step, min_dot, V.shape, F.shape)).encode(), digest_size=16)
+        for a in (V, F, free):
+            h.update(np.ascontiguousarray(a).tobytes())
+        key = h.digest()
+        if key in memo:
+            V_all[used] = memo[key]
+            return V_all
     A = meshtopo.vertex_adjacency(F, len(V))
     deg = np.asarray(A.sum(axis=1)).ravel()
     near = None
@@ -97,6 +112,8 @@ def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3):
             near_n[back] = near[back]
         V, near = Vn, near_n
     V_all[used] = V
+    if key is not None:
+        memo[key] = V
     return V_all
 
 

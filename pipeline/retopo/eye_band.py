@@ -663,7 +663,7 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     inside = {side: _inside_ring(V, grids[side][-1], ref_V, params[side][0], params[side][2])
               for side in sides}
     args = (V, F, loops, grids, inside, _band_quads(grids, rings, S, ref_V, ref_F), ref_V, ref_F, rings, S,
-            relax_iterations)
+            relax_iterations, {})
     tried, best = {}, {}
     for near in CUT_NEAR:
         try:
@@ -713,11 +713,23 @@ def _band_quads(grids, rings, S, ref_V, ref_F):
     return out
 
 
+def _zip_dp(inner, outer, V, j0, ref_V, ref_F, memo):
+    """``zip_strip_maxmin(inner, outer, V[inner], V[outer], j0, ref_V, ref_F)``, remembered in
+    ``memo`` by the two polylines' positions: its choices depend on nothing else (the ids only
+    label the triangles)."""
+    Vi, Vo = V[inner], V[outer]
+    key = ("zip", int(j0), Vi.shape, Vo.shape, Vi.tobytes(), Vo.tobytes())
+    if key not in memo:
+        N = len(inner)
+        memo[key] = zip_strip_maxmin(np.arange(N), N + np.arange(len(outer)), Vi, Vo, j0, ref_V, ref_F)
+    return np.concatenate([inner, outer])[memo[key]]
+
+
 def _cut_and_zip(V, F, loops, grids, inside_ring, band_quads, ref_V, ref_F, rings, S, relax_iterations,
-                 near):
+                 memo, near):
     """:func:`add_eye_bands`' cut, renumbering, zip and border relaxation for the grids ``grids``
     (``inside_ring``: side -> :func:`_inside_ring` of the remesh's vertices and the outer ring;
-    ``band_quads``: :func:`_band_quads`);
+    ``band_quads``: :func:`_band_quads`; ``memo``: a dict the margins tried share);
     ``near``: side -> the margin (x the outer ring's mean edge) within which remesh vertices by
     the outer ring are cut away too. Returns V2, F2, Q, band_ids, per-side figures and per-side
     zip scores (:func:`_zip_score`)."""
@@ -771,21 +783,30 @@ def _cut_and_zip(V, F, loops, grids, inside_ring, band_quads, ref_V, ref_F, ring
     # the cut's border is jagged (whole remesh faces): relax it and the remesh's vertices within
     # two edges of it (no other border), along the surface; zip again on the relaxed border
     Fr = remap[Fk]
-    move = np.concatenate([remap[borders[s]] for s in sides])
-    other = np.setdiff1d(np.concatenate(mc.boundary_loops(Fr)), move)
-    for _ in range(2):
-        move = np.union1d(move, np.setdiff1d(np.unique(Fr[np.isin(Fr, move).any(axis=1)]), other))
-    fixed = np.setdiff1d(np.arange(len(V2)), move)
+    other = np.setdiff1d(np.concatenate(mc.boundary_loops(Fr)),
+                         np.concatenate([remap[borders[s]] for s in sides]))
+    moves = []
+    for s in sides:
+        move = remap[borders[s]]
+        for _ in range(2):
+            move = np.union1d(move, np.setdiff1d(np.unique(Fr[np.isin(Fr, move).any(axis=1)]), other))
+        moves.append(move)
     for rnd in range(ZIP_ROUNDS):
         if rnd:
             tris[1:] = [_zip_strip(o, B, V2[o], V2[B], j0) for o, B, j0 in zips]
         Fall = np.concatenate(tris + [Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
-        V2 = relax(V2, Fall, fixed, ref_V, ref_F, iterations=max(relax_iterations, 8))
+        # eyes whose moving vertices share no face relax on their own: each vertex moves by its
+        # own faces alone, so that is the joint relax's result, and an eye's zone relaxed for one
+        # margin is not relaxed again when the eyes pick different margins (memo)
+        apart = not (np.stack([np.isin(Fall, m).any(axis=1) for m in moves]).sum(axis=0) > 1).any()
+        for move in (moves if apart else [np.concatenate(moves)]):
+            V2 = relax(V2, Fall, np.setdiff1d(np.arange(len(V2)), move), ref_V, ref_F,
+                       iterations=max(relax_iterations, 8), memo=memo)
     # last, on the relaxed border: the strip with the fewest faces turned against the scan and
     # then the largest smallest angle, where it beats the greedy one
     for e, (o, B, j0) in enumerate(zips):
         zt = tris[1 + e]
-        dp = zip_strip_maxmin(o, B, V2[o], V2[B], j0, ref_V, ref_F)
+        dp = _zip_dp(o, B, V2, j0, ref_V, ref_F, memo)
         if _zip_score(V2, dp, ref_V, ref_F) > _zip_score(V2, zt, ref_V, ref_F):
             tris[1 + e] = dp
     F2 = np.concatenate(tris)
