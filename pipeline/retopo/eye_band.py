@@ -393,7 +393,7 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     (the loop) is held. Stops after ``iterations`` sweeps or once no node moved ``tol`` mm.
     ``normal``: the opening's normal (:func:`_opening_normal` of ``G[0]``) when already known.
     """
-    from pipeline.retopo.eyelid_loop import point_at_arclength, polyline_arclength, project_to_polyline
+    from pipeline.retopo.eyelid_loop import at_arclength, polyline_arclength, project_to_polyline
 
     G = np.array(G, dtype=np.float64)
     R = G.shape[0] - 1
@@ -417,13 +417,18 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     if np.sum(np.einsum("ij,ij->i", out, G[-1] - G[0])) < 0:
         out = -out
     outer_line = G[R].copy() if outer_line is None else np.asarray(outer_line, dtype=np.float64)
-    line_len = float(polyline_arclength(outer_line)[0][-1])
+    line_s, line_Q = polyline_arclength(outer_line)        # the line's arc lengths, once
+    line_len = float(line_s[-1])
     # the nodes' arc length along the line, kept from sweep to sweep (never re-projected: a line
     # that comes near itself would hand a node to the other side) and increasing with the spoke
     s0 = project_to_polyline(G[R], outer_line)[0]
     s_on = s0[0] + np.concatenate([[0.0], np.cumsum(np.mod(np.diff(s0), line_len))])
-    G[R] = closest(point_at_arclength(outer_line, s_on))[2]
+    G[R] = closest(at_arclength(line_s, line_Q, s_on))[2]
     _, fcur, _ = closest(G[1:R].reshape(-1, 3))      # faces under the nodes
+    # the scan's unit face normals under the nodes, each face's computed once (row by row the
+    # same bits as mc.face_normals of the faces under them in each sweep)
+    fn = np.zeros((len(ref_F), 3))
+    known = np.zeros(len(ref_F), dtype=bool)
     for _ in range(iterations):
         before = G.copy()
         tau = np.linalg.norm(np.roll(G, -1, axis=1) - G, axis=2).mean(axis=1)
@@ -434,7 +439,11 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
         new = (am[:, None, None] * G[:R - 1] + ap[:, None, None] * G[2:] + b[:, None, None] * lat) \
             / (am + ap + 2.0 * b)[:, None, None]
         delta = step * (new - G[1:R])
-        nn = mc.face_normals(ref_V, ref_F[fcur]).reshape(delta.shape)
+        new_f = np.unique(fcur[~known[fcur]])
+        if len(new_f):
+            fn[new_f] = mc.face_normals(ref_V, np.asarray(ref_F)[new_f])
+            known[new_f] = True
+        nn = fn[fcur].reshape(delta.shape)
         P = G[1:R] + delta - np.einsum("rsk,rsk->rs", delta, nn)[..., None] * nn
         for k in range(1, min(R, push_rings + 1)):
             short = push * d[k] - np.einsum("ij,ij->i", P[k - 1] - G[0], out)
@@ -447,7 +456,7 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
         tR = _unit(np.roll(G[R], -1, axis=0) - np.roll(G[R], 1, axis=0))
         gap = np.diff(np.append(s_on, s_on[0] + line_len))          # to the next node along the line
         s_on = s_on + np.clip(step * np.einsum("ij,ij->i", newR - G[R], tR), -0.45 * np.roll(gap, 1), 0.45 * gap)
-        G[R] = closest(point_at_arclength(outer_line, s_on))[2]
+        G[R] = closest(at_arclength(line_s, line_Q, s_on))[2]
         if np.abs(G - before).max() < tol:
             break
     fade = np.clip(1.0 - d / d[-1], 0.0, 1.0) ** lift_power

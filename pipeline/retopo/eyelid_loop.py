@@ -50,6 +50,12 @@ def point_at_arclength(P, t, smooth=0):
     s, Q = polyline_arclength(P)
     if smooth > 0:
         s, _ = polyline_arclength(closed_moving_average(P, smooth))
+    return at_arclength(s, Q, t)
+
+
+def at_arclength(s, Q, t):
+    """:func:`point_at_arclength` on a closed polyline given by :func:`polyline_arclength`'s
+    ``(s, Q)`` (for a caller that asks about one line again and again)."""
     t = np.mod(t, s[-1])
     j = np.clip(np.searchsorted(s, t, side="right") - 1, 0, len(Q) - 2)
     u = (t - s[j]) / np.maximum(s[j + 1] - s[j], 1e-300)
