@@ -19,9 +19,10 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry.mesh_edit import TriMesh
 
 
-def reference_face_normals(V, F, ref_V, ref_F, nearest_faces=None):
+def reference_face_normals(V, F, ref_V, ref_F, nearest_faces=None, ref_normals=None):
     """Per face, the normalised sum of the reference surface's normals nearest its three vertices
-    (``nearest_faces``: the reference face nearest each vertex, when already known)."""
+    (``nearest_faces``: the reference face nearest each vertex, when already known;
+    ``ref_normals``: ``mc.surface_face_normals(ref_V, ref_F)``, when already looked up)."""
     F = np.asarray(F, dtype=np.int64)
     fi = nearest_faces
     if fi is None:
@@ -35,7 +36,9 @@ def reference_face_normals(V, F, ref_V, ref_F, nearest_faces=None):
             ids = np.flatnonzero(used)
             fi = np.zeros(len(V), dtype=np.int64)
             fi[ids] = mc.closest_points(np.asarray(V)[ids], ref_V, ref_F)[1]
-    vn = mc.face_normals(ref_V, np.asarray(ref_F)[fi])
+    if ref_normals is None:
+        ref_normals = mc.surface_face_normals(ref_V, ref_F)
+    vn = ref_normals[fi]
     n = vn[F].sum(axis=1)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
@@ -87,11 +90,12 @@ def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3, memo=N
     deg = np.asarray(A.sum(axis=1)).ravel()
     near = None
     closest = mc.closest_points_on(ref_V, ref_F)        # the scan's tree looked up once, not per pass
+    ref_normals = mc.surface_face_normals(ref_V, ref_F)
     for _ in range(iterations):
         N = mc.vertex_normals(V, F)
         if near is None:                    # later passes: the faces the projection below landed on
             near = closest(V)[1]
-        R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces=near)
+        R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces=near, ref_normals=ref_normals)
         d0 = np.einsum("ij,ij->i", mc.face_normals(V, F), R)
         L = (A @ V) / np.maximum(deg, 1)[:, None] - V
         L -= np.einsum("ij,ij->i", L, N)[:, None] * N

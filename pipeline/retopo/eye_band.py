@@ -425,10 +425,7 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     s_on = s0[0] + np.concatenate([[0.0], np.cumsum(np.mod(np.diff(s0), line_len))])
     G[R] = closest(at_arclength(line_s, line_Q, s_on))[2]
     _, fcur, _ = closest(G[1:R].reshape(-1, 3))      # faces under the nodes
-    # the scan's unit face normals under the nodes, each face's computed once (row by row the
-    # same bits as mc.face_normals of the faces under them in each sweep)
-    fn = np.zeros((len(ref_F), 3))
-    known = np.zeros(len(ref_F), dtype=bool)
+    fn = mc.surface_face_normals(ref_V, ref_F)       # the scan's face normals, looked up once
     for _ in range(iterations):
         before = G.copy()
         tau = np.linalg.norm(np.roll(G, -1, axis=1) - G, axis=2).mean(axis=1)
@@ -439,10 +436,6 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
         new = (am[:, None, None] * G[:R - 1] + ap[:, None, None] * G[2:] + b[:, None, None] * lat) \
             / (am + ap + 2.0 * b)[:, None, None]
         delta = step * (new - G[1:R])
-        new_f = np.unique(fcur[~known[fcur]])
-        if len(new_f):
-            fn[new_f] = mc.face_normals(ref_V, np.asarray(ref_F)[new_f])
-            known[new_f] = True
         nn = fn[fcur].reshape(delta.shape)
         P = G[1:R] + delta - np.einsum("rsk,rsk->rs", delta, nn)[..., None] * nn
         for k in range(1, min(R, push_rings + 1)):
@@ -553,7 +546,7 @@ def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
             n = np.cross(Q - P, R - P).reshape(-1, 3)
             fi = np.zeros(want.size, dtype=np.int64)
             fi[want.ravel()] = mc.closest_points(((P + Q + R) / 3.0)[want], ref_V, ref_F)[1]
-            dots.append(np.einsum("ij,ij->i", n, mc.face_normals(ref_V, ref_F[fi])).reshape(P.shape[:2]))
+            dots.append(np.einsum("ij,ij->i", n, mc.surface_face_normals(ref_V, ref_F)[fi]).reshape(P.shape[:2]))
         # the strips' winding against the surface's: whichever way most nearby candidates agree
         i_, j_ = np.meshgrid(np.arange(N + 1), np.arange(M + 1), indexing="ij")
         near = np.abs(i_ / N - j_ / M) < 0.5 / min(N, M)
