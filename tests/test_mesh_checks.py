@@ -74,3 +74,20 @@ def test_many_points_asked_in_morton_order_get_libigls_own_answers():
     ok = np.arange(len(P)) != 7
     assert np.sqrt(np.maximum(sq[ok], 0)).tobytes() == d[ok].tobytes()
     assert np.asarray(fi)[ok].tobytes() == f[ok].tobytes() and np.asarray(C)[ok].tobytes() == c[ok].tobytes()
+
+
+def test_surface_face_normals_rows_are_each_faces_own_normal():
+    """The kept normals of a mesh are, row by row, the bits of face_normals of those faces alone
+    (the repairs gather rows where they computed the normals of the faces they landed on)."""
+    V, F = _grid()
+    rng = np.random.default_rng(1)
+    idx = rng.integers(0, len(F), 700)
+    N = mc.surface_face_normals(V, F)
+    assert N[idx].tobytes() == mc.face_normals(V, F[idx]).tobytes()
+    assert not N.flags.writeable
+    W = V.copy()
+    W[5] += [0.0, 0.0, 0.3]                            # another mesh: its own normals
+    moved = np.isin(F, 5).any(axis=1)
+    NW = mc.surface_face_normals(W, F)
+    assert NW.tobytes() == mc.face_normals(W, F).tobytes()
+    assert not np.allclose(NW[moved], N[moved]) and np.array_equal(NW[~moved], N[~moved])

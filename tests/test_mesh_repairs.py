@@ -183,3 +183,42 @@ def test_relax_of_a_few_free_vertices_ignores_the_rest_of_the_mesh():
     np.testing.assert_array_equal(both[len(V):], V2)
     assert np.abs(alone[free] - V[free]).max() > 1e-3           # the free ones did move
     np.testing.assert_array_equal(alone[fixed], V[fixed])
+
+
+def test_trimesh_face_sets_in_the_order_adding_face_by_face_gives():
+    """TriMesh's vertex -> faces sets are filled in face order and keyed by first appearance, as
+    adding the faces one by one does: the edits read those sets' and that dict's iteration order."""
+    rng = np.random.default_rng(2)
+    V = rng.normal(size=(300, 3))
+    F = rng.integers(0, 300, (1000, 3))                # repeated corners and unused vertices too
+    ref = {}
+    for fi, f in enumerate(F.tolist()):
+        for v in f:
+            ref.setdefault(v, set()).add(fi)
+    tm = TriMesh(V, F)
+    assert list(tm.vf) == list(ref)
+    assert all(list(tm.vf[v]) == list(s) for v, s in ref.items())
+    assert tm.F == dict(enumerate(F.tolist())) and tm.next_f == len(F)
+
+
+def test_relax_of_two_apart_zones_one_by_one_is_the_joint_relax_and_remembered():
+    """Free vertices in two zones sharing no face move by their own faces only: relaxing the zones
+    one after the other gives the joint relax's bits (the band relaxes each eye's border so), and
+    a memo hands back the same bits for the same local problem."""
+    from pipeline.geometry.flips import relax
+
+    V, F = _pushed_grid()
+    V2, F2 = _grid()
+    Vb = np.concatenate([V, V2 + [20.0, 0.0, 0.3]])
+    Vb[len(V) + 14] += [0.3, -0.2, 0.0]
+    Fb = np.concatenate([F, F2 + len(V)])
+    za, zb = np.array([14, 15, 20]), len(V) + np.array([14, 21])
+    rest = lambda *zones: np.setdiff1d(np.arange(len(Vb)), np.concatenate(zones))   # noqa: E731
+    joint = relax(Vb, Fb, rest(za, zb), Vb, Fb, iterations=3)
+    memo = {}
+    one = relax(relax(Vb, Fb, rest(za), Vb, Fb, iterations=3, memo=memo), Fb, rest(zb), Vb, Fb,
+                iterations=3, memo=memo)
+    assert joint.tobytes() == one.tobytes() and len(memo) == 2
+    assert np.abs(joint[zb] - Vb[zb]).max() > 1e-3 and np.abs(joint[za] - Vb[za]).max() > 1e-3
+    again = relax(Vb, Fb, rest(za), Vb, Fb, iterations=3, memo=memo)
+    assert len(memo) == 2 and again[za].tobytes() == one[za].tobytes()

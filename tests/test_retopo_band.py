@@ -232,3 +232,46 @@ def test_former_folding_identity_rigs_without_a_fold(tmp_path):
         assert r.returncode == 0, (name, r.stderr[-2000:])
     assert json.loads((tmp_path / "retopo.json").read_text())["band"]["kind"] == "grid"
     assert json.loads((tmp_path / "rig.json").read_text())["sweep_flipped_faces"] == 0
+
+
+def _steps_cell_by_cell(Vi, Vo, j0):
+    """zip_strip_maxmin's programme without the scan, visiting the cells row by row (its first
+    form): the strip's steps in order, 1 along the inner line, 2 along the outer."""
+    N, M = len(Vi), len(Vo)
+    A, B = Vi[np.arange(N + 1) % N], Vo[(j0 + np.arange(M + 1)) % M]
+    ang = lambda P, Q, R: mc.triangle_angles_deg(np.stack([P, Q, R]), np.array([[0, 1, 2]])).min()   # noqa: E731
+    nfl = np.full((N + 1, M + 1), 1 << 30)
+    best = np.full((N + 1, M + 1), -np.inf)
+    came = np.zeros((N + 1, M + 1), dtype=np.int8)
+    nfl[0, 0], best[0, 0] = 0, 180.0
+    for i in range(N + 1):
+        for j in range(M + 1):
+            if (i == 0 and j == 0) or abs(i / N - j / M) > 0.25:
+                continue
+            cand = []
+            if i > 0 and np.isfinite(best[i - 1, j]):
+                cand.append((nfl[i - 1, j], -min(best[i - 1, j], ang(A[i - 1], A[i], B[j])), 1))
+            if j > 0 and np.isfinite(best[i, j - 1]):
+                cand.append((nfl[i, j - 1], -min(best[i, j - 1], ang(A[i], B[j], B[j - 1])), 2))
+            if cand:
+                f, m, c = min(cand)
+                nfl[i, j], best[i, j], came[i, j] = f, -m, c
+    steps, i, j = [], N, M
+    while i > 0 or j > 0:
+        steps.append(int(came[i, j]))
+        i, j = (i - 1, j) if came[i, j] == 1 else (i, j - 1)
+    return steps[::-1]
+
+
+@pytest.mark.parametrize("n_out, wobble, j0", [(16, 0.0, 0), (24, 0.0, 3), (21, 0.4, 5)])
+def test_zip_strip_maxmin_by_anti_diagonals_picks_the_cell_by_cell_strip(n_out, wobble, j0):
+    """Ties included (regular polygons give equal angles everywhere): the same strip as visiting
+    the cells one by one."""
+    rng = np.random.default_rng(n_out)
+    t = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    u = np.linspace(0, 2 * np.pi, n_out, endpoint=False)
+    Vi = 8 * np.stack([np.cos(t), np.sin(t), 0 * t], 1)
+    Vo = (9 + wobble * rng.random(n_out))[:, None] * np.stack([np.cos(u), np.sin(u), 0 * u], 1)
+    inner, outer = np.arange(16), 16 + np.arange(n_out)
+    T = zip_strip_maxmin(inner, outer, Vi, Vo, j0)
+    assert [1 if (t < 16).sum() == 2 else 2 for t in T] == _steps_cell_by_cell(Vi, Vo, j0)

@@ -19,46 +19,83 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry.mesh_edit import TriMesh
 
 
-def reference_face_normals(V, F, ref_V, ref_F, nearest_faces=None):
+def reference_face_normals(V, F, ref_V, ref_F, nearest_faces=None, ref_normals=None):
     """Per face, the normalised sum of the reference surface's normals nearest its three vertices
-    (``nearest_faces``: the reference face nearest each vertex, when already known)."""
-    fi = mc.closest_points(V, ref_V, ref_F)[1] if nearest_faces is None else nearest_faces
-    vn = mc.face_normals(ref_V, np.asarray(ref_F)[fi])
+    (``nearest_faces``: the reference face nearest each vertex, when already known;
+    ``ref_normals``: ``mc.surface_face_normals(ref_V, ref_F)``, when already looked up)."""
+    F = np.asarray(F, dtype=np.int64)
+    fi = nearest_faces
+    if fi is None:
+        # only F's own vertices are looked up: the band's quads and zip strips are judged against
+        # a mesh of thousands of vertices (each point's answer is its own: the same faces)
+        used = np.zeros(len(V), dtype=bool)
+        used[F.ravel()] = True
+        if used.all():
+            fi = mc.closest_points(V, ref_V, ref_F)[1]
+        else:
+            ids = np.flatnonzero(used)
+            fi = np.zeros(len(V), dtype=np.int64)
+            fi[ids] = mc.closest_points(np.asarray(V)[ids], ref_V, ref_F)[1]
+    if ref_normals is None:
+        ref_normals = mc.surface_face_normals(ref_V, ref_F)
+    vn = ref_normals[fi]
     n = vn[F].sum(axis=1)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
-def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3):
+def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3, memo=None):
     """Tangential Laplacian smoothing of free vertices, reprojected onto the reference surface.
 
     A face's orientation is judged against the reference surface's normals; a
     step that would turn a face further than ``min_dot`` (cosine) away from the
     reference, and away from where it was, is reverted for that face's vertices,
     so relaxing never creates flipped faces and can repair existing ones.
+
+    ``memo``: optional dict kept by a caller that relaxes the same pieces of mesh against one
+    reference surface again (the band's cut margins): the result of each local problem (the faces
+    round the free vertices, renumbered), keyed by its bytes.
     """
-    V = np.asarray(V, dtype=np.float64).copy()
+    V_all = np.asarray(V, dtype=np.float64).copy()
     if iterations <= 0:
-        return V
-    free = np.ones(len(V), dtype=bool)
+        return V_all
+    free = np.ones(len(V_all), dtype=bool)
     free[np.asarray(fixed, dtype=np.int64)] = False
     # only the faces round a free vertex can move or turn: the rest are left out of every pass
-    # (the band's zip relaxes a few hundred vertices of a mesh of thousands, 72 passes)
+    # (the band's zip relaxes a few hundred vertices of a mesh of thousands, 72 passes), and the
+    # passes run on those faces' vertices alone, renumbered in the same order: every step is per
+    # vertex or per face (sums over a vertex's faces and neighbours in the same order), so the
+    # same bits as on the whole mesh
     F = np.asarray(F, dtype=np.int64)
     F = F[free[F].any(axis=1)]
     if len(F) == 0:
-        return V
+        return V_all
     used = np.unique(F)
-    free &= np.isin(np.arange(len(V)), used)
+    remap = np.zeros(len(V_all), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    F = remap[F]
+    V = V_all[used]
+    free = free[used]
+    key = None
+    if memo is not None:
+        import hashlib
+
+        h = hashlib.blake2b(repr((iterations, step, min_dot, V.shape, F.shape)).encode(), digest_size=16)
+        for a in (V, F, free):
+            h.update(np.ascontiguousarray(a).tobytes())
+        key = h.digest()
+        if key in memo:
+            V_all[used] = memo[key]
+            return V_all
     A = meshtopo.vertex_adjacency(F, len(V))
     deg = np.asarray(A.sum(axis=1)).ravel()
     near = None
     closest = mc.closest_points_on(ref_V, ref_F)        # the scan's tree looked up once, not per pass
+    ref_normals = mc.surface_face_normals(ref_V, ref_F)
     for _ in range(iterations):
         N = mc.vertex_normals(V, F)
         if near is None:                    # later passes: the faces the projection below landed on
-            near = np.zeros(len(V), dtype=np.int64)
-            near[used] = closest(V[used])[1]
-        R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces=near)
+            near = closest(V)[1]
+        R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces=near, ref_normals=ref_normals)
         d0 = np.einsum("ij,ij->i", mc.face_normals(V, F), R)
         L = (A @ V) / np.maximum(deg, 1)[:, None] - V
         L -= np.einsum("ij,ij->i", L, N)[:, None] * N
@@ -78,7 +115,10 @@ def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3):
             Vn[back] = V[back]
             near_n[back] = near[back]
         V, near = Vn, near_n
-    return V
+    V_all[used] = V
+    if key is not None:
+        memo[key] = V
+    return V_all
 
 
 def repair_flips(V, F, fixed, ref_V, ref_F, rounds=10):
@@ -156,6 +196,7 @@ def flip_slivers(V, F, ref_V, ref_F, min_angle_deg=10.0):
     for lp in mc.boundary_loops(F):
         on_border[lp] = True
     key = {tuple(f): i for i, f in enumerate(F.tolist())}
+    P = np.array(tm.V)                  # flips move no vertex: gathered once, not per sliver
     for f in bad[np.argsort(ang[bad].min(axis=1))]:
         fi = key.get(tuple(F[f].tolist()))
         if fi is None or fi not in tm.F or tm.F[fi] != list(F[f]):
@@ -173,11 +214,11 @@ def flip_slivers(V, F, ref_V, ref_F, min_angle_deg=10.0):
         if any(len(tm.vf[v]) <= (2 if on_border[v] else 3) for v in (a, c)):
             continue
         g = twins[0]
-        old_min = min(ang[f].min(), mc.triangle_angles_deg(np.array(tm.V), np.array([tm.F[g]])).min())
+        old_min = min(ang[f].min(), mc.triangle_angles_deg(P, np.array([tm.F[g]])).min())
         b = face[k]
         d = [v for v in tm.F[g] if v not in (a, c)][0]
         new = np.array([[a, b, d], [b, c, d]])
-        if mc.triangle_angles_deg(np.array(tm.V), new).min() <= old_min:
+        if mc.triangle_angles_deg(P, new).min() <= old_min:
             continue
         tm.flip_edge(fi, a, c, R[f], min_cos=0.3)
     Vn, Fn, _ = tm.arrays()
@@ -186,7 +227,8 @@ def flip_slivers(V, F, ref_V, ref_F, min_angle_deg=10.0):
 
 def _corner_deg(P, at, u, w):
     a, b = P[u] - P[at], P[w] - P[at]
-    c = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-300)
+    # np.linalg.norm's own sqrt(x.dot(x)) without its argument handling (~15k calls a retopo)
+    c = float(a @ b) / max(math.sqrt(float(a.dot(a))) * math.sqrt(float(b.dot(b))), 1e-300)
     return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 
@@ -203,7 +245,7 @@ def _delaunay_tests(V, tm: TriMesh, margin_deg=1e-4, keyed=True):
     fids = np.array(list(tm.F), dtype=np.int64)
     if len(fids) == 0:
         return {}, set()
-    Fa = np.array([tm.F[i] for i in fids], dtype=np.int64)
+    Fa = np.array(list(tm.F.values()), dtype=np.int64)        # in fids' order
     m = len(Fa)
     b = Fa.ravel()                                          # half-edge (face j, corner k): b, a, c
     a = np.roll(Fa, -1, axis=1).ravel()
@@ -330,7 +372,8 @@ def collapse_flipped(V, F, loops, fixed, ref_V, ref_F):
     tm = TriMesh(V, F)
     for f in bad:
         face = F[f]
-        fi = [k for k, g in tm.F.items() if list(g) == list(face)]
+        fl = face.tolist()                  # one list, not a numpy conversion per face compared
+        fi = [k for k, g in tm.F.items() if g == fl]
         if not fi:
             continue
         if any(tm.flip_edge(fi[0], int(face[i]), int(face[(i + 1) % 3]), R[f]) for i in range(3)):

@@ -160,7 +160,7 @@ def check_mesh(V, F, area_tol=1e-10) -> MeshReport:
     )
 
 
-_TREES: list = []          # small cache of libigl AABB trees: [(V copy, F copy, tree, last queries)]
+_TREES: list = []          # small cache of libigl AABB trees: [(V copy, F copy, tree, last queries, derived)]
 _TREES_LOCK = threading.Lock()
 
 
@@ -185,16 +185,33 @@ def _tree(V, F):
     import igl
 
     with _TREES_LOCK:
-        for v, f, t, q in _TREES:
-            if _same_bits(V, v) and _same_bits(F, f):
-                return v, f, t, q
+        for entry in _TREES:
+            # faces first: the band's regions share the crop's vertices and differ in face count
+            if _same_bits(F, entry[1]) and _same_bits(V, entry[0]):
+                return entry
         V, F = V.copy(), F.copy()
         V.flags.writeable = F.flags.writeable = False
         t = igl.AABB()
         t.init(V, F)
-        _TREES.insert(0, (V, F, t, {}))
+        _TREES.insert(0, (V, F, t, {}, {}))
         del _TREES[4:]
-        return V, F, t, _TREES[0][3]
+        return _TREES[0]
+
+
+def surface_face_normals(V, F):
+    """(m, 3) :func:`face_normals` of the mesh (V, F), computed once and kept with its cached tree
+    (:func:`closest_points`; built here if the mesh has none): the retopo repairs and band judge
+    faces against the normals of the scan faces nearest them hundreds of times, and a row of the
+    whole mesh's normals is the same bits as the normal of that face alone. Read-only."""
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    V, F, _, _, derived = _tree(V, F)
+    N = derived.get("face_normals")
+    if N is None:
+        N = face_normals(V, F)
+        N.flags.writeable = False
+        derived["face_normals"] = N
+    return N
 
 
 # a mesh's vertices are asked about again; the bake's one-off queries of 0.2-1M texels or samples
@@ -265,7 +282,7 @@ def closest_points_on(V, F):
     between calls."""
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
-    V, F, tree, last = _tree(V, F)
+    V, F, tree, last, _ = _tree(V, F)
 
     def query(P):
         P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)

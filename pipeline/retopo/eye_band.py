@@ -174,22 +174,25 @@ class _Locator:
         from scipy.spatial import cKDTree
 
         self.X, self.F, self.k = X, F, min(k, len(F))
-        self.tree = cKDTree(X[F].mean(axis=1))
+        self.XF = X[F]                       # (m, 3, 2) every triangle's corners, gathered once
+        self.tree = cKDTree(self.XF.mean(axis=1))
 
     def locate(self, P):
         _, cand = self.tree.query(P, k=self.k)
         cand = cand.reshape(len(P), -1)
-        A, B, C = (self.X[self.F[cand, c]] for c in range(3))
+        T = self.XF[cand]
+        A, B, C = T[:, :, 0], T[:, :, 1], T[:, :, 2]
         v0, v1, v2 = B - A, C - A, P[:, None, :] - A
         den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
         den = np.where(np.abs(den) < 1e-300, 1e-300, den)
         b1 = (v2[..., 0] * v1[..., 1] - v2[..., 1] * v1[..., 0]) / den
         b2 = (v0[..., 0] * v2[..., 1] - v0[..., 1] * v2[..., 0]) / den
-        bary = np.stack([1.0 - b1 - b2, b1, b2], axis=-1)
-        score = bary.min(axis=-1)            # >= 0 inside; otherwise the least-outside candidate
+        # >= 0 inside; otherwise the least-outside candidate (argmax: a zero's sign never matters)
+        score = np.minimum(np.minimum(1.0 - b1 - b2, b1), b2)
         best = np.argmax(score, axis=1)
         r = np.arange(len(P))
-        bb = np.clip(bary[r, best], 0.0, None)
+        b1, b2 = b1[r, best], b2[r, best]
+        bb = np.clip(np.stack([1.0 - b1 - b2, b1, b2], axis=-1), 0.0, None)
         return cand[r, best], bb / bb.sum(axis=1, keepdims=True)
 
 
@@ -285,7 +288,8 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     sgn = 1.0 if np.sum(dang) >= 0 else -1.0
     M = OUTER_LINE_SUB * S
     th = ang[0] + sgn * 2.0 * np.pi * np.arange(M) / M
-    rho = _star_radii(to3d, th, targets, _opening_normal(targets, ref_V, ref_F), width)
+    normal = _opening_normal(targets, ref_V, ref_F)
+    rho = _star_radii(to3d, th, targets, normal, width)
     rho = sum(np.roll(rho, j) for j in range(-OUTER_LINE_HALF, OUTER_LINE_HALF + 1)) / (2 * OUTER_LINE_HALF + 1)
     uv_line = rho[:, None] * np.stack([np.cos(th), np.sin(th)], axis=1)
     outer_line = to3d(uv_line)
@@ -300,8 +304,9 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
             "spokes_out_of_order": np.flatnonzero(np.sign(dang) != np.sign(np.sum(dang))).tolist(),
             # for the cut (add_eye_bands): the region, its point locator and map, the outer ring
             "_param": (Fr, loc, X, r_outer[:, None] * dirs),
-            # for smooth_grid: the line the outer ring's nodes slide along, in spoke order
-            "_outer_line": outer_line}
+            # for smooth_grid: the line the outer ring's nodes slide along, in spoke order, and
+            # the opening's normal (its loop is ring 0: the same normal)
+            "_outer_line": outer_line, "_normal": normal}
     return G, info
 
 
@@ -310,8 +315,14 @@ def _opening_normal(loop, ref_V, ref_F, radius=3.0):
     within ``radius`` mm of the loop's vertices, round the whole loop."""
     from scipy.spatial import cKDTree
 
-    nf = mc.face_normals(ref_V, ref_F, normalize=False)
-    tree = cKDTree(ref_V[ref_F].mean(axis=1))
+    # the tree holds only the centroids in the loop's box grown by more than the radius: the
+    # same faces, in the same (ascending) order, as a tree of the whole scan's
+    cen = ref_V[ref_F].mean(axis=1)
+    loop = np.asarray(loop, dtype=np.float64)
+    lo, hi = loop.min(axis=0) - (radius + 1.0), loop.max(axis=0) + (radius + 1.0)
+    sub = np.flatnonzero(np.all((cen >= lo) & (cen <= hi), axis=1))
+    nf = mc.face_normals(ref_V, ref_F[sub], normalize=False)
+    tree = cKDTree(cen[sub])
     return _unit(sum(nf[ix].sum(axis=0) for ix in tree.query_ball_point(loop, radius) if len(ix))[None])[0]
 
 
@@ -360,7 +371,8 @@ def _star_radii(to3d, th, loop, normal, width, coarse=48, fine=12):
 
 
 def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL_MM,
-                push=SMOOTH_PUSH, push_rings=SMOOTH_PUSH_RINGS, lift_power=SMOOTH_LIFT_POWER, step=1.0):
+                push=SMOOTH_PUSH, push_rings=SMOOTH_PUSH_RINGS, lift_power=SMOOTH_LIFT_POWER, step=1.0,
+                normal=None):
     """Elliptic smoothing of one eye's band grid ``G`` (R + 1, S, 3) on the dense surface.
 
     The outer ring's nodes only slide along ``outer_line`` (a closed polyline on the scan that runs
@@ -379,8 +391,9 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     corner): the smoothing runs from the loop's closest points on the scan, and the loop's height
     over them fades out over the band afterwards, as ``(1 - d / d[-1]) ** lift_power``. Ring 0
     (the loop) is held. Stops after ``iterations`` sweeps or once no node moved ``tol`` mm.
+    ``normal``: the opening's normal (:func:`_opening_normal` of ``G[0]``) when already known.
     """
-    from pipeline.retopo.eyelid_loop import point_at_arclength, polyline_arclength, project_to_polyline
+    from pipeline.retopo.eyelid_loop import at_arclength, polyline_arclength, project_to_polyline
 
     G = np.array(G, dtype=np.float64)
     R = G.shape[0] - 1
@@ -399,18 +412,20 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     # own tangent plane is a wall, and a spoke square to the loop in it climbs the wall in front
     # of the canthus (the band then hides it from the front, and snap moves the loop vertices
     # next to it along the wall's normals, across the fissure)
-    N = _opening_normal(loop, ref_V, ref_F)
+    N = _opening_normal(loop, ref_V, ref_F) if normal is None else np.asarray(normal, dtype=np.float64)
     out = _unit(np.cross(_unit(loop - np.roll(loop, 1, axis=0)) + _unit(np.roll(loop, -1, axis=0) - loop), N))
     if np.sum(np.einsum("ij,ij->i", out, G[-1] - G[0])) < 0:
         out = -out
     outer_line = G[R].copy() if outer_line is None else np.asarray(outer_line, dtype=np.float64)
-    line_len = float(polyline_arclength(outer_line)[0][-1])
+    line_s, line_Q = polyline_arclength(outer_line)        # the line's arc lengths, once
+    line_len = float(line_s[-1])
     # the nodes' arc length along the line, kept from sweep to sweep (never re-projected: a line
     # that comes near itself would hand a node to the other side) and increasing with the spoke
     s0 = project_to_polyline(G[R], outer_line)[0]
     s_on = s0[0] + np.concatenate([[0.0], np.cumsum(np.mod(np.diff(s0), line_len))])
-    G[R] = closest(point_at_arclength(outer_line, s_on))[2]
+    G[R] = closest(at_arclength(line_s, line_Q, s_on))[2]
     _, fcur, _ = closest(G[1:R].reshape(-1, 3))      # faces under the nodes
+    fn = mc.surface_face_normals(ref_V, ref_F)       # the scan's face normals, looked up once
     for _ in range(iterations):
         before = G.copy()
         tau = np.linalg.norm(np.roll(G, -1, axis=1) - G, axis=2).mean(axis=1)
@@ -421,7 +436,7 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
         new = (am[:, None, None] * G[:R - 1] + ap[:, None, None] * G[2:] + b[:, None, None] * lat) \
             / (am + ap + 2.0 * b)[:, None, None]
         delta = step * (new - G[1:R])
-        nn = mc.face_normals(ref_V, ref_F[fcur]).reshape(delta.shape)
+        nn = fn[fcur].reshape(delta.shape)
         P = G[1:R] + delta - np.einsum("rsk,rsk->rs", delta, nn)[..., None] * nn
         for k in range(1, min(R, push_rings + 1)):
             short = push * d[k] - np.einsum("ij,ij->i", P[k - 1] - G[0], out)
@@ -434,7 +449,7 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
         tR = _unit(np.roll(G[R], -1, axis=0) - np.roll(G[R], 1, axis=0))
         gap = np.diff(np.append(s_on, s_on[0] + line_len))          # to the next node along the line
         s_on = s_on + np.clip(step * np.einsum("ij,ij->i", newR - G[R], tR), -0.45 * np.roll(gap, 1), 0.45 * gap)
-        G[R] = closest(point_at_arclength(outer_line, s_on))[2]
+        G[R] = closest(at_arclength(line_s, line_Q, s_on))[2]
         if np.abs(G - before).max() < tol:
             break
     fade = np.clip(1.0 - d / d[-1], 0.0, 1.0) ** lift_power
@@ -518,14 +533,20 @@ def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
     # step inner: (A[i], A[i+1], B[j]) ; step outer: (A[i], B[j+1], B[j])
     ti = minang(A[:-1, None, :], A[1:, None, :], B[None, :, :])           # (N, M + 1)
     to = minang(A[:, None, :], B[None, 1:, :], B[None, :-1, :])           # (N + 1, M)
+    # the strip stays within a quarter turn of the diagonal (no fan round a whole ring)
+    fi_ = np.arange(N + 1)[:, None] / N - np.arange(M + 1)[None, :] / M
+    off = np.abs(fi_) > 0.25
     if ref_V is not None:
         dots = []
-        for P, Q, R in ((A[:-1, None, :], A[1:, None, :], B[None, :, :]),
-                        (A[:, None, :], B[None, 1:, :], B[None, :-1, :])):
+        # a step is only taken from a cell within the quarter turn: the scan is asked about those
+        # steps' triangles alone (each point's answer is its own), the others are never read
+        for (P, Q, R), want in (((A[:-1, None, :], A[1:, None, :], B[None, :, :]), ~off[:N, :]),
+                                ((A[:, None, :], B[None, 1:, :], B[None, :-1, :]), ~off[:, :M])):
             P, Q, R = np.broadcast_arrays(P, Q, R)
             n = np.cross(Q - P, R - P).reshape(-1, 3)
-            _, fi, _ = mc.closest_points(((P + Q + R) / 3.0).reshape(-1, 3), ref_V, ref_F)
-            dots.append(np.einsum("ij,ij->i", n, mc.face_normals(ref_V, ref_F[fi])).reshape(P.shape[:2]))
+            fi = np.zeros(want.size, dtype=np.int64)
+            fi[want.ravel()] = mc.closest_points(((P + Q + R) / 3.0)[want], ref_V, ref_F)[1]
+            dots.append(np.einsum("ij,ij->i", n, mc.surface_face_normals(ref_V, ref_F)[fi]).reshape(P.shape[:2]))
         # the strips' winding against the surface's: whichever way most nearby candidates agree
         i_, j_ = np.meshgrid(np.arange(N + 1), np.arange(M + 1), indexing="ij")
         near = np.abs(i_ / N - j_ / M) < 0.5 / min(N, M)
@@ -533,26 +554,31 @@ def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
         fl_i, fl_o = (sign * dots[0] <= 0).astype(int), (sign * dots[1] <= 0).astype(int)
     else:
         fl_i, fl_o = np.zeros(ti.shape, dtype=int), np.zeros(to.shape, dtype=int)
-    # the strip stays within a quarter turn of the diagonal (no fan round a whole ring)
-    fi_ = np.arange(N + 1)[:, None] / N - np.arange(M + 1)[None, :] / M
-    off = np.abs(fi_) > 0.25
-    # best strip to (i, j): fewest turned triangles, then the largest smallest angle
+    # best strip to (i, j): fewest turned triangles, then the largest smallest angle; ties go to
+    # the inner step. The cells of one anti-diagonal i + j depend only on the one before
     nfl = np.full((N + 1, M + 1), 1 << 30)
     best = np.full((N + 1, M + 1), -np.inf)
     came = np.zeros((N + 1, M + 1), dtype=np.int8)
     nfl[0, 0], best[0, 0] = 0, 180.0
-    for i in range(N + 1):
-        for j in range(M + 1):
-            if (i == 0 and j == 0) or off[i, j]:
-                continue
-            cand = []
-            if i > 0 and np.isfinite(best[i - 1, j]):
-                cand.append((nfl[i - 1, j] + fl_i[i - 1, j], -min(best[i - 1, j], ti[i - 1, j]), 1))
-            if j > 0 and np.isfinite(best[i, j - 1]):
-                cand.append((nfl[i, j - 1] + fl_o[i, j - 1], -min(best[i, j - 1], to[i, j - 1]), 2))
-            if cand:
-                f, m, c = min(cand)
-                nfl[i, j], best[i, j], came[i, j] = f, -m, c
+    for d in range(1, N + M + 1):
+        i = np.arange(max(0, d - M), min(N, d) + 1)
+        j = d - i
+        i = i[~off[i, j]]
+        j = d - i
+        ip, jp = np.maximum(i - 1, 0), np.maximum(j - 1, 0)
+        ok1 = (i > 0) & np.isfinite(best[ip, j])
+        ok2 = (j > 0) & np.isfinite(best[i, jp])
+        b1, t1 = best[ip, j], ti[np.minimum(ip, N - 1), j]
+        b2, t2 = best[i, jp], to[i, np.minimum(jp, M - 1)]
+        m1, m2 = np.where(t1 < b1, t1, b1), np.where(t2 < b2, t2, b2)   # min(best, angle) as Python's
+        f1 = nfl[ip, j] + fl_i[np.minimum(ip, N - 1), j]
+        f2 = nfl[i, jp] + fl_o[i, np.minimum(jp, M - 1)]
+        two = ok2 & (~ok1 | (f2 < f1) | ((f2 == f1) & (m1 < m2)))
+        set_ = ok1 | ok2
+        i, j, two = i[set_], j[set_], two[set_]
+        nfl[i, j] = np.where(two, f2[set_], f1[set_])
+        best[i, j] = np.where(two, m2[set_], m1[set_])
+        came[i, j] = np.where(two, 2, 1)
     tris, i, j = [], N, M
     while i > 0 or j > 0:
         if came[i, j] == 1:
@@ -628,13 +654,18 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         first = float(np.mean(np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)))
         G, info = build_band(P, ref_V, ref_F, dense_loops[holes[side]], rings, width, first,
                              param_mm, locked)
-        G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F, info.pop("_outer_line"))
+        G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F, info.pop("_outer_line"),
+                        normal=info.pop("_normal"))
         params[side] = info.pop("_param")
         grids[side], infos[side] = G, info
     # the cut and zip, for each eye with the remesh's vertices within each of CUT_NEAR x the
     # outer ring's edge of it cut away too: the zip's strip is only as good as the cut's border,
-    # and which margin gives the best border varies eye by eye (the eyes' cuts are independent)
-    args = (V, F, loops, grids, params, ref_V, ref_F, rings, S, relax_iterations)
+    # and which margin gives the best border varies eye by eye (the eyes' cuts are independent).
+    # The remesh's vertices inside each outer ring are the same for every margin tried
+    inside = {side: _inside_ring(V, grids[side][-1], ref_V, params[side][0], params[side][2])
+              for side in sides}
+    args = (V, F, loops, grids, inside, _band_quads(grids, rings, S, ref_V, ref_F), ref_V, ref_F, rings, S,
+            relax_iterations, {})
     tried, best = {}, {}
     for near in CUT_NEAR:
         try:
@@ -655,8 +686,52 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     return V2, F2, Q, band_ids, infos
 
 
-def _cut_and_zip(V, F, loops, grids, params, ref_V, ref_F, rings, S, relax_iterations, near):
-    """:func:`add_eye_bands`' cut, renumbering, zip and border relaxation for the grids ``grids``;
+def _inside_ring(V, ring, ref_V, Fr, X):
+    """(n,) bool: the points ``V`` inside the closed ring ``ring`` (k, 3), both seen in the
+    parameter plane of :func:`build_band`'s region ``Fr`` (faces of ``ref_V``) mapped to ``X``."""
+    def to_uv(P):
+        _, fi, C = mc.closest_points(P, ref_V, Fr)
+        return np.einsum("ij,ijk->ik", _barycentric(C, ref_V[Fr[fi]]), X[Fr[fi]])
+    return _inside_polygon(to_uv(V), to_uv(ring))
+
+
+def _band_quads(grids, rings, S, ref_V, ref_F):
+    """Per side of ``grids``: the band's quads numbered as :func:`_cut_and_zip` numbers the band
+    vertices (first, eye by eye), whether they are wound against the grid, and their
+    :func:`band_report`. The cut never moves a band vertex, so these are the same for every cut
+    margin tried."""
+    sides = list(grids)
+    nb = (rings + 1) * S
+    Vb = np.concatenate([grids[s].reshape(-1, 3) for s in sides])
+    out = {}
+    for e, side in enumerate(sides):
+        base = e * nb
+        Q = grid_quads(base, rings, S)
+        T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
+        R = reference_face_normals(Vb, T, ref_V, ref_F)
+        reverse = np.sum(np.einsum("ij,ij->i", mc.face_normals(Vb, T), R)) < 0
+        Q = split_quads(Vb, grid_quads(base, rings, S, reverse), ref_V, ref_F)
+        out[side] = (Q, reverse, band_report(Vb, Q, ref_V, ref_F, S, base))
+    return out
+
+
+def _zip_dp(inner, outer, V, j0, ref_V, ref_F, memo):
+    """``zip_strip_maxmin(inner, outer, V[inner], V[outer], j0, ref_V, ref_F)``, remembered in
+    ``memo`` by the two polylines' positions: its choices depend on nothing else (the ids only
+    label the triangles)."""
+    Vi, Vo = V[inner], V[outer]
+    key = ("zip", int(j0), Vi.shape, Vo.shape, Vi.tobytes(), Vo.tobytes())
+    if key not in memo:
+        N = len(inner)
+        memo[key] = zip_strip_maxmin(np.arange(N), N + np.arange(len(outer)), Vi, Vo, j0, ref_V, ref_F)
+    return np.concatenate([inner, outer])[memo[key]]
+
+
+def _cut_and_zip(V, F, loops, grids, inside_ring, band_quads, ref_V, ref_F, rings, S, relax_iterations,
+                 memo, near):
+    """:func:`add_eye_bands`' cut, renumbering, zip and border relaxation for the grids ``grids``
+    (``inside_ring``: side -> :func:`_inside_ring` of the remesh's vertices and the outer ring;
+    ``band_quads``: :func:`_band_quads`; ``memo``: a dict the margins tried share);
     ``near``: side -> the margin (x the outer ring's mean edge) within which remesh vertices by
     the outer ring are cut away too. Returns V2, F2, Q, band_ids, per-side figures and per-side
     zip scores (:func:`_zip_score`)."""
@@ -669,14 +744,7 @@ def _cut_and_zip(V, F, loops, grids, params, ref_V, ref_F, rings, S, relax_itera
     keep = np.ones(len(F), dtype=bool)
     borders = {}
     for side in sides:
-        Fr, loc, X, _ = params[side]
-
-        def to_uv(P):
-            _, fi, C = mc.closest_points(P, ref_V, Fr)
-            return np.einsum("ij,ijk->ik", _barycentric(C, ref_V[Fr[fi]]), X[Fr[fi]])
-        uv = to_uv(V)
-        outer_uv = to_uv(grids[side][-1])         # the outer ring as smoothed (slid along itself)
-        inside = _inside_polygon(uv, outer_uv)
+        inside = inside_ring[side].copy()         # the outer ring as smoothed (slid along itself)
         # and remesh vertices hard by the outer ring (the zip's border would run along it)
         ring = grids[side][-1]
         near_mm = near[side] * float(np.mean(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1)))
@@ -706,11 +774,7 @@ def _cut_and_zip(V, F, loops, grids, params, ref_V, ref_F, rings, S, relax_itera
     for e, side in enumerate(sides):
         base = e * nb
         band_ids[side] = base + np.arange(nb).reshape(rings + 1, S)
-        Q = grid_quads(base, rings, S)
-        T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
-        R = reference_face_normals(V2, T, ref_V, ref_F)
-        reverse = np.sum(np.einsum("ij,ij->i", mc.face_normals(V2, T), R)) < 0
-        Q = split_quads(V2, grid_quads(base, rings, S, reverse), ref_V, ref_F)
+        Q, reverse, _ = band_quads[side]
         quads.append(Q)
         outer = band_ids[side][-1][::-1] if reverse else band_ids[side][-1]
         B = _oriented_border(remap[Fk], remap[borders[side]])
@@ -721,27 +785,36 @@ def _cut_and_zip(V, F, loops, grids, params, ref_V, ref_F, rings, S, relax_itera
     # the cut's border is jagged (whole remesh faces): relax it and the remesh's vertices within
     # two edges of it (no other border), along the surface; zip again on the relaxed border
     Fr = remap[Fk]
-    move = np.concatenate([remap[borders[s]] for s in sides])
-    other = np.setdiff1d(np.concatenate(mc.boundary_loops(Fr)), move)
-    for _ in range(2):
-        move = np.union1d(move, np.setdiff1d(np.unique(Fr[np.isin(Fr, move).any(axis=1)]), other))
-    fixed = np.setdiff1d(np.arange(len(V2)), move)
+    other = np.setdiff1d(np.concatenate(mc.boundary_loops(Fr)),
+                         np.concatenate([remap[borders[s]] for s in sides]))
+    moves = []
+    for s in sides:
+        move = remap[borders[s]]
+        for _ in range(2):
+            move = np.union1d(move, np.setdiff1d(np.unique(Fr[np.isin(Fr, move).any(axis=1)]), other))
+        moves.append(move)
     for rnd in range(ZIP_ROUNDS):
         if rnd:
             tris[1:] = [_zip_strip(o, B, V2[o], V2[B], j0) for o, B, j0 in zips]
         Fall = np.concatenate(tris + [Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
-        V2 = relax(V2, Fall, fixed, ref_V, ref_F, iterations=max(relax_iterations, 8))
+        # eyes whose moving vertices share no face relax on their own: each vertex moves by its
+        # own faces alone, so that is the joint relax's result, and an eye's zone relaxed for one
+        # margin is not relaxed again when the eyes pick different margins (memo)
+        apart = not (np.stack([np.isin(Fall, m).any(axis=1) for m in moves]).sum(axis=0) > 1).any()
+        for move in (moves if apart else [np.concatenate(moves)]):
+            V2 = relax(V2, Fall, np.setdiff1d(np.arange(len(V2)), move), ref_V, ref_F,
+                       iterations=max(relax_iterations, 8), memo=memo)
     # last, on the relaxed border: the strip with the fewest faces turned against the scan and
     # then the largest smallest angle, where it beats the greedy one
     for e, (o, B, j0) in enumerate(zips):
         zt = tris[1 + e]
-        dp = zip_strip_maxmin(o, B, V2[o], V2[B], j0, ref_V, ref_F)
+        dp = _zip_dp(o, B, V2, j0, ref_V, ref_F, memo)
         if _zip_score(V2, dp, ref_V, ref_F) > _zip_score(V2, zt, ref_V, ref_F):
             tris[1 + e] = dp
     F2 = np.concatenate(tris)
     info, scores = {}, {}
     for e, side in enumerate(sides):
-        info[side] = band_report(V2, quads[e], ref_V, ref_F, S, e * nb)
+        info[side] = dict(band_quads[side][2])
         zt = tris[1 + e]
         scores[side] = _zip_score(V2, zt, ref_V, ref_F)
         info[side].update(zip_triangles=int(len(zt)), border_vertices=int(len(zips[e][1])),

@@ -73,7 +73,9 @@ def close_annulus(V, F, band, locked):
     if len(np.unique(face_components(m, pairs, band)[band])) != 1:
         return None
     nv = len(np.unique(Fb))
-    ne = len(np.unique(np.sort(mc.edges_of(Fb), axis=1), axis=0))
+    # undirected edges counted as one integer key each (np.unique over rows sorts a structured view)
+    e = np.sort(mc.edges_of(Fb), axis=1)
+    ne = len(np.unique(e[:, 0] * (int(Fb.max()) + 1) + e[:, 1])) if len(Fb) else 0
     if nv - ne + len(Fb) != 0:
         return None
     try:

@@ -50,6 +50,12 @@ def point_at_arclength(P, t, smooth=0):
     s, Q = polyline_arclength(P)
     if smooth > 0:
         s, _ = polyline_arclength(closed_moving_average(P, smooth))
+    return at_arclength(s, Q, t)
+
+
+def at_arclength(s, Q, t):
+    """:func:`point_at_arclength` on a closed polyline given by :func:`polyline_arclength`'s
+    ``(s, Q)`` (for a caller that asks about one line again and again)."""
     t = np.mod(t, s[-1])
     j = np.clip(np.searchsorted(s, t, side="right") - 1, 0, len(Q) - 2)
     u = (t - s[j]) / np.maximum(s[j + 1] - s[j], 1e-300)
@@ -60,10 +66,13 @@ def resample_loop(tm: TriMesh, loop, n, curve=None):
     """Collapse/split boundary edges until the loop has ``n`` vertices; returns the new loop list."""
     loop = list(map(int, loop))
     guard = 0
+    # a collapse moves no vertex: the positions are gathered once, not per collapse (the crop
+    # border's coarsening is a thousand of them)
+    Vs = np.array(tm.V) if len(loop) > n else None
     while len(loop) > n and guard < 100000:
         guard += 1
         k = len(loop)
-        P = np.array([tm.V[v] for v in loop])
+        P = Vs[loop]
         el = np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)   # edge i -> i+1
         cost = el + np.roll(el, 1)
         done = False
