@@ -106,7 +106,6 @@ def find_flat_fill(V, F, hint, median_edge: float, *, exclude=None, radius_mm: f
     -------
     FlatFill or None
     """
-    from matplotlib.path import Path as PolyPath
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -160,6 +159,9 @@ def find_flat_fill(V, F, hint, median_edge: float, *, exclude=None, radius_mm: f
     if n[2] < 0:        # out of the face
         n = -n
     tilt = float(np.degrees(np.sum(A * np.arccos(np.clip(np.abs(N @ n), -1.0, 1.0))) / max(A.sum(), 1e-12)))
+    # matplotlib only here: most scans have no fill, and importing it cost 0.1 s of every run
+    from matplotlib.path import Path as PolyPath
+
     q = V[loop][:, :2]
     width = float(np.ptp(q[:, 0]))
     inside = PolyPath(q).contains_point(hint[:2])
