@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.placement.eye_fit import normal_fold_deg
 from pipeline.placement.model import LIMBUS_DEG, Eye, cap_height_partials, surface_residual
 
 SIG_SCLERA = 0.15       # mm: scanner noise on the exposed sclera
@@ -415,13 +416,9 @@ def fold_deg(p: Patch, lab, radius_mm=2.0):
         return 0.0
     ie, ik = np.flatnonzero(lab), np.flatnonzero(~lab)
     te, tk = cKDTree(p.V[ie]), cKDTree(p.V[ik])
-    angles = []
-    for a, b in zip(te.query_ball_point(p.V[border], radius_mm), tk.query_ball_point(p.V[border], radius_mm)):
-        if a and b:
-            na, nb = p.N[ie[a]].sum(axis=0), p.N[ik[b]].sum(axis=0)
-            c = na @ nb / max(np.linalg.norm(na) * np.linalg.norm(nb), 1e-12)
-            angles.append(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-    return float(np.median(angles)) if angles else 0.0
+    P = p.V[border]
+    angles = normal_fold_deg(p.N[ie], te.query_ball_point(P, radius_mm), p.N[ik], tk.query_ball_point(P, radius_mm))
+    return float(np.median(angles)) if len(angles) else 0.0
 
 
 def midplane_x(V, hints, reach_mm=40.0, max_points=6000):
@@ -440,7 +437,8 @@ def midplane_x(V, hints, reach_mm=40.0, max_points=6000):
     def cost(xm):
         Q = P.copy()
         Q[:, 0] = 2.0 * xm - Q[:, 0]
-        return float(np.mean(np.minimum(tree.query(Q)[0], 3.0) ** 2))
+        # beyond the 3 mm cap the nearest point's distance is not needed (the same costs)
+        return float(np.mean(np.minimum(tree.query(Q, distance_upper_bound=3.0)[0], 3.0) ** 2))
     xs = np.linspace(mid[0] - 4.0, mid[0] + 4.0, 33)
     x0 = xs[int(np.argmin([cost(x) for x in xs]))]
     xs = np.linspace(x0 - 0.3, x0 + 0.3, 25)
