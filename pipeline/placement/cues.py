@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.placement.eye_fit import normal_fold_deg
 from pipeline.placement.model import LIMBUS_DEG, Eye, cap_height_partials, surface_residual
 
 SIG_SCLERA = 0.15       # mm: scanner noise on the exposed sclera
@@ -134,9 +135,10 @@ def _patch(P, Fs, ign, hint, verts, faces) -> Patch:
     return Patch(P, Fs, A, VN, E, w, hint, verts, faces)
 
 
-def unary_costs(p: Patch, e: Eye):
-    """Area-weighted negative log-likelihoods of each vertex as eye and as skin, (n,), (n,)."""
-    d, ant, dsph, u = surface_residual(p.V, e)
+def unary_costs(p: Patch, e: Eye, ray=None):
+    """Area-weighted negative log-likelihoods of each vertex as eye and as skin, (n,), (n,).
+    ``ray``: :func:`pipeline.placement.model.rays` of the patch from ``e``, when made already."""
+    d, ant, dsph, u = surface_residual(p.V, e, ray)
     sig = np.where(ant, SIG_ANTERIOR, SIG_SCLERA)
     eye = 0.5 * (d / sig) ** 2 + np.log(sig * np.sqrt(2.0 * np.pi))
     un = u * p.N                        # summed x, y, z as sum(axis=1) does, without its reduce
@@ -170,8 +172,32 @@ def _cut_structure(p: Patch):
 _CUT_STRUCTURES: dict = {}
 
 
+def _residual_layout(p: Patch, flow):
+    """Where each entry of the cut graph lies in ``flow``'s layout (maximum_flow's: the graph's
+    entries and their reverses, rows sorted), and the row of each of ``flow``'s entries:
+    ``(pos, rows)``. The layout depends on the graph's entries only, which never change on a
+    patch: made at its first cut."""
+    got = _RESIDUAL_LAYOUTS.get(id(p))
+    if got is not None and got[0] is p and got[1] == len(flow.indices):
+        return got[2]
+    indices, indptr, _ = _cut_structure(p)
+    n2 = len(indptr) - 1
+    rows = np.repeat(np.arange(n2), np.diff(flow.indptr))
+    keys = rows.astype(np.int64) * n2 + flow.indices
+    own = np.repeat(np.arange(n2), np.diff(indptr)).astype(np.int64) * n2 + indices
+    out = (np.searchsorted(keys, own), rows)
+    if len(_RESIDUAL_LAYOUTS) > 64:
+        _RESIDUAL_LAYOUTS.clear()
+    _RESIDUAL_LAYOUTS[id(p)] = (p, len(flow.indices), out)
+    return out
+
+
+_RESIDUAL_LAYOUTS: dict = {}
+
+
 def graph_cut(p: Patch, ce, ck):
-    """Minimum cut of the eye/skin labelling: (n,) bool, True = eye."""
+    """Minimum cut of the eye/skin labelling: (n,) bool, True = eye: the vertices the source
+    reaches in the residual graph of the maximum flow (the same set for every maximum flow)."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 
@@ -184,11 +210,17 @@ def graph_cut(p: Patch, ce, ck):
     caps = np.bincount(slot, weights=caps, minlength=len(indices)).astype(np.int32)
     G = csr_matrix((caps, indices, indptr), shape=(n + 2, n + 2))
     flow = maximum_flow(G, S, T).flow
-    res = (G - flow).tocsr()
-    res.data = (res.data > 0).astype(np.int8)
-    res.eliminate_zeros()
+    # the residual capacities laid out as the flow is (``G - flow`` with its zeros dropped, made
+    # without the sparse subtraction and conversions: they were a fifth of a cut's time)
+    pos, rows = _residual_layout(p, flow)
+    res = -flow.data.astype(np.int64)
+    res[pos] += caps
+    keep = res > 0
+    ptr = np.zeros(n + 3, np.int32)
+    np.cumsum(np.bincount(rows[keep], minlength=n + 2), out=ptr[1:])
+    R = csr_matrix((np.ones(int(keep.sum()), np.int8), flow.indices[keep], ptr), shape=(n + 2, n + 2))
     lab = np.zeros(n + 2, bool)
-    lab[breadth_first_order(res, S, directed=True, return_predecessors=False)] = True
+    lab[breadth_first_order(R, S, directed=True, return_predecessors=False)] = True
     return lab[:n]
 
 
@@ -203,18 +235,19 @@ def eye_components(p: Patch, lab, e: Eye, max_angle_deg=70.0):
         return lab
     ok = lab[p.E[:, 0]] & lab[p.E[:, 1]]
     G = csr_matrix((np.ones(int(ok.sum())), (p.E[ok, 0], p.E[ok, 1])), shape=(len(p.V),) * 2)
-    _, comp = connected_components(G, directed=False)
+    ncomp, comp = connected_components(G, directed=False)
     ids = np.flatnonzero(lab)
     w = p.V[ids] - e.c
     cosa = (w @ e.n) / np.linalg.norm(w, axis=1)
     front = e.c + e.R * e.n
-    keep = {int(comp[ids[np.argmin(np.linalg.norm(p.V[ids] - front, axis=1))]])}
-    mins = {}
-    for k, ca in zip(comp[ids], cosa):
-        mins[k] = min(mins.get(k, 1.0), ca)
-    keep |= {int(k) for k, v in mins.items() if v > np.cos(np.radians(max_angle_deg))
-             and np.count_nonzero(comp[ids] == k) >= 2}
-    return lab & np.isin(comp, sorted(keep))
+    keep = np.zeros(ncomp, bool)
+    keep[comp[ids[np.argmin(np.linalg.norm(p.V[ids] - front, axis=1))]]] = True
+    # each component's least cosine (1.0 where it has none) and its size, by array instead of a
+    # loop over the eye vertices
+    mins = np.ones(ncomp)
+    np.minimum.at(mins, comp[ids], cosa)
+    keep |= (mins > np.cos(np.radians(max_angle_deg))) & (np.bincount(comp[ids], minlength=ncomp) >= 2)
+    return lab & keep[comp]
 
 
 def segment(p: Patch, e: Eye):
@@ -383,13 +416,9 @@ def fold_deg(p: Patch, lab, radius_mm=2.0):
         return 0.0
     ie, ik = np.flatnonzero(lab), np.flatnonzero(~lab)
     te, tk = cKDTree(p.V[ie]), cKDTree(p.V[ik])
-    angles = []
-    for a, b in zip(te.query_ball_point(p.V[border], radius_mm), tk.query_ball_point(p.V[border], radius_mm)):
-        if a and b:
-            na, nb = p.N[ie[a]].sum(axis=0), p.N[ik[b]].sum(axis=0)
-            c = na @ nb / max(np.linalg.norm(na) * np.linalg.norm(nb), 1e-12)
-            angles.append(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-    return float(np.median(angles)) if angles else 0.0
+    P = p.V[border]
+    angles = normal_fold_deg(p.N[ie], te.query_ball_point(P, radius_mm), p.N[ik], tk.query_ball_point(P, radius_mm))
+    return float(np.median(angles)) if len(angles) else 0.0
 
 
 def midplane_x(V, hints, reach_mm=40.0, max_points=6000):
@@ -408,7 +437,8 @@ def midplane_x(V, hints, reach_mm=40.0, max_points=6000):
     def cost(xm):
         Q = P.copy()
         Q[:, 0] = 2.0 * xm - Q[:, 0]
-        return float(np.mean(np.minimum(tree.query(Q)[0], 3.0) ** 2))
+        # beyond the 3 mm cap the nearest point's distance is not needed (the same costs)
+        return float(np.mean(np.minimum(tree.query(Q, distance_upper_bound=3.0)[0], 3.0) ** 2))
     xs = np.linspace(mid[0] - 4.0, mid[0] + 4.0, 33)
     x0 = xs[int(np.argmin([cost(x) for x in xs]))]
     xs = np.linspace(x0 - 0.3, x0 + 0.3, 25)

@@ -163,15 +163,34 @@ def lid_crease_deg(mesh: EyeMesh, region, dist=None, radius_mm=2.0):
         return 0.0
     tin, tout = cKDTree(mesh.centroids[fin]), cKDTree(mesh.centroids[fout])
     r = max(radius_mm, 1.5 * mesh.median_edge)
-    angles = []
-    for v, a_, b_ in zip(border, tin.query_ball_point(mesh.V[border], r),
-                         tout.query_ball_point(mesh.V[border], r)):
-        if not a_ or not b_:
-            continue
-        na, nb = N[fin[a_]].sum(axis=0), N[fout[b_]].sum(axis=0)
-        c = na @ nb / max(np.linalg.norm(na) * np.linalg.norm(nb), 1e-12)
-        angles.append(np.degrees(np.arccos(np.clip(c, -1, 1))))
-    return float(np.median(angles)) if angles else 0.0
+    P = mesh.V[border]
+    angles = normal_fold_deg(N[fin], tin.query_ball_point(P, r), N[fout], tout.query_ball_point(P, r))
+    return float(np.median(angles)) if len(angles) else 0.0
+
+
+def normal_fold_deg(Na, near_a, Nb, near_b):
+    """The angle (degrees) between the sum of the normals ``Na[near_a[j]]`` and that of
+    ``Nb[near_b[j]]``, for every ``j`` with both lists non-empty (``query_ball_point``'s lists),
+    (k,). Each sum is numpy's over its own (k, 3) block (numpy adds along it pairwise: a
+    segmented sum adds in another order, in other last bits); the products and norms are
+    made for all at once as ``np.dot`` and ``np.linalg.norm`` make them one by one (a stack of
+    1x3 by 3x1 products calls the same dot): a loop of them over the border was most of the
+    fold measure's time."""
+    both = [j for j, (a, b) in enumerate(zip(near_a, near_b)) if a and b]
+    if not both:
+        return np.zeros(0)
+    # each sum in a row of 4: every row then starts 16-byte aligned like a fresh (3,) array (at a
+    # 24-byte stride every other one did not, and OpenBLAS's dot rounded those differently)
+    SA, SB = np.zeros((len(both), 4)), np.zeros((len(both), 4))
+    for i, j in enumerate(both):
+        SA[i, :3] = Na[near_a[j]].sum(axis=0)
+        SB[i, :3] = Nb[near_b[j]].sum(axis=0)
+    SA, SB = SA[:, :3], SB[:, :3]
+
+    def dot(X, Y):
+        return np.matmul(X[:, None, :], Y[:, :, None])[:, 0, 0]
+    c = dot(SA, SB) / np.maximum(np.sqrt(dot(SA, SA)) * np.sqrt(dot(SB, SB)), 1e-12)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
 def clean_region(mesh: EyeMesh, region, keep_seed, local=None, max_iter=30):

@@ -106,7 +106,6 @@ def find_flat_fill(V, F, hint, median_edge: float, *, exclude=None, radius_mm: f
     -------
     FlatFill or None
     """
-    from matplotlib.path import Path as PolyPath
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -162,10 +161,16 @@ def find_flat_fill(V, F, hint, median_edge: float, *, exclude=None, radius_mm: f
     tilt = float(np.degrees(np.sum(A * np.arccos(np.clip(np.abs(N @ n), -1.0, 1.0))) / max(A.sum(), 1e-12)))
     q = V[loop][:, :2]
     width = float(np.ptp(q[:, 0]))
+    interior = 1.0 - len(loop) / len(np.unique(Ff))
+    if width < min_width_mm or interior > max_interior_share:
+        return None
+    # matplotlib only for a fill's last test: a dense scan's stretched faces reach the tests
+    # above, and importing it cost 0.1 s of every run
+    from matplotlib.path import Path as PolyPath
+
     inside = PolyPath(q).contains_point(hint[:2])
     gap = 0.0 if inside else float(np.min(np.linalg.norm(q - hint[:2], axis=1)))
-    interior = 1.0 - len(loop) / len(np.unique(Ff))
-    if width < min_width_mm or gap > 5.0 or interior > max_interior_share:
+    if gap > 5.0:
         return None
     if exclude is not None:     # a hole the stage closed that touches the fill goes with it
         faces |= _touching(F, faces, np.asarray(exclude, bool))

@@ -20,7 +20,7 @@ import numpy as np
 from pipeline.geometry.spherefit import sphere_from_normals
 from pipeline.placement.cues import (COARSE_VERTICES, PRIOR_BLOCKS, Cues, Patch, ResidualRows, build_patch, coarse_patch,
                                      fold_deg, midplane_x, residual_blocks, residual_jacobians, segment, unary_costs)
-from pipeline.placement.model import HA_RANGE, HB_RANGE, LIMBUS_RANGE, Eye, limbus_center, surface_residual, unit
+from pipeline.placement.model import HA_RANGE, HB_RANGE, LIMBUS_RANGE, Eye, limbus_center, rays, surface_residual, unit
 from pipeline.placement.uncertainty import laplace, placement_of, share_radius
 
 SIDES = ("left", "right")
@@ -245,9 +245,10 @@ def hypotheses(p: Patch, cues: Cues, radius_range, rng, n_pairs=1500, keep=3, mi
     pre = []
     for e in cands:
         best = np.inf
+        ray = rays(p.V, e.c, e.n)       # one sphere and gaze: the three heights share their rays
         for ha in (0.0, 0.5, 1.0):
             e.ha = ha
-            ce, ck = unary_costs(p, e)
+            ce, ck = unary_costs(p, e, ray)
             best = min(best, float(np.minimum(ce, ck).sum()))
         pre.append(best)
     scored = []

@@ -73,18 +73,27 @@ def cornea_sphere(e: Eye):
     return {"center": np.asarray(e.c) + z0 * np.asarray(e.n), "radius": float(r)}
 
 
-def surface_residual(P, e: Eye):
-    """Signed distance (mm) of ``P`` (n, 3) off the eye model, whether each point lies on the
-    anterior cap (inside the limbus), the plain distance off the sclera sphere, and unit
-    directions from the centre."""
-    w = P - e.c
+def rays(P, c, n):
+    """Each point's distance from ``c`` (at least 1e-9), the cosine of its direction to the
+    unit gaze ``n``, and that unit direction: ``(nw, ca, u)``, (n,), (n,), (n, 3). What
+    :func:`surface_residual` reads of the eye besides its radius and cap: an eye's three
+    anterior heights share it (:func:`pipeline.placement.fit.hypotheses`)."""
+    w = P - c
     # norm's sum of squares in its order (x, y, z), without a reduce over a length-3 axis (the
     # placement calls this thousands of times on ~1,500 points: same values, a third the time)
     nw = np.maximum(np.sqrt(w[:, 0] * w[:, 0] + w[:, 1] * w[:, 1] + w[:, 2] * w[:, 2]), 1e-9)
-    ca = (w @ e.n) / nw
+    return nw, (w @ n) / nw, w / nw[:, None]
+
+
+def surface_residual(P, e: Eye, ray=None):
+    """Signed distance (mm) of ``P`` (n, 3) off the eye model, whether each point lies on the
+    anterior cap (inside the limbus), the plain distance off the sclera sphere, and unit
+    directions from the centre. ``ray``: :func:`rays` of ``P`` from ``e.c`` along ``e.n``, when
+    made already."""
+    nw, ca, u = rays(P, e.c, e.n) if ray is None else ray
     h = cap_height(ca, e.R, e.ha, e.tl, e.hb)
     ant = ca > np.cos(np.radians(e.tl))
-    return nw - e.R - h, ant, nw - e.R, w / nw[:, None]
+    return nw - e.R - h, ant, nw - e.R, u
 
 
 def limbus_center(e: Eye) -> np.ndarray:
