@@ -1,4 +1,4 @@
-"""benchmarks.bench_see_through: the corneal cap it adds to the coverage test, on exact geometry."""
+"""tests/fixtures/see_through.py (what benchmarks/bench_see_through.py measures) on exact geometry."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from benchmarks.bench_see_through import cornea_cap, view_direction
+from tests.fixtures.see_through import cornea_cap, view_direction
 
 PARAMS = {"r1": 12.0, "r2": 8.0, "apex": 13.5}
 
@@ -59,7 +59,7 @@ def test_an_opening_the_eye_does_not_fill_is_seen_through_by_its_uncovered_area(
     (front view, orthographic)."""
     from dataclasses import replace
 
-    from benchmarks.bench_see_through import opening_uncovered
+    from tests.fixtures.see_through import opening_uncovered
 
     bare = replace(tiny, skin_faces=np.zeros((0, 3), np.int64))
     front = view_direction(0.0, 0.0)
