@@ -65,6 +65,38 @@ def test_band_on_a_disk_with_a_hole_is_the_polar_grid():
     assert rep["flipped_faces"] == 0 and rep["min_angle_deg"] > 20.0
 
 
+def _annulus_with_a_handle():
+    """:func:`_planar_annulus` with a tube joining two small holes 10 mm either side of the
+    opening: one handle (Euler characteristic -2 with two borders), as in id339_laser's crop."""
+    V, F = _planar_annulus()
+    c = V[F].mean(axis=1)
+    gone = np.zeros(len(F), bool)
+    for x in (10.0, -10.0):
+        gone |= np.linalg.norm(c[:, :2] - [x, 0.0], axis=1) < 1.5
+    F = F[~gone]
+    A, B = [min(mc.boundary_loops(F), key=lambda b: np.linalg.norm(V[b, :2].mean(0) - [x, 0.0]))
+            for x in (10.0, -10.0)]
+    assert len(A) == len(B)
+    # the tube takes each hole edge the other way round from the plane's face beside it
+    Bt, n = B[::-1], len(A)
+    tube = [t for i in range(n) for t in ((A[(i + 1) % n], A[i], Bt[i]), (Bt[i], Bt[(i + 1) % n], A[(i + 1) % n]))]
+    return V, np.vstack([F, np.array(tube, np.int64)])
+
+
+def test_a_handle_round_the_opening_is_named_in_the_refusal():
+    V, F = _annulus_with_a_handle()
+    S, a = 64, 5.0
+    th = 2 * np.pi * np.arange(S) / S
+    loop = np.stack([a * np.cos(th), a * np.sin(th), 0 * th], 1)
+    loops = mc.boundary_loops(F)
+    hole = min(loops, key=lambda b: np.linalg.norm(V[b], axis=1).mean())
+    outer = max(loops, key=lambda b: np.linalg.norm(V[b], axis=1).mean())
+    with pytest.raises(ValueError) as ei:
+        build_band(loop, V, F, hole, 6, 8.0, 2 * np.pi * a / S, 20.0, outer)
+    assert str(ei.value) == ("no annulus of the dense surface 10.0 mm round the eye opening (the surface "
+                             "there has 1 handle: a tunnel through the scan, Euler characteristic -2)")
+
+
 def test_smoothing_keeps_the_polar_grid_and_pulls_a_cut_tip_out():
     """The polar grid of a flat annulus is (nearly) a fixed point of smooth_grid; a ring 1 node
     pulled in behind a spike of the loop (a canthus apex) is pushed back out beyond it."""

@@ -91,6 +91,28 @@ def annulus_region(V, F, hole, radius, locked):
     return close_annulus(V, F, (d[F] < radius).all(axis=1), locked)
 
 
+def _why_no_annulus(V, F, hole, radius, locked) -> str:
+    """Why :func:`annulus_region` found no annulus at ``radius``: a border it must not cross
+    lies nearer, or the surface there is no ring but has handles (a tunnel through the scan:
+    ``id339_laser``'s crop has one), each counted from the Euler characteristic."""
+    from pipeline.retopo.eye_rings import edge_graph_distance
+
+    d = edge_graph_distance(V, F, hole, 1.5 * radius)
+    Fb = F[(d[F] < radius).all(axis=1)]
+    if len(locked) and np.isin(Fb, locked).any():
+        return "the crop border or the other eye is nearer; lower band_width_mm"
+    e = np.sort(mc.edges_of(Fb), axis=1)
+    chi = len(np.unique(Fb)) - len(np.unique(e[:, 0] * (int(Fb.max()) + 1) + e[:, 1])) + len(Fb)
+    try:
+        genus = (2 - chi - len(mc.boundary_loops(Fb))) // 2
+    except ValueError:          # not edge-manifold there
+        return "the surface there is not edge-manifold"
+    if genus > 0:
+        return (f"the surface there has {genus} handle{'s' if genus > 1 else ''}: a tunnel through "
+                f"the scan, Euler characteristic {chi}")
+    return "the surface there is not one ring round the opening"
+
+
 def _mean_value_weights(V, F):
     """Sparse (n, n) mean-value weights w_ij = (tan(a/2) + tan(b/2)) / |x_i - x_j|: positive on
     any triangulation (cotangent weights go negative on a scan's obtuse triangles)."""
@@ -225,7 +247,7 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
             radius *= 0.85
     if region is None:
         raise ValueError(f"no annulus of the dense surface {1.25 * width:.1f} mm round the eye opening "
-                         "(the crop border or the other eye is nearer); lower band_width_mm")
+                         f"({_why_no_annulus(ref_V, ref_F, hole, 1.25 * width, locked)})")
     Fr = ref_F[region]
     hole_set = set(map(int, hole))
     bl = mc.boundary_loops(Fr)
