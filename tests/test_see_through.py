@@ -55,11 +55,11 @@ def tiny(tmp_path_factory):
 def test_an_opening_the_eye_does_not_fill_is_seen_through_by_its_uncovered_area(tiny):
     """The tiny asset's skin left out: a globe whose silhouette covers its square 16-vertex loop
     (20 mm wide, corners up to 15.9 mm from the eye's centre) leaves nothing; the asset's own
-    12.5 mm globe leaves the corners; a 0.5 mm one leaves the loop's area less its own disc
-    (front view, orthographic)."""
+    12.5 mm globe leaves the corners; a 0.5 mm one leaves the loop's area less its own disc and
+    the contact strip (front view, orthographic)."""
     from dataclasses import replace
 
-    from tests.fixtures.see_through import opening_uncovered
+    from tests.fixtures.see_through import CONTACT_MM, opening_uncovered
 
     bare = replace(tiny, skin_faces=np.zeros((0, 3), np.int64))
     front = view_direction(0.0, 0.0)
@@ -67,8 +67,10 @@ def test_an_opening_the_eye_does_not_fill_is_seen_through_by_its_uncovered_area(
     assert opening_uncovered(big, "left", 0.0, front) == 0.0
     assert opening_uncovered(bare, "left", 0.0, front) > 5.0
     small = replace(bare, eyes={**bare.eyes, "left": replace(bare.eyes["left"], radius=0.5)})
-    xy = tiny.skin_rest[tiny.eyes["left"].loop][:, :2]
-    area = 0.5 * abs(np.dot(xy[:, 0], np.roll(xy[:, 1], -1)) - np.dot(xy[:, 1], np.roll(xy[:, 0], -1)))
-    assert opening_uncovered(small, "left", 0.0, front) == pytest.approx(area - math.pi * 0.25, rel=0.02)
+    # the square less its CONTACT_MM strip along the loop (the contact line of a resting margin)
+    side = np.ptp(tiny.skin_rest[tiny.eyes["left"].loop][:, :2], axis=0)
+    assert side == pytest.approx([20.0, 20.0])
+    inner = (20.0 - 2 * CONTACT_MM) ** 2
+    assert opening_uncovered(small, "left", 0.0, front) == pytest.approx(inner - math.pi * 0.25, rel=0.02)
     # the skin across the tiny asset's openings covers them whatever the eye
     assert opening_uncovered(replace(tiny, eyes=small.eyes), "left", 0.0, front) == 0.0
