@@ -15,10 +15,10 @@ around them, so each fit is checked against it (``check_eye``, ``check_pair``):
 - ``opening_wide``: the whole loop spans at least ``min_opening_mm`` (no palpebral fissure is
   narrower: adults' are 27 +- 1.7 mm, a newborn's about 18; a squint or a blink closes the
   opening vertically, not across). A narrower loop is a cut round part of the eye (an eye placed
-  in a wrong basin, its surface labelled skin beside it): the stage refuses it
-  (:func:`pipeline.placement.place.judge_pair`), since a globe behind it leaves the scanned eye
-  as skin and the opening open (``id311_look_right``: a loop 8 mm wide, the preview black
-  through it).
+  in a wrong basin, its surface labelled skin beside it) or a scan that shows less of the
+  opening (sparse views). With no iris in it (the eye falls back to the opening) the stage
+  refuses it (:func:`pipeline.placement.place.judge_pair`: ``id311_look_right``'s 12.4 mm loop,
+  published before with the preview black through the opening); otherwise it is a doubt.
 - ``loop_on_sphere``: the lids' part of the eyelid loop lies on the eyeball, sclera or fitted
   cornea (the margin is where lid meets eye).
 
@@ -290,7 +290,7 @@ def describe(name: str, check: dict) -> str:
         return f"the opening is {v:.2f} x the eyeball's diameter"
     if name == "opening_wide":
         return (f"the eyelid loop spans {v:.1f} mm, narrower than any eye's fissure (limit {lim:g} "
-                f"mm): the cut went round part of an eye, not its opening")
+                f"mm): the cut went round part of the eye, or the scan shows less of the opening")
     if name == "opening_convex":
         return (f"the eyelid loop fills {100 * v:.0f} % of its convex hull (limit "
                 f"{100 * lim:.0f} %: a notch, or scanned eyeball left on a lid)")

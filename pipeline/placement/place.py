@@ -273,7 +273,8 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
     An eye whose loop fails ``loop_on_sphere`` is published (with that doubt) only when the eye
     the asset carries, after the fallbacks, holds the loop (:func:`loop_on_asset_eye`);
     otherwise the cut follows no eye and the scan is a ScanError naming ``source``, the eye and
-    both checks. So is a loop narrower than any eye's fissure (``opening_wide``).
+    both checks. So is a loop narrower than any eye's fissure (``opening_wide``) that no iris in
+    it places (the eye would fall back to that opening); with the iris in it, a doubt.
     """
     moved = moved or {}
     checks, fissures, records, doubts, metrics, limbi = {}, {}, {}, {}, {}, {}
@@ -306,15 +307,18 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
         if fissures[s] is not None:
             metrics[s].update({"texture_fissure_width_mm": round(fissures[s]["width_mm"], 2),
                                "loop_width_mm": round(fissures[s]["loop_width_mm"], 2)})
-        if not checks[s]["opening_wide"]["ok"]:
-            # a globe behind a loop this narrow leaves the rest of the scanned eye as skin and
-            # the opening open beside it: no asset can be built on that cut
-            raise ScanError(source, f"{s} eye: self-check opening_wide: "
-                                    f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])} "
-                                    f"(eye placed from the {fit.method})")
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
     asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st, limbi)
     for s in SIDES:
+        if not checks[s]["opening_wide"]["ok"] and asset[s]["limbus"]["source"] == "opening":
+            # a loop narrower than any fissure whose eye no iris in it places: the cut went round
+            # part of an eye (its cap turned off the scanned cornea), and an eye placed from this
+            # opening sits behind the wrong place (id311_look_right: 5 mm deep, the rest of the
+            # scanned eye left as skin, black through the opening). A narrow loop with the iris in
+            # it is a narrow scanned opening (id322_all's sparse views): published, with the doubt
+            raise ScanError(source, f"{s} eye: self-check opening_wide: "
+                                    f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
+                                    f"and no iris shows in it (the eye would be placed from this opening)")
         if not checks[s]["loop_on_sphere"]["ok"]:
             checks[s]["loop_on_eye"] = loop_on_asset_eye(V2[loops[s][0]], asset[s], eyeball, lim, loops[s][1])
             if not checks[s]["loop_on_eye"]["ok"]:
