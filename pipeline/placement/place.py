@@ -310,15 +310,6 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
     asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st, limbi)
     for s in SIDES:
-        if not checks[s]["opening_wide"]["ok"] and asset[s]["limbus"]["source"] == "opening":
-            # a loop narrower than any fissure whose eye no iris in it places: the cut went round
-            # part of an eye (its cap turned off the scanned cornea), and an eye placed from this
-            # opening sits behind the wrong place (id311_look_right: 5 mm deep, the rest of the
-            # scanned eye left as skin, black through the opening). A narrow loop with the iris in
-            # it is a narrow scanned opening (id322_all's sparse views): published, with the doubt
-            raise ScanError(source, f"{s} eye: self-check opening_wide: "
-                                    f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
-                                    f"and no iris shows in it (the eye would be placed from this opening)")
         if not checks[s]["loop_on_sphere"]["ok"]:
             checks[s]["loop_on_eye"] = loop_on_asset_eye(V2[loops[s][0]], asset[s], eyeball, lim, loops[s][1])
             if not checks[s]["loop_on_eye"]["ok"]:
@@ -333,6 +324,15 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                              f"(placed from the {asset[s]['limbus']['source']}) holds it (loop_on_eye: "
                              f"{checks[s]['loop_on_eye']['value']:.2f} mm inside it at most, limit "
                              f"{checks[s]['loop_on_eye']['limit']} mm)")
+        if not checks[s]["opening_wide"]["ok"] and asset[s]["limbus"]["source"] == "opening":
+            # a loop narrower than any fissure whose eye no iris in it places: the cut went round
+            # part of an eye (its cap turned off the scanned cornea), and an eye placed from this
+            # opening sits behind the wrong place (id311_look_right: 5 mm deep, the rest of the
+            # scanned eye left as skin, black through the opening). A narrow loop with the iris in
+            # it is a narrow scanned opening (id322_all's sparse views): published, with the doubt
+            raise ScanError(source, f"{s} eye: self-check opening_wide: "
+                                    f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
+                                    f"and no iris shows in it (the eye would be placed from this opening)")
     eyes = {}
     for s in SIDES:
         fit, (loop, lat), a, rec = fits[s], loops[s], asset[s], records[s]
