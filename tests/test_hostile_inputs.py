@@ -5,7 +5,7 @@ Each is built from a good synthetic head in ``tmp_path`` and run as
 ``python -m stages.ingest`` in a subprocess under a 1.5 GiB address-space cap. A
 refused case must exit 2 with exactly one stderr line naming the file and the
 problem, no traceback, no output folder (nor a temporary sibling), within 2 s of
-CPU time and 500 MiB peak RSS (the child's own ``ru_maxrss``). The accepted cases
+CPU time (on a slower machine, 1.5 s beyond refusing a garbage GLB) and 500 MiB peak RSS (the child's own ``ru_maxrss``). The accepted cases
 are hostile-looking but within the limits, and must ingest.
 """
 
