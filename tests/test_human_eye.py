@@ -92,6 +92,28 @@ def test_asset_eyes_anchor_one_size_and_fall_back_on_a_hidden_iris():
     assert any("limbus centre +-0.90 mm" in x for x in loose["right"]["doubts"])
 
 
+def test_a_mostly_hidden_iris_on_an_unsure_axis_falls_back_to_the_opening():
+    """An iris 40 % inside the opening is a look up when the scan is sure of the axis, and an eye
+    the scan could not turn when it is not (the half-blinked head's eye, 34 deg off at +-17 deg)."""
+    L = _almond()
+    up = np.array([0.0, math.sin(math.radians(30.0)), math.cos(math.radians(30.0))])
+    lc = [0.0, 5.2, 9.0]
+    iris = human_eye.iris_in_opening(L, lc, up, 5.85)
+    assert 0.05 < iris["visible_share"] < human_eye.UNSURE_HIDDEN_SHARE
+    assert iris["offset_mm"] < iris["opening_half_width_mm"]
+    sure = human_eye.asset_eyes({"left": _scan_eye(lc, up, L, sigma=(0.3, 1.5)),
+                                 "right": _scan_eye(lc, up, L, prior_axis=[0, 0, 1], sigma=(0.3, 6.0))},
+                                eye_size="human", eyeball=EyeballParams())
+    assert sure["left"]["limbus"]["source"] == "geometry" and sure["left"]["doubts"] == []
+    assert np.allclose(sure["left"]["forward"], up)
+    unsure = sure["right"]
+    assert unsure["limbus"]["source"] == "opening" and np.allclose(unsure["forward"], [0, 0, 1])
+    assert "axis +-6.0 deg" in unsure["doubts"][0] and unsure["iris"]["visible_share"] > 0.5
+    # at the doubt level itself the axis is sure enough to believe the look
+    assert not human_eye.iris_hidden(iris, 0.05, 2.0, 2.0)
+    assert human_eye.iris_hidden(iris, 0.05, 2.01, 2.0)
+
+
 @pytest.mark.slow
 def test_a_12mm_eye_is_placed_within_0_2mm_and_1deg():
     """The height-field head carries the paper's eye (r1 12, cornea 8, apex 13.5) at (+-30, 0, 0)

@@ -32,6 +32,9 @@ POPULATION_RADIUS_MM = (11.7, 0.45)
 OPENING_LIMBUS_DEPTH_MM = 1.5
 OPENING_SIGMA_MM = 4.0
 OPENING_AXIS_SIGMA_DEG = 20.0
+#: Less of the iris than this inside the opening at rest, on an axis the scan is unsure of: the
+#: eye is placed from its opening (:func:`iris_hidden`).
+UNSURE_HIDDEN_SHARE = 0.5
 
 
 def limbus_depth(params) -> float:
@@ -135,14 +138,22 @@ def iris_in_opening(loop_points, limbus_center, axis, iris_radius: float, n: int
             "opening_half_width_mm": round(float(0.5 * np.ptp(poly[:, 0])), 4)}
 
 
-def iris_hidden(iris: dict, min_visible: float) -> bool:
+def iris_hidden(iris: dict, min_visible: float, sigma_axis_deg: float = 0.0,
+                doubt_axis_sigma_deg: float = math.inf) -> bool:
     """Whether an eye's iris at rest (:func:`iris_in_opening`) is no iris the scan shows: less
     than ``min_visible`` of it inside the opening, or its centre further from the opening's
     centroid than the opening's half-width (turned past a corner). An iris centre outside the
     opening but within that reach is a look up or down: the lid covers the iris's centre, and
     the truth of ICT-FaceKit heads looking up 27-28 deg lies there (its centre above the upper
-    lid, 25 % of a 5.9 mm iris inside, 6-7 mm off the centroid of an opening 10-13 mm wide)."""
-    return (iris["visible_share"] < min_visible
+    lid, 25 % of a 5.9 mm iris inside, 6-7 mm off the centroid of an opening 10-13 mm wide).
+
+    Such a look is believed only from a placement sure of its axis: an iris more hidden than
+    shown (under ``UNSURE_HIDDEN_SHARE`` inside) on an axis less sure than
+    ``doubt_axis_sigma_deg`` is hidden too. A scanned subject looks at the scanner, and a scan
+    that cannot tell the turn does not outweigh that (a half-blinked held-out head's eye placed
+    34 deg off at +-17 deg, 12 % of its iris inside; ICT's own eye turned 39 deg at +-16 deg)."""
+    unsure = iris["visible_share"] < UNSURE_HIDDEN_SHARE and sigma_axis_deg > doubt_axis_sigma_deg
+    return (iris["visible_share"] < min_visible or unsure
             or iris["offset_mm"] > iris["opening_half_width_mm"])
 
 
@@ -210,16 +221,17 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         sl, sa, source = float(e["sigma_limbus_mm"]), float(e["sigma_axis_deg"]), e["source"]
         doubts = []
         iris = iris_in_opening(e["loop_points"], lc, ax, ir)
-        if iris_hidden(iris, min_iris_visible):
+        if iris_hidden(iris, min_iris_visible, sa, doubt_axis_sigma_deg):
             # an iris behind a lid or in a corner at rest is no eye a scan shows: the opening
             # and the eye region's forward place it instead (the 57 deg turn into the nose)
-            was = iris
+            was, was_sa = iris, sa
             ax = _opening_axis(e["loop_points"], e.get("prior_axis"), ax)
             lc = opening_limbus(e["loop_points"], ax)
             sl, sa, source = OPENING_SIGMA_MM, OPENING_AXIS_SIGMA_DEG, "opening"
             iris = iris_in_opening(e["loop_points"], lc, ax, ir)
             doubts.append(f"the placed iris lay {'outside' if not was['center_inside'] else 'mostly behind'} "
-                          f"the lid opening at rest ({100 * was['visible_share']:.0f} % of it inside): "
+                          f"the lid opening at rest ({100 * was['visible_share']:.0f} % of it inside, "
+                          f"axis +-{was_sa:.1f} deg): "
                           f"placed from the opening instead, iris centred, axis along the eye "
                           f"region's forward")
         d = limbus_depth(placed)
