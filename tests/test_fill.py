@@ -96,3 +96,41 @@ def test_a_blink_is_not_a_fill():
     V, F = mesh["V"], mesh["F"]
     for s in SIDES:
         assert find_flat_fill(V, F, hints[s], median_edge_length(V, F)) is None
+
+
+@pytest.mark.slow
+def test_an_eye_too_coarse_for_its_shape_is_placed_behind_the_priors_opening(head):
+    """A scan whose eye surface is too coarse to place from its shape (here: every eye, by
+    asking for more eye vertices than any head has) and no photograph: the eye is placed behind
+    the opening that surface shows, as behind a fill, and says so (a doubt naming why, the
+    opening's sigma)."""
+    from pipeline.placement.prior import EyeRegionPrior
+
+    h, _ = head
+    st = RemoveEyeballsSettings(min_eye_vertices=100_000)
+    res = remove_eyeballs({"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}, _hints(h), st,
+                          source="coarse.ply", prior=EyeRegionPrior.load().register)
+    for s in SIDES:
+        e, g = res.eyes[s].to_doc(), h.ground_truth["eyes"][s]
+        assert e["method"] == "coarse" and e["limbus"]["source"] == "coarse" and e["radius"] == 12.0
+        assert any("fewer than 100000" in d and "the opening it was found in" in d for d in e["doubts"]), e["doubts"]
+        assert e["uncertainty"]["limbus_mm"] == 4.0 and e["uncertainty"]["axis_deg"] == 20.0
+        lt, gaze = truth_limbus(g)
+        # within 2 sigma of the truth, as stated
+        assert np.linalg.norm(np.asarray(e["limbus"]["center"]) - lt) <= 8.0
+        assert np.degrees(np.arccos(np.clip(np.dot(e["forward"], gaze), -1, 1))) <= 40.0
+        L = np.asarray(e["loop_points"])
+        assert np.linalg.norm(L[0] - L[e["lateral_canthus_index"]]) >= 14.0
+    assert res.metrics["boundary_loops_out"] == res.metrics["boundary_loops_in"] + 2
+
+
+def test_the_distance_outside_the_priors_margin():
+    """Known answer: a 20 x 10 mm margin seen along +Z; a point inside is its distance to the
+    border, negated; outside, its distance; depth along the axis does not count."""
+    from pipeline.placement.place import _outside_margin
+
+    M = np.array([[-10.0, -5.0, 0.0], [10.0, -5.0, 0.0], [10.0, 5.0, 0.0], [-10.0, 5.0, 0.0]])
+    front = {"margin": M, "axis": np.array([0.0, 0.0, 2.0])}
+    assert _outside_margin([0.0, 0.0, 7.0], front) == pytest.approx(-5.0)
+    assert _outside_margin([13.0, 0.0, -3.0], front) == pytest.approx(3.0)
+    assert _outside_margin([0.0, 0.0, 0.0], {"margin": None}) is None and _outside_margin([0, 0, 0], None) is None

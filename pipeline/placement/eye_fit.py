@@ -28,7 +28,8 @@ class EyeFit:
         RMS distance of the sclera inliers to the sphere.
     n_inliers : int
     method : str
-        ``"geometry"``, ``"texture"`` or ``"fill"`` (behind a scanner's flat fill).
+        ``"geometry"``, ``"texture"``, ``"fill"`` (behind a scanner's flat fill) or ``"coarse"``
+        (behind the opening of a scanned eye too coarse to place from its shape).
     region : (m,) bool
         Faces to remove.
     cornea : dict or None
@@ -51,6 +52,7 @@ class EyeFit:
     inliers: np.ndarray = field(default=None, repr=False)
     radius_sigma: float = float("inf")
     prior_axis: np.ndarray | None = field(default=None, repr=False)   # the eye region's forward
+    why: str | None = None      # why the eye was placed as it was, when that is a doubt
 
 
 def unit_vector(v):

@@ -198,11 +198,22 @@ def fit_from_fill(mesh: EyeMesh, fill: FlatFill, side: str, radius: float, forwa
     upper lid first (ordered in the head's forward view), the eye placed by
     :func:`pipeline.placement.texture.place_from_fissure` at ``radius`` (held), its gaze near
     ``forward`` (the eye-region prior's axis; default the head's forward axis)."""
+    fit = fit_behind_loop(mesh, fill.loop, fill.faces.copy(), side, radius, forward, "fill")
+    return FillEyeFit(**{k: getattr(fit, k) for k in fit.__dataclass_fields__}, fill=fill)
+
+
+def fit_behind_loop(mesh: EyeMesh, loop, region, side: str, radius: float, forward=None,
+                    method: str = "fill") -> EyeFit:
+    """The anatomical eye behind an opening the scan shows only as its border ``loop`` (vertex
+    ids of ``mesh``, either direction) round the faces ``region`` (m,) bool that the stage cuts:
+    the loop as the fissure (see :func:`fit_from_fill`), the fit's ``method`` saying what the
+    opening was (``fill``: a scanner's flat fill; ``coarse``: a scanned eye too coarse to place
+    from its shape)."""
     from pipeline.placement.texture import place_from_fissure
 
     V, F = mesh.V, mesh.F
     view = unit_vector(np.array([0.0, 0.0, 1.0]) if forward is None else np.asarray(forward, float))
-    loop = fill.loop
+    loop = np.asarray(loop, np.int64)
     P = V[loop]
     B = eye_basis(view)
     Q = (P - P.mean(axis=0)) @ B[:2].T
@@ -214,8 +225,6 @@ def fit_from_fill(mesh: EyeMesh, fill: FlatFill, side: str, radius: float, forwa
         loop, Q = np.concatenate([loop[:1], loop[1:][::-1]]), np.concatenate([Q[:1], Q[1:][::-1]])
         lat = len(loop) - lat
     c, fwd, r, rms = place_from_fissure(V[loop], lat, radius, view, fixed_radius=True)
-    region = fill.faces.copy()
-    return FillEyeFit(side=side, center=c, radius=float(r), forward=fwd, residual_rms_mm=rms,
-                      n_inliers=int(len(loop)), method="fill", region=region,
-                      crease_deg=lid_crease_deg(mesh, region), inliers=np.unique(F[region]),
-                      fill=fill)
+    return EyeFit(side=side, center=c, radius=float(r), forward=fwd, residual_rms_mm=rms,
+                  n_inliers=int(len(loop)), method=method, region=region,
+                  crease_deg=lid_crease_deg(mesh, region), inliers=np.unique(F[region]))

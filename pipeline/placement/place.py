@@ -16,11 +16,15 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.geometry import meshtopo
+from pipeline.geometry.frame import eye_basis
+from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.eyes_file import Eye
 from pipeline.placement import checks as eye_checks
 from pipeline.placement.doubts import check_doubts, fissure_doubts
 from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease_deg, patch_faces
-from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_from_fill
+from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_behind_loop, fit_from_fill
+from pipeline.placement.fissure import points_in_polygon
 from pipeline.placement.fit import place_eyes
 from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
 from pipeline.placement.settings import PlacementSettings
@@ -34,6 +38,81 @@ def fill_faces(V, F, ratio):
     flat fill across an opening it could not measure, which says nothing about the eye."""
     A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
     return A > ratio * max(float(np.median(A)), 1e-12)
+
+
+class CoarseEye(ScanError):
+    """An open eye whose scanned surface is too coarse to place it from its shape: ``region``
+    (m,) bool, the opening it was found in, one simple loop round it."""
+
+    def __init__(self, path, problem, region):
+        super().__init__(path, problem)
+        self.region = region
+
+
+def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSettings, front=None):
+    """The eye behind the opening of an eye the scan's shape cannot place
+    (:func:`pipeline.placement.fill.fit_behind_loop`), as behind a scanner's flat fill. The
+    opening is the eye surface the search labelled (``err.region``: too few vertices to place
+    the eye from its shape) or, where that lay outside the lids (``err.region`` None), the faces
+    inside the eye-region prior's lid margin (``front``: its registration here, seen along its
+    axis, within ``COARSE_DEPTH_MM`` of the margin's mean), the part nearest the hint. ``err``
+    again when there is no such opening."""
+    region, by = err.region, "it was found in"
+    plane = _margin_plane(front) if region is None else None
+    if plane is not None:
+        o, a, B, poly = plane
+        d = mesh.centroids - o
+        inside = (points_in_polygon(d @ B[:2].T, poly) & (np.abs(d @ a) < COARSE_DEPTH_MM)
+                  & patch_faces(mesh, hint, st.patch_radius_mm + 5.0))
+        if inside.any():
+            seed = np.zeros(len(inside), bool)
+            seed[np.flatnonzero(inside)[np.argmin(np.linalg.norm(mesh.centroids[inside] - hint, axis=1))]] = True
+            region, by = clean_region(mesh, inside, seed, inside), "the eye-region prior outlines"
+    if region is None or not region.any():
+        raise err
+    try:
+        loops = meshtopo.boundary_loops(mesh.F[region])
+    except ValueError:
+        raise err from None
+    if len(loops) != 1:
+        raise err
+    fit = fit_behind_loop(mesh, loops[0], region, side, st.radius_prior_mm, None, "coarse")
+    fit.why = f"{err.problem.split(': ', 1)[1]}: placed behind the opening {by}"
+    return fit
+
+
+def _margin_plane(front):
+    """The eye-region prior's lid margin seen along its axis: ``(origin (3,), axis (3,), basis
+    (3, 3), polygon (16, 2))``, or None without a registration (``front``)."""
+    if front is None or front.get("margin") is None:
+        return None
+    M = np.asarray(front["margin"], float)
+    a = np.asarray(front["axis"], float)
+    a = a / np.linalg.norm(a)
+    B = eye_basis(a)
+    o = M.mean(axis=0)
+    return o, a, B, (M - o) @ B[:2].T
+
+
+def _outside_margin(point, front) -> float | None:
+    """How far ``point`` (3,) lies outside the eye-region prior's lid margin seen along its
+    axis (mm; negative inside), or None without a registration (``front``)."""
+    plane = _margin_plane(front)
+    if plane is None:
+        return None
+    o, _, B, poly = plane
+    q = ((np.asarray(point, float) - o) @ B[:2].T)[None]
+    d = float(closed_polyline_distance(q, poly)[0])
+    return -d if points_in_polygon(q, poly)[0] else d
+
+
+#: How far outside the prior's lid margin a scanned eye's limbus may lie (mm): on 62 held-out
+#: eyes the truth's lay at most 1.0 mm outside and every placed one within 1.0 mm.
+PRIOR_MARGIN_SLACK_MM = 3.0
+
+#: How far in front of or behind the prior's lid margin a coarse eye's opening reaches (mm): the
+#: cornea stands 2-3 mm proud of the margin, the skin beyond the canthi falls back 5 mm and more.
+COARSE_DEPTH_MM = 4.0
 
 
 def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, source, ignore):
@@ -63,9 +142,10 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, so
                                 f"{np.round(hint, 2).tolist()} (less than {st.min_open_area_mm2:g})")
     n_eye = int(np.count_nonzero(pl.lab))
     if n_eye < st.min_eye_vertices:     # a coarse scan (james: 3 mm faces) cannot show a cornea
-        raise ScanError(source, f"{side} eye: too little of the eyeball shows to place it from the "
+        raise CoarseEye(source, f"{side} eye: too little of the eyeball shows to place it from the "
                                 f"geometry: {n_eye} scan vertices on the eye surface near "
-                                f"{np.round(hint, 2).tolist()} (fewer than {st.min_eye_vertices})")
+                                f"{np.round(hint, 2).tolist()} (fewer than {st.min_eye_vertices})",
+                        region)
     rv = np.unique(F[region & ~ignore])
     d, ant, _, _ = surface_residual(V[rv], e)
     scl = ~ant
@@ -122,7 +202,16 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             fits[s], placements[s] = fit_from_fill(mesh, fills[s], s, st.radius_prior_mm), None
             continue
         err = None
-        if placements[s] is not None:
+        off = None if placements[s] is None or front is None else _outside_margin(
+            limbus_center(placements[s].eye), front.get(s))
+        if off is not None and off > PRIOR_MARGIN_SLACK_MM:
+            # the eye the geometry found lies off the opening the lids around it outline (a coarse
+            # photogrammetry head's right eye: on the lower lid, 8.6 mm outside, 13.7 mm off
+            # with a 1.1 mm sigma): no eye this scan shows
+            err = CoarseEye(source, f"{s} eye: the eye surface the geometry found lies {off:.1f} mm "
+                                    f"outside the lid margin that the skin around it outlines "
+                                    f"(eye-region prior; limit {PRIOR_MARGIN_SLACK_MM:g} mm)", None)
+        elif placements[s] is not None:
             try:
                 fits[s] = _fit_from_placement(mesh, placements[s], hints[s], s, st, source, ignore)
                 continue
@@ -134,7 +223,12 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
                                     f"near the hint {np.round(hints[s], 2).tolist()}")
         has_tex = texture is not None and "UV" in uv and "FUV" in uv
         if not (st.texture_fallback and has_tex):
-            raise err
+            if not isinstance(err, CoarseEye):
+                raise err
+            # no photograph to read the eye from: its opening and the anatomy place it, doubted
+            fits[s] = _fit_from_coarse(mesh, err, s, hints[s], st, None if front is None else front.get(s))
+            placements[s] = None
+            continue
         try:
             fits[s] = fit_texture(mesh, uv, texture, hints[s], s, st, source)
         except NoEyeInTexture:
@@ -229,7 +323,7 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
                      sigma_radius=pl.sigma_radius_mm, source="geometry")
         else:       # the anatomical eye behind the fissure (photographed, or a flat fill's boundary)
             here = placed_params(geo, fit.radius)
-            sigma = FILL_SIGMA if fit.method == "fill" else TEXTURE_SIGMA
+            sigma = FILL_SIGMA if fit.method in ("fill", "coarse") else TEXTURE_SIGMA
             e.update(limbus_center=np.asarray(fit.center) + human_eye.limbus_depth(here) * np.asarray(fit.forward),
                      axis=np.asarray(fit.forward, float), limbus_radius=human_eye.limbus_radius(here),
                      sigma_limbus_mm=sigma[0], sigma_axis_deg=sigma[1],
@@ -293,6 +387,8 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
         fissures[s], doubts[s] = None, []
         if fit.method == "texture" and texture is not None:
             fissures[s], doubts[s] = fissure_doubts(V, F, mesh_arrays, texture, hints[s], fit, V2[loop], st)
+        if fit.why:
+            doubts[s].append(fit.why)
         records[s] = placement_record(placements[s], fit)
         if placements[s] is not None:
             limbi[s] = scan_limbus(placements[s], st)
@@ -324,7 +420,7 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                              f"(placed from the {asset[s]['limbus']['source']}) holds it (loop_on_eye: "
                              f"{checks[s]['loop_on_eye']['value']:.2f} mm inside it at most, limit "
                              f"{checks[s]['loop_on_eye']['limit']} mm)")
-        if not checks[s]["opening_wide"]["ok"] and asset[s]["limbus"]["source"] == "opening":
+        if not checks[s]["opening_wide"]["ok"] and asset[s]["limbus"]["source"] in ("opening", "coarse"):
             # a loop narrower than any fissure whose eye no iris in it places: the cut went round
             # part of an eye (its cap turned off the scanned cornea), and an eye placed from this
             # opening sits behind the wrong place (id311_look_right: 5 mm deep, the rest of the
