@@ -20,6 +20,7 @@ import math
 import numpy as np
 
 from pipeline.geometry.frame import eye_basis
+from pipeline.placement.fissure import points_in_polygon
 
 SIDES = ("left", "right")
 #: Population eyeball radius (mm): 11.7 +- 0.45, from the axial length 23.4 +- 0.9 mm.
@@ -103,17 +104,6 @@ def asset_radius(mode: str, fitted: dict, human_mm: float = 12.0,
     return {s: (float(r), float(1.0 / math.sqrt(prec))) for s in SIDES}
 
 
-def _in_polygon(P, poly) -> np.ndarray:
-    """(n,) bool: points (n, 2) inside the closed polygon (k, 2) (even-odd rule)."""
-    P = np.asarray(P, float)
-    x, y = P[:, 0][:, None], P[:, 1][:, None]
-    a, b = poly, np.roll(poly, -1, axis=0)
-    cond = (a[:, 1] > y) != (b[:, 1] > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xc = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
-    return (np.count_nonzero(cond & (x < xc), axis=1) % 2) == 1
-
-
 def iris_in_opening(loop_points, limbus_center, axis, iris_radius: float, n: int = 24) -> dict:
     """How the eye's iris at rest sits in the opening, seen along its axis.
 
@@ -132,7 +122,7 @@ def iris_in_opening(loop_points, limbus_center, axis, iris_radius: float, n: int
     gx, gy = np.meshgrid(g, g)
     disc = np.stack([gx.ravel(), gy.ravel()], 1)
     disc = disc[(disc ** 2).sum(1) <= 1.0] * iris_radius
-    inside = _in_polygon(np.vstack([[0.0, 0.0], disc]), poly)
+    inside = points_in_polygon(np.vstack([[0.0, 0.0], disc]), poly)
     return {"center_inside": bool(inside[0]), "visible_share": round(float(inside[1:].mean()), 4),
             "offset_mm": round(float(np.linalg.norm(poly.mean(axis=0))), 4),
             "opening_half_width_mm": round(float(0.5 * np.ptp(poly[:, 0])), 4)}
