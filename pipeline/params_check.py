@@ -1,6 +1,6 @@
 """The check of a whole ``params.yaml`` mapping: safe scan names, every block read by its stage's
 settings class, the ``identities:`` entries (stages/check_params.py runs it before any other
-stage; stages/identities.py before it writes the file).
+stage; stages/identities.py, as :func:`check_params_text`, before it writes the file).
 
 It names every stage package's settings class (``"module:Class"``, imported when checked), so it
 sits above them all (tests/test_layers.py).
@@ -102,3 +102,16 @@ def check_params(data: dict, source="params.yaml", complete: bool = False) -> di
             raise ScanError(source, f"{missing[0]}: block is missing (every block of this pipeline must be "
                                     f"there; missing: {', '.join(missing)})")
     return out
+
+
+def check_params_text(text: str, source="params.yaml") -> dict:
+    """``text`` read as params.yaml is read (no repeated key) and checked whole
+    (:func:`check_params`, ``complete``); returns the parsed mapping, ScanError otherwise."""
+    from pipeline.io.strict_yaml import DuplicateKeyError, load_strict
+
+    try:
+        data = load_strict(text)       # params.yaml's rules: no repeated key
+    except DuplicateKeyError as exc:
+        raise ScanError(source, f"{exc}: each key may appear once") from None
+    check_params(data, source=str(source), complete=True)
+    return data

@@ -26,12 +26,7 @@ import sys
 from pathlib import Path
 
 from pipeline.errors import ScanError
-from pipeline.io.folder_lock import folder_lock
-from pipeline.io.scratch import stage_scratch
-from pipeline.render import mix
-from pipeline.render import plan as pl
-from pipeline.render.dataset import asset_inputs, load_assets, render_dataset
-from pipeline.render.settings import MAX_IMAGES, RenderSettings, parse_overrides
+from pipeline.render import dataset as ds
 from pipeline.render.shard import client_security, dashboard_text
 from stages._common import load_params
 
@@ -41,23 +36,6 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(2, f"error: {self.prog}: {message}\n")
-
-
-def _settings(args) -> RenderSettings:
-    """The ``render:`` block of ``--params`` with the command line's overrides."""
-    if not 1 <= args.n <= MAX_IMAGES:
-        raise ScanError("--n", f"must be between 1 and {MAX_IMAGES} (got {args.n})")
-    if args.params != "params.yaml" and not Path(args.params).is_file():
-        raise ScanError(args.params, "params file not found")
-    params = load_params("render", args.params)      # {} without a params.yaml; refused without render:
-    params.update(parse_overrides(args.set or ()))
-    params["n_images"] = args.n
-    for key in ("preset", "seed", "workers"):
-        if getattr(args, key) is not None:
-            params[key] = getattr(args, key)
-    if args.no_progress:
-        params["progress"] = False
-    return RenderSettings.from_params(params, source=args.params)
 
 
 def main(argv=None) -> int:
@@ -91,44 +69,28 @@ def main(argv=None) -> int:
     how.add_argument("--resume", action="store_true", help="only continue the dataset of this plan in --out")
     args = ap.parse_args(argv)
 
+    def say(line):
+        print(line, file=sys.stderr)
+
     try:
-        settings = _settings(args)
+        if args.params != "params.yaml" and not Path(args.params).is_file():
+            raise ScanError(args.params, "params file not found")
+        block = load_params("render", args.params)      # {} without a params.yaml; refused without render:
+        settings = ds.dataset_settings(block, args.n, args.set, args.preset, args.seed, args.workers,
+                                       not args.no_progress, source=args.params)
         security = client_security(args.tls_ca_file, args.tls_cert, args.tls_key, scheduler=args.scheduler)
-        pairs, skipped = asset_inputs(args.assets, args.rigs)
-        pl.check_out(args.out)
-        with folder_lock(args.out) as took_over:   # one run at a time in --out, until it ends
-            if took_over:
-                print(f"warning: {took_over}", file=sys.stderr)
-            for f in skipped:
-                print(f"note: skipped {f} (the shared eyeball, not a head)", file=sys.stderr)
-            assets = load_assets(pairs, args.weights, settings)
-            for a in assets:                      # rendered all the same; the card lists them too
-                for d in a.doubts():
-                    print(f"warning: {a.folder}: {d}", file=sys.stderr)
-            assign = mix.assign(args.n, [a.weight for a in assets], settings.seed)
-            fp = pl.inspect_dataset(args.out, assets, assign, settings)
-            err = pl.refusal(args.out, fp, overwrite=args.overwrite, resume=args.resume)
-            if err is not None:
-                raise err
-            for line in pl.run_notes(args.out, fp, args.n, overwrite=args.overwrite):
-                print(line, file=sys.stderr)
-
-            def dashboard(url):
-                print(dashboard_text(url), file=sys.stderr)
-
-            with stage_scratch("dataset"):        # Blender's and Dask's TMPDIR, removed at exit
-                m = render_dataset(assets, settings, args.n, args.out, scheduler=args.scheduler,
-                                   progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume,
-                                   on_dashboard=dashboard if args.dashboard else None, security=security)
+        pairs, skipped = ds.asset_inputs(args.assets, args.rigs)
+        assets, m = ds.make_dataset(args.out, pairs, skipped, args.weights, settings, args.n,
+                                    overwrite=args.overwrite, resume=args.resume, note=say,
+                                    scheduler=args.scheduler, progress=not args.no_progress, security=security,
+                                    on_dashboard=(lambda url: say(dashboard_text(url))) if args.dashboard else None)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("error: interrupted (a re-run resumes)", file=sys.stderr)
         return 130
-    rate = f", {m['images_per_s']:.2f} images/s" if m["images_per_s"] else ""
-    print(f"{args.out}: {m['n_images']} images of {len(assets)} assets ({m['rendered']} rendered, "
-          f"{m['skipped_done']} kept{rate}, {m['wall_s']:.1f} s)")
+    print(ds.run_line(args.out, m, len(assets)))
     return 0
 
 

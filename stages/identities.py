@@ -49,23 +49,9 @@ import sys
 from pathlib import Path
 
 from pipeline.errors import ScanError
-from pipeline.io.atomic import write_text
-from pipeline.synthetic_head.identities import DEFAULT_TRIANGLES, add_identities, draw_identity, identity_name
-from pipeline.synthetic_head.identity_files import (OUTPUT_FOLDERS, remove, repro_command,  # noqa: F401
-                                                    repro_env, repro_invocation)
-
-
-def checked_params(text: str, source) -> dict:
-    """``text`` read as params.yaml is read (no repeated key) and checked whole; ScanError otherwise."""
-    from pipeline.io.strict_yaml import DuplicateKeyError, load_strict
-    from pipeline.params_check import check_params
-
-    try:
-        data = load_strict(text)       # params.yaml's rules: no repeated key
-    except DuplicateKeyError as exc:
-        raise ScanError(source, f"{exc}: each key may appear once") from None
-    check_params(data, source=str(source), complete=True)
-    return data
+from pipeline.params_check import check_params_text
+from pipeline.synthetic_head.identities import DEFAULT_TRIANGLES
+from pipeline.synthetic_head.identity_files import add, remove, repro_command
 
 
 def main(argv=None) -> int:
@@ -85,15 +71,10 @@ def main(argv=None) -> int:
         if not args.params.is_file():
             raise ScanError(args.params, "not found")
         if args.remove:
-            print(remove(args.params, args.remove, checked_params))
+            print(remove(args.params, args.remove, check_params_text))
             return 0
-        if args.n < 1 or args.seed < 0:
-            raise ScanError(args.params, f"--n must be >= 1 and --seed >= 0 (got {args.n}, {args.seed})")
-        entries = {identity_name(args.seed, i): draw_identity(args.seed, i, args.triangles) for i in range(args.n)}
-        text = add_identities(args.params.read_text(encoding="utf-8"), entries, args.params)
-        checked_params(text, args.params)                       # before anything is written
-        run = None if args.no_repro else repro_invocation(entries)   # no dvc: params.yaml unchanged
-        write_text(args.params, text)
+        entries, run = add(args.params, args.n, args.seed, args.triangles, check_params_text,
+                           repro=not args.no_repro)
     except ScanError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from pipeline.errors import ScanError
+from pipeline.synthetic_head import identity_files as idf
 from stages import identities as ids
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,14 +57,14 @@ def test_dvc_runs_with_this_pythons_bin_first_on_path(tmp_path):
     (venv / "python").symlink_to(sys.executable)        # as in a venv: a link to the base interpreter
     (venv / "dvc").write_text("#!/bin/sh\n")
     (venv / "dvc").chmod(0o755)
-    env = ids.repro_env(venv / "python", {"PATH": "/usr/local/bin:/usr/bin", "HOME": "/h"})
+    env = idf.repro_env(venv / "python", {"PATH": "/usr/local/bin:/usr/bin", "HOME": "/h"})
     assert env == {"PATH": f"{venv}{os.pathsep}/usr/local/bin{os.pathsep}/usr/bin", "HOME": "/h"}
-    argv, env = ids.repro_invocation(["a", "b"], venv / "python", {"PATH": "/usr/bin"})
+    argv, env = idf.repro_invocation(["a", "b"], venv / "python", {"PATH": "/usr/bin"})
     assert argv == [str(venv / "dvc"), "repro", "usd@a", "usd@b"]
     assert shutil.which("python", path=env["PATH"]) == str(venv / "python")
-    assert ids.repro_env()["PATH"].split(os.pathsep)[0] == str(Path(sys.executable).parent)
+    assert idf.repro_env()["PATH"].split(os.pathsep)[0] == str(Path(sys.executable).parent)
     with pytest.raises(ScanError, match="has no dvc"):
-        ids.repro_invocation(["a"], tmp_path / "bare" / "python", {"PATH": str(tmp_path / "nothing")})
+        idf.repro_invocation(["a"], tmp_path / "bare" / "python", {"PATH": str(tmp_path / "nothing")})
 
 
 def test_no_dvc_anywhere_leaves_params_unchanged(tmp_path, capsys, monkeypatch):
@@ -146,7 +147,7 @@ def test_remove_leaves_nothing_of_it_and_the_rest_byte_identical(tmp_path, capsy
     assert set(after) == set(before) - set(gone)              # nothing left behind, no temp sibling
     assert {k: v for k, v in after.items() if k not in ("params.yaml", "dvc.lock")} == \
         {k: v for k, v in before.items() if k not in ("params.yaml", "dvc.lock", *gone)}
-    assert not any((root / d / NAMES[0]).exists() for d in ids.OUTPUT_FOLDERS)
+    assert not any((root / d / NAMES[0]).exists() for d in idf.OUTPUT_FOLDERS)
     assert not (root / "rigged_assets" / f"{NAMES[0]}.preview.png").exists()
     kept = [b for b in lock["order"] if b not in lock["blocks"][NAMES[0]]]
     assert (root / "dvc.lock").read_text() == lock["head"] + "".join(kept)

@@ -51,12 +51,15 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json, write_text
+from pipeline.io.folder_lock import folder_lock
 from pipeline.io.labels_file import SCHEMA as LABEL_SCHEMA
 from pipeline.io.labels_file import label_name, read_index, read_label
+from pipeline.io.scratch import stage_scratch
 from pipeline.render import formats, mix, plots, splits
 from pipeline.render import plan as pl
 from pipeline.render import run as rr
 from pipeline.render.plan import SCHEMA
+from pipeline.render.settings import MAX_IMAGES, RenderSettings, parse_overrides
 
 INFO, CARD, TIMINGS = pl.OWN_FILES[:3]
 #: ``rigged_assets/eyeball`` holds the eyeball every asset references, not a head: skipped.
@@ -156,6 +159,28 @@ def load_assets(pairs, weights, settings) -> list[DatasetAsset]:
         out.append(DatasetAsset(id=k, name=a.name, folder=folder, rig=rig, weight=wk, asset=a,
                                 config_hash=rr.config_hash(settings, a.fingerprint())))
     return out
+
+
+def dataset_settings(block: dict, n: int, overrides=(), preset: str | None = None, seed: int | None = None,
+                     workers: int | None = None, progress: bool = True, source="params.yaml") -> RenderSettings:
+    """The dataset command's settings: the ``render:`` settings ``block`` (of ``source``) with the
+    ``--set`` ``overrides`` (``KEY=VALUE`` strings), ``n`` images, and each option that is not
+    None over the block's value (``progress`` False turns the bar off).
+
+    Raises
+    ------
+    ScanError  ``n`` out of 1..MAX_IMAGES, a bad ``--set`` item, a bad setting.
+    """
+    if not 1 <= n <= MAX_IMAGES:
+        raise ScanError("--n", f"must be between 1 and {MAX_IMAGES} (got {n})")
+    params = {**block, **parse_overrides(overrides or ())}
+    params["n_images"] = n
+    for key, value in (("preset", preset), ("seed", seed), ("workers", workers)):
+        if value is not None:
+            params[key] = value
+    if not progress:
+        params["progress"] = False
+    return RenderSettings.from_params(params, source=source)
 
 
 def prepare_dataset(out: Path, assets, assign: np.ndarray, settings, overwrite: bool = False,
@@ -336,3 +361,53 @@ def render_dataset(assets, settings, n: int, out, scheduler: str | None = None, 
                "wall_s": round(wall, 3)}
     write_json(out / TIMINGS, timings)
     return timings
+
+
+def run_line(out, timings: dict, n_assets: int) -> str:
+    """The line the dataset command ends with: what :func:`render_dataset`'s run (its ``timings``)
+    made of ``out`` with ``n_assets`` assets."""
+    rate = f", {timings['images_per_s']:.2f} images/s" if timings["images_per_s"] else ""
+    return (f"{out}: {timings['n_images']} images of {n_assets} assets ({timings['rendered']} rendered, "
+            f"{timings['skipped_done']} kept{rate}, {timings['wall_s']:.1f} s)")
+
+
+def make_dataset(out, pairs, skipped, weights, settings, n: int, overwrite: bool = False, resume: bool = False,
+                 note=None, **render) -> tuple[list[DatasetAsset], dict]:
+    """The dataset command's run of ``n`` images of ``pairs`` (:func:`asset_inputs`) into ``out``;
+    returns the assets and the run's measures (:func:`render_dataset`).
+
+    ``out`` is checked and locked first (one run at a time in it, until the run ends:
+    pipeline/io/folder_lock.py), the assets read and the plan checked against ``out``
+    (:func:`pipeline.render.plan.refusal`), all before anything is written; then the images are
+    rendered (``render``: :func:`render_dataset`'s scheduler, progress, on_dashboard, security)
+    with Blender's and Dask's ``TMPDIR`` a scratch folder removed at exit (pipeline/io/scratch.py).
+    ``note(line)`` hears each line the command says on the way, as it comes (so the lines before a
+    refusal are said too): a lock taken over from a dead run, the ``skipped`` shared eyeball, each
+    asset's doubts (it is rendered all the same), what another ``n`` or ``overwrite`` changes.
+
+    Raises
+    ------
+    ScanError  ``out`` refused or held by another run, an asset or rig the render cannot use, bad
+               weights (:func:`load_assets`), or what :func:`render_dataset` raises.
+    """
+    note = note or (lambda line: None)
+    out = Path(out)
+    pl.check_out(out)
+    with folder_lock(out) as took_over:
+        if took_over:
+            note(f"warning: {took_over}")
+        for f in skipped:
+            note(f"note: skipped {f} (the shared eyeball, not a head)")
+        assets = load_assets(pairs, weights, settings)
+        for a in assets:                      # rendered all the same; the card lists them too
+            for d in a.doubts():
+                note(f"warning: {a.folder}: {d}")
+        assign = mix.assign(n, [a.weight for a in assets], settings.seed)
+        fp = pl.inspect_dataset(out, assets, assign, settings)
+        err = pl.refusal(out, fp, overwrite=overwrite, resume=resume)
+        if err is not None:
+            raise err
+        for line in pl.run_notes(out, fp, n, overwrite=overwrite):
+            note(line)
+        with stage_scratch("dataset"):
+            return assets, render_dataset(assets, settings, n, out, overwrite=overwrite, resume=resume, **render)

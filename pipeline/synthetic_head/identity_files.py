@@ -1,5 +1,5 @@
-"""The files behind ``stages.identities``: which dvc runs the new identities' chain (the venv's),
-and an identity's removal (its params entries, its dvc.lock
+"""The files behind ``stages.identities``: the new identities' entries in params.yaml and which
+dvc runs their chain (the venv's), and an identity's removal (its params entries, its dvc.lock
 stages and its output folders), every refusal before the first change."""
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from pathlib import Path
 
 from pipeline.errors import ScanError
 from pipeline.io.atomic import refuse_link, write_text
-from pipeline.synthetic_head.identities import drop_lock_stages, remove_identities
+from pipeline.synthetic_head.identities import (add_identities, draw_identity, drop_lock_stages, identity_name,
+                                                remove_identities)
 
 OUTPUT_FOLDERS = ("raw_scans", "build", "rigged_assets", "renders")
 #: An identity's outputs that are files, not folders: the preview stage's picture lies beside the
@@ -45,6 +46,24 @@ def repro_invocation(names, exe=None, environ=None) -> tuple[list[str], dict]:
         raise ScanError(env["PATH"].split(os.pathsep)[0], "has no dvc and PATH has none either: install "
                         "it into this venv (pip install dvc) or pass --no-repro (params.yaml was not changed)")
     return [dvc, *repro_command(names)[1:]], env
+
+
+def add(params: Path, n: int, seed: int, triangles: int, checked_params,
+        repro: bool = True) -> tuple[dict, tuple | None]:
+    """Add identities ``0..n-1`` of ``seed`` to ``params`` (stages/identities.py's docstring).
+
+    Returns ``({name: synthetic_head keys}, (argv, env) of their dvc repro)``, the second None
+    without ``repro``. ``checked_params(text, source)``: params.yaml's whole check, as for
+    :func:`remove`. Everything is checked (the numbers, the edited text, a dvc to run) before
+    ``params`` is replaced; ScanError otherwise, with the file unchanged."""
+    if n < 1 or seed < 0:
+        raise ScanError(params, f"--n must be >= 1 and --seed >= 0 (got {n}, {seed})")
+    entries = {identity_name(seed, i): draw_identity(seed, i, triangles) for i in range(n)}
+    text = add_identities(params.read_text(encoding="utf-8"), entries, params)
+    checked_params(text, params)                       # before anything is written
+    run = repro_invocation(entries) if repro else None     # no dvc: params.yaml unchanged
+    write_text(params, text)
+    return entries, run
 
 
 def check_folder(path) -> None:
