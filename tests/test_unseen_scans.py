@@ -219,6 +219,11 @@ def test_margin_and_canthi_against_a_known_opening(side):
     L[0], L[6] = M[0] + [0, 0, 1.0], M[24]
     c = canthus_metrics(L, g, side)
     assert c["canthus_medial_mm"] == pytest.approx(1.0) and c["canthus_lateral_mm"] < 1e-9
+    assert c["canthus_medial_in_view_mm"] < 1e-9        # 1 mm in front: the same corner in view
+    L[6] = M[24] + [0, 0.5, 2.0]
+    c = canthus_metrics(L, g, side)
+    assert c["canthus_lateral_mm"] == pytest.approx(np.hypot(0.5, 2.0), abs=1e-4)
+    assert c["canthus_lateral_in_view_mm"] == pytest.approx(0.5)
 
 
 def test_refusals_that_say_closed():
@@ -273,7 +278,9 @@ def test_canthus_floor_of_a_known_fill_boundary(side):
     rim = V2[rims[0]]
     assert np.isclose(np.abs(rim[:, 0]).max(), 12.0) and np.isclose(np.abs(rim[:, 1]).max(), 5.0)
     floor = rim_canthus_floor(rim, _truth_eye(side), side)
-    assert floor == {"medial": pytest.approx(2.0), "lateral": pytest.approx(3.0)}
+    # in view, the boundary passes through both corners: only its depth misses them
+    assert floor == {"medial": pytest.approx(2.0), "lateral": pytest.approx(3.0),
+                     "medial_in_view": pytest.approx(0.0), "lateral_in_view": pytest.approx(0.0)}
 
 
 def test_canthus_floor_reads_the_unfilled_scan_beside_a_filled_case(tmp_path):
@@ -289,5 +296,5 @@ def test_canthus_floor_reads_the_unfilled_scan_beside_a_filled_case(tmp_path):
     truth = {"left": _truth_eye("left"), "right": _truth_eye("right")}
     truth["right"]["eyeball_sphere"] = {"center_mm": [60.0, 0.0, 0.0], "radius_mm": 12.0}
     floor = canthus_floor(folder, truth, {})
-    assert floor["left"] == {"medial": pytest.approx(2.0), "lateral": pytest.approx(3.0)}
+    assert floor["left"]["medial"] == pytest.approx(2.0) and floor["left"]["lateral"] == pytest.approx(3.0)
     assert canthus_floor(src, truth, {}) is None        # not a filled case: no scan beside it
