@@ -219,6 +219,11 @@ def test_margin_and_canthi_against_a_known_opening(side):
     L[0], L[6] = M[0] + [0, 0, 1.0], M[24]
     c = canthus_metrics(L, g, side)
     assert c["canthus_medial_mm"] == pytest.approx(1.0) and c["canthus_lateral_mm"] < 1e-9
+    assert c["canthus_medial_in_view_mm"] < 1e-9        # 1 mm in front: the same corner in view
+    L[6] = M[24] + [0, 0.5, 2.0]
+    c = canthus_metrics(L, g, side)
+    assert c["canthus_lateral_mm"] == pytest.approx(np.hypot(0.5, 2.0), abs=1e-4)
+    assert c["canthus_lateral_in_view_mm"] == pytest.approx(0.5)
 
 
 def test_refusals_that_say_closed():
@@ -241,3 +246,55 @@ def test_true_corners_belong_to_the_lids_not_the_turned_eye():
     rest = true_canthi(g, "left")
     assert np.allclose(true_canthi(turned, "left", R.tolist())[1], rest[1])
     assert not np.allclose(true_canthi(turned, "left")[1], rest[1])   # what the gaze frame would pick
+
+
+def _flat_skin_with_eye(side):
+    """A 1 mm grid of skin in front of :func:`_truth_eye` (40 x 52 mm, reaching up to a brow so
+    that its outer border is no eye hole), 2 mm in front of the eye's corners on the medial half
+    and 3 mm on the lateral half, its vertices inside the 24 x 10 mm opening labelled the eyeball
+    (1): ``(V, F, labels)``."""
+    sgn = 1.0 if side == "left" else -1.0
+    x, y = np.meshgrid(np.arange(-20.0, 21.0), np.arange(-12.0, 41.0))
+    x, y = x.ravel(), y.ravel()
+    V = np.stack([x, y, np.where(sgn * x > 0, 3.0, 2.0)], 1)
+    nx = 41
+    q = np.array([[i * nx + j, i * nx + j + 1, (i + 1) * nx + j + 1, (i + 1) * nx + j]
+                  for i in range(52) for j in range(40)])
+    F = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]).astype(np.int64)
+    labels = np.where((x / 12.0) ** 2 + (y / 5.0) ** 2 < 1.0, 1, 0).astype(np.uint8)
+    return V, F, labels
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_canthus_floor_of_a_known_fill_boundary(side):
+    """The fill's boundary runs through (+-12, 0) on the skin 2 mm (medial) and 3 mm (lateral)
+    in front of the true corners: no opening along it comes nearer than that."""
+    from fixtures.unseen.cases import eye_holes
+    from fixtures.unseen.metrics import rim_canthus_floor
+
+    V, F, labels = _flat_skin_with_eye(side)
+    V2, _, _, rims = eye_holes(V, F, labels)
+    assert len(rims) == 1
+    rim = V2[rims[0]]
+    assert np.isclose(np.abs(rim[:, 0]).max(), 12.0) and np.isclose(np.abs(rim[:, 1]).max(), 5.0)
+    floor = rim_canthus_floor(rim, _truth_eye(side), side)
+    # in view, the boundary passes through both corners: only its depth misses them
+    assert floor == {"medial": pytest.approx(2.0), "lateral": pytest.approx(3.0),
+                     "medial_in_view": pytest.approx(0.0), "lateral_in_view": pytest.approx(0.0)}
+
+
+def test_canthus_floor_reads_the_unfilled_scan_beside_a_filled_case(tmp_path):
+    from fixtures.unseen.cases import _ply_write
+    from fixtures.unseen.metrics import canthus_floor
+
+    V, F, labels = _flat_skin_with_eye("left")
+    src, folder = tmp_path / "filled_x_src", tmp_path / "filled_x"
+    src.mkdir()
+    folder.mkdir()
+    _ply_write(src / "scan.ply", V, F)
+    np.save(src / "scan_labels.npy", labels)
+    truth = {"left": _truth_eye("left"), "right": _truth_eye("right")}
+    truth["right"]["eyeball_sphere"] = {"center_mm": [60.0, 0.0, 0.0], "radius_mm": 12.0}
+    floor = canthus_floor(folder, truth, {})
+    assert floor["left"]["medial"] == pytest.approx(2.0) and floor["left"]["lateral"] == pytest.approx(3.0)
+    assert canthus_floor(src, truth, {}) is None        # not a filled case: no scan beside it
