@@ -279,8 +279,9 @@ class Mode:
     fold_deg: float = 0.0
 
 
-def refine(p: Patch, e: Eye, cues: Cues, radius_range, iters=REFINE_ITERS) -> Mode:
-    """Alternate the graph cut and the least squares from ``e``."""
+def refine(p: Patch, e: Eye, cues: Cues, radius_range, iters=REFINE_ITERS, fold=True) -> Mode:
+    """Alternate the graph cut and the least squares from ``e``. ``fold=False`` leaves the
+    mode's ``fold_deg`` at 0 (for a caller that ranks modes by energy only)."""
     fit = None
     for _ in range(iters):
         lab, _ = segment(p, e)
@@ -290,7 +291,7 @@ def refine(p: Patch, e: Eye, cues: Cues, radius_range, iters=REFINE_ITERS) -> Mo
     energy += 0.5 * float(np.sum(np.concatenate(
         [v for k, v in residual_blocks(p, lab, e, cues).items()
          if k in PRIOR_BLOCKS]) ** 2))
-    return Mode(e, lab, energy, fit, fold_deg(p, lab))
+    return Mode(e, lab, energy, fit, fold_deg(p, lab) if fold else 0.0)
 
 
 RANGE_EDGE_MM = 0.05    # a radius this close to a bound of the range rests on it
@@ -348,8 +349,10 @@ def gaze_restarts(p: Patch, found, cues: Cues, radius_range, min_fold_deg):
         # turned about the gaze every start took (the eye region's forward), not the rival's own
         starts.append((rival.eye, rival.eye.n if axis is None else axis))
     # one round from every turned gaze, then the full refinement of the few lowest: most turned
-    # starts fall back into the start's basin or wander off within one round
-    first = [refine(p, Eye(e.c, e.R, _turn(n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1)
+    # starts fall back into the start's basin or wander off within one round (ranked by energy
+    # alone: their lid folds are not read)
+    first = [refine(p, Eye(e.c, e.R, _turn(n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1,
+                    fold=False)
              for e, n in starts for yaw, pitch in GAZE_RESTARTS_DEG]
     first.sort(key=lambda t: t.energy)
     return _refine_each(p, [t.eye for t in first[:RESTARTS_KEEP]], cues, radius_range, REFINE_ITERS - 1)
