@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry.spherefit import sphere_from_normals
-from pipeline.placement.cues import (COARSE_VERTICES, PRIOR_BLOCKS, Cues, Patch, ResidualRows, build_patch, coarse_patch,
-                                     fold_deg, midplane_x, residual_blocks, residual_jacobians, segment, unary_costs)
+from pipeline.placement.cues import (COARSE_VERTICES, Cues, Patch, ResidualRows, build_patch, coarse_patch,
+                                     fold_deg, midplane_x, prior_blocks, residual_jacobians, segment, unary_costs)
 from pipeline.placement.model import HA_RANGE, HB_RANGE, LIMBUS_RANGE, Eye, limbus_center, rays, surface_residual, unit
 from pipeline.placement.uncertainty import laplace, placement_of, share_radius
 
@@ -288,9 +288,7 @@ def refine(p: Patch, e: Eye, cues: Cues, radius_range, iters=REFINE_ITERS, fold=
         fit = fit_eyes([p], [lab], [e], [cues], radius_range)
         e = fit.eyes[0]
     lab, energy = segment(p, e)
-    energy += 0.5 * float(np.sum(np.concatenate(
-        [v for k, v in residual_blocks(p, lab, e, cues).items()
-         if k in PRIOR_BLOCKS]) ** 2))
+    energy += 0.5 * float(np.sum(np.concatenate(list(prior_blocks(e, cues).values())) ** 2))
     return Mode(e, lab, energy, fit, fold_deg(p, lab) if fold else 0.0)
 
 
@@ -469,9 +467,7 @@ def radius_profile(p: Patch, e: Eye, cues: Cues, radii, iters=2):
             lab, _ = segment(p, x)
             x = fit_eyes([p], [lab], [x], [cues], (R, R), fixed_radius=float(R), max_nfev=20).eyes[0]
         lab, energy = segment(p, x)
-        energy += 0.5 * float(np.sum(np.concatenate(
-            [v for k, v in residual_blocks(p, lab, x, cues).items()
-             if k in PRIOR_BLOCKS]) ** 2))
+        energy += 0.5 * float(np.sum(np.concatenate(list(prior_blocks(x, cues).values())) ** 2))
         E.append(energy)
         C.append(x.c)
     return np.asarray(radii, float), np.asarray(E), np.asarray(C)
