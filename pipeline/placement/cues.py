@@ -278,6 +278,14 @@ def residual_blocks(p: Patch, lab, e: Eye, cues: Cues, anterior=None):
     out = {"sclera": sa[lab & ~anterior] * d[lab & ~anterior] / SIG_SCLERA,
            "anterior": sa[lab & anterior] * d[lab & anterior] / SIG_ANTERIOR,
            "skin": sa[~lab] * np.minimum(dsph[~lab] + TAU_INSIDE, 0.0) / SIG_SCLERA}
+    out.update(prior_blocks(e, cues))
+    return out
+
+
+def prior_blocks(e: Eye, cues: Cues):
+    """The :data:`PRIOR_BLOCKS` of :func:`residual_blocks` (name -> array, in its order): they
+    depend on the eye alone, not on the patch."""
+    out = {}
     if cues.front is not None:
         out["prior"] = (e.c + e.R * cues.axis - cues.front) / cues.front_sigma
     out["radius_prior"] = np.array([(e.R - cues.radius_prior[0]) / cues.radius_prior[1]])
