@@ -41,8 +41,9 @@ def fill_faces(V, F, ratio):
 
 
 class CoarseEye(ScanError):
-    """An open eye whose scanned surface is too coarse to place it from its shape: ``region``
-    (m,) bool, the opening it was found in, one simple loop round it."""
+    """An open eye the scan's shape cannot place: ``region`` (m,) bool, the opening its too few
+    eye vertices were found in (one simple loop round it), or None when the eye the geometry
+    found lies outside the lids (:func:`_outside_margin`)."""
 
     def __init__(self, path, problem, region):
         super().__init__(path, problem)
