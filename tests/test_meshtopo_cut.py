@@ -92,3 +92,21 @@ def test_local_mesh_near_its_hints_is_the_whole_scans_selection():
     assert len(F) - 1 in whole[2]                            # the sliver is selected
     for a, b in zip(whole, near):
         np.testing.assert_array_equal(a, b)
+
+
+def test_median_edge_length_by_blocks_is_the_median_of_every_edge():
+    """Blocks of faces (the last one short) give the median and the longest edge of the whole
+    set, bit for bit as norm over the (m, 3, 3) gathers, and leave V and F untouched."""
+    from pipeline.placement import eye_fit
+
+    rng = np.random.default_rng(3)
+    V = rng.normal(size=(5000, 3)) * [10.0, 20.0, 5.0]
+    F = rng.integers(0, len(V), size=(2 * eye_fit._EDGE_BLOCK + 17, 3))
+    V0, F0 = V.copy(), F.copy()
+    L = np.linalg.norm(V[np.roll(F, -1, axis=1)] - V[F], axis=2)
+    med, longest = median_edge_length(V, F, with_max=True)
+    assert med == float(np.median(L)) and longest == float(L.max())
+    np.testing.assert_array_equal(V, V0)
+    np.testing.assert_array_equal(F, F0)
+    one = F[:1]                                 # a single face: the middle of its three edges
+    assert median_edge_length(V, one) == float(np.median(L[0]))
