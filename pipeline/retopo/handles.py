@@ -25,6 +25,7 @@ from pipeline.geometry import meshtopo
 
 _FAR = 1e6          # mm: the weight of an edge at a border or a cap's cone (never on a cut loop)
 _ROOTS = 24         # roots tried per region (spread by farthest-point sampling along the edges)
+_NEAR_ROOTS = 48    # then at most about this many round the shortest loop found, up to 3 rounds
 
 
 def _edge_keys(F, n):
@@ -152,16 +153,24 @@ def shortest_handle_loop(V, F, roots=_ROOTS):
             length = loop_length(P, lp)
             if length < best_len:
                 best, best_len = lp, length
-    if best is not None:
-        # once more through the loop's own vertices: the basis through a far root bends to it
-        for root in best[:: max(1, len(best) // 4)]:
-            if root in tried:
-                continue
+    for _ in range(3):
+        if best is None:
+            break
+        # then through the vertices within the loop's length of it: a far root's basis bends to
+        # the handle but may go round it where it is wide (a tube's foot, not its waist)
+        d = dijkstra(G, indices=np.asarray(best), min_only=True, limit=best_len)
+        near = [int(v) for v in np.flatnonzero(np.isfinite(d) & ~off) if int(v) not in tried]
+        if not near:
+            break
+        improved = False
+        for root in near[:: max(1, len(near) // _NEAR_ROOTS)]:
             tried.add(root)
             for lp in through(root):
                 length = loop_length(P, lp)
-                if length < best_len:
-                    best, best_len = lp, length
+                if length < best_len - 1e-12:
+                    best, best_len, improved = lp, length, True
+        if not improved:
+            break
     return None if best is None else vids[np.asarray(best, dtype=np.int64)]
 
 
@@ -240,9 +249,11 @@ def cut_loop(V, F, loop):
     return V2, F2
 
 
-def cut_handles(V, F, openings, radius, max_cuts=8):
+def cut_handles(V, F, openings, radius, max_loop_mm=np.inf, max_cuts=8):
     """Cut the handles of (V, F) within ``radius`` mm of each opening (:func:`cut_loop` along
-    :func:`shortest_handle_loop`) until none is left there, or ``max_cuts``.
+    :func:`shortest_handle_loop`) until none is left there, or ``max_cuts``. A handle whose
+    shortest loop found is longer than ``max_loop_mm`` is left (and the band refuses it, naming
+    it): a scanner's tunnel is a knot of a few faces, a longer one is shape the cut would scar.
 
     Parameters
     ----------
@@ -273,7 +284,7 @@ def cut_handles(V, F, openings, radius, max_cuts=8):
             if genus <= 0:
                 break
             loop = shortest_handle_loop(V, Fr)
-            if loop is None:
+            if loop is None or loop_length(V, loop) > max_loop_mm:
                 break
             done = cut_loop(V, F, loop)
             if done is None:

@@ -29,7 +29,9 @@ convex opening).
 
 With ``band: grid`` (the default) the faces round each loop are then cut away and replaced by a
 built band of quads, ``band_rings`` rings of ``loop_points`` vertices with fixed ids
-(:func:`pipeline.retopo.eye_band.add_eye_bands`; docs/retopo.md). With ``band: march`` and
+(:func:`pipeline.retopo.eye_band.add_eye_bands`; docs/retopo.md); a handle of the crop within
+``band_param_mm`` of an opening, which leaves that band no annulus, is cut out of the crop first
+(:func:`pipeline.retopo.handles.cut_handles`, ``metrics["handles_cut"]``). With ``band: march`` and
 ``eye_rings`` > 0 (off by default), :func:`add_eye_rings` instead gives each loop concentric
 edge flow: the faces within about ``(eye_rings + 1)`` ring spacings of the loop are replaced by
 ``eye_rings`` rings of ``loop_points`` vertices marched out over the dense surface, joined by
@@ -463,7 +465,7 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
             li = set(np.flatnonzero(np.isin(vmap, np.asarray(e.loop_indices))).tolist())
             openings[side] = next((b for b in cbl if li & set(map(int, b))), None)
         openings = {k: v for k, v in openings.items() if v is not None}
-        Vc, Fc, handles_cut = cut_handles(Vc, Fc, openings, s.band_param_mm)
+        Vc, Fc, handles_cut = cut_handles(Vc, Fc, openings, s.band_param_mm, max_loop_mm=s.band_width_mm)
     timings["crop_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
