@@ -128,7 +128,8 @@ def shortest_handle_loop(V, F, roots=_ROOTS):
         a, b = np.minimum(v, pred[v]), np.maximum(v, pred[v])
         tree[np.searchsorted(uk, a * n + b)] = True
         co = np.flatnonzero(~tree)
-        loop_len = dist[E[co, 0]] + dist[E[co, 1]] + w[co]
+        # (a region of several pieces: the other pieces' edges are out of reach, kept finite)
+        loop_len = np.minimum(dist[E[co, 0]] + dist[E[co, 1]] + w[co], 4 * _FAR)
         # maximum spanning tree of the dual over the non-tree edges (weights kept positive)
         big = float(loop_len.max()) + 1.0
         D = coo_matrix((big - loop_len + 1e-9, (ef[co, 0], ef[co, 1])), shape=(nf, nf)).tocsr()
