@@ -230,7 +230,7 @@ def cut_loop(V, F, loop):
     P = V[L]
     cen = P.mean(axis=0)
     h = 0.25 * float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).mean())
-    lf = np.fromiter(left_faces, dtype=np.int64)
+    lf = np.array(sorted(left_faces), dtype=np.int64)
     rf = np.setdiff1d(touch, lf)
 
     def off(faces):
