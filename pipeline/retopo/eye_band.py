@@ -93,8 +93,9 @@ def annulus_region(V, F, hole, radius, locked):
 
 def _why_no_annulus(V, F, hole, radius, locked) -> str:
     """Why :func:`annulus_region` found no annulus at ``radius``: a border it must not cross
-    lies nearer, or the surface there is no ring but has handles (a tunnel through the scan:
-    ``id339_laser``'s crop has one), each counted from the Euler characteristic."""
+    lies nearer, or the surface there is no ring but has handles (a tunnel through the scan
+    that :func:`pipeline.retopo.handles.cut_handles` could not cut), each counted from the
+    Euler characteristic."""
     from pipeline.retopo.eye_rings import edge_graph_distance
 
     d = edge_graph_distance(V, F, hole, 1.5 * radius)

@@ -29,7 +29,9 @@ convex opening).
 
 With ``band: grid`` (the default) the faces round each loop are then cut away and replaced by a
 built band of quads, ``band_rings`` rings of ``loop_points`` vertices with fixed ids
-(:func:`pipeline.retopo.eye_band.add_eye_bands`; docs/retopo.md). With ``band: march`` and
+(:func:`pipeline.retopo.eye_band.add_eye_bands`; docs/retopo.md); a handle of the crop within
+``band_param_mm`` of an opening, which leaves that band no annulus, is cut out of the crop first
+(:func:`pipeline.retopo.handles.cut_handles`, ``metrics["handles_cut"]``). With ``band: march`` and
 ``eye_rings`` > 0 (off by default), :func:`add_eye_rings` instead gives each loop concentric
 edge flow: the faces within about ``(eye_rings + 1)`` ring spacings of the loop are replaced by
 ``eye_rings`` rings of ``loop_points`` vertices marched out over the dense surface, joined by
@@ -51,6 +53,7 @@ import numpy as np
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry import meshtopo
 from pipeline.retopo.eye_band import add_eye_bands
+from pipeline.retopo.handles import cut_handles
 from pipeline.retopo.eye_rings import add_eye_rings
 from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
                                           project_to_polyline, resample_loop, smooth_margin)
@@ -452,6 +455,17 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         eye_vs = np.flatnonzero(np.isin(vmap, np.concatenate([np.asarray(e.loop_indices) for e in eyes.values()])))
         holes = scan_holes(Vc, Fc, vmap, F, eye_vs, s.fill_holes_mm)
         Vc, Fc = fill_holes_smooth(Vc, Fc, holes)
+    handles_cut = []
+    if s.band == "grid":
+        # a handle within the band's reach leaves it no annulus to be built on (id339_laser's
+        # crop has a tunnel 10 mm from its left opening): cut, the region is a disk with a hole
+        cbl = mc.boundary_loops(Fc)
+        openings = {}
+        for side, e in eyes.items():
+            li = set(np.flatnonzero(np.isin(vmap, np.asarray(e.loop_indices))).tolist())
+            openings[side] = next((b for b in cbl if li & set(map(int, b))), None)
+        openings = {k: v for k, v in openings.items() if v is not None}
+        Vc, Fc, handles_cut = cut_handles(Vc, Fc, openings, s.band_param_mm, max_loop_mm=s.band_width_mm)
     timings["crop_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -652,6 +666,8 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
                                      "ids": {k: [int(v.min()), int(v.max()) + 1] for k, v in band_ids.items()},
                                      **band_info} if band_ids else {})},
         "canthus_apex": apex_info,
+        # only when one was cut: the metrics of a scan without a handle keep their bytes
+        **({"handles_cut": {"count": len(handles_cut), "cuts": handles_cut}} if handles_cut else {}),
     })
     result = StageResult(metrics, {"timings_s": {k: round(v, 4) for k, v in timings.items()},
                                    "time_s": round(timings["total_s"], 4)})
