@@ -62,20 +62,28 @@ def load_mesh_file(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     mesh = loader(path, folder, limits)
     if len(mesh.V) == 0 or len(mesh.F) == 0:
         raise ScanError(path, f"mesh is empty ({len(mesh.V)} vertices, {len(mesh.F)} faces)")
-    bad = ~np.isfinite(mesh.V).all(axis=1)
-    if bad.any():
+    if not np.isfinite(mesh.V).all():               # one flat pass; the per-row count only to report
+        bad = ~np.isfinite(mesh.V).all(axis=1)
         i = int(np.flatnonzero(bad)[0])
         raise ScanError(path, f"{int(bad.sum())} vertices have non-finite coordinates (NaN/inf), first is vertex {i}")
-    if mesh.F.min() < 0 or mesh.F.max() >= len(mesh.V):
-        worst = int(mesh.F.max()) if mesh.F.max() >= len(mesh.V) else int(mesh.F.min())
+    fmin, fmax = int(mesh.F.min()), int(mesh.F.max())
+    if fmin < 0 or fmax >= len(mesh.V):
+        worst = fmax if fmax >= len(mesh.V) else fmin
         raise ScanError(path, f"face index {worst} out of range (the mesh has {len(mesh.V)} vertices)")
     if mesh.UV is not None:
         if not np.isfinite(mesh.UV).all():
             raise ScanError(path, "texture coordinates contain NaN or inf")
         if mesh.FUV.shape != mesh.F.shape or (mesh.FUV.size and (
-                len(mesh.UV) == 0 or mesh.FUV.min() < 0 or mesh.FUV.max() >= len(mesh.UV))):
+                len(mesh.UV) == 0 or _index_range(mesh.FUV, mesh.F, fmin, fmax, len(mesh.UV)))):
             raise ScanError(path, "texture coordinate indices out of range")
     return mesh
+
+
+def _index_range(FUV, F, fmin: int, fmax: int, n_uv: int) -> bool:
+    """Whether ``FUV`` indexes outside ``[0, n_uv)``; a PLY's per-vertex UVs share ``F``, whose range
+    is known already."""
+    lo, hi = (fmin, fmax) if FUV is F else (int(FUV.min()), int(FUV.max()))
+    return lo < 0 or hi >= n_uv
 
 
 def load_texture(source, limits: Limits = Limits(), name=None):

@@ -88,6 +88,15 @@ def _polys_to_tris(polys, path: Path, what: str):
     return np.concatenate(parts)[perm], int(np.count_nonzero(counts > 3))
 
 
+def _float64_columns(cols) -> np.ndarray:
+    """(n, k) float64 from k columns (n,) of PLY scalars, converted straight into place (no
+    intermediate stacked copy; every PLY scalar type is exact in float64)."""
+    out = np.empty((len(cols[0]), len(cols)), dtype=np.float64)
+    for k, c in enumerate(cols):
+        out[:, k] = c
+    return out
+
+
 _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
               "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
               "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
@@ -382,7 +391,7 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
     xyz = [_column(vdata, c) for c in "xyz"]
     if any(c is None for c in xyz):
         raise ScanError(path, "PLY has no vertex x, y, z properties")
-    V = np.column_stack(xyz).astype(np.float64)
+    V = _float64_columns(xyz)
     fdata = elements.get("face", {}).get("data")
     polys = _list_property(fdata, ("vertex_indices", "vertex_index"))
     if polys is None or len(V) == 0:
@@ -400,7 +409,7 @@ def load_ply(path, folder, limits: Limits = Limits()) -> LoadedMesh:
         for u, v in (("texture_u", "texture_v"), ("u", "v"), ("s", "t")):
             cu, cv = _column(vdata, u), _column(vdata, v)
             if cu is not None and cv is not None:
-                UV = np.column_stack([cu, cv]).astype(np.float64)
+                UV = _float64_columns([cu, cv])
                 FUV = F                          # shared: neither is changed in place
                 break
     VC = None
