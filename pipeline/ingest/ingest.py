@@ -186,13 +186,18 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
     # texture coordinates and colours follow the kept faces / vertices
     UV = FUV = None
     if loaded.UV is not None:
-        FUV_all = loaded.FUV[fixed.face_index]
+        # every face kept and every UV row used (the usual scan): the arrays as loaded, no copies
+        FUV_all = loaded.FUV if len(fixed.face_index) == len(loaded.FUV) else loaded.FUV[fixed.face_index]
         used = np.zeros(len(loaded.UV), dtype=bool)
         used[FUV_all.ravel()] = True
-        remap = np.cumsum(used) - 1
-        UV, FUV = loaded.UV[used], remap[FUV_all].astype(np.int64)
+        if used.all():
+            UV, FUV = loaded.UV, FUV_all.astype(np.int64, copy=False)
+        else:
+            remap = np.cumsum(used) - 1
+            UV, FUV = loaded.UV[used], remap[FUV_all].astype(np.int64)
+            del remap
         loaded.UV = loaded.FUV = None
-        del FUV_all, used, remap
+        del FUV_all, used
     VC = loaded.VC[fixed.vertex_index] if loaded.VC is not None else None
     hint_dist = {}
     edges = repair.face_longest_edges(V, F)
@@ -239,7 +244,7 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
         "up_axis_in": spec.up_axis,
         "forward_axis_in": spec.forward_axis,
     }
-    lo, hi = V.min(axis=0), V.max(axis=0)
+    lo, hi = frame.bounds(V)
     metrics = {
         "mesh_file": mesh_file.name,
         "vertices_in": n_in, "faces_in": m_in,
