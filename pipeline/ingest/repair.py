@@ -212,21 +212,29 @@ def _faces_all_distinct(F) -> bool:
     vertices), hashed above that. False when unsure: :func:`duplicate_face_mask` then takes the exact path."""
     if not len(F):
         return True
-    a, b, c = F[:, 0], F[:, 1], F[:, 2]
-    lo = np.minimum(np.minimum(a, b), c)
-    hi = np.maximum(np.maximum(a, b), c)
-    mid = a + b
-    mid += c
-    mid -= lo
-    mid -= hi
-    n = int(hi.max()) + 1
-    if n ** 3 > 2 ** 63 - 1:                     # no exact key in an int64: hashed, sorted at random
-        return _keys_all_distinct(_hash_columns(lo, mid, hi))
+    n = int(F.max()) + 1
+    exact = n ** 3 <= 2 ** 63 - 1
+    key = np.empty(len(F), dtype=np.int64)
+    for i in range(0, len(F), _BLOCK):                 # block-sized temporaries, written into key
+        Fb = F[i:i + _BLOCK]
+        a, b, c = Fb[:, 0], Fb[:, 1], Fb[:, 2]
+        lo = np.minimum(np.minimum(a, b), c)
+        hi = np.maximum(np.maximum(a, b), c)
+        mid = a + b
+        mid += c
+        mid -= lo
+        mid -= hi
+        if exact:
+            kb = key[i:i + _BLOCK]
+            np.multiply(lo, np.int64(n), out=kb)
+            kb += mid
+            kb *= np.int64(n)
+            kb += hi
+        else:
+            key[i:i + _BLOCK] = _hash_columns(lo, mid, hi)
+    if not exact:                                      # hashed keys lie at random: quicksort
+        return _keys_all_distinct(key)
     # the exact key keeps the scan's face order nearly sorted, which timsort runs through
-    key = lo * np.int64(n)
-    key += mid
-    key *= np.int64(n)
-    key += hi
     key.sort(kind="stable")
     return not np.any(key[1:] == key[:-1])
 
