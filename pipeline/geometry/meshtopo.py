@@ -80,12 +80,21 @@ def face_components_by_vertex(F, n_vertices: int):
     labels : (m,) int64
         Component of each face.
     """
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
-    rows = np.concatenate([F[:, 0], F[:, 1]])
-    cols = np.concatenate([F[:, 1], F[:, 2]])
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n_vertices, n_vertices))
+    F = np.asarray(F, dtype=np.int64)
+    # Each face links corners 1 and 2 to corner 0 (the components of a path through the three), in CSR
+    # rows grouped by corner 0: a stable argsort runs through a scan's face order, and scipy gets its
+    # own index and data types, with no COO conversion nor float copy. Labels number components by
+    # their lowest vertex, whatever the edges, so they are the same.
+    idx = np.int32 if max(n_vertices, 2 * len(F)) < 2**31 else np.int64
+    order = np.argsort(F[:, 0], kind="stable")
+    indptr = np.zeros(n_vertices + 1, dtype=idx)
+    np.cumsum(2 * np.bincount(F[:, 0], minlength=n_vertices), out=indptr[1:])
+    indices = F[order, 1:].astype(idx).ravel()
+    del order
+    graph = csr_matrix((np.ones(len(indices)), indices, indptr), shape=(n_vertices, n_vertices))
     n, vlabels = connected_components(graph, directed=False)
     return n, vlabels[F[:, 0]].astype(np.int64)
 
