@@ -213,9 +213,10 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
         if not settings.flip_inward_winding:
             raise ScanError(mesh_file, "faces around the eyes point backward (-Z): inward winding or wrong "
                                        "forward_axis")
+        shared = FUV is F                        # a PLY's per-vertex UVs: one flipped copy serves both
         F = F[:, ::-1].copy()
         if FUV is not None:
-            FUV = FUV[:, ::-1].copy()
+            FUV = F if shared else FUV[:, ::-1].copy()
         flipped = True
     # texture
     texture = png_bytes = None
