@@ -181,6 +181,25 @@ def test_edge_stats_matches_reference():
     assert repair.edge_stats(Fr, 40) == _ref_edge_stats(Fr)
     Fo = np.vstack([F[:500], F[500:520, ::-1]])                      # open, with flipped faces
     assert repair.edge_stats(Fo, len(V)) == _ref_edge_stats(Fo)
+    Fb = rng.integers(0, 300, size=(3 * repair._BLOCK // 2, 3))         # keys over several blocks
+    assert repair.edge_stats(Fb, 300) == _ref_edge_stats(Fb)
+    assert repair.edge_stats(F[:1], len(V)) == {"edges": 3, "boundary": 3, "non_manifold": 0,
+                                                "inconsistent_winding": 0}
+
+
+def test_point_surface_distance_and_near_faces_over_blocks():
+    rng = np.random.default_rng(4)
+    V = rng.normal(size=(repair._BLOCK + 500, 3)) * 40
+    F = rng.integers(0, len(V), size=(repair._BLOCK + 700, 3))
+    p = np.array([3.0, -2.0, 41.0])
+    d = V - p
+    sq = np.einsum("ij,ij->i", d, d)
+    assert np.array_equal(repair._squared_distances(V, p).view(np.int64), sq.view(np.int64))
+    assert np.array_equal(repair._faces_near(V, F, p, 20.0), (sq <= 400.0)[F].any(axis=1))
+    A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    q = repair.closest_point_on_triangles(A, B, C, p) - p
+    want = float(np.sqrt(np.einsum("ij,ij->i", q, q)).min())          # every face, no pruning
+    assert repair.point_surface_distance(V, F, p) == want
 
 
 def _ref_components(F, n):
