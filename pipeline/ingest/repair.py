@@ -75,6 +75,9 @@ class RepairResult:
     eye_region: dict = field(default_factory=dict)
 
 
+_BLOCK = 1 << 16      # rows (faces, vertices, keys) per block: temporaries stay in cache, not fresh pages
+
+
 def merge_vertices(V, F, tolerance: float):
     """Merge vertices that round to the same grid cell of size ``tolerance``.
 
@@ -152,7 +155,6 @@ def _keys_all_distinct(key) -> bool:
     return not np.any(key[1:] == key[:-1])
 
 
-_BLOCK = 1 << 16      # faces per block in per-face computations: temporaries stay in cache, not fresh pages
 
 
 def _blockwise(fn, F, dtype=np.float64) -> np.ndarray:
@@ -251,12 +253,12 @@ def _faces_all_distinct(F) -> bool:
         mid -= lo
         mid -= hi
         if exact:
-            mid *= np.int64(n)
-            mid += hi
+            low = mid * np.int64(n)
+            low += hi
         else:
-            mid = _hash_columns(mid, hi) & low_mask
+            low = _hash_columns(mid, hi) & low_mask
         lo <<= np.int64(shift)
-        np.bitwise_or(lo, mid, out=key[i:i + _BLOCK])
+        np.bitwise_or(lo, low, out=key[i:i + _BLOCK])
     # a scan's faces come nearly in order of their lowest vertex, runs that timsort goes through
     key.sort(kind="stable")
     return not np.any(key[1:] == key[:-1])
@@ -442,8 +444,8 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
     }
     if n_used == len(V1):                            # every vertex kept: the renumbering is the identity
         # C order as the gathers below give it (np.save writes a Fortran array's bytes otherwise)
-        return RepairResult(V=np.ascontiguousarray(V1), F=np.ascontiguousarray(F2), vertex_index=vkeep, face_index=face_index, counts=counts,
-                            eye_region=eye_region)
+        return RepairResult(V=np.ascontiguousarray(V1), F=np.ascontiguousarray(F2), vertex_index=vkeep,
+                            face_index=face_index, counts=counts, eye_region=eye_region)
     remap = np.cumsum(used) - 1
     return RepairResult(V=V1[used], F=remap[F2], vertex_index=vkeep[used], face_index=face_index,
                         counts=counts, eye_region=eye_region)
