@@ -44,7 +44,9 @@ fails (ict_neutral's left eye), so it stays off by default.
 
 from __future__ import annotations
 
+import gc
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
@@ -413,6 +415,22 @@ def band_zone(V, F, loops, width):
     return near, near[np.asarray(F)].any(axis=1)
 
 
+@contextmanager
+def _collector_paused():
+    """Python's cycle collector off for the block (as it was after). The repairs and the band
+    hold the remesh as Python lists and sets (TriMesh: one list per face, one set per vertex,
+    built nine times) and allocate them by the hundred thousand; each full collection walked
+    them and every imported module and freed nothing: 0.3-0.5 CPU-s of the stage on the 1.4M
+    head. Reference counting still frees everything the step drops."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     """Crop the dense head to the eye region and remesh it (see module docstring).
 
@@ -429,6 +447,11 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     -------
     RetopoResult
     """
+    with _collector_paused():
+        return _retopologize(V, F, eyes, settings)
+
+
+def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     s = settings
     t0 = time.perf_counter()
     timings = {}
