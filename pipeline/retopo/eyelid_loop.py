@@ -62,34 +62,47 @@ def at_arclength(s, Q, t):
     return Q[j] + u[:, None] * (Q[j + 1] - Q[j])
 
 
+def _collapse_at(tm: TriMesh, loop, el, i) -> bool:
+    """Collapse loop vertex ``i`` into its nearer neighbour (the other when refused); ``el``: the
+    loop's edge lengths, ``el[i]`` from vertex ``i`` to the next. Returns False when both are refused
+    (the mesh is then unchanged)."""
+    k = len(loop)
+    prev_i, next_i = (i - 1) % k, (i + 1) % k
+    for j in ((next_i, prev_i) if el[i] <= el[prev_i] else (prev_i, next_i)):
+        if tm.collapse(loop[i], loop[j]):
+            return True
+    return False
+
+
 def resample_loop(tm: TriMesh, loop, n, curve=None):
-    """Collapse/split boundary edges until the loop has ``n`` vertices; returns the new loop list."""
+    """Collapse/split boundary edges until the loop has ``n`` vertices; returns the new loop list.
+
+    Collapses go cheapest vertex first (the sum of its two edges' lengths), in ``np.argsort``'s
+    order of the costs, each in turn until one is allowed."""
     loop = list(map(int, loop))
     guard = 0
-    # a collapse moves no vertex: the positions are gathered once, not per collapse (the crop
-    # border's coarsening is a thousand of them)
-    Vs = np.array(tm.V) if len(loop) > n else None
+    if len(loop) > n:
+        # a collapse moves no vertex (the crop border's coarsening is a thousand of them): the
+        # edge lengths are kept from one to the next, the one new edge measured alone (a row's
+        # norm is the same bits alone or among others), and the cheapest vertex is taken by argmin;
+        # the whole argsort, whose order among equal costs is its own, only runs when that
+        # minimum is tied or refused
+        Vs = np.array(tm.V)
+        ids = np.asarray(loop, dtype=np.int64)
+        el = np.linalg.norm(Vs[ids] - Vs[np.roll(ids, -1)], axis=1)     # edge i -> i+1
     while len(loop) > n and guard < 100000:
         guard += 1
         k = len(loop)
-        P = Vs[loop]
-        el = np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)   # edge i -> i+1
         cost = el + np.roll(el, 1)
-        done = False
-        for i in np.argsort(cost):
-            a = loop[i]
-            prev_i, next_i = (i - 1) % k, (i + 1) % k
-            # merge into the nearer neighbour
-            order = (next_i, prev_i) if el[i] <= el[prev_i] else (prev_i, next_i)
-            for j in order:
-                if tm.collapse(a, loop[j]):
-                    loop.pop(i)
-                    done = True
-                    break
-            if done:
+        i = int(np.argmin(cost))
+        if not (np.count_nonzero(cost == cost[i]) == 1 and _collapse_at(tm, loop, el, i)):
+            i = next((int(c) for c in np.argsort(cost) if _collapse_at(tm, loop, el, int(c))), None)
+            if i is None:
                 break
-        if not done:
-            break
+        a, b = loop[(i - 1) % k], loop[(i + 1) % k]
+        loop.pop(i)
+        el = np.delete(el, i)
+        el[(i - 1) % (k - 1)] = np.linalg.norm(Vs[[a]] - Vs[[b]], axis=1)[0]
     while len(loop) < n:
         k = len(loop)
         P = np.array([tm.V[v] for v in loop])
