@@ -82,23 +82,24 @@ def ring_distances(rings: int, width: float, first: float) -> np.ndarray:
     return d * (float(width) / d[-1])
 
 
-def annulus_region(V, F, hole, radius, locked):
+def annulus_region(V, F, hole, radius, locked, graph=None):
     """Faces of the dense surface within ``radius`` (edge-graph distance) of the opening
-    ``hole`` closed into an annulus (:func:`pipeline.retopo.eye_rings.close_annulus`), or None."""
+    ``hole`` closed into an annulus (:func:`pipeline.retopo.eye_rings.close_annulus`), or None.
+    ``graph``: :func:`pipeline.retopo.eye_rings.edge_graph` of (V, F) when already built."""
     from pipeline.retopo.eye_rings import close_annulus, edge_graph_distance
 
-    d = edge_graph_distance(V, F, hole, 1.5 * radius)
+    d = edge_graph_distance(V, F, hole, 1.5 * radius, graph)
     return close_annulus(V, F, (d[F] < radius).all(axis=1), locked)
 
 
-def _why_no_annulus(V, F, hole, radius, locked) -> str:
+def _why_no_annulus(V, F, hole, radius, locked, graph=None) -> str:
     """Why :func:`annulus_region` found no annulus at ``radius``: a border it must not cross
     lies nearer, or the surface there is no ring but has handles (a tunnel through the scan
     that :func:`pipeline.retopo.handles.cut_handles` could not cut), each counted from the
     Euler characteristic."""
     from pipeline.retopo.eye_rings import edge_graph_distance
 
-    d = edge_graph_distance(V, F, hole, 1.5 * radius)
+    d = edge_graph_distance(V, F, hole, 1.5 * radius, graph)
     Fb = F[(d[F] < radius).all(axis=1)]
     if len(locked) and np.isin(Fb, locked).any():
         return "the crop border or the other eye is nearer; lower band_width_mm"
@@ -219,7 +220,7 @@ class _Locator:
         return cand[r, best], bb / bb.sum(axis=1, keepdims=True)
 
 
-def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locked=()):
+def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locked=(), graph=None):
     """Grid points of one eye's band.
 
     Parameters
@@ -233,6 +234,8 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     param_mm : float
         How far out the parametrised region reaches (shrunk until it is an annulus clear of
         ``locked``, not below ``1.25 * width``).
+    graph : sparse (n, n), optional
+        :func:`pipeline.retopo.eye_rings.edge_graph` of the dense surface (built here if None).
 
     Returns
     -------
@@ -241,14 +244,18 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     """
     targets = np.asarray(targets, dtype=np.float64)
     S = len(targets)
+    if graph is None:
+        from pipeline.retopo.eye_rings import edge_graph
+
+        graph = edge_graph(ref_V, ref_F)
     radius, region = float(param_mm), None
     while region is None and radius >= 1.25 * width:
-        region = annulus_region(ref_V, ref_F, hole, radius, locked)
+        region = annulus_region(ref_V, ref_F, hole, radius, locked, graph)
         if region is None:
             radius *= 0.85
     if region is None:
         raise ValueError(f"no annulus of the dense surface {1.25 * width:.1f} mm round the eye opening "
-                         f"({_why_no_annulus(ref_V, ref_F, hole, 1.25 * width, locked)})")
+                         f"({_why_no_annulus(ref_V, ref_F, hole, 1.25 * width, locked, graph)})")
     Fr = ref_F[region]
     hole_set = set(map(int, hole))
     bl = mc.boundary_loops(Fr)
@@ -629,7 +636,8 @@ def _oriented_border(F, loop):
     return loop if has_halfedge(F, loop[0], loop[1]) else loop[::-1]
 
 
-def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_iterations=4):
+def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_iterations=4, graph=None,
+                  ref_loops=None):
     """Replace the faces round each eyelid loop by a grid band (module doc).
 
     Parameters
@@ -640,6 +648,10 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         Ordered loop vertex ids (same S for every eye); their positions are ring 0.
     ref_V, ref_F : the dense crop (its openings are boundary loops)
     rings : int ; width : float (mm) ; param_mm : float (mm)
+    graph : sparse, optional
+        :func:`pipeline.retopo.eye_rings.edge_graph` of the dense crop, when already built.
+    ref_loops : list of (L,) int64, optional
+        ``mc.boundary_loops(ref_F)``, when already found.
 
     Returns
     -------
@@ -664,19 +676,23 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     S = len(loops[sides[0]])
     if any(len(loops[s]) != S for s in sides):
         raise ValueError("the eyelid loops have different lengths; a band needs one spoke count")
-    dense_loops = mc.boundary_loops(ref_F)
+    dense_loops = mc.boundary_loops(ref_F) if ref_loops is None else ref_loops
     holes = {}
     for side in sides:
         P = V[loops[side]]
         cost = [np.mean(project_to_polyline(ref_V[b][:: max(1, len(b) // 64)], P)[2]) for b in dense_loops]
         holes[side] = int(np.argmin(cost))
+    if graph is None:
+        from pipeline.retopo.eye_rings import edge_graph
+
+        graph = edge_graph(ref_V, ref_F)
     grids, infos, params = {}, {}, {}
     for side in sides:
         P = V[loops[side]]
         locked = np.concatenate([b for k, b in enumerate(dense_loops) if k != holes[side]])
         first = float(np.mean(np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)))
         G, info = build_band(P, ref_V, ref_F, dense_loops[holes[side]], rings, width, first,
-                             param_mm, locked)
+                             param_mm, locked, graph)
         G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F, info.pop("_outer_line"),
                         normal=info.pop("_normal"))
         params[side] = info.pop("_param")

@@ -56,7 +56,7 @@ from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry import meshtopo
 from pipeline.retopo.eye_band import add_eye_bands
 from pipeline.retopo.handles import cut_handles
-from pipeline.retopo.eye_rings import add_eye_rings
+from pipeline.retopo.eye_rings import add_eye_rings, edge_graph
 from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
                                           project_to_polyline, resample_loop, smooth_margin)
 from pipeline.geometry.flips import (collapse_flipped, collapse_short_edges, count_flipped, delaunay_flips, flip_slivers, mirror_flipped,
@@ -187,7 +187,7 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
     return Vc, Fc, vmap
 
 
-def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float) -> list:
+def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float, loops=None) -> list:
     """The crop's boundary loops that are holes of the scan itself: neither an eye opening (a loop
     through ``eye_vertices``, crop ids) nor made by the crop (a loop through a vertex that lost a
     face to it), with a perimeter of at most ``max_perimeter_mm``.
@@ -198,6 +198,7 @@ def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float) -> list:
     F : (m, 3) int64   the dense head's faces (before the crop)
     eye_vertices : (k,) int64   the eye loops' vertices in crop ids
     max_perimeter_mm : float
+    loops : list of (L,) int64, optional   ``mc.boundary_loops(Fc)`` when already found
 
     Returns
     -------
@@ -208,7 +209,7 @@ def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float) -> list:
     eye = np.zeros(len(Vc), dtype=bool)
     eye[np.asarray(eye_vertices, dtype=np.int64)] = True
     holes = []
-    for lp in mc.boundary_loops(Fc):
+    for lp in mc.boundary_loops(Fc) if loops is None else loops:
         if eye[lp].any() or lost[vmap[lp]].any():
             continue
         P = Vc[lp]
@@ -470,25 +471,33 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
                                                         s.margin_smooth_mm,
                                                         s.margin_smooth_max_move_mm)
     holes = []
+    cbl = graph = None          # the crop's boundary loops and edge graph, while its faces are these
     if s.fill_holes_mm > 0:
         # left open, a scanner's hole in the skin stays a hole of the asset (a black spot in
         # every render); filled here it is remeshed like the skin round it, and the bake's rays
         # over it miss the scan and take the rim's colour at about zero displacement
         # every crop copy of a loop vertex (a bow-tie on the opening has one per fan)
         eye_vs = np.flatnonzero(np.isin(vmap, np.concatenate([np.asarray(e.loop_indices) for e in eyes.values()])))
-        holes = scan_holes(Vc, Fc, vmap, F, eye_vs, s.fill_holes_mm)
-        Vc, Fc = fill_holes_smooth(Vc, Fc, holes)
+        cbl = mc.boundary_loops(Fc)
+        holes = scan_holes(Vc, Fc, vmap, F, eye_vs, s.fill_holes_mm, cbl)
+        if holes:
+            Vc, Fc = fill_holes_smooth(Vc, Fc, holes)
+            cbl = None
     handles_cut = []
     if s.band == "grid":
         # a handle within the band's reach leaves it no annulus to be built on (id339_laser's
         # crop has a tunnel 10 mm from its left opening): cut, the region is a disk with a hole
-        cbl = mc.boundary_loops(Fc)
+        cbl = mc.boundary_loops(Fc) if cbl is None else cbl
         openings = {}
         for side, e in eyes.items():
             li = set(np.flatnonzero(np.isin(vmap, np.asarray(e.loop_indices))).tolist())
             openings[side] = next((b for b in cbl if li & set(map(int, b))), None)
         openings = {k: v for k, v in openings.items() if v is not None}
-        Vc, Fc, handles_cut = cut_handles(Vc, Fc, openings, s.band_param_mm, max_loop_mm=s.band_width_mm)
+        graph = edge_graph(Vc, Fc)
+        Vc, Fc, handles_cut = cut_handles(Vc, Fc, openings, s.band_param_mm, max_loop_mm=s.band_width_mm,
+                                          graph=graph)
+        if handles_cut:
+            cbl = graph = None
     timings["crop_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -512,7 +521,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     # that opening edges are not split into fans of slivers at the loop (at 50-53 of 64, the
     # tests' 100k-face synthetic head, the splits stay single and subdividing moved its medial
     # canthus behind the lid skin in a front view)
-    cbl = mc.boundary_loops(Fc)
+    cbl = mc.boundary_loops(Fc) if cbl is None else cbl
     eye_loop_lengths = []
     for side, e in eyes.items():
         li = set(np.flatnonzero(np.isin(vmap, np.asarray(e.loop_indices))).tolist())
@@ -646,7 +655,8 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         # built, not repaired: the loops' neighbourhood that the repairs above worked on is cut
         # away and replaced by the grid (eye_band module doc)
         Vn, Fn, ring_quads, band_ids, band_info = add_eye_bands(
-            Vn, Fn, loops, Vc, Fc, s.band_rings, s.band_width_mm, s.band_param_mm, s.relax_iterations)
+            Vn, Fn, loops, Vc, Fc, s.band_rings, s.band_width_mm, s.band_param_mm, s.relax_iterations,
+            graph, cbl)
         loops = {k: v[0].copy() for k, v in band_ids.items()}
         ring_info = {}
     else:
