@@ -198,19 +198,24 @@ class _Locator:
         from scipy.spatial import cKDTree
 
         self.X, self.F, self.k = X, F, min(k, len(F))
-        self.XF = X[F]                       # (m, 3, 2) every triangle's corners, gathered once
-        self.tree = cKDTree(self.XF.mean(axis=1))
+        XF = X[F]                            # (m, 3, 2) every triangle's corners
+        self.tree = cKDTree(XF.mean(axis=1))
+        # what the barycentric test needs of each triangle, once (not per candidate and query:
+        # the band asks about ~60k points, 12 candidates each): its first corner, its two edges
+        # from there and their cross product, each coordinate a contiguous (m,) column
+        A, u, w = XF[:, 0], XF[:, 1] - XF[:, 0], XF[:, 2] - XF[:, 0]
+        den = u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+        den = np.where(np.abs(den) < 1e-300, 1e-300, den)
+        self.tri = tuple(np.ascontiguousarray(c) for c in (A[:, 0], A[:, 1], u[:, 0], u[:, 1],
+                                                           w[:, 0], w[:, 1], den))
 
     def locate(self, P):
         _, cand = self.tree.query(P, k=self.k)
         cand = cand.reshape(len(P), -1)
-        T = self.XF[cand]
-        A, B, C = T[:, :, 0], T[:, :, 1], T[:, :, 2]
-        v0, v1, v2 = B - A, C - A, P[:, None, :] - A
-        den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
-        den = np.where(np.abs(den) < 1e-300, 1e-300, den)
-        b1 = (v2[..., 0] * v1[..., 1] - v2[..., 1] * v1[..., 0]) / den
-        b2 = (v0[..., 0] * v2[..., 1] - v0[..., 1] * v2[..., 0]) / den
+        ax, ay, ux, uy, wx, wy, den = (c[cand] for c in self.tri)
+        px, py = P[:, 0:1] - ax, P[:, 1:2] - ay
+        b1 = (px * wy - py * wx) / den
+        b2 = (ux * py - uy * px) / den
         # >= 0 inside; otherwise the least-outside candidate (argmax: a zero's sign never matters)
         score = np.minimum(np.minimum(1.0 - b1 - b2, b1), b2)
         best = np.argmax(score, axis=1)
