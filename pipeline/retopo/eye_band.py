@@ -539,19 +539,38 @@ def band_report(V, Q, ref_V, ref_F, S, base):
             "flipped_at_ring_spoke": [list(w) for w in where]}
 
 
-def _zip_score(V, T, ref_V, ref_F):
-    """(-turned faces, smallest angle) of the triangles T: larger is better."""
-    R = reference_face_normals(V, T, ref_V, ref_F)
+def _scan_lookups(ref_V, ref_F):
+    """(closest, normals): :func:`mc.closest_points_on` and :func:`mc.surface_face_normals` of the
+    scan (ref_V, ref_F), looked up once for the cut's many judgements against it (each lookup
+    compares the crop's bytes with the cached tree's: 1-2 ms on a 150k-face crop, ~70 of them)."""
+    return mc.closest_points_on(ref_V, ref_F), mc.surface_face_normals(ref_V, ref_F)
+
+
+def _facing(V, T, scan):
+    """``reference_face_normals(V, T, ref_V, ref_F)`` with ``scan`` = :func:`_scan_lookups` of the
+    scan: the nearest scan face of T's own vertices (each point's answer is its own)."""
+    closest, normals = scan
+    ids = np.unique(T)
+    fi = np.zeros(len(V), dtype=np.int64)
+    fi[ids] = closest(np.asarray(V)[ids])[1]
+    return reference_face_normals(V, T, None, None, nearest_faces=fi, ref_normals=normals)
+
+
+def _zip_score(V, T, scan):
+    """(-turned faces, smallest angle) of the triangles T (``scan``: :func:`_scan_lookups`): larger
+    is better."""
+    R = _facing(V, T, scan)
     turned = int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, T), R) <= 0))
     return (-turned, float(mc.triangle_angles_deg(V, T).min()))
 
 
-def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
+def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None, scan=None):
     """Triangles between two closed polylines wound like :func:`pipeline.retopo.eye_rings._zip_strip`'s
     (``(inner[i], inner[i+1], outer[j])`` and ``(inner[i], outer[j+1], outer[j])``), the strip
     chosen by dynamic programming to have the largest smallest angle, starting at ``inner[0]`` -
     ``outer[j0]``. With ``ref_V, ref_F`` a triangle turned against the surface there (normal of
-    its centroid's closest face) counts as angle -1: never taken while another way exists."""
+    its centroid's closest face) counts as angle -1: never taken while another way exists
+    (``scan``: :func:`_scan_lookups` of them, when the caller holds it)."""
     N, M = len(inner), len(outer)
     A = Vi[np.arange(N + 1) % N]
     B = Vo[(j0 + np.arange(M + 1)) % M]
@@ -572,6 +591,7 @@ def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
     fi_ = np.arange(N + 1)[:, None] / N - np.arange(M + 1)[None, :] / M
     off = np.abs(fi_) > 0.25
     if ref_V is not None:
+        closest, normals = _scan_lookups(ref_V, ref_F) if scan is None else scan
         dots = []
         # a step is only taken from a cell within the quarter turn: the scan is asked about those
         # steps' triangles alone (each point's answer is its own), the others are never read
@@ -580,8 +600,8 @@ def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
             P, Q, R = np.broadcast_arrays(P, Q, R)
             n = np.cross(Q - P, R - P).reshape(-1, 3)
             fi = np.zeros(want.size, dtype=np.int64)
-            fi[want.ravel()] = mc.closest_points(((P + Q + R) / 3.0)[want], ref_V, ref_F)[1]
-            dots.append(np.einsum("ij,ij->i", n, mc.surface_face_normals(ref_V, ref_F)[fi]).reshape(P.shape[:2]))
+            fi[want.ravel()] = closest(((P + Q + R) / 3.0)[want])[1]
+            dots.append(np.einsum("ij,ij->i", n, normals[fi]).reshape(P.shape[:2]))
         # the strips' winding against the surface's: whichever way most nearby candidates agree
         i_, j_ = np.meshgrid(np.arange(N + 1), np.arange(M + 1), indexing="ij")
         near = np.abs(i_ / N - j_ / M) < 0.5 / min(N, M)
@@ -709,7 +729,7 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     inside = {side: _inside_ring(V, grids[side][-1], ref_V, params[side][0], params[side][2])
               for side in sides}
     args = (V, F, loops, grids, inside, _band_quads(grids, rings, S, ref_V, ref_F), ref_V, ref_F, rings, S,
-            relax_iterations, {})
+            relax_iterations, {}, _scan_lookups(ref_V, ref_F))
     tried, best = {}, {}
     for near in CUT_NEAR:
         try:
@@ -759,23 +779,24 @@ def _band_quads(grids, rings, S, ref_V, ref_F):
     return out
 
 
-def _zip_dp(inner, outer, V, j0, ref_V, ref_F, memo):
-    """``zip_strip_maxmin(inner, outer, V[inner], V[outer], j0, ref_V, ref_F)``, remembered in
+def _zip_dp(inner, outer, V, j0, ref_V, ref_F, memo, scan):
+    """``zip_strip_maxmin(inner, outer, V[inner], V[outer], j0, ref_V, ref_F, scan)``, remembered in
     ``memo`` by the two polylines' positions: its choices depend on nothing else (the ids only
     label the triangles)."""
     Vi, Vo = V[inner], V[outer]
     key = ("zip", int(j0), Vi.shape, Vo.shape, Vi.tobytes(), Vo.tobytes())
     if key not in memo:
         N = len(inner)
-        memo[key] = zip_strip_maxmin(np.arange(N), N + np.arange(len(outer)), Vi, Vo, j0, ref_V, ref_F)
+        memo[key] = zip_strip_maxmin(np.arange(N), N + np.arange(len(outer)), Vi, Vo, j0, ref_V, ref_F, scan)
     return np.concatenate([inner, outer])[memo[key]]
 
 
 def _cut_and_zip(V, F, loops, grids, inside_ring, band_quads, ref_V, ref_F, rings, S, relax_iterations,
-                 memo, near):
+                 memo, scan, near):
     """:func:`add_eye_bands`' cut, renumbering, zip and border relaxation for the grids ``grids``
     (``inside_ring``: side -> :func:`_inside_ring` of the remesh's vertices and the outer ring;
-    ``band_quads``: :func:`_band_quads`; ``memo``: a dict the margins tried share);
+    ``band_quads``: :func:`_band_quads`; ``memo``: a dict the margins tried share; ``scan``:
+    :func:`_scan_lookups` of ``ref_V, ref_F``);
     ``near``: side -> the margin (x the outer ring's mean edge) within which remesh vertices by
     the outer ring are cut away too. Returns V2, F2, Q, band_ids, per-side figures and per-side
     zip scores (:func:`_zip_score`)."""
@@ -852,15 +873,15 @@ def _cut_and_zip(V, F, loops, grids, inside_ring, band_quads, ref_V, ref_F, ring
     # then the largest smallest angle, where it beats the greedy one
     for e, (o, B, j0) in enumerate(zips):
         zt = tris[1 + e]
-        dp = _zip_dp(o, B, V2, j0, ref_V, ref_F, memo)
-        if _zip_score(V2, dp, ref_V, ref_F) > _zip_score(V2, zt, ref_V, ref_F):
+        dp = _zip_dp(o, B, V2, j0, ref_V, ref_F, memo, scan)
+        if _zip_score(V2, dp, scan) > _zip_score(V2, zt, scan):
             tris[1 + e] = dp
     F2 = np.concatenate(tris)
     info, scores = {}, {}
     for e, side in enumerate(sides):
         info[side] = dict(band_quads[side][2])
         zt = tris[1 + e]
-        scores[side] = _zip_score(V2, zt, ref_V, ref_F)
+        scores[side] = _zip_score(V2, zt, scan)
         info[side].update(zip_triangles=int(len(zt)), border_vertices=int(len(zips[e][1])),
                           zip_min_angle_deg=round(scores[side][1], 3), zip_flipped_faces=-scores[side][0])
     return V2, F2, Q, band_ids, info, scores

@@ -384,17 +384,21 @@ def _isotropic(V, F, target_len, iterations):
 def _flip_counter(ref_V, ref_F):
     """:func:`count_flipped` against (ref_V, ref_F), remembering each vertex set's nearest scan
     faces: the repairs ask again and again about the same positions (unchanged by a pass that
-    found nothing to do, or with two candidate face sets), and that query is the count's cost."""
+    found nothing to do, or with two candidate face sets), and that query is the count's cost.
+    The scan's tree and face normals are looked up once (each lookup compares the crop's bytes
+    with the cached tree's)."""
     import hashlib
 
     nearest = {}
+    closest, normals = mc.closest_points_on(ref_V, ref_F), mc.surface_face_normals(ref_V, ref_F)
 
     def count(V, F):
         V = np.ascontiguousarray(V, dtype=np.float64)
         key = (V.shape, hashlib.blake2b(memoryview(V).cast("B"), digest_size=16).digest())
         if key not in nearest:
-            nearest[key] = mc.closest_points(V, ref_V, ref_F)[1]
-        return count_flipped(V, F, ref_V, ref_F, nearest_faces=nearest[key])
+            nearest[key] = closest(V)[1]
+        R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces=nearest[key], ref_normals=normals)
+        return int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, F), R) <= 0))
 
     return count
 
