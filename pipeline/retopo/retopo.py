@@ -158,15 +158,22 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
     _, lab = connected_components(A, directed=False)
     want = np.unique(lab[loop_vs])
     Fk = Fk[np.isin(lab[Fk[:, 0]], want)]
-    vmap = np.unique(Fk)
+    used = np.zeros(n, dtype=bool)
+    used[Fk.ravel()] = True
+    vmap = np.flatnonzero(used)         # np.unique(Fk) without sorting its 0.5M corners
     remap = -np.ones(n, dtype=np.int64)
     remap[vmap] = np.arange(len(vmap))
     Vc, Fc = V[vmap], remap[Fk]
     # weld coincident vertices (zero-area faces then have a repeated index and are dropped),
-    # so decimation sees one closed surface instead of pinholes
-    _, first, inv = np.unique(Vc, axis=0, return_index=True, return_inverse=True)
-    if len(first) < len(Vc):
-        rep = first[inv.ravel()]
+    # so decimation sees one closed surface instead of pinholes. Each goes to the lowest id of
+    # its coordinates (np.unique(Vc, axis=0)'s first index, without its sort of rows as records):
+    # a stable sort by x, y, z puts equal rows together in id order
+    order = np.lexsort(Vc.T[::-1])
+    Vs = Vc[order]
+    start = np.r_[True, (Vs[1:] != Vs[:-1]).any(axis=1)]
+    if not start.all():
+        rep = np.empty(len(Vc), dtype=np.int64)
+        rep[order] = order[start][np.cumsum(start) - 1]
         Fc = rep[Fc]
         Fc = Fc[(Fc[:, 0] != Fc[:, 1]) & (Fc[:, 1] != Fc[:, 2]) & (Fc[:, 0] != Fc[:, 2])]
     # bow-ties: a vertex whose faces form two fans touching only there, where two boundary loops
