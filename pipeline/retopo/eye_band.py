@@ -508,29 +508,32 @@ def grid_quads(base, rings, S, reverse=False):
     return Q[:, ::-1] if reverse else Q
 
 
-def split_quads(V, Q, ref_V=None, ref_F=None):
+def split_quads(V, Q, ref_V=None, ref_F=None, scan=None):
     """Each quad as its two triangles across the diagonal with the larger smallest angle:
     ``(q, 4)`` quads rotated so that the fan (0, 1, 2), (0, 2, 3) is that split. With the scan
     ``ref_V, ref_F``, a split with fewer triangles turned against it wins first (a quad folded
-    across a crease, beside a canthus in a V-shaped groove, is turned over across one diagonal)."""
+    across a crease, beside a canthus in a V-shaped groove, is turned over across one diagonal;
+    ``scan``: :func:`_scan_lookups` of it, when the caller holds it)."""
+    if ref_V is not None and scan is None:
+        scan = _scan_lookups(ref_V, ref_F)
     rot = np.stack([Q, np.roll(Q, -1, axis=1)])
     best = []
     for R in rot:
         T = np.concatenate([R[:, [0, 1, 2]], R[:, [0, 2, 3]]])
         a = mc.triangle_angles_deg(V, T).min(axis=1).reshape(2, -1).min(axis=0)
-        if ref_V is not None:
-            turned = np.einsum("ij,ij->i", mc.face_normals(V, T), reference_face_normals(V, T, ref_V, ref_F)) <= 0
+        if scan is not None:
+            turned = np.einsum("ij,ij->i", mc.face_normals(V, T), _facing(V, T, scan)) <= 0
             a = a - 180.0 * turned.reshape(2, -1).sum(axis=0)
         best.append(a)
     return np.where((best[1] > best[0])[:, None], rot[1], rot[0])
 
 
-def band_report(V, Q, ref_V, ref_F, S, base):
+def band_report(V, Q, ref_V, ref_F, S, base, scan=None):
     """Smallest angle (deg, quads as their two triangles) and flipped faces, named by ring and
-    spoke, of one eye's band quads."""
+    spoke, of one eye's band quads (``scan``: :func:`_scan_lookups` of the scan, when held)."""
     T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
     ang = mc.triangle_angles_deg(V, T).min(axis=1)
-    R = reference_face_normals(V, T, ref_V, ref_F)
+    R = _facing(V, T, _scan_lookups(ref_V, ref_F) if scan is None else scan)
     bad = np.einsum("ij,ij->i", mc.face_normals(V, T), R) <= 0
     where = sorted({(int((q - base) // S), int((q - base) % S)) for q in T[bad, 0]})
     return {"min_angle_deg": round(float(ang.min()), 3),
@@ -728,8 +731,9 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     # The remesh's vertices inside each outer ring are the same for every margin tried
     inside = {side: _inside_ring(V, grids[side][-1], ref_V, params[side][0], params[side][2])
               for side in sides}
-    args = (V, F, loops, grids, inside, _band_quads(grids, rings, S, ref_V, ref_F), ref_V, ref_F, rings, S,
-            relax_iterations, {}, _scan_lookups(ref_V, ref_F))
+    scan = _scan_lookups(ref_V, ref_F)
+    args = (V, F, loops, grids, inside, _band_quads(grids, rings, S, ref_V, ref_F, scan), ref_V, ref_F, rings,
+            S, relax_iterations, {}, scan)
     tried, best = {}, {}
     for near in CUT_NEAR:
         try:
@@ -759,11 +763,11 @@ def _inside_ring(V, ring, ref_V, Fr, X):
     return _inside_polygon(to_uv(V), to_uv(ring))
 
 
-def _band_quads(grids, rings, S, ref_V, ref_F):
+def _band_quads(grids, rings, S, ref_V, ref_F, scan):
     """Per side of ``grids``: the band's quads numbered as :func:`_cut_and_zip` numbers the band
     vertices (first, eye by eye), whether they are wound against the grid, and their
-    :func:`band_report`. The cut never moves a band vertex, so these are the same for every cut
-    margin tried."""
+    :func:`band_report` (``scan``: :func:`_scan_lookups` of ``ref_V, ref_F``). The cut never moves
+    a band vertex, so these are the same for every cut margin tried."""
     sides = list(grids)
     nb = (rings + 1) * S
     Vb = np.concatenate([grids[s].reshape(-1, 3) for s in sides])
@@ -772,10 +776,10 @@ def _band_quads(grids, rings, S, ref_V, ref_F):
         base = e * nb
         Q = grid_quads(base, rings, S)
         T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
-        R = reference_face_normals(Vb, T, ref_V, ref_F)
+        R = _facing(Vb, T, scan)
         reverse = np.sum(np.einsum("ij,ij->i", mc.face_normals(Vb, T), R)) < 0
-        Q = split_quads(Vb, grid_quads(base, rings, S, reverse), ref_V, ref_F)
-        out[side] = (Q, reverse, band_report(Vb, Q, ref_V, ref_F, S, base))
+        Q = split_quads(Vb, grid_quads(base, rings, S, reverse), ref_V, ref_F, scan)
+        out[side] = (Q, reverse, band_report(Vb, Q, ref_V, ref_F, S, base, scan))
     return out
 
 
