@@ -82,23 +82,24 @@ def ring_distances(rings: int, width: float, first: float) -> np.ndarray:
     return d * (float(width) / d[-1])
 
 
-def annulus_region(V, F, hole, radius, locked):
+def annulus_region(V, F, hole, radius, locked, graph=None):
     """Faces of the dense surface within ``radius`` (edge-graph distance) of the opening
-    ``hole`` closed into an annulus (:func:`pipeline.retopo.eye_rings.close_annulus`), or None."""
+    ``hole`` closed into an annulus (:func:`pipeline.retopo.eye_rings.close_annulus`), or None.
+    ``graph``: :func:`pipeline.retopo.eye_rings.edge_graph` of (V, F) when already built."""
     from pipeline.retopo.eye_rings import close_annulus, edge_graph_distance
 
-    d = edge_graph_distance(V, F, hole, 1.5 * radius)
+    d = edge_graph_distance(V, F, hole, 1.5 * radius, graph)
     return close_annulus(V, F, (d[F] < radius).all(axis=1), locked)
 
 
-def _why_no_annulus(V, F, hole, radius, locked) -> str:
+def _why_no_annulus(V, F, hole, radius, locked, graph=None) -> str:
     """Why :func:`annulus_region` found no annulus at ``radius``: a border it must not cross
     lies nearer, or the surface there is no ring but has handles (a tunnel through the scan
     that :func:`pipeline.retopo.handles.cut_handles` could not cut), each counted from the
     Euler characteristic."""
     from pipeline.retopo.eye_rings import edge_graph_distance
 
-    d = edge_graph_distance(V, F, hole, 1.5 * radius)
+    d = edge_graph_distance(V, F, hole, 1.5 * radius, graph)
     Fb = F[(d[F] < radius).all(axis=1)]
     if len(locked) and np.isin(Fb, locked).any():
         return "the crop border or the other eye is nearer; lower band_width_mm"
@@ -197,19 +198,24 @@ class _Locator:
         from scipy.spatial import cKDTree
 
         self.X, self.F, self.k = X, F, min(k, len(F))
-        self.XF = X[F]                       # (m, 3, 2) every triangle's corners, gathered once
-        self.tree = cKDTree(self.XF.mean(axis=1))
+        XF = X[F]                            # (m, 3, 2) every triangle's corners
+        self.tree = cKDTree(XF.mean(axis=1))
+        # what the barycentric test needs of each triangle, once (not per candidate and query:
+        # the band asks about ~60k points, 12 candidates each): its first corner, its two edges
+        # from there and their cross product, each coordinate a contiguous (m,) column
+        A, u, w = XF[:, 0], XF[:, 1] - XF[:, 0], XF[:, 2] - XF[:, 0]
+        den = u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+        den = np.where(np.abs(den) < 1e-300, 1e-300, den)
+        self.tri = tuple(np.ascontiguousarray(c) for c in (A[:, 0], A[:, 1], u[:, 0], u[:, 1],
+                                                           w[:, 0], w[:, 1], den))
 
     def locate(self, P):
         _, cand = self.tree.query(P, k=self.k)
         cand = cand.reshape(len(P), -1)
-        T = self.XF[cand]
-        A, B, C = T[:, :, 0], T[:, :, 1], T[:, :, 2]
-        v0, v1, v2 = B - A, C - A, P[:, None, :] - A
-        den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
-        den = np.where(np.abs(den) < 1e-300, 1e-300, den)
-        b1 = (v2[..., 0] * v1[..., 1] - v2[..., 1] * v1[..., 0]) / den
-        b2 = (v0[..., 0] * v2[..., 1] - v0[..., 1] * v2[..., 0]) / den
+        ax, ay, ux, uy, wx, wy, den = (c[cand] for c in self.tri)
+        px, py = P[:, 0:1] - ax, P[:, 1:2] - ay
+        b1 = (px * wy - py * wx) / den
+        b2 = (ux * py - uy * px) / den
         # >= 0 inside; otherwise the least-outside candidate (argmax: a zero's sign never matters)
         score = np.minimum(np.minimum(1.0 - b1 - b2, b1), b2)
         best = np.argmax(score, axis=1)
@@ -219,7 +225,7 @@ class _Locator:
         return cand[r, best], bb / bb.sum(axis=1, keepdims=True)
 
 
-def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locked=()):
+def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locked=(), graph=None):
     """Grid points of one eye's band.
 
     Parameters
@@ -233,6 +239,8 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     param_mm : float
         How far out the parametrised region reaches (shrunk until it is an annulus clear of
         ``locked``, not below ``1.25 * width``).
+    graph : sparse (n, n), optional
+        :func:`pipeline.retopo.eye_rings.edge_graph` of the dense surface (built here if None).
 
     Returns
     -------
@@ -241,14 +249,18 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     """
     targets = np.asarray(targets, dtype=np.float64)
     S = len(targets)
+    if graph is None:
+        from pipeline.retopo.eye_rings import edge_graph
+
+        graph = edge_graph(ref_V, ref_F)
     radius, region = float(param_mm), None
     while region is None and radius >= 1.25 * width:
-        region = annulus_region(ref_V, ref_F, hole, radius, locked)
+        region = annulus_region(ref_V, ref_F, hole, radius, locked, graph)
         if region is None:
             radius *= 0.85
     if region is None:
         raise ValueError(f"no annulus of the dense surface {1.25 * width:.1f} mm round the eye opening "
-                         f"({_why_no_annulus(ref_V, ref_F, hole, 1.25 * width, locked)})")
+                         f"({_why_no_annulus(ref_V, ref_F, hole, 1.25 * width, locked, graph)})")
     Fr = ref_F[region]
     hole_set = set(map(int, hole))
     bl = mc.boundary_loops(Fr)
@@ -496,29 +508,32 @@ def grid_quads(base, rings, S, reverse=False):
     return Q[:, ::-1] if reverse else Q
 
 
-def split_quads(V, Q, ref_V=None, ref_F=None):
+def split_quads(V, Q, ref_V=None, ref_F=None, scan=None):
     """Each quad as its two triangles across the diagonal with the larger smallest angle:
     ``(q, 4)`` quads rotated so that the fan (0, 1, 2), (0, 2, 3) is that split. With the scan
     ``ref_V, ref_F``, a split with fewer triangles turned against it wins first (a quad folded
-    across a crease, beside a canthus in a V-shaped groove, is turned over across one diagonal)."""
+    across a crease, beside a canthus in a V-shaped groove, is turned over across one diagonal;
+    ``scan``: :func:`_scan_lookups` of it, when the caller holds it)."""
+    if ref_V is not None and scan is None:
+        scan = _scan_lookups(ref_V, ref_F)
     rot = np.stack([Q, np.roll(Q, -1, axis=1)])
     best = []
     for R in rot:
         T = np.concatenate([R[:, [0, 1, 2]], R[:, [0, 2, 3]]])
         a = mc.triangle_angles_deg(V, T).min(axis=1).reshape(2, -1).min(axis=0)
-        if ref_V is not None:
-            turned = np.einsum("ij,ij->i", mc.face_normals(V, T), reference_face_normals(V, T, ref_V, ref_F)) <= 0
+        if scan is not None:
+            turned = np.einsum("ij,ij->i", mc.face_normals(V, T), _facing(V, T, scan)) <= 0
             a = a - 180.0 * turned.reshape(2, -1).sum(axis=0)
         best.append(a)
     return np.where((best[1] > best[0])[:, None], rot[1], rot[0])
 
 
-def band_report(V, Q, ref_V, ref_F, S, base):
+def band_report(V, Q, ref_V, ref_F, S, base, scan=None):
     """Smallest angle (deg, quads as their two triangles) and flipped faces, named by ring and
-    spoke, of one eye's band quads."""
+    spoke, of one eye's band quads (``scan``: :func:`_scan_lookups` of the scan, when held)."""
     T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
     ang = mc.triangle_angles_deg(V, T).min(axis=1)
-    R = reference_face_normals(V, T, ref_V, ref_F)
+    R = _facing(V, T, _scan_lookups(ref_V, ref_F) if scan is None else scan)
     bad = np.einsum("ij,ij->i", mc.face_normals(V, T), R) <= 0
     where = sorted({(int((q - base) // S), int((q - base) % S)) for q in T[bad, 0]})
     return {"min_angle_deg": round(float(ang.min()), 3),
@@ -527,19 +542,38 @@ def band_report(V, Q, ref_V, ref_F, S, base):
             "flipped_at_ring_spoke": [list(w) for w in where]}
 
 
-def _zip_score(V, T, ref_V, ref_F):
-    """(-turned faces, smallest angle) of the triangles T: larger is better."""
-    R = reference_face_normals(V, T, ref_V, ref_F)
+def _scan_lookups(ref_V, ref_F):
+    """(closest, normals): :func:`mc.closest_points_on` and :func:`mc.surface_face_normals` of the
+    scan (ref_V, ref_F), looked up once for the cut's many judgements against it (each lookup
+    compares the crop's bytes with the cached tree's: 1-2 ms on a 150k-face crop, ~70 of them)."""
+    return mc.closest_points_on(ref_V, ref_F), mc.surface_face_normals(ref_V, ref_F)
+
+
+def _facing(V, T, scan):
+    """``reference_face_normals(V, T, ref_V, ref_F)`` with ``scan`` = :func:`_scan_lookups` of the
+    scan: the nearest scan face of T's own vertices (each point's answer is its own)."""
+    closest, normals = scan
+    ids = np.unique(T)
+    fi = np.zeros(len(V), dtype=np.int64)
+    fi[ids] = closest(np.asarray(V)[ids])[1]
+    return reference_face_normals(V, T, None, None, nearest_faces=fi, ref_normals=normals)
+
+
+def _zip_score(V, T, scan):
+    """(-turned faces, smallest angle) of the triangles T (``scan``: :func:`_scan_lookups`): larger
+    is better."""
+    R = _facing(V, T, scan)
     turned = int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, T), R) <= 0))
     return (-turned, float(mc.triangle_angles_deg(V, T).min()))
 
 
-def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
+def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None, scan=None):
     """Triangles between two closed polylines wound like :func:`pipeline.retopo.eye_rings._zip_strip`'s
     (``(inner[i], inner[i+1], outer[j])`` and ``(inner[i], outer[j+1], outer[j])``), the strip
     chosen by dynamic programming to have the largest smallest angle, starting at ``inner[0]`` -
     ``outer[j0]``. With ``ref_V, ref_F`` a triangle turned against the surface there (normal of
-    its centroid's closest face) counts as angle -1: never taken while another way exists."""
+    its centroid's closest face) counts as angle -1: never taken while another way exists
+    (``scan``: :func:`_scan_lookups` of them, when the caller holds it)."""
     N, M = len(inner), len(outer)
     A = Vi[np.arange(N + 1) % N]
     B = Vo[(j0 + np.arange(M + 1)) % M]
@@ -560,6 +594,7 @@ def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
     fi_ = np.arange(N + 1)[:, None] / N - np.arange(M + 1)[None, :] / M
     off = np.abs(fi_) > 0.25
     if ref_V is not None:
+        closest, normals = _scan_lookups(ref_V, ref_F) if scan is None else scan
         dots = []
         # a step is only taken from a cell within the quarter turn: the scan is asked about those
         # steps' triangles alone (each point's answer is its own), the others are never read
@@ -568,8 +603,8 @@ def zip_strip_maxmin(inner, outer, Vi, Vo, j0, ref_V=None, ref_F=None):
             P, Q, R = np.broadcast_arrays(P, Q, R)
             n = np.cross(Q - P, R - P).reshape(-1, 3)
             fi = np.zeros(want.size, dtype=np.int64)
-            fi[want.ravel()] = mc.closest_points(((P + Q + R) / 3.0)[want], ref_V, ref_F)[1]
-            dots.append(np.einsum("ij,ij->i", n, mc.surface_face_normals(ref_V, ref_F)[fi]).reshape(P.shape[:2]))
+            fi[want.ravel()] = closest(((P + Q + R) / 3.0)[want])[1]
+            dots.append(np.einsum("ij,ij->i", n, normals[fi]).reshape(P.shape[:2]))
         # the strips' winding against the surface's: whichever way most nearby candidates agree
         i_, j_ = np.meshgrid(np.arange(N + 1), np.arange(M + 1), indexing="ij")
         near = np.abs(i_ / N - j_ / M) < 0.5 / min(N, M)
@@ -629,7 +664,8 @@ def _oriented_border(F, loop):
     return loop if has_halfedge(F, loop[0], loop[1]) else loop[::-1]
 
 
-def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_iterations=4):
+def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_iterations=4, graph=None,
+                  ref_loops=None):
     """Replace the faces round each eyelid loop by a grid band (module doc).
 
     Parameters
@@ -640,6 +676,10 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         Ordered loop vertex ids (same S for every eye); their positions are ring 0.
     ref_V, ref_F : the dense crop (its openings are boundary loops)
     rings : int ; width : float (mm) ; param_mm : float (mm)
+    graph : sparse, optional
+        :func:`pipeline.retopo.eye_rings.edge_graph` of the dense crop, when already built.
+    ref_loops : list of (L,) int64, optional
+        ``mc.boundary_loops(ref_F)``, when already found.
 
     Returns
     -------
@@ -664,19 +704,23 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     S = len(loops[sides[0]])
     if any(len(loops[s]) != S for s in sides):
         raise ValueError("the eyelid loops have different lengths; a band needs one spoke count")
-    dense_loops = mc.boundary_loops(ref_F)
+    dense_loops = mc.boundary_loops(ref_F) if ref_loops is None else ref_loops
     holes = {}
     for side in sides:
         P = V[loops[side]]
         cost = [np.mean(project_to_polyline(ref_V[b][:: max(1, len(b) // 64)], P)[2]) for b in dense_loops]
         holes[side] = int(np.argmin(cost))
+    if graph is None:
+        from pipeline.retopo.eye_rings import edge_graph
+
+        graph = edge_graph(ref_V, ref_F)
     grids, infos, params = {}, {}, {}
     for side in sides:
         P = V[loops[side]]
         locked = np.concatenate([b for k, b in enumerate(dense_loops) if k != holes[side]])
         first = float(np.mean(np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)))
         G, info = build_band(P, ref_V, ref_F, dense_loops[holes[side]], rings, width, first,
-                             param_mm, locked)
+                             param_mm, locked, graph)
         G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F, info.pop("_outer_line"),
                         normal=info.pop("_normal"))
         params[side] = info.pop("_param")
@@ -687,8 +731,9 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     # The remesh's vertices inside each outer ring are the same for every margin tried
     inside = {side: _inside_ring(V, grids[side][-1], ref_V, params[side][0], params[side][2])
               for side in sides}
-    args = (V, F, loops, grids, inside, _band_quads(grids, rings, S, ref_V, ref_F), ref_V, ref_F, rings, S,
-            relax_iterations, {})
+    scan = _scan_lookups(ref_V, ref_F)
+    args = (V, F, loops, grids, inside, _band_quads(grids, rings, S, ref_V, ref_F, scan), ref_V, ref_F, rings,
+            S, relax_iterations, {}, scan)
     tried, best = {}, {}
     for near in CUT_NEAR:
         try:
@@ -718,11 +763,11 @@ def _inside_ring(V, ring, ref_V, Fr, X):
     return _inside_polygon(to_uv(V), to_uv(ring))
 
 
-def _band_quads(grids, rings, S, ref_V, ref_F):
+def _band_quads(grids, rings, S, ref_V, ref_F, scan):
     """Per side of ``grids``: the band's quads numbered as :func:`_cut_and_zip` numbers the band
     vertices (first, eye by eye), whether they are wound against the grid, and their
-    :func:`band_report`. The cut never moves a band vertex, so these are the same for every cut
-    margin tried."""
+    :func:`band_report` (``scan``: :func:`_scan_lookups` of ``ref_V, ref_F``). The cut never moves
+    a band vertex, so these are the same for every cut margin tried."""
     sides = list(grids)
     nb = (rings + 1) * S
     Vb = np.concatenate([grids[s].reshape(-1, 3) for s in sides])
@@ -731,30 +776,31 @@ def _band_quads(grids, rings, S, ref_V, ref_F):
         base = e * nb
         Q = grid_quads(base, rings, S)
         T = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
-        R = reference_face_normals(Vb, T, ref_V, ref_F)
+        R = _facing(Vb, T, scan)
         reverse = np.sum(np.einsum("ij,ij->i", mc.face_normals(Vb, T), R)) < 0
-        Q = split_quads(Vb, grid_quads(base, rings, S, reverse), ref_V, ref_F)
-        out[side] = (Q, reverse, band_report(Vb, Q, ref_V, ref_F, S, base))
+        Q = split_quads(Vb, grid_quads(base, rings, S, reverse), ref_V, ref_F, scan)
+        out[side] = (Q, reverse, band_report(Vb, Q, ref_V, ref_F, S, base, scan))
     return out
 
 
-def _zip_dp(inner, outer, V, j0, ref_V, ref_F, memo):
-    """``zip_strip_maxmin(inner, outer, V[inner], V[outer], j0, ref_V, ref_F)``, remembered in
+def _zip_dp(inner, outer, V, j0, ref_V, ref_F, memo, scan):
+    """``zip_strip_maxmin(inner, outer, V[inner], V[outer], j0, ref_V, ref_F, scan)``, remembered in
     ``memo`` by the two polylines' positions: its choices depend on nothing else (the ids only
     label the triangles)."""
     Vi, Vo = V[inner], V[outer]
     key = ("zip", int(j0), Vi.shape, Vo.shape, Vi.tobytes(), Vo.tobytes())
     if key not in memo:
         N = len(inner)
-        memo[key] = zip_strip_maxmin(np.arange(N), N + np.arange(len(outer)), Vi, Vo, j0, ref_V, ref_F)
+        memo[key] = zip_strip_maxmin(np.arange(N), N + np.arange(len(outer)), Vi, Vo, j0, ref_V, ref_F, scan)
     return np.concatenate([inner, outer])[memo[key]]
 
 
 def _cut_and_zip(V, F, loops, grids, inside_ring, band_quads, ref_V, ref_F, rings, S, relax_iterations,
-                 memo, near):
+                 memo, scan, near):
     """:func:`add_eye_bands`' cut, renumbering, zip and border relaxation for the grids ``grids``
     (``inside_ring``: side -> :func:`_inside_ring` of the remesh's vertices and the outer ring;
-    ``band_quads``: :func:`_band_quads`; ``memo``: a dict the margins tried share);
+    ``band_quads``: :func:`_band_quads`; ``memo``: a dict the margins tried share; ``scan``:
+    :func:`_scan_lookups` of ``ref_V, ref_F``);
     ``near``: side -> the margin (x the outer ring's mean edge) within which remesh vertices by
     the outer ring are cut away too. Returns V2, F2, Q, band_ids, per-side figures and per-side
     zip scores (:func:`_zip_score`)."""
@@ -831,15 +877,15 @@ def _cut_and_zip(V, F, loops, grids, inside_ring, band_quads, ref_V, ref_F, ring
     # then the largest smallest angle, where it beats the greedy one
     for e, (o, B, j0) in enumerate(zips):
         zt = tris[1 + e]
-        dp = _zip_dp(o, B, V2, j0, ref_V, ref_F, memo)
-        if _zip_score(V2, dp, ref_V, ref_F) > _zip_score(V2, zt, ref_V, ref_F):
+        dp = _zip_dp(o, B, V2, j0, ref_V, ref_F, memo, scan)
+        if _zip_score(V2, dp, scan) > _zip_score(V2, zt, scan):
             tris[1 + e] = dp
     F2 = np.concatenate(tris)
     info, scores = {}, {}
     for e, side in enumerate(sides):
         info[side] = dict(band_quads[side][2])
         zt = tris[1 + e]
-        scores[side] = _zip_score(V2, zt, ref_V, ref_F)
+        scores[side] = _zip_score(V2, zt, scan)
         info[side].update(zip_triangles=int(len(zt)), border_vertices=int(len(zips[e][1])),
                           zip_min_angle_deg=round(scores[side][1], 3), zip_flipped_faces=-scores[side][0])
     return V2, F2, Q, band_ids, info, scores

@@ -62,34 +62,64 @@ def at_arclength(s, Q, t):
     return Q[j] + u[:, None] * (Q[j + 1] - Q[j])
 
 
+def _collapse_at(tm: TriMesh, loop, el, i, refused, touched, step) -> bool:
+    """Collapse loop vertex ``i`` into its nearer neighbour (the other when refused); ``el``: the
+    loop's edge lengths, ``el[i]`` from vertex ``i`` to the next. Returns False when both are refused
+    (the mesh is then unchanged).
+
+    A collapse of ``a`` into ``b`` reads only the faces round ``a`` and ``b``: ``refused`` holds
+    (a, b) -> the step it was refused at, and while neither has been touched since (``touched``:
+    vertex -> the last step a collapse changed one of its faces) it is refused again unasked.
+    On success every corner of ``a``'s old faces is marked touched at ``step``."""
+    k = len(loop)
+    prev_i, next_i = (i - 1) % k, (i + 1) % k
+    a = loop[i]
+    for j in ((next_i, prev_i) if el[i] <= el[prev_i] else (prev_i, next_i)):
+        b = loop[j]
+        when = refused.get((a, b))
+        if when is not None and touched.get(a, -1) < when and touched.get(b, -1) < when:
+            continue
+        ring = {v for fi in tm.vf[a] for v in tm.F[fi]}
+        if tm.collapse(a, b):
+            touched.update(dict.fromkeys(ring, step))
+            return True
+        refused[(a, b)] = step
+    return False
+
+
 def resample_loop(tm: TriMesh, loop, n, curve=None):
-    """Collapse/split boundary edges until the loop has ``n`` vertices; returns the new loop list."""
+    """Collapse/split boundary edges until the loop has ``n`` vertices; returns the new loop list.
+
+    Collapses go cheapest vertex first (the sum of its two edges' lengths), in ``np.argsort``'s
+    order of the costs, each in turn until one is allowed."""
     loop = list(map(int, loop))
     guard = 0
-    # a collapse moves no vertex: the positions are gathered once, not per collapse (the crop
-    # border's coarsening is a thousand of them)
-    Vs = np.array(tm.V) if len(loop) > n else None
+    if len(loop) > n:
+        # a collapse moves no vertex (the crop border's coarsening is a thousand of them): the
+        # edge lengths are kept from one to the next, the one new edge measured alone (a row's
+        # norm is the same bits alone or among others), and the cheapest vertex is taken by argmin;
+        # the whole argsort, whose order among equal costs is its own, only runs when that
+        # minimum is tied or refused. A refused vertex (a crop corner) stays cheap and was asked
+        # again at every step: its refusal is kept until a collapse touches its faces
+        Vs = np.array(tm.V)
+        ids = np.asarray(loop, dtype=np.int64)
+        el = np.linalg.norm(Vs[ids] - Vs[np.roll(ids, -1)], axis=1)     # edge i -> i+1
+        refused, touched = {}, {}
     while len(loop) > n and guard < 100000:
         guard += 1
         k = len(loop)
-        P = Vs[loop]
-        el = np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)   # edge i -> i+1
         cost = el + np.roll(el, 1)
-        done = False
-        for i in np.argsort(cost):
-            a = loop[i]
-            prev_i, next_i = (i - 1) % k, (i + 1) % k
-            # merge into the nearer neighbour
-            order = (next_i, prev_i) if el[i] <= el[prev_i] else (prev_i, next_i)
-            for j in order:
-                if tm.collapse(a, loop[j]):
-                    loop.pop(i)
-                    done = True
-                    break
-            if done:
+        i = int(np.argmin(cost))
+        first = i if np.count_nonzero(cost == cost[i]) == 1 else -1
+        if first < 0 or not _collapse_at(tm, loop, el, i, refused, touched, guard):
+            i = next((c for c in np.argsort(cost).tolist()
+                      if c != first and _collapse_at(tm, loop, el, c, refused, touched, guard)), None)
+            if i is None:
                 break
-        if not done:
-            break
+        a, b = loop[(i - 1) % k], loop[(i + 1) % k]
+        loop.pop(i)
+        el = np.delete(el, i)
+        el[(i - 1) % (k - 1)] = np.linalg.norm(Vs[[a]] - Vs[[b]], axis=1)[0]
     while len(loop) < n:
         k = len(loop)
         P = np.array([tm.V[v] for v in loop])

@@ -250,7 +250,7 @@ def cut_loop(V, F, loop):
     return V2, F2
 
 
-def cut_handles(V, F, openings, radius, max_loop_mm=np.inf, max_cuts=8):
+def cut_handles(V, F, openings, radius, max_loop_mm=np.inf, max_cuts=8, graph=None):
     """Cut the handles of (V, F) within ``radius`` mm of each opening (:func:`cut_loop` along
     :func:`shortest_handle_loop`) until none is left there, or ``max_cuts``. A handle whose
     shortest loop found is longer than ``max_loop_mm`` is left (and the band refuses it, naming
@@ -261,6 +261,7 @@ def cut_handles(V, F, openings, radius, max_loop_mm=np.inf, max_cuts=8):
     V : (n, 3) float64, F : (m, 3) int64
     openings : dict of str -> (L,) int64   each eye's opening, a boundary loop of F
     radius : float   mm along the edges from the opening
+    graph : sparse (n, n), optional   :func:`pipeline.retopo.eye_rings.edge_graph` of (V, F)
 
     Returns
     -------
@@ -268,13 +269,15 @@ def cut_handles(V, F, openings, radius, max_loop_mm=np.inf, max_cuts=8):
     cuts : list of dict   per cut: side, the loop's centre (mm, the mesh's frame), its length and
         its distance from the opening along the edges (mm), the region's genus before
     """
-    from pipeline.retopo.eye_rings import edge_graph_distance
+    from pipeline.retopo.eye_rings import edge_graph, edge_graph_distance
 
     cuts = []
     for side, hole in openings.items():
         hole = np.asarray(hole, dtype=np.int64)
         while len(cuts) < max_cuts:
-            d = edge_graph_distance(V, F, hole, 1.5 * radius)
+            if graph is None:
+                graph = edge_graph(V, F)
+            d = edge_graph_distance(V, F, hole, 1.5 * radius, graph)
             Fr = F[(d[F] < radius).all(axis=1)]
             if not len(Fr):
                 break
@@ -294,4 +297,5 @@ def cut_handles(V, F, openings, radius, max_loop_mm=np.inf, max_cuts=8):
                          "loop_mm": round(loop_length(V, loop), 2),
                          "from_opening_mm": round(float(d[loop].min()), 2), "genus_before": int(genus)})
             V, F = done
+            graph = None
     return V, F, cuts

@@ -44,7 +44,9 @@ fails (ict_neutral's left eye), so it stays off by default.
 
 from __future__ import annotations
 
+import gc
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
@@ -54,7 +56,7 @@ from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry import meshtopo
 from pipeline.retopo.eye_band import add_eye_bands
 from pipeline.retopo.handles import cut_handles
-from pipeline.retopo.eye_rings import add_eye_rings
+from pipeline.retopo.eye_rings import add_eye_rings, edge_graph
 from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
                                           project_to_polyline, resample_loop, smooth_margin)
 from pipeline.geometry.flips import (collapse_flipped, collapse_short_edges, count_flipped, delaunay_flips, flip_slivers, mirror_flipped,
@@ -156,15 +158,22 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
     _, lab = connected_components(A, directed=False)
     want = np.unique(lab[loop_vs])
     Fk = Fk[np.isin(lab[Fk[:, 0]], want)]
-    vmap = np.unique(Fk)
+    used = np.zeros(n, dtype=bool)
+    used[Fk.ravel()] = True
+    vmap = np.flatnonzero(used)         # np.unique(Fk) without sorting its 0.5M corners
     remap = -np.ones(n, dtype=np.int64)
     remap[vmap] = np.arange(len(vmap))
     Vc, Fc = V[vmap], remap[Fk]
     # weld coincident vertices (zero-area faces then have a repeated index and are dropped),
-    # so decimation sees one closed surface instead of pinholes
-    _, first, inv = np.unique(Vc, axis=0, return_index=True, return_inverse=True)
-    if len(first) < len(Vc):
-        rep = first[inv.ravel()]
+    # so decimation sees one closed surface instead of pinholes. Each goes to the lowest id of
+    # its coordinates (np.unique(Vc, axis=0)'s first index, without its sort of rows as records):
+    # a stable sort by x, y, z puts equal rows together in id order
+    order = np.lexsort(Vc.T[::-1])
+    Vs = Vc[order]
+    start = np.r_[True, (Vs[1:] != Vs[:-1]).any(axis=1)]
+    if not start.all():
+        rep = np.empty(len(Vc), dtype=np.int64)
+        rep[order] = order[start][np.cumsum(start) - 1]
         Fc = rep[Fc]
         Fc = Fc[(Fc[:, 0] != Fc[:, 1]) & (Fc[:, 1] != Fc[:, 2]) & (Fc[:, 0] != Fc[:, 2])]
     # bow-ties: a vertex whose faces form two fans touching only there, where two boundary loops
@@ -185,7 +194,7 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
     return Vc, Fc, vmap
 
 
-def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float) -> list:
+def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float, loops=None) -> list:
     """The crop's boundary loops that are holes of the scan itself: neither an eye opening (a loop
     through ``eye_vertices``, crop ids) nor made by the crop (a loop through a vertex that lost a
     face to it), with a perimeter of at most ``max_perimeter_mm``.
@@ -196,6 +205,7 @@ def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float) -> list:
     F : (m, 3) int64   the dense head's faces (before the crop)
     eye_vertices : (k,) int64   the eye loops' vertices in crop ids
     max_perimeter_mm : float
+    loops : list of (L,) int64, optional   ``mc.boundary_loops(Fc)`` when already found
 
     Returns
     -------
@@ -206,7 +216,7 @@ def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float) -> list:
     eye = np.zeros(len(Vc), dtype=bool)
     eye[np.asarray(eye_vertices, dtype=np.int64)] = True
     holes = []
-    for lp in mc.boundary_loops(Fc):
+    for lp in mc.boundary_loops(Fc) if loops is None else loops:
         if eye[lp].any() or lost[vmap[lp]].any():
             continue
         P = Vc[lp]
@@ -381,17 +391,21 @@ def _isotropic(V, F, target_len, iterations):
 def _flip_counter(ref_V, ref_F):
     """:func:`count_flipped` against (ref_V, ref_F), remembering each vertex set's nearest scan
     faces: the repairs ask again and again about the same positions (unchanged by a pass that
-    found nothing to do, or with two candidate face sets), and that query is the count's cost."""
+    found nothing to do, or with two candidate face sets), and that query is the count's cost.
+    The scan's tree and face normals are looked up once (each lookup compares the crop's bytes
+    with the cached tree's)."""
     import hashlib
 
     nearest = {}
+    closest, normals = mc.closest_points_on(ref_V, ref_F), mc.surface_face_normals(ref_V, ref_F)
 
     def count(V, F):
         V = np.ascontiguousarray(V, dtype=np.float64)
         key = (V.shape, hashlib.blake2b(memoryview(V).cast("B"), digest_size=16).digest())
         if key not in nearest:
-            nearest[key] = mc.closest_points(V, ref_V, ref_F)[1]
-        return count_flipped(V, F, ref_V, ref_F, nearest_faces=nearest[key])
+            nearest[key] = closest(V)[1]
+        R = reference_face_normals(V, F, ref_V, ref_F, nearest_faces=nearest[key], ref_normals=normals)
+        return int(np.count_nonzero(np.einsum("ij,ij->i", mc.face_normals(V, F), R) <= 0))
 
     return count
 
@@ -413,6 +427,22 @@ def band_zone(V, F, loops, width):
     return near, near[np.asarray(F)].any(axis=1)
 
 
+@contextmanager
+def _collector_paused():
+    """Python's cycle collector off for the block (as it was after). The repairs and the band
+    hold the remesh as Python lists and sets (TriMesh: one list per face, one set per vertex,
+    built nine times) and allocate them by the hundred thousand; each full collection walked
+    them and every imported module and freed nothing: 0.3-0.5 CPU-s of the stage on the 1.4M
+    head. Reference counting still frees everything the step drops."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     """Crop the dense head to the eye region and remesh it (see module docstring).
 
@@ -429,6 +459,11 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     -------
     RetopoResult
     """
+    with _collector_paused():
+        return _retopologize(V, F, eyes, settings)
+
+
+def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     s = settings
     t0 = time.perf_counter()
     timings = {}
@@ -447,25 +482,33 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
                                                         s.margin_smooth_mm,
                                                         s.margin_smooth_max_move_mm)
     holes = []
+    cbl = graph = None          # the crop's boundary loops and edge graph, while its faces are these
     if s.fill_holes_mm > 0:
         # left open, a scanner's hole in the skin stays a hole of the asset (a black spot in
         # every render); filled here it is remeshed like the skin round it, and the bake's rays
         # over it miss the scan and take the rim's colour at about zero displacement
         # every crop copy of a loop vertex (a bow-tie on the opening has one per fan)
         eye_vs = np.flatnonzero(np.isin(vmap, np.concatenate([np.asarray(e.loop_indices) for e in eyes.values()])))
-        holes = scan_holes(Vc, Fc, vmap, F, eye_vs, s.fill_holes_mm)
-        Vc, Fc = fill_holes_smooth(Vc, Fc, holes)
+        cbl = mc.boundary_loops(Fc)
+        holes = scan_holes(Vc, Fc, vmap, F, eye_vs, s.fill_holes_mm, cbl)
+        if holes:
+            Vc, Fc = fill_holes_smooth(Vc, Fc, holes)
+            cbl = None
     handles_cut = []
     if s.band == "grid":
         # a handle within the band's reach leaves it no annulus to be built on (id339_laser's
         # crop has a tunnel 10 mm from its left opening): cut, the region is a disk with a hole
-        cbl = mc.boundary_loops(Fc)
+        cbl = mc.boundary_loops(Fc) if cbl is None else cbl
         openings = {}
         for side, e in eyes.items():
             li = set(np.flatnonzero(np.isin(vmap, np.asarray(e.loop_indices))).tolist())
             openings[side] = next((b for b in cbl if li & set(map(int, b))), None)
         openings = {k: v for k, v in openings.items() if v is not None}
-        Vc, Fc, handles_cut = cut_handles(Vc, Fc, openings, s.band_param_mm, max_loop_mm=s.band_width_mm)
+        graph = edge_graph(Vc, Fc)
+        Vc, Fc, handles_cut = cut_handles(Vc, Fc, openings, s.band_param_mm, max_loop_mm=s.band_width_mm,
+                                          graph=graph)
+        if handles_cut:
+            cbl = graph = None
     timings["crop_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -489,7 +532,7 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     # that opening edges are not split into fans of slivers at the loop (at 50-53 of 64, the
     # tests' 100k-face synthetic head, the splits stay single and subdividing moved its medial
     # canthus behind the lid skin in a front view)
-    cbl = mc.boundary_loops(Fc)
+    cbl = mc.boundary_loops(Fc) if cbl is None else cbl
     eye_loop_lengths = []
     for side, e in eyes.items():
         li = set(np.flatnonzero(np.isin(vmap, np.asarray(e.loop_indices))).tolist())
@@ -623,7 +666,8 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         # built, not repaired: the loops' neighbourhood that the repairs above worked on is cut
         # away and replaced by the grid (eye_band module doc)
         Vn, Fn, ring_quads, band_ids, band_info = add_eye_bands(
-            Vn, Fn, loops, Vc, Fc, s.band_rings, s.band_width_mm, s.band_param_mm, s.relax_iterations)
+            Vn, Fn, loops, Vc, Fc, s.band_rings, s.band_width_mm, s.band_param_mm, s.relax_iterations,
+            graph, cbl)
         loops = {k: v[0].copy() for k, v in band_ids.items()}
         ring_info = {}
     else:
