@@ -55,5 +55,25 @@ def main(argv) -> StageResult:
     return result.result.at(args.metrics or default_metrics_path(out))
 
 
+def _keep_freed_memory() -> None:
+    """glibc's malloc keeps the memory this process frees for its next arrays instead of handing
+    it back to the kernel. Left to itself it maps each large array afresh and returns it when
+    freed (or trims the heap top), and the next one's pages are faulted in and zeroed again:
+    ~128k page faults and ~0.45 s of system time on the 1.4M-triangle chain's head, against ~92k
+    and ~0.3 s (the peak memory ~18 MiB higher). Both limits are needed: setting either one alone
+    turns glibc's adaptive threshold off and faulted more. Only the process's own arrays'
+    placement changes, never a value. Elsewhere (another libc) nothing is done."""
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return
+    M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+    mallopt(M_MMAP_THRESHOLD, 1 << 30)
+    mallopt(M_TRIM_THRESHOLD, 1 << 30)
+
+
 if __name__ == "__main__":
+    _keep_freed_memory()         # the stage's own process only, not a caller that imports it
     stage_exit(main)

@@ -25,19 +25,27 @@ def reference_face_normals(V, F, ref_V, ref_F, nearest_faces=None, ref_normals=N
     ``ref_normals``: ``mc.surface_face_normals(ref_V, ref_F)``, when already looked up)."""
     F = np.asarray(F, dtype=np.int64)
     fi = nearest_faces
+    on = None
     if fi is None:
         # only F's own vertices are looked up: the band's quads and zip strips are judged against
         # a mesh of thousands of vertices (each point's answer is its own: the same faces)
         used = np.zeros(len(V), dtype=bool)
         used[F.ravel()] = True
-        if used.all():
-            fi = mc.closest_points(V, ref_V, ref_F)[1]
+        ids = None if used.all() else np.flatnonzero(used)
+        P = V if ids is None else np.asarray(V)[ids]
+        if len(np.asarray(P).reshape(-1, 3)):
+            # the tree and the normals from one lookup of the scan
+            on = mc.closest_points_on(ref_V, ref_F)
+            found = on(P)[1]
         else:
-            ids = np.flatnonzero(used)
+            found = mc.closest_points(P, ref_V, ref_F)[1]
+        if ids is None:
+            fi = found
+        else:
             fi = np.zeros(len(V), dtype=np.int64)
-            fi[ids] = mc.closest_points(np.asarray(V)[ids], ref_V, ref_F)[1]
+            fi[ids] = found
     if ref_normals is None:
-        ref_normals = mc.surface_face_normals(ref_V, ref_F)
+        ref_normals = mc.surface_face_normals(ref_V, ref_F) if on is None else on.face_normals()
     vn = ref_normals[fi]
     n = vn[F].sum(axis=1)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
@@ -90,7 +98,7 @@ def relax(V, F, fixed, ref_V, ref_F, iterations=4, step=0.5, min_dot=0.3, memo=N
     deg = np.asarray(A.sum(axis=1)).ravel()
     near = None
     closest = mc.closest_points_on(ref_V, ref_F)        # the scan's tree looked up once, not per pass
-    ref_normals = mc.surface_face_normals(ref_V, ref_F)
+    ref_normals = closest.face_normals()
     for _ in range(iterations):
         N = mc.vertex_normals(V, F)
         if near is None:                    # later passes: the faces the projection below landed on

@@ -460,12 +460,16 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     s_on = s0[0] + np.concatenate([[0.0], np.cumsum(np.mod(np.diff(s0), line_len))])
     G[R] = closest(at_arclength(line_s, line_Q, s_on))[2]
     _, fcur, _ = closest(G[1:R].reshape(-1, 3))      # faces under the nodes
-    fn = mc.surface_face_normals(ref_V, ref_F)       # the scan's face normals, looked up once
+    fn = closest.face_normals()
+    # np.roll's neighbours as index arrays, built once: the same copies, without its ~10 us of
+    # argument handling per call (eight a sweep, 250 sweeps an eye)
+    ip = np.roll(np.arange(G.shape[1]), 1)
+    inx = np.roll(np.arange(G.shape[1]), -1)
     for _ in range(iterations):
         before = G.copy()
-        tau = np.linalg.norm(np.roll(G, -1, axis=1) - G, axis=2).mean(axis=1)
+        tau = np.linalg.norm(G[:, inx] - G, axis=2).mean(axis=1)
         b = 1.0 / tau[1:R] ** 2
-        prv, nxt = np.roll(G[1:R], 1, axis=1), np.roll(G[1:R], -1, axis=1)
+        prv, nxt = G[1:R, ip], G[1:R, inx]
         t = _unit(nxt - prv)
         lat = 2.0 * (G[1:R] + np.einsum("rsk,rsk->rs", 0.5 * (prv + nxt) - G[1:R], t)[..., None] * t)
         new = (am[:, None, None] * G[:R - 1] + ap[:, None, None] * G[2:] + b[:, None, None] * lat) \
@@ -480,10 +484,10 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
         G[1:R] = C.reshape(P.shape)
         # the outer ring's nodes: along the line by the step's component along the ring
         aR, bR = 1.0 / h[-1] ** 2, 1.0 / tau[R] ** 2
-        newR = (aR * G[R - 1] + bR * (np.roll(G[R], 1, axis=0) + np.roll(G[R], -1, axis=0))) / (aR + 2.0 * bR)
-        tR = _unit(np.roll(G[R], -1, axis=0) - np.roll(G[R], 1, axis=0))
+        newR = (aR * G[R - 1] + bR * (G[R, ip] + G[R, inx])) / (aR + 2.0 * bR)
+        tR = _unit(G[R, inx] - G[R, ip])
         gap = np.diff(np.append(s_on, s_on[0] + line_len))          # to the next node along the line
-        s_on = s_on + np.clip(step * np.einsum("ij,ij->i", newR - G[R], tR), -0.45 * np.roll(gap, 1), 0.45 * gap)
+        s_on = s_on + np.clip(step * np.einsum("ij,ij->i", newR - G[R], tR), -0.45 * gap[ip], 0.45 * gap)
         G[R] = closest(at_arclength(line_s, line_Q, s_on))[2]
         if np.abs(G - before).max() < tol:
             break
@@ -546,7 +550,8 @@ def _scan_lookups(ref_V, ref_F):
     """(closest, normals): :func:`mc.closest_points_on` and :func:`mc.surface_face_normals` of the
     scan (ref_V, ref_F), looked up once for the cut's many judgements against it (each lookup
     compares the crop's bytes with the cached tree's: 1-2 ms on a 150k-face crop, ~70 of them)."""
-    return mc.closest_points_on(ref_V, ref_F), mc.surface_face_normals(ref_V, ref_F)
+    closest = mc.closest_points_on(ref_V, ref_F)
+    return closest, closest.face_normals()
 
 
 def _facing(V, T, scan):

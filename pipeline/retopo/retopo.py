@@ -397,7 +397,8 @@ def _flip_counter(ref_V, ref_F):
     import hashlib
 
     nearest = {}
-    closest, normals = mc.closest_points_on(ref_V, ref_F), mc.surface_face_normals(ref_V, ref_F)
+    closest = mc.closest_points_on(ref_V, ref_F)
+    normals = closest.face_normals()
 
     def count(V, F):
         V = np.ascontiguousarray(V, dtype=np.float64)
