@@ -145,16 +145,14 @@ def _hash_columns(*cols) -> np.ndarray:
     return out.view(np.int64)
 
 
-def _keys_all_distinct(key) -> bool:
-    """Whether the (n,) int64 ``key`` holds no value twice (sorts ``key`` in place).
+def _keys_all_distinct(key, kind=None) -> bool:
+    """Whether the (n,) int64 ``key`` holds no value twice (sorts ``key`` in place, by ``kind``).
 
     Distinct hashes prove distinct rows; equal ones prove nothing (the caller then takes its
     exact path), so True is always right.
     """
-    key.sort()
+    key.sort(kind=kind)
     return not np.any(key[1:] == key[:-1])
-
-
 
 
 def _blockwise(fn, F, dtype=np.float64) -> np.ndarray:
@@ -260,8 +258,7 @@ def _faces_all_distinct(F) -> bool:
         lo <<= np.int64(shift)
         np.bitwise_or(lo, low, out=key[i:i + _BLOCK])
     # a scan's faces come nearly in order of their lowest vertex, runs that timsort goes through
-    key.sort(kind="stable")
-    return not np.any(key[1:] == key[:-1])
+    return _keys_all_distinct(key, kind="stable")
 
 
 def closest_point_on_triangles(A, B, C, p) -> np.ndarray:
