@@ -134,3 +134,45 @@ def test_the_distance_outside_the_priors_margin():
     assert _outside_margin([0.0, 0.0, 7.0], front) == pytest.approx(-5.0)
     assert _outside_margin([13.0, 0.0, -3.0], front) == pytest.approx(3.0)
     assert _outside_margin([0.0, 0.0, 0.0], {"margin": None}) is None and _outside_margin([0, 0, 0], None) is None
+
+
+@pytest.mark.slow
+def test_a_cut_round_part_of_an_eye_is_cut_again_behind_the_priors_opening(head, monkeypatch):
+    """When the first cut's judging finds a loop narrower than any fissure with no iris in it
+    (``NarrowOpening``, raised here for the right eye), that eye is placed again behind the
+    opening the eye-region prior outlines, doubted and saying why; the left eye keeps its
+    placement and the search runs once."""
+    import pipeline.placement.place as place
+    import pipeline.remove_eyeballs.remove_eyeballs as re_mod
+    from pipeline.placement.prior import EyeRegionPrior
+
+    h, _ = head
+    real_judge, real_search, calls = place.judge_pair, place.place_eyes, {"judge": 0, "search": 0}
+
+    def judge(*a, **k):
+        calls["judge"] += 1
+        if calls["judge"] == 1:
+            raise place.NarrowOpening("narrow.ply", "right eye: self-check opening_wide: the eyelid loop "
+                                      "spans 11.0 mm, narrower than any eye's fissure", "right")
+        return real_judge(*a, **k)
+
+    def search(*a, **k):
+        calls["search"] += 1
+        return real_search(*a, **k)
+
+    monkeypatch.setattr(re_mod, "judge_pair", judge)
+    monkeypatch.setattr(place, "place_eyes", search)
+    mesh = {"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}
+    res = remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="narrow.ply",
+                          prior=EyeRegionPrior.load().register)
+    assert calls == {"judge": 2, "search": 1}
+    left, right = res.eyes["left"].to_doc(), res.eyes["right"].to_doc()
+    assert left["method"] == "geometry" and right["method"] == "coarse"
+    assert ("the cut round the eye the geometry found spans 11.0 mm with no iris in it: placed behind "
+            "the opening the eye-region prior outlines") in right["doubts"]
+    lt, _ = truth_limbus(h.ground_truth["eyes"]["right"])
+    assert np.linalg.norm(np.asarray(right["limbus"]["center"]) - lt) <= 2 * right["uncertainty"]["limbus_mm"]
+    # without the prior there is no other opening to cut: the refusal stands
+    calls["judge"] = 0
+    with pytest.raises(place.NarrowOpening):
+        remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="narrow.ply", prior=None)

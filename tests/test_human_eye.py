@@ -112,6 +112,15 @@ def test_a_mostly_hidden_iris_on_an_unsure_axis_falls_back_to_the_opening():
     # at the doubt level itself the axis is sure enough to believe the look
     assert not human_eye.iris_hidden(iris, 0.05, 2.0, 2.0)
     assert human_eye.iris_hidden(iris, 0.05, 2.01, 2.0)
+    # a sure axis on a limbus the scan is unsure of (id303_down's right eye: +-0.84 mm, +-1.5 deg,
+    # turned 47 deg off) believes no look either
+    assert not human_eye.iris_hidden(iris, 0.05, 1.5, 2.0, 0.5, 0.5)
+    assert human_eye.iris_hidden(iris, 0.05, 1.5, 2.0, 0.51, 0.5)
+    loose = human_eye.asset_eyes({"left": _scan_eye(lc, up, L, prior_axis=[0, 0, 1], sigma=(0.84, 1.5)),
+                                  "right": _scan_eye(lc, up, L, sigma=(0.3, 1.5))},
+                                 eye_size="human", eyeball=EyeballParams())
+    assert loose["left"]["limbus"]["source"] == "opening" and "limbus +-0.84 mm" in loose["left"]["doubts"][0]
+    assert loose["right"]["limbus"]["source"] == "geometry"
 
 
 @pytest.mark.slow
@@ -138,3 +147,30 @@ def test_unequal_scan_spheres_give_one_human_size_or_the_fitted_ones():
         e = fitted.eyes[s].to_doc()
         assert e["radius"] == pytest.approx(e["scan_sphere"]["radius"], abs=1e-5)
         assert abs(e["radius"] - gt[s]["radius"]) <= 0.5
+
+
+def test_an_eye_placed_from_its_opening_is_set_back_until_its_lids_may_rest_on_it():
+    """An almond margin 11 mm in front of a 12 mm eye's centre whose limbus the opening put
+    10.5 mm in front of it: the lids lie inside that eye deeper than ``loop_on_eye`` allows, so
+    it is set back along its axis by the smallest step at which they do not, and the shift
+    joins its sigmas and a doubt."""
+    from pipeline.placement import checks as eye_checks
+    from pipeline.placement.place import SEAT_STEP_MM, loop_on_asset_eye, seat_behind_loop
+
+    L = _almond(z=11.0, a=11.0, b=4.0)
+    lim = eye_checks.limits_for(0.5)
+    eye = {"center": np.array([0.0, 0.0, 0.5]), "radius": 12.0, "forward": np.array([0.0, 0.0, 1.0]),
+           "limbus": {"center": np.array([0.0, 0.0, 10.52])},
+           "uncertainty": {"limbus_mm": 4.0, "center_mm": 5.0}, "doubts": []}
+    before = loop_on_asset_eye(L, eye, EyeballParams(), lim, 32)["value"]
+    assert before > lim.max_loop_off_mm + 0.2
+    shift = seat_behind_loop(eye, L, EyeballParams(), lim, 32)
+    assert 0.0 < loop_on_asset_eye(L, eye, EyeballParams(), lim, 32)["value"] <= lim.max_loop_off_mm
+    short = dict(eye, center=eye["center"] + SEAT_STEP_MM * eye["forward"])
+    assert loop_on_asset_eye(L, short, EyeballParams(), lim, 32)["value"] > lim.max_loop_off_mm
+    assert np.allclose(eye["center"], [0.0, 0.0, 0.5 - shift])
+    assert np.allclose(eye["limbus"]["center"], [0.0, 0.0, 10.52 - shift])
+    assert eye["uncertainty"]["limbus_mm"] == pytest.approx(math.hypot(4.0, shift))
+    assert f"set back {shift:.2f} mm" in eye["doubts"][0]
+    # an eye its lids may rest on stays where it is
+    assert seat_behind_loop(eye, L, EyeballParams(), lim, 32) == 0.0 and len(eye["doubts"]) == 1

@@ -129,7 +129,8 @@ def iris_in_opening(loop_points, limbus_center, axis, iris_radius: float, n: int
 
 
 def iris_hidden(iris: dict, min_visible: float, sigma_axis_deg: float = 0.0,
-                doubt_axis_sigma_deg: float = math.inf) -> bool:
+                doubt_axis_sigma_deg: float = math.inf, sigma_limbus_mm: float = 0.0,
+                doubt_limbus_sigma_mm: float = math.inf) -> bool:
     """Whether an eye's iris at rest (:func:`iris_in_opening`) is no iris the scan shows: less
     than ``min_visible`` of it inside the opening, or its centre further from the opening's
     centroid than the opening's half-width (turned past a corner). An iris centre outside the
@@ -141,8 +142,13 @@ def iris_hidden(iris: dict, min_visible: float, sigma_axis_deg: float = 0.0,
     shown (under ``UNSURE_HIDDEN_SHARE`` inside) on an axis less sure than
     ``doubt_axis_sigma_deg`` is hidden too. A scanned subject looks at the scanner, and a scan
     that cannot tell the turn does not outweigh that (a half-blinked held-out head's eye placed
-    34 deg off at +-17 deg, 12 % of its iris inside; ICT's own eye turned 39 deg at +-16 deg)."""
-    unsure = iris["visible_share"] < UNSURE_HIDDEN_SHARE and sigma_axis_deg > doubt_axis_sigma_deg
+    34 deg off at +-17 deg, 12 % of its iris inside; ICT's own eye turned 39 deg at +-16 deg).
+    Nor from one unsure of where its limbus lies (``sigma_limbus_mm`` over
+    ``doubt_limbus_sigma_mm``): a sphere of 18.6 +- 2.9 mm on a held-out head looking down
+    (`id303_down`'s right eye) turned its iris 17 deg up with a +-1.5 deg axis, 47 deg off,
+    42 % of the iris inside and its centre under the upper lid."""
+    unsure = iris["visible_share"] < UNSURE_HIDDEN_SHARE and (sigma_axis_deg > doubt_axis_sigma_deg
+                                                              or sigma_limbus_mm > doubt_limbus_sigma_mm)
     return (iris["visible_share"] < min_visible or unsure
             or iris["offset_mm"] > iris["opening_half_width_mm"])
 
@@ -211,17 +217,17 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         sl, sa, source = float(e["sigma_limbus_mm"]), float(e["sigma_axis_deg"]), e["source"]
         doubts = []
         iris = iris_in_opening(e["loop_points"], lc, ax, ir)
-        if iris_hidden(iris, min_iris_visible, sa, doubt_axis_sigma_deg):
+        if iris_hidden(iris, min_iris_visible, sa, doubt_axis_sigma_deg, sl, doubt_limbus_sigma_mm):
             # an iris behind a lid or in a corner at rest is no eye a scan shows: the opening
             # and the eye region's forward place it instead (the 57 deg turn into the nose)
-            was, was_sa = iris, sa
+            was, was_sl, was_sa = iris, sl, sa
             ax = _opening_axis(e["loop_points"], e.get("prior_axis"), ax)
             lc = opening_limbus(e["loop_points"], ax)
             sl, sa, source = OPENING_SIGMA_MM, OPENING_AXIS_SIGMA_DEG, "opening"
             iris = iris_in_opening(e["loop_points"], lc, ax, ir)
             doubts.append(f"the placed iris lay {'outside' if not was['center_inside'] else 'mostly behind'} "
                           f"the lid opening at rest ({100 * was['visible_share']:.0f} % of it inside, "
-                          f"axis +-{was_sa:.1f} deg): "
+                          f"limbus +-{was_sl:.2f} mm, axis +-{was_sa:.1f} deg): "
                           f"placed from the opening instead, iris centred, axis along the eye "
                           f"region's forward")
         d = limbus_depth(placed)

@@ -50,6 +50,17 @@ class CoarseEye(ScanError):
         self.region = region
 
 
+class NarrowOpening(ScanError):
+    """The cut round the eye the geometry found spans less than any eye's fissure and no iris
+    shows in it (``opening_wide``): it went round part of an eye. ``side``: which eye; the stage
+    places it again behind the opening the eye-region prior outlines (``place_pair``'s
+    ``coarse``)."""
+
+    def __init__(self, path, problem, side):
+        super().__init__(path, problem)
+        self.side = side
+
+
 def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSettings, front=None):
     """The eye behind the opening of an eye the scan's shape cannot place
     (:func:`pipeline.placement.fill.fit_behind_loop`), as behind a scanner's flat fill. The
@@ -161,7 +172,7 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, so
 
 
 def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, filled=None,
-               uv=None, texture=None, prior=None, source="mesh"):
+               uv=None, texture=None, prior=None, source="mesh", coarse=None, placed=None):
     """Place both eyes jointly (:func:`pipeline.placement.fit.place_eyes`) on the surface around
     the hints; an eye the geometry cannot place falls back to the colour texture when there is one.
     An opening a scanner filled flat (:func:`pipeline.placement.fill.find_flat_fill`) is placed
@@ -173,6 +184,9 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
     faces that close a hole (no evidence, like a scanner's flat fills); ``uv``: ``UV``/``FUV``
     of those faces, when the scan has a texture; ``prior``: callable ``(V, F, hint, side) ->
     {"front", "axis"}`` (the eye-region prior, ``prior.EyeRegionPrior.register``) or None.
+    ``coarse``: side -> why, eyes to place behind the opening the eye-region prior outlines
+    whatever the geometry found (a cut round part of an eye, :class:`NarrowOpening`);
+    ``placed``: the placements of an earlier call on the same surface (the search is not run again).
     Returns ``(mesh, fits, placements)``: the :class:`EyeMesh`, per side an :class:`EyeFit`
     (its region on ``F``) and the :class:`pipeline.placement.uncertainty.Placement` (None for
     a texture-placed eye)."""
@@ -191,7 +205,8 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
                 front[s] = None
     # an opening a scanner filled flat: its boundary is the fissure (pipeline/placement/fill.py)
     fills = {s: find_flat_fill(V, F, hints[s], median_edge, exclude=filled) for s in SIDES}
-    placements = {s: None for s in SIDES} if all(fills.values()) else place_eyes(
+    coarse = coarse or {}
+    placements = dict(placed) if placed is not None else {s: None for s in SIDES} if all(fills.values()) else place_eyes(
         V, F, hints, patch_radius_mm=st.place_patch_mm, radius_range=tuple(st.radius_range_mm),
         radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
         prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
@@ -205,7 +220,9 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         err = None
         off = None if placements[s] is None or front is None else _outside_margin(
             limbus_center(placements[s].eye), front.get(s))
-        if off is not None and off > PRIOR_MARGIN_SLACK_MM:
+        if s in coarse:
+            err = CoarseEye(source, f"{s} eye: {coarse[s]}", None)
+        elif off is not None and off > PRIOR_MARGIN_SLACK_MM:
             # the eye the geometry found lies off the opening the lids around it outline (a coarse
             # photogrammetry head's right eye: on the lower lid, 8.6 mm outside, 13.7 mm off
             # with a 1.1 mm sigma): no eye this scan shows
@@ -232,6 +249,8 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             continue
         try:
             fits[s] = fit_texture(mesh, uv, texture, hints[s], s, st, source)
+            if s in coarse:
+                fits[s].why = f"{coarse[s]}: placed from the texture instead"
         except NoEyeInTexture:
             # neither the geometry nor the texture shows an eye: skin across the opening, whatever
             # the scan's kind (a coarse scan's geometry may offer a sliver of "eye" the texture
@@ -351,6 +370,40 @@ def loop_on_asset_eye(loop_points, asset_eye: dict, eyeball, lim, lateral_index)
                                       lim, lateral_index)
 
 
+SEAT_STEP_MM, SEAT_MAX_MM = 0.05, 6.0     # how an eye placed from its opening is set back behind its lids
+
+
+def seat_behind_loop(asset_eye: dict, loop_points, eyeball, lim, lateral_index) -> float:
+    """Set an eye placed from its opening (``asset_eye``: one side of :func:`asset_eyes`, changed
+    in place) back along its axis, in steps of ``SEAT_STEP_MM``, by the least that leaves its
+    lids no deeper inside it than ``loop_on_eye`` allows (``lim.max_loop_off_mm``). The opening
+    places the iris centred ``OPENING_LIMBUS_DEPTH_MM`` behind the margin's mean; a margin that
+    curves round a globe looking down (the upper lid lowered over it) lies up to 1.8 mm inside
+    that eye (`id303_down`, `id304_in`), an eye no lid could hold. Setting it back further, until
+    no lid lies inside, folded `id303_down`'s upper lid in the rig sweep (the snap then pulls the
+    margin back onto a globe it no longer touched). The shift joins the limbus and centre
+    sigmas and a doubt says it. Returns the shift (mm)."""
+    depth = loop_on_asset_eye(loop_points, asset_eye, eyeball, lim, lateral_index)["value"]
+    if depth <= lim.max_loop_off_mm:
+        return 0.0
+    ax = np.asarray(asset_eye["forward"], float)
+    c0, l0 = np.asarray(asset_eye["center"], float), np.asarray(asset_eye["limbus"]["center"], float)
+    shift = 0.0
+    for shift in np.arange(SEAT_STEP_MM, SEAT_MAX_MM + 1e-9, SEAT_STEP_MM):
+        asset_eye["center"] = c0 - shift * ax
+        if loop_on_asset_eye(loop_points, asset_eye, eyeball, lim, lateral_index)["value"] <= lim.max_loop_off_mm:
+            break
+    shift = float(shift)
+    asset_eye["limbus"]["center"] = l0 - shift * ax
+    u = asset_eye["uncertainty"]
+    u["limbus_mm"] = float(np.hypot(u["limbus_mm"], shift))
+    u["center_mm"] = float(np.hypot(u["center_mm"], shift))
+    asset_eye["doubts"].append(f"the lids lay {depth:.2f} mm inside the eye placed from the opening: "
+                               f"set back {shift:.2f} mm along its axis, to within "
+                               f"{lim.max_loop_off_mm:.2f} mm of where they rest on it")
+    return shift
+
+
 def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: PlacementSettings, *,
                median_edge: float, mesh_arrays=None, hints=None, texture=None, eyeball=None,
                moved=None, source="mesh"):
@@ -407,6 +460,9 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
     asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st, limbi)
     for s in SIDES:
+        if asset[s]["limbus"]["source"] in ("opening", "coarse"):
+            seat_behind_loop(asset[s], V2[loops[s][0]], eyeball, lim, loops[s][1])
+    for s in SIDES:
         if not checks[s]["loop_on_sphere"]["ok"]:
             checks[s]["loop_on_eye"] = loop_on_asset_eye(V2[loops[s][0]], asset[s], eyeball, lim, loops[s][1])
             if not checks[s]["loop_on_eye"]["ok"]:
@@ -427,9 +483,9 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
             # opening sits behind the wrong place (id311_look_right: 5 mm deep, the rest of the
             # scanned eye left as skin, black through the opening). A narrow loop with the iris in
             # it is a narrow scanned opening (id322_all's sparse views): published, with the doubt
-            raise ScanError(source, f"{s} eye: self-check opening_wide: "
-                                    f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
-                                    f"and no iris shows in it (the eye would be placed from this opening)")
+            raise NarrowOpening(source, f"{s} eye: self-check opening_wide: "
+                                        f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
+                                        f"and no iris shows in it (the eye would be placed from this opening)", s)
     eyes = {}
     for s in SIDES:
         fit, (loop, lat), a, rec = fits[s], loops[s], asset[s], records[s]

@@ -31,7 +31,7 @@ from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_edit import fill_holes_near
 from pipeline.geometry.spherefit import signed_distance
 from pipeline.placement.eye_fit import eye_surface_distance, local_mesh, median_edge_length
-from pipeline.placement.place import judge_pair, place_pair
+from pipeline.placement.place import NarrowOpening, judge_pair, place_pair
 from pipeline.remove_eyeballs.fissure_cut import move_loop_onto, openings_at_fissures
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 from pipeline.results import StageResult
@@ -222,7 +222,7 @@ def _holes_inside(F, remove, H=None):
 
 
 def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source="mesh",
-                     texture=None, prior=None):
+                     texture=None, prior=None, coarse=None, placed=None):
     """Place both eyes (:func:`pipeline.placement.place.place_pair`) on the surface around the
     hints, its holes near the eyes closed for the fit; each hole then goes with the opening or
     the skin (:func:`_opening_holes`).
@@ -231,7 +231,7 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
     ``pipeline.placement.prior.EyeRegionPrior.register``) or None. Returns ``(fits,
     placements, median_edge)``: per side an :class:`EyeFit` (its region on the full mesh) and the
     :class:`pipeline.placement.uncertainty.Placement` (None for a texture-placed eye), and the
-    scan's median edge length."""
+    scan's median edge length. ``coarse``, ``placed``: as :func:`place_pair`'s."""
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     median_edge, max_edge = median_edge_length(V, F, with_max=True)
@@ -251,7 +251,7 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
                                             sub_arrays["FUV"][rim[hole_of_face[n_local:]]]])
     _, fits, placements = place_pair(Vs, Fs, hints, st, median_edge=median_edge,
                                      filled=hole_of_face >= 0, uv=sub_arrays, texture=texture,
-                                     prior=prior, source=source)
+                                     prior=prior, source=source, coarse=coarse, placed=placed)
     for fit in fits.values():       # back to full-mesh ids
         region = np.zeros(len(F), bool)
         region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
@@ -295,6 +295,45 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
     st = st or RemoveEyeballsSettings()
     fits, placements, median_edge = place_near_hints(mesh_arrays, hints, st, source=source,
                                                      texture=texture, prior=prior)
+    cut = dict(source=source, texture=texture, eyeball=eyeball)
+    coarse, first = {}, None
+    while True:
+        try:
+            result = _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, **cut)
+            break
+        except NarrowOpening as exc:
+            if prior is None or exc.side in coarse:
+                if first is None:
+                    raise
+                raise ScanError(source, f"{first.problem}; placed behind the opening the eye-region "
+                                        f"prior outlines instead: {exc.problem}") from None
+            # the cut went round part of an eye the geometry misplaced (an eye looking down, the
+            # upper lid lowered over it: id303_down's left eye): that eye is placed again behind
+            # the opening the eye-region prior outlines in the skin round it, doubted
+            width = exc.problem.split("spans ", 1)[1].split(" mm", 1)[0]
+            coarse[exc.side] = f"the cut round the eye the geometry found spans {width} mm with no iris in it"
+            first = first or exc
+        except ScanError as exc:
+            if first is None:
+                raise
+            raise ScanError(source, f"{first.problem}; placed behind the opening the eye-region prior "
+                                    f"outlines instead: {exc.problem}") from None
+        fits, placements, median_edge = _place_again(mesh_arrays, hints, st, coarse, placements, prior, cut)
+    return result
+
+
+def _place_again(mesh_arrays, hints, st, coarse: dict, placements, prior, cut):
+    """:func:`place_near_hints` with the eyes ``coarse`` (side -> why) placed behind the opening
+    the eye-region prior outlines and the others as ``placements`` placed them (the search is
+    not run again)."""
+    return place_near_hints(mesh_arrays, hints, st, source=cut["source"], texture=cut["texture"],
+                            prior=prior, coarse=coarse, placed=placements)
+
+
+def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, source, texture,
+                   eyeball) -> RemovalResult:
+    """Cut both placed eyes' regions out of the scan and judge what is published
+    (:func:`remove_eyeballs`)."""
     # an eye placed from its texture is cut along the fissure the photograph shows: the faces
     # near that outline are split first (pipeline/remove_eyeballs/fissure_cut.py)
     mesh_arrays, fits = openings_at_fissures(mesh_arrays, fits)
