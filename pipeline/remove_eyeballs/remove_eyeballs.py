@@ -297,16 +297,19 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
                                                      texture=texture, prior=prior)
     cut = dict(source=source, texture=texture, eyeball=eyeball)
     coarse, first = {}, None
+
+    def both(exc):      # the first refusal and why the eye placed again is refused too, one line
+        return ScanError(source, f"{first.problem}; placed behind the opening the eye-region prior "
+                                 f"outlines instead: {exc.problem}")
+
     while True:
         try:
-            result = _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, **cut)
-            break
+            return _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, **cut)
         except NarrowOpening as exc:
+            if first is None and prior is None:
+                raise
             if prior is None or exc.side in coarse:
-                if first is None:
-                    raise
-                raise ScanError(source, f"{first.problem}; placed behind the opening the eye-region "
-                                        f"prior outlines instead: {exc.problem}") from None
+                raise both(exc) from None
             # the cut went round part of an eye the geometry misplaced (an eye looking down, the
             # upper lid lowered over it: id303_down's left eye): that eye is placed again behind
             # the opening the eye-region prior outlines in the skin round it, doubted
@@ -316,10 +319,11 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
         except ScanError as exc:
             if first is None:
                 raise
-            raise ScanError(source, f"{first.problem}; placed behind the opening the eye-region prior "
-                                    f"outlines instead: {exc.problem}") from None
-        fits, placements, median_edge = _place_again(mesh_arrays, hints, st, coarse, placements, prior, cut)
-    return result
+            raise both(exc) from None
+        try:
+            fits, placements, median_edge = _place_again(mesh_arrays, hints, st, coarse, placements, prior, cut)
+        except ScanError as exc:
+            raise both(exc) from None
 
 
 def _place_again(mesh_arrays, hints, st, coarse: dict, placements, prior, cut):
