@@ -174,3 +174,10 @@ def test_an_eye_placed_from_its_opening_is_set_back_until_its_lids_may_rest_on_i
     assert f"set back {shift:.2f} mm" in eye["doubts"][0]
     # an eye its lids may rest on stays where it is
     assert seat_behind_loop(eye, L, EyeballParams(), lim, 32) == 0.0 and len(eye["doubts"]) == 1
+    # a loop round the globe's middle, 6 mm from its axis, lies inside it however far it is set
+    # back (up to SEAT_MAX_MM): the eye stays as placed and loop_on_eye says so
+    deep = dict(eye, center=np.zeros(3), doubts=[])
+    ring = _almond(z=0.5, a=6.0, b=6.0)
+    assert seat_behind_loop(deep, ring, EyeballParams(), lim, 32) == 0.0
+    assert np.allclose(deep["center"], 0.0) and deep["doubts"] == []
+    assert loop_on_asset_eye(ring, deep, EyeballParams(), lim, 32)["value"] > lim.max_loop_off_mm

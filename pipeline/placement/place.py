@@ -206,12 +206,15 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
     # an opening a scanner filled flat: its boundary is the fissure (pipeline/placement/fill.py)
     fills = {s: find_flat_fill(V, F, hints[s], median_edge, exclude=filled) for s in SIDES}
     coarse = coarse or {}
-    placements = dict(placed) if placed is not None else {s: None for s in SIDES} if all(fills.values()) else place_eyes(
-        V, F, hints, patch_radius_mm=st.place_patch_mm, radius_range=tuple(st.radius_range_mm),
-        radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
-        prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
-        temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
-        min_fold_deg=st.min_crease_deg)
+    if placed is not None:
+        placements = dict(placed)
+    else:
+        placements = {s: None for s in SIDES} if all(fills.values()) else place_eyes(
+            V, F, hints, patch_radius_mm=st.place_patch_mm, radius_range=tuple(st.radius_range_mm),
+            radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
+            prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
+            temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
+            min_fold_deg=st.min_crease_deg)
     fits = {}
     for s in SIDES:
         if fills[s] is not None:
@@ -382,17 +385,20 @@ def seat_behind_loop(asset_eye: dict, loop_points, eyeball, lim, lateral_index) 
     that eye (`id303_down`, `id304_in`), an eye no lid could hold. Setting it back further, until
     no lid lies inside, folded `id303_down`'s upper lid in the rig sweep (the snap then pulls the
     margin back onto a globe it no longer touched). The shift joins the limbus and centre
-    sigmas and a doubt says it. Returns the shift (mm)."""
+    sigmas and a doubt says it; an eye no shift up to ``SEAT_MAX_MM`` seats stays where it was.
+    Returns the shift (mm)."""
     depth = loop_on_asset_eye(loop_points, asset_eye, eyeball, lim, lateral_index)["value"]
     if depth <= lim.max_loop_off_mm:
         return 0.0
     ax = np.asarray(asset_eye["forward"], float)
     c0, l0 = np.asarray(asset_eye["center"], float), np.asarray(asset_eye["limbus"]["center"], float)
-    shift = 0.0
     for shift in np.arange(SEAT_STEP_MM, SEAT_MAX_MM + 1e-9, SEAT_STEP_MM):
         asset_eye["center"] = c0 - shift * ax
         if loop_on_asset_eye(loop_points, asset_eye, eyeball, lim, lateral_index)["value"] <= lim.max_loop_off_mm:
             break
+    else:       # no globe this close behind these lids holds them: left as placed, for loop_on_eye to say
+        asset_eye["center"] = c0
+        return 0.0
     shift = float(shift)
     asset_eye["limbus"]["center"] = l0 - shift * ax
     u = asset_eye["uncertainty"]

@@ -306,9 +306,9 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
         try:
             return _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, **cut)
         except NarrowOpening as exc:
-            if first is None and prior is None:
+            if prior is None:
                 raise
-            if prior is None or exc.side in coarse:
+            if exc.side in coarse:
                 raise both(exc) from None
             # the cut went round part of an eye the geometry misplaced (an eye looking down, the
             # upper lid lowered over it: id303_down's left eye): that eye is placed again behind
