@@ -153,7 +153,7 @@ def test_a_cut_round_part_of_an_eye_is_cut_again_behind_the_priors_opening(head,
         calls["judge"] += 1
         if calls["judge"] == 1:
             raise place.NarrowOpening("narrow.ply", "right eye: self-check opening_wide: the eyelid loop "
-                                      "spans 11.0 mm, narrower than any eye's fissure", "right")
+                                      "spans 11.0 mm, narrower than any eye's fissure", "right", 11.0)
         return real_judge(*a, **k)
 
     def search(*a, **k):

@@ -52,13 +52,13 @@ class CoarseEye(ScanError):
 
 class NarrowOpening(ScanError):
     """The cut round the eye the geometry found spans less than any eye's fissure and no iris
-    shows in it (``opening_wide``): it went round part of an eye. ``side``: which eye; the stage
-    places it again behind the opening the eye-region prior outlines (``place_pair``'s
-    ``coarse``)."""
+    shows in it (``opening_wide``): it went round part of an eye. ``side``: which eye,
+    ``width_mm``: the loop's span; the stage places it again behind the opening the eye-region
+    prior outlines (``place_pair``'s ``coarse``)."""
 
-    def __init__(self, path, problem, side):
+    def __init__(self, path, problem, side, width_mm):
         super().__init__(path, problem)
-        self.side = side
+        self.side, self.width_mm = side, float(width_mm)
 
 
 def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSettings, front=None):
@@ -491,7 +491,8 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
             # it is a narrow scanned opening (id322_all's sparse views): published, with the doubt
             raise NarrowOpening(source, f"{s} eye: self-check opening_wide: "
                                         f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
-                                        f"and no iris shows in it (the eye would be placed from this opening)", s)
+                                        f"and no iris shows in it (the eye would be placed from this opening)", s,
+                                        checks[s]["opening_wide"]["value"])
     eyes = {}
     for s in SIDES:
         fit, (loop, lat), a, rec = fits[s], loops[s], asset[s], records[s]

@@ -313,8 +313,8 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
             # the cut went round part of an eye the geometry misplaced (an eye looking down, the
             # upper lid lowered over it: id303_down's left eye): that eye is placed again behind
             # the opening the eye-region prior outlines in the skin round it, doubted
-            width = exc.problem.split("spans ", 1)[1].split(" mm", 1)[0]
-            coarse[exc.side] = f"the cut round the eye the geometry found spans {width} mm with no iris in it"
+            coarse[exc.side] = (f"the cut round the eye the geometry found spans {exc.width_mm:.1f} mm "
+                                f"with no iris in it")
             first = first or exc
         except ScanError as exc:
             if first is None:
