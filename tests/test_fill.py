@@ -176,3 +176,37 @@ def test_a_cut_round_part_of_an_eye_is_cut_again_behind_the_priors_opening(head,
     calls["judge"] = 0
     with pytest.raises(place.NarrowOpening):
         remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="narrow.ply", prior=None)
+
+
+@pytest.mark.slow
+def test_an_eye_whose_folded_optima_rest_on_the_radius_bound_is_placed_behind_the_priors_opening(head, monkeypatch):
+    """The search's optima ringed by a lid fold all rest on a bound of the radius range
+    (``AtRadiusBound``, returned here for the right eye; a coarse 80k-face held-out scan's eye
+    looking out did this at 21 mm): an open eye's surface too small to size, not a closed eye.
+    It is placed behind the opening the eye-region prior outlines, saying why; without the prior
+    there is no opening to place it behind, and the one-line refusal names the bound."""
+    import pipeline.placement.place as place
+    from pipeline.errors import ScanError
+    from pipeline.placement.fit import AtRadiusBound
+    from pipeline.placement.prior import EyeRegionPrior
+
+    h, _ = head
+    real_search = place.place_eyes
+
+    def search(*a, **k):
+        return {**real_search(*a, **k), "right": AtRadiusBound(21.0, 14.2)}
+
+    monkeypatch.setattr(place, "place_eyes", search)
+    mesh = {"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}
+    res = remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="bound.ply",
+                          prior=EyeRegionPrior.load().register)
+    left, right = res.eyes["left"].to_doc(), res.eyes["right"].to_doc()
+    assert left["method"] == "geometry" and right["method"] == "coarse"
+    assert right["uncertainty"]["axis_deg"] == 20.0
+    assert any("ringed by a lid fold (14 deg) fits only a sphere on the radius range's bound (21.0 mm)" in d
+               and "the eye-region prior outlines" in d for d in right["doubts"]), right["doubts"]
+    lt, _ = truth_limbus(h.ground_truth["eyes"]["right"])
+    assert np.linalg.norm(np.asarray(right["limbus"]["center"]) - lt) <= 2 * right["uncertainty"]["limbus_mm"]
+    with pytest.raises(ScanError, match="bound.ply: right eye: the eye surface ringed by a lid fold .* fits only a "
+                                        "sphere on the radius range's bound"):
+        remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="bound.ply", prior=None)

@@ -123,6 +123,62 @@ def test_a_mostly_hidden_iris_on_an_unsure_axis_falls_back_to_the_opening():
     assert loose["right"]["limbus"]["source"] == "geometry"
 
 
+def test_an_axis_off_the_eyes_front_falls_back_to_the_opening():
+    """An axis over eye surface that dips below its sides is believed only where the scan shows
+    no front of an eye elsewhere and the iris is not in the opening's outer reach (the eyes
+    published 37-50 deg off at +-3-4 deg dipped 0.57-1.10 mm)."""
+    L = _almond()
+    turned = np.array([math.sin(math.radians(25.0)), 0.0, math.cos(math.radians(25.0))])
+    lc = [0.65 * 13.5, 0.0, 8.5]
+    iris = human_eye.iris_in_opening(L, lc, turned, 5.85)
+    assert iris["visible_share"] >= human_eye.UNSURE_HIDDEN_SHARE
+    assert iris["offset_mm"] > human_eye.CORNER_OFFSET_SHARE * iris["opening_half_width_mm"]
+    assert not human_eye.iris_hidden(iris, 0.05, 1.5, 2.0, 0.3, 0.5)
+    dip = -human_eye.CORNER_DIP_MM
+    # in the outer reach: a dip of CORNER_DIP_MM is still an eye's front, a hair more is not
+    assert not human_eye.axis_off_front(iris, dip)
+    assert human_eye.axis_off_front(iris, dip - 0.01)
+    assert not human_eye.axis_off_front(iris, None) and not human_eye.axis_off_front(iris, float("nan"))
+    # near the centre: a dip is a recessed iris unless the scan shows a front elsewhere
+    near = human_eye.iris_in_opening(L, [0.3 * 13.5, 0.0, 9.5], turned, 5.85)
+    assert not human_eye.axis_off_front(near, -1.0)
+    assert not human_eye.axis_off_front(near, -1.0, human_eye.FRONT_SHOWS_MM - 0.01)
+    assert human_eye.axis_off_front(near, -1.0, human_eye.FRONT_SHOWS_MM)
+    assert not human_eye.axis_off_front(near, dip, 1.0)
+    eye = lambda st, front=None: {**_scan_eye(lc, turned, L, prior_axis=[0, 0, 1], sigma=(0.3, 1.5)),
+                                  "axis_standoff_mm": st, "front_elsewhere_mm": front}
+    out = human_eye.asset_eyes({"left": eye(0.4), "right": eye(-0.9, 0.6)}, eye_size="human",
+                               eyeball=EyeballParams())
+    assert out["left"]["limbus"]["source"] == "geometry" and np.allclose(out["left"]["forward"], turned)
+    right = out["right"]
+    assert right["limbus"]["source"] == "opening" and np.allclose(right["forward"], [0, 0, 1])
+    assert "0.90 mm below its sides" in right["doubts"][0] and "+0.60 mm elsewhere" in right["doubts"][0]
+    assert right["uncertainty"]["axis_deg"] == human_eye.OPENING_AXIS_SIGMA_DEG
+
+
+def test_front_elsewhere_finds_the_bulge_the_axis_misses():
+    """Known answer: a 12 mm sclera with a 1 mm cap raised within 15 deg of a gaze 35 deg to the
+    side. Along a forward axis the surface stands flush (no front there); the search finds the
+    cap's 1 mm standoff in a direction whose 12 deg inner cone lies mostly on the cap (a front,
+    not a gaze), and none on a bare sphere."""
+    from pipeline.placement import checks
+
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=(6000, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    g = np.array([math.sin(math.radians(35.0)), 0.0, math.cos(math.radians(35.0))])
+    u = u[u[:, 2] > math.cos(math.radians(70.0))]
+    lift = np.where(u @ g > math.cos(math.radians(15.0)), 1.0, 0.0)
+    P = u * (12.0 + lift)[:, None]
+    lim = checks.CheckLimits()
+    assert checks.cornea_standoff(P, np.zeros(3), 12.0, np.array([0.0, 0.0, 1.0]), lim) == pytest.approx(0.0, abs=1e-9)
+    best, at = checks.front_elsewhere(P, np.zeros(3), 12.0, np.array([0.0, 0.0, 1.0]), lim)
+    assert best == pytest.approx(1.0, abs=1e-9)
+    assert math.degrees(math.acos(float(at @ g))) <= 12.0
+    flat, _ = checks.front_elsewhere(u * 12.0, np.zeros(3), 12.0, np.array([0.0, 0.0, 1.0]), lim)
+    assert abs(flat) < 1e-9
+
+
 @pytest.mark.slow
 def test_a_12mm_eye_is_placed_within_0_2mm_and_1deg():
     """The height-field head carries the paper's eye (r1 12, cornea 8, apex 13.5) at (+-30, 0, 0)

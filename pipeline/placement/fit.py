@@ -301,6 +301,18 @@ def refine(p: Patch, e: Eye, cues: Cues, radius_range, iters=REFINE_ITERS, fold=
 RANGE_EDGE_MM = 0.05    # a radius this close to a bound of the range rests on it
 
 
+@dataclass(frozen=True)
+class AtRadiusBound:
+    """What :func:`place_eyes` returns for an eye whose only optima ringed by a lid fold rest on
+    a bound of the radius range: the scan shows an open eye's surface, too little of it to size
+    a sphere (a coarse 80k-face scan's eye looking out, every folded optimum at 21 mm). The
+    stage places such an eye behind its opening; a closed lid shows no fold at all (the
+    held-out blinks' optima, at the bound or not, were ringed by 5-11 deg)."""
+
+    radius: float
+    fold_deg: float
+
+
 def _inside_range(R, radius_range):
     """Whether ``R`` lies inside the radius range, off its bounds. A fit that presses against
     a bound wants a globe no eye has: a sphere laid over a closed lid, a cheek or a filled
@@ -408,10 +420,11 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     or None. The search runs on each patch simplified to about ``coarse_vertices``
     (:func:`pipeline.placement.cues.coarse_patch`; a patch with fill faces as it is), and the
     placed eye then labels the full patch. Only local optima ringed by a lid fold of ``min_fold_deg`` count as an open eye;
-    an eye with none is returned as None (closed, or nothing eye-like near the hint).
-    Returns ``{side: Placement or None}``."""
+    an eye with none is returned as None (closed, or nothing eye-like near the hint), and one
+    whose folded optima all rest on a bound of the radius range as :class:`AtRadiusBound`.
+    Returns ``{side: Placement, AtRadiusBound or None}``."""
     rng = np.random.default_rng(seed)
-    patches, full, cues, modes = {}, {}, {}, {}
+    patches, full, cues, modes, at_bound = {}, {}, {}, {}, {}
     for s in SIDES:
         full[s] = build_patch(V, F, hints[s], patch_radius_mm, ignore)
         filled = ignore is not None and bool(np.asarray(ignore, bool)[full[s].faces].any())
@@ -425,9 +438,13 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
         found = polish(patches[s], found, cues[s], radius_range)
         modes[s] = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()
                            and _inside_range(m.eye.R, radius_range)), key=lambda m: m.energy)
+        if not modes[s]:
+            bound = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()), key=lambda m: m.energy)
+            if bound:
+                at_bound[s] = AtRadiusBound(float(bound[0].eye.R), float(bound[0].fold_deg))
     if not all(modes[s] for s in SIDES):
-        return {s: None if not modes[s] else _on_full(placement_of(patches[s], modes[s], None, temperature,
-                                                                   sigma_scale), full[s]) for s in SIDES}
+        return {s: at_bound.get(s) if not modes[s] else _on_full(placement_of(
+            patches[s], modes[s], None, temperature, sigma_scale), full[s]) for s in SIDES}
     best = {s: modes[s][0] for s in SIDES}
     # one radius for the two eyes when they agree; then a joint fit with a loose mirror prior
     sr = {s: float(np.sqrt(max(best[s].fit.cov[3, 3], 1e-6))) for s in SIDES}

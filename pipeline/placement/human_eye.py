@@ -36,6 +36,14 @@ OPENING_AXIS_SIGMA_DEG = 20.0
 #: Less of the iris than this inside the opening at rest, on an axis the scan is unsure of: the
 #: eye is placed from its opening (:func:`iris_hidden`).
 UNSURE_HIDDEN_SHARE = 0.5
+#: An eye whose axis points at eye surface dipping more than ``CORNER_DIP_MM`` below the surface
+#: beside it (``checks.cornea_standoff``) shows no front of an eye there; it is believed only
+#: when the scan shows no front elsewhere either (no direction with a standoff of
+#: ``FRONT_SHOWS_MM``: ``checks.front_elsewhere``) and its iris is not turned into the opening's
+#: outer reach (past ``CORNER_OFFSET_SHARE`` of the half-width): :func:`axis_off_front`.
+CORNER_OFFSET_SHARE = 0.6
+CORNER_DIP_MM = 0.5
+FRONT_SHOWS_MM = 0.3
 
 
 def limbus_depth(params) -> float:
@@ -153,6 +161,29 @@ def iris_hidden(iris: dict, min_visible: float, sigma_axis_deg: float = 0.0,
             or iris["offset_mm"] > iris["opening_half_width_mm"])
 
 
+def axis_off_front(iris: dict, standoff_mm, front_mm=None) -> bool:
+    """Whether an eye's axis points away from the front of the eye the scan shows: the eye
+    surface along it dips more than ``CORNER_DIP_MM`` below the surface beside it
+    (``standoff_mm``, the ``cornea_shows`` check's value; None: not measured, believed), and
+    either the scan shows a front elsewhere (``front_mm``, the largest standoff of any direction
+    within reach, at least ``FRONT_SHOWS_MM``) or the iris at rest (:func:`iris_in_opening`) is
+    turned into the opening's outer reach. A cornea, or an iris seen through one, stands proud
+    of or flush with the sclera round it; a dip where the axis points is sclera or the fissure's
+    corner. A dip with no front anywhere may be an iris seen recessed behind an unscanned cornea
+    (a real 12 mm eye's lies about 1.6 mm inside the globe's sphere), and is believed.
+
+    Every eye this caught had been published sure and wrong: on the dev heads `id14_100k`
+    right, `id18_dome` left and `id21_dome_squint` left (7-8 mm and 37-40 deg off at +-3 deg,
+    dips of 0.89-1.10 mm, irises at 0.63-0.83 of the half-width); on held-out heads looking
+    38 deg to the side, eyes placed near forward on spheres within 0.9 mm of the truth's
+    (`id403_out` right, `id404_left` left: 43-50 deg off at +-4 deg). No dev or held-out eye
+    within 10 deg of its truth dips more than 0.41 mm."""
+    if standoff_mm is None or not np.isfinite(standoff_mm) or standoff_mm >= -CORNER_DIP_MM:
+        return False
+    cornered = iris["offset_mm"] > CORNER_OFFSET_SHARE * iris["opening_half_width_mm"]
+    return cornered or (front_mm is not None and np.isfinite(front_mm) and front_mm >= FRONT_SHOWS_MM)
+
+
 def opening_limbus(loop_points, axis) -> np.ndarray:
     """The limbus centre an eye placed from its opening alone gets: the iris centred in the
     opening (the centroid of the lid margin seen along ``axis``), ``OPENING_LIMBUS_DEPTH_MM``
@@ -186,7 +217,9 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         side -> ``limbus_center`` (3,), ``axis`` (3,) unit, ``limbus_radius``, ``sigma_limbus_mm``,
         ``sigma_axis_deg`` (calibrated 1-sigma), ``source`` (``geometry`` | ``texture``),
         ``center``, ``radius`` and ``sigma_radius`` (the sphere the scan suggests), ``loop_points`` (L, 3)
-        (the lid opening), ``prior_axis`` ((3,) or None: the eye region's forward).
+        (the lid opening), ``prior_axis`` ((3,) or None: the eye region's forward), and optionally
+        ``axis_standoff_mm`` (the eye surface along the axis over its sides) and
+        ``front_elsewhere_mm`` (the largest such standoff within reach): :func:`axis_off_front`.
     eye_size : str
         ``human`` (radius ``r1``), ``population`` or ``fitted`` (:func:`asset_radius`).
     eyeball : EyeballParams
@@ -217,7 +250,9 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         sl, sa, source = float(e["sigma_limbus_mm"]), float(e["sigma_axis_deg"]), e["source"]
         doubts = []
         iris = iris_in_opening(e["loop_points"], lc, ax, ir)
-        if iris_hidden(iris, min_iris_visible, sa, doubt_axis_sigma_deg, sl, doubt_limbus_sigma_mm):
+        hidden = iris_hidden(iris, min_iris_visible, sa, doubt_axis_sigma_deg, sl, doubt_limbus_sigma_mm)
+        cornered = not hidden and axis_off_front(iris, e.get("axis_standoff_mm"), e.get("front_elsewhere_mm"))
+        if hidden or cornered:
             # an iris behind a lid or in a corner at rest is no eye a scan shows: the opening
             # and the eye region's forward place it instead (the 57 deg turn into the nose)
             was, was_sl, was_sa = iris, sl, sa
@@ -225,8 +260,14 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
             lc = opening_limbus(e["loop_points"], ax)
             sl, sa, source = OPENING_SIGMA_MM, OPENING_AXIS_SIGMA_DEG, "opening"
             iris = iris_in_opening(e["loop_points"], lc, ax, ir)
-            doubts.append(f"the placed iris lay {'outside' if not was['center_inside'] else 'mostly behind'} "
-                          f"the lid opening at rest ({100 * was['visible_share']:.0f} % of it inside, "
+            front = e.get("front_elsewhere_mm")
+            where = (f"{was['offset_mm']:.1f} mm off the centre of the lid opening (half-width "
+                     f"{was['opening_half_width_mm']:.1f} mm) over eye surface "
+                     f"{-e['axis_standoff_mm']:.2f} mm below its sides, no front of an eye"
+                     + ("" if front is None else f" (the scan's front stands {front:+.2f} mm elsewhere)")
+                     if cornered else
+                     f"{'outside' if not was['center_inside'] else 'mostly behind'} the lid opening")
+            doubts.append(f"the placed iris lay {where} at rest ({100 * was['visible_share']:.0f} % of it inside, "
                           f"limbus +-{was_sl:.2f} mm, axis +-{was_sa:.1f} deg): "
                           f"placed from the opening instead, iris centred, axis along the eye "
                           f"region's forward")

@@ -20,12 +20,12 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.eyes_file import Eye
-from pipeline.placement import checks as eye_checks
+from pipeline.placement import checks as eye_checks, human_eye
 from pipeline.placement.doubts import check_doubts, fissure_doubts
 from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease_deg, patch_faces
 from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_behind_loop, fit_from_fill
 from pipeline.placement.fissure import points_in_polygon
-from pipeline.placement.fit import place_eyes
+from pipeline.placement.fit import AtRadiusBound, place_eyes
 from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
 from pipeline.placement.settings import PlacementSettings
 from pipeline.placement.texture import MARGIN_OFF, NoEyeInTexture, fit_texture
@@ -74,12 +74,14 @@ def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSet
     if plane is not None:
         o, a, B, poly = plane
         d = mesh.centroids - o
-        inside = (points_in_polygon(d @ B[:2].T, poly) & (np.abs(d @ a) < COARSE_DEPTH_MM)
-                  & patch_faces(mesh, hint, st.patch_radius_mm + 5.0))
+        near = patch_faces(mesh, hint, st.patch_radius_mm + 5.0)
+        inside = points_in_polygon(d @ B[:2].T, poly) & (np.abs(d @ a) < COARSE_DEPTH_MM) & near
         if inside.any():
             seed = np.zeros(len(inside), bool)
             seed[np.flatnonzero(inside)[np.argmin(np.linalg.norm(mesh.centroids[inside] - hint, axis=1))]] = True
-            region, by = clean_region(mesh, inside, seed, inside), "the eye-region prior outlines"
+            # islands the depth band left out (a cornea standing proud) are filled: any part of
+            # the patch the opening rings round goes with it, as in _fit_from_placement
+            region, by = clean_region(mesh, inside, seed, near), "the eye-region prior outlines"
     if region is None or not region.any():
         raise err
     try:
@@ -220,7 +222,9 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         if fills[s] is not None:
             fits[s], placements[s] = fit_from_fill(mesh, fills[s], s, st.radius_prior_mm), None
             continue
-        err = None
+        err, bound = None, None
+        if isinstance(placements[s], AtRadiusBound):
+            bound, placements[s] = placements[s], None
         off = None if placements[s] is None or front is None else _outside_margin(
             limbus_center(placements[s].eye), front.get(s))
         if s in coarse:
@@ -232,6 +236,12 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             err = CoarseEye(source, f"{s} eye: the eye surface the geometry found lies {off:.1f} mm "
                                     f"outside the lid margin that the skin around it outlines "
                                     f"(eye-region prior; limit {PRIOR_MARGIN_SLACK_MM:g} mm)", None)
+        elif bound is not None:
+            # an open eye's surface too small to size (every folded optimum at the range's bound):
+            # placed behind the opening the eye-region prior outlines, as a coarse scan's
+            err = CoarseEye(source, f"{s} eye: the eye surface ringed by a lid fold ({bound.fold_deg:.0f} deg) "
+                                    f"fits only a sphere on the radius range's bound ({bound.radius:.1f} mm): "
+                                    f"too little of it shows to size the eye", None)
         elif placements[s] is not None:
             try:
                 fits[s] = _fit_from_placement(mesh, placements[s], hints[s], s, st, source, ignore)
@@ -325,10 +335,14 @@ def scan_limbus(pl, st: PlacementSettings) -> dict:
             "record": rec, "spread": spread}
 
 
-def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettings, limbi=None) -> dict:
+def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettings, limbi=None,
+               standoffs=None) -> dict:
     """The asset's eyes (:func:`human_eye.asset_eyes`) from what the scan shows: the scan's
     limbus and gaze (``limbi``: side -> :func:`scan_limbus`, computed when None), or for a
-    texture placement the limbus of its anatomical eye."""
+    texture placement the limbus of its anatomical eye. ``standoffs``: side -> ``(standoff,
+    front)``: the ``cornea_shows`` check's value (the eye surface along the fitted axis over its
+    sides, mm) and :func:`eye_checks.front_elsewhere`'s (None where not measured), which
+    :func:`human_eye.axis_off_front` reads."""
     from pipeline.eyeball.geometry import EyeballParams, placed_params
     from pipeline.placement import human_eye
 
@@ -343,7 +357,9 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
             e.update(limbus_center=lim["center"], axis=lim["axis"], limbus_radius=lim["radius"],
                      sigma_limbus_mm=float(np.hypot(pl.sigma_limbus_mm, lim["spread"][0])),
                      sigma_axis_deg=float(np.hypot(pl.sigma_axis_deg, lim["spread"][1])),
-                     sigma_radius=pl.sigma_radius_mm, source="geometry")
+                     sigma_radius=pl.sigma_radius_mm, source="geometry",
+                     axis_standoff_mm=(standoffs or {}).get(s, (None, None))[0],
+                     front_elsewhere_mm=(standoffs or {}).get(s, (None, None))[1])
         else:       # the anatomical eye behind the fissure (photographed, or a flat fill's boundary)
             here = placed_params(geo, fit.radius)
             sigma = FILL_SIGMA if fit.method in ("fill", "coarse") else TEXTURE_SIGMA
@@ -464,7 +480,16 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
             metrics[s].update({"texture_fissure_width_mm": round(fissures[s]["width_mm"], 2),
                                "loop_width_mm": round(fissures[s]["loop_width_mm"], 2)})
     pair = eye_checks.check_pair({s: fits[s].radius for s in SIDES}, lim)
-    asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st, limbi)
+    standoffs = {}
+    for s in SIDES:     # where the axis dips, is there a front of an eye elsewhere? (human_eye.axis_off_front)
+        st_s, front = (checks[s].get("cornea_shows") or {}).get("value"), None
+        if st_s is not None and st_s < -human_eye.CORNER_DIP_MM and fits[s].method == "geometry":
+            front = eye_checks.front_elsewhere(V[np.unique(F[fits[s].region])], fits[s].center,
+                                               fits[s].radius, fits[s].forward, lim)[0]
+            records[s]["front_elsewhere_mm"] = None if front is None else round(front, 4)
+        standoffs[s] = (st_s, front)
+    asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st, limbi,
+                       standoffs=standoffs)
     for s in SIDES:
         if asset[s]["limbus"]["source"] in ("opening", "coarse"):
             seat_behind_loop(asset[s], V2[loops[s][0]], eyeball, lim, loops[s][1])
