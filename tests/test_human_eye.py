@@ -121,6 +121,14 @@ def test_a_mostly_hidden_iris_on_an_unsure_axis_falls_back_to_the_opening():
                                  eye_size="human", eyeball=EyeballParams())
     assert loose["left"]["limbus"]["source"] == "opening" and "limbus +-0.84 mm" in loose["left"]["doubts"][0]
     assert loose["right"]["limbus"]["source"] == "geometry"
+    # the iris plane's normal is not the optical axis: that joins the stated sigma, not the test of
+    # how sure the fit is of where the iris lies (the look stays believed)
+    read = human_eye.asset_eyes({"left": {**_scan_eye(lc, up, L, sigma=(0.3, 1.5)), "axis_model_sigma_deg": 2.3},
+                                 "right": _scan_eye(lc, up, L, sigma=(0.3, 1.5))},
+                                eye_size="human", eyeball=EyeballParams())
+    assert read["left"]["limbus"]["source"] == "geometry" and np.allclose(read["left"]["forward"], up)
+    assert read["left"]["uncertainty"]["axis_deg"] == pytest.approx(math.hypot(1.5, 2.3))
+    assert read["right"]["uncertainty"]["axis_deg"] == pytest.approx(1.5)
 
 
 def test_an_axis_off_the_eyes_front_falls_back_to_the_opening():

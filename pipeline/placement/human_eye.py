@@ -219,7 +219,9 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         ``center``, ``radius`` and ``sigma_radius`` (the sphere the scan suggests), ``loop_points`` (L, 3)
         (the lid opening), ``prior_axis`` ((3,) or None: the eye region's forward), and optionally
         ``axis_standoff_mm`` (the eye surface along the axis over its sides) and
-        ``front_elsewhere_mm`` (the largest such standoff within reach): :func:`axis_off_front`.
+        ``front_elsewhere_mm`` (the largest such standoff within reach): :func:`axis_off_front`;
+        ``axis_model_sigma_deg``: how far the scan's axis reading stands off the optical axis
+        (1-sigma, deg), joined in quadrature to the stated axis sigma of an eye the scan places.
     eye_size : str
         ``human`` (radius ``r1``), ``population`` or ``fitted`` (:func:`asset_radius`).
     eyeball : EyeballParams
@@ -271,6 +273,10 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
                           f"limbus +-{was_sl:.2f} mm, axis +-{was_sa:.1f} deg): "
                           f"placed from the opening instead, iris centred, axis along the eye "
                           f"region's forward")
+        if source != "opening" and e.get("axis_model_sigma_deg"):
+            # what the axis read means, not how sure the read is: the iris disc's normal is not
+            # the optical axis (after the hidden-iris test, which asks how sure the fit is)
+            sa = math.hypot(sa, float(e["axis_model_sigma_deg"]))
         d = limbus_depth(placed)
         c = anchor_center(lc, ax, placed)
         if eye_size == "fitted" and source != "opening":     # today's scan-shaped globe, as fitted

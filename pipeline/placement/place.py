@@ -26,6 +26,7 @@ from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease
 from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_behind_loop, fit_from_fill
 from pipeline.placement.fissure import points_in_polygon
 from pipeline.placement.fit import AtRadiusBound, place_eyes
+from pipeline.placement.iris_cap import AXIS_MODEL_SIGMA_DEG
 from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
 from pipeline.placement.settings import PlacementSettings
 from pipeline.placement.texture import MARGIN_OFF, NoEyeInTexture, fit_texture
@@ -358,6 +359,7 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
                      sigma_limbus_mm=float(np.hypot(pl.sigma_limbus_mm, lim["spread"][0])),
                      sigma_axis_deg=float(np.hypot(pl.sigma_axis_deg, lim["spread"][1])),
                      sigma_radius=pl.sigma_radius_mm, source="geometry",
+                     axis_model_sigma_deg=AXIS_MODEL_SIGMA_DEG if (lim["record"] or {}).get("used") else 0.0,
                      axis_standoff_mm=(standoffs or {}).get(s, (None, None))[0],
                      front_elsewhere_mm=(standoffs or {}).get(s, (None, None))[1])
         else:       # the anatomical eye behind the fissure (photographed, or a flat fill's boundary)
