@@ -179,6 +179,38 @@ def test_a_cut_round_part_of_an_eye_is_cut_again_behind_the_priors_opening(head,
 
 
 @pytest.mark.slow
+def test_a_re_cut_keeps_the_other_eye_placed_as_it_was(head, monkeypatch):
+    """When one eye is cut again behind the prior's opening (``NarrowOpening``), the other eye is
+    placed as the first search found it, even where that put it behind its opening (too coarse
+    to place from its shape: here every eye, as in the coarse test above). It was refused as
+    closed before: the first pass had dropped its placement (a coarse photogrammetry held-out
+    head, `id338_photogrammetry_down`)."""
+    import pipeline.placement.place as place
+    import pipeline.remove_eyeballs.remove_eyeballs as re_mod
+    from pipeline.placement.prior import EyeRegionPrior
+
+    h, _ = head
+    real_judge, calls = place.judge_pair, {"judge": 0}
+
+    def judge(*a, **k):
+        calls["judge"] += 1
+        if calls["judge"] == 1:
+            raise place.NarrowOpening("narrow.ply", "right eye: self-check opening_wide: the eyelid loop "
+                                      "spans 9.0 mm, narrower than any eye's fissure", "right", 9.0)
+        return real_judge(*a, **k)
+
+    monkeypatch.setattr(re_mod, "judge_pair", judge)
+    res = remove_eyeballs({"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}, _hints(h),
+                          RemoveEyeballsSettings(min_eye_vertices=100_000), source="narrow.ply",
+                          prior=EyeRegionPrior.load().register)
+    assert calls["judge"] == 2
+    left, right = res.eyes["left"].to_doc(), res.eyes["right"].to_doc()
+    assert left["method"] == right["method"] == "coarse"
+    assert any("fewer than 100000" in d and "the opening it was found in" in d for d in left["doubts"]), left["doubts"]
+    assert any("spans 9.0 mm with no iris in it" in d for d in right["doubts"]), right["doubts"]
+
+
+@pytest.mark.slow
 def test_an_eye_whose_folded_optima_rest_on_the_radius_bound_is_placed_behind_the_priors_opening(head, monkeypatch):
     """The search's optima ringed by a lid fold all rest on a bound of the radius range
     (``AtRadiusBound``, returned here for the right eye; a coarse 80k-face held-out scan's eye

@@ -189,10 +189,13 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
     {"front", "axis"}`` (the eye-region prior, ``prior.EyeRegionPrior.register``) or None.
     ``coarse``: side -> why, eyes to place behind the opening the eye-region prior outlines
     whatever the geometry found (a cut round part of an eye, :class:`NarrowOpening`);
-    ``placed``: the placements of an earlier call on the same surface (the search is not run again).
-    Returns ``(mesh, fits, placements)``: the :class:`EyeMesh`, per side an :class:`EyeFit`
-    (its region on ``F``) and the :class:`pipeline.placement.uncertainty.Placement` (None for
-    a texture-placed eye)."""
+    ``placed``: what the search of an earlier call on the same surface found (its ``searched``;
+    the search is not run again).
+    Returns ``(mesh, fits, placements, searched)``: the :class:`EyeMesh`, per side an
+    :class:`EyeFit` (its region on ``F``), the :class:`pipeline.placement.uncertainty.Placement`
+    (None for an eye placed from its texture, a fill or its opening) and what the search found
+    (for ``placed``: an eye the search found but placed from its opening follows the same path
+    again)."""
     mesh = EyeMesh(V, F, median_edge=median_edge)
     ignore = fill_faces(V, F, st.fill_face_ratio)
     if filled is not None:
@@ -218,6 +221,7 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
             temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
             min_fold_deg=st.min_crease_deg)
+    searched = dict(placements)     # what the search found, before the fallbacks below drop it
     fits = {}
     for s in SIDES:
         if fills[s] is not None:
@@ -277,7 +281,7 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
     for s in SIDES:
         if front is not None and front.get(s) is not None:
             fits[s].prior_axis = np.asarray(front[s]["axis"], float)
-    return mesh, fits, placements
+    return mesh, fits, placements, searched
 
 
 def placement_record(pl, fit):

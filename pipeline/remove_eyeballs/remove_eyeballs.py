@@ -229,9 +229,10 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
 
     ``prior``: callable ``(V, F, hint, side) -> {"front", "axis"}`` (the eye-region prior,
     ``pipeline.placement.prior.EyeRegionPrior.register``) or None. Returns ``(fits,
-    placements, median_edge)``: per side an :class:`EyeFit` (its region on the full mesh) and the
-    :class:`pipeline.placement.uncertainty.Placement` (None for a texture-placed eye), and the
-    scan's median edge length. ``coarse``, ``placed``: as :func:`place_pair`'s."""
+    placements, median_edge, searched)``: per side an :class:`EyeFit` (its region on the full
+    mesh) and the :class:`pipeline.placement.uncertainty.Placement` (None for an eye placed from
+    its texture, a fill or its opening), the scan's median edge length, and what the search
+    found (:func:`place_pair`). ``coarse``, ``placed``: as :func:`place_pair`'s."""
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     median_edge, max_edge = median_edge_length(V, F, with_max=True)
@@ -249,7 +250,7 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
         rim = np.array([np.flatnonzero(np.isin(Fs[:n_local], loop).any(axis=1))[0] for loop in holes])
         sub_arrays["FUV"] = np.concatenate([sub_arrays["FUV"],
                                             sub_arrays["FUV"][rim[hole_of_face[n_local:]]]])
-    _, fits, placements = place_pair(Vs, Fs, hints, st, median_edge=median_edge,
+    _, fits, placements, searched = place_pair(Vs, Fs, hints, st, median_edge=median_edge,
                                      filled=hole_of_face >= 0, uv=sub_arrays, texture=texture,
                                      prior=prior, source=source, coarse=coarse, placed=placed)
     for fit in fits.values():       # back to full-mesh ids
@@ -259,7 +260,7 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
         if fit.inliers is not None:
             inl = np.asarray(fit.inliers, dtype=np.int64)
             fit.inliers = verts[inl[inl < len(verts)]]
-    return fits, placements, median_edge
+    return fits, placements, median_edge, searched
 
 
 def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSettings | None = None, *,
@@ -293,8 +294,8 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
         ``result`` (the metrics).
     """
     st = st or RemoveEyeballsSettings()
-    fits, placements, median_edge = place_near_hints(mesh_arrays, hints, st, source=source,
-                                                     texture=texture, prior=prior)
+    fits, placements, median_edge, searched = place_near_hints(mesh_arrays, hints, st, source=source,
+                                                               texture=texture, prior=prior)
     cut = dict(source=source, texture=texture, eyeball=eyeball)
     coarse, first = {}, None
 
@@ -321,17 +322,19 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
                 raise
             raise both(exc) from None
         try:
-            fits, placements, median_edge = _place_again(mesh_arrays, hints, st, coarse, placements, prior, cut)
+            # every other eye as the search found it: one it placed from its opening (a coarse
+            # photogrammetry head's) is placed so again, not taken for closed
+            fits, placements, median_edge, _ = _place_again(mesh_arrays, hints, st, coarse, searched, prior, cut)
         except ScanError as exc:
             raise both(exc) from None
 
 
-def _place_again(mesh_arrays, hints, st, coarse: dict, placements, prior, cut):
+def _place_again(mesh_arrays, hints, st, coarse: dict, searched, prior, cut):
     """:func:`place_near_hints` with the eyes ``coarse`` (side -> why) placed behind the opening
-    the eye-region prior outlines and the others as ``placements`` placed them (the search is
-    not run again)."""
+    the eye-region prior outlines and the others from what the first search found
+    (``searched``; the search is not run again)."""
     return place_near_hints(mesh_arrays, hints, st, source=cut["source"], texture=cut["texture"],
-                            prior=prior, coarse=coarse, placed=placements)
+                            prior=prior, coarse=coarse, placed=searched)
 
 
 def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, source, texture,
