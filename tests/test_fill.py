@@ -136,6 +136,24 @@ def test_the_distance_outside_the_priors_margin():
     assert _outside_margin([0.0, 0.0, 0.0], {"margin": None}) is None and _outside_margin([0, 0, 0], None) is None
 
 
+def _narrow_once(monkeypatch, width_mm: float, calls: dict):
+    """The stage's first judging raises ``NarrowOpening`` for the right eye (a loop ``width_mm``
+    wide); later ones judge as the stage does. Counts the calls in ``calls["judge"]``."""
+    import pipeline.placement.place as place
+    import pipeline.remove_eyeballs.remove_eyeballs as re_mod
+
+    real_judge = place.judge_pair
+
+    def judge(*a, **k):
+        calls["judge"] += 1
+        if calls["judge"] == 1:
+            raise place.NarrowOpening("narrow.ply", f"right eye: self-check opening_wide: the eyelid loop "
+                                      f"spans {width_mm:.1f} mm, narrower than any eye's fissure", "right", width_mm)
+        return real_judge(*a, **k)
+
+    monkeypatch.setattr(re_mod, "judge_pair", judge)
+
+
 @pytest.mark.slow
 def test_a_cut_round_part_of_an_eye_is_cut_again_behind_the_priors_opening(head, monkeypatch):
     """When the first cut's judging finds a loop narrower than any fissure with no iris in it
@@ -143,24 +161,16 @@ def test_a_cut_round_part_of_an_eye_is_cut_again_behind_the_priors_opening(head,
     opening the eye-region prior outlines, doubted and saying why; the left eye keeps its
     placement and the search runs once."""
     import pipeline.placement.place as place
-    import pipeline.remove_eyeballs.remove_eyeballs as re_mod
     from pipeline.placement.prior import EyeRegionPrior
 
     h, _ = head
-    real_judge, real_search, calls = place.judge_pair, place.place_eyes, {"judge": 0, "search": 0}
-
-    def judge(*a, **k):
-        calls["judge"] += 1
-        if calls["judge"] == 1:
-            raise place.NarrowOpening("narrow.ply", "right eye: self-check opening_wide: the eyelid loop "
-                                      "spans 11.0 mm, narrower than any eye's fissure", "right", 11.0)
-        return real_judge(*a, **k)
+    real_search, calls = place.place_eyes, {"judge": 0, "search": 0}
 
     def search(*a, **k):
         calls["search"] += 1
         return real_search(*a, **k)
 
-    monkeypatch.setattr(re_mod, "judge_pair", judge)
+    _narrow_once(monkeypatch, 11.0, calls)
     monkeypatch.setattr(place, "place_eyes", search)
     mesh = {"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}
     res = remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="narrow.ply",
@@ -185,21 +195,11 @@ def test_a_re_cut_keeps_the_other_eye_placed_as_it_was(head, monkeypatch):
     to place from its shape: here every eye, as in the coarse test above). It was refused as
     closed before: the first pass had dropped its placement (a coarse photogrammetry held-out
     head, `id338_photogrammetry_down`)."""
-    import pipeline.placement.place as place
-    import pipeline.remove_eyeballs.remove_eyeballs as re_mod
     from pipeline.placement.prior import EyeRegionPrior
 
     h, _ = head
-    real_judge, calls = place.judge_pair, {"judge": 0}
-
-    def judge(*a, **k):
-        calls["judge"] += 1
-        if calls["judge"] == 1:
-            raise place.NarrowOpening("narrow.ply", "right eye: self-check opening_wide: the eyelid loop "
-                                      "spans 9.0 mm, narrower than any eye's fissure", "right", 9.0)
-        return real_judge(*a, **k)
-
-    monkeypatch.setattr(re_mod, "judge_pair", judge)
+    calls = {"judge": 0}
+    _narrow_once(monkeypatch, 9.0, calls)
     res = remove_eyeballs({"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}, _hints(h),
                           RemoveEyeballsSettings(min_eye_vertices=100_000), source="narrow.ply",
                           prior=EyeRegionPrior.load().register)
