@@ -172,12 +172,13 @@ def axis_off_front(iris: dict, standoff_mm, front_mm=None) -> bool:
     corner. A dip with no front anywhere may be an iris seen recessed behind an unscanned cornea
     (a real 12 mm eye's lies about 1.6 mm inside the globe's sphere), and is believed.
 
-    Every eye this caught had been published sure and wrong: on the dev heads `id14_100k`
-    right, `id18_dome` left and `id21_dome_squint` left (7-8 mm and 37-40 deg off at +-3 deg,
-    dips of 0.89-1.10 mm, irises at 0.63-0.83 of the half-width); on held-out heads looking
-    38 deg to the side, eyes placed near forward on spheres within 0.9 mm of the truth's
-    (`id403_out` right, `id404_left` left: 43-50 deg off at +-4 deg). No dev or held-out eye
-    within 10 deg of its truth dips more than 0.41 mm."""
+    Every eye this caught had been published wrong, six of the seven sure of it: on the dev
+    heads `id14_100k` right, `id18_dome` left and `id21_dome_squint` left (7-8 mm and 37-40 deg
+    off at +-3 deg, dips of 0.89-1.10 mm, irises at 0.63-0.83 of the half-width) and
+    `id19_squint_down` left (19 deg off at +-11 deg); on held-out heads looking 38 deg to the
+    side, eyes placed near forward on spheres within 0.9 mm of the truth's (`id403_out` right,
+    `id404_left` left: 43-50 deg off at +-4 deg) and `id405_right` left (10 deg at +-1.4 deg).
+    No dev or held-out eye within 10 deg of its truth dips more than 0.41 mm."""
     if standoff_mm is None or not np.isfinite(standoff_mm) or standoff_mm >= -CORNER_DIP_MM:
         return False
     cornered = iris["offset_mm"] > CORNER_OFFSET_SHARE * iris["opening_half_width_mm"]
