@@ -170,29 +170,19 @@ def front_elsewhere(eye_points, center, radius, forward, lim: CheckLimits,
     P = np.asarray(eye_points, float)
     if len(P) > FRONT_MAX_POINTS:       # a dense scan's eye: every k-th point tells the same
         P = P[::int(np.ceil(len(P) / FRONT_MAX_POINTS))]
-    w = P - np.asarray(center, float)
-    nw = np.linalg.norm(w, axis=1)
-    keep = nw > 1e-9
-    d, u = nw[keep] - radius, w[keep] / nw[keep, None]
     n0 = np.asarray(forward, float) / np.linalg.norm(forward)
     B = eye_basis(n0)
     t = np.radians(np.arange(-reach_deg, reach_deg + 1e-9, step_deg))
-    yaw, pitch = np.meshgrid(t, t)
-    yaw, pitch = yaw.ravel(), pitch.ravel()
+    yaw, pitch = (a.ravel() for a in np.meshgrid(t, t))
     N = (np.cos(pitch)[:, None] * (np.sin(yaw)[:, None] * B[0] + np.cos(yaw)[:, None] * n0)
          + np.sin(pitch)[:, None] * B[1])
     N /= np.linalg.norm(N, axis=1)[:, None]
     N = N[np.arccos(np.clip(N @ n0, -1.0, 1.0)) <= np.radians(reach_deg) + 1e-9]
-    inner, outer = np.cos(np.radians(lim.cornea_cone_check_deg))
-    cos = N @ u.T                                      # (directions, points)
     best, at = None, None
-    for k in range(len(N)):
-        mid, side = d[cos[k] > inner], d[cos[k] < outer]
-        if len(mid) < lim.min_points or len(side) < lim.min_points:
-            continue
-        st = float(np.median(mid) - np.median(side))
-        if best is None or st > best:
-            best, at = st, N[k]
+    for n in N:
+        st = cornea_standoff(P, center, radius, n, lim)
+        if st is not None and (best is None or st > best):
+            best, at = st, n
     return best, at
 
 
