@@ -20,7 +20,11 @@ which the globe, the cornea or the lids must cover. Above ``SEE_THROUGH_MM2`` (a
 default render's pixel) a view sees through. Past the loop an uncovered pixel is the crop's
 edge seen at a grazing angle, which the sampler keeps out of every render; it is not counted. The iris at rest, seen from the head's front: the share of its disc (pupil centre to
 the iris landmarks, 3 rings of 8 points and the centre) that skin nearer the camera than the iris
-covers; an iris more than half hidden is counted.
+covers; an iris more than half hidden is counted. Where the scan has a ground truth in the asset's frame
+(``ground_truth.json`` beside a scan.yaml in mm, +Y up, +Z forward: the folder ingest recorded in
+``build/<case>/ingest/scan.json``), the true iris under the same lids too: a look down, a squint or
+a half blink hides more than half of the scanned person's own iris, so an asset's share is read
+against it.
 
 ``--home`` adds the three home scans' assets (rigged_assets/<scan>, build/<scan>/rig);
 ``--unseen WORK`` every asset a ``bench_unseen_scans --work WORK`` run left
@@ -34,6 +38,7 @@ import json
 from pathlib import Path
 
 from tests.fixtures.see_through import HIDDEN_SHARE, PITCHES, SEE_THROUGH_MM2, VIEWS, measure
+from tests.fixtures.truth import truth_eyes
 
 ROOT = Path(__file__).resolve().parents[1]
 HOME = ("synthetic_head", "ict_neutral", "james")
@@ -70,13 +75,14 @@ def main(argv=None):
     args = ap.parse_args(argv)
     rows = []
     for name, a, r in collect(args):
-        row = measure(name, a, r)
+        row = measure(name, a, r, truth_eyes(r.parent / "ingest" / "scan.json"))
         rows.append(row)
         for side, e in row["eyes"].items():
             print(f"{name:28s} {side:5s} see-through {e['see_through_mm2']['mm2']:7.2f} mm2 "
                   f"({e['views_with_see_through']}/{e['views']} views"
                   f"{'; worst ' + e['see_through_mm2']['view'] + ' at pitch ' + format(e['see_through_mm2']['pitch_deg'], '+.0f') if e['see_through_mm2']['mm2'] > SEE_THROUGH_MM2 else ''})"
-                  f"  iris hidden {100 * e['iris_hidden_share']:.0f} %")
+                  f"  iris hidden {100 * e['iris_hidden_share']:.0f} %"
+                  + (f" (truth's {100 * e['truth_iris_hidden_share']:.0f} %)" if "truth_iris_hidden_share" in e else ""))
     eyes = [e for r in rows for e in r["eyes"].values()]
     summary = {"assets": len(rows), "eyes": len(eyes),
                "assets_with_see_through": sum(any(e["see_through_mm2"]["mm2"] > SEE_THROUGH_MM2
@@ -84,6 +90,13 @@ def main(argv=None):
                "eyes_with_see_through": sum(e["see_through_mm2"]["mm2"] > SEE_THROUGH_MM2 for e in eyes),
                "see_through_mm2": SEE_THROUGH_MM2,
                "irises_hidden": sum(e["iris_hidden"] for e in eyes),
+               # against the scanned person's own iris, where the truth is known
+               "eyes_with_truth": len(tr := [e for e in eyes if "truth_iris_hidden_share" in e]),
+               "true_irises_hidden": sum(e["truth_iris_hidden_share"] > HIDDEN_SHARE for e in tr),
+               "irises_hidden_beyond_truth": sum(e["iris_hidden"] and e["iris_hidden_share"] > e["truth_iris_hidden_share"]
+                                                 for e in tr),
+               "most_hidden_beyond_truth": max((round(e["iris_hidden_share"] - e["truth_iris_hidden_share"], 3)
+                                                for e in tr), default=None),
                "views": {"pitches_deg": list(PITCHES), "cameras": VIEWS}, "hidden_share": HIDDEN_SHARE}
     print(json.dumps({k: v for k, v in summary.items() if k != "views"}))
     out = Path(args.results) / f"{args.out}.json"

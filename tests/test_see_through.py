@@ -74,3 +74,25 @@ def test_an_opening_the_eye_does_not_fill_is_seen_through_by_its_uncovered_area(
     assert opening_uncovered(small, "left", 0.0, front) == pytest.approx(inner - math.pi * 0.25, rel=0.02)
     # the skin across the tiny asset's openings covers them whatever the eye
     assert opening_uncovered(replace(tiny, eyes=small.eyes), "left", 0.0, front) == 0.0
+
+
+def test_the_true_iris_is_hidden_where_skin_lies_in_front_of_it_and_only_there(tiny):
+    """The tiny asset's skin is the plane z = 86 mm, open over a 20 mm square round each eye. A
+    true iris behind that plane beside the opening is all hidden, the same disc 100 mm in front
+    of the face none of it, and a true iris at the asset's own limbus as much as the asset's
+    own; with the skin left out, none of any."""
+    from dataclasses import replace
+
+    from tests.fixtures.see_through import iris_hidden_share, truth_iris_hidden_share
+
+    eye = tiny.eyes["left"]
+    limbus = eye.center + 10.0 / 12.0 * eye.radius * eye.forward
+    at = lambda c: {"limbus": {"center_mm": list(c)}, "gaze_direction": eye.forward.tolist()}   # noqa: E731
+    beside = np.array([72.0, 0.5, 80.0])              # 20 mm past the opening's edge, 6 mm deep
+    assert truth_iris_hidden_share(tiny, "left", at(beside)) == 1.0
+    assert truth_iris_hidden_share(tiny, "left", at(beside + [0.0, 0.0, 100.0])) == 0.0
+    own = iris_hidden_share(tiny, "left")
+    assert own < 0.5
+    assert truth_iris_hidden_share(tiny, "left", at(limbus)) == pytest.approx(own, abs=0.12)
+    bare = replace(tiny, skin_faces=np.zeros((0, 3), np.int64))
+    assert truth_iris_hidden_share(bare, "left", at(beside)) == 0.0 == iris_hidden_share(bare, "left")
