@@ -70,34 +70,3 @@ def test_the_depth_is_taken_across_the_face_however_it_is_turned_and_meshed():
     assert fissure_depth(Vt, Ft, c) == pytest.approx(flat, rel=0.05)
     Vc, Fc = _surface(_groove(0.6), step=1.2)
     assert fissure_depth(Vc, Fc, [0.0, 0.0, -0.6]) == pytest.approx(flat, rel=0.1)
-
-
-def test_an_eye_is_taken_for_open_only_with_no_fissure_and_a_weaker_fold():
-    """place._bulging_open: a globe's bulge with an eye surface that the search at 8 deg finds is
-    open; with none (a lid laid smooth over the eye), or one only at the radius range's bound,
-    it is not; a fissure says closed before the search is run (the search runs once for both
-    eyes)."""
-    from pipeline.placement.fit import AtRadiusBound
-    from pipeline.placement.lid_fissure import LOWER_FOLD_DEG
-    from pipeline.placement.place import _bulging_open
-
-    calls = []
-
-    def search(found):
-        def run(min_fold_deg):
-            calls.append(min_fold_deg)
-            return {"left": found, "right": None}
-        return run
-
-    globe, hint = _surface(_globe), np.array([0.0, 0.0, 3.0])
-    lower = {}
-    assert _bulging_open(*globe, hint, "left", lower, search(object()))
-    assert calls == [LOWER_FOLD_DEG] and lower["depth", "left"] < 0.01
-    assert not _bulging_open(*globe, hint, "right", lower, search(object()))     # cached: right found none
-    assert calls == [LOWER_FOLD_DEG]
-    assert not _bulging_open(*globe, hint, "left", {}, search(AtRadiusBound(21.0, 9.0)))
-    calls.clear()
-    groove = _surface(_groove(0.6))
-    lower = {}
-    assert not _bulging_open(*groove, [0.0, 0.0, -0.6], "left", lower, search(object()))
-    assert calls == [] and lower["depth", "left"] > OPEN_BELOW_MM
