@@ -47,7 +47,6 @@ OPEN_BELOW_MM = 0.18
 LOWER_FOLD_DEG = 8.0
 RES_MM = 0.25
 HALF_MM = 14.0
-CROP_MM = 60.0
 
 
 def _frame(V, F, c, reach=15.0):
@@ -72,32 +71,21 @@ def _height_field(V, F, c, R, half, res):
     T = T[(hi[:, 0] > -half) & (lo[:, 0] < half) & (hi[:, 1] > -half) & (lo[:, 1] < half) & (hi[:, 2] > -25.0)]
     n = int(round(2 * half / res)) + 1
     g = np.linspace(-half, half, n)
-    Z = np.full(n * n, -np.inf)
-    x0, y0, z0 = T[:, 0].T
-    x1, y1, z1 = T[:, 1].T
-    x2, y2, z2 = T[:, 2].T
-    lo, hi = T.min(axis=1), T.max(axis=1)
-    ix0 = np.maximum(np.ceil((lo[:, 0] + half) / res).astype(np.int64), 0)
-    ix1 = np.minimum(np.floor((hi[:, 0] + half) / res).astype(np.int64), n - 1)
-    iy0 = np.maximum(np.ceil((lo[:, 1] + half) / res).astype(np.int64), 0)
-    iy1 = np.minimum(np.floor((hi[:, 1] + half) / res).astype(np.int64), n - 1)
-    det = (y1 - y2) * (x0 - x2) + (x2 - x1) * (y0 - y2)
-    keep = np.flatnonzero((ix1 >= ix0) & (iy1 >= iy0) & (np.abs(det) >= 1e-12))
-    # every (face, grid node) pair of the faces' boxes at once: a 150k-face head's window holds
-    # ~5k faces of ~25 nodes each, a 1.4M-face head's ~40k of ~2 (the loop over faces took 14 s)
-    nx, ny = (ix1 - ix0 + 1)[keep], (iy1 - iy0 + 1)[keep]
-    cnt = nx * ny
-    t = np.repeat(keep, cnt)
-    k = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    nxt = np.repeat(nx, cnt)
-    ix, iy = ix0[t] + k % nxt, iy0[t] + k // nxt
-    X, Y = g[ix], g[iy]
-    a = ((y1[t] - y2[t]) * (X - x2[t]) + (x2[t] - x1[t]) * (Y - y2[t])) / det[t]
-    b = ((y2[t] - y0[t]) * (X - x2[t]) + (x0[t] - x2[t]) * (Y - y2[t])) / det[t]
-    inside = (a >= -1e-9) & (b >= -1e-9) & (1.0 - a - b >= -1e-9)
-    zz = a * z0[t] + b * z1[t] + (1.0 - a - b) * z2[t]
-    np.maximum.at(Z, (iy * n + ix)[inside], zz[inside])
-    Z = Z.reshape(n, n)
+    Z = np.full((n, n), -np.inf)
+    for (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) in T:
+        ix0 = max(int(np.ceil((min(x0, x1, x2) + half) / res)), 0)
+        ix1 = min(int(np.floor((max(x0, x1, x2) + half) / res)), n - 1)
+        iy0 = max(int(np.ceil((min(y0, y1, y2) + half) / res)), 0)
+        iy1 = min(int(np.floor((max(y0, y1, y2) + half) / res)), n - 1)
+        det = (y1 - y2) * (x0 - x2) + (x2 - x1) * (y0 - y2)
+        if ix1 < ix0 or iy1 < iy0 or abs(det) < 1e-12:
+            continue
+        X, Y = np.meshgrid(g[ix0:ix1 + 1], g[iy0:iy1 + 1])
+        a = ((y1 - y2) * (X - x2) + (x2 - x1) * (Y - y2)) / det
+        b = ((y2 - y0) * (X - x2) + (x0 - x2) * (Y - y2)) / det
+        inside = (a >= -1e-9) & (b >= -1e-9) & (1.0 - a - b >= -1e-9)
+        sub = Z[iy0:iy1 + 1, ix0:ix1 + 1]
+        np.maximum(sub, np.where(inside, a * z0 + b * z1 + (1.0 - a - b) * z2, -np.inf), out=sub)
     Z[~np.isfinite(Z)] = np.nan
     return g, Z
 
@@ -130,11 +118,6 @@ def fissure_depth_ring(V, F, hint, ring_mm=2.5, n=8) -> float:
     """Median of :func:`fissure_depth` at ``n`` points on a ``ring_mm`` circle round ``hint`` in
     the head's x-y plane (mm)."""
     hint = np.asarray(hint, float)
-    V, F = np.asarray(V, float), np.asarray(F)
-    # every face a window can use lies within reach of the hint (the frame's 15 mm, the window's
-    # corners 20 mm across, 25 mm behind): the faces farther than CROP_MM are left out once
-    near = np.linalg.norm(V - hint, axis=1) < CROP_MM
-    F = F[near[F].any(axis=1)]
     a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
     return float(np.median([fissure_depth(V, F, hint + ring_mm * np.array([np.cos(t), np.sin(t), 0.0]))
                             for t in a]))
