@@ -27,7 +27,6 @@ from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_behind_loop,
 from pipeline.placement.fissure import points_in_polygon
 from pipeline.placement.fit import AtRadiusBound, place_eyes
 from pipeline.placement.iris_cap import AXIS_MODEL_SIGMA_DEG
-from pipeline.placement.lid_fissure import LOWER_FOLD_DEG, OPEN_BELOW_MM as FISSURE_OPEN_BELOW_MM, fissure_depth_ring
 from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
 from pipeline.placement.settings import PlacementSettings
 from pipeline.placement.texture import MARGIN_OFF, NoEyeInTexture, fit_texture
@@ -213,20 +212,15 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
     # an opening a scanner filled flat: its boundary is the fissure (pipeline/placement/fill.py)
     fills = {s: find_flat_fill(V, F, hints[s], median_edge, exclude=filled) for s in SIDES}
     coarse = coarse or {}
-
-    def search(min_fold_deg):
-        return place_eyes(
+    if placed is not None:
+        placements = dict(placed)
+    else:
+        placements = {s: None for s in SIDES} if all(fills.values()) else place_eyes(
             V, F, hints, patch_radius_mm=st.place_patch_mm, radius_range=tuple(st.radius_range_mm),
             radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
             prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
             temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
-            min_fold_deg=min_fold_deg)
-
-    lower = {}      # the search at a lower fold, run only for an eye it may save from refusal
-    if placed is not None:
-        placements = dict(placed)
-    else:
-        placements = {s: None for s in SIDES} if all(fills.values()) else search(st.min_crease_deg)
+            min_fold_deg=st.min_crease_deg)
     searched = dict(placements)     # what the search found, before the fallbacks below drop it
     fits = {}
     for s in SIDES:
@@ -259,21 +253,10 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
                 continue
             except ScanError as exc:
                 err = exc
-        elif _bulging_open(V, F, hints[s], s, lower, search):
-            # no lid fold of min_crease_deg round the eye, but a weaker one, and no fissure across
-            # the opening: an open eye whose globe bulges past its lids (a large globe on a noisy
-            # or sparse scan: id321_sparse_views' right eye, both of id324_hint5_down's), placed
-            # behind its opening; a blink's lids meet in a fissure 0.28 mm deep or more, and a lid
-            # laid smooth over the eye rings no eye surface at all (pipeline/placement/lid_fissure.py)
-            err = CoarseEye(source, f"{s} eye: no eye surface ringed by a lid fold of {st.min_crease_deg:g} deg "
-                                    f"but one of {LOWER_FOLD_DEG:g} deg, and no lid fissure across the "
-                                    f"opening (a crease {lower['depth', s]:.2f} mm deep, under "
-                                    f"{FISSURE_OPEN_BELOW_MM:g} mm): an open eye whose globe bulges "
-                                    f"past its lids", None)
         else:
             err = ScanError(source, f"{s} eye looks closed (or too little of the eyeball shows to place "
-                                    f"it): no eye surface ringed by a lid fold near the hint "
-                                    f"{np.round(hints[s], 2).tolist()}")
+                                    f"it): no eye surface ringed by a lid fold "
+                                    f"near the hint {np.round(hints[s], 2).tolist()}")
         has_tex = texture is not None and "UV" in uv and "FUV" in uv
         if not (st.texture_fallback and has_tex):
             if not isinstance(err, CoarseEye):
@@ -299,22 +282,6 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         if front is not None and front.get(s) is not None:
             fits[s].prior_axis = np.asarray(front[s]["axis"], float)
     return mesh, fits, placements, searched
-
-
-def _bulging_open(V, F, hint, side, lower: dict, search) -> bool:
-    """Whether an eye with no surface ringed by a lid fold of ``min_crease_deg`` is an open eye
-    whose globe bulges past its lids: no fissure across its opening
-    (:func:`pipeline.placement.lid_fissure.fissure_depth_ring` under ``OPEN_BELOW_MM``) and an
-    eye surface ringed by a fold of ``LOWER_FOLD_DEG`` (``search(min_fold_deg)``, both eyes' search;
-    run once, and only when the fissure is missing). ``lower`` caches both, keyed
-    ``("depth", side)`` and ``"search"``."""
-    lower["depth", side] = depth = fissure_depth_ring(V, F, hint)
-    if depth >= FISSURE_OPEN_BELOW_MM:
-        return False
-    if "search" not in lower:
-        lower["search"] = search(LOWER_FOLD_DEG)
-    found = lower["search"][side]
-    return found is not None and not isinstance(found, AtRadiusBound)
 
 
 def placement_record(pl, fit):
