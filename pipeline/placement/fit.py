@@ -13,10 +13,11 @@ centres); its uncertainty is :mod:`pipeline.placement.uncertainty`'s.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from pipeline.fork import fork_call, fork_result
 from pipeline.geometry.spherefit import sphere_from_normals
 from pipeline.placement.cues import (COARSE_VERTICES, Cues, Patch, ResidualRows, build_patch, coarse_patch,
                                      fold_deg, midplane_x, prior_blocks, residual_jacobians, segment, unary_costs)
@@ -76,9 +77,17 @@ class FitResult:
 
     def _get(self, i):
         if self._laplace is None:
+            if self._laplace_of is None:
+                raise RuntimeError("this fit's Laplace approximation was not made before it was sent "
+                                   "from another process")
             self._laplace = self._laplace_of()
             self._laplace_of = None
         return self._laplace[i]
+
+    def __getstate__(self):
+        # the closure does not pickle: a fit sent back from a child (place_eyes' search of one
+        # side) carries its Laplace part only where the child made it (the placed mode's)
+        return {"eyes": self.eyes, "cost": self.cost, "_laplace": self._laplace, "_laplace_of": None}
 
     cov = property(lambda self: self._get(0))
     shares = property(lambda self: self._get(1))
@@ -223,16 +232,28 @@ def forward_differences(f_rows, x, f0, lo, hi):
     return JT.T
 
 
-def hypotheses(p: Patch, cues: Cues, radius_range, rng, n_pairs=1500, keep=3, min_fold_deg=15.0,
-               pool=60):
-    """Starting eyes: spheres through pairs of oriented vertices near the hint, and along the
+HYPOTHESIS_PAIRS = 1500    # pairs of oriented vertices drawn per eye
+
+
+def hypothesis_pairs(p: Patch, rng, n_pairs=HYPOTHESIS_PAIRS):
+    """The pairs of oriented vertices near the hint that :func:`hypotheses` draws spheres
+    through: ``(near, pairs)``, vertex indices of ``p`` and (n_pairs, 2) indices into ``near``
+    (None with fewer than two). Drawn apart from the search, so that both eyes' draws come from
+    one generator in order while their searches run side by side."""
+    near = np.flatnonzero((np.linalg.norm(p.V - p.hint, axis=1) < 12.0) & (p.A > 0))
+    return near, (rng.integers(0, len(near), (n_pairs, 2)) if len(near) >= 2 else None)
+
+
+def hypotheses(p: Patch, cues: Cues, radius_range, drawn, keep=3, min_fold_deg=15.0, pool=60):
+    """Starting eyes: spheres through pairs of oriented vertices near the hint (``drawn``, from
+    :func:`hypothesis_pairs`), and along the
     prior's axis at every whole radius; the ``pool`` best by their unaries are segmented, and
     the ``keep`` lowest in energy among those ringed by a lid fold (``min_fold_deg``; the
     cheek or a lid laid over a sphere is not) are returned, distinct in centre or radius."""
-    near = np.flatnonzero((np.linalg.norm(p.V - p.hint, axis=1) < 12.0) & (p.A > 0))
+    near, pairs = drawn
     cands = []
-    if len(near) >= 2:
-        for a, b in rng.integers(0, len(near), (n_pairs, 2)):
+    if pairs is not None:
+        for a, b in pairs:
             if a == b:
                 continue
             h = sphere_from_normals(p.V[near[a]], p.N[near[a]], p.V[near[b]], p.N[near[b]])
@@ -339,8 +360,16 @@ def _turn(n, yaw_deg, pitch_deg):
 
 
 def gaze_restarts(p: Patch, found, cues: Cues, radius_range, min_fold_deg):
-    """The best local optimum (and a rival in another basin, below) refitted from gazes turned
-    in, out, up and down (``GAZE_RESTARTS_DEG``). Every start takes the eye region's forward as
+    """:func:`turned_starts`, one round from each, then :func:`restarts_refined`."""
+    first = [refine(p, e, cues, radius_range, iters=1, fold=False)
+             for e in turned_starts(found, cues, min_fold_deg)]
+    return restarts_refined(p, first, cues, radius_range)
+
+
+def turned_starts(found, cues: Cues, min_fold_deg):
+    """The starts of :func:`gaze_restarts`: the best local optimum of ``found`` (and a rival in
+    another basin, below) with its gaze turned in, out, up and down (``GAZE_RESTARTS_DEG``),
+    one start per turn. Every start takes the eye region's forward as
     its gaze, but a gaze turned 20-45 deg from it (looking in, out, down; ICT's eyes rest 5-10
     deg out) sits in
     another basin of the least squares; the energy tells them apart (on the unseen heads a
@@ -364,13 +393,15 @@ def gaze_restarts(p: Patch, found, cues: Cues, radius_range, min_fold_deg):
             rivals, key=lambda m: float(np.linalg.norm(m.eye.c + m.eye.R * axis - cues.front)))
         # turned about the gaze every start took (the eye region's forward), not the rival's own
         starts.append((rival.eye, rival.eye.n if axis is None else axis))
-    # one round from every turned gaze, then the full refinement of the few lowest: most turned
-    # starts fall back into the start's basin or wander off within one round (ranked by energy
-    # alone: their lid folds are not read)
-    first = [refine(p, Eye(e.c, e.R, _turn(n, yaw, pitch), e.ha, e.tl, e.hb), cues, radius_range, iters=1,
-                    fold=False)
-             for e, n in starts for yaw, pitch in GAZE_RESTARTS_DEG]
-    first.sort(key=lambda t: t.energy)
+    return [Eye(e.c, e.R, _turn(n, yaw, pitch), e.ha, e.tl, e.hb)
+            for e, n in starts for yaw, pitch in GAZE_RESTARTS_DEG]
+
+
+def restarts_refined(p: Patch, first, cues: Cues, radius_range):
+    """The full refinement of the few lowest of ``first`` (the modes one round took the turned
+    starts to): most turned starts fall back into the start's basin or wander off within one
+    round (ranked by energy alone: their lid folds are not read)."""
+    first = sorted(first, key=lambda t: t.energy)
     return _refine_each(p, [t.eye for t in first[:RESTARTS_KEEP]], cues, radius_range, REFINE_ITERS - 1)
 
 
@@ -387,8 +418,6 @@ def _refine_each(p: Patch, starts, cues: Cues, radius_range, iters):
     """:func:`refine` from each start, once per set of twins (turned gazes that fell back into
     one basin within the first round, or polish's two best when they are one optimum: refining
     each again repeated the same fits); a twin's result is a copy of the first one's."""
-    from dataclasses import replace
-
     done, out = [], []
     for e in starts:
         m = next((m for e0, m in done if _twins(e0, e)), None)
@@ -413,6 +442,46 @@ def polish(p: Patch, found, cues: Cues, radius_range, keep=POLISH_KEEP, iters=PO
     return out
 
 
+def _placeable(m: Mode, radius_range, min_fold_deg) -> bool:
+    """Whether ``m`` counts as an open eye: ringed by a lid fold, with eye labels, its radius
+    inside the range."""
+    return m.fold_deg >= min_fold_deg and bool(m.lab.any()) and _inside_range(m.eye.R, radius_range)
+
+
+def _hypothesised(p: Patch, cues: Cues, drawn, radius_range, min_fold_deg, laplace=False):
+    """The first part of one eye's search: its :func:`hypotheses`, each refined. ``laplace``: the
+    Laplace part of every mode that may end up placed is made (a mode sent back from a child
+    carries it only so)."""
+    found = [refine(p, h, cues, radius_range)
+             for h in hypotheses(p, cues, radius_range, drawn, min_fold_deg=min_fold_deg)]
+    for m in found if laplace else ():
+        if _placeable(m, radius_range, min_fold_deg):
+            m.fit.cov       # noqa: B018
+    return found
+
+
+def _finished(p: Patch, cues: Cues, found, first, radius_range, min_fold_deg, laplace=False):
+    """The last part of one eye's search, from its refined hypotheses ``found`` and the modes one
+    round took its turned starts to (``first``): the restarts' refinement and the polish.
+    Returns ``(modes, at_bound)``: the local optima that count as an open eye (:func:`_placeable`),
+    the lowest first, and, where there is none, an :class:`AtRadiusBound` for folded optima on a
+    bound of the radius range (else None). ``laplace``: the lowest mode's Laplace part is made (to
+    travel with it from a child)."""
+    found = polish(p, found + restarts_refined(p, first, cues, radius_range), cues, radius_range)
+    modes = sorted((m for m in found if _placeable(m, radius_range, min_fold_deg)), key=lambda m: m.energy)
+    if laplace and modes:
+        modes[0].fit.cov        # noqa: B018
+    at_bound = None
+    if not modes:
+        bound = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()), key=lambda m: m.energy)
+        if bound:
+            at_bound = AtRadiusBound(float(bound[0].eye.R), float(bound[0].fold_deg))
+    return modes, at_bound
+
+
+MIDPLANE_ROUNDS = 6     # the midplane's search takes about as long as this many first rounds
+
+
 def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prior=None,
                ignore=None, seed=0, temperature=20.0, sigma_scale=1.0, shared_radius_z=2.5,
                sym_sigma_mm=1.0, min_fold_deg=20.0, coarse_vertices=COARSE_VERTICES):
@@ -424,7 +493,7 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     whose folded optima all rest on a bound of the radius range as :class:`AtRadiusBound`.
     Returns ``{side: Placement, AtRadiusBound or None}``."""
     rng = np.random.default_rng(seed)
-    patches, full, cues, modes, at_bound = {}, {}, {}, {}, {}
+    patches, full, cues, drawn = {}, {}, {}, {}
     for s in SIDES:
         full[s] = build_patch(V, F, hints[s], patch_radius_mm, ignore)
         filled = ignore is not None and bool(np.asarray(ignore, bool)[full[s].faces].any())
@@ -432,16 +501,33 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
         pr = prior(s) if prior is not None else None
         cues[s] = Cues(front=None if pr is None else pr["front"], axis=None if pr is None else pr["axis"],
                        front_sigma=4.0 if pr is None else pr["sigma"], radius_prior=radius_prior)
-        found = [refine(patches[s], h, cues[s], radius_range)
-                 for h in hypotheses(patches[s], cues[s], radius_range, rng, min_fold_deg=min_fold_deg)]
-        found += gaze_restarts(patches[s], found, cues[s], radius_range, min_fold_deg)
-        found = polish(patches[s], found, cues[s], radius_range)
-        modes[s] = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()
-                           and _inside_range(m.eye.R, radius_range)), key=lambda m: m.energy)
-        if not modes[s]:
-            bound = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()), key=lambda m: m.energy)
-            if bound:
-                at_bound[s] = AtRadiusBound(float(bound[0].eye.R), float(bound[0].fold_deg))
+        drawn[s] = hypothesis_pairs(patches[s], rng)
+    # the two eyes' searches are independent and run side by side (pipeline.fork; the same bytes
+    # with EYERIG_SERIAL=1): the left eye's hypotheses in a child beside the right eye's, then
+    # the first rounds from both eyes' turned starts shared out evenly (an eye with a rival basin
+    # has twice as many) with the midplane's search, then each eye's last part
+    job = fork_call(_hypothesised, patches["left"], cues["left"], drawn["left"], radius_range, min_fold_deg,
+                    laplace=True)
+    found = {"right": _hypothesised(patches["right"], cues["right"], drawn["right"], radius_range, min_fold_deg)}
+    found["left"] = fork_result(job)[0]
+    starts = [(s, e) for s in SIDES for e in turned_starts(found[s], cues[s], min_fold_deg)]
+
+    def first_rounds(part):
+        return [refine(patches[s], e, cues[s], radius_range, iters=1, fold=False) for s, e in part]
+
+    half = min(len(starts), (len(starts) + MIDPLANE_ROUNDS + 1) // 2)
+    job = fork_call(first_rounds, starts[:half])
+    rest = first_rounds(starts[half:])
+    xm = midplane_x(V, hints)
+    first = fork_result(job)[0] + rest
+    mine = {s: [m for (side, _), m in zip(starts, first) if side == s] for s in SIDES}
+    job = fork_call(_finished, patches["left"], cues["left"], found["left"], mine["left"], radius_range,
+                    min_fold_deg, laplace=True)
+    done = {"right": _finished(patches["right"], cues["right"], found["right"], mine["right"], radius_range,
+                               min_fold_deg)}
+    done["left"] = fork_result(job)[0]
+    modes = {s: done[s][0] for s in SIDES}
+    at_bound = {s: done[s][1] for s in SIDES if done[s][1] is not None}
     if not all(modes[s] for s in SIDES):
         return {s: at_bound.get(s) if not modes[s] else _on_full(placement_of(
             patches[s], modes[s], None, temperature, sigma_scale), full[s]) for s in SIDES}
@@ -449,27 +535,32 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     # one radius for the two eyes when they agree; then a joint fit with a loose mirror prior
     sr = {s: float(np.sqrt(max(best[s].fit.cov[3, 3], 1e-6))) for s in SIDES}
     agree = abs(best["left"].eye.R - best["right"].eye.R) <= shared_radius_z * np.hypot(*sr.values())
-    xm = midplane_x(V, hints)
     fit = fit_eyes([patches[s] for s in SIDES], [best[s].lab for s in SIDES],
                    [best[s].eye for s in SIDES], [cues[s] for s in SIDES], radius_range,
                    shared_radius=agree, xm=xm, sym_sigma=sym_sigma_mm)
-    out = {}
-    for i, s in enumerate(SIDES):
+    fit.cov         # noqa: B018 -- the joint fit's Laplace part, made once before the sides part
+
+    def placed(i, s):
+        """Side ``s``'s placement from the joint fit (its radius profile, its rivals), labelled
+        on the full patch, which it does not carry (the caller's ``full[s]``)."""
         e = fit.eyes[i]
         lab, energy = segment(patches[s], e)
         m0 = Mode(e, lab, energy, fit, fold_deg(patches[s], lab))
         radii = np.arange(np.ceil(radius_range[0]), radius_range[1] + 1e-9, 1.0)
         prof = radius_profile(patches[s], e, cues[s], radii, lab=lab)
-        out[s] = _on_full(placement_of(patches[s], [m0] + modes[s][1:], (fit, i, agree), temperature,
-                                       sigma_scale, prof), full[s])
+        pl = placement_of(patches[s], [m0] + modes[s][1:], (fit, i, agree), temperature, sigma_scale, prof)
+        return replace(pl, patch=None, lab=pl.lab if patches[s] is full[s] else segment(full[s], pl.eye)[0])
+
+    job = fork_call(placed, 0, "left")      # the two sides' profiles side by side, as their searches
+    out = {"right": placed(1, "right")}
+    out["left"] = fork_result(job)[0]
+    out = {s: replace(out[s], patch=full[s]) for s in SIDES}
     return share_radius(out)
 
 
 def _on_full(pl, full: Patch):
     """``pl`` with the scan's own patch, labelled under its eye: the cut follows the scan's
     vertices, whichever copy the eye was searched on."""
-    from dataclasses import replace
-
     if pl.patch is full:
         return pl
     return replace(pl, patch=full, lab=segment(full, pl.eye)[0])

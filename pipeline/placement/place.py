@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.fork import fork_call, fork_result
 from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
@@ -201,16 +202,22 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
     if filled is not None:
         ignore = filled | ignore
     uv = uv or {}
-    front = None
-    if prior is not None:
-        front = {}
-        for s in SIDES:
-            try:
-                front[s] = {**prior(V, F, hints[s], s), "sigma": st.prior_front_sigma_mm}
-            except (ValueError, np.linalg.LinAlgError):     # the model did not register here
-                front[s] = None
+
+    def registered(s):
+        try:
+            return {**prior(V, F, hints[s], s), "sigma": st.prior_front_sigma_mm}
+        except (ValueError, np.linalg.LinAlgError):     # the model did not register here
+            return None
+
+    # the left eye's prior registers in a child beside the right one's and the fills (pipeline.fork);
+    # scipy.optimize (0.3 s) is imported before, once, not in both
+    import scipy.optimize  # noqa: F401
+
+    job = None if prior is None else fork_call(registered, "left")
+    right = None if prior is None else registered("right")
     # an opening a scanner filled flat: its boundary is the fissure (pipeline/placement/fill.py)
     fills = {s: find_flat_fill(V, F, hints[s], median_edge, exclude=filled) for s in SIDES}
+    front = None if prior is None else {"left": fork_result(job)[0], "right": right}
     coarse = coarse or {}
     if placed is not None:
         placements = dict(placed)

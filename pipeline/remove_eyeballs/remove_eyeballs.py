@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.errors import ScanError
+from pipeline.fork import fork_call, fork_result
 from pipeline.geometry import meshtopo
 from pipeline.geometry.flips import move_guarded
 from pipeline.geometry.frame import eye_basis
@@ -294,9 +295,12 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
         ``result`` (the metrics).
     """
     st = st or RemoveEyeballsSettings()
+    # the scan's own boundary (one sort of its 3m half-edges, a tenth of the stage on a 1.4M-face
+    # scan) depends on the faces only: a child finds it while the eyes are placed (pipeline.fork)
+    job = fork_call(meshtopo.boundary_mask, np.asarray(mesh_arrays["F"], dtype=np.int64))
     fits, placements, median_edge, searched = place_near_hints(mesh_arrays, hints, st, source=source,
                                                                texture=texture, prior=prior)
-    cut = dict(source=source, texture=texture, eyeball=eyeball)
+    cut = dict(source=source, texture=texture, eyeball=eyeball, boundary=(mesh_arrays, fork_result(job)[0]))
     coarse, first = {}, None
 
     def both(exc):      # the first refusal and why the eye placed again is refused too, one line
@@ -338,11 +342,13 @@ def _place_again(mesh_arrays, hints, st, coarse: dict, searched, prior, cut):
 
 
 def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, source, texture,
-                   eyeball) -> RemovalResult:
+                   eyeball, boundary=None) -> RemovalResult:
     """Cut both placed eyes' regions out of the scan and judge what is published
-    (:func:`remove_eyeballs`)."""
+    (:func:`remove_eyeballs`). ``boundary``: ``(arrays, meshtopo.boundary_mask(arrays["F"]))``
+    when already found."""
     # an eye placed from its texture is cut along the fissure the photograph shows: the faces
     # near that outline are split first (pipeline/remove_eyeballs/fissure_cut.py)
+    scan_arrays = mesh_arrays
     mesh_arrays, fits = openings_at_fissures(mesh_arrays, fits)
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
@@ -350,7 +356,8 @@ def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, sou
         raise ScanError(source, "the two eye regions overlap (hints too close or wrong)")
     # one sort of the scan's directed edges gives its boundary and whether it is edge-manifold;
     # the cut mesh's boundary follows from it by a look-up near the openings (meshtopo.cut_boundary_mask)
-    open_in, repeated = meshtopo.boundary_mask(F)
+    open_in, repeated = (boundary[1] if boundary is not None and boundary[0] is scan_arrays is mesh_arrays
+                         else meshtopo.boundary_mask(F))
     H_in = meshtopo.halfedges_of(F, open_in)
     loops_in = meshtopo.boundary_component_count(F, H_in)
     remove = fits["left"].region | fits["right"].region

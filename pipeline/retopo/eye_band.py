@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.fork import fork_call, fork_result
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.flips import reference_face_normals, relax
 from pipeline.geometry.meshtopo import has_halfedge
@@ -719,8 +720,9 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
         from pipeline.retopo.eye_rings import edge_graph
 
         graph = edge_graph(ref_V, ref_F)
-    grids, infos, params = {}, {}, {}
-    for side in sides:
+
+    def grid_of(side):
+        """``(grid, info, param)`` of one eye's band: independent of the other eye's."""
         P = V[loops[side]]
         locked = np.concatenate([b for k, b in enumerate(dense_loops) if k != holes[side]])
         first = float(np.mean(np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1)))
@@ -728,8 +730,17 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
                              param_mm, locked, graph)
         G = smooth_grid(G, info["ring_distances_mm"], ref_V, ref_F, info.pop("_outer_line"),
                         normal=info.pop("_normal"))
-        params[side] = info.pop("_param")
-        grids[side], infos[side] = G, info
+        return G, info, info.pop("_param")
+
+    # the first eye's band is built in a child beside the others' (pipeline.fork; the same bytes
+    # with EYERIG_SERIAL=1)
+    job = fork_call(grid_of, sides[0]) if len(sides) > 1 else None
+    built = {side: grid_of(side) for side in sides[1 if job else 0:]}
+    if job:
+        built[sides[0]] = fork_result(job)[0]
+    grids = {side: built[side][0] for side in sides}
+    infos = {side: built[side][1] for side in sides}
+    params = {side: built[side][2] for side in sides}
     # the cut and zip, for each eye with the remesh's vertices within each of CUT_NEAR x the
     # outer ring's edge of it cut away too: the zip's strip is only as good as the cut's border,
     # and which margin gives the best border varies eye by eye (the eyes' cuts are independent).
@@ -740,13 +751,24 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
     args = (V, F, loops, grids, inside, _band_quads(grids, rings, S, ref_V, ref_F, scan), ref_V, ref_F, rings,
             S, relax_iterations, {}, scan)
     tried, best = {}, {}
-    for near in CUT_NEAR:
+
+    def cut_at(near):
         try:
-            tried[near] = _cut_and_zip(*args, {side: near for side in sides})
-        except ValueError:
+            return _cut_and_zip(*args, {side: near for side in sides})
+        except ValueError as exc:
+            return exc
+
+    # the last margin is tried in a child beside the others (pipeline.fork); its zips are then
+    # not remembered here, which costs a mixed pick that uses it a zip again
+    job = fork_call(cut_at, CUT_NEAR[-1])
+    runs = {near: cut_at(near) for near in CUT_NEAR[:-1]}
+    runs[CUT_NEAR[-1]] = fork_result(job)[0]
+    for near in CUT_NEAR:
+        if isinstance(runs[near], ValueError):
             if near == CUT_NEAR[-1] and not tried:
-                raise
+                raise runs[near]
             continue
+        tried[near] = runs[near]
         for side in sides:
             score = tried[near][-1][side]
             if side not in best or score > best[side][1]:
