@@ -104,6 +104,57 @@ def test_both_eyes_placed_within_their_uncertainty(seed, noise):
         assert "sclera" in pl.cues and "cornea_or_iris" in pl.cues
 
 
+def _same_placement(a, b):
+    assert (a is None) == (b is None)
+    if a is None:
+        return
+    for k in ("c", "R", "n", "ha", "tl", "hb"):
+        assert np.array_equal(getattr(a.eye, k), getattr(b.eye, k)), k
+    assert np.array_equal(a.lab, b.lab)
+    assert (a.sigma_center_mm, a.sigma_radius_mm, a.sigma_limbus_mm, a.sigma_axis_deg) == \
+        (b.sigma_center_mm, b.sigma_radius_mm, b.sigma_limbus_mm, b.sigma_axis_deg)
+    assert a.cues == b.cues and a.shares == b.shares
+    assert [(list(c), R, E) for c, R, E in a.modes] == [(list(c), R, E) for c, R, E in b.modes]
+
+
+@pytest.mark.slow
+def test_the_eyes_side_by_side_are_placed_as_one_after_the_other(monkeypatch):
+    """place_eyes' two searches in children (pipeline.fork) give the eyes, labels, sigmas and
+    rivals of the same search run in this process, to the bit; every child returns its own
+    result (none is rerun here)."""
+    from fixtures.forks import strict_fork_result
+    from pipeline import fork
+
+    mesh, hints, _ = make_head(0.5, seed=1, noise=0.03)
+    kw = dict(patch_radius_mm=20.0, radius_range=(10.0, 18.0), radius_prior=(12.0, 3.0), seed=0)
+    monkeypatch.setattr(fit, "fork_result", strict_fork_result)
+    runs = {}
+    for serial in ("1", "0"):
+        monkeypatch.setenv(fork.SERIAL_ENV, serial)
+        runs[serial] = fit.place_eyes(mesh["V"], mesh["F"], hints, **kw)
+    for s in ("left", "right"):
+        _same_placement(runs["1"][s], runs["0"][s])
+
+
+def test_a_fit_sent_from_a_child_carries_its_laplace_part_only_where_it_was_made():
+    """A FitResult pickles without its closure: the Laplace part made before it is the same after,
+    and one not made is an error when read, not a silent zero."""
+    import pickle
+
+    mesh, hints, gt = make_head(0.7, seed=4)
+    p = cues.build_patch(mesh["V"], mesh["F"], hints["left"], 20.0)
+    e = model.Eye(gt["left"]["center"], gt["left"]["radius"], np.array([0.0, 0.0, 1.0]), 1.0, 33.0)
+    lab, _ = cues.segment(p, e)
+    made = fit.fit_eyes([p], [lab], [e], [cues.Cues()], (10.0, 18.0))
+    cov = made.cov
+    back = pickle.loads(pickle.dumps(made))
+    assert np.array_equal(back.cov, cov) and back.shares == made.shares
+    assert np.array_equal(back.eyes[0].c, made.eyes[0].c) and back.cost == made.cost
+    not_made = pickle.loads(pickle.dumps(fit.fit_eyes([p], [lab], [e], [cues.Cues()], (10.0, 18.0))))
+    with pytest.raises(RuntimeError, match="Laplace approximation was not made"):
+        not_made.cov
+
+
 @pytest.mark.slow
 def test_closed_eyes_have_no_placement():
     """A smooth lid over each eye: no eye surface is ringed by a lid fold."""

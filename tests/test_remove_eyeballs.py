@@ -73,6 +73,32 @@ def test_ground_truth_and_topology(step, seed, noise):
 
 
 @pytest.mark.slow
+def test_the_eyes_removed_side_by_side_are_the_eyes_removed_here(monkeypatch):
+    """The stage's children (the left eye's prior and search, the scan's boundary: pipeline.fork)
+    give the mesh, the eyes and the metrics of the same steps run in this process, to the bit;
+    every child returns its own result (none is rerun here)."""
+    from fixtures.forks import strict_fork_result
+    from pipeline import fork
+    from pipeline.placement import fit, place
+    from pipeline.remove_eyeballs import remove_eyeballs as stage_module
+
+    mesh, hints, _ = make_head(0.5, seed=1, noise=0.03)
+    for module in (fit, place, stage_module):
+        monkeypatch.setattr(module, "fork_result", strict_fork_result)
+    runs = {}
+    for serial in ("1", "0"):
+        monkeypatch.setenv(fork.SERIAL_ENV, serial)
+        runs[serial] = remove_eyeballs(mesh, hints, RemoveEyeballsSettings(), prior=EyeRegionPrior.load().register)
+    a, b = runs["1"], runs["0"]
+    assert sorted(a.mesh) == sorted(b.mesh)
+    for k in a.mesh:
+        assert np.array_equal(np.asarray(a.mesh[k]), np.asarray(b.mesh[k])), k
+    for s in ("left", "right"):
+        assert json.dumps(a.eyes[s].to_doc(), sort_keys=True) == json.dumps(b.eyes[s].to_doc(), sort_keys=True)
+    assert json.dumps(a.metrics, sort_keys=True, default=str) == json.dumps(b.metrics, sort_keys=True, default=str)
+
+
+@pytest.mark.slow
 def test_different_eye_sizes_are_kept():
     """Radius sharing only when both fits agree: a 12 mm and a 13 mm eye keep their radii."""
     mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 13.0))

@@ -232,6 +232,27 @@ def test_two_heads_have_the_same_band_ids(patch):
     assert r1.lateral == r2.lateral
 
 
+def test_the_bands_built_side_by_side_are_the_bands_built_here(patch, monkeypatch):
+    """add_eye_bands' children (one eye's grid, the last cut margin: pipeline.fork) give the mesh,
+    the polygons and the band report of the same steps run in this process, to the bit."""
+    from fixtures.forks import strict_fork_result
+    from pipeline import fork
+    from pipeline.retopo import eye_band
+
+    V, F, eyes = patch
+    s = RetopoSettings(method="quadric", target_polygons=1500, loop_points=32, band="grid",
+                       band_rings=4, band_width_mm=6.0)
+    monkeypatch.setattr(eye_band, "fork_result", strict_fork_result)
+    runs = {}
+    for serial in ("1", "0"):
+        monkeypatch.setenv(fork.SERIAL_ENV, serial)
+        runs[serial] = retopologize(V, F, eyes, s)
+    a, b = runs["1"], runs["0"]
+    assert np.array_equal(a.V, b.V) and np.array_equal(a.F, b.F)
+    assert np.array_equal(a.poly_counts, b.poly_counts) and np.array_equal(a.poly_indices, b.poly_indices)
+    assert a.metrics["band"] == b.metrics["band"]
+
+
 @pytest.mark.slow
 def test_former_folding_identity_rigs_without_a_fold(tmp_path):
     """ident_s0_001 folded a lid face in the rig sweep with the repaired band (issue 30)."""
