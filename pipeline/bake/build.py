@@ -1,14 +1,19 @@
 """The bake stage's work: read the low-poly mesh and the dense scan, unwrap, bake, write the
 bake product (pipeline/io/bake_file.py) and measure the reconstruction error.
 
-The steps are the algorithm's (pipeline/bake/bake.py); independent ones run side by side on
-threads (libigl, Embree, scipy's trees and distance transform and numpy's big loops let go of the
-GIL; ``EYERIG_SERIAL=1`` turns it off, with the same bytes): the unwrap while the dense scan and
-its texture load, the UV-independent half of the accuracy metric runs and the Embree scene of the
-scan is built; the texels' falloff weights and padding while the rays are cast; the UV-dependent
-half of the metric while the colour map is made and the maps are written. They ran in forked
-children (pipeline/fork.py) until issue 32's second bake round: the children's copy-on-write
-page faults and the pickled weights cost 0.7-1.0 CPU-s of the stage's 6.4 on the 1.4M head.
+The steps are the algorithm's (pipeline/bake/bake.py); independent ones run side by side
+(``EYERIG_SERIAL=1`` turns it off, with the same bytes). On threads (Embree, scipy's trees and
+distance transform and numpy's big loops let go of the GIL): the unwrap while the dense scan and
+its texture load; the texels' falloff weights and padding while the rays are cast; the
+UV-dependent half of the metric while the colour map is made and the maps are written. They ran
+in forked children (pipeline/fork.py) until issue 32's second bake round: the children's
+copy-on-write page faults and the pickled weights cost 0.7-1.0 CPU-s of the stage's 6.4 on the
+1.4M head. The UV-independent half of the metric runs in a forked child, beside the Embree scene
+and the rasteriser: it is libigl's closest-point queries, which hold the GIL (a query beside a
+Python loop on a thread takes as long as both one after the other), so on a thread it had
+doubled the rasteriser's time; forked, the stage's wall time is 0.93x (farm-bench, 8 pairs on
+the 1.4M head), its CPU 1.07x. (The other half, forked the same way, made the map writes beside
+it twice as slow: it stays on a thread.)
 Threads share one tree cache (pipeline.geometry.mesh_checks, locked): no two steps that run
 side by side ask it about the same mesh.
 """
@@ -24,7 +29,7 @@ from pipeline.bake.bake import (BakeSettings, atlas_texels, atlas_unwrap, bake_m
                                 colour_source, dense_scene, displacement_map, loop_gaps, reconstruction_baseline,
                                 reconstruction_error, texel_weights)
 from pipeline.errors import ScanError
-from pipeline.fork import forking
+from pipeline.fork import fork_call, fork_result, forking
 from pipeline.io.bake_file import write_bake
 from pipeline.io.meshfile import read_stage_mesh
 from pipeline.results import StageResult
@@ -93,14 +98,14 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     uv_job = _beside(atlas_unwrap, V, F, list(loops.values()), s)
     dense = read_stage_mesh(dense_dir / "mesh.npz")
     texture = _texture(dense_dir / "texture.png")
-    t1 = time.perf_counter()
-    baseline = reconstruction_baseline(V, F, dense.V, dense.F, levels=s.subdivision_levels,
-                                       n_samples=s.metric_samples)
-    baseline_s = time.perf_counter() - t1
+    # the unwrap's thread has finished before the fork: a child never starts with a lock that
+    # another thread of the parent held (the tree cache's, an import's)
+    (UV, FUV, method), t["unwrap_s"] = _result(uv_job)
+    baseline_job = fork_call(reconstruction_baseline, V, F, dense.V, dense.F, levels=s.subdivision_levels,
+                             n_samples=s.metric_samples)
     t1 = time.perf_counter()
     scene = dense_scene(V, dense, s)
     t["scene_s"] = time.perf_counter() - t1
-    (UV, FUV, method), t["unwrap_s"] = _result(uv_job)
     res = int(s.resolution)
     t1 = time.perf_counter()
     tx = atlas_texels(V, F, UV, FUV, res)
@@ -114,6 +119,7 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     weights, t["weights_padding_s"] = _result(weights_job)
     t1 = time.perf_counter()
     dimg, disp_w = displacement_map(tx, disp, weights, res)
+    baseline, baseline_s = fork_result(baseline_job)
     # the accuracy metric needs the final displacement map: beside the colour map and the writes
     error_job = _beside(reconstruction_error, V, F, UV, FUV, dimg, dense.V, dense.F,
                         levels=s.subdivision_levels, n_samples=s.metric_samples, baseline=baseline)
