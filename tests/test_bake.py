@@ -294,7 +294,7 @@ def test_falloff_widens_round_a_loop_vertex_off_the_scan():
 
 def test_stage_steps_side_by_side_give_the_algorithms_bytes(tmp_path, monkeypatch):
     """bake_scan runs bake_maps' steps with the independent ones side by side (on threads, and
-    the metric's UV-independent half in a forked child, which must not fail: strict); switched
+    both halves of the metric in forked children, which must not fail: strict); switched
     off (EYERIG_SERIAL=1) every file it writes is the same bytes, and its maps are bake_maps'
     own."""
     import pipeline.bake.build as build

@@ -4,16 +4,16 @@ bake product (pipeline/io/bake_file.py) and measure the reconstruction error.
 The steps are the algorithm's (pipeline/bake/bake.py); independent ones run side by side
 (``EYERIG_SERIAL=1`` turns it off, with the same bytes). On threads (Embree, scipy's trees and
 distance transform and numpy's big loops let go of the GIL): the unwrap while the dense scan and
-its texture load; the texels' falloff weights and padding while the rays are cast; the
-UV-dependent half of the metric while the colour map is made and the maps are written. They ran
-in forked children (pipeline/fork.py) until issue 32's second bake round: the children's
-copy-on-write page faults and the pickled weights cost 0.7-1.0 CPU-s of the stage's 6.4 on the
-1.4M head. The UV-independent half of the metric runs in a forked child, beside the Embree scene
-and the rasteriser: it is libigl's closest-point queries, which hold the GIL (a query beside a
-Python loop on a thread takes as long as both one after the other), so on a thread it had
-doubled the rasteriser's time; forked, the stage's wall time is 0.93x (farm-bench, 8 pairs on
-the 1.4M head), its CPU 1.07x. (The other half, forked the same way, made the map writes beside
-it twice as slow: it stays on a thread.)
+its texture load; the texels' falloff weights and padding while the rays are cast. Both halves of
+the accuracy metric run in forked children (pipeline/fork.py): the UV-independent one beside the
+Embree scene and the rasteriser, the UV-dependent one beside the colour map and the writes. They
+are libigl's closest-point queries, which hold the GIL (a query on a thread beside a Python loop
+takes as long as both one after the other): on threads they had doubled the rasteriser's time and
+slowed the colour map; forked, the stage's wall time is 0.93x and then 0.92x again (farm-bench, 8
+pairs each on the 1.4M head), its CPU 1.07x and then 0.96x. The weights ran in a child too until
+issue 32's second bake round, when the children's copy-on-write page faults and the pickled
+weights cost 0.7-1.0 CPU-s of the stage's 6.4; forked again beside today's children they gain
+nothing (wall 1.00x, CPU 1.01x), so they stay on a thread.
 Threads share one tree cache (pipeline.geometry.mesh_checks, locked): no two steps that run
 side by side ask it about the same mesh.
 """
@@ -121,7 +121,8 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     dimg, disp_w = displacement_map(tx, disp, weights, res)
     baseline, baseline_s = fork_result(baseline_job)
     # the accuracy metric needs the final displacement map: beside the colour map and the writes
-    error_job = _beside(reconstruction_error, V, F, UV, FUV, dimg, dense.V, dense.F,
+    # (no thread of this process runs at the fork: the unwrap's and the weights' have finished)
+    error_job = fork_call(reconstruction_error, V, F, UV, FUV, dimg, dense.V, dense.F,
                         levels=s.subdivision_levels, n_samples=s.metric_samples, baseline=baseline)
     cimg = colour_map(tx, dense, texture, hface, hbary, weights, res)
     t["maps_s"] = time.perf_counter() - t1
@@ -129,7 +130,7 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     mesh = {**{k: v for k, v in low.items() if k not in ("UV", "FUV")}, "UV": UV, "FUV": FUV}
     write_bake(out_dir, mesh, dimg, tx.mask, cimg, resolution=res, falloff_mm=s.falloff_mm, colour_source=colour)
     t["total_s"] = time.perf_counter() - t0
-    err, recon_s = _result(error_job)
+    err, recon_s = fork_result(error_job)
     t["reconstruction_error_s"] = baseline_s + recon_s
     timings = {k: round(v, 4) for k, v in t.items()}
     return StageResult({**bake_metrics(tx, disp_w, n_miss, colour, res), "unwrap": method, "reconstruction": err},
