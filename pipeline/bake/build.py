@@ -4,16 +4,17 @@ bake product (pipeline/io/bake_file.py) and measure the reconstruction error.
 The steps are the algorithm's (pipeline/bake/bake.py); independent ones run side by side
 (``EYERIG_SERIAL=1`` turns it off, with the same bytes). On threads (Embree, scipy's trees and
 distance transform and numpy's big loops let go of the GIL): the unwrap while the dense scan and
-its texture load; the texels' falloff weights and padding while the rays are cast. Both halves of
-the accuracy metric run in forked children (pipeline/fork.py): the UV-independent one beside the
-Embree scene and the rasteriser, the UV-dependent one beside the colour map and the writes. They
-are libigl's closest-point queries, which hold the GIL (a query on a thread beside a Python loop
-takes as long as both one after the other): on threads they had doubled the rasteriser's time and
-slowed the colour map; forked, the stage's wall time is 0.93x and then 0.92x again (farm-bench, 8
-pairs each on the 1.4M head), its CPU 1.07x and then 0.96x. The weights ran in a child too until
-issue 32's second bake round, when the children's copy-on-write page faults and the pickled
-weights cost 0.7-1.0 CPU-s of the stage's 6.4; forked again beside today's children they gain
-nothing (wall 1.00x, CPU 1.01x), so they stay on a thread.
+its texture load; the texels' falloff weights and padding while the rays are cast. Both halves
+of the accuracy metric run in forked children (pipeline/fork.py): the UV-independent one beside
+the Embree scene and the rasteriser, the UV-dependent one beside the colour map and the writes.
+They are libigl's closest-point queries, which hold the GIL (a query on a thread beside a Python
+loop takes as long as both one after the other): on threads they had doubled the rasteriser's
+time and slowed the colour map. Forked, the stage takes 0.92x the wall time and 1.10x the CPU
+time (farm-bench, 10 pairs on the 1.4M head: the children's copy-on-write faults, system time
++0.46 s). The weights ran in a child too until issue 32's second bake round, when the children's
+copy-on-write page faults and the pickled weights cost 0.7-1.0 CPU-s of the stage's 6.4; forked
+again beside today's children they gain nothing (wall 1.00x, CPU 1.01x), so they stay on a
+thread.
 Threads share one tree cache (pipeline.geometry.mesh_checks, locked): no two steps that run
 side by side ask it about the same mesh.
 """
