@@ -124,7 +124,7 @@ def bake_scan(retopo_dir, dense_dir, settings: BakeSettings, out_dir) -> StageRe
     # the accuracy metric needs the final displacement map: beside the colour map and the writes
     # (no thread of this process runs at the fork: the unwrap's and the weights' have finished)
     error_job = fork_call(reconstruction_error, V, F, UV, FUV, dimg, dense.V, dense.F,
-                        levels=s.subdivision_levels, n_samples=s.metric_samples, baseline=baseline)
+                          levels=s.subdivision_levels, n_samples=s.metric_samples, baseline=baseline)
     cimg = colour_map(tx, dense, texture, hface, hbary, weights, res)
     t["maps_s"] = time.perf_counter() - t1
     colour = colour_source(dense, texture, cimg)
