@@ -86,3 +86,58 @@ def test_stage_mesh_always_has_V_and_F(tmp_path):
         read_stage_mesh(tmp_path / "noF.npz", required=("loop_left",))
     with pytest.raises(ValueError, match="named arrays"):
         StageMesh(V=V, F=F, extra={"UV": np.zeros((4, 2))})
+
+
+def _every_kind():
+    """Arrays of every dtype and shape the stages write: floats, ints, uint8, 0-d, empty."""
+    rng = np.random.default_rng(3)
+    V, F = _tet()
+    return {"V": V + rng.normal(size=V.shape), "F": F, "UV": rng.random((4, 2)), "FUV": F,
+            "VC": rng.integers(0, 255, (4, 3), dtype=np.uint8), "band_left": np.arange(12).reshape(3, 4),
+            "loop_snap_left": rng.random(3), "caruncle_faces": np.zeros(0, np.int64),
+            "schema": np.asarray(SCHEMA, dtype=np.int64)}
+
+
+def test_writer_gives_numpys_bytes(tmp_path):
+    """save_mesh's zip writer (each array's own buffer, no ``tobytes`` copies) writes what
+    ``np.savez`` writes, byte for byte: the outputs' hashes in dvc.lock do not move."""
+    from pipeline.io.meshfile import _savez
+
+    arrays = _every_kind()
+    arrays["big"] = np.arange(3_000_000, dtype=np.int64).reshape(-1, 3)   # several of numpy's chunks
+    arrays["strided"] = arrays["big"][::2, 1]                               # not contiguous
+    np.savez(tmp_path / "numpy.npz", **arrays)
+    with open(tmp_path / "ours.npz", "wb") as fh:
+        _savez(fh, arrays)
+    assert (tmp_path / "ours.npz").read_bytes() == (tmp_path / "numpy.npz").read_bytes()
+
+
+def test_reader_gives_numpys_arrays_and_refuses_a_short_or_lying_file(tmp_path):
+    """The reader (each stored entry read in place by ``np.fromfile``) returns np.load's arrays:
+    the same names in the same order, dtypes, shapes and values; compressed and Fortran-order
+    entries go through np.load. A file cut short, or an entry whose header claims more data than
+    the entry holds, is an error (read_stage_mesh's one line), never a short array."""
+    from pipeline.io.meshfile import _load_npz
+
+    arrays = _every_kind()
+    arrays["fortran"] = np.asfortranarray(np.arange(12.0).reshape(3, 4))
+    for name, save in (("plain.npz", np.savez), ("packed.npz", np.savez_compressed)):
+        save(tmp_path / name, **arrays)
+        got = _load_npz(tmp_path / name)
+        with np.load(tmp_path / name) as ref:
+            assert list(got) == list(ref.files)
+            for k in ref.files:
+                assert got[k].dtype == ref[k].dtype and got[k].shape == ref[k].shape
+                assert np.array_equal(got[k], ref[k])
+    V, F = _tet()
+    save_mesh(tmp_path / "mesh.npz", V=V, F=F)
+    data = (tmp_path / "mesh.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ScanError, match=r"cannot be read as a mesh \.npz"):
+        read_stage_mesh(tmp_path / "cut.npz")
+    # V's header (the first entry's) says (4, 3); make it say (9, 3) in place (the same length):
+    # the entry then holds less than its header claims
+    assert data.index(b"'shape': (4, 3), }") < data.index(b"F.npy")
+    (tmp_path / "lying.npz").write_bytes(data.replace(b"'shape': (4, 3), }", b"'shape': (9, 3), }", 1))
+    with pytest.raises(ScanError, match=r"cannot be read as a mesh \.npz"):
+        read_stage_mesh(tmp_path / "lying.npz")
