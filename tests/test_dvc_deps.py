@@ -1,10 +1,13 @@
-"""dvc.yaml: every stage's ``deps`` cover its whole import closure, so no output goes stale.
+"""dvc.yaml: every stage's code dep is the fingerprint of its whole import closure, so no output
+goes stale.
 
 The closure of a stage is :func:`pipeline.sources.stage_closure` (the one definition the render
 fingerprint uses too): ``stages/<stage>.py`` and, transitively, every ``pipeline.*`` / ``stages.*``
-module it imports or names. Regenerate the code deps of dvc.yaml after changing imports:
+module it imports or names. The ``code`` stage (``stages/code.py``) writes its hash to
+``build/code/<stage>.sha256``, the stage's one code dep. Regenerate dvc.yaml's code deps and the
+``code`` stage after adding a stage:
 
-    .venv/bin/python tests/test_dvc_deps.py          # rewrites the pipeline/ and stages/ deps
+    .venv/bin/python tests/test_dvc_deps.py
 """
 
 from __future__ import annotations
@@ -28,18 +31,6 @@ def import_closure(stage: str) -> set[str]:
     return sources.stage_closure(stage, ROOT)
 
 
-def compact(paths: set[str]) -> list[str]:
-    """``paths`` with each package folder whose every ``.py`` file is listed written as the folder."""
-    paths = set(paths)
-    for pkg in sorted({str(Path(p).parent) for p in paths}, key=lambda d: -d.count("/")):
-        if pkg in (".", "pipeline", "stages") or not (ROOT / pkg / "__init__.py").is_file():
-            continue
-        files = {f.relative_to(ROOT).as_posix() for f in (ROOT / pkg).rglob("*.py")}
-        if files and files <= paths:
-            paths = (paths - files) | {pkg}
-    return sorted(paths)
-
-
 def stage_deps() -> dict[str, list[str]]:
     """stage name -> its deps in dvc.yaml (``${item}`` left as is)."""
     doc = yaml.safe_load((ROOT / "dvc.yaml").read_text())
@@ -50,19 +41,66 @@ def stage_deps() -> dict[str, list[str]]:
     return out
 
 
-def covered(path: str, deps: list[str]) -> bool:
-    return any(path == d or path.startswith(d.rstrip("/") + "/") for d in deps)
-
-
-def test_every_stage_lists_its_import_closure():
-    missing = {}
+def test_every_stage_depends_on_its_fingerprint_and_the_code_stage_writes_them():
+    """Each stage's one code dep is build/code/<stage>.sha256 (no module listed one by one), the
+    ``code`` stage writes exactly those files, untracked by the cache, from the pipeline/ and
+    stages/ folders, and dvc.yaml is what the generator writes (regenerate: ``.venv/bin/python
+    tests/test_dvc_deps.py``)."""
+    doc = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    code = doc.pop("code")
+    assert code["deps"] == list(CODE)
+    outs = [next(iter(o)) for o in code["outs"]]
+    assert outs == [fingerprint(s) for s in doc]
+    assert all(o[next(iter(o))] == {"cache": False} for o in code["outs"])
+    assert code["cmd"] == f"python -m stages.code '{FINGERPRINTS}' " + " ".join(doc)
     for stage, deps in stage_deps().items():
-        need = import_closure(stage)
-        lack = sorted(p for p in need if not covered(p, deps))
-        if lack:
-            missing[stage] = lack
-    assert not missing, ("dvc.yaml deps miss modules the stages import (regenerate: "
-                         f".venv/bin/python tests/test_dvc_deps.py): {missing}")
+        if stage == "code":
+            continue
+        assert (ROOT / "stages" / f"{stage}.py").is_file(), stage
+        assert deps[0] == fingerprint(stage), stage
+        assert not [d for d in deps[1:] if _is_code(d)], (stage, deps)
+    text = (ROOT / "dvc.yaml").read_text()
+    try:
+        assert write_dvc_yaml() == []
+        assert (ROOT / "dvc.yaml").read_text() == text
+    finally:
+        (ROOT / "dvc.yaml").write_text(text)
+
+
+def test_a_stage_fingerprint_changes_with_its_closure_and_only_with_it(tmp_path):
+    """Editing any file of a stage's closure (in a copy of the code) changes that stage's
+    fingerprint line; editing a module outside it does not, and neither does the copy's place."""
+    copy = _copy_code(tmp_path / "code")
+    before = sources.closure_digest("snap", copy)
+    assert before == sources.closure_digest("snap", ROOT)
+    assert before.endswith(f" {len(import_closure('snap'))} files\n")
+    closure = sorted(import_closure("snap"))
+    assert "pipeline/snap/snap.py" in closure and "stages/_common.py" in closure
+    for rel in closure[::7] + ["pipeline/snap/snap.py", "stages/render.py", "pipeline/render/dataset.py"]:
+        f = copy / rel
+        text = f.read_bytes()
+        f.write_bytes(text + b"\n# edited\n")
+        try:
+            changed = sources.closure_digest("snap", copy) != before
+        finally:
+            f.write_bytes(text)
+        assert changed == (rel in closure), rel
+    assert sources.closure_digest("snap", copy) == before
+
+
+def test_code_stage_writes_one_line_per_stage_and_refuses_an_unknown_one(tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "code"
+    r = subprocess.run([sys.executable, "-m", "stages.code", str(out), "snap", "rig"], cwd=ROOT,
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["rig.sha256", "snap.sha256"]
+    assert (out / "snap.sha256").read_text() == sources.closure_digest("snap")
+    r = subprocess.run([sys.executable, "-m", "stages.code", str(out), "snap", "../etc"], cwd=ROOT,
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "stages/../etc.py" in r.stderr
 
 
 def test_the_closure_follows_function_imports_strings_and_workers():
@@ -79,8 +117,6 @@ def test_the_closure_follows_function_imports_strings_and_workers():
     assert "pipeline/blender/eyeball_preview.py" in import_closure("eyeball_preview")
     assert "pipeline/settings.py" in import_closure("check_params")
     assert "pipeline/render/settings.py" in import_closure("check_params")   # "module:Class" strings
-    assert covered("pipeline/usd/stage.py", ["pipeline/usd"]) and not covered("pipeline/usdx.py", ["pipeline/usd"])
-    assert "pipeline/rig" in compact({f"pipeline/rig/{f.name}" for f in (ROOT / "pipeline/rig").glob("*.py")})
 
 
 def test_render_fingerprint_hashes_the_render_closure():
@@ -91,8 +127,7 @@ def test_render_fingerprint_hashes_the_render_closure():
 
     hashed = {p.relative_to(ROOT).as_posix() for p in renderer_sources(ROOT)}
     assert hashed == import_closure("render")
-    deps = stage_deps()["render"]
-    assert all(covered(p, deps) for p in hashed)
+    assert stage_deps()["render"][0] == fingerprint("render")     # DVC tracks the same files
     for module in ("pipeline/rig/lids.py", "pipeline/rig/landmarks.py", "pipeline/eyeball/geometry.py",
                    "pipeline/eyeball/textures.py", "pipeline/geometry/frame.py", "pipeline/io/rig_file.py",
                    "pipeline/settings.py", "stages/render.py"):
@@ -144,23 +179,65 @@ def test_editing_any_module_the_render_stage_runs_changes_the_render_fingerprint
 
 
 def _is_code(dep: str) -> bool:
-    """Is the dvc.yaml dep ``dep`` code (a module or a package folder under pipeline/ or stages/),
-    which :func:`write_dvc_yaml` regenerates, rather than data it keeps (the eye-region prior)?"""
+    """Is the dvc.yaml dep ``dep`` code (a module or a package folder under pipeline/ or stages/,
+    or a stage's fingerprint file), which :func:`write_dvc_yaml` regenerates, rather than data it
+    keeps (the eye-region prior)?"""
+    if dep.startswith(FINGERPRINTS + "/"):
+        return True
     return dep.startswith(CODE) and (dep.endswith(".py") or (ROOT / dep / "__init__.py").is_file()
                                      or not (ROOT / dep).exists())
 
 
+#: Where the ``code`` stage writes each stage's fingerprint (``stages/code.py``).
+FINGERPRINTS = "build/code"
+
+
+def fingerprint(stage: str) -> str:
+    return f"{FINGERPRINTS}/{stage}.sha256"
+
+
+def code_block(stages: list[str]) -> list[str]:
+    """The ``code`` stage of dvc.yaml: one fingerprint file for each of ``stages``."""
+    quoted = " ".join(stages)
+    out = ["  code:\n",
+           f"    cmd: python -m stages.code '{FINGERPRINTS}' {quoted}\n",
+           "    deps:\n"] + [f"      - {top}\n" for top in CODE] + ["    outs:\n"]
+    for st in stages:
+        out += [f"      - {fingerprint(st)}:\n", "          cache: false\n"]
+    return out
+
+
 def write_dvc_yaml() -> list[str]:
-    """Rewrite the pipeline/ and stages/ deps of every stage in dvc.yaml as its exact closure
-    (data deps and everything else untouched); returns the stages whose deps changed."""
+    """Give every stage of dvc.yaml its fingerprint file as its one code dep (data deps and
+    everything else untouched) and write the ``code`` stage that makes them (after the header
+    comment, before the first other stage); returns the stages whose deps changed."""
     lines = (ROOT / "dvc.yaml").read_text().splitlines(keepends=True)
     stage_re = re.compile(r"^  ([A-Za-z_][A-Za-z0-9_]*):\s*$")
-    out, changed, stage, i = [], [], None, 0
+    # drop the code stage (its comment lines above it stay) and find the other stages
+    kept, i = [], 0
+    while i < len(lines):
+        if lines[i] == "  code:\n":
+            i += 1
+            while i < len(lines) and (lines[i].startswith("    ") or lines[i].strip() == ""):
+                i += 1
+            continue
+        kept.append(lines[i])
+        i += 1
+    lines = kept
+    names = [m.group(1) for m in map(stage_re.match, lines) if m]
+    out, changed, stage, i, placed = [], [], None, 0, False
     while i < len(lines):
         line = lines[i]
         m = stage_re.match(line)
         if m:
             stage = m.group(1)
+            if not placed:
+                # the code stage goes before the first stage, after that stage's comment lines
+                j = len(out)
+                while j > 0 and out[j - 1].startswith("  #"):
+                    j -= 1
+                out[j:j] = code_block(names)
+                placed = True
         if stage and re.match(r"^\s+deps:\s*$", line):
             indent = len(line) - len(line.lstrip()) + 2
             out.append(line)
@@ -169,9 +246,8 @@ def write_dvc_yaml() -> list[str]:
             while i < len(lines) and re.match(rf"^ {{{indent}}}- ", lines[i]):
                 items.append(lines[i])
                 i += 1
-            data = [x for x in items if not _is_code(x.strip()[2:].split()[0])]
-            code = compact(import_closure(stage))
-            new = data + [f"{' ' * indent}- {p}\n" for p in code]
+            data = [x for x in items if not _is_code(x.strip()[2:].split()[0].rstrip(":"))]
+            new = [f"{' ' * indent}- {fingerprint(stage)}\n"] + data
             if new != items:
                 changed.append(stage)
             out += new
@@ -180,6 +256,7 @@ def write_dvc_yaml() -> list[str]:
         i += 1
     (ROOT / "dvc.yaml").write_text("".join(out))
     return changed
+
 
 
 if __name__ == "__main__":
