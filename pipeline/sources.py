@@ -1,7 +1,8 @@
 """The project source files a program runs: the import closure of a ``stages/`` script.
 
-One definition serves two readers that must agree file for file: dvc.yaml's code ``deps`` (held
-by ``tests/test_dvc_deps.py``, which also regenerates them) and the render fingerprint
+One definition serves two readers that must agree file for file: dvc.yaml's code deps (each
+stage's ``build/code/<stage>.sha256``, :func:`closure_digest`, written by the ``code`` stage;
+``tests/test_dvc_deps.py`` holds and regenerates them) and the render fingerprint
 (:func:`pipeline.render.asset.renderer_sources`), whose change marks a resumable render folder's
 images stale. A file one of them saw and the other did not would either keep stale images or
 make ``dvc.lock`` depend on history.

@@ -65,7 +65,8 @@ def test_every_stage_and_the_dataset_command_run_from_a_clone_under_odd_folders(
     env = {**os.environ, "PYTHONPATH": str(clone)}          # the clone's code, not this checkout's
 
     commands = _commands(clone)
-    assert [n for n, _ in commands][-1] == "preview" and len(commands) == 13
+    assert [n for n, _ in commands][0] == "code" and [n for n, _ in commands][-1] == "preview"
+    assert len(commands) == 14
     for name, argv in commands:
         r = subprocess.run(argv, cwd=clone, env=env, capture_output=True, text=True, timeout=600)
         assert r.returncode == 0 and "error" not in r.stderr, (name, r.stderr[-2000:])
