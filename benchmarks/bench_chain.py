@@ -16,7 +16,8 @@ plus accuracy against the ground truth (eye centre/radius error, loop-to-margin 
 ``--compare CHECKOUT`` runs another checkout's stages too (``git clone`` of the commit before a
 change), alternating with this one's stage by stage, on the same head: the result gains both
 medians, their ratios, and the files whose bytes differ between the two build folders and
-assets (sha256; the timings files left out).
+assets (sha256; the timings files left out). The other checkout's usd runs without the preview it
+rendered before the preview became a stage (``usd.preview: false`` where its params.yaml has the key).
 """
 
 from __future__ import annotations
@@ -159,9 +160,14 @@ def main():
             shutil.copytree(eyeball, cw / "eyeball", dirs_exist_ok=True)
         other = Path(args.compare).resolve()
         sides["compare"] = (other, cw / "build", stage_commands(scan, cw / "build", cw / "eyeball"))
-        # each checkout with the params.yaml it ships (an older one knows fewer keys)
+        # each checkout with the params.yaml it ships (an older one knows fewer keys), its preview
+        # off: before the preview became a stage of its own, `usd` rendered it when the usd block
+        # said `preview: true` (its default), about 6 s that this chain's usd does not do
+        other_params = yaml.safe_load((other / "params.yaml").read_text())
+        if "preview" in (other_params.get("usd") or {}):
+            other_params["usd"]["preview"] = False
         pfiles["compare"] = work / "compare_params.yaml"
-        pfiles["compare"].write_text((other / "params.yaml").read_text())
+        pfiles["compare"].write_text(yaml.safe_dump(other_params, sort_keys=False))
     runs, cpu_runs, loads = {k: [] for k in sides}, {k: [] for k in sides}, []
     for rep in range(args.repeats):
         times = {k: {} for k in sides}
