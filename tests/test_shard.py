@@ -209,3 +209,24 @@ def test_worker_killed_on_a_real_cluster_loses_nothing(two, tmp_path):
     a, b = _files(whole), _files(killed)
     assert sorted(a) == sorted(b) and len([k for k in a if k.endswith(".png") and k[0] == "0"]) == 2 * n
     assert [k for k in a if a[k] != b[k]] == []
+
+
+def test_only_the_heartbeat_error_is_muted_and_only_while_asked(caplog):
+    """The shutdown filter drops the worker's heartbeat traceback and nothing else, and is gone
+    again after unmute (a run with an in-process worker leaves the logger as it found it)."""
+    import logging
+
+    from pipeline.render.shard import mute_shutdown_heartbeat, unmute_shutdown_heartbeat
+
+    log = logging.getLogger("distributed.worker")
+    before = list(log.filters)
+    with caplog.at_level(logging.ERROR, logger="distributed.worker"):
+        mute_shutdown_heartbeat()
+        mute_shutdown_heartbeat()
+        log.error("Failed to communicate with scheduler during heartbeat.")
+        log.error("Compute Failed")
+        unmute_shutdown_heartbeat()
+        log.error("Failed to communicate with scheduler during heartbeat.")
+    assert [r.getMessage() for r in caplog.records] == [
+        "Compute Failed", "Failed to communicate with scheduler during heartbeat."]
+    assert log.filters == before

@@ -152,6 +152,36 @@ def close_blender() -> int:
     return n
 
 
+class _ShutdownHeartbeat:
+    """A logging filter that drops the worker's "Failed to communicate with scheduler during
+    heartbeat" error. Installed only once every image is in, it hides a race in
+    ``distributed`` (dask/distributed#7105, #9032): a worker's heartbeat already in flight when
+    the cluster closes reads a stream the scheduler has closed, and logs a traceback to stderr
+    of a run that succeeded. Before that point the message still reaches stderr."""
+
+    def filter(self, record) -> bool:
+        return "during heartbeat" not in record.getMessage()
+
+
+def mute_shutdown_heartbeat() -> None:
+    """Install :class:`_ShutdownHeartbeat` on this process's ``distributed.worker`` logger (for
+    client.run once the work is done); idempotent."""
+    import logging
+
+    log = logging.getLogger("distributed.worker")
+    if not any(isinstance(f, _ShutdownHeartbeat) for f in log.filters):
+        log.addFilter(_ShutdownHeartbeat())
+
+
+def unmute_shutdown_heartbeat() -> None:
+    """Remove :class:`_ShutdownHeartbeat` from this process's ``distributed.worker`` logger."""
+    import logging
+
+    log = logging.getLogger("distributed.worker")
+    for f in [f for f in log.filters if isinstance(f, _ShutdownHeartbeat)]:
+        log.removeFilter(f)
+
+
 def get_blender(asset, rig, opts: dict) -> BlenderProcess:
     """The persistent Blender process of this (dask worker) process, started on first use."""
     key = (str(asset), str(rig), json.dumps(opts, sort_keys=True))
@@ -488,8 +518,11 @@ def run_shards(shards, asset, rig, out_dir, opts: dict, workers: int = 1, schedu
         bar.close()
         stats = client.run(blender_stats)
         client.run(close_blender)
+        if cluster is not None:                   # our own workers, closed next
+            client.run(mute_shutdown_heartbeat)
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+            unmute_shutdown_heartbeat()           # an in-process worker shares this logger
     return {"results": results, "workers": n_workers, "blender": stats}
