@@ -328,3 +328,44 @@ def test_zip_strip_maxmin_by_anti_diagonals_picks_the_cell_by_cell_strip(n_out, 
     inner, outer = np.arange(16), 16 + np.arange(n_out)
     T = zip_strip_maxmin(inner, outer, Vi, Vo, j0)
     assert [1 if (t < 16).sum() == 2 else 2 for t in T] == _steps_cell_by_cell(Vi, Vo, j0)
+
+
+def test_a_remesh_pinched_to_one_vertex_beside_an_opening_still_gets_its_band(patch, monkeypatch):
+    """The decimation can pinch a narrow neck of a noisy scan to one vertex (two cones touching:
+    a fresh 250k-face head with 0.1 mm noise, beside its left opening), which left the band no
+    annulus to be cut from. Here the remesh gets such a pinch by construction, two vertices a
+    few edges apart beside the left opening made one: retopo still builds the grid band, and
+    its mesh is manifold."""
+    from scipy.sparse.csgraph import shortest_path
+
+    from pipeline.geometry import meshtopo
+    from pipeline.retopo import retopo
+
+    V, F, eyes = patch
+    s = RetopoSettings(method="quadric", target_polygons=1500, loop_points=32, band="grid",
+                       band_rings=4, band_width_mm=6.0)
+    real = retopo._decimate
+    pinched = []
+
+    def pinch(Vd, Fd, target):
+        Vd, Fd = real(Vd, Fd, target)
+        loops = sorted(mc.boundary_loops(Fd), key=len)[:2]          # the openings, not the border
+        opening = min(loops, key=lambda b: np.linalg.norm(Vd[b].mean(axis=0) - eyes["left"].center))
+        border = np.unique(np.concatenate(mc.boundary_loops(Fd)))
+        d_open = np.min(np.linalg.norm(Vd[:, None] - Vd[opening][None], axis=2), axis=1)
+        cand = np.setdiff1d(np.flatnonzero((d_open > 2.0) & (d_open < 4.0)), border)
+        hops = shortest_path(meshtopo.vertex_adjacency(Fd, len(Vd)), unweighted=True, indices=cand[:1])[0]
+        a, b = int(cand[0]), int(next(v for v in cand[1:] if hops[v] == 3))
+        Vd = Vd.copy()
+        Vd[a] = 0.5 * (Vd[a] + Vd[b])
+        pinched.append(a)
+        return Vd, np.where(Fd == b, a, Fd)
+
+    monkeypatch.setattr(retopo, "_decimate", pinch)
+    r = retopologize(V, F, eyes, s)
+    assert pinched
+    rep = mc.check_mesh(r.V, r.F)
+    assert rep.manifold and rep.boundary_loops == 3
+    _, parent = meshtopo.split_fans(r.F, len(r.V))
+    assert len(parent) == len(r.V)                  # no vertex of the result has two fans
+    assert r.metrics["band"]["kind"] == "grid"
