@@ -1,6 +1,6 @@
 """Unseen-scan benchmark: many heads nobody tuned on, each run through the chain against truth.
 
-    .venv/bin/python -m benchmarks.bench_unseen_scans [--set all|dev|heldout] [--only NAME|FAMILY ...]
+    .venv/bin/python -m benchmarks.bench_unseen_scans [--set all|dev|heldout|fresh] [--only NAME|FAMILY ...]
         [--work benchmarks/out/unseen] [--scanify ../shared/tools/scanify/scanify.py]
         [--ict ../shared/scans/ict_facekit] [--generate-only] [--stop-after usd|rig|...]
         [--pictures DIR] [--results benchmarks/results] [--out unseen_scans] [--markdown]
@@ -286,7 +286,7 @@ def main():
                                               work / "renders" / c["name"], render_params, args.pictures)
         rows.append(row)
         # held-out cases stay blind on screen: their figures are judged per family, not tuned on
-        print(case_line(row) if c["set"] == "dev" or args.show_heldout
+        print(case_line(row) if c["set"] != "heldout" or args.show_heldout
               else f"{c['name']:<26} done (held out: see the summary)", flush=True)
     if args.pictures:
         print(f"pictures: {overview(args.pictures, [r['case'] for r in rows if r.get('pictures')])}")

@@ -131,7 +131,7 @@ def summary(rows, order) -> dict:
     """Per set (and ``all``): the acceptance over the set and per family, and whether every bound
     of every family is met (the issue's "done when")."""
     out = {}
-    for set_name in ("dev", "heldout", "all"):
+    for set_name in ("dev", "heldout", "fresh", "all"):
         rs = [r for r in rows if set_name in ("all", r["set"])]
         if not rs:
             continue
@@ -185,7 +185,7 @@ def markdown(rows, order, oracle: dict | None = None) -> str:
             "visible RMS ≤0.5 mm (median) | same, eye at truth | margin ≤0.5 mm (median) | "
             "canthi ≤1.5 mm | calibration ≤2σ | silent >2 mm | oracle ≤0.5 / ≤1 mm |")
     out = []
-    for set_name in ("dev", "heldout"):
+    for set_name in ("dev", "heldout", "fresh"):
         rs = [r for r in rows if r["set"] == set_name]
         if not rs:
             continue
