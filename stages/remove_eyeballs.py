@@ -20,6 +20,7 @@ published. A loop that misses the fitted sphere and lies inside the eye the asse
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import sys
 from pathlib import Path
@@ -51,7 +52,7 @@ def _read(ingest: Path):
         from PIL import Image
         with Image.open(tex_path, formats=["PNG"]) as im:   # ingest writes a PNG; nothing else is decoded
             texture = np.asarray(im.convert("RGB"))
-    return mesh, scan.hints, texture, scan.folder or str(mesh_path), tex_path
+    return mesh, scan, texture, scan.folder or str(mesh_path), tex_path
 
 
 def main(argv) -> StageResult:
@@ -64,7 +65,10 @@ def main(argv) -> StageResult:
     args = parser.parse_args(argv)
     st = load_settings(RemoveEyeballsSettings, args.params)
     eyeball = load_settings(EyeballSettings, args.params).geometry   # the eye the asset carries
-    mesh, hints, texture, source, tex_path = _read(args.ingest)
+    mesh, scan, texture, source, tex_path = _read(args.ingest)
+    hints = scan.hints
+    if scan.eye_size is not None:            # the scan's own (scan.yaml eye_size) over the project's
+        st = dataclasses.replace(st, eye_size=scan.eye_size)
     prior = EyeRegionPrior.load(args.prior)
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture,
                           prior=prior.register, eyeball=eyeball)

@@ -38,7 +38,7 @@ def main(argv) -> StageResult:
     head = make_synthetic_head(settings)
     t1 = time.perf_counter()
     with atomic_dir(out) as tmp:
-        write_scan_folder(head, tmp)
+        write_scan_folder(head, tmp, eye_size=settings.asset_eye_size)
     t2 = time.perf_counter()
     gt = head.ground_truth
     metrics = {

@@ -55,7 +55,8 @@ def test_command_adds_n_entries_deterministically_keeping_every_line(tmp_path, c
     assert data["scans"] == ["synthetic_head", *names]
     e = data["identities"]["ident_s3_002"]
     assert set(e) == {"seed", "eye_shape", "skin_tone", "wrinkle_scale", "pore_scale", "eye_spacing_mm",
-                      "target_triangles"}
+                      "target_triangles", "asset_eye_size"}
+    assert e["asset_eye_size"] == "population"          # the asset keeps the globe drawn for the head
     assert e["target_triangles"] == idlib.DEFAULT_TRIANGLES and 0 <= e["skin_tone"] <= 1
     assert check_params(data)["identities"]["ident_s3_002"].skin_tone == e["skin_tone"]
     # the same run again: the same bytes; a shorter run elsewhere: the first entries

@@ -72,6 +72,10 @@ def c_typo_key(f, t):
     edit_yaml(f, textrue="skin.png")
 
 
+def c_bad_eye_size(f, t):
+    edit_yaml(f, eye_size="large")
+
+
 def c_mesh_dotdot(f, t):
     (t / "outside.ply").write_bytes((f / "scan.ply").read_bytes())
     edit_yaml(f, mesh="../outside.ply")
@@ -319,6 +323,7 @@ CASES = [
     (c_bad_axis, "scan.yaml", "up_axis must be one of"),
     (c_licence_missing, "scan.yaml", "required key 'licence' is missing"),
     (c_typo_key, "scan.yaml", "did you mean 'texture'"),
+    (c_bad_eye_size, "scan.yaml", "eye_size must be one of human, population, fitted, got 'large'"),
     (c_mesh_dotdot, "scan.yaml", "leaves the scan folder"),
     (c_mesh_absolute, "scan.yaml", "is absolute"),
     (c_mesh_symlink_escape, "scan.yaml", "resolves outside the scan folder"),

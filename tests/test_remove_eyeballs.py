@@ -672,6 +672,28 @@ def test_the_hooded_identity_is_placed_at_its_limbus(hooded_identity):
 
 
 @pytest.mark.slow
+def test_an_identity_keeps_the_eye_size_drawn_for_it(hooded_identity):
+    """Issue 29: a procedural identity's asset eye is its population draw, not the 12 mm of
+    scans: stages.identities writes asset_eye_size population, the head's scan.yaml says
+    eye_size population, ingest carries it, and remove_eyeballs gives both eyes one radius
+    within 0.25 mm of the globe the head was made with (its ground truth: 11.48 mm; the
+    population's 11.7 +- 0.45 pulls the weighted estimate to 11.68), half the 12 mm eye's miss."""
+    out = hooded_identity["work"] / "re"
+    if not (out / "eyes.json").is_file():
+        r = _remove_eyeballs(hooded_identity, out)
+        assert r.returncode == 0, r.stderr
+    assert yaml.safe_load((hooded_identity["scan"] / "scan.yaml").read_text())["eye_size"] == "population"
+    assert json.loads((hooded_identity["ingest"] / "scan.json").read_text())["eye_size"] == "population"
+    truth = json.loads((hooded_identity["scan"] / "ground_truth.json").read_text())["eyes"]
+    eyes = json.loads((out / "eyes.json").read_text())
+    r_true = truth["left"]["eyeball_sphere"]["radius_mm"]
+    assert eyes["left"]["radius"] == eyes["right"]["radius"]
+    miss = abs(eyes["left"]["radius"] - r_true)
+    assert miss < 0.25 and miss < 0.5 * abs(12.0 - r_true), (eyes["left"]["radius"], r_true)
+    assert eyes["left"]["eye_size"] == "population"
+
+
+@pytest.mark.slow
 def test_a_loop_that_follows_no_eye_is_cut_again_where_the_scan_shows_the_eye(hooded_identity):
     """The search before the fix puts ident_s1_000's right eye on a sphere through the lower lid
     (9.2 mm off) and cuts a 25-vertex loop below it: loop_on_sphere fails (1.52 mm) and the eye

@@ -380,7 +380,9 @@ def test_write_scan_folder_reloads(tmp_path, head):
     assert spec["units"] == "mm" and spec["up_axis"] == "+Y" and spec["forward_axis"] == "+Z"
     assert spec["texture"] == "texture.png" and "CC0" in spec["licence"]
     sc = read_sidecar(tmp_path)                    # the project's own validation of scan.yaml
-    assert sc is not None
+    assert sc is not None and sc.eye_size is None and "eye_size" not in spec
+    write_scan_folder(head, tmp_path, eye_size="population")       # an identity's: its asset keeps its size
+    assert read_sidecar(tmp_path).eye_size == "population"
     gt = json.loads((tmp_path / "ground_truth.json").read_text())
     assert gt["units"] == "mm" and gt["seed"] == 7
     for side in ("left", "right"):

@@ -245,6 +245,8 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
         "up_axis_in": spec.up_axis,
         "forward_axis_in": spec.forward_axis,
     }
+    if spec.eye_size is not None:             # absent: the project's eye size (and the same bytes)
+        scan["eye_size"] = spec.eye_size
     lo, hi = frame.bounds(V)
     metrics = {
         "mesh_file": mesh_file.name,

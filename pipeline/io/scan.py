@@ -12,6 +12,8 @@ that is not exactly what the scan folder contract (DESIGN.md) describes:
 ``eyes``          ``{left: {hint: [x, y, z]}, right: {hint: [x, y, z]}}`` finite numbers,
                   scan coordinates and units
 ``licence``       non-empty str
+``eye_size``      optional: ``human`` | ``population`` | ``fitted``, this scan's asset eye
+                  (over ``remove_eyeballs.eye_size``; procedural identities say ``population``)
 
 Unknown top-level keys are tolerated (and listed in :attr:`ScanSpec.unknown_keys`
 so a stage can report them) unless they look like a misspelling of a known key
@@ -39,7 +41,8 @@ from pipeline.io.strict_yaml import DuplicateKeyError, SidecarLoader, StrictLoad
 SIDECAR_NAME = "scan.yaml"
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 AXES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
-KNOWN_KEYS = ("mesh", "texture", "units", "up_axis", "forward_axis", "eyes", "licence")
+KNOWN_KEYS = ("mesh", "texture", "units", "up_axis", "forward_axis", "eyes", "licence", "eye_size")
+EYE_SIZES = ("human", "population", "fitted")
 FREE_FORM_KEYS = ("source", "notes", "description", "name", "comment")
 EYE_SIDES = ("left", "right")
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
@@ -69,6 +72,9 @@ class ScanSpec:
     hints : dict[str, numpy.ndarray]
         ``{"left": (3,), "right": (3,)}`` float64 eye hints in scan coordinates and units.
     licence : str
+    eye_size : str or None
+        This scan's asset eye size (:data:`EYE_SIZES`), over the project's
+        ``remove_eyeballs.eye_size``; None: the project's.
     unknown_keys : tuple of str
         Top-level keys that are neither known nor free-form (tolerated, reported).
     """
@@ -83,6 +89,7 @@ class ScanSpec:
     hints: dict = field(default_factory=dict)
     licence: str = ""
     unknown_keys: tuple = ()
+    eye_size: str | None = None
 
     @property
     def scale_to_mm(self) -> float:
@@ -251,9 +258,12 @@ def parse_sidecar(data, folder, sidecar) -> ScanSpec:
     texture = None
     if data.get("texture") is not None:
         texture = safe_path(folder, data["texture"], sidecar, "texture", TEXTURE_SUFFIXES)
+    eye_size = data.get("eye_size")
+    if eye_size is not None and eye_size not in EYE_SIZES:
+        raise ScanError(sidecar, f"eye_size must be one of {', '.join(EYE_SIZES)}, got {short_repr(eye_size)}")
     return ScanSpec(folder=folder, sidecar=Path(sidecar), mesh=mesh, texture=texture, units=units,
                     up_axis=axes["up_axis"], forward_axis=axes["forward_axis"], hints=hints,
-                    licence=licence.strip(), unknown_keys=tuple(unknown))
+                    licence=licence.strip(), unknown_keys=tuple(unknown), eye_size=eye_size)
 
 
 def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSpec:

@@ -46,6 +46,9 @@ class ScanRecord:
         The scan folder as ingest was given it: what a later refusal names.
     doc : dict
         The whole document as stored.
+    eye_size : str or None
+        The scan's own asset eye size (scan.yaml ``eye_size``), None where it leaves it to
+        ``remove_eyeballs.eye_size``.
     """
 
     path: Path
@@ -55,6 +58,7 @@ class ScanRecord:
     licence: str
     folder: str | None
     doc: dict = field(repr=False)
+    eye_size: str | None = None
 
 
 def write_scan_record(path, scan: dict, folder) -> None:
@@ -89,5 +93,8 @@ def read_scan_record(path) -> ScanRecord:
         v = doc.get(key)
         return v if isinstance(v, str) else None
 
+    eye_size = doc.get("eye_size")
+    if eye_size is not None and eye_size not in ("human", "population", "fitted"):
+        raise ScanError(path, f"eye_size must be human, population or fitted, got {eye_size!r:.40}")
     return ScanRecord(path=path, name=text("name"), hints=hints, source_sha256=str(doc.get("source_sha256", "")),
-                      licence=str(doc.get("licence", "")), folder=text("folder"), doc=doc)
+                      licence=str(doc.get("licence", "")), folder=text("folder"), doc=doc, eye_size=eye_size)

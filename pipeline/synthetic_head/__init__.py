@@ -90,6 +90,9 @@ class SyntheticHeadSettings(Settings):
     skin_tone: float = setting(SKIN_TONE_BASE, ge=0, le=1)       # melanin: 0 palest .. 1 darkest
     wrinkle_scale: float = setting(1.0, ge=0, le=3)              # depth of forehead lines, crow's feet, lid lines
     pore_scale: float = setting(1.0, ge=0, le=3)                 # depth of the pores
+    # the asset's eye, written to scan.yaml as eye_size ("": left to remove_eyeballs.eye_size);
+    # procedural identities say population: their globe is drawn from it, and the asset keeps it
+    asset_eye_size: Literal["", "human", "population", "fitted"] = ""
 
     def validate(self) -> None:
         if isinstance(self.eye_shape, float) and not 0.0 <= self.eye_shape <= 1.0:
@@ -271,7 +274,8 @@ def png_bytes(image) -> bytes:
     return buf.getvalue()
 
 
-def scan_yaml_text(head: SyntheticHead) -> str:
+def scan_yaml_text(head: SyntheticHead, eye_size: str = "") -> str:
+    """The head's ``scan.yaml``; ``eye_size`` (when given) becomes its asset eye's size."""
     import yaml
 
     data = {
@@ -283,18 +287,21 @@ def scan_yaml_text(head: SyntheticHead) -> str:
         "eyes": {side: {"hint": [float(v) for v in head.hints[side]]} for side in ("left", "right")},
         "licence": LICENCE,
     }
+    if eye_size:
+        data["eye_size"] = eye_size
     return "# procedural synthetic head (eyerig); ground truth in ground_truth.json\n" + \
         yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
 
 
-def write_scan_folder(head: SyntheticHead, folder) -> None:
-    """Write ``scan.ply``, ``texture.png``, ``scan.yaml`` and ``ground_truth.json`` into ``folder``.
+def write_scan_folder(head: SyntheticHead, folder, eye_size: str = "") -> None:
+    """Write ``scan.ply``, ``texture.png``, ``scan.yaml`` and ``ground_truth.json`` into ``folder``
+    (``eye_size``: the settings' ``asset_eye_size``, written to scan.yaml when given).
 
     ``folder`` must exist (a stage passes the temporary folder of ``atomic_dir``).
     """
     folder = Path(folder)
     (folder / "scan.ply").write_bytes(ply_bytes(head.V, head.F, head.UV))
     (folder / "texture.png").write_bytes(png_bytes(head.texture))
-    (folder / "scan.yaml").write_text(scan_yaml_text(head), encoding="utf-8")
+    (folder / "scan.yaml").write_text(scan_yaml_text(head, eye_size), encoding="utf-8")
     (folder / "ground_truth.json").write_text(json.dumps(head.ground_truth, indent=1) + "\n",
                                               encoding="utf-8")

@@ -39,6 +39,7 @@ def draw_identity(seed: int, i: int, triangles: int) -> dict:
         "pore_scale": round(0.7 + 0.9 * age, 2),
         "eye_spacing_mm": round(float(np.clip(rng.normal(63.0, 3.0), 57.0, 69.0)), 1),
         "target_triangles": int(triangles),
+        "asset_eye_size": "population",   # the asset keeps the globe drawn for the head (issue 29)
     }
 
 
