@@ -24,6 +24,7 @@ import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.io.atomic import write_json
+from pipeline.io.scan import EYE_SIZES
 
 SIDES = ("left", "right")
 SCAN_JSON = "scan.json"
@@ -94,7 +95,7 @@ def read_scan_record(path) -> ScanRecord:
         return v if isinstance(v, str) else None
 
     eye_size = doc.get("eye_size")
-    if eye_size is not None and eye_size not in ("human", "population", "fitted"):
-        raise ScanError(path, f"eye_size must be human, population or fitted, got {eye_size!r:.40}")
+    if eye_size is not None and eye_size not in EYE_SIZES:
+        raise ScanError(path, f"eye_size must be one of {', '.join(EYE_SIZES)}, got {eye_size!r:.40}")
     return ScanRecord(path=path, name=text("name"), hints=hints, source_sha256=str(doc.get("source_sha256", "")),
                       licence=str(doc.get("licence", "")), folder=text("folder"), doc=doc, eye_size=eye_size)
