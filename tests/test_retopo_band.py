@@ -105,7 +105,7 @@ def test_smoothing_keeps_the_polar_grid_and_pulls_a_cut_tip_out():
     th = 2 * np.pi * np.arange(S) / S
     d = ring_distances(rings, width, 2 * np.pi * a / S)
     G = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
-    Gs = smooth_grid(G, d, V, F)
+    Gs = smooth_grid(G, d, V, F, raise_to=None)
     assert np.array_equal(Gs[0], G[0])
     assert np.abs(Gs - G).max() < 0.1
     assert np.abs(np.linalg.norm(Gs[-1], axis=1) - (a + width)).max() < 0.05     # outer ring slides along itself
@@ -114,6 +114,36 @@ def test_smoothing_keeps_the_polar_grid_and_pulls_a_cut_tip_out():
     G2[0, 0] *= (a + 1.5) / a
     Gs2 = smooth_grid(G2, d, V, F)
     assert np.linalg.norm(Gs2[1, 0]) > np.linalg.norm(G2[0, 0]) + 0.5 * d[1]
+
+
+def _grid_angles(G, V, F):
+    S, rings = G.shape[1], G.shape[0] - 1
+    Q = split_quads(G.reshape(-1, 3), grid_quads(0, rings, S, reverse=True), V, F)
+    return band_report(G.reshape(-1, 3), Q, V, F, S, 0)
+
+
+def test_thin_quads_are_raised_to_the_target_angle_with_nothing_turned():
+    """Known answer: the polar grid of a flat annulus has its thinnest triangles (20.7 deg) at the
+    outer ring, where the geometric grading's last step is twice the spacing round the ring; a
+    ring 3 node dragged to its neighbour leaves a 2 deg sliver. Raising moves nodes only (the
+    loop and the outer ring are held) until no triangle is under 28 deg
+    and none is turned over (28: the target is 30)."""
+    V, F = _planar_annulus()
+    S, a, rings, width = 64, 5.0, 6, 8.0
+    th = 2 * np.pi * np.arange(S) / S
+    d = ring_distances(rings, width, 2 * np.pi * a / S)
+    G = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+    assert _grid_angles(G, V, F)["min_angle_deg"] == pytest.approx(20.74, abs=0.01)
+    G[3, 10] = 0.97 * G[3, 11] + 0.03 * G[3, 10]
+    before = _grid_angles(G, V, F)
+    assert before["min_angle_deg"] < 3.0 and before["flipped_faces"] == 0
+    Gr = smooth_grid(G, d, V, F, iterations=0)
+    after = _grid_angles(Gr, V, F)
+    assert np.array_equal(Gr[0], G[0])
+    assert np.abs(np.linalg.norm(Gr[-1], axis=1) - (a + width)).max() < 0.05
+    assert after["min_angle_deg"] > 28.0 and after["flipped_faces"] == 0
+    # without raising, the same call leaves the sliver
+    assert _grid_angles(smooth_grid(G, d, V, F, iterations=0, raise_to=None), V, F)["min_angle_deg"] < 3.0
 
 
 def _notched_disk(b=30.0, n_th=720, n_t=64):
