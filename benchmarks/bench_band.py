@@ -69,10 +69,17 @@ def main(argv=None) -> int:
     p.add_argument("--work", type=Path, required=True)
     p.add_argument("--out", default="band_angles")
     a = p.parse_args(argv)
-    result = {}
+    sets = []
     for spec in a.set:
-        name, rest = spec.split("=", 1)
-        builds, params = (Path(x) for x in rest.rsplit(":", 1))
+        name, _, rest = spec.partition("=")
+        builds, _, params = rest.rpartition(":")
+        if not name or not builds or not params:
+            p.error(f"--set {spec}: give NAME=BUILDS:PARAMS")
+        if not Path(builds).is_dir() or not Path(params).is_file():
+            p.error(f"--set {spec}: {builds if not Path(builds).is_dir() else params} does not exist")
+        sets.append((name, Path(builds), Path(params)))
+    result = {}
+    for name, builds, params in sets:
         rows = []
         for re_dir in sorted(builds.glob("*/remove_eyeballs")):
             out = a.work / name / re_dir.parent.name
