@@ -84,6 +84,11 @@ BENCHMARKS = (
     Benchmark("view_eye_sections", needs=("unseen_work",)),
     Benchmark("bench_unseen_oracle", needs=("unseen_work",)),
     Benchmark("bench_placement", args=("--set", "all", "--skip-missing"), needs=("unseen_work",)),
+    # the bands of the held-out heads the unseen run left (its own page: band_angles.json also
+    # holds seed 5 and the fresh set, built by hand)
+    Benchmark("bench_band", args=("--set", f"heldout={UNSEEN_WORK / 'build'}:{UNSEEN_WORK / 'params.yaml'}",
+                                  "--work", str(ROOT / "benchmarks" / "out" / "band"), "--out", "band_angles_heldout"),
+              needs=("unseen_work",)),
     Benchmark("bench_usd", needs=("synthetic_build",)),
     # the home asset, and every asset the unseen run above left
     Benchmark("bench_see_through", args=(f"synthetic_head={SYNTH_ASSET.parent}:{SYNTH_BUILD / 'rig'}",
