@@ -229,7 +229,8 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
             min_fold_deg=st.min_crease_deg)
     searched = dict(placements)     # what the search found, before the fallbacks below drop it
-    fits = {}
+    fits, photographed = {}, {}     # photographed: side -> the texture's eye, where it overrules
+    has_tex = texture is not None and "UV" in uv and "FUV" in uv
     for s in SIDES:
         if fills[s] is not None:
             fits[s], placements[s] = fit_from_fill(mesh, fills[s], s, st.radius_prior_mm), None
@@ -257,14 +258,21 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         elif placements[s] is not None:
             try:
                 fits[s] = _fit_from_placement(mesh, placements[s], hints[s], s, st, source, ignore)
-                continue
             except ScanError as exc:
                 err = exc
+            else:
+                photo = _photo_disagrees(mesh, fits[s], uv, texture, hints[s], s, st, source) if (
+                    st.texture_fallback and has_tex) else None
+                if photo is None:
+                    continue
+                share, photographed[s] = photo
+                err = CoarseEye(source, f"{s} eye: only {100 * share:.0f} % of the eye surface the geometry "
+                                        f"found lies inside the fissure the texture shows (limit "
+                                        f"{100 * PHOTO_INSIDE_MIN:.0f} %)", None)
         else:
             err = ScanError(source, f"{s} eye looks closed (or too little of the eyeball shows to place "
                                     f"it): no eye surface ringed by a lid fold "
                                     f"near the hint {np.round(hints[s], 2).tolist()}")
-        has_tex = texture is not None and "UV" in uv and "FUV" in uv
         if not (st.texture_fallback and has_tex):
             if not isinstance(err, CoarseEye):
                 raise err
@@ -273,9 +281,11 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             placements[s] = None
             continue
         try:
-            fits[s] = fit_texture(mesh, uv, texture, hints[s], s, st, source)
+            fits[s] = photographed.get(s) or fit_texture(mesh, uv, texture, hints[s], s, st, source)
             if s in coarse:
                 fits[s].why = f"{coarse[s]}: placed from the texture instead"
+            elif s in photographed:
+                fits[s].why = f"{err.problem.split(': ', 1)[1]}: placed from the texture instead"
         except NoEyeInTexture:
             # neither the geometry nor the texture shows an eye: skin across the opening, whatever
             # the scan's kind (a coarse scan's geometry may offer a sliver of "eye" the texture
@@ -289,6 +299,36 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         if front is not None and front.get(s) is not None:
             fits[s].prior_axis = np.asarray(front[s]["axis"], float)
     return mesh, fits, placements, searched
+
+
+#: On a textured scan an eye the geometry placed on a sphere far from a human one (more than
+#: :data:`PHOTO_CHECK_SIGMAS` prior sigmas off ``radius_prior_mm``) is checked against the
+#: photograph: at least :data:`PHOTO_INSIDE_MIN` of its region's faces (seen along the head's
+#: forward axis) lie inside the fissure the texture shows, or the texture places the eye. A hooded
+#: procedural head's skin bulging under its hanging fold fits a 20.6 mm sphere ringed by a fold,
+#: 16 % of it inside the photographed fissure (canthi 7.8 / 3.8 mm off); `synthetic_head`'s eyes
+#: (11.8 mm) lie wholly inside theirs. Only suspect spheres are checked: the fissure's fit costs
+#: 4-9 CPU-s an eye (its almond's Powell searches), a doubling of the stage.
+PHOTO_INSIDE_MIN = 0.5
+PHOTO_CHECK_SIGMAS = 2.0
+
+
+def _photo_disagrees(mesh, fit, uv, texture, hint, side, st, source):
+    """``(share, texture fit)`` where the geometric ``fit``'s sphere is suspect (above) and under
+    :data:`PHOTO_INSIDE_MIN` of its region lies inside the fissure the texture shows near
+    ``hint`` (:func:`fit_texture`), else None (a human-sized sphere; or they agree; or the
+    texture shows no eye there: the geometry stands)."""
+    if abs(fit.radius - st.radius_prior_mm) <= PHOTO_CHECK_SIGMAS * st.radius_prior_sigma_mm:
+        return None
+    try:
+        tex = fit_texture(mesh, uv, texture, hint, side, st, source)
+    except ScanError:           # NoEyeInTexture included: no photographed eye to disagree with
+        return None
+    from pipeline.placement import fissure as fs
+
+    q = (mesh.centroids[fit.region] - tex.fissure["hint"]) @ tex.fissure["basis"].T
+    share = float(fs.points_in_polygon(q, tex.fissure["outline_2d"]).mean()) if len(q) else 0.0
+    return None if share >= PHOTO_INSIDE_MIN else (share, tex)
 
 
 def placement_record(pl, fit):
