@@ -40,6 +40,39 @@ def test_almond_recovers_the_corners(side, theta):
         assert np.linalg.norm(fit[k] - np.array(theta)[k]) < 0.6, (fit, theta)
 
 
+def test_the_soft_inside_is_the_four_logistic_edges_of_the_lid_bumps():
+    """The fit's cost function against its definition: the product of the logistic edges
+    (width tau) of the upper lid, the lower lid and both chord ends, the lids' heights from
+    ``_bump`` (powers of the chord position). Within 1e-12 over random almonds and cells, exactly
+    0 height past the canthi (1/8 at a canthus, three edges at 1/2), and 1/2 on either lid's apex."""
+    rng = np.random.default_rng(3)
+    Q = rng.uniform(-22.0, 22.0, size=(5000, 2))
+    qx, qy = np.ascontiguousarray(Q[:, 0]), np.ascontiguousarray(Q[:, 1])
+    tau = 0.375
+
+    def sig(x):
+        return 1.0 / (1.0 + np.exp(-x))
+
+    for _ in range(40):
+        th = np.array([-13, 0, 14, 0.5, 6, 4, 0.5, 0.5, 1.0]) + rng.normal(0, [2, 1, 2, 1, 2, 1, 0.2, 0.2, 0.4])
+        m, l, hu, hl, pu, pl, k = fs._unpack(th)
+        d = l - m
+        nrm = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+        nrm = -nrm if nrm[1] < 0 else nrm
+        s, t, span = (Q - m) @ d / (d @ d), (Q - m) @ nrm, np.linalg.norm(d)
+        want = (sig((hu * fs._bump(s, pu, k) - t) / tau) * sig((t + hl * fs._bump(s, pl, k)) / tau)
+                * sig(s * span / tau) * sig((1 - s) * span / tau))
+        got = fs._soft_inside(th, qx, qy, tau)
+        assert np.abs(got - want).max() < 1e-12
+    # cells on the chord's line past either canthus: no lid height, one end's edge alone
+    th = np.array([-10.0, 0.0, 10.0, 0.0, 5.0, 3.0, 0.5, 0.5, 1.0])
+    P = np.array([[-10.0, 0.0], [10.0, 0.0], [-30.0, 0.0], [0.0, 5.0], [0.0, -3.0]])
+    got = fs._soft_inside(th, np.ascontiguousarray(P[:, 0]), np.ascontiguousarray(P[:, 1]), tau)
+    assert got[0] == pytest.approx(0.5 * sig(0.0) * sig(0.0), abs=1e-12)   # a canthus: three edges at 1/2
+    assert got[1] == pytest.approx(0.25 * 0.5, abs=1e-12) and got[2] < 1e-20
+    assert got[3] == pytest.approx(0.5, abs=1e-9) and got[4] == pytest.approx(0.5, abs=1e-9)
+
+
 def test_almond_outline_runs_medial_upper_lateral_lower():
     theta = np.array([-13.0, 0.0, 14.0, 0.0, 6.0, 4.0, 0.5, 0.5, 1.0])
     P = fs.almond_points(theta, 64)

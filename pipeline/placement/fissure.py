@@ -187,22 +187,46 @@ def almond_points(theta, n=128):
     return np.concatenate([up, lo])
 
 
-def _soft_inside(theta, Q, tau):
+def _soft_inside(theta, qx, qy, tau):
+    """(k,) soft indicator of the cells ``(qx, qy)`` (each (k,), contiguous) inside the almond
+    ``theta``: four logistic edges of width ``tau`` (the two lids and the two ends of the chord).
+
+    The fit's cost, about 2,000 calls a fissure: both lids' :func:`_bump` from one log of the
+    chord position and of its rest (an exponential each, where ``_bump``'s two powers take a log
+    and an exponential each), and the four edges through one ``tanh`` over a (4, k) block. The
+    same values as ``_bump`` and four separate edges to 1e-13; the almonds fitted with them agree
+    to 1e-8 mm on ``james``, and on the textured-only heads but one eye (seed 20's left: its
+    canthi 0.05 mm on, Powell's path parted)."""
     m, l, hu, hl, pu, pl, sharp = _unpack(theta)
     d = l - m
     L2 = max(float(d @ d), 1e-9)
     nrm = np.array([-d[1], d[0]]) / np.sqrt(L2)
     if nrm[1] < 0:
         nrm = -nrm
-    s = ((Q - m) @ d) / L2
-    t = (Q - m) @ nrm
+    dx, dy = qx - m[0], qy - m[1]
+    s = (dx * d[0] + dy * d[1]) / L2
+    t = dx * nrm[0] + dy * nrm[1]
     span = np.sqrt(L2)
+    # _bump is 0 outside the open chord (a power of 0 there): log 0 = -inf gives exp(-inf) = 0
+    inner = (s > 0.0) & (s < 1.0)
+    ls, l1 = np.full(len(s), -np.inf), np.full(len(s), -np.inf)
+    ls[inner] = np.log(s[inner])
+    l1[inner] = np.log1p(-s[inner])
 
-    def sig(x):
-        return 0.5 * (1.0 + np.tanh(0.5 * x))
+    def bump(peak):
+        a, b = 2.0 * peak * sharp, 2.0 * (1.0 - peak) * sharp
+        return np.exp(a * (ls - np.log(peak)) + b * (l1 - np.log1p(-peak)))
 
-    gu, gl = hu * _bump(s, pu, sharp), hl * _bump(s, pl, sharp)
-    return (sig((gu - t) / tau) * sig((t + gl) / tau) * sig(s * span / tau) * sig((1.0 - s) * span / tau))
+    X = np.empty((4, len(s)))
+    X[0] = hu * bump(pu) - t
+    X[1] = t + hl * bump(pl)
+    X[2] = s * span
+    X[3] = (1.0 - s) * span
+    X *= 0.5 / tau
+    np.tanh(X, out=X)           # sig(x / tau) = (1 + tanh(x / (2 tau))) / 2, each edge
+    X += 1.0
+    X *= 0.5
+    return X[0] * X[1] * X[2] * X[3]
 
 
 def fit_almond(cmap: ColourMap, lateral_sign: float, init_half_width=None, start=None):
@@ -230,6 +254,7 @@ def fit_almond(cmap: ColourMap, lateral_sign: float, init_half_width=None, start
     C = cmap.centres()
     ok = np.isfinite(cmap.llr)
     Q, w = C[ok], cmap.llr[ok]
+    qx, qy = np.ascontiguousarray(Q[:, 0]), np.ascontiguousarray(Q[:, 1])
     # start: the eye-like region connected to the hint
     grid = np.where(ok, cmap.llr, -1.0) > 0.0
     grid = ndimage.binary_opening(grid, iterations=2)
@@ -262,7 +287,7 @@ def fit_almond(cmap: ColourMap, lateral_sign: float, init_half_width=None, start
         # and the fissure is 27 +- 1.7 mm wide in adults: where the texture cannot tell the corner
         # (a canthus in shadow under the lashes), the population decides
         zw = (np.linalg.norm(th[2:4] - th[0:2]) - wm) / ws
-        return (-float(np.sum(_soft_inside(th, Q, tau) * w)) * cell_area
+        return (-float(np.sum(_soft_inside(th, qx, qy, tau) * w)) * cell_area
                 + LID_PRIOR_WEIGHT * z * z + WIDTH_PRIOR_WEIGHT * zw * zw)
 
     best = None

@@ -308,7 +308,7 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
 #: procedural head's skin bulging under its hanging fold fits a 20.6 mm sphere ringed by a fold,
 #: 16 % of it inside the photographed fissure (canthi 7.8 / 3.8 mm off); `synthetic_head`'s eyes
 #: (11.8 mm) lie wholly inside theirs. Only suspect spheres are checked: the fissure's fit costs
-#: 4-9 CPU-s an eye (its almond's Powell searches), a doubling of the stage.
+#: 2.5-3.5 CPU-s an eye (its almond's Powell searches), most of the stage's cost on such a head.
 PHOTO_INSIDE_MIN = 0.5
 PHOTO_CHECK_SIGMAS = 2.0
 
