@@ -281,7 +281,9 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             placements[s] = None
             continue
         try:
-            fits[s] = photographed.get(s) or fit_texture(mesh, uv, texture, hints[s], s, st, source)
+            # the photograph check's own fit, when it overruled the geometry (not fitted twice)
+            fits[s] = photographed[s] if s in photographed else fit_texture(mesh, uv, texture, hints[s], s,
+                                                                            st, source)
             if s in coarse:
                 fits[s].why = f"{coarse[s]}: placed from the texture instead"
             elif s in photographed:
