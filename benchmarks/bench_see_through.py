@@ -26,6 +26,12 @@ covers; an iris more than half hidden is counted. Where the scan has a ground tr
 a half blink hides more than half of the scanned person's own iris, so an asset's share is read
 against it.
 
+Seen from the head's front at gaze pitch 0 and +25 deg, the shape of what the lids leave open:
+its solidity (area over its convex hull's) and its deepest notch (mm, the greatest distance of a
+hull point outside it from the hull's border). An almond fissure is near convex; a lid spiked or
+split where the band meets the margin notches it, and a notch over ``JAGGED_MM`` counts the eye
+as jagged (``id302_up``'s toothed lower lids, ``id309_squint_up``'s lid flap: the previews).
+
 ``--home`` adds the three home scans' assets (rigged_assets/<scan>, build/<scan>/rig);
 ``--unseen WORK`` every asset a ``bench_unseen_scans --work WORK`` run left
 (``WORK/assets/<case>_asset``, ``WORK/build/<case>/rig``). Writes ``<results>/<out>.json``.
@@ -37,7 +43,9 @@ import argparse
 import json
 from pathlib import Path
 
-from tests.fixtures.see_through import HIDDEN_SHARE, PITCHES, SEE_THROUGH_MM2, VIEWS, measure
+import numpy as np
+
+from tests.fixtures.see_through import HIDDEN_SHARE, JAGGED_MM, PITCHES, SEE_THROUGH_MM2, SHAPE_PITCHES, VIEWS, measure
 from tests.fixtures.truth import truth_eyes
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,7 +90,8 @@ def main(argv=None):
                   f"({e['views_with_see_through']}/{e['views']} views"
                   f"{'; worst ' + e['see_through_mm2']['view'] + ' at pitch ' + format(e['see_through_mm2']['pitch_deg'], '+.0f') if e['see_through_mm2']['mm2'] > SEE_THROUGH_MM2 else ''})"
                   f"  iris hidden {100 * e['iris_hidden_share']:.0f} %"
-                  + (f" (truth's {100 * e['truth_iris_hidden_share']:.0f} %)" if "truth_iris_hidden_share" in e else ""))
+                  + (f" (truth's {100 * e['truth_iris_hidden_share']:.0f} %)" if "truth_iris_hidden_share" in e else "")
+                  + f"  opening notch {e['opening_concavity_mm']:.2f} mm{' (jagged)' if e['jagged'] else ''}")
     eyes = [e for r in rows for e in r["eyes"].values()]
     summary = {"assets": len(rows), "eyes": len(eyes),
                "assets_with_see_through": sum(any(e["see_through_mm2"]["mm2"] > SEE_THROUGH_MM2
@@ -97,7 +106,13 @@ def main(argv=None):
                                                  for e in tr),
                "most_hidden_beyond_truth": max((round(e["iris_hidden_share"] - e["truth_iris_hidden_share"], 3)
                                                 for e in tr), default=None),
-               "views": {"pitches_deg": list(PITCHES), "cameras": VIEWS}, "hidden_share": HIDDEN_SHARE}
+               # the lids' shape seen from the front: a notch deeper than JAGGED_MM is a spiked or split lid
+               "jagged_mm": JAGGED_MM, "jagged_eyes": sum(e["jagged"] for e in eyes),
+               "jagged": sorted(f"{r['asset']} {s} {e['opening_concavity_mm']:.2f}" for r in rows
+                                for s, e in r["eyes"].items() if e["jagged"]),
+               "median_opening_concavity_mm": float(np.median([e["opening_concavity_mm"] for e in eyes])) if eyes else None,
+               "views": {"pitches_deg": list(PITCHES), "cameras": VIEWS, "shape_pitches_deg": list(SHAPE_PITCHES)},
+               "hidden_share": HIDDEN_SHARE}
     print(json.dumps({k: v for k, v in summary.items() if k != "views"}))
     out = Path(args.results) / f"{args.out}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
