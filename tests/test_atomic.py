@@ -3,6 +3,7 @@
 import json
 import os
 import stat
+import time
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +132,34 @@ def test_stale_tmp_siblings_of_dead_processes_are_removed(tmp_path):
     (tmp_path / f".m.json.tmp-{DEAD_PID}-q.json").write_text("{")
     write_json(tmp_path / "m.json", {"a": 1})
     assert not (tmp_path / f".m.json.tmp-{DEAD_PID}-q.json").exists()
+
+
+def test_a_zombie_writer_is_gone_and_its_sibling_removed(tmp_path):
+    """A writer killed mid-write and not yet reaped by its parent (a dask worker SIGKILLed while it
+    wrote a label, as in test_shard's kill test) is a zombie: it writes nothing more, so its
+    sibling is stale, while a live writer's is kept."""
+    import signal
+    import subprocess
+    import sys
+
+    from pipeline.io.scratch import pid_alive
+
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        assert pid_alive(child.pid)
+        os.kill(child.pid, signal.SIGKILL)
+        t0 = time.time()
+        while Path(f"/proc/{child.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
+            assert time.time() - t0 < 10
+            time.sleep(0.01)
+        assert not pid_alive(child.pid)               # dead, though os.kill(pid, 0) still succeeds
+        (tmp_path / f".m.json.tmp-{child.pid}-q.json").write_text("{")
+        write_json(tmp_path / "m.json", {"a": 1})
+        assert _siblings(tmp_path) == ["m.json"]
+    finally:
+        child.kill()
+        child.wait()
+    assert not pid_alive(child.pid) and pid_alive(os.getpid())
 
 
 def test_atomic_writes_fsync_file_and_folder_before_and_after_rename(tmp_path, monkeypatch):

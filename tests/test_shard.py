@@ -211,6 +211,45 @@ def test_worker_killed_on_a_real_cluster_loses_nothing(two, tmp_path):
     assert [k for k in a if a[k] != b[k]] == []
 
 
+def test_only_the_shutdown_timeout_of_an_unawaited_future_is_muted(caplog):
+    """A future that failed with tornado's TimeoutError('Timeout') and that nothing awaits is
+    logged by asyncio when collected (once on stderr of a dataset run that succeeded); the filter
+    drops exactly that, not another exception nor another timeout."""
+    import asyncio
+    import gc
+    import logging
+
+    from pipeline.render.shard import _ShutdownTimeout, mute_shutdown_timeout
+
+    def abandon(exc):
+        loop = asyncio.new_event_loop()
+        try:
+            fut = loop.create_future()
+            fut.set_exception(exc)
+            del fut
+            gc.collect()
+        finally:
+            loop.close()
+
+    log = logging.getLogger("asyncio")
+    before = list(log.filters)
+    try:
+        with caplog.at_level(logging.ERROR, logger="asyncio"):
+            abandon(TimeoutError("Timeout"))
+            assert [r.getMessage().splitlines()[0] for r in caplog.records] == [
+                "Future exception was never retrieved"]      # what reached stderr before the filter
+            caplog.clear()
+            mute_shutdown_timeout()
+            mute_shutdown_timeout()
+            abandon(TimeoutError("Timeout"))
+            abandon(TimeoutError("connect timed out"))
+            abandon(ValueError("Timeout"))
+        assert [r.exc_info[1].args for r in caplog.records] == [("connect timed out",), ("Timeout",)]
+        assert sum(isinstance(f, _ShutdownTimeout) for f in log.filters) == 1
+    finally:
+        log.filters[:] = before
+
+
 def test_only_the_heartbeat_error_is_muted_and_only_while_asked(caplog):
     """The shutdown filter drops the worker's heartbeat traceback and nothing else, and is gone
     again after unmute (a run with an in-process worker leaves the logger as it found it)."""

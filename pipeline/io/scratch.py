@@ -41,7 +41,9 @@ def run_child(cmd, **kwargs) -> subprocess.CompletedProcess:
 
 
 def pid_alive(pid: int) -> bool:
-    """Is a process ``pid`` running (any owner)?"""
+    """Is a process ``pid`` running (any owner)? A zombie (exited, not yet reaped by its parent)
+    is not: it writes nothing more, and a dask worker SIGKILLed mid-write stays one until its
+    parent waits for it, so the sibling it left would otherwise be kept as another run's."""
     if pid <= 0:
         return False
     try:
@@ -49,8 +51,12 @@ def pid_alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True
-    return True
+        pass
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:         # gone since, or no /proc (not Linux)
+        return not os.path.exists("/proc/self/stat")
+    return stat[stat.rfind(")") + 2:][:1] not in ("Z", "X")
 
 
 def remove_stale_scratch(base) -> list[Path]:
