@@ -77,6 +77,43 @@ def test_grazing_normals_use_closest_point():
     assert not np.allclose(V2[loop], V[loop])
 
 
+def test_line_share_fades_at_the_grazing_bound_and_smoothing_only_lowers_it():
+    """Known answers of :func:`line_share`: a line within 3/4 of the grazing bound gives all of
+    the target, one at the bound half, one past 5/4 of it (or crossing nowhere) none; along the
+    loop a share is only ever lowered toward a neighbour's."""
+    st = sn.SnapSettings()
+    dc = np.full(40, 1.5)
+    bound = st.graze_ratio * 1.5 + st.graze_slack_mm
+    assert np.array_equal(sn.line_share(-dc, dc, st), np.ones(40))
+    for frac, want in ((0.75, 1.0), (1.0, 0.5), (1.25, 0.0), (2.0, 0.0)):
+        assert sn.line_share(np.full(40, -frac * bound), dc, st) == pytest.approx(np.full(40, want))
+    t = -dc.copy()
+    t[20] = np.nan                       # one line crossing nowhere among lines that hit
+    a = sn.line_share(t, dc, st)
+    assert a[20] == 0.0 and (a <= 1.0).all()
+    assert np.allclose(a[19:0:-1], a[21:]) and (np.diff(a[20:]) >= 0).all()      # symmetric, rising
+    assert 0.0 < a[21] < 0.5 and a[0] > 0.999                                   # a ramp, not a step
+    t[20] = -1.1 * bound                 # a share of 0.3 is kept, not raised by its neighbours
+    assert sn.line_share(t, dc, st)[20] == pytest.approx(0.3)
+
+
+def test_a_lid_off_a_smaller_offset_eye_snaps_without_teeth():
+    """Lids 2 mm off the sphere they were scanned round, onto a 12 mm eye 5 mm to the side: the
+    snap lines of one side meet it, the other side's graze. Choosing per vertex (the line's
+    crossing or the closest point, 3-4 mm apart there) bent the loop by 2.2 mm from one vertex
+    to the next and turned 23 faces over; faded along the loop, the loop bends by under 1 mm and
+    no face turns."""
+    V, F, loop = lid_ring(lift0=2.0, theta0=50.0)
+    eye = sn.EyeballSurface(CENTER + np.array([5.0, 0.0, -1.0]), 12.0, np.array([0, 0, 1.0]), EyeballParams())
+    V2, info = sn.snap_loop(V, F, loop, eye, sn.SnapSettings())
+    assert 0 < info["grazing"] < len(loop)
+    P = V2[loop]
+    assert np.abs(eye.signed_distance(P)).max() <= 0.05
+    bend = np.linalg.norm(P - 0.5 * (np.roll(P, 1, axis=0) + np.roll(P, -1, axis=0)), axis=1)
+    assert bend.max() < 1.0
+    assert sn.flipped_faces(V, V2, F) == 0
+
+
 def test_margin_report_rotation():
     V, F, loop = lid_ring(0.3, theta0=30.0)
     eye = _eye()
