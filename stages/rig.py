@@ -5,12 +5,14 @@
 Reads ``snap/mesh.npz`` (V, F, loop_left, loop_right) and ``snap/eyes.json``;
 writes ``rig/rig.npz`` (blend shapes with inbetweens, eyelid landmark curves and
 their shapes) and ``rig/rig.json`` (pitch-to-weight rule, shapes, eye joints,
-landmark order), through pipeline/io/rig_file.py. See pipeline/rig/build.py and lids.py
-for the method.
+landmark order), through pipeline/io/rig_file.py. See pipeline/rig/build.py and lids.py for the
+method. A lid that notches an opening seen from the front by more than 1 mm (toothed, spiked or
+split) is named in a warning line on stderr.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from pipeline.fork import fork_call, fork_result
@@ -48,6 +50,8 @@ def main(argv) -> StageResult:
     mesh, eyes, mesh_path, eyes_path = _read_inputs(args.snap)
     profile = None if profile_job is None else fork_result(profile_job)[0]
     rig = build_rig(mesh, eyes, params, mesh_path, eyes_path, profile)
+    for line in rig.warnings:
+        print(f"warning: {args.snap}: {line}", file=sys.stderr)
     with atomic_dir(args.out) as tmp:
         write_rig(tmp, rig.arrays, rig.doc)
     return rig.result.at(args.metrics or default_metrics_path(args.out))

@@ -266,3 +266,45 @@ def test_stage_refuses_a_rig_whose_sweep_flips_faces(tmp_path, capsys):
                      r" \(over from \+\d+(\.\d+)? deg\), ring \d+ out from loop vertex \d+ of 48", err[0]), err[0]
     assert "mm in the head frame" in err[0] and "the first at pitch +" in err[0]
     assert not out.exists()
+
+
+def test_a_lid_spiking_into_the_opening_is_measured_and_named(tmp_path, region, capsys):
+    """The sealed region's lids leave two clean almonds (notch under 0.5 mm, no warning; the
+    figure in rig.json and the metrics); one skin triangle hanging 3 mm down from the left upper
+    lid's top into the opening is a 3 mm notch at rest (looking up the lid rises and its tip, moved
+    by no shape, stays: deeper), there and nowhere else; over the threshold the stage names the
+    eye in one warning line."""
+    from pipeline.geometry.opening import opening_notch
+    from pipeline.rig import build as rig_build
+
+    V, F, eyes, lr = region
+    clean = rig_build.lid_notches(V, F, eyes, lr.shapes, 25.0)
+    assert max(clean.values()) < 0.5
+    left = next(e for e in eyes if e.side == "left")
+    top = int(np.argmax(V[left.loop, 1]))
+    a, b = left.loop[top], left.loop[(top + 1) % len(left.loop)]
+    tip = 0.5 * (V[a] + V[b]) - np.array([0.0, 3.0, 0.0])
+    spiked = rig_build.lid_notches(np.vstack([V, tip]), np.vstack([F, [[a, b, len(V)]]]), eyes, lr.shapes, 25.0)
+    V1, F1 = np.vstack([V, tip]), np.vstack([F, [[a, b, len(V)]]])
+    assert opening_notch(V1, F1, left.loop, rig_build.HEAD_FORWARD)[1] == pytest.approx(3.0, abs=0.3)   # at rest
+    assert spiked["left"] >= 2.7 and spiked["right"] == clean["right"]
+
+    snap, out = tmp_path / "snap", tmp_path / "rig"
+    _write_snap(snap, V, F, eyes)
+    metrics = tmp_path / "rig.metrics.json"
+    args = [str(snap), str(out), "--metrics", str(metrics), "--params", str(tmp_path / "none.yaml")]
+    assert run_stage(rig_stage.main, args) == 0
+    assert "warning" not in capsys.readouterr().err
+    m = read_stage_metrics(metrics)
+    doc = read_rig(out, n_vertices=len(V)).doc
+    for side in ("left", "right"):
+        assert m[f"lid_notch_{side}_mm"] == doc["eyes"][side]["lid_notch_mm"] == round(clean[side], 3)
+    assert m["jagged_lids"] == 0
+    rig_build.JAGGED_LID_MM, keep = -1.0, rig_build.JAGGED_LID_MM     # every eye over it
+    try:
+        assert run_stage(rig_stage.main, args) == 0
+    finally:
+        rig_build.JAGGED_LID_MM = keep
+    err = capsys.readouterr().err.strip().splitlines()
+    assert [line.split(": ")[2].split(" eye")[0] for line in err] == ["left", "right"]
+    assert all(line.startswith(f"warning: {snap}: ") and "notch of" in line for line in err)

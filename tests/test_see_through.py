@@ -98,26 +98,6 @@ def test_the_true_iris_is_hidden_where_skin_lies_in_front_of_it_and_only_there(t
     assert truth_iris_hidden_share(bare, "left", at(beside)) == 0.0 == iris_hidden_share(bare, "left")
 
 
-def test_region_shape_reads_a_notch_by_its_depth():
-    """Known answers: a 20 x 10 rectangle is convex (solidity 1, no notch); with a 1 mm wide slot
-    cut 3 mm into it from its top edge, the notch is 3 mm deep and the solidity 1 - 3 / 200; a
-    spike of the border poking in is read the same way, whatever its width."""
-    from tests.fixtures.see_through import region_shape
-
-    step = 0.05
-    xs, ys = np.arange(-12.0, 12.0, step), np.arange(-7.0, 7.0, step)
-    gx, gy = np.meshgrid(xs, ys)
-    rect = (np.abs(gx) <= 10.0) & (np.abs(gy) <= 5.0)
-    solidity, depth = region_shape(rect, xs, ys)
-    assert solidity == pytest.approx(1.0, abs=0.01) and depth < step
-    slot = rect & ~((np.abs(gx - 2.0) < 0.5) & (gy > 2.0))
-    solidity, depth = region_shape(slot, xs, ys)
-    assert depth == pytest.approx(3.0, abs=2 * step)
-    assert solidity == pytest.approx(1.0 - 3.0 / 200.0, abs=0.01)
-    spike = rect & ~((np.abs(gx + 4.0) < 0.1 + 0.2 * (5.0 - gy)) & (gy > 1.0))     # a wedge 4 mm long
-    assert region_shape(spike, xs, ys)[1] == pytest.approx(4.0, abs=2 * step)
-
-
 def test_a_skin_triangle_poking_into_an_opening_is_a_notch_of_its_depth(tiny):
     """The tiny asset's skin is a flat 5 mm grid over its 20 mm square loops; with the faces inside
     each square cut away, what the lids leave open is the square (convex, no notch); one grid

@@ -2,19 +2,22 @@
 
 ``build_rig`` takes the snapped mesh and its eyes and returns the arrays of ``rig.npz``, the
 ``rig.json`` document and the metrics (:class:`RigBuild`); the method is in ``lid_shapes`` (the
-shapes), ``sweep`` (the pitch sweep) and ``landmarks``. A sweep that flips a face refuses the scan.
+shapes), ``sweep`` (the pitch sweep) and ``landmarks``. A sweep that flips a face refuses the scan;
+a lid that notches the opening seen from the front (toothed, spiked or split: :func:`lid_notches`)
+is a warning.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from pipeline.errors import ScanError
 from pipeline.eyeball.geometry import EyeballParams, placed_params
+from pipeline.geometry.opening import JAGGED_LID_MM, opening_notch
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
 from pipeline.rig.eye_frame import eye_frames
@@ -28,11 +31,29 @@ from pipeline.results import StageResult
 @dataclass
 class RigBuild:
     """What the rig stage writes: ``arrays`` (rig.npz), ``doc`` (rig.json) and ``result`` (its
-    metrics and timings)."""
+    metrics and timings); ``warnings``, one line each, for the stage to print."""
 
     arrays: dict
     doc: dict
     result: StageResult
+    warnings: list = field(default_factory=list)
+
+
+#: The head frame's forward (+Z out of the face, DESIGN.md): the view the lids are judged from.
+HEAD_FORWARD = np.array([0.0, 0.0, 1.0])
+
+
+def lid_notches(V, F, eyes, shapes, max_pitch_deg: float) -> dict:
+    """side -> the deepest notch (mm) in what the posed lids leave open of that eye, seen from
+    the head's front at rest and looking up by ``max_pitch_deg`` (the lids open widest;
+    :func:`pipeline.geometry.opening.opening_notch`). Looking down the lids nearly meet and
+    the slit between them is not convex: not judged there."""
+    out = {e.side: 0.0 for e in eyes}
+    for pitch in (0.0, max_pitch_deg):
+        P = lids.evaluate_shapes(V, shapes, lids.lid_weights(pitch, max_pitch_deg))
+        for e in eyes:
+            out[e.side] = max(out[e.side], opening_notch(P, F, e.loop, HEAD_FORWARD)[1])
+    return out
 
 
 def _model_corneas(eyes):
@@ -107,6 +128,14 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
                                    f"{sweep['flipped_faces']} faces (a fold in the lids){where}; "
                                    f"the eye fit or the eyelid loop is wrong, or the scan itself folds there")
 
+    # a toothed, spiked or split lid shows in every render, yet folds nothing: say so
+    notches = lid_notches(V, F, eyes, rig.shapes, lp.max_pitch_deg)
+    warnings = [f"{side} eye: the lids leave a notch of {n:.1f} mm in the opening seen from the front "
+                f"(over {JAGGED_LID_MM:g} mm: a toothed, spiked or split lid the renders show)"
+                for side, n in sorted(notches.items()) if n > JAGGED_LID_MM]
+    for side, n in notches.items():
+        eyes_doc[side]["lid_notch_mm"] = round(float(n), 3)
+
     # margin motion at the extremes (mean vertical displacement per lid, mm)
     motion = {}
     for name in (lids.SHAPE_UP, lids.SHAPE_DOWN):
@@ -165,6 +194,8 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
         "fold_relax_rounds": int(relax_rounds), "fold_relaxed_vertices": int(relaxed),
         **{f"sweep_{k}": v for k, v in sweep.items()},
         **motion,
+        **{f"lid_notch_{side}_mm": round(float(n), 3) for side, n in sorted(notches.items())},
+        "jagged_lids": len(warnings),
     }
     return RigBuild(arrays, doc, StageResult(metrics, {"build_s": round(t_build, 4),
-                                                       "sweep_s": round(t_sweep, 4)}))
+                                                       "sweep_s": round(t_sweep, 4)}), warnings)
