@@ -91,3 +91,26 @@ def test_a_square_hole_is_open_and_a_triangle_poking_into_it_is_a_notch_of_its_d
     assert opening_notch(V, np.concatenate([F[~inside], F[keep]]), loop, (0.0, 0.0, -1.0))[1] == pytest.approx(notch, abs=0.15)
     assert opening_notch(V / 1000.0, np.concatenate([F[~inside], F[keep]]), loop, (0.0, 0.0, 1.0),
                          step_mm=1e-4)[1] == pytest.approx(notch / 1000.0, abs=2e-4)
+
+
+def test_degenerate_openings_read_as_nothing_open():
+    """A loop collapsed to a point, one on a line, and one smaller than the grid step: nothing
+    open, no error; a finite figure for a loop with a repeated vertex."""
+    V, F, inside, loop = _holed_sheet()
+    F = F[~inside]
+    for P in (np.zeros((4, 3)), np.column_stack([np.linspace(-1, 1, 4), np.zeros(4), np.zeros(4)]),
+              0.01 * np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)):
+        V2 = np.vstack([V, P])
+        assert opening_notch(V2, F, np.arange(len(V), len(V2)), (0.0, 0.0, 1.0)) == (0.0, 0.0)
+    solidity, notch = opening_notch(V, F, np.concatenate([loop, loop[:1]]), (0.0, 0.0, 1.0))
+    assert solidity == pytest.approx(1.0, abs=0.02) and notch < 0.15
+
+
+def test_covered_points_with_no_triangle_on_any_row_covers_nothing():
+    from pipeline.geometry.raster import covered_points
+
+    xs, ys = np.arange(0.0, 5.0, 1.0), np.arange(0.0, 3.0, 1.0)
+    assert not covered_points(np.zeros((0, 3, 2)), xs, ys).any()
+    above = np.array([[[0.0, 10.0], [4.0, 10.0], [2.0, 12.0]]])      # wholly above the rows
+    assert covered_points(above, xs, ys).shape == (3, 5) and not covered_points(above, xs, ys).any()
+    assert covered_points(np.array([[[-1.0, -1.0], [9.0, -1.0], [-1.0, 9.0]]]), xs, ys)[0].all()

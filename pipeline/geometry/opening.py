@@ -84,6 +84,8 @@ def region_shape(region: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[fl
     greatest distance from the hull's border of a hull point outside the region (units of
     ``xs``). A convex region gives (1, 0) up to a pixel; a notch cut into it, its depth."""
     region = np.asarray(region, bool)
+    if len(xs) < 2 or len(ys) < 2:
+        return 0.0, 0.0
     gx, gy = np.meshgrid(xs, ys)
     # the hull of the region is its border's: the points without all four neighbours inside
     pad = np.pad(region, 1)
@@ -97,11 +99,13 @@ def region_shape(region: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[fl
     in_hull = inside_polygon_grid(xs, ys, H)
     gap = np.column_stack([gx[in_hull & ~region], gy[in_hull & ~region]])
     depth = 0.0
-    if len(gap):
-        a, b = H, np.roll(H, -1, axis=0)
-        ab = b - a
-        t = np.clip(((gap[:, None] - a[None]) * ab[None]).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300), 0.0, 1.0)
-        depth = float(np.linalg.norm(gap[:, None] - (a[None] + t[..., None] * ab[None]), axis=-1).min(axis=1).max())
+    a, b = H, np.roll(H, -1, axis=0)
+    ab = b - a
+    ab2 = np.maximum((ab * ab).sum(-1), 1e-300)
+    for k in range(0, len(gap), 4096):      # in blocks: points x hull edges stays a few MB
+        g = gap[k:k + 4096, None]
+        t = np.clip(((g - a[None]) * ab[None]).sum(-1) / ab2, 0.0, 1.0)
+        depth = max(depth, float(np.linalg.norm(g - (a[None] + t[..., None] * ab[None]), axis=-1).min(axis=1).max()))
     return float(region.sum()) * dx * dy / area, depth
 
 
@@ -122,6 +126,8 @@ def opening_notch(V, F, loop, towards, up=(0.0, 1.0, 0.0), step_mm: float = 0.1)
     (x0, y0), (x1, y1) = poly.min(axis=0), poly.max(axis=0)
     xs = np.arange(x0, x1 + step_mm, step_mm)
     ys = np.arange(y0, y1 + step_mm, step_mm)
+    if len(xs) < 3 or len(ys) < 3:         # a loop smaller than the grid: nothing to judge
+        return 0.0, 0.0
     T = uv[np.asarray(F, np.int64)]
     # only triangles over the polygon's box can cover a point of it
     near = (T[:, :, 0].max(1) >= x0) & (T[:, :, 0].min(1) <= x1) & (T[:, :, 1].max(1) >= y0) & (T[:, :, 1].min(1) <= y1)

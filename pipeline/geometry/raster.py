@@ -101,6 +101,8 @@ def covered_points(tri_px, xs, ys, tol: float = GAP_TOL_PX) -> np.ndarray:
     xs, ys = np.asarray(xs, np.float64), np.asarray(ys, np.float64)
     x0, x1 = float(xs[0]) - 1.0, float(xs[-1]) + 1.0
     r, lo, hi = merged_spans(*row_spans(tri_px, ys), x0, x1, tol)
+    if len(r) == 0:                      # no triangle crosses a row
+        return np.zeros((len(ys), len(xs)), bool)
     big = 2.0 * (x1 - x0) + 1.0
     klo = r * big + (lo - x0)
     khi = r * big + (hi - x0)
