@@ -273,7 +273,7 @@ def test_a_lid_spiking_into_the_opening_is_measured_and_named(tmp_path, region, 
     figure in rig.json and the metrics); one skin triangle hanging 3 mm down from the left upper
     lid's top into the opening is a 3 mm notch at rest (looking up the lid rises and its tip, moved
     by no shape, stays: deeper), there and nowhere else; over the threshold the stage names the
-    eye in one warning line."""
+    eye in one warning line, and rig.json (so the asset) carries it as the eye's doubt."""
     from pipeline.geometry.opening import opening_notch
     from pipeline.rig import build as rig_build
 
@@ -308,3 +308,7 @@ def test_a_lid_spiking_into_the_opening_is_measured_and_named(tmp_path, region, 
     err = capsys.readouterr().err.strip().splitlines()
     assert [line.split(": ")[2].split(" eye")[0] for line in err] == ["left", "right"]
     assert all(line.startswith(f"warning: {snap}: ") and "notch of" in line for line in err)
+    # the asset carries it as a doubt, as it carries remove_eyeballs' (customData, render warnings)
+    doc = read_rig(out, n_vertices=len(V)).doc
+    for side, line in zip(("left", "right"), err):
+        assert doc["eyes"][side]["doubts"] == [line.split(f"{side} eye: ", 1)[1]]

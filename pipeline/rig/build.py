@@ -111,7 +111,7 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
             "center": e.center, "radius": e.radius, "forward": e.forward,
             "pitch_axis": e.axis,
             "lateral_index": e.lateral_index, "loop_length": len(e.loop),
-            "doubts": list(placed_eyes[e.side].doubts),   # carried from remove_eyeballs
+            "doubts": list(placed_eyes[e.side].doubts),   # carried from remove_eyeballs (and a jagged lid's, below)
         }
         lm_doc[e.side] = {"eyelid_loop_position": lm.loop_position, "eyelid_edges": lm.edge}
 
@@ -130,11 +130,16 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
 
     # a toothed, spiked or split lid shows in every render, yet folds nothing: say so
     notches = lid_notches(V, F, eyes, rig.shapes, lp.max_pitch_deg)
-    warnings = [f"{side} eye: the lids leave a notch of {n:.1f} mm in the opening seen from the front "
-                f"(over {JAGGED_LID_MM:g} mm: a toothed, spiked or split lid the renders show)"
-                for side, n in sorted(notches.items()) if n > JAGGED_LID_MM]
-    for side, n in notches.items():
+    # ... and the asset carries it as a doubt (its customData, the render's warnings, the dataset's
+    # info), beside remove_eyeballs' own
+    warnings = []
+    for side, n in sorted(notches.items()):
         eyes_doc[side]["lid_notch_mm"] = round(float(n), 3)
+        if n > JAGGED_LID_MM:
+            doubt = (f"the lids leave a notch of {n:.1f} mm in the opening seen from the front "
+                     f"(over {JAGGED_LID_MM:g} mm: a toothed, spiked or split lid the renders show)")
+            eyes_doc[side]["doubts"].append(doubt)
+            warnings.append(f"{side} eye: {doubt}")
 
     # margin motion at the extremes (mean vertical displacement per lid, mm)
     motion = {}
