@@ -8,7 +8,7 @@ at the end ``index.jsonl`` (every index 0..n-1 exactly once), ``contact_sheet.pn
 drawn) and ``config.json`` (the hash of everything that changes images or labels). Re-running
 resumes: finished images are skipped; a config change deletes the stale images first (only the
 render's own files: a folder that holds no earlier render is refused). An asset
-that remove_eyeballs doubted (its metadata's ``eyes.<side>.doubts``) is rendered all the same,
+that remove_eyeballs or rig doubted (its metadata's ``eyes.<side>.doubts``) is rendered all the same,
 with one ``warning:`` line per doubt on stderr. Images
 are rendered by persistent Blender processes, one per dask worker: a ``LocalCluster`` of
 ``workers`` processes by default, or the cluster at ``--scheduler`` / params ``scheduler`` (its

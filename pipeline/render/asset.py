@@ -133,7 +133,7 @@ class RenderAsset:
 
     def doubts(self) -> list[str]:
         """What the pipeline was not sure of when it built this asset (``eyes.<side>.doubts`` in
-        its metadata, from remove_eyeballs), as "<side> eye: <sentence>"."""
+        its metadata, from remove_eyeballs and rig), as "<side> eye: <sentence>"."""
         eyes = self.metadata.get("eyes") or {}
         return [f"{side} eye: {d}" for side in ("left", "right")
                 for d in ((eyes.get(side) or {}).get("doubts") or [])]
