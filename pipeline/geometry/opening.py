@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.geometry.raster import covered_points
 
 # a notch this deep (mm) in what the lids leave open, seen from the front, is a jagged lid: 3-4
@@ -98,14 +99,7 @@ def region_shape(region: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[fl
     dx, dy = float(xs[1] - xs[0]), float(ys[1] - ys[0])
     in_hull = inside_polygon_grid(xs, ys, H)
     gap = np.column_stack([gx[in_hull & ~region], gy[in_hull & ~region]])
-    depth = 0.0
-    a, b = H, np.roll(H, -1, axis=0)
-    ab = b - a
-    ab2 = np.maximum((ab * ab).sum(-1), 1e-300)
-    for k in range(0, len(gap), 4096):      # in blocks: points x hull edges stays a few MB
-        g = gap[k:k + 4096, None]
-        t = np.clip(((g - a[None]) * ab[None]).sum(-1) / ab2, 0.0, 1.0)
-        depth = max(depth, float(np.linalg.norm(g - (a[None] + t[..., None] * ab[None]), axis=-1).min(axis=1).max()))
+    depth = float(closed_polyline_distance(gap, H).max()) if len(gap) else 0.0
     return float(region.sum()) * dx * dy / area, depth
 
 
