@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pipeline.geometry.mesh_checks import closed_polyline_distance
-from pipeline.retopo.eyelid_loop import margin_jag, margin_teeth, smooth_margin
+from pipeline.retopo.eyelid_loop import margin_jag, margin_teeth, smooth_lids, smooth_margin
 
 R = 12.0
 
@@ -86,3 +86,67 @@ def test_jag_figures_on_a_zigzag_and_a_circle():
     Z = C * (1 + 0.2 / r * np.where(np.arange(n) % 2 == 0, 1.0, -1.0))[:, None]
     assert np.median(margin_jag(Z)) == pytest.approx(0.8 * 0.2, abs=0.02 + h * h / r)
     assert np.median(margin_teeth(Z)) == pytest.approx(2.67 * 0.2, abs=0.02)
+
+
+def _notched(P, lateral, depth=2.5, width=8.0):
+    """The upper lid dented down into the opening by ``depth`` mm at its middle (a cosine bump
+    ``width`` mm wide): scanned eyeball left on the lid, as the held-out cuts show it (id304_in's
+    left upper lid: 4 mm deep over ten loop points)."""
+    Q = P.copy()
+    x = Q[:lateral + 1, 0]
+    dent = np.where(np.abs(x) < width / 2, 0.5 * (1 + np.cos(np.pi * x / (width / 2))), 0.0)
+    Q[:lateral + 1, 1] -= depth * dent
+    return Q
+
+
+def test_a_wide_notch_mid_lid_is_flattened_more_with_the_wider_mid_lid_bandwidth():
+    P, lat = _almond()
+    N = _notched(P, lat)
+    S3, l3 = smooth_margin(N, lat, sigma_mm=3.0, max_move_mm=2.0)
+    S5, l5 = smooth_margin(N, lat, sigma_mm=3.0, max_move_mm=2.0, mid_sigma_mm=5.0)
+    def depth(S, li):
+        # how far the upper lid's middle (x = 0) lies below the true lid's (4 mm up)
+        up = S[:li + 1]
+        return 4.0 - np.interp(0.0, up[:, 0], up[:, 1])
+
+    assert depth(N, lat) > 1.4
+    # an 8 mm notch is half lid shape to the 3 mm window; the 5 mm one mid-lid takes more of it
+    assert depth(S3, l3) > 1.0 and depth(S5, l5) < 0.75 * depth(S3, l3), (depth(S3, l3), depth(S5, l5))
+    # both canthi stay exactly; next to them the two bandwidths agree (the window is 3 mm there)
+    assert np.array_equal(S5[0], N[0]) and np.array_equal(S5[l5], N[lat])
+    np.testing.assert_allclose(S5[1:3], S3[1:3], atol=0.05)
+
+
+def test_a_smooth_lid_is_kept_at_every_bandwidth_and_a_narrower_mid_one_changes_nothing():
+    P, lat = _almond()
+    S, _ = smooth_margin(P, lat, sigma_mm=3.0, max_move_mm=2.0, mid_sigma_mm=6.0)
+    assert closed_polyline_distance(S, P).max() < 0.15     # the wider window rounds a little more
+    Z = _zigzag(P, lat, 0.5)
+    a, _ = smooth_margin(Z, lat, sigma_mm=3.0, max_move_mm=2.0)
+    for mid in (None, 0.0, 2.0, 3.0):
+        b, _ = smooth_margin(Z, lat, sigma_mm=3.0, max_move_mm=2.0, mid_sigma_mm=mid)
+        np.testing.assert_array_equal(a, b)
+
+
+def test_smooth_lids_widens_only_a_curve_still_notched_and_keeps_it_only_where_it_helps():
+    # the almond's lid is 4 mm tall, so a notch seen from the front is shallow against its hull:
+    # the threshold here is 0.2 mm (retopo's default, 1 mm, is for real lids)
+    P, lat = _almond()
+    a, la, tried = smooth_lids(P, lat, 3.0, 2.0, mid_sigma_mm=5.0, notch_mm=0.2)
+    b, lb = smooth_margin(P, lat, 3.0, 2.0)
+    assert tried is None and la == lb and np.array_equal(a, b)      # a clean lid: nothing tried
+    # an 8 mm notch 2.5 mm deep: the 3 mm curve keeps 0.23 mm of it seen from the front, the
+    # widened one none: kept
+    N = _notched(P, lat, 2.5, 8.0)
+    S, _, tried = smooth_lids(N, lat, 3.0, 2.0, mid_sigma_mm=5.0, notch_mm=0.2)
+    notch, wider, kept = tried
+    assert notch > 0.2 and wider < 0.05 and kept
+    np.testing.assert_array_equal(S, smooth_margin(N, lat, 3.0, 2.0, 5.0)[0])
+    # 3.5 mm deep: the wider window leaves 0.72 of its notch, more than 0.7: the 3 mm curve stays
+    N = _notched(P, lat, 3.5, 8.0)
+    S, _, tried = smooth_lids(N, lat, 3.0, 2.0, mid_sigma_mm=5.0, notch_mm=0.2)
+    assert tried[2] is False and 0.7 < tried[1] / tried[0] < 0.75
+    np.testing.assert_array_equal(S, smooth_margin(N, lat, 3.0, 2.0)[0])
+    # switched off (no wider window) or the notch under the threshold: nothing tried
+    assert smooth_lids(N, lat, 3.0, 2.0, mid_sigma_mm=0.0, notch_mm=0.2)[2] is None
+    assert smooth_lids(N, lat, 3.0, 2.0, mid_sigma_mm=5.0, notch_mm=1.0)[2] is None

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.geometry.opening import (convex_hull, inside_polygon_grid, largest_component, opening_notch,
+from pipeline.geometry.opening import (convex_hull, inside_polygon_grid, largest_component, opening_notch, polygon_notch,
                                        region_shape)
 
 
@@ -114,3 +114,16 @@ def test_covered_points_with_no_triangle_on_any_row_covers_nothing():
     above = np.array([[[0.0, 10.0], [4.0, 10.0], [2.0, 12.0]]])      # wholly above the rows
     assert covered_points(above, xs, ys).shape == (3, 5) and not covered_points(above, xs, ys).any()
     assert covered_points(np.array([[[-1.0, -1.0], [9.0, -1.0], [-1.0, 9.0]]]), xs, ys)[0].all()
+
+
+def test_polygon_notch_known_answers():
+    square = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]])
+    assert polygon_notch(square) == 0.0
+    assert polygon_notch(square[::-1]) == 0.0                    # either winding
+    # a V cut 1.5 mm down into the top edge, at its middle
+    notched = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [2.0, 2.5], [0.0, 4.0]])
+    assert polygon_notch(notched) == pytest.approx(1.5)
+    assert polygon_notch(notched * 10.0) == pytest.approx(15.0)   # in the polygon's units
+    # collinear or too few points: nothing to judge
+    assert polygon_notch(np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])) == 0.0
+    assert polygon_notch(np.zeros((2, 2))) == 0.0

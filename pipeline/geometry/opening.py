@@ -59,6 +59,21 @@ def convex_hull(P) -> np.ndarray:
     return np.asarray(chain(pts)[:-1] + chain(pts[::-1])[:-1], np.float64)
 
 
+def polygon_notch(P) -> float:
+    """The deepest notch (units of ``P``) of the closed polygon ``P`` (n, 2): the greatest
+    distance of a vertex inside the polygon's convex hull from the hull's border (0 for a convex
+    polygon; fewer than 3 distinct points: 0)."""
+    P = np.asarray(P, np.float64)
+    H = convex_hull(P)
+    if len(H) < 3:
+        return 0.0
+    a, b = H, np.roll(H, -1, axis=0)
+    e = b - a
+    # counter-clockwise hull: a vertex's distance inside is its least distance to an edge's line
+    side = (e[None, :, 0] * (P[:, None, 1] - a[None, :, 1]) - e[None, :, 1] * (P[:, None, 0] - a[None, :, 0]))
+    return float(max((side / np.linalg.norm(e, axis=1)[None, :]).min(axis=1).max(), 0.0))
+
+
 def largest_component(mask: np.ndarray) -> np.ndarray:
     """The largest 4-connected part of the bool image ``mask`` (all False when it is empty)."""
     from scipy.sparse import coo_matrix

@@ -271,8 +271,10 @@ def canthus_apex(curve, lateral: int, window=(1.0, 6.0), max_reach_mm: float = 3
     return out, 1 + len(up), info
 
 
-def _smooth_lid(P, sigma, max_move):
-    """One lid (k, 3), canthus to canthus, low-passed with both ends fixed (see smooth_margin)."""
+def _smooth_lid(P, sigma, max_move, sigma_mid=None):
+    """One lid (k, 3), canthus to canthus, low-passed with both ends fixed (see smooth_margin);
+    the bandwidth ``sigma`` at the canthi widens to ``sigma_mid`` (when larger) ``sigma_mid``
+    of arc length away from both."""
     k = len(P)
     if k < 4 or sigma <= 0:
         return P.copy()
@@ -293,7 +295,13 @@ def _smooth_lid(P, sigma, max_move):
     S = np.concatenate([-s[:0:-1], s, 2 * s[-1] - s[-2::-1]])
     RR = np.concatenate([-R[:0:-1], R, -R[-2::-1]])
     D = S[None, :] - s[:, None]                              # (k, 3k-2)
-    G = np.exp(-0.5 * (D / sigma) ** 2)
+    if sigma_mid is not None and sigma_mid > sigma:
+        # per output point: sigma at a canthus, sigma_mid from sigma_mid along the lid inwards
+        reach = np.minimum(s, s[-1] - s) / sigma_mid
+        sig = (sigma + (sigma_mid - sigma) * np.clip(reach, 0.0, 1.0))[:, None]
+    else:
+        sig = sigma
+    G = np.exp(-0.5 * (D / sig) ** 2)
     X = np.stack([np.ones_like(D), D, D * D], axis=2)       # (k, 3k-2, 3)
     robust = np.ones(len(S))
     for it in range(3):
@@ -315,7 +323,8 @@ def _smooth_lid(P, sigma, max_move):
     return P + dv * np.minimum(1.0, max_move / np.maximum(n, 1e-300))
 
 
-def smooth_margin(curve, lateral: int, sigma_mm: float = 3.0, max_move_mm: float = 2.0):
+def smooth_margin(curve, lateral: int, sigma_mm: float = 3.0, max_move_mm: float = 2.0,
+                  mid_sigma_mm: float | None = None):
     """A closed margin curve with the saw-teeth of the scan's triangles taken out.
 
     The cut's boundary loop zigzags along the scan's triangles (0.5-1 mm teeth at 0.7 mm
@@ -334,9 +343,35 @@ def smooth_margin(curve, lateral: int, sigma_mm: float = 3.0, max_move_mm: float
     if not 0 < li < len(P) - 1:
         raise ValueError(f"lateral canthus index {li} outside 1..{len(P) - 2}")
     step = max(sigma_mm / 4.0, 1e-3)
-    upper = _smooth_lid(_densify(P[: li + 1], step), sigma_mm, max_move_mm)
-    lower = _smooth_lid(_densify(np.vstack([P[li:], P[:1]]), step), sigma_mm, max_move_mm)
+    upper = _smooth_lid(_densify(P[: li + 1], step), sigma_mm, max_move_mm, mid_sigma_mm)
+    lower = _smooth_lid(_densify(np.vstack([P[li:], P[:1]]), step), sigma_mm, max_move_mm, mid_sigma_mm)
     return np.vstack([upper, lower[1:-1]]), len(upper) - 1
+
+
+def smooth_lids(curve, lateral: int, sigma_mm: float = 3.0, max_move_mm: float = 2.0,
+                mid_sigma_mm: float = 0.0, notch_mm: float = 1.0, keep: float = 0.7):
+    """:func:`smooth_margin`, and again with the window widening to ``mid_sigma_mm`` mid-lid
+    where the smoothed curve is still notched deeper than ``notch_mm`` seen along +z (the head
+    frame's forward; :func:`pipeline.geometry.opening.polygon_notch` of its x, y): a fissure is
+    convex, and a notch 6-10 loop points wide is scanned eyeball the cut left on a lid, which the
+    narrow window takes for lid shape. The wider curve is kept only where its notch is at most
+    ``keep`` of the first one's (a window that barely moves a notch is following the lid).
+
+    Returns ``(curve, lateral, tried)``: ``tried`` is None, or ``(notch, wider notch, kept)``
+    in mm when the wider window was tried."""
+    from pipeline.geometry.opening import polygon_notch
+
+    out, li = smooth_margin(curve, lateral, sigma_mm, max_move_mm)
+    if mid_sigma_mm <= sigma_mm:
+        return out, li, None
+    notch = polygon_notch(out[:, :2])
+    if notch <= notch_mm:
+        return out, li, None
+    wide, wli = smooth_margin(curve, lateral, sigma_mm, max_move_mm, mid_sigma_mm)
+    after = polygon_notch(wide[:, :2])
+    if after <= keep * notch:
+        return wide, wli, (notch, after, True)
+    return out, li, (notch, after, False)
 
 
 def _densify(P, step):

@@ -58,7 +58,7 @@ from pipeline.retopo.eye_band import add_eye_bands
 from pipeline.retopo.handles import cut_handles
 from pipeline.retopo.eye_rings import add_eye_rings, edge_graph
 from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polyline_arclength,
-                                          project_to_polyline, resample_loop, smooth_margin)
+                                          project_to_polyline, resample_loop, smooth_lids)
 from pipeline.geometry.flips import (collapse_flipped, collapse_short_edges, count_flipped, delaunay_flips, flip_slivers, mirror_flipped,
                                      reference_face_normals, relax, repair_flips, untangle)
 from pipeline.geometry.mesh_edit import TriMesh, fill_holes_smooth
@@ -99,6 +99,9 @@ class RetopoSettings(Settings):
     canthus_max_reach_mm: float = setting(3.0, ge=0, le=20)  # an apex farther beyond the scan's corner is not trusted
     margin_smooth_mm: float = setting(3.0, ge=0, le=20)      # eyelid_loop.smooth_margin bandwidth (0 = off)
     margin_smooth_max_move_mm: float = setting(2.0, gt=0, le=20)  # no margin point moves farther
+    margin_smooth_mid_mm: float = setting(5.0, ge=0, le=20)  # ... widened to this mid-lid where a notch stays (0 = never)
+    margin_notch_mm: float = setting(1.0, gt=0, le=20)       # a smoothed margin notched deeper than this, seen from the front, is smoothed again
+    margin_notch_keep: float = setting(0.7, gt=0, le=1)      # ... and that kept where it leaves at most this share of the notch
     fill_holes_mm: float = setting(60.0, ge=0, le=1000)      # scanner holes in the crop up to this perimeter are filled (0 = off)
 
 
@@ -469,7 +472,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     t0 = time.perf_counter()
     timings = {}
     Vc, Fc, vmap = crop_eye_region(V, F, eyes, s)
-    curves, lateral, apex_info = {}, {}, {}
+    curves, lateral, apex_info, widened = {}, {}, {}, {}
     for side, e in eyes.items():
         li = np.asarray(e.loop_indices, dtype=np.int64)
         curves[side] = np.asarray(V, dtype=np.float64)[li]
@@ -478,10 +481,13 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
             curves[side], lateral[side], apex_info[side] = canthus_apex(
                 curves[side], lateral[side], s.canthus_window_mm, s.canthus_max_reach_mm)
         if s.margin_smooth_mm > 0 and lateral[side] is not None:
-            # the cut follows the scan's triangles in 0.5-1 mm teeth, which snap amplifies
-            curves[side], lateral[side] = smooth_margin(curves[side], lateral[side],
-                                                        s.margin_smooth_mm,
-                                                        s.margin_smooth_max_move_mm)
+            # the cut follows the scan's triangles in 0.5-1 mm teeth, which snap amplifies; and
+            # where it left scanned eyeball on a lid, its notch (smooth_lids)
+            curves[side], lateral[side], tried = smooth_lids(
+                curves[side], lateral[side], s.margin_smooth_mm, s.margin_smooth_max_move_mm,
+                s.margin_smooth_mid_mm, s.margin_notch_mm, s.margin_notch_keep)
+            if tried is not None:
+                widened[side] = {"notch_mm": round(tried[0], 4), "wider_mm": round(tried[1], 4), "kept": tried[2]}
     holes = []
     cbl = graph = None          # the crop's boundary loops and edge graph, while its faces are these
     if s.fill_holes_mm > 0:
@@ -720,6 +726,9 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         "canthus_apex": apex_info,
         # only when one was cut: the metrics of a scan without a handle keep their bytes
         **({"handles_cut": {"count": len(handles_cut), "cuts": handles_cut}} if handles_cut else {}),
+        # and only where the margin was still notched: the notch seen from the front, mm, that of
+        # the wider window's curve and whether that was kept
+        **({"margin_notch": {k: widened[k] for k in sorted(widened)}} if widened else {}),
     })
     result = StageResult(metrics, {"timings_s": {k: round(v, 4) for k, v in timings.items()},
                                    "time_s": round(timings["total_s"], 4)})
