@@ -67,11 +67,8 @@ def polygon_notch(P) -> float:
     H = convex_hull(P)
     if len(H) < 3:
         return 0.0
-    a, b = H, np.roll(H, -1, axis=0)
-    e = b - a
-    # counter-clockwise hull: a vertex's distance inside is its least distance to an edge's line
-    side = (e[None, :, 0] * (P[:, None, 1] - a[None, :, 1]) - e[None, :, 1] * (P[:, None, 0] - a[None, :, 0]))
-    return float(max((side / np.linalg.norm(e, axis=1)[None, :]).min(axis=1).max(), 0.0))
+    # every vertex lies in the hull, so its distance to the hull's border is how deep inside it is
+    return float(closed_polyline_distance(P, H).max())
 
 
 def largest_component(mask: np.ndarray) -> np.ndarray:

@@ -472,7 +472,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     t0 = time.perf_counter()
     timings = {}
     Vc, Fc, vmap = crop_eye_region(V, F, eyes, s)
-    curves, lateral, apex_info, widened = {}, {}, {}, {}
+    curves, lateral, apex_info, notched = {}, {}, {}, {}
     for side, e in eyes.items():
         li = np.asarray(e.loop_indices, dtype=np.int64)
         curves[side] = np.asarray(V, dtype=np.float64)[li]
@@ -487,7 +487,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
                 curves[side], lateral[side], s.margin_smooth_mm, s.margin_smooth_max_move_mm,
                 s.margin_smooth_mid_mm, s.margin_notch_mm, s.margin_notch_keep)
             if tried is not None:
-                widened[side] = {"notch_mm": round(tried[0], 4), "wider_mm": round(tried[1], 4), "kept": tried[2]}
+                notched[side] = {"notch_mm": round(tried[0], 4), "wider_mm": round(tried[1], 4), "kept": tried[2]}
     holes = []
     cbl = graph = None          # the crop's boundary loops and edge graph, while its faces are these
     if s.fill_holes_mm > 0:
@@ -728,7 +728,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         **({"handles_cut": {"count": len(handles_cut), "cuts": handles_cut}} if handles_cut else {}),
         # and only where the margin was still notched: the notch seen from the front, mm, that of
         # the wider window's curve and whether that was kept
-        **({"margin_notch": {k: widened[k] for k in sorted(widened)}} if widened else {}),
+        **({"margin_notch": {k: notched[k] for k in sorted(notched)}} if notched else {}),
     })
     result = StageResult(metrics, {"timings_s": {k: round(v, 4) for k, v in timings.items()},
                                    "time_s": round(timings["total_s"], 4)})
