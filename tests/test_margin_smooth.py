@@ -150,3 +150,25 @@ def test_smooth_lids_widens_only_a_curve_still_notched_and_keeps_it_only_where_i
     # switched off (no wider window) or the notch under the threshold: nothing tried
     assert smooth_lids(N, lat, 3.0, 2.0, mid_sigma_mm=0.0, notch_mm=0.2)[2] is None
     assert smooth_lids(N, lat, 3.0, 2.0, mid_sigma_mm=5.0, notch_mm=1.0)[2] is None
+
+
+def test_smooth_lids_keeps_the_wider_curve_only_where_as_much_of_it_rests_on_the_eye():
+    from pipeline.geometry.opening import polygon_notch
+
+    P, lat = _almond()
+    N = _notched(P, lat, 2.5, 8.0)
+    wide = smooth_margin(N, lat, 3.0, 2.0, 5.0)[0]
+    # an eye the whole loop rests on: the wider curve is kept, as without one
+    S, _, tried = smooth_lids(N, lat, 3.0, 2.0, mid_sigma_mm=5.0, notch_mm=0.2,
+                              off_eye=lambda Q: np.zeros(len(Q)))
+    assert tried[2] and np.array_equal(S, wide)
+    # an eye the wider curve stands 3 mm off (more than corner_weights' 2.1 mm) and the first
+    # rests on: its corner runs leave under 0.6 of it on the eye, and the first curve stays
+    off = lambda Q: np.full(len(Q), 3.0 if polygon_notch(Q[:, :2]) < 0.05 else 0.0)
+    S, _, tried = smooth_lids(N, lat, 3.0, 2.0, mid_sigma_mm=5.0, notch_mm=0.2, off_eye=off)
+    assert tried[2] is False and tried[1] < 0.05
+    np.testing.assert_array_equal(S, smooth_margin(N, lat, 3.0, 2.0)[0])
+    # a first curve already under that share: the wider one needs only to match it
+    S, _, tried = smooth_lids(N, lat, 3.0, 2.0, mid_sigma_mm=5.0, notch_mm=0.2,
+                              off_eye=lambda Q: np.full(len(Q), 3.0))
+    assert tried[2] and np.array_equal(S, wide)

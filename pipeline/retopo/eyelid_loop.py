@@ -349,13 +349,18 @@ def smooth_margin(curve, lateral: int, sigma_mm: float = 3.0, max_move_mm: float
 
 
 def smooth_lids(curve, lateral: int, sigma_mm: float = 3.0, max_move_mm: float = 2.0,
-                mid_sigma_mm: float = 0.0, notch_mm: float = 1.0, keep: float = 0.7):
+                mid_sigma_mm: float = 0.0, notch_mm: float = 1.0, keep: float = 0.7,
+                mid_max_move_mm: float | None = None, off_eye=None, min_on_eye: float = 0.6):
     """:func:`smooth_margin`, and again with the window widening to ``mid_sigma_mm`` mid-lid
     where the smoothed curve is still notched deeper than ``notch_mm`` seen along +z (the head
     frame's forward; :func:`pipeline.geometry.opening.polygon_notch` of its x, y): a fissure is
     convex, and a notch 6-10 loop points wide is scanned eyeball the cut left on a lid, which the
     narrow window takes for lid shape. The wider curve is kept only where its notch is at most
-    ``keep`` of the first one's (a window that barely moves a notch is following the lid).
+    ``keep`` of the first one's (a window that barely moves a notch is following the lid), and,
+    given ``off_eye`` (points (k, 3) -> their signed distance outside the eye, mm), only where it
+    leaves at least ``min(min_on_eye, the first curve's share)`` of its points resting on the eye
+    (:func:`pipeline.geometry.corners.corner_weights`): the rig refuses a loop under half on the
+    eye, and a lid standing 2 mm off a looking-up eye (``id302_up``) sits at that edge.
 
     Returns ``(curve, lateral, tried)``: ``tried`` is None, or ``(notch, wider notch, kept)``
     in mm when the wider window was tried."""
@@ -367,11 +372,21 @@ def smooth_lids(curve, lateral: int, sigma_mm: float = 3.0, max_move_mm: float =
     notch = polygon_notch(out[:, :2])
     if notch <= notch_mm:
         return out, li, None
-    wide, wli = smooth_margin(curve, lateral, sigma_mm, max_move_mm, mid_sigma_mm)
+    wide, wli = smooth_margin(curve, lateral, sigma_mm, max_move_mm if mid_max_move_mm is None else mid_max_move_mm,
+                              mid_sigma_mm)
     after = polygon_notch(wide[:, :2])
-    if after <= keep * notch:
+    if after <= keep * notch and (off_eye is None
+                                  or _on_eye_share(wide, wli, off_eye) >= min(min_on_eye, _on_eye_share(out, li, off_eye))):
         return wide, wli, (notch, after, True)
     return out, li, (notch, after, False)
+
+
+def _on_eye_share(curve, lateral: int, off_eye) -> float:
+    """Share of a margin curve's points that :func:`corner_weights` puts on the eye (not in a
+    corner run standing off it)."""
+    from pipeline.geometry.corners import corner_weights
+
+    return float(corner_weights(curve, off_eye(curve), lateral).on_eye.mean())
 
 
 def _densify(P, step):

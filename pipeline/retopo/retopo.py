@@ -99,9 +99,10 @@ class RetopoSettings(Settings):
     canthus_max_reach_mm: float = setting(3.0, ge=0, le=20)  # an apex farther beyond the scan's corner is not trusted
     margin_smooth_mm: float = setting(3.0, ge=0, le=20)      # eyelid_loop.smooth_margin bandwidth (0 = off)
     margin_smooth_max_move_mm: float = setting(2.0, gt=0, le=20)  # no margin point moves farther
-    margin_smooth_mid_mm: float = setting(5.0, ge=0, le=20)  # ... widened to this mid-lid where a notch stays (0 = never)
+    margin_smooth_mid_mm: float = setting(7.0, ge=0, le=20)  # ... widened to this mid-lid where a notch stays (0 = never)
     margin_notch_mm: float = setting(1.0, gt=0, le=20)       # a smoothed margin notched deeper than this, seen from the front, is smoothed again
     margin_notch_keep: float = setting(0.7, gt=0, le=1)      # ... and that kept where it leaves at most this share of the notch
+    margin_notch_max_move_mm: float = setting(3.0, gt=0, le=20)  # ... no point of it moving farther
     fill_holes_mm: float = setting(60.0, ge=0, le=1000)      # scanner holes in the crop up to this perimeter are filled (0 = off)
 
 
@@ -467,6 +468,13 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         return _retopologize(V, F, eyes, settings)
 
 
+def _sphere_off(center, radius: float):
+    """Points (k, 3) -> their signed distance outside the eye's sphere (mm). The cornea is left
+    out: it only brings points nearer, so a share on the eye measured here is not too high."""
+    c = np.asarray(center, dtype=np.float64)
+    return lambda P: np.linalg.norm(np.asarray(P, dtype=np.float64) - c, axis=1) - float(radius)
+
+
 def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     s = settings
     t0 = time.perf_counter()
@@ -485,7 +493,8 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
             # where it left scanned eyeball on a lid, its notch (smooth_lids)
             curves[side], lateral[side], tried = smooth_lids(
                 curves[side], lateral[side], s.margin_smooth_mm, s.margin_smooth_max_move_mm,
-                s.margin_smooth_mid_mm, s.margin_notch_mm, s.margin_notch_keep)
+                s.margin_smooth_mid_mm, s.margin_notch_mm, s.margin_notch_keep, s.margin_notch_max_move_mm,
+                off_eye=_sphere_off(e.center, e.radius))
             if tried is not None:
                 notched[side] = {"notch_mm": round(tried[0], 4), "wider_mm": round(tried[1], 4), "kept": tried[2]}
     holes = []
