@@ -372,11 +372,13 @@ def smooth_lids(curve, lateral: int, sigma_mm: float = 3.0, max_move_mm: float =
     notch = polygon_notch(out[:, :2])
     if notch <= notch_mm:
         return out, li, None
-    wide, wli = smooth_margin(curve, lateral, sigma_mm, max_move_mm if mid_max_move_mm is None else mid_max_move_mm,
-                              mid_sigma_mm)
+    wide, wli = smooth_margin(curve, lateral, sigma_mm,
+                              max_move_mm if mid_max_move_mm is None else mid_max_move_mm, mid_sigma_mm)
     after = polygon_notch(wide[:, :2])
-    if after <= keep * notch and (off_eye is None
-                                  or _on_eye_share(wide, wli, off_eye) >= min(min_on_eye, _on_eye_share(out, li, off_eye))):
+    kept = after <= keep * notch
+    if kept and off_eye is not None:
+        kept = _on_eye_share(wide, wli, off_eye) >= min(min_on_eye, _on_eye_share(out, li, off_eye))
+    if kept:
         return wide, wli, (notch, after, True)
     return out, li, (notch, after, False)
 
