@@ -11,6 +11,7 @@ band_left, band_right: (band_rings + 1, loop_points) vertex ids with ``band: gri
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from pipeline.io.atomic import atomic_dir
 from pipeline.io.eyes_file import read_eye_loops
 from pipeline.io.meshfile import read_stage_mesh, save_mesh
 from pipeline.results import StageResult
+from pipeline.retopo.eye_band import band_warnings
 from pipeline.retopo.retopo import RetopoSettings, retopologize
 from stages._common import default_metrics_path, load_settings, stage_exit, stage_parser
 
@@ -52,6 +54,8 @@ def main(argv) -> StageResult:
         arrays.update(poly_counts=result.poly_counts, poly_indices=result.poly_indices)
     with atomic_dir(out) as tmp:
         save_mesh(tmp / "mesh.npz", **arrays)
+    for line in band_warnings(result.result.metrics.get("band") or {}):
+        print(f"warning: {in_dir}: {line}", file=sys.stderr)
     return result.result.at(args.metrics or default_metrics_path(out))
 
 

@@ -399,3 +399,16 @@ def test_a_remesh_pinched_to_one_vertex_beside_an_opening_still_gets_its_band(pa
     _, parent = meshtopo.split_fans(r.F, len(r.V))
     assert len(parent) == len(r.V)                  # no vertex of the result has two fans
     assert r.metrics["band"]["kind"] == "grid"
+
+
+def test_band_warnings_name_each_eye_whose_band_is_turned_at_rest():
+    from pipeline.retopo.eye_band import band_warnings
+
+    clean = {"min_angle_deg": 28.1, "flipped_faces": 0, "flipped_at_ring_spoke": []}
+    folded = {"min_angle_deg": 0.325, "flipped_faces": 179,
+              "flipped_at_ring_spoke": [[0, 5], [0, 6], [1, 6], [3, 40]]}
+    assert band_warnings({"left": clean, "right": clean}) == []
+    assert band_warnings({}) == [] and band_warnings({"ids": None}) == []
+    (line,) = band_warnings({"left": folded, "right": clean, "ids": {"rings": 6}})
+    assert line.startswith("left eye's band: 179 triangles turned against the scan at rest")
+    assert "4 ring and spoke cells, rings 0, 1, 3" in line and "smallest angle 0.3 deg" in line

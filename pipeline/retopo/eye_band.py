@@ -671,6 +671,23 @@ def band_report(V, Q, ref_V, ref_F, S, base, scan=None):
             "flipped_at_ring_spoke": [list(w) for w in where]}
 
 
+def band_warnings(band: dict) -> list[str]:
+    """One line per eye whose band (``band``: side -> :func:`band_report`'s dict, as retopo's
+    metrics hold it) has faces turned against the scan at rest: nothing repairs the grid, so the
+    stage says where it folds (the rig's sweep judges the posed lids later)."""
+    out = []
+    for side in ("left", "right"):
+        r = band.get(side)
+        if not isinstance(r, dict) or not r.get("flipped_faces"):
+            continue
+        cells = r.get("flipped_at_ring_spoke") or []
+        rings = sorted({int(c[0]) for c in cells})
+        out.append(f"{side} eye's band: {r['flipped_faces']} triangles turned against the scan at rest "
+                   f"(on {len(cells)} ring and spoke cells, rings {', '.join(map(str, rings))}), "
+                   f"smallest angle {r['min_angle_deg']:.1f} deg: the grid folds there, or the scan does")
+    return out
+
+
 def _scan_lookups(ref_V, ref_F):
     """(closest, normals): :func:`mc.closest_points_on` and :func:`mc.surface_face_normals` of the
     scan (ref_V, ref_F), looked up once for the cut's many judgements against it (each lookup
