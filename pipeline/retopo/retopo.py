@@ -48,6 +48,7 @@ import gc
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 from typing import ClassVar, Literal
 
 import numpy as np
@@ -62,6 +63,7 @@ from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polylin
 from pipeline.geometry.flips import (collapse_flipped, collapse_short_edges, count_flipped, delaunay_flips, flip_slivers, mirror_flipped,
                                      reference_face_normals, relax, repair_flips, untangle)
 from pipeline.geometry.mesh_edit import TriMesh, fill_holes_smooth
+from pipeline.geometry.spherefit import signed_distance as sphere_signed_distance
 from pipeline.retopo.mesh_clean import clean_mesh
 from pipeline.results import StageResult
 from pipeline.settings import Settings, setting
@@ -468,13 +470,6 @@ def retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         return _retopologize(V, F, eyes, settings)
 
 
-def _sphere_off(center, radius: float):
-    """Points (k, 3) -> their signed distance outside the eye's sphere (mm). The cornea is left
-    out: it only brings points nearer, so a share on the eye measured here is not too high."""
-    c = np.asarray(center, dtype=np.float64)
-    return lambda P: np.linalg.norm(np.asarray(P, dtype=np.float64) - c, axis=1) - float(radius)
-
-
 def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     s = settings
     t0 = time.perf_counter()
@@ -494,7 +489,10 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
             curves[side], lateral[side], tried = smooth_lids(
                 curves[side], lateral[side], s.margin_smooth_mm, s.margin_smooth_max_move_mm,
                 s.margin_smooth_mid_mm, s.margin_notch_mm, s.margin_notch_keep, s.margin_notch_max_move_mm,
-                off_eye=_sphere_off(e.center, e.radius))
+                # the sphere without the cornea, which only brings points nearer: the share
+                # on the eye measured against it is not too high
+                off_eye=partial(sphere_signed_distance, center=np.asarray(e.center, float),
+                                radius=float(e.radius)))
             if tried is not None:
                 notched[side] = {"notch_mm": round(tried[0], 4), "wider_mm": round(tried[1], 4), "kept": tried[2]}
     holes = []
