@@ -422,3 +422,25 @@ def test_forward_differences_are_scipys_two_point_jacobian():
                       f_scale=2.0, bounds=(lo, hi), ftol=1e-5, xtol=1e-5)
     np.testing.assert_array_equal(a.x, b.x)
     assert a.cost == b.cost
+
+
+def test_the_laplace_part_scales_with_the_eyes_residual():
+    """uncertainty.residual_scaled: the limbus and axis sigmas' Laplace parts scale by the eye's
+    residual over the noise the cues assume (0.15 mm), clipped to 0.2-3; the rest (rival optima,
+    the radius profile) is kept; a residual at the cues' noise, or none, changes nothing."""
+    from pipeline.placement.uncertainty import RESIDUAL_SCALE, Placement, residual_factor, residual_scaled
+
+    pl = Placement(eye=None, lab=None, patch=None, sigma_center_mm=1.0, sigma_radius_mm=0.5, cues=[],
+                   shares={}, modes=[], sigma_limbus_mm=0.5, sigma_axis_deg=5.0, limbus_laplace=(0.4, 4.0))
+    same = residual_scaled(pl, cues.SIG_SCLERA)
+    assert (same.sigma_limbus_mm, same.sigma_axis_deg) == pytest.approx((0.5, 5.0), abs=1e-12)
+    assert residual_scaled(pl, float("nan")) is pl
+    clean = residual_scaled(pl, 0.03)                   # a procedural head's mesh: the floor
+    assert residual_factor(0.03) == pytest.approx(0.2) == RESIDUAL_SCALE[0]
+    assert clean.sigma_limbus_mm == pytest.approx(np.hypot(0.3, 0.2 * 0.4))
+    assert clean.sigma_axis_deg == pytest.approx(np.hypot(3.0, 0.2 * 4.0))
+    assert clean.limbus_laplace == pytest.approx((0.08, 0.8))
+    assert residual_factor(0.001) == RESIDUAL_SCALE[0] and residual_factor(10.0) == RESIDUAL_SCALE[1]
+    rough = residual_scaled(pl, 0.3)                    # twice the cues' noise
+    assert rough.sigma_limbus_mm == pytest.approx(np.hypot(0.3, 0.8))
+    assert (rough.sigma_center_mm, rough.sigma_radius_mm) == (1.0, 0.5)     # the scan sphere's: kept

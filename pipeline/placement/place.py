@@ -31,6 +31,7 @@ from pipeline.placement.iris_cap import AXIS_MODEL_SIGMA_DEG
 from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
 from pipeline.placement.settings import PlacementSettings
 from pipeline.placement.texture import MARGIN_OFF, NoEyeInTexture, fit_texture
+from pipeline.placement.uncertainty import residual_factor, residual_scaled
 
 SIDES = ("left", "right")
 
@@ -348,7 +349,9 @@ def placement_record(pl, fit):
             "uncertainty_laplace_mm": {"center": round(pl.sigma_laplace_mm[0], 4),
                                        "radius": round(pl.sigma_laplace_mm[1], 4),
                                        "limbus": round(pl.limbus_laplace[0], 4),
-                                       "axis_deg": round(pl.limbus_laplace[1], 3)},
+                                       "axis_deg": round(pl.limbus_laplace[1], 3),
+                                       # what the limbus and axis parts were scaled by: residual_scaled
+                                       "residual_scale": round(residual_factor(fit.residual_rms_mm), 4)},
             "radius_profile": None if pl.profile is None else {
                 "radius": [round(float(r), 3) for r in pl.profile[0]],
                 "energy_above": [round(float(e), 2) for e in pl.profile[1]]},
@@ -408,6 +411,7 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
              "prior_axis": fit.prior_axis}
         if pl is not None:
             lim = (limbi or {}).get(s) or scan_limbus(pl, st)
+            pl = residual_scaled(pl, float(fit.residual_rms_mm))
             e.update(limbus_center=lim["center"], axis=lim["axis"], limbus_radius=lim["radius"],
                      sigma_limbus_mm=float(np.hypot(pl.sigma_limbus_mm, lim["spread"][0])),
                      sigma_axis_deg=float(np.hypot(pl.sigma_axis_deg, lim["spread"][1])),

@@ -1,7 +1,9 @@
 """How sure a placement is: the Laplace approximation of the final fit, widened by the other
 local optima weighted by their energy (``temperature``) and by the radius profile, times a
 calibration factor measured on unseen heads (benchmarks); both eyes of a head share the
-larger radius variance (:func:`share_radius`). The result is one :class:`Placement` per eye.
+larger radius variance (:func:`share_radius`). The result is one :class:`Placement` per eye;
+:func:`residual_scaled` then scales its limbus and axis sigmas' Laplace part by the eye's own
+residual (the reduced chi-square).
 """
 
 from __future__ import annotations
@@ -92,6 +94,42 @@ def share_radius(out):
     return {s: replace(out[s], sigma_radius_mm=float(np.sqrt(top)),
                        sigma_center_mm=float(np.sqrt(out[s].sigma_center_mm ** 2 + top - vr[s])))
             for s in SIDES}
+
+
+#: The Laplace part's noise is the cues' (``cues.SIG_SCLERA``, 0.15 mm); a fit whose eye residual is
+#: smaller or larger says how noisy this scan's eye really is, and the Laplace part scales with it
+#: (the reduced chi-square), within these factors: a procedural head's mesh leaves 0.03 mm
+#: (discretisation, not the eye), a poor fit up to 0.45 mm
+RESIDUAL_SCALE = (0.2, 3.0)
+
+
+def residual_factor(rms_mm: float) -> float:
+    """The factor :func:`residual_scaled` puts on the Laplace part: ``rms_mm / SIG_SCLERA``
+    within :data:`RESIDUAL_SCALE`."""
+    from pipeline.placement.cues import SIG_SCLERA
+
+    return float(np.clip(rms_mm / SIG_SCLERA, *RESIDUAL_SCALE))
+
+
+def residual_scaled(pl, rms_mm: float):
+    """``pl`` with the Laplace parts of its limbus and axis sigmas scaled by the eye's residual
+    (``rms_mm``, RMS over the eye surface) against the noise the cues assume; the rival optima's
+    and the radius profile's parts are kept. The Laplace covariance read 0.15 mm of noise on every
+    eye, and ``uncertainty_scale`` was calibrated on ICT-FaceKit heads whose eyes fit to 0.15 mm
+    (median over the held-out set): the procedural heads' eyes fit to 0.03 mm and lay 4-10 times
+    closer to the truth than they stated (docs/remove_eyeballs.md, Uncertainty)."""
+    from dataclasses import replace
+
+    if pl is None or not np.isfinite(rms_mm):
+        return pl
+    f = residual_factor(rms_mm)
+    (ll, la) = pl.limbus_laplace
+
+    def part(total, lap):
+        return float(np.sqrt(max(total ** 2 - lap ** 2 * (1.0 - f ** 2), 0.0)))
+
+    return replace(pl, sigma_limbus_mm=part(pl.sigma_limbus_mm, ll), sigma_axis_deg=part(pl.sigma_axis_deg, la),
+                   limbus_laplace=(ll * f, la * f))
 
 
 def placement_of(p, modes, joint, temperature, sigma_scale, profile=None):
