@@ -65,6 +65,56 @@ def test_band_on_a_disk_with_a_hole_is_the_polar_grid():
     assert rep["flipped_faces"] == 0 and rep["min_angle_deg"] > 20.0
 
 
+def _eccentric_slit(a=9.0, b=3.0, R=30.0, cx=16.0, h=0.6, seed=0):
+    """A flat disk of radius ``R`` centred ``cx`` mm to the side of an elliptic opening (semi-axes
+    ``a``, ``b``: a narrow fissure), jittered grid vertices (z = 0, faces towards +z)."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(seed)
+    X, Y = np.meshgrid(np.arange(-R + cx - 1, R + cx + 1, h), np.arange(-R - 1, R + 1, h))
+    P = np.stack([X.ravel(), Y.ravel()], 1) + rng.uniform(-0.2, 0.2, (X.size, 2)) * h
+    P = P[(np.linalg.norm(P - [cx, 0], axis=1) < R - 0.3) & ((P[:, 0] / a) ** 2 + (P[:, 1] / b) ** 2 > 1.08)]
+    ring = lambda r, c, n: np.stack([r[0] * np.cos(2 * np.pi * np.arange(n) / n) + c,   # noqa: E731
+                                     r[1] * np.sin(2 * np.pi * np.arange(n) / n)], 1)
+    P = np.concatenate([ring((a, b), 0.0, int(np.pi * (a + b) / h)), P, ring((R, R), cx, int(2 * np.pi * R / h))])
+    T = Delaunay(P).simplices
+    c = P[T].mean(1)
+    T = T[(c[:, 0] / a) ** 2 + (c[:, 1] / b) ** 2 > 1]
+    e1, e2 = P[T[:, 1]] - P[T[:, 0]], P[T[:, 2]] - P[T[:, 0]]
+    cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    T[cw] = T[cw][:, [0, 2, 1]]
+    return np.column_stack([P, np.zeros(len(P))]), T.astype(np.int64)
+
+
+@pytest.mark.parametrize("cx", [0.0, 16.0])
+def test_spokes_step_out_of_a_narrow_opening_off_its_regions_centre(cx):
+    """Known answer: a 18 x 6 mm fissure whose region reaches 25 mm on one side and 9 on the
+    other. The annulus map (the opening on a circle by arc length, concentric with the border's)
+    turned 61 parameter triangles there and sheared ring 1 along the loop (its step out from ring 0
+    -0.53 mm at worst, -0.03 mm median: ident_s29_009's hooded left band, folded at rest); the
+    disk map (harmonic_disk: the opening closed by a fan, only the border fixed) is one-to-one,
+    and every spoke leaves the loop outwards, as on a centred region."""
+    from pipeline.retopo.eye_band import harmonic_disk
+
+    V, F = _eccentric_slit(cx=cx)
+    S, rings, width = 64, 6, 8.0
+    th = 2 * np.pi * np.arange(S) / S
+    loop = np.stack([9.0 * np.cos(th), 3.0 * np.sin(th), 0 * th], 1)
+    loops = mc.boundary_loops(F)
+    hole = min(loops, key=lambda b: np.linalg.norm(V[b], axis=1).mean())
+    G, info = build_band(loop, V, F, hole, rings, width, 0.8, 25.0)
+    assert info["param_inverted_triangles"] == 0 and not info["spokes_out_of_order"]
+    out = np.cross(np.roll(loop, -1, 0) - np.roll(loop, 1, 0), [0.0, 0.0, 1.0])
+    out /= np.linalg.norm(out, axis=1, keepdims=True) * np.sign(np.sum(out * loop))
+    step = np.einsum("ij,ij->i", G[1] - G[0], out)
+    assert step.min() > 0.3, step.min()
+    # the fan's vertex is the origin, the opening's image star-shaped about it
+    X, centre = harmonic_disk(V, F, hole, max(loops, key=len))
+    a = np.unwrap(np.arctan2(X[hole, 1], X[hole, 0]))
+    assert np.all(np.diff(a) * np.sign(a[-1] - a[0]) > 0) and abs(a[-1] - a[0]) < 2 * np.pi
+    assert np.allclose(np.linalg.norm(X[max(loops, key=len)] - centre, axis=1), 2.0)
+
+
 def _annulus_with_a_handle():
     """:func:`_planar_annulus` with a tube joining two small holes 10 mm either side of the
     opening: one handle (Euler characteristic -2 with two borders), as in id339_laser's crop."""

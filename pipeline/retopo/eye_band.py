@@ -5,9 +5,10 @@ placed eyelid loop (held exactly), ring ``k`` lies ``d_k`` mm out along every sp
 ``d_k`` growing geometrically from about the loop's edge length to ``width`` at the outer ring.
 The spokes start from a harmonic parametrisation of the dense surface round the opening:
 the dense annulus between the scan's opening and a closed curve about ``param_mm`` out
-(:func:`annulus_region`) is mapped with mean-value weights onto a planar annulus, the opening
-onto the unit circle and the outer border onto the circle of radius 2, each by arc length
-(:func:`harmonic_annulus`). Spoke ``i`` is the radial segment through the loop vertex's image;
+(:func:`annulus_region`), its opening closed by a fan, is mapped with mean-value weights onto a
+planar disk, the outer border onto the circle of radius 2 by arc length, the rest solved for:
+one-to-one, the opening's image star-shaped about the fan's vertex at the origin
+(:func:`harmonic_disk`). Spoke ``i`` is the ray from the origin through the loop vertex's image;
 the grid points are found on it by 3D arc length and mapped back into the dense triangle that
 holds them (barycentric). The outer ring is put on a line star-shaped round the parameter
 plane's centre, where each ray first gets ``width`` from the loop: simple and round the opening
@@ -37,12 +38,7 @@ from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry.flips import reference_face_normals, relax
 from pipeline.geometry.meshtopo import has_halfedge
 
-# the circles of the parameter plane. A harmonic map between annuli is not one-to-one in general
-# (on a round annulus of radii 5 and 25 mm mapped onto radii 1 and 2, x = (A r + B / r) cos t
-# comes back inwards for r < 6.45 mm: the first rings fold); with the opening on a circle ten
-# times smaller than the outer one the radial part stays monotone up to an outer/inner ratio of
-# about 20, and build_band counts the parameter triangles that still come out inverted
-PARAM_INNER = 0.2
+# the outer circle of the parameter plane (harmonic_disk)
 PARAM_OUTER = 2.0
 
 # smooth_grid (measured on ict_neutral, ident_s0_001, synthetic_head: docs/retopo.md): at most
@@ -126,9 +122,10 @@ def _why_no_annulus(V, F, hole, radius, locked, graph=None) -> str:
     return "the surface there is not one ring round the opening"
 
 
-def _mean_value_weights(V, F):
+def _mean_value_weights(V, F, max_deg=180.0):
     """Sparse (n, n) mean-value weights w_ij = (tan(a/2) + tan(b/2)) / |x_i - x_j|: positive on
-    any triangulation (cotangent weights go negative on a scan's obtuse triangles)."""
+    any triangulation (cotangent weights go negative on a scan's obtuse triangles). Angles over
+    ``max_deg`` count as ``max_deg`` (a near-flat triangle's weight grows without bound)."""
     from scipy.sparse import coo_matrix
 
     rows, cols, vals = [], [], []
@@ -137,7 +134,7 @@ def _mean_value_weights(V, F):
         u, w = V[j] - V[i], V[l] - V[i]
         lu, lw = np.linalg.norm(u, axis=1), np.linalg.norm(w, axis=1)
         cs = np.einsum("ij,ij->i", u, w) / np.maximum(lu * lw, 1e-300)
-        t = np.tan(0.5 * np.arccos(np.clip(cs, -1.0, 1.0)))
+        t = np.tan(0.5 * np.minimum(np.arccos(np.clip(cs, -1.0, 1.0)), np.radians(max_deg)))
         rows += [i, i]
         cols += [j, l]
         vals += [t / np.maximum(lu, 1e-300), t / np.maximum(lw, 1e-300)]
@@ -165,41 +162,68 @@ def _barycentric(P, T):
     return np.column_stack([1.0 - b1 - b2, b1, b2])
 
 
-def harmonic_annulus(V, F, inner, outer):
-    """(n, 2) parameter of each vertex of the annulus (V, F): harmonic (mean-value weights),
-    ``inner`` on the circle of radius ``PARAM_INNER`` and ``outer`` on ``PARAM_OUTER``'s, by arc length,
-    both counter-clockwise in the plane when seen along the faces' normals. The outer circle
-    starts at the border vertex nearest the inner loop's first vertex, so the map is not twisted.
+def harmonic_disk(V, F, inner, outer):
+    """``(X, centre)``: the (n + 1, 2) parameter of each vertex of the annulus (V, F) with its
+    opening ``inner`` closed by a fan to one more vertex (row ``n``, the opening's centroid), and
+    the outer circle's centre. Harmonic (mean-value weights) with only ``outer`` fixed, on the
+    circle of radius ``PARAM_OUTER`` by arc length, counter-clockwise seen along the faces'
+    normals and started at the border vertex nearest the opening's first vertex (the map is not
+    twisted); then moved so that the fan's vertex lies at the origin. Positive weights and a
+    convex border make the map one-to-one (Tutte, Floater): no triangle comes out turned over,
+    and the opening's image is star-shaped about the origin (the fan's triangles are not turned
+    either), so every ray from the origin leaves the opening once. An annulus with both borders
+    fixed has no such guarantee, and fixing the opening to a circle by its arc length shears the
+    map where the opening's shape and place differ from its border's (``ident_s29_009``'s hooded
+    left eye: ring 1 0.8 mm along the loop from ring 0, 12 parameter triangles turned).
     Vertices outside the faces get NaN."""
     from scipy.sparse import diags
     from scipy.sparse.linalg import splu
 
     n = len(V)
     inner, outer = np.asarray(inner), np.asarray(outer)
-    # both loops run the way the faces wind along the inner one (the outer one then against)
     if not has_halfedge(F, inner[0], inner[1]):
         inner = inner[::-1]
     if not has_halfedge(F, outer[1], outer[0]):
         outer = outer[::-1]
     j0 = int(np.argmin(np.linalg.norm(V[outer] - V[inner[0]], axis=1)))
-    # the faces run along the inner loop counter-clockwise seen from outside the annulus: the
-    # hole is on their right, so the inner circle is walked clockwise
-    Xi = _circle(V, inner, PARAM_INNER) * np.array([1.0, -1.0])
     Xo = np.roll(_circle(V, np.roll(outer, -j0), PARAM_OUTER), j0, axis=0) * np.array([1.0, -1.0])
-    W = _mean_value_weights(V, F)
+    Vc = np.vstack([V, V[inner].mean(axis=0)])
+    fan = np.column_stack([np.full(len(inner), n), np.roll(inner, -1), inner])
+    # the fan is no surface: a hole vertex in line with the centroid and its neighbour would tie
+    # the two together, so its angles stop at 170 deg (any positive weights keep the map one-to-one)
+    W = _mean_value_weights(Vc, F) + _mean_value_weights(Vc, fan, max_deg=170.0)
     L = diags(np.asarray(W.sum(axis=1)).ravel()) - W
-    fixed = np.zeros(n, dtype=bool)
-    fixed[inner] = fixed[outer] = True
-    used = np.zeros(n, dtype=bool)
-    used[F.ravel()] = True
+    fixed = np.zeros(n + 1, dtype=bool)
+    fixed[outer] = True
+    used = np.zeros(n + 1, dtype=bool)
+    used[F.ravel()] = used[n] = True
     free = np.flatnonzero(used & ~fixed)
-    X = np.full((n, 2), np.nan)
-    X[inner], X[outer] = Xi, Xo
-    fx = np.flatnonzero(fixed)
+    X = np.full((n + 1, 2), np.nan)
+    X[outer] = Xo
     A = L[free][:, free].tocsc()
-    b = -(L[free][:, fx] @ X[fx])
+    b = -(L[free][:, outer] @ Xo)
     X[free] = splu(A).solve(np.ascontiguousarray(b))
-    return X
+    return X - X[n], -X[n].copy()
+
+
+def _ray_ranges(th, hole_uv, outer_centre, outer_radius):
+    """(r0, r1) along the rays from the origin at angles ``th``: where each ray leaves the closed
+    polygon ``hole_uv`` (star-shaped about the origin: its last crossing) and where it meets the
+    circle of ``outer_radius`` about ``outer_centre``."""
+    u = np.stack([np.cos(th), np.sin(th)], axis=1)
+    a, b = hole_uv, np.roll(hole_uv, -1, axis=0)
+    # ray t u against segment a + s (b - a): t u - s e = a, solved for every ray and segment
+    e = b - a
+    den = u[:, None, 0] * (-e[None, :, 1]) - u[:, None, 1] * (-e[None, :, 0])
+    den = np.where(np.abs(den) < 1e-300, 1e-300, den)
+    t = (a[None, :, 0] * (-e[None, :, 1]) - a[None, :, 1] * (-e[None, :, 0])) / den
+    sg = (u[:, None, 0] * a[None, :, 1] - u[:, None, 1] * a[None, :, 0]) / den
+    hit = (sg >= 0.0) & (sg <= 1.0) & (t > 0.0)
+    r0 = np.where(hit, t, 0.0).max(axis=1)
+    q = np.asarray(outer_centre, dtype=np.float64)
+    uq = u @ q
+    r1 = uq + np.sqrt(np.maximum(uq ** 2 - q @ q + outer_radius ** 2, 0.0))
+    return r0, r1
 
 
 class _Locator:
@@ -277,12 +301,15 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     bl = mc.boundary_loops(Fr)
     inner = next(b for b in bl if set(map(int, b)) & hole_set)
     outer = next(b for b in bl if not set(map(int, b)) & hole_set)
-    X = harmonic_annulus(ref_V, Fr, inner, outer)
+    X, outer_c = harmonic_disk(ref_V, Fr, inner, outer)
     e1, e2 = X[Fr[:, 1]] - X[Fr[:, 0]], X[Fr[:, 2]] - X[Fr[:, 0]]
-    # a triangle with all three corners on the opening spans a chord of the inner circle and
-    # comes out turned over by construction; it holds no grid point (the spokes start outside)
-    ears = np.isin(Fr, inner).all(axis=1)
-    param_flips = int(np.count_nonzero((e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] <= 0) & ~ears))
+    param_flips = int(np.count_nonzero(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] <= 0))
+    # the opening's image, in its own order, and the outer circle's centre (the fan's vertex is the
+    # origin): each ray from the origin runs from the one to the other
+    hole_uv = X[inner]
+
+    def ranges(th):
+        return _ray_ranges(th, hole_uv, outer_c, PARAM_OUTER * 0.999)
     loc = _Locator(X, Fr)
 
     def to3d(P2):
@@ -313,8 +340,10 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     dirs = np.stack([np.cos(ang), np.sin(ang)], axis=1)
     K = 400
     t = np.linspace(0.0, 1.0, K) ** 2
-    rad = PARAM_INNER + (PARAM_OUTER * 0.999 - PARAM_INNER) * t
-    samples = (rad[None, :, None] * dirs[:, None, :]).reshape(-1, 2)
+    _, r1 = ranges(ang)
+    r0 = np.linalg.norm(P0, axis=1)            # P0 lies on the opening's image
+    rad = r0[:, None] + (r1 - r0)[:, None] * t[None]          # (S, K)
+    samples = (rad[:, :, None] * dirs[:, None, :]).reshape(-1, 2)
     Q = to3d(samples).reshape(S, K, 3)
     arc = np.concatenate([np.zeros((S, 1)), np.cumsum(np.linalg.norm(np.diff(Q, axis=1), axis=2), axis=1)], axis=1)
     d = ring_distances(rings, width, first)
@@ -327,7 +356,7 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
         if arc[i, -1] - arc[i, k0] < 1.1 * width:   # the region ends early on this spoke: squeeze
             di = d * (0.9 * (arc[i, -1] - arc[i, k0]) / width)
             short.append(i)
-        r = np.interp(arc[i, k0] + di[1:], arc[i], rad)
+        r = np.interp(arc[i, k0] + di[1:], arc[i], rad[i])
         G[1:, i] = to3d(r[:, None] * dirs[i][None]) + (1.0 - di[1:] / di[-1])[:, None] * (targets[i] - Q[i, k0])
     # the outer ring: on a line star-shaped about the parameter plane's centre (simple, round the
     # opening once, whatever the loop's shape), the spokes' own angles on it
@@ -335,7 +364,7 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
     M = OUTER_LINE_SUB * S
     th = ang[0] + sgn * 2.0 * np.pi * np.arange(M) / M
     normal = _opening_normal(targets, ref_V, ref_F)
-    rho = _star_radii(to3d, th, targets, normal, width)
+    rho = _star_radii(to3d, th, targets, normal, width, ranges)
     rho = sum(np.roll(rho, j) for j in range(-OUTER_LINE_HALF, OUTER_LINE_HALF + 1)) / (2 * OUTER_LINE_HALF + 1)
     uv_line = rho[:, None] * np.stack([np.cos(th), np.sin(th)], axis=1)
     outer_line = to3d(uv_line)
@@ -372,10 +401,11 @@ def _opening_normal(loop, ref_V, ref_F, radius=3.0):
     return _unit(sum(nf[ix].sum(axis=0) for ix in tree.query_ball_point(loop, radius) if len(ix))[None])[0]
 
 
-def _star_radii(to3d, th, loop, normal, width, coarse=48, fine=12):
+def _star_radii(to3d, th, loop, normal, width, ranges, coarse=48, fine=12):
     """(M,) parameter radius, on the ray from the centre at each angle ``th``, where the ray's
     image first lies ``width`` from the placed ``loop`` in the opening's plane (normal ``normal``);
-    a ray whose image never gets that far keeps 0.9 of the parameter annulus. Found on ``coarse``
+    a ray whose image never gets that far keeps 0.9 of its way out. ``ranges(th) -> (r0, r1)``:
+    where each ray leaves the opening's image and meets the outer circle. Found on ``coarse``
     radii (spaced like the spokes' samples, dense near the opening), then on ``fine`` ones
     between the two coarse radii that bracket the crossing.
 
@@ -407,13 +437,14 @@ def _star_radii(to3d, th, loop, normal, width, coarse=48, fine=12):
         f = np.clip((width - dd[rows, k0]) / np.maximum(dd[rows, k] - dd[rows, k0], 1e-300), 0.0, 1.0)
         return np.where(far.any(axis=1), r[rows, k0] + f * (r[rows, k] - r[rows, k0]), np.nan), k
 
-    rad = PARAM_INNER + (PARAM_OUTER * 0.999 - PARAM_INNER) * np.linspace(0.0, 1.0, coarse) ** 2
-    R = np.broadcast_to(rad, (len(th), coarse))
+    r0, r1 = ranges(th)
+    R = r0[:, None] + (r1 - r0)[:, None] * np.linspace(0.0, 1.0, coarse)[None] ** 2
     _, k = first(R, dist(R))
-    lo, hi = rad[np.maximum(k - 1, 0)], rad[k]
+    rows = np.arange(len(th))
+    lo, hi = R[rows, np.maximum(k - 1, 0)], R[rows, k]
     Rf = lo[:, None] + (hi - lo)[:, None] * np.linspace(0.0, 1.0, fine)[None]
     rho, _ = first(Rf, dist(Rf))
-    return np.where(np.isnan(rho), 0.9 * PARAM_OUTER, rho)
+    return np.where(np.isnan(rho), r0 + 0.9 * (r1 - r0), rho)
 
 
 def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL_MM,
