@@ -137,8 +137,8 @@ def smooth_along_loop(N, P, sigma_mm):
         return N
     d = np.abs(s[:, None] - s[None, :])
     d = np.minimum(d, total - d)
-    # einsum, not BLAS: the same bits in every process (snap_mesh snaps one eye in a child)
-    w = np.exp(-0.5 * (d / sigma_mm) ** 2) * (d <= 3.0 * sigma_mm) * np.clip(np.einsum("ik,jk->ij", N, N), 0.0, None)
+    agree = np.clip(np.einsum("ik,jk->ij", N, N), 0.0, None)
+    w = np.exp(-0.5 * (d / sigma_mm) ** 2) * (d <= 3.0 * sigma_mm) * agree
     M = np.einsum("ij,jk->ik", w, N)
     n = np.linalg.norm(M, axis=1, keepdims=True)
     return np.where(n > 1e-9, M / np.maximum(n, 1e-300), N)
