@@ -218,7 +218,7 @@ IRIS_COLS = [("bound_limbus_within_0_5mm_pct", "ICT disc: limbus ≤ 0.5 mm %"),
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="heldout", choices=("dev", "heldout", "fresh", "fresh2", "all"), dest="set_name")
+    ap.add_argument("--set", default="heldout", choices=("dev", "heldout", "fresh", "fresh2", "fresh3", "all"), dest="set_name")
     ap.add_argument("--work", default=str(ROOT / "benchmarks" / "out" / "unseen"), type=Path)
     ap.add_argument("--scanify", default=str(ROOT.parent / "shared" / "tools" / "scanify" / "scanify.py"))
     ap.add_argument("--ict", default=str(ROOT.parent / "shared" / "scans" / "ict_facekit"))
