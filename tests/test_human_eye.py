@@ -201,6 +201,30 @@ def test_a_12mm_eye_is_placed_within_0_2mm_and_1deg():
         assert e["limbus"]["source"] == "geometry" and e["iris_at_rest"]["center_inside"]
 
 
+def test_spheres_that_disagree_widen_the_sigma_of_the_eyes_the_geometry_places():
+    """A pair whose fitted radii disagree past radii_agree's limit (n907_wide_right: 13.3 and
+    20.5 mm, its right eye 23 deg off at a stated 3.6 deg) has one sphere in a wrong basin: each
+    geometry eye joins 0.3 mm and 2 deg per mm of disagreement to its sigmas, in quadrature; an
+    eye placed otherwise keeps its own; the placement itself does not move."""
+    L = _almond()
+    scan = {"left": _scan_eye([0.0, 0.0, 10.0], [0.0, 0.0, 1.0], L, sigma=(0.4, 1.5)),
+            "right": _scan_eye([0.0, 0.0, 10.0], [0.0, 0.0, 1.0], L, sigma=(0.4, 1.5))}
+    agree = human_eye.asset_eyes(scan, eye_size="human", eyeball=EyeballParams())
+    apart = human_eye.asset_eyes(scan, eye_size="human", eyeball=EyeballParams(), pair_disagree_mm=7.0)
+    u, w = agree["left"]["uncertainty"], apart["left"]["uncertainty"]
+    assert (u["limbus_mm"], u["axis_deg"]) == (0.4, 1.5)
+    assert w["limbus_mm"] == pytest.approx(math.hypot(0.4, human_eye.PAIR_LIMBUS_MM_PER_MM * 7.0))
+    assert w["axis_deg"] == pytest.approx(math.hypot(1.5, human_eye.PAIR_AXIS_DEG_PER_MM * 7.0))
+    assert w["axis_deg"] > 14.0 and w["center_mm"] > u["center_mm"]
+    assert np.allclose(apart["left"]["center"], agree["left"]["center"])
+    assert np.allclose(apart["left"]["forward"], agree["left"]["forward"])
+    assert any("little evidence" in d for d in apart["left"]["doubts"])
+    # an eye not placed by the geometry (its opening, a fill, a texture) keeps its own sigma
+    opening = human_eye.asset_eyes({**scan, "right": {**scan["right"], "source": "opening"}},
+                                   eye_size="human", eyeball=EyeballParams(), pair_disagree_mm=7.0)
+    assert opening["right"]["uncertainty"]["limbus_mm"] == 0.4
+
+
 @pytest.mark.slow
 def test_unequal_scan_spheres_give_one_human_size_or_the_fitted_ones():
     mesh, hints, gt = make_head(0.5, seed=3, noise=0.02, radii=(12.0, 14.0))

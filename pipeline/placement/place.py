@@ -427,11 +427,14 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
                      sigma_limbus_mm=sigma[0], sigma_axis_deg=sigma[1],
                      sigma_radius=None, source=fit.method)
         scan[s] = e
+    # radii_agree's own test (judge_pair's check_pair): a pair that fails it widens the sigmas
+    dr = abs(float(fits["left"].radius) - float(fits["right"].radius))
     return human_eye.asset_eyes(scan, eye_size=st.eye_size, eyeball=geo,
                                 population=tuple(st.population_radius_mm),
                                 min_iris_visible=st.min_iris_visible,
                                 doubt_limbus_sigma_mm=st.doubt_limbus_sigma_mm,
-                                doubt_axis_sigma_deg=st.doubt_axis_sigma_deg)
+                                doubt_axis_sigma_deg=st.doubt_axis_sigma_deg,
+                                pair_disagree_mm=dr if dr > eye_checks.CheckLimits().max_radius_diff_mm else 0.0)
 
 
 def loop_on_asset_eye(loop_points, asset_eye: dict, eyeball, lim, lateral_index) -> dict:
