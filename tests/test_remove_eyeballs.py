@@ -744,3 +744,58 @@ def test_a_loop_the_published_eye_holds_is_a_doubt_not_a_refusal(monkeypatch):
     assert any(d.startswith("the eyelid loop missed the fitted sphere, but the eye the asset carries")
                for d in right["doubts"]), right["doubts"]
     assert "loop_on_eye" not in res.eyes["left"].to_doc()["checks"]
+
+
+def _grid(n=12):
+    """(V, F): n x n unit squares in the plane z = 0, two triangles each; square (i, j) is faces
+    2 * (i * n + j) and 2 * (i * n + j) + 1 (i along x)."""
+    x, y = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0), indexing="ij")
+    V = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    vid = lambda i, j: i * (n + 1) + j
+    F = []
+    for i in range(n):
+        for j in range(n):
+            a, b, c, d = vid(i, j), vid(i + 1, j), vid(i + 1, j + 1), vid(i, j + 1)
+            F += [[a, b, c], [a, c, d]]
+    return V, np.asarray(F, dtype=np.int64)
+
+
+def test_a_scan_hole_the_eye_region_reaches_leaves_one_simple_opening():
+    """A hole touching the region at one corner (id64_in's left eye) made the cut's border a
+    bow-tie, and one it reaches beyond the fit's reach (id71_out's right) a loop through
+    vertices of no eye face: both scans were refused. Settled, the grazed hole stays off the
+    region (its own loop, for retopo to fill) and a hole half on the region joins the opening."""
+    from pipeline.remove_eyeballs.remove_eyeballs import _settle_holes
+
+    n = 12
+    V, F = _grid(n)
+    sq = lambda i, j: [2 * (i * n + j), 2 * (i * n + j) + 1]
+    region = np.zeros(len(F), bool)
+    for i in range(4, 8):
+        for j in range(4, 8):
+            region[sq(i, j)] = True
+    holes = sq(8, 8) + sq(3, 5)          # one at the region's corner (8, 8), one on its x = 4 side
+    keep = np.ones(len(F), bool)
+    keep[holes] = False
+    region, F = region[keep], F[keep]
+    H = meshtopo.boundary_halfedges(F)
+    with pytest.raises(ValueError, match="bow-tie"):       # the cut as it was
+        meshtopo.boundary_loops(F[~region])
+    settled = _settle_holes(F, region, H)
+    loops = meshtopo.boundary_loops(F[~settled])
+    assert len(loops) == 3                 # the grid's border, the opening, the grazed hole
+    corner = 8 * (n + 1) + 8
+    assert not np.isin(F[settled], corner).any()
+    # the grazed hole keeps its own loop round square (8, 8); the other is swallowed by the opening
+    assert any(sorted(lp.tolist()) == sorted({corner, corner + 1, corner + n + 1, corner + n + 2})
+               for lp in loops)
+    assert np.isin([3 * (n + 1) + 5, 3 * (n + 1) + 6], F[settled]).all()
+    # of the region as it was, only the faces at the grazed corner left it
+    assert np.array_equal(settled[region], ~np.isin(F[region], corner).any(axis=1))
+    # a region that meets no hole comes back as it was
+    clean = np.zeros(len(F), bool)
+    full_ids = np.cumsum(keep) - 1
+    for i in (1, 2):
+        for j in (9, 10):
+            clean[full_ids[sq(i, j)]] = True
+    assert np.array_equal(_settle_holes(F, clean, H), clean)

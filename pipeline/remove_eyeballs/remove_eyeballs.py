@@ -190,6 +190,72 @@ def _opening_holes(region, F, holes, hole_of_face, n_faces, min_share=0.3):
     return out
 
 
+def _settle_holes(F, region, H, min_share=0.3, rounds=6):
+    """``region`` (faces removed for one eye) with its border made one simple loop where it
+    meets the scan's own holes (``H``: the scan's boundary half-edges). The fit settles the
+    holes within ``sample_radius_mm`` of the hint (:func:`_opening_holes`); a hole farther out
+    that the region still reaches (near a canthus of an eye turned out: ``id71_out``'s right,
+    a hole of the scan pinched at a vertex into two), or one it touches at a single vertex
+    (``id64_in``'s left), made the cut's boundary a bow-tie or a loop through vertices of no eye
+    face, and the scan was refused. As :func:`_opening_holes`: a hole with
+    ``min_share`` of its rim on the region joins the opening (its rim's faces join the region),
+    one the region only grazes is kept off it (the region's faces at its rim stay skin, and
+    retopo fills the hole); then a vertex where the region's border still meets itself loses
+    the region's faces round it. A region that meets no hole and has no such vertex is returned
+    as it came."""
+    H = np.asarray(H, dtype=np.int64).reshape(-1, 2)
+    region = np.asarray(region, dtype=bool)
+    if not region.any():
+        return region
+    n = int(F.max()) + 1
+    on_hole = np.zeros(n, bool)
+    on_hole[H.ravel()] = True
+    out = region.copy()
+    loops = None
+    for _ in range(rounds):
+        inside = np.zeros(n, bool)
+        inside[F[out].ravel()] = True
+        touched = inside & on_hole
+        new = out.copy()
+        if touched.any():
+            if loops is None:
+                loops = _holes_through(H, touched)
+            for loop in loops:
+                share = float(inside[loop].mean())
+                if 0.0 < share < 1.0:
+                    mask = np.zeros(n, bool)
+                    mask[loop] = True
+                    rim = meshtopo.faces_touching(F, mask)
+                    new = new | rim if share >= min_share else new & ~rim
+        # the region's border half-edges: a region face's edge whose twin is no region face
+        Fr = F[new]
+        a = np.concatenate([Fr[:, 0], Fr[:, 1], Fr[:, 2]])
+        b = np.concatenate([Fr[:, 1], Fr[:, 2], Fr[:, 0]])
+        key = a * n + b
+        border = ~np.isin(b * n + a, key)
+        deg = np.bincount(a[border], minlength=n) + np.bincount(b[border], minlength=n)
+        bad = deg > 2
+        if bad.any():
+            new &= ~meshtopo.faces_touching(F, bad)
+        if np.array_equal(new, out):
+            break
+        out = new
+    return out
+
+
+def _holes_through(H, vmask):
+    """The vertex ids of each connected piece of the boundary half-edges ``H`` (a hole, simple or
+    pinched at a vertex into two) that passes through a vertex of ``vmask``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    bv, Hc = np.unique(H, return_inverse=True)
+    Hc = Hc.reshape(-1, 2)
+    _, comp = connected_components(coo_matrix((np.ones(len(Hc)), (Hc[:, 0], Hc[:, 1])),
+                                              shape=(len(bv), len(bv))), directed=False)
+    return [bv[comp == c] for c in np.unique(comp[vmask[bv]])]
+
+
 def _holes_inside(F, remove, H=None):
     """Number of the mesh's boundary loops whose every edge belongs to a removed face (holes in
     the eye openings, which the cut absorbs). ``H``: the mesh's boundary half-edges, when already
@@ -360,6 +426,8 @@ def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, sou
                          else meshtopo.boundary_mask(F))
     H_in = meshtopo.halfedges_of(F, open_in)
     loops_in = meshtopo.boundary_component_count(F, H_in)
+    for s in SIDES:
+        fits[s].region = _settle_holes(F, fits[s].region, H_in)
     remove = fits["left"].region | fits["right"].region
     absorbed = _holes_inside(F, remove, H_in)
     keepF = ~remove
