@@ -47,11 +47,11 @@ FRONT_SHOWS_MM = 0.3
 #: The two spheres of one head disagree by ``dr`` mm (``radii_agree`` failed): at least one is
 #: ``dr / 2`` off, in a basin the Laplace sigma (one basin's curvature) does not see. Each eye the
 #: geometry places then joins ``PAIR_LIMBUS_MM_PER_MM * dr`` to its limbus sigma and
-#: ``PAIR_AXIS_DEG_PER_MM * dr`` to its axis sigma, in quadrature. Every geometry eye of the
-#: held-out and the three fresh sets whose truth lay beyond 2 sigma had such a pair (id311_look_right
-#: left, dr 5.4 mm: 3.4 mm / 19 deg off at +-1.1 mm / 5.3 deg; id404_left right, 2.9 mm; n907_wide_right
-#: right, 7.1 mm: 4.7 mm / 23 deg off at +-2.0 mm / 3.6 deg); these slopes are the least that
-#: holds all three (docs/remove_eyeballs.md, the limbus and axis uncertainty)
+#: ``PAIR_AXIS_DEG_PER_MM * dr`` to its axis sigma, in quadrature. Three of the four geometry
+#: eyes of the held-out and the three fresh sets whose truth lay beyond 2 sigma had such a pair
+#: (id311_look_right left, dr 5.4 mm: 3.4 mm / 19 deg off at +-1.1 mm / 5.3 deg; id404_left right,
+#: 2.9 mm; n907_wide_right right, 7.1 mm: 4.7 mm / 23 deg off at +-2.0 mm / 3.6 deg); these slopes
+#: are the least that holds all three (docs/remove_eyeballs.md, the limbus and axis uncertainty)
 PAIR_LIMBUS_MM_PER_MM = 0.3
 PAIR_AXIS_DEG_PER_MM = 2.0
 
