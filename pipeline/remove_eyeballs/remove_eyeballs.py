@@ -211,16 +211,14 @@ def _settle_holes(F, region, H, min_share=0.3, rounds=6):
     on_hole = np.zeros(n, bool)
     on_hole[H.ravel()] = True
     out = region.copy()
-    loops = None
     for _ in range(rounds):
         inside = np.zeros(n, bool)
         inside[F[out].ravel()] = True
         touched = inside & on_hole
         new = out.copy()
         if touched.any():
-            if loops is None:
-                loops = _holes_through(H, touched)
-            for loop in loops:
+            # asked every round: a rim that joined may reach another hole
+            for loop in _holes_through(H, touched):
                 share = float(inside[loop].mean())
                 if 0.0 < share < 1.0:
                     mask = np.zeros(n, bool)
@@ -243,9 +241,10 @@ def _settle_holes(F, region, H, min_share=0.3, rounds=6):
     return out
 
 
-def _holes_through(H, vmask):
-    """The vertex ids of each connected piece of the boundary half-edges ``H`` (a hole, simple or
-    pinched at a vertex into two) that passes through a vertex of ``vmask``."""
+def _boundary_pieces(H):
+    """``(bv, Hc, comp)`` of the boundary half-edges ``H`` (k, 2): the boundary's vertex ids, the
+    half-edges as indices into them, and each vertex's connected piece (a hole, simple or pinched
+    at a vertex into two)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -253,6 +252,13 @@ def _holes_through(H, vmask):
     Hc = Hc.reshape(-1, 2)
     _, comp = connected_components(coo_matrix((np.ones(len(Hc)), (Hc[:, 0], Hc[:, 1])),
                                               shape=(len(bv), len(bv))), directed=False)
+    return bv, Hc, comp
+
+
+def _holes_through(H, vmask):
+    """The vertex ids of each piece of the boundary half-edges ``H`` (:func:`_boundary_pieces`)
+    that passes through a vertex of ``vmask``."""
+    bv, _, comp = _boundary_pieces(H)
     return [bv[comp == c] for c in np.unique(comp[vmask[bv]])]
 
 
@@ -260,9 +266,6 @@ def _holes_inside(F, remove, H=None):
     """Number of the mesh's boundary loops whose every edge belongs to a removed face (holes in
     the eye openings, which the cut absorbs). ``H``: the mesh's boundary half-edges, when already
     computed."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     H = meshtopo.boundary_halfedges(F) if H is None else H
     if len(H) == 0:
         return 0
@@ -278,10 +281,7 @@ def _holes_inside(F, remove, H=None):
     key = E[:, 0] * n + E[:, 1]
     order = np.argsort(key)
     hf = fid[order[np.searchsorted(key[order], H[:, 0] * n + H[:, 1])]]
-    bv, Hc = np.unique(H, return_inverse=True)
-    Hc = Hc.reshape(-1, 2)
-    g = coo_matrix((np.ones(len(Hc)), (Hc[:, 0], Hc[:, 1])), shape=(len(bv), len(bv)))
-    _, comp = connected_components(g, directed=False)
+    _, Hc, comp = _boundary_pieces(H)
     ecomp = comp[Hc[:, 0]]
     kept = np.zeros(comp.max() + 1, bool)
     np.logical_or.at(kept, ecomp, ~remove[hf])
