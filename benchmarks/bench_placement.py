@@ -164,7 +164,8 @@ def _iris_summary(rows: list, pct) -> dict:
 
 
 def page(results: Path) -> str:
-    """benchmarks/results/placement.md from placement_dev.json and placement_heldout.json."""
+    """benchmarks/results/placement.md from placement_<set>.json of every set run (dev, held-out,
+    then the fresh sets, each made after the placement was tuned: nothing was tuned on them)."""
     cols = [("eyes", "eyes"), ("limbus_within_0_5mm_pct", "limbus ≤ 0.5 mm %"),
             ("limbus_within_1mm_pct", "≤ 1 mm %"), ("axis_within_2deg_pct", "axis ≤ 2° %"),
             ("limbus_err_median_mm", "limbus median mm"), ("axis_err_median_deg", "axis median °"),
@@ -173,12 +174,12 @@ def page(results: Path) -> str:
             ("silent_over_1mm_or_3deg", "> 1 mm or 3° off, not doubted"),
             ("iris_hidden_at_rest", "iris hidden at rest"), ("open_refused", "open eyes refused")]
     out = ["# Eye placement on unseen heads: the asset's limbus and axis against the truth", "",
-           "`python -m benchmarks.bench_placement --set dev|heldout --skip-missing` (ingest and "
+           "`python -m benchmarks.bench_placement --set dev|heldout|fresh|fresh2|fresh3 --skip-missing` (ingest and "
            "remove_eyeballs with the shipped eye-region prior; per eye against scanify's limbus "
            "centre and gaze). *Before* is where the asset's limbus lay when the eye took the "
            "fitted sphere's radius (the human cornea on that sphere). Only the generated cases "
            "count (`cases`).", ""]
-    for name in ("dev", "heldout"):
+    for name in ("dev", "heldout", "fresh", "fresh2", "fresh3"):
         f = results / f"placement_{name}.json"
         if not f.is_file():
             continue
