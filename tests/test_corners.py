@@ -120,12 +120,19 @@ def test_the_strip_closes_the_corner_manifold_and_inside_the_eye(snapped):
     for e in frames:
         strip = out[f"corner_strip_{e.side}"]
         assert len(strip) > 0 and strip[:, 0].min() >= n0
-        q = V[strip[:, 0]]
+        # the inner edge: the last vertex hanging from each loop vertex (the caruncle's mound
+        # rows come before it), strip_depth_mm inside the sphere on the ray through its loop vertex
+        last = {int(p): int(v) for v, p in strip}
+        assert len(last) < len(strip)              # the caruncle has rows between loop and eye
+        q = V[list(last.values())]
         depth = R - np.linalg.norm(q - e.center, axis=1)
         np.testing.assert_allclose(depth, sn.SnapSettings().strip_depth_mm, atol=1e-9)
-        # each inner vertex lies on the ray from the centre through its loop vertex
-        u = (V[strip[:, 1]] - e.center) / np.linalg.norm(V[strip[:, 1]] - e.center, axis=1)[:, None]
+        P = V[list(last)]
+        u = (P - e.center) / np.linalg.norm(P - e.center, axis=1)[:, None]
         np.testing.assert_allclose((q - e.center) / np.linalg.norm(q - e.center, axis=1)[:, None], u, atol=1e-12)
+        # every other strip vertex stands outside the eye (the mound), hidden by nothing
+        mound = np.setdiff1d(strip[:, 0], list(last.values()))
+        assert len(mound) and (np.linalg.norm(V[mound] - e.center, axis=1) > R - 0.8).all()
         # the loop edges of the corner are no longer boundary: the opening's boundary there is
         # the strip's inner edge, inside the eye
         bnd = np.unique(meshtopo.boundary_halfedges(F))
@@ -148,6 +155,41 @@ def test_the_strip_closes_the_corner_manifold_and_inside_the_eye(snapped):
             assert max(arc[pos[int(v)]] for v in F[f] if int(v) in pos) <= cn.CARUNCLE_MM + 1e-9
 
 
+def test_the_caruncle_is_a_mound_that_grows_out_of_the_lids(snapped):
+    """Known answer at the medial canthus: its segment to the eye (4 mm off a 12 mm eye, 4.8 mm
+    long) gets ``caruncle_rows`` vertices at t = k / (rows + 1) of the way in, raised toward the
+    opening by ``caruncle_mound_mm`` sin(pi t) (perpendicular to the segment, in the plane of
+    the eye's forward); the colour weight is 0 on the lid margin and every skin vertex and 1
+    from 0.4 of the way in at the canthus. With no rows the strip is the flat one."""
+    mesh, eyes, frames, out, metrics = snapped
+    st = sn.SnapSettings()
+    V, w = out["V"], out["caruncle_weight"]
+    assert w.shape == (len(V),) and w.min() >= 0 and w.max() <= 1
+    assert np.all(w[: len(mesh["V"])] == 0)                   # skin and the lid margin
+    for e in frames:
+        strip = out[f"corner_strip_{e.side}"]
+        col = strip[strip[:, 1] == e.loop[0], 0]              # the canthus's column, loop inward
+        assert len(col) == st.caruncle_rows + 1
+        p, q = V[e.loop[0]], V[col[-1]]
+        u = (q - p) / np.linalg.norm(q - p)
+        n = e.forward - (e.forward @ u) * u
+        n /= np.linalg.norm(n)
+        h = min(st.caruncle_mound_mm, np.linalg.norm(q - p) / 3)
+        for k, v in enumerate(col[:-1], start=1):
+            t = k / (st.caruncle_rows + 1)
+            np.testing.assert_allclose(V[v], p + t * (q - p) + h * np.sin(np.pi * t) * n, atol=1e-9)
+        np.testing.assert_allclose(w[col], [cn._smoothstep(k / len(col) / cn.CARUNCLE_RIM_SHARE)
+                                            for k in range(1, len(col) + 1)])
+        assert w[col[-1]] == 1.0 and w[col[0]] < 1.0
+        # the mound's crown stands toward the opening: in front of the flat strip
+        assert (V[col[1]] - (p + 0.5 * (q - p))) @ e.forward > 0
+    flat_out, _, flat_metrics = sn.snap_mesh(mesh, eyes, EyeballParams(), sn.SnapSettings(caruncle_rows=0))
+    for e in frames:
+        strip = flat_out[f"corner_strip_{e.side}"]
+        assert len(np.unique(strip[:, 1])) == len(strip)      # one inner vertex per loop vertex
+    assert flat_metrics["flipped_faces"] == 0 and flat_metrics["edge_manifold_closed"]
+
+
 def test_nothing_changes_when_every_corner_rests_on_the_eye():
     V, F, frames = two_eye_region(R)
     mesh = {"V": V, "F": F, "loop_left": frames[0].loop, "loop_right": frames[1].loop}
@@ -155,6 +197,7 @@ def test_nothing_changes_when_every_corner_rests_on_the_eye():
     out, _, metrics = sn.snap_mesh(mesh, eyes, EyeballParams(), sn.SnapSettings())
     assert np.array_equal(out["F"], F) and len(out["V"]) == len(V)
     assert len(out["caruncle_faces"]) == 0 and all(len(out[f"corner_strip_{s}"]) == 0 for s in sn.SIDES)
+    assert "caruncle_weight" not in out                       # no caruncle, nothing to blend
     assert all(out[f"loop_snap_{s}"].min() == 1.0 for s in sn.SIDES)
 
 
@@ -239,3 +282,22 @@ def test_rig_refuses_a_margin_off_the_eye_that_is_no_corner(snapped):
     wrong = dict(out, loop_snap_left=np.ones(3))
     with pytest.raises(ScanError, match="one finite weight per loop vertex"):
         eye_frames(doc, wrong, profile=EyeballParams())
+
+
+def test_the_mound_keeps_clear_of_the_cornea():
+    """Known answers of the clearance rule on a 12 mm sphere: a point 1 mm outside raised 2 mm
+    straight toward the centre keeps 0.35 of the raise (it ends 0.3 mm outside); a raise away
+    from the eye is kept whole; a point already inside (0.5 mm) raised further in is not raised;
+    without a surface the raise is whole."""
+    c = np.zeros(3)
+
+    def sd(P):
+        return np.linalg.norm(np.asarray(P) - c, axis=1) - R
+
+    flat = np.array([0.0, 0.0, R + 1.0])
+    inward, outward = np.array([0.0, 0.0, -2.0]), np.array([0.0, 2.0, 0.0])
+    s = cn._keep_clear(flat, inward, sd, 0.3)
+    assert abs(s - 0.35) < 1e-3 and sd((flat + s * inward)[None])[0] >= 0.3 - 1e-9
+    assert cn._keep_clear(flat, outward, sd, 0.3) == 1.0
+    assert cn._keep_clear(np.array([0.0, 0.0, R - 0.5]), inward, sd, 0.3) < 1e-3
+    assert cn._keep_clear(flat, inward, None, 0.3) == 1.0

@@ -145,15 +145,81 @@ def _loop_edge_faces(F, a, b):
     return np.where(fwd, 1, np.where(bwd, -1, 0))
 
 
+def _mound_height(p, q, forward, arc, height_mm: float) -> tuple[float, np.ndarray]:
+    """(height, direction) of the caruncle's mound over one strip segment from loop vertex ``p``
+    to its inner vertex ``q``: the direction is the eye's forward made perpendicular to the
+    segment (toward the opening, where the skin faces), the height ``height_mm`` at the canthus,
+    at most a third of the segment, fading over the caruncle's reach along the lids (a smoothstep
+    from half of ``CARUNCLE_MM`` to 0 at it)."""
+    u = q - p
+    length = float(np.linalg.norm(u))
+    if length < 1e-9 or height_mm <= 0 or not np.isfinite(arc) or arc >= CARUNCLE_MM:
+        return 0.0, np.zeros(3)
+    u = u / length
+    n = np.asarray(forward, float) - float(np.dot(forward, u)) * u
+    nn = float(np.linalg.norm(n))
+    if nn < 0.2:          # the segment runs along the gaze: no side to bulge toward
+        return 0.0, np.zeros(3)
+    return min(height_mm, length / 3.0) * caruncle_fade(arc), n / nn
+
+
+def _keep_clear(flat, up, signed_distance, clear_mm: float) -> float:
+    """The share s in [0, 1] of the raise ``up`` that keeps ``flat + s up`` at least
+    ``min(clear_mm, distance of flat)`` outside the eye's surface (``signed_distance``; None: 1):
+    1 where the whole raise stays clear, else found by bisection (12 steps, 0.02 % of it)."""
+    if signed_distance is None or not np.any(up):
+        return 1.0
+    need = min(clear_mm, float(signed_distance(flat[None])[0]))
+    if float(signed_distance((flat + up)[None])[0]) >= need:
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(12):
+        mid = 0.5 * (lo + hi)
+        if float(signed_distance((flat + mid * up)[None])[0]) >= need:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def caruncle_fade(arc):
+    """1 within half of ``CARUNCLE_MM`` of the medial canthus along the lids, a smoothstep down
+    to 0 at ``CARUNCLE_MM``: how much of the caruncle's mound and colour a strip segment has."""
+    return 1.0 - _smoothstep((np.asarray(arc, float) - 0.5 * CARUNCLE_MM) / (0.5 * CARUNCLE_MM))
+
+
+#: The caruncle's mound keeps this far outside the eye's outer surface (the cornea's bulge
+#: included) where its flat strip would: it bulges toward the opening, and so toward the cornea.
+MOUND_CLEAR_MM = 0.3
+
+#: The caruncle's colour weight rises from 0 at the lid margin (the loop: skin) to 1 this share
+#: of the way from the loop to the eye (the mound's crown and the fold beside the eye).
+CARUNCLE_RIM_SHARE = 0.4
+
+
 def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm: float,
-                  UV=None, FUV=None, min_gap_mm: float = 1e-3, pad: int = 1):
+                  UV=None, FUV=None, min_gap_mm: float = 1e-3, pad: int = 1,
+                  forward=None, mound_mm: float = 0.0, mound_rows: int = 0,
+                  signed_distance=None, mound_clear_mm: float = MOUND_CLEAR_MM):
     """Close the gap between the corner runs of a snapped loop and the eye with strips of faces.
 
     Each loop vertex ``p`` of a run that stands off the eye gets an inner vertex ``q`` on the ray
     from the eye centre through it, ``depth_mm`` inside the sphere (deep enough to hide in the
     eye's opaque sclera, under its clear shell); consecutive loop vertices and their inner
     vertices make two triangles; the strip takes in ``pad`` loop vertices resting on the eye at
-    each end of the run and closes with one triangle to the next. The strip uses each loop edge the other way round from the skin
+    each end of the run and closes with one triangle to the next.
+
+    The medial strip is the caruncle, a mound of tissue, not a flat flap: with ``forward`` and
+    ``mound_rows`` > 0 each medial segment p -> q gets ``mound_rows`` vertices between them (at
+    most one per mm of it, less one: none on a segment under 2 mm),
+    raised toward the opening by ``mound_mm`` sin(pi t) at the canthus (t from p to q; at most a
+    third of the segment, fading to 0 at ``CARUNCLE_MM`` along the lids: :func:`_mound_height`),
+    and neighbouring segments are joined row by row. With ``signed_distance`` (points -> (n,)
+    mm outside the eye's outer surface, the cornea's bulge included) a mound vertex is lowered
+    until it stands at least ``min(mound_clear_mm, its flat point's distance)`` outside that
+    surface, so the mound never enters the cornea where the flat strip would not. Each such
+    vertex hangs from its loop vertex like ``q`` (``strip``), so the rig turns the whole segment
+    rigidly with its lid. The strip uses each loop edge the other way round from the skin
     face beside it, so the mesh stays manifold and consistently oriented. Texture coordinates of
     an inner vertex are those of its loop vertex (the strip shows the colour of the lid margin).
 
@@ -178,7 +244,12 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
     -------
     dict
         ``V``, ``F`` (strip faces appended), ``UV``, ``FUV`` (when given), ``strip`` ((k, 2)
-        int64: inner vertex, its loop vertex), ``medial_faces`` (the medial strip's faces within
+        int64: a strip vertex, the loop vertex it hangs from, in the order the vertices were
+        added: each segment's mound vertices from the loop inward, then its inner vertex, which
+        alone lies inside the sphere), ``caruncle_weight`` ((k,) float64, each strip vertex's
+        share of the caruncle's colour: 0 at the lid margin, rising to 1 ``CARUNCLE_RIM_SHARE`` of
+        the way to the eye, times :func:`caruncle_fade` along the lids; 0 on lateral strips),
+        ``medial_faces`` (the medial strip's faces within
         ``CARUNCLE_MM`` of the canthus along the lids: the caruncle; beyond, the inside of the lid)
         and ``lateral_faces`` (the lateral strip's).
     """
@@ -188,10 +259,11 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
     c = np.asarray(center, float)
     L = len(loop)
     out = {"V": V, "F": F, "strip": np.zeros((0, 2), np.int64),
-           "medial_faces": np.zeros(0, np.int64), "lateral_faces": np.zeros(0, np.int64)}
+           "medial_faces": np.zeros(0, np.int64), "lateral_faces": np.zeros(0, np.int64),
+           "caruncle_weight": np.zeros(0)}
     if UV is not None:
         out["UV"], out["FUV"] = np.asarray(UV, float), np.asarray(FUV, np.int64)
-    newV, newF, newFUV, newUV, strip = [], [], [], [], []
+    newV, newF, newFUV, newUV, strip, weight = [], [], [], [], [], []
     uv_of = {}
     if UV is not None:
         for f, fu in zip(F.tolist(), np.asarray(FUV).tolist()):
@@ -221,15 +293,32 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
         # a sliver from the last corner vertex (where the lid's motion changes fastest) to the eye
         order = np.concatenate([[(order[0] - k) % L for k in range(pad, 0, -1)], order,
                                 [(order[-1] + k) % L for k in range(1, pad + 1)]]).astype(np.int64)
-        inner = {}
+        rows = int(mound_rows) if name == "medial" and forward is not None else 0
+        column = {}       # loop position -> the segment's vertices from p (excluded) to q
         for j in order:
             p = V[loop[j]]
             d = (p - c) / max(np.linalg.norm(p - c), 1e-12)
-            inner[int(j)] = nv + len(newV)
-            newV.append(c + (radius - depth_mm) * d)
-            strip.append((inner[int(j)], int(loop[j])))
-            if UV is not None:
-                newUV.append(out["UV"][uv_of[int(loop[j])]])
+            q = c + (radius - depth_mm) * d
+            pts = []
+            # at most a row per mm of the segment (one edge where the loop vertex is within 2 mm
+            # of the inner edge): closer rows would be slivers the lid's motion turns over
+            rows_j = min(rows, int(np.linalg.norm(q - p)) - 1)
+            if rows_j > 0:
+                h, n = _mound_height(p, q, forward, arc[j], mound_mm)
+                for k in range(1, rows_j + 1):
+                    t = k / (rows_j + 1)
+                    flat, up = p + t * (q - p), h * np.sin(np.pi * t) * n
+                    pts.append(flat + _keep_clear(flat, up, signed_distance, mound_clear_mm) * up)
+            pts.append(q)
+            column[int(j)] = []
+            fade = float(caruncle_fade(arc[j])) if name == "medial" and np.isfinite(arc[j]) else 0.0
+            for k, x in enumerate(pts, start=1):
+                column[int(j)].append(nv + len(newV))
+                newV.append(x)
+                weight.append(fade * float(_smoothstep(k / len(pts) / CARUNCLE_RIM_SHARE)))
+                strip.append((column[int(j)][-1], int(loop[j])))
+                if UV is not None:
+                    newUV.append(out["UV"][uv_of[int(loop[j])]])
         seq = [int((order[0] - 1) % L)] + [int(j) for j in order] + [int((order[-1] + 1) % L)]
         a = loop[np.array(seq[:-1])]
         b = loop[np.array(seq[1:])]
@@ -237,16 +326,20 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
         faces, near = [], []
         for i in range(len(seq) - 1):
             ja, jb = seq[i], seq[i + 1]
-            pa, pb = int(loop[ja]), int(loop[jb])
-            qa, qb = inner.get(ja), inner.get(jb)
-            # the skin holds pa -> pb (sense +1): the strip runs pb -> pa
-            tri = []
-            if qa is not None and qb is not None:
-                tri = [(pb, pa, qa), (pb, qa, qb)]
-            elif qa is not None:
-                tri = [(pb, pa, qa)]
-            elif qb is not None:
-                tri = [(pb, pa, qb)]
+            A = [int(loop[ja])] + column.get(ja, [])
+            B = [int(loop[jb])] + column.get(jb, [])
+            tA, tB = np.linspace(0, 1, len(A)), np.linspace(0, 1, len(B))
+            # the skin holds pa -> pb (sense +1): the strip runs pb -> pa; the two columns are
+            # zipped inward by their share of the way to the eye (row by row where both have
+            # the same rows, a fan where one is the bare loop vertex that rests on the eye)
+            tri, ia, ib = [], 0, 0
+            while ia < len(A) - 1 or ib < len(B) - 1:
+                if ib == len(B) - 1 or (ia < len(A) - 1 and tA[ia + 1] <= tB[ib + 1] + 1e-9):
+                    tri.append((B[ib], A[ia], A[ia + 1]))
+                    ia += 1
+                else:
+                    tri.append((B[ib], A[ia], B[ib + 1]))
+                    ib += 1
             for t in tri:
                 faces.append(t if sense[i] >= 0 else t[::-1])
                 near.append(max(arc[seq[i]], arc[seq[i + 1]]) <= CARUNCLE_MM)
@@ -262,6 +355,7 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
     out["V"] = np.concatenate([V, np.asarray(newV)])
     out["F"] = np.concatenate([F, np.asarray(newF, np.int64)])
     out["strip"] = np.asarray(strip, np.int64)
+    out["caruncle_weight"] = np.asarray(weight, float)
     if UV is not None:
         out["UV"] = np.concatenate([out["UV"], np.asarray(newUV, float).reshape(-1, 2)])
         out["FUV"] = np.concatenate([out["FUV"], np.asarray(newFUV, np.int64).reshape(-1, 3)])

@@ -17,7 +17,9 @@ layout; ``F`` is then their fan triangulation. Eyelid-opening loops are
 Later stages add ``lateral_index_left`` / ``lateral_index_right`` (1,) int64 and, with the
 grid band, ``band_left`` / ``band_right`` (rings + 1, L) int64 (retopo); ``loop_snap_left`` /
 ``loop_snap_right`` (L,) float64, ``corner_strip_left`` / ``corner_strip_right`` (k, 2) int64
-and ``caruncle_faces`` (c,) int64 (snap).
+(a strip vertex, the loop vertex it hangs from; each loop vertex's last one is the strip's inner
+edge, inside the eye, the ones before it the caruncle's mound), ``caruncle_faces`` (c,) int64
+and, with a caruncle, ``caruncle_weight`` (n,) float64 (each vertex's share of its colour) (snap).
 
 The file carries ``schema`` (a 0-d int64, :data:`SCHEMA`), written by :func:`save_mesh` and
 left out of the dict :func:`load_mesh` returns. A stage reads its input mesh with

@@ -36,8 +36,9 @@ class EyeFrame:
         Loop vertices the snap put on the eyeball; the others are corners that stand off the
         globe (``loop_snap_<side>`` < 1, :mod:`pipeline.geometry.corners`). None = all.
     strip : (k, 2) int64 or None
-        The corner strip closing the gap between those corners and the eye: its inner vertices
-        (inside the eyeball) and the loop vertex each hangs from (``corner_strip_<side>``).
+        The corner strip closing the gap between those corners and the eye: its vertices (the
+        inner edge inside the eyeball, the caruncle's mound rows between it and the loop) and
+        the loop vertex each hangs from (``corner_strip_<side>``).
     """
 
     side: str
@@ -57,7 +58,8 @@ class EyeFrame:
 
     @property
     def strip_inner(self) -> np.ndarray:
-        """(k,) int64 the corner strip's inner vertices (none without a strip)."""
+        """(k,) int64 the corner strip's vertices, each hanging from a loop vertex (none
+        without a strip): its inner edge inside the eye and the caruncle's mound rows."""
         return np.zeros(0, np.int64) if self.strip is None else self.strip[:, 0]
 
     def basis(self) -> np.ndarray:

@@ -112,8 +112,8 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
         ``rest_cornea_intrusion_mm`` (:func:`cornea_intrusion` of the margin),
         ``worst_pitch_deg`` for the gap/penetration, and ``n_pitches``. The margin is the loop
         without its corners off the globe (``EyeFrame.margin``); with corner strips,
-        ``strip_max_mm`` is the largest distance of a strip's inner edge outside the pitched eye
-        surface (negative: it stays inside).
+        ``strip_max_mm`` is the largest distance of a strip's inner edge (the last vertex hanging
+        from each loop vertex) outside the pitched eye surface (negative: it stays inside).
         With ``fork`` the first half of the pitches runs in a forked child (the same result).
     """
     V = np.asarray(V, float)
@@ -181,6 +181,10 @@ def _sweep_pitches(pitches_deg, V, F, eyes, shapes, max_pitch_deg, corneas, n0, 
            "min_opening_mm": math.inf, "min_skin_clearance_mm": math.inf,
            "max_skin_sink_mm": 0.0, "worst_pitch_deg": 0.0, "n_pitches": 0}
     worst = -1.0
+    # the strip's inner edge: the last vertex hanging from each loop vertex (the caruncle's
+    # mound rows come before it, outside the eye)
+    deep_strip = {e.side: np.fromiter({int(p): int(v) for v, p in e.strip}.values(), np.int64)
+                  for e in eyes if e.strip is not None}
     for p in pitches_deg:
         P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch_deg))
         for e in eyes:
@@ -201,8 +205,9 @@ def _sweep_pitches(pitches_deg, V, F, eyes, shapes, max_pitch_deg, corneas, n0, 
             if np.isfinite(op).any():
                 res["min_opening_mm"] = min(res["min_opening_mm"], float(np.nanmin(op)))
             if e.strip is not None:     # a corner strip's inner edge stays inside the eye
+                deep = deep_strip[e.side]
                 res["strip_max_mm"] = max(res.get("strip_max_mm", -math.inf),
-                                          float(e.surface_distance(P[e.strip_inner], p).max()))
+                                          float(e.surface_distance(P[deep], p).max()))
             sel, rest_clear = near_skin[e.side]
             if len(sel):
                 ds = e.surface_distance(P[sel], p)

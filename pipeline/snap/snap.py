@@ -69,6 +69,8 @@ class SnapSettings(Settings):
     corner_max_share: float = setting(CORNER_MAX_SHARE, gt=0, le=0.5)  # of each lid's arc, at most, per corner run
     close_corners: bool = True                            # strip of faces from an off-globe corner into the eye (caruncle medially)
     strip_depth_mm: float = setting(0.8, gt=0, le=5)      # its inner edge this far inside the sphere: under the eye's 0.5 mm clear shell
+    caruncle_mound_mm: float = setting(1.0, ge=0, le=3)   # the medial strip bulges this far toward the opening at the canthus: a mound, not a flap
+    caruncle_rows: int = setting(3, ge=0, le=8)           # vertices between the loop and the inner edge of each medial segment (0: a flat strip)
 
 
 @dataclass
@@ -554,18 +556,22 @@ def lateral_position(mesh: dict, side: str, P, eye: EyeballSurface) -> int:
 
 def _close_all_corners(mesh: dict, loops: dict, runs: dict, placed: dict, st: SnapSettings) -> dict:
     """Both eyes' corner strips (:func:`pipeline.geometry.corners.close_corners`) appended to the
-    mesh: ``corner_strip_<side>`` (k, 2) [inner vertex, loop vertex] and ``caruncle_faces`` (the
+    mesh: ``corner_strip_<side>`` (k, 2) [strip vertex, the loop vertex it hangs from] and ``caruncle_faces`` (the
     medial strips' faces, for the caruncle material) are added (empty when every corner rests on
-    the eye); texture coordinates, vertex colours and polygons follow the new faces."""
+    the eye); texture coordinates, vertex colours and polygons follow the new faces. With a
+    caruncle, ``caruncle_weight`` (n,) float64 gives each vertex its share of the caruncle's
+    colour (0 off the strips; :func:`close_corners`)."""
     out = dict(mesh)
-    caruncle = []
+    caruncle, weight = [], np.zeros(len(mesh["V"]))
     for s in SIDES:
         out[f"corner_strip_{s}"] = np.zeros((0, 2), np.int64)
         if not st.close_corners or runs[s].on_eye.all():
             continue
         nV, nF = len(out["V"]), len(out["F"])
         res = close_corners(out["V"], out["F"], loops[s], runs[s], placed[s].center, placed[s].radius,
-                            st.strip_depth_mm, out.get("UV"), out.get("FUV"))
+                            st.strip_depth_mm, out.get("UV"), out.get("FUV"), forward=placed[s].forward,
+                            mound_mm=st.caruncle_mound_mm, mound_rows=st.caruncle_rows,
+                            signed_distance=placed[s].signed_distance)
         new_faces = res["F"][nF:]
         out["V"], out["F"] = res["V"], res["F"]
         if "UV" in res:
@@ -577,5 +583,8 @@ def _close_all_corners(mesh: dict, loops: dict, runs: dict, placed: dict, st: Sn
             out["poly_indices"] = np.concatenate([out["poly_indices"], new_faces.ravel()])
         out[f"corner_strip_{s}"] = res["strip"]
         caruncle.append(res["medial_faces"])
+        weight = np.concatenate([weight, res["caruncle_weight"]])
     out["caruncle_faces"] = np.concatenate(caruncle) if caruncle else np.zeros(0, np.int64)
+    if len(out["caruncle_faces"]):
+        out["caruncle_weight"] = weight
     return out
