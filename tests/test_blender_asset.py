@@ -102,3 +102,62 @@ def test_rotating_the_bone_turns_the_eye(imported):
                 assert ang < 1e-3                                   # the other eye stays
     # the skin does not follow the eye bones
     assert np.abs(rest["EyeRegion.world"] - posed["EyeRegion.world"]).max() < 1e-9
+
+
+_CARUNCLE_SCRIPT = r"""
+import json, sys
+import bpy
+from pipeline.blender.materials import CARUNCLE_WEIGHT_ATTRIBUTE, eye_region_materials
+from pipeline.blender.scene import find_image, import_usd
+
+objs = import_usd(sys.argv[1], unit_conversion=True)
+skin = next(o for o in objs if o.name == "EyeRegion")
+a = skin.data.attributes.get(CARUNCLE_WEIGHT_ATTRIBUTE)
+mats = eye_region_materials(skin, find_image([skin], "Skin", "color"), None, Roughness=0.45)
+out = {"domain": a.domain, "type": a.data_type, "values": [d.value for d in a.data], "materials": {}}
+for m in mats:
+    nt = m["nt"]
+    b = next(n for n in nt.nodes if n.type == "BSDF_PRINCIPLED")
+    def src(sock):
+        return [(l.from_node.type, getattr(l.from_node, "attribute_name", ""), l.from_socket.name)
+                for l in sock.links]
+    mixes = [n for n in nt.nodes if n.type == "MIX"]
+    out["materials"][m["mat"].name.split(".")[0]] = {
+        "base": src(b.inputs["Base Color"]), "roughness": src(b.inputs["Roughness"]),
+        "factors": [src(n.inputs["Factor"]) for n in mixes],
+        "rough_ab": [[n.inputs[2].default_value, n.inputs[3].default_value] for n in mixes
+                     if n.data_type == "FLOAT"]}
+print("RESULT" + json.dumps(out))
+"""
+
+
+def test_the_caruncle_grows_out_of_the_lids_by_its_weight(tmp_path):
+    """Blender imports the asset's ``primvars:caruncleWeight`` as a point attribute with the
+    same values, and the caruncle material mixes the skin's colour map (weight 0, the lid margin)
+    into the reddened one (weight 1) and the skin's roughness into the caruncle's by it; the
+    skin material never reads it."""
+    import subprocess
+    import sys
+
+    from pipeline.geometry.corners import CARUNCLE_ROUGHNESS
+    from pipeline.io.meshfile import load_mesh, save_mesh
+
+    inp = make_inputs(tmp_path)
+    path = inp["dirs"]["snap"] / "mesh.npz"
+    mesh = dict(load_mesh(path))
+    w = np.round(np.linspace(0.0, 1.0, len(mesh["V"])), 3)
+    save_mesh(path, **dict(mesh, caruncle_faces=np.arange(4, dtype=np.int64), caruncle_weight=w))
+    assert run_stage(usd_stage.main, usd_argv(inp)) == 0
+    r = subprocess.run([sys.executable, "-c", _CARUNCLE_SCRIPT, str(inp["out"] / "tiny.usda")], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    import json
+
+    res = json.loads(next(ln for ln in r.stdout.splitlines() if ln.startswith("RESULT"))[6:])
+    assert (res["domain"], res["type"]) == ("POINT", "FLOAT")
+    np.testing.assert_allclose(res["values"], w, atol=1e-6)
+    car, skin = res["materials"]["Caruncle"], res["materials"]["Skin"]
+    assert car["base"] == [["MIX", "", "Result"]] and car["roughness"] == [["MIX", "", "Result"]]
+    assert all(f == [["ATTRIBUTE", "caruncleWeight", "Factor"]] for f in car["factors"][-2:]), car
+    np.testing.assert_allclose(car["rough_ab"], [[0.45, CARUNCLE_ROUGHNESS]], atol=1e-6)
+    assert not any("caruncleWeight" in str(f) for f in skin["factors"])

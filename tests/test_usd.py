@@ -324,3 +324,31 @@ def test_the_band_ids_are_in_the_asset_metadata(tmp_path):
     assert band_record(shuffled, len(mesh["V"])) is None
     assert band_record({"left": mesh["band_left"], "right": mesh["band_right"]}, 40) is None   # ids past V
     assert band_record(None, 100) is None
+
+
+def test_the_caruncle_weight_is_a_primvar_of_the_eye_region(tmp_path, capsys):
+    """snap's ``caruncle_weight`` (each vertex's share of the caruncle's colour) becomes the
+    EyeRegion's ``primvars:caruncleWeight`` (vertex), with the caruncle subset; a weight outside
+    [0, 1] or of the wrong length is refused naming the mesh."""
+    from pxr import Usd, UsdGeom
+
+    from pipeline.io.meshfile import load_mesh, save_mesh
+
+    inp = make_inputs(tmp_path)
+    path = inp["dirs"]["snap"] / "mesh.npz"
+    mesh = dict(load_mesh(path))
+    n = len(mesh["V"])
+    w = np.linspace(0.0, 1.0, n)
+    save_mesh(path, **dict(mesh, caruncle_faces=np.arange(3, dtype=np.int64), caruncle_weight=w))
+    assert run_stage(usd_stage.main, usd_argv(inp)) == 0
+    stage = Usd.Stage.Open(str(inp["out"] / "tiny.usda"))
+    region = stage.GetDefaultPrim().GetChild("EyeRegion")
+    pv = UsdGeom.PrimvarsAPI(region).GetPrimvar("caruncleWeight")
+    assert pv and pv.GetInterpolation() == UsdGeom.Tokens.vertex
+    np.testing.assert_allclose(np.asarray(pv.Get()), w, atol=1e-7)
+    assert UsdGeom.Subset.GetAllGeomSubsets(UsdGeom.Imageable(region))
+    shutil.rmtree(inp["out"])
+    for bad in (np.full(n, 1.5), np.zeros(n - 1)):
+        save_mesh(path, **dict(mesh, caruncle_faces=np.arange(3, dtype=np.int64), caruncle_weight=bad))
+        err = _fail(inp, capsys)
+        assert "mesh.npz" in err and "caruncle_weight must hold one weight in [0, 1] per vertex" in err

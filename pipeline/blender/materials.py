@@ -221,20 +221,51 @@ def skin_material(mat, color_image, disp_image, displacement_method=None, subsur
     return {"mat": mat, "nt": nt, "disp": d, "out": out}
 
 
-def caruncle_material(mat, subsurface_method=None, color_image=None, **bsdf_inputs) -> dict:
+#: The EyeRegion's vertex attribute (USD ``primvars:caruncleWeight``) with each vertex's share of
+#: the caruncle's colour and gloss; a mesh without it gets the caruncle's colour on all its faces.
+CARUNCLE_WEIGHT_ATTRIBUTE = "caruncleWeight"
+
+
+def caruncle_material(mat, subsurface_method=None, color_image=None, weight_attribute=None,
+                      **bsdf_inputs) -> dict:
     """Caruncle: moist tissue in the medial corner, glossier than the skin, with the skin's
     subsurface scattering (``bsdf_inputs``, e.g. the render worker's ``SKIN_BSDF``), no
     displacement. Its colour is the skin's colour map (UV map ``st``) times
     ``pipeline.geometry.corners.CARUNCLE_TINT``, so it keeps the subject's tone and never
-    outshines the skin; without a map the asset's pink (``CARUNCLE_DIFFUSE``). Returns the dict
-    of :func:`skin_material`."""
+    outshines the skin; without a map the asset's pink (``CARUNCLE_DIFFUSE``). With
+    ``weight_attribute`` (the mesh's :data:`CARUNCLE_WEIGHT_ATTRIBUTE`) the colour and the
+    roughness are the skin's where the weight is 0 (the lid margin) and the caruncle's where it
+    is 1 (the mound), so the tissue grows out of the lids instead of ending in a painted edge.
+    Returns the dict of :func:`skin_material`."""
     from pipeline.geometry.corners import CARUNCLE_DIFFUSE, CARUNCLE_ROUGHNESS, CARUNCLE_TINT
 
     nt, out = new_tree(mat)
     b = principled(nt, **{**bsdf_inputs, "Base Color": (*CARUNCLE_DIFFUSE, 1.0),
                           "Roughness": CARUNCLE_ROUGHNESS})
+    colour = None
     if color_image is not None:
-        _tinted_map(nt, color_image, CARUNCLE_TINT, b.inputs["Base Color"])
+        tex, mul = _tinted_map(nt, color_image, CARUNCLE_TINT, b.inputs["Base Color"])
+        colour = mul
+    if weight_attribute is not None:
+        attr = nt.nodes.new("ShaderNodeAttribute")
+        attr.attribute_type = "GEOMETRY"
+        attr.attribute_name = weight_attribute
+        mix = nt.nodes.new("ShaderNodeMix")
+        mix.data_type = "RGBA"
+        nt.links.new(attr.outputs["Fac"], mix.inputs["Factor"])
+        if colour is not None:
+            nt.links.new(tex.outputs["Color"], mix.inputs[6])          # A: the skin's map
+            nt.links.new(mul.outputs[2], mix.inputs[7])                # B: reddened
+        else:
+            mix.inputs[6].default_value = SKIN_TONE
+            mix.inputs[7].default_value = (*CARUNCLE_DIFFUSE, 1.0)
+        nt.links.new(mix.outputs[2], b.inputs["Base Color"])
+        rough = nt.nodes.new("ShaderNodeMix")
+        rough.data_type = "FLOAT"
+        nt.links.new(attr.outputs["Fac"], rough.inputs["Factor"])
+        rough.inputs[2].default_value = float(bsdf_inputs.get("Roughness", 0.5))   # A: skin
+        rough.inputs[3].default_value = CARUNCLE_ROUGHNESS                          # B
+        nt.links.new(rough.outputs[0], b.inputs["Roughness"])
     if subsurface_method is not None:
         try:
             b.subsurface_method = subsurface_method
@@ -254,11 +285,14 @@ def eye_region_materials(skin_obj, color_image, disp_image, displacement_method=
     """Set up every material slot of the EyeRegion mesh: the caruncle subset's with
     :func:`caruncle_material`, the others with :func:`skin_material`; returns their dicts."""
     out = []
+    weight = (CARUNCLE_WEIGHT_ATTRIBUTE if skin_obj.data.attributes.get(CARUNCLE_WEIGHT_ATTRIBUTE) is not None
+              else None)
     for slot in skin_obj.material_slots:
         if slot.material is None:
             continue
         if is_caruncle(slot.material):
-            out.append(caruncle_material(slot.material, subsurface_method, color_image, **bsdf_inputs))
+            out.append(caruncle_material(slot.material, subsurface_method, color_image, weight,
+                                         **bsdf_inputs))
         else:
             out.append(skin_material(slot.material, color_image, disp_image, displacement_method,
                                      subsurface_method, **bsdf_inputs))

@@ -25,7 +25,11 @@ head frame, metersPerUnit 0.001, upAxis Y, +Z out of the face)::
         Materials/Caruncle        UsdPreviewSurface, the skin map reddened (or pink): bound to the EyeRegion's GeomSubset
                                   "caruncle" (the strip closing the medial corner where the lids
                                   stand off the eye, pipeline/geometry/corners.py); absent when
-                                  every corner rests on the eye
+                                  every corner rests on the eye; the EyeRegion's
+                                  primvars:caruncleWeight (vertex, 0-1) says how much of the
+                                  caruncle's colour each vertex takes (0 at the lid margin): the
+                                  renderer blends skin into caruncle by it (a preview surface
+                                  cannot, so USD viewers show the subset's flat colour)
 
 Eyes and joints: UsdSkel does not move child prims of joints, so each eye's meshes are
 skinned rigidly (constant ``jointIndices``/``jointWeights``) to their eye joint. The joint's
@@ -215,7 +219,7 @@ def _place_eye(prim, model, radius: float, eyeball_ref: str) -> None:
 def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves: dict, eyes: dict,
                      eyeball_ref: str, color_tex: str | None = "./textures/color.png",
                      disp_tex: str | None = "./textures/displacement.exr",
-                     metadata: dict | None = None, caruncle_faces=None) -> Path:
+                     metadata: dict | None = None, caruncle_faces=None, caruncle_weight=None) -> Path:
     """Write the per-scan asset's root layer to ``path`` (textures and the eyeball must exist).
 
     Parameters
@@ -230,6 +234,8 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     eyeball_ref : str        asset path of eyeball.usda relative to this layer (``./eyeball/eyeball.usda``)
     metadata : dict          stored as customData["eyerig"] on the default prim
     caruncle_faces : (k,) int, optional  faces of F given the caruncle material (none: no subset)
+    caruncle_weight : (n,) float, optional  each vertex's share of the caruncle's colour, written
+                             as the EyeRegion's ``primvars:caruncleWeight`` (vertex)
 
     Returns
     -------
@@ -294,6 +300,10 @@ def write_scan_asset(path, *, name: str, V, F, UV, FUV, shapes, landmark_curves:
     su.bind_material(mesh.GetPrim(), skin)
     if caruncle_faces is not None and len(caruncle_faces):
         _caruncle_subset(stage, rp + "/Materials/Caruncle", mesh, caruncle_faces, len(F), skin, color_tex)
+        if caruncle_weight is not None:
+            pv = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("caruncleWeight", Sdf.ValueTypeNames.FloatArray,
+                                                          UsdGeom.Tokens.vertex)
+            pv.Set(Vt.FloatArray.FromNumpy(np.asarray(caruncle_weight, np.float32)))
 
     # eyes: placed at their radius, rigid skinning to their joints
     model = _eyeball_model(probe, eyeball_ref)

@@ -59,6 +59,9 @@ class UsdInputs:
         ``rigged_assets/eyeball/eyeball.usda``, copied into the asset, which references the copy.
     caruncle : (c,) int64
         Faces of ``F`` that take the caruncle material (snap's corner strips; may be empty).
+    caruncle_weight : (n,) float64 or None
+        Each vertex's share of the caruncle's colour (snap's ``caruncle_weight``; None without
+        a caruncle): the asset's ``primvars:caruncleWeight``.
     band : dict side -> (R + 1, S) int64, optional
         The grid of rings and spokes round each opening (retopo's ``band_<side>``), when the
         mesh has one.
@@ -78,6 +81,7 @@ class UsdInputs:
     eyeball: Path
     caruncle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     band: dict | None = None
+    caruncle_weight: np.ndarray | None = None
 
 
 def band_record(band: dict | None, n_vertices: int) -> dict | None:
@@ -121,13 +125,18 @@ def read_inputs(snap: Path, bake: Path, rig: Path, ingest: Path, eyeball: Path) 
     if caruncle.ndim != 1 or caruncle.dtype.kind not in "iu" or \
             (caruncle.size and (caruncle.min() < 0 or caruncle.max() >= len(F))):
         raise ScanError(mesh_path, "caruncle_faces must be face indices of F")
+    cw = mesh.extra.get("caruncle_weight")
+    if cw is not None:
+        cw = np.asarray(cw, np.float64)
+        if cw.shape != (len(V),) or not np.all((cw >= 0) & (cw <= 1)):
+            raise ScanError(mesh_path, "caruncle_weight must hold one weight in [0, 1] per vertex")
     r = read_rig(rig, n_vertices=len(V), against=str(mesh_path))
     maps = read_bake(bake)
     scan = read_scan_record(ingest)
     return UsdInputs(V=V, F=F, UV=mesh.UV, FUV=mesh.FUV, shapes=r.npz.shapes, curves=r.npz.curves,
                      max_pitch_deg=r.max_pitch_deg, eyes=r.eyes, scan=scan, color=maps.color,
                      displacement=maps.displacement, eyeball=_need(eyeball / "eyeball.usda"),
-                     caruncle=caruncle.astype(np.int64),
+                     caruncle=caruncle.astype(np.int64), caruncle_weight=cw,
                      band=({"left": mesh.band_left, "right": mesh.band_right}
                            if mesh.band_left is not None and mesh.band_right is not None else None))
 
@@ -167,7 +176,7 @@ def build(inp: UsdInputs, out_dir: Path, name: str, all_params: dict, package: b
         usda = write_scan_asset(out_dir / f"{name}.usda", name=name, V=inp.V, F=inp.F, UV=inp.UV,
                                 FUV=inp.FUV, shapes=inp.shapes, landmark_curves=inp.curves,
                                 eyes=inp.eyes, eyeball_ref=ref, metadata=meta,
-                                caruncle_faces=inp.caruncle)
+                                caruncle_faces=inp.caruncle, caruncle_weight=inp.caruncle_weight)
     except ValueError as exc:
         raise ScanError(inp.eyeball, str(exc)) from None
     t_write = time.perf_counter() - t0
