@@ -93,6 +93,8 @@ BENCHMARKS = (
     # the home asset, and every asset the unseen run above left
     Benchmark("bench_see_through", args=(f"synthetic_head={SYNTH_ASSET.parent}:{SYNTH_BUILD / 'rig'}",
                                          "--unseen", str(UNSEEN_WORK)), needs=("synthetic_asset",)),
+    # the corner strips and the caruncle of every head the unseen run left, snapped again
+    Benchmark("bench_corners", args=("--work", str(UNSEEN_WORK)), needs=("unseen_work",)),
     # the README's figures come from the three home scans and six procedural heads (its command)
     Benchmark("bench_margin_smoothness", args=(str(SYNTH_BUILD), "--out", str(
         ROOT / "benchmarks" / "out" / "margin_smoothness_synthetic_head.json")),

@@ -301,3 +301,21 @@ def test_the_mound_keeps_clear_of_the_cornea():
     assert cn._keep_clear(flat, outward, sd, 0.3) == 1.0
     assert cn._keep_clear(np.array([0.0, 0.0, R - 0.5]), inward, sd, 0.3) < 1e-3
     assert cn._keep_clear(flat, inward, None, 0.3) == 1.0
+
+
+def test_the_corner_benchmark_sees_the_cornea_turn_under_a_strip(snapped):
+    """``measure_head`` (tests/fixtures/corners.py, bench_corners') on the lifted region: it counts the strip's vertices and
+    the caruncle's mound rows, finds no point of the strip inside the cornea's bulge at rest
+    (the medial corners lie 4 mm off the globe, far from the limbus) and finds the cornea in the
+    strip with the eye turned 35 deg toward the nose (a strip fixed to the lids: known gap)."""
+    from fixtures.corners import measure_head
+
+    mesh, eyes, frames, out, metrics = snapped
+    doc = {e.side: Eye(e.side, e.center, R, e.forward) for e in frames}
+    m = measure_head(out, doc)
+    strips = [out[f"corner_strip_{e.side}"] for e in frames]
+    assert m["strip_vertices"] == sum(len(S) for S in strips) > 0
+    assert m["mound_vertices"] == sum(len(S) - len(np.unique(S[:, 1])) for S in strips) > 0
+    assert m["caruncle_faces"] == len(out["caruncle_faces"])
+    assert m["cornea_at_rest_mm"] == 0.0
+    assert m["cornea_at_yaw_mm"] > 0.05
