@@ -319,3 +319,33 @@ def test_the_corner_benchmark_sees_the_cornea_turn_under_a_strip(snapped):
     assert m["caruncle_faces"] == len(out["caruncle_faces"])
     assert m["cornea_at_rest_mm"] == 0.0
     assert m["cornea_at_yaw_mm"] > 0.05
+
+
+def test_a_corner_run_ends_where_the_loop_passes_over_the_cornea():
+    """Known answers of ``corner_weights(over_cornea=)`` on the lifted region's loop, every vertex
+    standing off: a lid over the cornea rests on it, so a run stops at the first loop vertex over
+    the cornea (its weight 1) when the run keeps at least ``MIN_STOPPED_RUN_MM`` from its canthus;
+    one the cornea would cut shorter runs on as without it (snapping a lid that near its canthus
+    folds it); a canthus over the cornea keeps its whole run."""
+    _, _, frames = lifted_region()
+    e = frames[0]
+    V = two_eye_region(R)[0]
+    P = V[e.loop]
+    off = np.full(len(P), 5.0)
+    li = e.lateral_index
+    free = cn.corner_weights(P, off, li)
+    up = np.arange(0, li + 1)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P[up], axis=0), axis=1))])
+    k = int(np.searchsorted(s, cn.MIN_STOPPED_RUN_MM + 0.5))    # a vertex past the 2 mm
+    assert free.weight[k] < 1.0                                  # inside the free run
+    over = np.zeros(len(P), bool)
+    over[k] = True
+    cut = cn.corner_weights(P, off, li, over_cornea=over)
+    assert cut.weight[k] == 1.0 and cut.weight[k - 1] < 1.0 and k not in cut.medial
+    assert np.all(cut.weight[up[k:len(up) // 2]] == 1.0)      # to mid-lid (the lateral run is its own)
+    near = np.zeros(len(P), bool)
+    near[1] = True                                               # under 2 mm from the canthus
+    assert np.array_equal(cn.corner_weights(P, off, li, over_cornea=near).weight, free.weight)
+    canthus = np.zeros(len(P), bool)
+    canthus[[0, k]] = True                                       # the canthus itself over it
+    assert np.array_equal(cn.corner_weights(P, off, li, over_cornea=canthus).weight, free.weight)

@@ -31,6 +31,12 @@ MARGIN_OFF_GLOBE_MM = 2.1
 #: A corner run covers at most this share of each lid's arc (the caruncle takes the medial
 #: 0.16 of the fissure's width, (15.2 - 10.8) / 27.8 mm, so this leaves room for a coarse loop).
 CORNER_MAX_SHARE = 0.35
+#: A corner run that the cornea cuts short (``corner_weights``' ``over_cornea``) keeps at least
+#: this arc from its canthus, else it runs on as if no cornea were there.
+MIN_STOPPED_RUN_MM = 2.0
+#: A loop point is over the cornea where the globe under it lies this far inside the eye's outer
+#: surface (the cornea's bulge; the sclera's seam blend stays under it).
+OVER_CORNEA_MM = 0.05
 
 
 #: How far along the lids from the medial canthus the caruncle reaches (the fissure's end to the
@@ -82,7 +88,7 @@ def _arc(P):
 
 
 def corner_weights(P, off, lateral_index: int, off_globe_mm: float = MARGIN_OFF_GLOBE_MM,
-                   max_share: float = CORNER_MAX_SHARE) -> CornerRuns:
+                   max_share: float = CORNER_MAX_SHARE, over_cornea=None) -> CornerRuns:
     """Snap weights of a loop whose corners may stand off the eye (module doc).
 
     Parameters
@@ -97,6 +103,12 @@ def corner_weights(P, off, lateral_index: int, off_globe_mm: float = MARGIN_OFF_
         A lid stands at most this far off the globe; farther, from a canthus on, is a corner.
     max_share : float
         Largest share of a lid's arc length a corner run may cover.
+    over_cornea : (L,) bool, optional
+        Loop points over the cornea (their ray from the eye centre passes under its bulge): a lid
+        there rests on the cornea, so a run ends before the first of them, unless that leaves it
+        under ``MIN_STOPPED_RUN_MM`` of arc (snapping a lid so near its canthus folds it) or the
+        canthus itself is over the cornea; then the run is as without them. Otherwise the strip
+        closing the corner would run through the cornea into the anterior chamber.
 
     Returns
     -------
@@ -111,7 +123,10 @@ def corner_weights(P, off, lateral_index: int, off_globe_mm: float = MARGIN_OFF_
     lower = np.concatenate([np.arange(li, L), [0]])      # lateral -> medial
     w = np.ones(L)
     runs = {}
+    over = np.zeros(L, bool) if over_cornea is None else np.asarray(over_cornea, bool)
     for name, k in (("medial", 0), ("lateral", li)):
+        # a canthus over the cornea keeps its whole run: snapping it would fold the corner
+        stop = over if not over[k] else np.zeros(L, bool)
         if off[k] <= off_globe_mm:
             runs[name] = np.zeros(0, np.int64)
             continue
@@ -121,8 +136,14 @@ def corner_weights(P, off, lateral_index: int, off_globe_mm: float = MARGIN_OFF_
             s = _arc(P[seq])
             cap = max_share * s[-1]
             end = 1
-            while end < len(seq) - 1 and off[seq[end]] > off_globe_mm and s[end] < cap:
+            while end < len(seq) - 1 and off[seq[end]] > off_globe_mm and s[end] < cap \
+                    and not stop[seq[end]]:
                 end += 1
+            if end < len(seq) - 1 and stop[seq[end]] and s[end] < MIN_STOPPED_RUN_MM:
+                # cut short by the cornea: a lid snapped so near its canthus would fold there
+                end = 1
+                while end < len(seq) - 1 and off[seq[end]] > off_globe_mm and s[end] < cap:
+                    end += 1
             # the lid meets the eye at seq[end]: the weight rises over the arc up to it
             span = max(s[end], 1e-9)
             for j in range(1, end):

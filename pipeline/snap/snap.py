@@ -34,7 +34,7 @@ import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
 from pipeline.geometry import meshtopo
-from pipeline.geometry.corners import (CORNER_MAX_SHARE, MARGIN_OFF_GLOBE_MM, CornerRuns, close_corners,
+from pipeline.geometry.corners import (CORNER_MAX_SHARE, MARGIN_OFF_GLOBE_MM, OVER_CORNEA_MM, CornerRuns, close_corners,
                                        corner_weights)
 from pipeline.geometry.flips import untangle
 from pipeline.results import StageResult
@@ -396,8 +396,13 @@ def _snap_side(V_in, V0, F, loop, eye: EyeballSurface, st: SnapSettings, G, late
         x = (V_in[loop] - eye.center) @ eye_basis(eye.forward)[0]
         lateral_index = int(np.argmax(np.abs(x - x[0])))
     off = eye.signed_distance(V_in[loop])
+    # a loop vertex over the cornea (its ray from the centre passes under the cornea's bulge) is
+    # a lid resting on the cornea, never a corner: a strip there would run through the cornea
+    d = (V_in[loop] - eye.center) / np.linalg.norm(V_in[loop] - eye.center, axis=1)[:, None]
+    over = eye.signed_distance(eye.center + eye.radius * d) < -OVER_CORNEA_MM
     if 0 < lateral_index < len(loop):
-        runs = corner_weights(V_in[loop], off, lateral_index, st.corner_off_globe_mm, st.corner_max_share)
+        runs = corner_weights(V_in[loop], off, lateral_index, st.corner_off_globe_mm, st.corner_max_share,
+                              over_cornea=over)
     else:                            # a loop without two canthi (not ordered from one): no corners
         runs = CornerRuns(np.ones(len(loop)), np.zeros(0, np.int64), np.zeros(0, np.int64))
     Vs, info = snap_loop(V_in, F, loop, eye, st, graph=G,
