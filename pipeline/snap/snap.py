@@ -403,10 +403,18 @@ def _snap_side(V_in, V0, F, loop, eye: EyeballSurface, st: SnapSettings, G, late
     if 0 < lateral_index < len(loop):
         runs = corner_weights(V_in[loop], off, lateral_index, st.corner_off_globe_mm, st.corner_max_share,
                               over_cornea=over)
+        free = corner_weights(V_in[loop], off, lateral_index, st.corner_off_globe_mm, st.corner_max_share)
     else:                            # a loop without two canthi (not ordered from one): no corners
-        runs = CornerRuns(np.ones(len(loop)), np.zeros(0, np.int64), np.zeros(0, np.int64))
+        runs = free = CornerRuns(np.ones(len(loop)), np.zeros(0, np.int64), np.zeros(0, np.int64))
     Vs, info = snap_loop(V_in, F, loop, eye, st, graph=G,
                          weight=None if runs.on_eye.all() else runs.weight)
+    if not np.array_equal(runs.weight, free.weight) and flipped_faces(V_in, Vs, F):
+        # the lid put onto the cornea turned faces over: the corner runs as without the cornea,
+        # when that turns fewer
+        Vf, info_f = snap_loop(V_in, F, loop, eye, st, graph=G,
+                               weight=None if free.on_eye.all() else free.weight)
+        if flipped_faces(V_in, Vf, F) < flipped_faces(V_in, Vs, F):
+            Vs, info, runs = Vf, info_f, free
     moved = info["moved"]
     far = info["falloff_distance"] > info["falloff_radius"]
     moved_far = int((np.linalg.norm(Vs - V_in, axis=1)[far] > 0).sum())
