@@ -9,7 +9,8 @@ into ``--scratch``, and per head it reports:
 
 * ``caruncle_faces``, ``strip_vertices`` and ``mound_vertices`` (the caruncle's rows between the
   lid margin and the strip's inner edge, :func:`pipeline.geometry.corners.close_corners`);
-* whether the rig took it, its sweep's flipped faces and ``strip_max_mm`` (the inner edge's
+* the faces the snap left turned over (``snap_flipped_faces``), whether the rig took it, its
+  sweep's flipped faces and ``strip_max_mm`` (the inner edge's
   largest distance outside the eye over the pitch sweep: negative, it stays inside);
 * ``cornea_at_rest_mm``: the deepest point of a strip inside the eye's outer surface where that
   surface is the cornea's bulge (outside the sphere), at rest: each segment from a loop vertex to
@@ -46,6 +47,7 @@ def run_head(work: Path, case: str, scratch: Path) -> dict:
     if rc != 0:
         return {"case": case, "set": work.name, "snap_ok": False}
     res = {"case": case, "set": work.name, "snap_ok": True,
+           "snap_flipped_faces": json.loads((o / "snap.json").read_text()).get("flipped_faces"),
            **measure_head(dict(load_mesh(o / "snap" / "mesh.npz")), read_eyes(o / "snap" / "eyes.json"))}
     rc = run_stage(rig_stage.main, [str(o / "snap"), str(o / "rig"), "--eyeball", str(eyeball),
                                     "--params", str(params), "--metrics", str(o / "rig.json")])
@@ -64,6 +66,7 @@ def summary(rows: list[dict]) -> dict:
     return {"heads": len(rows), "snapped": len(ok), "rigged": sum(bool(r.get("rig_ok")) for r in ok),
             "with_strips": len(strips), "with_caruncle": sum(r["caruncle_faces"] > 0 for r in ok),
             "mound_vertices": sum(r["mound_vertices"] for r in ok),
+            "flipped_in_snap": sum((r.get("snap_flipped_faces") or 0) > 0 for r in ok),
             "flipped_in_sweep": sum((r.get("sweep_flipped_faces") or 0) > 0 for r in ok),
             "strip_edge_max_mm": max(edge) if edge else None,
             "cornea_at_rest": sum(r["cornea_at_rest_mm"] > TOUCH_MM for r in strips),
