@@ -242,10 +242,9 @@ def caruncle_material(mat, subsurface_method=None, color_image=None, weight_attr
     nt, out = new_tree(mat)
     b = principled(nt, **{**bsdf_inputs, "Base Color": (*CARUNCLE_DIFFUSE, 1.0),
                           "Roughness": CARUNCLE_ROUGHNESS})
-    colour = None
+    tex = mul = None
     if color_image is not None:
         tex, mul = _tinted_map(nt, color_image, CARUNCLE_TINT, b.inputs["Base Color"])
-        colour = mul
     if weight_attribute is not None:
         attr = nt.nodes.new("ShaderNodeAttribute")
         attr.attribute_type = "GEOMETRY"
@@ -253,7 +252,7 @@ def caruncle_material(mat, subsurface_method=None, color_image=None, weight_attr
         mix = nt.nodes.new("ShaderNodeMix")
         mix.data_type = "RGBA"
         nt.links.new(attr.outputs["Fac"], mix.inputs["Factor"])
-        if colour is not None:
+        if mul is not None:
             nt.links.new(tex.outputs["Color"], mix.inputs[6])          # A: the skin's map
             nt.links.new(mul.outputs[2], mix.inputs[7])                # B: reddened
         else:

@@ -266,8 +266,8 @@ def close_corners(V, F, loop, runs: CornerRuns, center, radius: float, depth_mm:
     dict
         ``V``, ``F`` (strip faces appended), ``UV``, ``FUV`` (when given), ``strip`` ((k, 2)
         int64: a strip vertex, the loop vertex it hangs from, in the order the vertices were
-        added: each segment's mound vertices from the loop inward, then its inner vertex, which
-        alone lies inside the sphere), ``caruncle_weight`` ((k,) float64, each strip vertex's
+        added: each segment's mound vertices from the loop inward, then its inner vertex ``q``,
+        ``depth_mm`` inside the sphere), ``caruncle_weight`` ((k,) float64, each strip vertex's
         share of the caruncle's colour: 0 at the lid margin, rising to 1 ``CARUNCLE_RIM_SHARE`` of
         the way to the eye, times :func:`caruncle_fade` along the lids; 0 on lateral strips),
         ``medial_faces`` (the medial strip's faces within
