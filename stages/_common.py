@@ -68,8 +68,9 @@ def read_params_file(path="params.yaml") -> dict:
 def load_params(stage: str, path="params.yaml") -> dict:
     """The ``stage:`` block of the params file ``path``.
 
-    No file at ``path`` means no params file: every setting its default (``{}``), as in a test's
-    ``--params none.yaml``. A file that is there must have the block (an empty ``stage:`` takes
+    No file at ``path`` means no params file: every setting its default (``{}``); a stage's
+    ``--params`` names an existing file or is refused (:func:`checked_params_path`), so only the
+    default ``params.yaml`` may be absent. A file that is there must have the block (an empty ``stage:`` takes
     the defaults): its absence is a one-line ScanError naming the file and the block, as DVC and
     ``check_params`` refuse it, never a silent run on defaults."""
     data = read_params_file(path)
@@ -114,7 +115,20 @@ class StageArgumentParser(argparse.ArgumentParser):
         value = getattr(ns, self.scan_arg) if self.scan_arg else None
         if value is not None:
             check_scan_name(scan_folder_name(value), source=os.fspath(value), key=None)
+        if hasattr(ns, "params"):
+            ns.params = checked_params_path(ns.params)
         return ns
+
+
+def checked_params_path(given) -> str:
+    """The params file a stage reads: ``params.yaml`` when ``--params`` was left out (no such
+    file there: every setting its default), else ``given``, which must be a file. A mistyped
+    ``--params`` is a one-line ScanError, never a silent run on the defaults."""
+    if given is None:
+        return "params.yaml"
+    if not Path(given).is_file():
+        raise ScanError(given, "no such params file (leave --params out to read ./params.yaml)")
+    return os.fspath(given)
 
 
 def peak_memory_mib() -> float:
@@ -254,7 +268,8 @@ def stage_parser(description: str, scan_arg: str | None = None) -> argparse.Argu
     parser.scan_arg = scan_arg
     parser.add_argument("--metrics", default=None,
                         help="where to write metrics JSON (default: OUT_DIR.metrics.json)")
-    parser.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    parser.add_argument("--params", default=None,
+                        help="params file (default: params.yaml, every default where there is none)")
     return parser
 
 

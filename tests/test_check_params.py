@@ -16,7 +16,7 @@ from pipeline.settings import check_scan_name
 from stages import check_params as cp
 from stages._common import run_stage
 
-from fixtures import params_file
+from fixtures import defaults_params, params_file
 
 ROOT = Path(__file__).resolve().parents[1]
 EVIL = "scan$(touch${IFS}PWNED)"
@@ -127,7 +127,7 @@ def test_stages_take_ordinary_parent_paths(tmp_path, capsys, stage):
     n_pos = {"ingest": 2, "remove_eyeballs": 2, "retopo": 2, "bake": 3, "snap": 4, "rig": 2, "usd": 6,
              "render": 3}[stage]
     argv = [str(base / "scan" / f"in{k}") for k in range(n_pos)]
-    assert run_stage(mod.main, argv + ["--params", str(tmp_path / "none.yaml")]) == 2
+    assert run_stage(mod.main, argv + ["--params", str(defaults_params(tmp_path))]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"error: {base}") and "safe" not in err and err.count("\n") == 1, err
 
@@ -248,23 +248,30 @@ def test_stage_refuses_an_existing_params_file_without_its_block(tmp_path, capsy
 
 
 @pytest.mark.parametrize("stage", ["ingest", "remove_eyeballs", "bake", "snap", "rig", "usd", "render"])
-def test_a_params_path_that_is_not_there_means_the_defaults(tmp_path, capsys, stage):
-    """``--params PATH`` with nothing at PATH: no params file, every block its defaults (the
-    stage goes on to its missing inputs); an empty block (``render:``) is the defaults too."""
+def test_a_params_path_that_is_not_there_is_refused(tmp_path, capsys, stage):
+    """``--params PATH`` with nothing at PATH (a typo, a relative path from another folder): exit 2,
+    one line naming PATH, nothing written; never a silent run on the defaults. Without
+    ``--params`` a stage reads ./params.yaml, and where there is none every block is its defaults,
+    as is a block left empty (``render:``)."""
     import importlib
 
     from pipeline.params_check import BLOCKS, settings_class
     from stages._common import load_params, load_settings
 
     none = tmp_path / "none.yaml"
+    mod = importlib.import_module(f"stages.{stage}")
+    work = tmp_path / "work"
+    assert run_stage(mod.main, _stage_argv(work, stage) + ["--params", str(none)]) == 2
+    assert capsys.readouterr().err == (f"error: {none}: no such params file "
+                                       "(leave --params out to read ./params.yaml)\n")
+    assert list(tmp_path.iterdir()) == []
     for block in BLOCKS:
         cls = settings_class(block)
         assert load_params(block, none) == {} and load_settings(cls, none) == cls.from_params({})
     empty = params_file(tmp_path, {"render": None})
     assert load_params("render", empty) == {}
-    mod = importlib.import_module(f"stages.{stage}")
-    work = tmp_path / "work"
-    assert run_stage(mod.main, _stage_argv(work, stage) + ["--params", str(none)]) == 2
+    defaults = defaults_params(tmp_path)
+    assert run_stage(mod.main, _stage_argv(work, stage) + ["--params", str(defaults)]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"error: {work}") and err.count("\n") == 1, err
 

@@ -20,7 +20,7 @@ from pipeline.placement.prior import EyeRegionPrior
 from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 
-from fixtures import params_file
+from fixtures import defaults_params, params_file
 from fixtures.eye_heads import make_head
 
 
@@ -226,7 +226,7 @@ def test_a_closed_textured_scan_is_refused_as_closed(extra_scan, tmp_path, capsy
 
     folder = extra_scan("james")
     ing = tmp_path / "ingest"
-    assert run_stage(ingest_main, [str(folder), str(ing), "--params", "none.yaml"]) == 0
+    assert run_stage(ingest_main, [str(folder), str(ing), "--params", str(defaults_params(tmp_path))]) == 0
     m = load_mesh(ing / "mesh.npz")
     V, F, UV, FUV = m["V"], m["F"], m["UV"], m["FUV"]
     hints = {s: np.asarray(e["hint"], float) for s, e in json.loads((ing / "scan.json").read_text())["eyes"].items()}
@@ -244,7 +244,7 @@ def test_a_closed_textured_scan_is_refused_as_closed(extra_scan, tmp_path, capsy
             draw.polygon([(float(u), float(h - 1 - v)) for u, v in UV[FUV[f]] * [w - 1, h - 1]], fill=skin)
     img.save(ing / "texture.png")
     capsys.readouterr()
-    assert run_stage(main, [str(ing), str(tmp_path / "out"), "--params", "none.yaml"]) == 2
+    assert run_stage(main, [str(ing), str(tmp_path / "out"), "--params", str(defaults_params(tmp_path))]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {folder}: "), err
     assert says_closed(err[0]) and "eye looks closed" in err[0], err[0]
@@ -268,7 +268,7 @@ def test_stage_writes_outputs(tmp_path):
 
     ing = _ingested_head(tmp_path)
     out = tmp_path / "remove_eyeballs"
-    metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", "none.yaml"]).metrics
+    metrics = main([str(ing), str(out), "--metrics", str(tmp_path / "m.json"), "--params", str(defaults_params(tmp_path))]).metrics
     assert metrics["boundary_loops_out"] == 3
     eyes = {s: e.to_doc() for s, e in read_eyes(out / "eyes.json").items()}
     m = load_mesh(out / "mesh.npz")
@@ -293,7 +293,7 @@ def test_stage_names_the_scan_folder_when_the_eyes_are_closed(tmp_path, capsys):
         {"name": "sleepy", "folder": "raw_scans/sleepy",
          "eyes": {s: {"hint": h.tolist()} for s, h in hints.items()}}))
     capsys.readouterr()
-    assert run_stage(main, [str(ing), str(tmp_path / "out"), "--params", "none.yaml"]) == 2
+    assert run_stage(main, [str(ing), str(tmp_path / "out"), "--params", str(defaults_params(tmp_path))]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: raw_scans/sleepy: ") and "closed" in err[0]
     assert not (tmp_path / "out").exists()
@@ -324,7 +324,7 @@ def test_stage_refuses_a_missing_prior_in_one_line(tmp_path, capsys):
     ing = _ingested_head(tmp_path)
     capsys.readouterr()
     missing = tmp_path / "nowhere" / "eye_region_prior.npz"
-    assert run_stage(main, [str(ing), str(tmp_path / "out"), "--prior", str(missing), "--params", "none.yaml"]) == 2
+    assert run_stage(main, [str(ing), str(tmp_path / "out"), "--prior", str(missing), "--params", str(defaults_params(tmp_path))]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {missing}: "), err
     assert not (tmp_path / "out").exists()
@@ -597,7 +597,7 @@ def test_stage_warns_of_each_doubt_and_still_publishes(extra_scan, tmp_path, cap
 
     folder = extra_scan("james")
     params = params_file(tmp_path, {"remove_eyeballs": {"texture_fissure_min_share": 0.95}})
-    assert run_stage(ingest.main, [str(folder), str(tmp_path / "ingest"), "--params", "none.yaml"]) == 0
+    assert run_stage(ingest.main, [str(folder), str(tmp_path / "ingest"), "--params", str(defaults_params(tmp_path))]) == 0
     capsys.readouterr()
     assert run_stage(main, [str(tmp_path / "ingest"), str(tmp_path / "out"), "--params", str(params)]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines()

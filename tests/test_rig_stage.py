@@ -10,6 +10,7 @@ import re
 import numpy as np
 import pytest
 
+from fixtures import defaults_params
 from fixtures.rig import PITCHES_1DEG, two_eye_region
 from pipeline.io.eyes_file import Eye, read_eyes, write_eyes
 from pipeline.io.meshfile import save_mesh
@@ -45,7 +46,7 @@ def test_stage_writes_rig_that_reopens(tmp_path, region):
     _write_snap(snap, V, F, eyes)
     metrics = tmp_path / "rig.metrics.json"
     assert run_stage(rig_stage.main, [str(snap), str(out), "--metrics", str(metrics),
-                                      "--params", str(tmp_path / "none.yaml")]) == 0
+                                      "--params", str(defaults_params(tmp_path))]) == 0
     m = read_stage_metrics(metrics)
     assert m["sweep_max_gap_mm"] <= 0.1 and m["sweep_max_penetration_mm"] <= 0.1
     assert m["sweep_flipped_faces"] == 0 and m["sweep_min_opening_mm"] > 0
@@ -136,7 +137,7 @@ def test_stage_bad_inputs_exit_2_with_one_line(tmp_path, capsys, case, message):
         V2[3] = np.nan
         _write_snap(snap, V2, F, eyes)
     rc = run_stage(rig_stage.main, [str(snap), str(tmp_path / "rig"), "--params",
-                                    str(tmp_path / "none.yaml")])
+                                    str(defaults_params(tmp_path))])
     err = capsys.readouterr().err
     assert rc == 2
     assert message in err and err.count("\n") == 1 and "Traceback" not in err
@@ -292,7 +293,7 @@ def test_a_lid_spiking_into_the_opening_is_measured_and_named(tmp_path, region, 
     snap, out = tmp_path / "snap", tmp_path / "rig"
     _write_snap(snap, V, F, eyes)
     metrics = tmp_path / "rig.metrics.json"
-    args = [str(snap), str(out), "--metrics", str(metrics), "--params", str(tmp_path / "none.yaml")]
+    args = [str(snap), str(out), "--metrics", str(metrics), "--params", str(defaults_params(tmp_path))]
     assert run_stage(rig_stage.main, args) == 0
     assert "warning" not in capsys.readouterr().err
     m = read_stage_metrics(metrics)

@@ -12,6 +12,8 @@ from pipeline.io.eyes_file import read_eyes, write_eyes
 from pipeline.io.meshfile import load_mesh, save_mesh
 from pipeline.snap import snap as sn
 
+from fixtures import defaults_params
+
 CENTER = np.array([31.0, 2.0, 70.0])
 R = 12.5
 
@@ -160,7 +162,7 @@ def test_stage(tmp_path):
     bake, rem, eb = _write_inputs(tmp_path)
     out = tmp_path / "snap"
     m = main([str(bake), str(rem), str(eb), str(out), "--metrics", str(tmp_path / "m.json"),
-              "--params", "none.yaml"]).metrics
+              "--params", str(defaults_params(tmp_path))]).metrics
     assert m["gap_max_mm"] <= 0.05 and m["inside_max_mm"] <= 0.05
     assert m["flipped_faces"] == 0 and m["edge_manifold"]
     mesh = load_mesh(out / "mesh.npz")
