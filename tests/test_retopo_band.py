@@ -462,3 +462,23 @@ def test_band_warnings_name_each_eye_whose_band_is_turned_at_rest():
     (line,) = band_warnings({"left": folded, "right": clean, "ids": {"rings": 6}})
     assert line.startswith("left eye's band: 179 triangles turned against the scan at rest")
     assert "4 ring and spoke cells, rings 0, 1, 3" in line and "smallest angle 0.3 deg" in line
+
+
+def test_only_a_point_on_the_band_region_is_inside_its_outer_ring():
+    """Known answer for the cut's "inside the outer ring" (seen in the region's parameter plane):
+    a point on the region inside the ring is in, one on it outside the ring is out, and a point
+    far off the region is out even where its closest point maps inside the ring (the opposite
+    crop border of `filled_n1002_down`, 81 mm off, was taken for the right band's inside and its
+    cut was no annulus)."""
+    from pipeline.retopo.eye_band import _inside_ring
+
+    n = 41
+    x, y = np.meshgrid(np.linspace(-10, 10, n), np.linspace(-10, 10, n))
+    V = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)])
+    i = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
+    F = np.concatenate([np.column_stack([i, i + 1, i + n + 1]), np.column_stack([i, i + n + 1, i + n])])
+    X = V[:, :2].copy()                     # the plane is its own parameter plane
+    t = np.linspace(0, 2 * np.pi, 32, endpoint=False)
+    ring = np.column_stack([6 * np.cos(t), 6 * np.sin(t), np.zeros_like(t)])
+    P = np.array([[1.0, 2.0, 0.1], [8.0, 0.0, 0.0], [0.5, 0.5, 50.0], [2.0, -1.0, -30.0]])
+    assert _inside_ring(P, ring, V, F, X).tolist() == [True, False, False, False]

@@ -955,11 +955,18 @@ def add_eye_bands(V, F, loops, ref_V, ref_F, rings, width, param_mm, relax_itera
 
 def _inside_ring(V, ring, ref_V, Fr, X):
     """(n,) bool: the points ``V`` inside the closed ring ``ring`` (k, 3), both seen in the
-    parameter plane of :func:`build_band`'s region ``Fr`` (faces of ``ref_V``) mapped to ``X``."""
+    parameter plane of :func:`build_band`'s region ``Fr`` (faces of ``ref_V``) mapped to ``X``.
+
+    Only a point on the region can be inside: one farther from it than the ring's mean edge is
+    outside whatever its closest point maps to (the far side of the head can land inside the
+    ring's image: ``filled_n1002_down``'s right band took 24 vertices of the opposite crop
+    border, up to 81 mm off the region, and its cut was no annulus)."""
     def to_uv(P):
-        _, fi, C = mc.closest_points(P, ref_V, Fr)
-        return np.einsum("ij,ijk->ik", _barycentric(C, ref_V[Fr[fi]]), X[Fr[fi]])
-    return _inside_polygon(to_uv(V), to_uv(ring))
+        d, fi, C = mc.closest_points(P, ref_V, Fr)
+        return np.einsum("ij,ijk->ik", _barycentric(C, ref_V[Fr[fi]]), X[Fr[fi]]), d
+    uv, dist = to_uv(V)
+    edge = float(np.mean(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1)))
+    return _inside_polygon(uv, to_uv(ring)[0]) & (dist <= edge)
 
 
 def _band_quads(grids, rings, S, ref_V, ref_F, scan):
