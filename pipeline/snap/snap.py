@@ -408,12 +408,13 @@ def _snap_side(V_in, V0, F, loop, eye: EyeballSurface, st: SnapSettings, G, late
         runs = free = CornerRuns(np.ones(len(loop)), np.zeros(0, np.int64), np.zeros(0, np.int64))
     Vs, info = snap_loop(V_in, F, loop, eye, st, graph=G,
                          weight=None if runs.on_eye.all() else runs.weight)
-    if not np.array_equal(runs.weight, free.weight) and flipped_faces(V_in, Vs, F):
+    turned = flipped_faces(V_in, Vs, F) if not np.array_equal(runs.weight, free.weight) else 0
+    if turned:
         # the lid put onto the cornea turned faces over: the corner runs as without the cornea,
         # when that turns fewer
         Vf, info_f = snap_loop(V_in, F, loop, eye, st, graph=G,
                                weight=None if free.on_eye.all() else free.weight)
-        if flipped_faces(V_in, Vf, F) < flipped_faces(V_in, Vs, F):
+        if flipped_faces(V_in, Vf, F) < turned:
             Vs, info, runs = Vf, info_f, free
     moved = info["moved"]
     far = info["falloff_distance"] > info["falloff_radius"]
