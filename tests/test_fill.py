@@ -136,6 +136,63 @@ def test_the_distance_outside_the_priors_margin():
     assert _outside_margin([0.0, 0.0, 0.0], {"margin": None}) is None and _outside_margin([0, 0, 0], None) is None
 
 
+def _grid(half=20.0, step=0.5, z=lambda x, y: 0.0 * x):
+    n = int(round(2 * half / step)) + 1
+    x, y = np.meshgrid(np.linspace(-half, half, n), np.linspace(-half, half, n))
+    V = np.column_stack([x.ravel(), y.ravel(), z(x.ravel(), y.ravel())])
+    i = np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]
+    i = i.ravel()
+    F = np.concatenate([np.column_stack([i, i + 1, i + n + 1]), np.column_stack([i, i + n + 1, i + n])])
+    return V, F
+
+
+def test_the_priors_opening_keeps_the_eye_standing_proud_of_the_lids():
+    """Inside the prior's lid margin (a 20 x 10 mm rectangle, axis +z), a dome standing 6 mm proud
+    that reaches the upper margin (a wide eye's cornea beside its raised lid) belongs to the
+    opening: one simple loop round the whole rectangle, dome included. Skin more than
+    ``COARSE_DEPTH_MM`` behind the margin stays out, however it lies."""
+    from pipeline.geometry import meshtopo
+    from pipeline.placement.eye_fit import EyeMesh
+    from pipeline.placement.place import COARSE_DEPTH_MM, prior_opening
+
+    def z(x, y):
+        dome = 6.0 * np.clip(1.0 - (x ** 2 + (y - 3.0) ** 2) / 16.0, 0.0, None)
+        pit = -(COARSE_DEPTH_MM + 2.0) * ((x > 6.0) & (x < 9.0) & (y > -4.0) & (y < -2.0))
+        return dome + pit
+    V, F = _grid(z=z)
+    mesh = EyeMesh(V, F)
+    M = np.array([[-10.0, -5.0, 0.0], [10.0, -5.0, 0.0], [10.0, 5.0, 0.0], [-10.0, 5.0, 0.0]])
+    front = {"margin": M, "axis": np.array([0.0, 0.0, 1.0])}
+    region = prior_opening(mesh, front, np.array([0.0, 0.0, 0.0]), 25.0)
+    c = mesh.centroids
+    in_rect = (np.abs(c[:, 0]) < 10.0) & (np.abs(c[:, 1]) < 5.0)
+    proud = in_rect & (c[:, 2] > 4.5)
+    assert proud.sum() > 50 and region[proud].all()
+    assert not region[~in_rect].any()
+    assert len(meshtopo.boundary_loops(F[region])) == 1
+    # the pit is deeper than the margin allows and touches nothing else: an island, filled
+    # (all but two corner triangles of the rectangle, spikes the region's cleaning drops)
+    pit = in_rect & (c[:, 2] < -COARSE_DEPTH_MM)
+    assert pit.sum() >= 16 and region[pit].all() and (in_rect & ~region).sum() <= 2
+    assert prior_opening(mesh, {"margin": None, "axis": front["axis"]}, np.zeros(3), 25.0) is None
+
+
+@pytest.mark.parametrize("spans, flagged", [
+    ({"left": (22.9, True), "right": (13.3, False)}, {"right": "left"}),       # n1004's right
+    ({"left": (13.3, False), "right": (17.0, True)}, {}),                     # a narrow scan, both eyes
+    ({"left": (12.0, False), "right": (13.0, False)}, {}),
+    ({"left": (30.0, True), "right": (20.0, True)}, {}),                      # both wide: no doubt here
+])
+def test_a_narrow_loop_beside_a_far_wider_one_is_a_cut_round_part_of_an_eye(spans, flagged):
+    """``narrow_beside_wide``: a loop that fails ``opening_wide`` beside the other eye's that
+    spans ``PAIR_OPENING_RATIO`` (1.4) times as much is cut again; a narrow pair is a narrow scan."""
+    from pipeline.placement.place import PAIR_OPENING_RATIO, narrow_beside_wide
+
+    assert PAIR_OPENING_RATIO == 1.4
+    checks = {s: {"value": v, "ok": ok} for s, (v, ok) in spans.items()}
+    assert {s: o for s in spans if (o := narrow_beside_wide(checks, s))} == flagged
+
+
 def _narrow_once(monkeypatch, width_mm: float, calls: dict):
     """The stage's first judging raises ``NarrowOpening`` for the right eye (a loop ``width_mm``
     wide); later ones judge as the stage does. Counts the calls in ``calls["judge"]``."""

@@ -54,14 +54,33 @@ class CoarseEye(ScanError):
 
 
 class NarrowOpening(ScanError):
-    """The cut round the eye the geometry found spans less than any eye's fissure and no iris
-    shows in it (``opening_wide``): it went round part of an eye. ``side``: which eye,
-    ``width_mm``: the loop's span; the stage places it again behind the opening the eye-region
-    prior outlines (``place_pair``'s ``coarse``)."""
+    """The cut round the eye the geometry found spans less than any eye's fissure
+    (``opening_wide``) and no iris shows in it, or the other eye's opening spans
+    ``PAIR_OPENING_RATIO`` times as much: it went round part of an eye. ``side``: which eye,
+    ``width_mm``: the loop's span, ``why``: which of the two; the stage places it again behind
+    the opening the eye-region prior outlines (``place_pair``'s ``coarse``)."""
 
-    def __init__(self, path, problem, side, width_mm):
+    def __init__(self, path, problem, side, width_mm, why="with no iris in it"):
         super().__init__(path, problem)
-        self.side, self.width_mm = side, float(width_mm)
+        self.side, self.width_mm, self.why = side, float(width_mm), why
+
+
+# A person's two palpebral fissures are about one width (their difference is a millimetre or two
+# of 27 mm), so a loop narrower than any fissure beside one this many times as wide is a cut round
+# part of its eye even with an iris in it (n1004_photogrammetry_wide's right: 13.3 mm beside
+# 22.9 mm, 74 mm2 of its scanned eye left as skin in front of the eye, canthi 5 and 14 mm off)
+PAIR_OPENING_RATIO = 1.4
+
+
+def narrow_beside_wide(opening_wide: dict, side: str) -> str | None:
+    """The other side when ``side``'s loop fails ``opening_wide`` and the other's spans
+    ``PAIR_OPENING_RATIO`` times as much, else None. ``opening_wide``: side -> that check's
+    ``{"value", "ok"}``."""
+    other = SIDES[1 - SIDES.index(side)]
+    mine, theirs = opening_wide[side], opening_wide[other]
+    if not mine["ok"] and theirs["value"] >= PAIR_OPENING_RATIO * mine["value"]:
+        return other
+    return None
 
 
 def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSettings, front=None):
@@ -73,18 +92,9 @@ def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSet
     axis, within ``COARSE_DEPTH_MM`` of the margin's mean), the part nearest the hint. ``err``
     again when there is no such opening."""
     region, by = err.region, "it was found in"
-    plane = _margin_plane(front) if region is None else None
-    if plane is not None:
-        o, a, B, poly = plane
-        d = mesh.centroids - o
-        near = patch_faces(mesh, hint, st.patch_radius_mm + 5.0)
-        inside = points_in_polygon(d @ B[:2].T, poly) & (np.abs(d @ a) < COARSE_DEPTH_MM) & near
-        if inside.any():
-            seed = np.zeros(len(inside), bool)
-            seed[np.flatnonzero(inside)[np.argmin(np.linalg.norm(mesh.centroids[inside] - hint, axis=1))]] = True
-            # islands the depth band left out (a cornea standing proud) are filled: any part of
-            # the patch the opening rings round goes with it, as in _fit_from_placement
-            region, by = clean_region(mesh, inside, seed, near), "the eye-region prior outlines"
+    if region is None:
+        region = prior_opening(mesh, front, hint, st.patch_radius_mm + 5.0)
+        by = "the eye-region prior outlines"
     if region is None or not region.any():
         raise err
     try:
@@ -96,6 +106,34 @@ def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSet
     fit = fit_behind_loop(mesh, loops[0], region, side, st.radius_prior_mm, None, "coarse")
     fit.why = f"{err.problem.split(': ', 1)[1]}: placed behind the opening {by}"
     return fit
+
+
+def prior_opening(mesh: EyeMesh, front, hint, patch_mm: float):
+    """(m,) bool: the opening the eye-region prior outlines round ``hint``: the faces of the
+    patch (``patch_mm`` round the hint) inside the prior's lid margin (``front``: its
+    registration here) seen along its axis, and no more than ``COARSE_DEPTH_MM`` behind the
+    margin's mean, the part nearest the hint made one simple opening; None without a
+    registration or with no face there.
+
+    Nothing in front of the margin is left out: inside the lids, what stands proud of them is the
+    eye (a wide eye's cornea, or a coarse scan's eye bulging through its opening). Bounded in
+    front as well (4 mm), the cornea and the raised upper lid beside it went out together as one
+    notch from the upper lid to the middle of the opening (``n1004_photogrammetry_wide``'s right
+    eye: its loop filled 78 % of its hull, the band folded in the sweep and the rig refused it)."""
+    plane = _margin_plane(front)
+    if plane is None:
+        return None
+    o, a, B, poly = plane
+    d = mesh.centroids - o
+    near = patch_faces(mesh, hint, patch_mm)
+    inside = points_in_polygon(d @ B[:2].T, poly) & (d @ a > -COARSE_DEPTH_MM) & near
+    if not inside.any():
+        return None
+    seed = np.zeros(len(inside), bool)
+    seed[np.flatnonzero(inside)[np.argmin(np.linalg.norm(mesh.centroids[inside] - hint, axis=1))]] = True
+    # islands left out (deeper than the margin allows) are filled: any part of the patch the
+    # opening rings round goes with it, as in _fit_from_placement
+    return clean_region(mesh, inside, seed, near)
 
 
 def _margin_plane(front):
@@ -127,8 +165,8 @@ def _outside_margin(point, front) -> float | None:
 #: eyes the truth's lay at most 1.0 mm outside and every placed one within 1.0 mm.
 PRIOR_MARGIN_SLACK_MM = 3.0
 
-#: How far in front of or behind the prior's lid margin a coarse eye's opening reaches (mm): the
-#: cornea stands 2-3 mm proud of the margin, the skin beyond the canthi falls back 5 mm and more.
+#: How far behind the prior's lid margin a coarse eye's opening reaches (mm): the skin beyond
+#: the canthi falls back 5 mm and more (in front of the margin, inside the lids, is the eye).
 COARSE_DEPTH_MM = 4.0
 
 
@@ -580,6 +618,15 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                                         f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
                                         f"and no iris shows in it (the eye would be placed from this opening)", s,
                                         checks[s]["opening_wide"]["value"])
+        o = narrow_beside_wide({k: checks[k]["opening_wide"] for k in SIDES}, s)
+        if o is not None:
+            # an iris in a loop beside a fissure this much wider: the iris the cut holds is part
+            # of an eye whose rest stays on the lids as skin (n1004_photogrammetry_wide)
+            span, other = checks[s]["opening_wide"]["value"], checks[o]["opening_wide"]["value"]
+            raise NarrowOpening(source, f"{s} eye: self-check opening_wide: "
+                                        f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
+                                        f"and the {o} eye's opening spans {other:.1f} mm", s, span,
+                                why=f"beside the {o} eye's {other:.1f} mm")
     eyes = {}
     for s in SIDES:
         fit, (loop, lat), a, rec = fits[s], loops[s], asset[s], records[s]

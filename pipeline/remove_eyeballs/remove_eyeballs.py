@@ -385,7 +385,7 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
             # upper lid lowered over it: id303_down's left eye): that eye is placed again behind
             # the opening the eye-region prior outlines in the skin round it, doubted
             coarse[exc.side] = (f"the cut round the eye the geometry found spans {exc.width_mm:.1f} mm "
-                                f"with no iris in it")
+                                f"{exc.why}")
             first = first or exc
         except ScanError as exc:
             if first is None:
