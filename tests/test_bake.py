@@ -124,6 +124,21 @@ def test_atlas_unwrap_falls_back_to_xatlas_where_no_chart_opens():
     assert atlas_unwrap(Vp, Fp, rings, BakeSettings(resolution=256, unwrap="xatlas"))[2] == "xatlas"
 
 
+def test_a_conformal_map_libigl_cannot_solve_falls_back_to_xatlas(monkeypatch):
+    """libigl's solver failing on a chart (a face of zero area made ``igl::lscm failed`` on a
+    fresh5 head, `n1108_blink_60k`, and the bake stopped with a traceback) is an UnwrapError:
+    the atlas falls back to xatlas and says why."""
+    import igl
+
+    def singular(*a, **k):
+        raise RuntimeError("igl::lscm failed")
+
+    monkeypatch.setattr(igl, "lscm", singular)
+    Vp, Fp, rings = _plate_with_two_holes()
+    UV, FUV, method = atlas_unwrap(Vp, Fp, rings, BakeSettings(resolution=256))
+    assert method == "xatlas (the conformal map failed (igl::lscm failed))" and FUV.shape == Fp.shape
+
+
 def test_a_boundary_that_crosses_itself_is_refused():
     """Two boundary edges crossing (a chart folded over itself) raise; touching at a vertex does not."""
     UV = np.array([[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0], [4.0, 0.0]])

@@ -406,3 +406,24 @@ def test_untangle_leaves_the_band_zone_alone():
     assert not np.isin(F[after], idx[9, 15]).any()           # untangled beyond the zone
     assert (V2[near] == Vb[near]).all() and not np.isin(moved, np.flatnonzero(near)).any()
     assert np.isin(F[after], idx[9, 5]).any()                 # left for the band
+
+
+def test_a_result_with_two_corners_on_one_point_is_refused_naming_where():
+    """Known answer: a face whose corners coincide (zero area) is refused in one line naming the
+    band ring and spokes it lies on (`n1108_blink_60k`: four outer-ring nodes on one point, the
+    bake's conformal map failed with a traceback); a clean grid passes."""
+    from pipeline.retopo.retopo import check_no_coincident_corners
+
+    n = 6
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
+    V = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)])
+    i = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
+    F = np.concatenate([np.column_stack([i, i + 1, i + n + 1]), np.column_stack([i, i + n + 1, i + n])])
+    band = {"left": np.arange(n * n).reshape(n, n)}        # rows as rings, columns as spokes
+    check_no_coincident_corners(V, F, band)
+    V[15] = V[14]                                           # ring 2: spokes 2 and 3 on one point
+    with pytest.raises(ValueError, match=r"^2 faces of the result have two corners on one point "
+                                         r"\(the left eye's band, ring 2 spokes 2-3\)"):
+        check_no_coincident_corners(V, F, band)
+    with pytest.raises(ValueError, match=r"near \(2\.0, 2\.0, 0\.0\) mm"):
+        check_no_coincident_corners(V, F, {})

@@ -73,7 +73,10 @@ def _chart_lscm(V, F):
     P = V[b]
     i = int(np.argmax(np.linalg.norm(P - P[0], axis=1)))
     j = int(np.argmax(np.linalg.norm(P - P[i], axis=1)))
-    UV, _ = igl.lscm(V, F, np.array([b[i], b[j]]), np.array([[0.0, 0.0], [1.0, 0.0]]))
+    try:
+        UV, _ = igl.lscm(V, F, np.array([b[i], b[j]]), np.array([[0.0, 0.0], [1.0, 0.0]]))
+    except RuntimeError as exc:      # a singular system (a face of zero area): the atlas instead
+        raise UnwrapError(f"the conformal map failed ({exc})") from None
     UV = np.asarray(UV, dtype=np.float64)
     e1, e2 = UV[F[:, 1]] - UV[F[:, 0]], UV[F[:, 2]] - UV[F[:, 0]]
     a2 = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])

@@ -712,6 +712,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         poly_indices = np.concatenate([poly_indices, ring_quads.ravel()])
         Fn = np.concatenate([Fn, ring_quads[:, [0, 1, 2]], ring_quads[:, [0, 2, 3]]])
     timings["band_s" if s.band == "grid" else "eye_rings_s"] = time.perf_counter() - t4
+    check_no_coincident_corners(Vn, Fn, band_ids)
     timings["total_s"] = time.perf_counter() - t0
 
     metrics = retopo_metrics(Vn, Fn, loops, Vc, Fc, curves, s.metric_samples)
@@ -740,6 +741,38 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     result = StageResult(metrics, {"timings_s": {k: round(v, 4) for k, v in timings.items()},
                                    "time_s": round(timings["total_s"], 4)})
     return RetopoResult(Vn, Fn, loops, lateral, poly_counts, poly_indices, Vc, Fc, result, band_ids)
+
+
+#: Corners of one face nearer than this are one point (mm): on the unseen heads the shortest
+#: edge of a good remesh is 0.1-0.5 mm.
+COINCIDENT_MM = 1e-6
+
+
+def check_no_coincident_corners(V, F, band_ids: dict) -> None:
+    """ValueError naming where a face of the result has two corners on one point (zero area):
+    no later stage can map, bake or rig it (the bake's conformal map is singular).
+    ``band_ids``: side -> (rings + 1, spokes) ids of the grid band, to say where in it.
+    ``n1108_blink_60k`` (a blink the placement took for open) left four nodes of the right
+    band's outer ring on one point and the bake failed with a traceback."""
+    F2 = np.roll(F, -1, axis=1)
+    short = np.linalg.norm(V[F] - V[F2], axis=2) < COINCIDENT_MM
+    bad = np.flatnonzero(short.any(axis=1))
+    if len(bad) == 0:
+        return
+    verts = np.unique(np.concatenate([F[short], F2[short]]))    # the corners on one point
+    where = []
+    for side, ids in band_ids.items():
+        ids = np.asarray(ids)
+        k, i = np.nonzero(np.isin(ids, verts))
+        if len(k):
+            where.append(f"the {side} eye's band, ring{'s' if len(set(k)) > 1 else ''} "
+                         f"{'-'.join(map(str, sorted({int(min(k)), int(max(k))})))} spokes "
+                         f"{'-'.join(map(str, sorted({int(min(i)), int(max(i))})))}")
+    if not where:
+        c = V[verts].mean(axis=0)
+        where.append(f"near ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f}) mm")
+    raise ValueError(f"{len(bad)} faces of the result have two corners on one point ({'; '.join(where)}): "
+                     f"the grid collapsed there (a lid folded over the eye, or a closed eye taken for open)")
 
 
 def retopo_metrics(V, F, loops, Vc, Fc, curves, n_samples=50000) -> dict:
