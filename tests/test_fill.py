@@ -193,6 +193,18 @@ def test_a_narrow_loop_beside_a_far_wider_one_is_a_cut_round_part_of_an_eye(span
     assert {s: o for s in spans if (o := narrow_beside_wide(checks, s))} == flagged
 
 
+@pytest.mark.parametrize("fill, ok, source, cut", [
+    (0.80, False, "opening", True),       # n1101_photogrammetry_left's left eye
+    (0.80, False, "geometry", False),     # the iris placed in it: a doubt only
+    (0.80, False, "coarse", False),       # already behind an opening
+    (0.90, True, "opening", False),
+])
+def test_a_notched_loop_round_an_eye_that_fell_back_to_it_is_a_cut_round_part_of_an_eye(fill, ok, source, cut):
+    from pipeline.placement.place import notched_without_iris
+
+    assert notched_without_iris({"value": fill, "ok": ok}, source) is cut
+
+
 def _narrow_once(monkeypatch, width_mm: float, calls: dict):
     """The stage's first judging raises ``NarrowOpening`` for the right eye (a loop ``width_mm``
     wide); later ones judge as the stage does. Counts the calls in ``calls["judge"]``."""

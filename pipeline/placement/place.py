@@ -54,11 +54,12 @@ class CoarseEye(ScanError):
 
 
 class NarrowOpening(ScanError):
-    """The cut round the eye the geometry found spans less than any eye's fissure
-    (``opening_wide``) and no iris shows in it, or the other eye's opening spans
-    ``PAIR_OPENING_RATIO`` times as much: it went round part of an eye. ``side``: which eye,
-    ``width_mm``: the loop's span, ``why``: which of the two; the stage places it again behind
-    the opening the eye-region prior outlines (``place_pair``'s ``coarse``)."""
+    """The cut round the eye the geometry found went round part of an eye: it spans less than
+    any eye's fissure (``opening_wide``) and no iris shows in it, or the other eye's opening
+    spans ``PAIR_OPENING_RATIO`` times as much, or it is notched (``opening_convex``) with the
+    iris outside it. ``side``: which eye, ``width_mm``: the loop's span, ``why``: which; the
+    stage places it again behind the opening the eye-region prior outlines (``place_pair``'s
+    ``coarse``)."""
 
     def __init__(self, path, problem, side, width_mm, why="with no iris in it"):
         super().__init__(path, problem)
@@ -70,6 +71,15 @@ class NarrowOpening(ScanError):
 # part of its eye even with an iris in it (n1004_photogrammetry_wide's right: 13.3 mm beside
 # 22.9 mm, 74 mm2 of its scanned eye left as skin in front of the eye, canthi 5 and 14 mm off)
 PAIR_OPENING_RATIO = 1.4
+
+
+def notched_without_iris(opening_convex: dict, limbus_source: str) -> bool:
+    """Whether a cut went round part of an eye by its shape: its loop fails ``opening_convex``
+    (``{"value", "ok"}``) and the eye fell back to the opening (``limbus_source`` ``opening``:
+    the iris the geometry placed lay outside the lids). An eye placed from its geometry keeps a
+    notched loop as a doubt; one already placed behind an opening (``coarse``, ``fill``) has no
+    iris to have missed."""
+    return not opening_convex["ok"] and limbus_source == "opening"
 
 
 def narrow_beside_wide(opening_wide: dict, side: str) -> str | None:
@@ -618,6 +628,15 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                                         f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
                                         f"and no iris shows in it (the eye would be placed from this opening)", s,
                                         checks[s]["opening_wide"]["value"])
+        if notched_without_iris(checks[s]["opening_convex"], asset[s]["limbus"]["source"]):
+            # a notched loop whose iris lay outside it (the eye fell back to this opening): the
+            # cut went round part of an eye and left the rest on a lid as skin (n1101: 199 mm2)
+            fill = checks[s]["opening_convex"]["value"]
+            raise NarrowOpening(source, f"{s} eye: self-check opening_convex: "
+                                        f"{eye_checks.describe('opening_convex', checks[s]['opening_convex'])}, "
+                                        f"and the iris lay outside it (the eye would be placed from this "
+                                        f"opening)", s, checks[s]["opening_wide"]["value"],
+                                why=f"and fills {100 * fill:.0f} % of its hull with the iris outside it")
         o = narrow_beside_wide({k: checks[k]["opening_wide"] for k in SIDES}, s)
         if o is not None:
             # an iris in a loop beside a fissure this much wider: the iris the cut holds is part
