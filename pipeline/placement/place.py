@@ -98,9 +98,8 @@ def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSet
     (:func:`pipeline.placement.fill.fit_behind_loop`), as behind a scanner's flat fill. The
     opening is the eye surface the search labelled (``err.region``: too few vertices to place
     the eye from its shape) or, where that lay outside the lids (``err.region`` None), the faces
-    inside the eye-region prior's lid margin (``front``: its registration here, seen along its
-    axis, within ``COARSE_DEPTH_MM`` of the margin's mean), the part nearest the hint. ``err``
-    again when there is no such opening."""
+    inside the eye-region prior's lid margin (:func:`prior_opening`). ``err`` again when there
+    is no such opening."""
     region, by = err.region, "it was found in"
     if region is None:
         region = prior_opening(mesh, front, hint, st.patch_radius_mm + 5.0)
@@ -628,9 +627,11 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                                         f"{eye_checks.describe('opening_wide', checks[s]['opening_wide'])}, "
                                         f"and no iris shows in it (the eye would be placed from this opening)", s,
                                         checks[s]["opening_wide"]["value"])
-        if notched_without_iris(checks[s]["opening_convex"], asset[s]["limbus"]["source"]):
+        if fits[s].method == "geometry" and notched_without_iris(checks[s]["opening_convex"],
+                                                                asset[s]["limbus"]["source"]):
             # a notched loop whose iris lay outside it (the eye fell back to this opening): the
-            # cut went round part of an eye and left the rest on a lid as skin (n1101: 199 mm2)
+            # cut went round part of an eye and left the rest on a lid as skin (n1101: 199 mm2).
+            # Only the geometry's cut: one already behind the prior's opening would be refused
             fill = checks[s]["opening_convex"]["value"]
             raise NarrowOpening(source, f"{s} eye: self-check opening_convex: "
                                         f"{eye_checks.describe('opening_convex', checks[s]['opening_convex'])}, "
