@@ -135,15 +135,10 @@ def corner_weights(P, off, lateral_index: int, off_globe_mm: float = MARGIN_OFF_
             seq = lid if lid[0] == k else lid[::-1]      # from this canthus along the lid
             s = _arc(P[seq])
             cap = max_share * s[-1]
-            end = 1
-            while end < len(seq) - 1 and off[seq[end]] > off_globe_mm and s[end] < cap \
-                    and not stop[seq[end]]:
-                end += 1
+            end = _run_end(seq, s, off, off_globe_mm, cap, stop)
             if end < len(seq) - 1 and stop[seq[end]] and s[end] < MIN_STOPPED_RUN_MM:
                 # cut short by the cornea: a lid snapped so near its canthus would fold there
-                end = 1
-                while end < len(seq) - 1 and off[seq[end]] > off_globe_mm and s[end] < cap:
-                    end += 1
+                end = _run_end(seq, s, off, off_globe_mm, cap, None)
             # the lid meets the eye at seq[end]: the weight rises over the arc up to it
             span = max(s[end], 1e-9)
             for j in range(1, end):
@@ -153,6 +148,17 @@ def corner_weights(P, off, lateral_index: int, off_globe_mm: float = MARGIN_OFF_
         runs[name] = np.array(sorted(set(members), key=lambda j: (j - k) % L if name == "medial"
                                      else j), np.int64)
     return CornerRuns(weight=w, medial=runs["medial"], lateral=runs["lateral"])
+
+
+def _run_end(seq, s, off, off_globe_mm, cap, stop):
+    """Where a corner run along ``seq`` (from its canthus) ends: the first point after the canthus
+    within ``off_globe_mm`` of the eye, at ``cap`` of arc ``s``, at the lid's far end or, with a
+    ``stop`` mask, on the first stopped point."""
+    end = 1
+    while end < len(seq) - 1 and off[seq[end]] > off_globe_mm and s[end] < cap \
+            and (stop is None or not stop[seq[end]]):
+        end += 1
+    return end
 
 
 def _loop_edge_faces(F, a, b):
