@@ -264,6 +264,39 @@ def test_prior_registers_its_own_mean_shape():
     assert abs(r["scale"] - 1.0) < 0.05
 
 
+def test_a_registration_shrunk_off_any_eye_region_is_fitted_again_from_moved_hints(monkeypatch):
+    """A fit from the hint that ends at a scale outside ``SCALE_RANGE`` (the model shrunk onto
+    part of the region, as on a wide eye whose hint lay 4 mm off) is fitted again from the hint
+    moved 3 mm along x and y, and the fit with the lowest cost plus the scale's prior is kept:
+    here the one at scale 1.0 (cost 12), not a cheaper-looking shrunk one (scale 0.6, cost 11);
+    a plausible first fit is kept with no restart."""
+    from pipeline.placement import prior as pr
+
+    model = pr.EyeRegionPrior.load()
+    V = np.random.default_rng(0).normal(size=(200, 3)) * 10.0 + [30.0, 35.0, 90.0]
+    F = np.array([[0, 1, 2]])
+    hint = np.array([30.0, 35.0, 92.0])
+    starts = []
+
+    def fake_fit(surface, start, side, iterations):
+        starts.append(np.round(start - hint, 6).tolist())
+        x = np.zeros(7 + model.modes)
+        x[:3] = start - [0.0, 0.0, pr.SCLERA_RADIUS_MM]
+        moved = start[1] - hint[1]
+        x[6], cost = (np.log(1.0), 12.0) if moved > 0 else (np.log(0.6), 11.0 if start[0] > hint[0] else 20.0)
+        return x, cost, np.zeros(3)
+
+    monkeypatch.setattr(pr.EyeRegionPrior, "_fit", lambda self, *a: fake_fit(*a))
+    r = model.register(V, F, hint, "left")
+    assert starts == [[0, 0, 0], [3, 0, 0], [-3, 0, 0], [0, 3, 0], [0, -3, 0]]
+    assert abs(r["scale"] - 1.0) < 1e-12
+    np.testing.assert_allclose(r["front"], hint + [0.0, 3.0, 0.0], atol=1e-9)
+
+    starts.clear()
+    r = model.register(V, F, hint + [0.0, 1.0, 0.0], "left")      # scale 1.0 from the hint itself
+    assert len(starts) == 1 and abs(r["scale"] - 1.0) < 1e-12
+
+
 def test_turn_yaws_about_up_then_pitches_up():
     z = np.array([0.0, 0.0, 1.0])
     np.testing.assert_allclose(fit._turn(z, 30.0, 0.0), [0.5, 0.0, np.sqrt(3) / 2], atol=1e-12)

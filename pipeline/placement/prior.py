@@ -79,8 +79,12 @@ class EyeRegionPrior:
     def register(self, V, F, hint, side, iterations=6):
         """Fit a similarity transform and the coefficients to the surface ``V, F`` around
         ``hint`` (point-to-plane, robust); returns ``{"front": (3,), "axis": (3,), "scale",
-        "rms_mm", "margin": (16, 3)}`` in the head frame."""
-        from scipy.optimize import least_squares
+        "rms_mm", "margin": (16, 3)}`` in the head frame.
+
+        A fit from the hint that ends on a scale no eye region has (outside :data:`SCALE_RANGE`)
+        has shrunk into a local optimum: it is fitted again from the hint moved
+        :data:`RESTART_MM` along each head axis across the face, and the fit with the lowest cost
+        plus the scale's prior (:data:`SCALE_SD`) is kept."""
         from scipy.spatial import cKDTree
         from scipy.spatial.transform import Rotation
 
@@ -91,28 +95,61 @@ class EyeRegionPrior:
         near = np.flatnonzero(np.linalg.norm(V - hint, axis=1) < 45.0)
         if len(near) < 50:
             raise ValueError("too little surface around the hint")
-        N = vertex_normals(V, F)[near]
-        tree = cKDTree(V[near])
-        use = self.skin_vertices()
-        k = self.modes
-
-        def xf(x, idx):
-            S = to_head(self.shape(x[7:])[idx], side)
-            return np.exp(x[6]) * Rotation.from_rotvec(x[3:6]).apply(S) + x[:3]
-
-        x = np.r_[hint - np.array([0.0, 0.0, SCLERA_RADIUS_MM]), np.zeros(3), 0.0, np.zeros(k)]
-        dist = np.zeros(1)
-        for _ in range(iterations):
-            dist, j = tree.query(xf(x, use))
-            Q, Nq = V[near][j], N[j]
-
-            def f(x):
-                r = ((xf(x, use) - Q) * Nq).sum(axis=1)
-                # coefficients stay near the population; rotation and scale modest
-                return np.r_[r, x[7:], 5.0 * x[3:6], 2.0 * x[6]]
-            x = least_squares(f, x, loss="soft_l1", f_scale=0.5).x
+        surface = (V[near], vertex_normals(V, F)[near], cKDTree(V[near]))
+        best = self._fit(surface, hint, side, iterations)
+        if not SCALE_RANGE[0] <= float(np.exp(best[0][6])) <= SCALE_RANGE[1]:
+            for d in ((RESTART_MM, 0.0), (-RESTART_MM, 0.0), (0.0, RESTART_MM), (0.0, -RESTART_MM)):
+                got = self._fit(surface, hint + np.array([d[0], d[1], 0.0]), side, iterations)
+                if _with_scale_prior(got) < _with_scale_prior(best):
+                    best = got
+        x, _, dist = best
         s = float(np.exp(x[6]))
         axis = Rotation.from_rotvec(x[3:6]).apply(np.array([0.0, 0.0, 1.0]))
         front = x[:3] + SCLERA_RADIUS_MM * s * axis
         return {"front": front, "axis": axis / np.linalg.norm(axis), "scale": s,
-                "rms_mm": float(np.sqrt(np.mean(dist ** 2))), "margin": xf(x, list(MARGIN))}
+                "rms_mm": float(np.sqrt(np.mean(dist ** 2))), "margin": self._placed(x, list(MARGIN), side)}
+
+    def _placed(self, x, idx, side):
+        """Model vertices ``idx`` under the fit's parameters ``x`` (translation, rotation vector,
+        log scale, coefficients), in the head frame."""
+        from scipy.spatial.transform import Rotation
+
+        S = to_head(self.shape(x[7:])[idx], side)
+        return np.exp(x[6]) * Rotation.from_rotvec(x[3:6]).apply(S) + x[:3]
+
+    def _fit(self, surface, start, side, iterations):
+        """One registration from the model's globe front at ``start``: ``(x, cost, dist)``, the
+        parameters, the robust cost of the last round and the fitted vertices' distances."""
+        from scipy.optimize import least_squares
+
+        P, N, tree = surface
+        use = self.skin_vertices()
+        x = np.r_[start - np.array([0.0, 0.0, SCLERA_RADIUS_MM]), np.zeros(3), 0.0, np.zeros(self.modes)]
+        dist, cost = np.zeros(1), 0.0
+        for _ in range(iterations):
+            dist, j = tree.query(self._placed(x, use, side))
+            Q, Nq = P[j], N[j]
+
+            def f(x):
+                r = ((self._placed(x, use, side) - Q) * Nq).sum(axis=1)
+                # coefficients stay near the population; rotation and scale modest
+                return np.r_[r, x[7:], 5.0 * x[3:6], 2.0 * x[6]]
+            res = least_squares(f, x, loss="soft_l1", f_scale=0.5)
+            x, cost = res.x, float(res.cost)
+        return x, cost, dist
+
+
+#: A registration's scale outside this range is no eye region's (over 202 eyes of the cached
+#: unseen heads the fits from the hint lay at 0.80-1.28 but for nine at 0.58-0.75, each the model
+#: shrunk onto part of the region: `n1306_dome_wide_hint4`'s wide left eye at 0.60 gave a margin
+#: 14.5 x 4.7 mm, and the cut behind it refused the head as narrow).
+SCALE_RANGE = (0.78, 1.35)
+#: How far the restarts move the hint (mm), and the spread of an eye region's scale that ranks them.
+RESTART_MM = 3.0
+SCALE_SD = 0.1
+
+
+def _with_scale_prior(fit) -> float:
+    """A registration's cost with the scale's prior: fits of different scales compared."""
+    x, cost, _ = fit
+    return cost + 0.5 * (float(x[6]) / SCALE_SD) ** 2
