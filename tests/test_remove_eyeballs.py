@@ -799,3 +799,19 @@ def test_a_scan_hole_the_eye_region_reaches_leaves_one_simple_opening():
         for j in (9, 10):
             clean[full_ids[sq(i, j)]] = True
     assert np.array_equal(_settle_holes(F, clean, H), clean)
+
+
+def test_no_two_loop_vertices_are_moved_onto_one_point():
+    """Known answers of ``_apart``: two loop vertices 0.35 mm apart moved onto one point (they
+    averaged the same lift-off points) would fold the faces between them flat; the later is left
+    where the cut put it. Two copies of one scan vertex (a bow-tie on the opening) start together
+    and move together; positions a hair over ``APART_MM`` apart are left alone, and a loop with no
+    such pair gives None (the move stands as it was)."""
+    from pipeline.remove_eyeballs.remove_eyeballs import APART_MM, _apart
+
+    start = np.array([[0.0, 0.0, 0.0], [0.35, 0.0, 0.0], [2.0, 0.0, 0.0], [2.0, 0.0, 0.0],
+                      [4.0, 0.0, 0.0], [4.3, 0.0, 0.0]])
+    moved = np.array([[0.2, 0.5, 0.0], [0.2, 0.5, 0.0], [2.1, 0.4, 0.0], [2.1, 0.4, 0.0],
+                      [4.1, 0.4, 0.0], [4.1 + 2 * APART_MM, 0.4, 0.0]])
+    assert _apart(moved, start).tolist() == [False, True, False, False, False, False]
+    assert _apart(moved[2:], start[2:]) is None

@@ -139,8 +139,8 @@ class EyeRegionPrior:
         return x, cost, dist
 
 
-#: A registration's scale outside this range is no eye region's (over 202 eyes of the cached
-#: unseen heads the fits from the hint lay at 0.80-1.28 but for nine at 0.58-0.75, each the model
+#: A registration's scale outside this range is no eye region's (over the 218 eyes of the cached
+#: unseen heads the fits from the hint lay at 0.80-1.28 but for seven at 0.58-0.75, each the model
 #: shrunk onto part of the region: `n1306_dome_wide_hint4`'s wide left eye at 0.60 gave a margin
 #: 14.5 x 4.7 mm, and the cut behind it refused the head as narrow).
 SCALE_RANGE = (0.78, 1.35)

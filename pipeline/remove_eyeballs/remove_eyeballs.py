@@ -169,7 +169,36 @@ def _move_to_lift_off(V, F, V2, F2, old_ids, loop, fit, tau, min_cos=0.5, on_eye
     # loop there would fold the lid rim
     on = np.abs(h[loop_old]) <= on_eye
     target = np.where(on[:, None], _project_to_eye(target, fit.center, fit.radius, fit.cornea), L)
-    return move_guarded(V2, F2, loop, target, min_cos, min_area_ratio=0.1)
+    start = V2[loop].copy()
+    moved = move_guarded(V2, F2, loop, target, min_cos, min_area_ratio=0.1)
+    apart = _apart(V2[loop], start)
+    if apart is None:
+        return moved
+    V2[loop] = start
+    return move_guarded(V2, F2, loop, np.where(apart[:, None], start, target), min_cos, min_area_ratio=0.1)
+
+
+#: Two loop vertices this close (mm) after the move lie on one point.
+APART_MM = 1e-4
+
+
+def _apart(P, start):
+    """Which loop vertices to leave where the cut put them so that no two lie on one point: of
+    each pair of moved positions ``P`` (L, 3) within ``APART_MM`` that started apart (``start``),
+    the later; None when there is no such pair. Two loop vertices a sliver apart can average the
+    same lift-off points, and moved together the two faces between them fold flat (`n1402_wide`:
+    vertices 0.35 mm apart on either side of one edge, which retopo's weld then made one face
+    twice, and its band found no annulus). Copies of one scan vertex (a bow-tie on the opening,
+    one per fan) start together and move together."""
+    from scipy.spatial import cKDTree
+
+    P = np.asarray(P, dtype=np.float64)
+    start = np.asarray(start, dtype=np.float64)
+    keep = np.zeros(len(P), bool)
+    for i, j in sorted(cKDTree(P).query_pairs(APART_MM)):
+        if np.linalg.norm(start[i] - start[j]) > APART_MM:
+            keep[j] = True
+    return keep if keep.any() else None
 
 
 def _opening_holes(region, F, holes, hole_of_face, n_faces, min_share=0.3):
