@@ -13,6 +13,7 @@ from fixtures.unseen.cases import _synthetic_labels, fill_openings
 from fixtures.unseen.metrics import true_canthi
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.placement.eye_fit import median_edge_length
+from pipeline.errors import ScanError
 from pipeline.placement.fill import find_flat_fill
 from pipeline.remove_eyeballs.remove_eyeballs import remove_eyeballs
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
@@ -311,3 +312,45 @@ def test_an_eye_whose_folded_optima_rest_on_the_radius_bound_is_placed_behind_th
     with pytest.raises(ScanError, match="bound.ply: right eye: the eye surface ringed by a lid fold .* fits only a "
                                         "sphere on the radius range's bound"):
         remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="bound.ply", prior=None)
+
+
+def test_a_wide_sphere_barely_folded_is_a_closed_lid():
+    """Known answers of ``lid_bulge`` at its limits: a sphere over 18 mm ringed by a fold under
+    13 deg is a closed lid's bulge (the cached blink's and wink's closed eyes: 18.3-19.7 mm at
+    12.4-12.9 deg); a large sphere with a real lid fold (a turned open eye, 19.3 mm at 18.5 deg)
+    or a weakly folded human-sized one (a squint, 14.3 mm at 12.4 deg) is not."""
+    from types import SimpleNamespace
+
+    from pipeline.placement.place import LID_BULGE_FOLD_DEG, LID_BULGE_RADIUS_MM, lid_bulge
+
+    def pl(R, fold):
+        return SimpleNamespace(eye=SimpleNamespace(R=R), fold_deg=fold)
+
+    assert lid_bulge(pl(19.7, 12.9)) and lid_bulge(pl(18.3, 12.4))
+    assert not lid_bulge(pl(19.3, 18.5)) and not lid_bulge(pl(14.3, 12.4))
+    assert not lid_bulge(pl(LID_BULGE_RADIUS_MM, 5.0)) and not lid_bulge(pl(20.0, LID_BULGE_FOLD_DEG))
+
+
+@pytest.mark.slow
+def test_an_eye_placed_on_a_closed_lids_bulge_is_refused_as_closed(head, monkeypatch):
+    """The search's right eye made into a closed lid's bulge (a 19.5 mm sphere ringed by 12.5 deg,
+    as on the eighth fresh set's wink): the scan is refused in one line naming the file, the
+    eye, the sphere and its fold, as closed."""
+    from dataclasses import replace
+
+    from pipeline.placement import place as pp
+    from pipeline.placement.prior import EyeRegionPrior
+
+    real = pp.place_eyes
+
+    def bulging(*a, **k):
+        out = real(*a, **k)
+        pl = out["right"]
+        out["right"] = replace(pl, eye=replace(pl.eye, R=19.5), fold_deg=12.5)
+        return out
+
+    monkeypatch.setattr(pp, "place_eyes", bulging)
+    h, _ = head
+    with pytest.raises(ScanError, match=r"wink\.ply: right eye looks closed: .* 19\.5 mm sphere ringed by 12\.5 deg"):
+        remove_eyeballs({"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}, _hints(h),
+                        RemoveEyeballsSettings(), source="wink.ply", prior=EyeRegionPrior.load().register)

@@ -223,6 +223,22 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, so
                   capped=False, inliers=rv, radius_sigma=pl.sigma_radius_mm)
 
 
+#: An eye the search places on a sphere over ``LID_BULGE_RADIUS_MM`` ringed by a fold under
+#: ``LID_BULGE_FOLD_DEG`` is a closed lid's bulge: the closed eyes the geometry placed on the
+#: cached unseen heads (the blink `n1208_blink_100k`'s two, 18.3 / 19.3 mm at 12.4 / 12.6 deg, the
+#: wink `n1408_wink_right`'s closed one, 19.7 mm at 12.9 deg) lay there, and none of 165 open eyes
+#: did (folds under 14 deg: four eyes, on 13-17 mm spheres; spheres over 18 mm: ten, ringed by
+#: 17-28 deg). An open eye's lids rise off it in a fold; a sphere laid over a closed lid is wide
+#: and barely folded where it meets the skin.
+LID_BULGE_RADIUS_MM = 18.0
+LID_BULGE_FOLD_DEG = 13.0
+
+
+def lid_bulge(pl) -> bool:
+    """Whether a placement's eye is a closed lid's bulge (:data:`LID_BULGE_RADIUS_MM`)."""
+    return float(pl.eye.R) > LID_BULGE_RADIUS_MM and float(pl.fold_deg) < LID_BULGE_FOLD_DEG
+
+
 def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, filled=None,
                uv=None, texture=None, prior=None, source="mesh", coarse=None, placed=None):
     """Place both eyes jointly (:func:`pipeline.placement.fit.place_eyes`) on the surface around
@@ -303,6 +319,12 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             err = CoarseEye(source, f"{s} eye: the eye surface ringed by a lid fold ({bound.fold_deg:.0f} deg) "
                                     f"fits only a sphere on the radius range's bound ({bound.radius:.1f} mm): "
                                     f"too little of it shows to size the eye", None)
+        elif placements[s] is not None and lid_bulge(placements[s]):
+            pl = placements[s]
+            err = ScanError(source, f"{s} eye looks closed: the eye surface the search found near the hint "
+                                    f"{np.round(hints[s], 2).tolist()} ringed by a lid fold fits a "
+                                    f"{pl.eye.R:.1f} mm sphere ringed by {pl.fold_deg:.1f} deg, a closed "
+                                    f"lid's bulge (limits {LID_BULGE_RADIUS_MM:g} mm, {LID_BULGE_FOLD_DEG:g} deg)")
         elif placements[s] is not None:
             try:
                 fits[s] = _fit_from_placement(mesh, placements[s], hints[s], s, st, source, ignore)
