@@ -226,10 +226,12 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, so
 #: An eye the search places on a sphere over ``LID_BULGE_RADIUS_MM`` ringed by a fold under
 #: ``LID_BULGE_FOLD_DEG`` is a closed lid's bulge: the closed eyes the geometry placed on the
 #: cached unseen heads (the blink `n1208_blink_100k`'s two, 18.3 / 19.3 mm at 12.4 / 12.6 deg, the
-#: wink `n1408_wink_right`'s closed one, 19.7 mm at 12.9 deg) lay there, and none of 165 open eyes
-#: did (folds under 14 deg: four eyes, on 13-17 mm spheres; spheres over 18 mm: ten, ringed by
-#: 17-28 deg). An open eye's lids rise off it in a fold; a sphere laid over a closed lid is wide
-#: and barely folded where it meets the skin.
+#: wink `n1408_wink_right`'s closed one, 19.7 mm at 12.9 deg) lay there, and none of the 165 open
+#: eyes of the held-out and fresh heads did (folds under 14 deg: four eyes, on 13-17 mm spheres;
+#: spheres over 18 mm: ten, ringed by 17-28 deg). An open eye's lids rise off it in a fold; a
+#: sphere laid over a closed lid is wide and barely folded where it meets the skin. One open eye
+#: of the dev heads lies there too, and its head is refused: `id19_squint_down`'s right (a squint
+#: looking down, 20.0 mm at 11.7 deg, placed 3.9 mm / 19 deg off at +-4.5 mm / 12.5 deg before).
 LID_BULGE_RADIUS_MM = 18.0
 LID_BULGE_FOLD_DEG = 13.0
 
