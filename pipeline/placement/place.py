@@ -232,6 +232,8 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, so
 #: sphere laid over a closed lid is wide and barely folded where it meets the skin. One open eye
 #: of the dev heads lies there too, and its head is refused: `id19_squint_down`'s right (a squint
 #: looking down, 20.0 mm at 11.7 deg, placed 3.9 mm / 19 deg off at +-4.5 mm / 12.5 deg before).
+#: A scan with a photograph is judged by the fissure it shows instead (``PHOTO_INSIDE_MIN``): a
+#: hooded head's skin under its fold fits such a sphere too, and the texture places that eye.
 LID_BULGE_RADIUS_MM = 18.0
 LID_BULGE_FOLD_DEG = 13.0
 
@@ -321,7 +323,8 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             err = CoarseEye(source, f"{s} eye: the eye surface ringed by a lid fold ({bound.fold_deg:.0f} deg) "
                                     f"fits only a sphere on the radius range's bound ({bound.radius:.1f} mm): "
                                     f"too little of it shows to size the eye", None)
-        elif placements[s] is not None and lid_bulge(placements[s]):
+        elif placements[s] is not None and not (st.texture_fallback and has_tex) and lid_bulge(placements[s]):
+            # with a photograph the fissure it shows judges such a sphere (_photo_disagrees)
             pl = placements[s]
             err = ScanError(source, f"{s} eye looks closed: the eye surface the search found near the hint "
                                     f"{np.round(hints[s], 2).tolist()} ringed by a lid fold fits a "
