@@ -801,6 +801,37 @@ def test_a_scan_hole_the_eye_region_reaches_leaves_one_simple_opening():
     assert np.array_equal(_settle_holes(F, clean, H), clean)
 
 
+def test_a_hole_whose_every_rim_vertex_is_on_the_region_but_not_every_rim_edge_joins_it():
+    """A pupil the scanner left open (``n1501_pupil_holes``): every vertex of the hole's rim lay
+    on a face of the eye's region, but the face across one rim edge did not, so the hole was
+    counted as the skin's, the cut made it one loop with the opening, and the scan was refused
+    for a loop count. Settled, the hole joins the opening: the cut absorbs it whole."""
+    from pipeline.remove_eyeballs.remove_eyeballs import _holes_inside, _settle_holes
+
+    n = 12
+    V, F = _grid(n)
+    sq = lambda i, j: [2 * (i * n + j), 2 * (i * n + j) + 1]
+    keep = np.ones(len(F), bool)
+    keep[sq(5, 5)] = False                                   # the hole
+    region = np.zeros(len(F), bool)
+    for i, j in [(4, 4), (4, 5), (4, 6), (5, 4), (6, 4), (6, 5), (6, 6)]:   # all but (5, 6)
+        region[sq(i, j)] = True
+    across = np.zeros(len(F), bool)
+    across[sq(5, 6)] = True
+    region, across, F = region[keep], across[keep], F[keep]
+    H = meshtopo.boundary_halfedges(F)
+    rim = [5 * (n + 1) + 5, 5 * (n + 1) + 6, 6 * (n + 1) + 5, 6 * (n + 1) + 6]
+    assert np.isin(rim, F[region]).all()                     # every rim vertex on the region
+    assert _holes_inside(F, region, H) == 0                  # yet not every rim edge
+    settled = _settle_holes(F, region, H)
+    assert settled[across].all() and (settled >= region).all()
+    assert _holes_inside(F, settled, H) == 1
+    loops_in = meshtopo.boundary_component_count(F, H)
+    assert loops_in == 2                                     # the grid's border and the hole
+    # the cut: the border and the opening, the hole inside the opening
+    assert meshtopo.boundary_component_count(F[~settled]) == loops_in - 1 + 1
+
+
 def test_no_two_loop_vertices_are_moved_onto_one_point():
     """Known answers of ``_apart``: two loop vertices 0.35 mm apart moved onto one point (they
     averaged the same lift-off points) would fold the faces between them flat; the later is left
