@@ -56,6 +56,10 @@ def main(argv) -> StageResult:
         save_mesh(tmp / "mesh.npz", **arrays)
     for line in band_warnings(result.result.metrics.get("band") or {}):
         print(f"warning: {in_dir}: {line}", file=sys.stderr)
+    for h in result.result.metrics.get("scan_holes_left_open") or []:
+        print(f"warning: {in_dir}: a hole of the scan {h['perimeter_mm']:g} mm round at "
+              f"{h['centre_mm']} mm is left open ({h['why']}): renders see through it",
+              file=sys.stderr)
     return result.result.at(args.metrics or default_metrics_path(out))
 
 

@@ -230,7 +230,7 @@ def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
     return V2, F2, holes, np.concatenate([np.full(len(F), -1), *owner]).astype(np.int64)
 
 
-def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5):
+def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5, *, return_unfilled: bool = False):
     """Close each boundary loop in ``loops`` with a patch that continues the surface round it.
 
     Scanners leave small holes in the skin (a shadowed pore, a specular spot). Left open they are
@@ -257,6 +257,9 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5):
     F2 : (m + f, 3) int64
         ``F`` and the fill faces (appended, so face ``i < m`` is still face ``i`` of ``F``),
         oriented like the faces round each hole.
+    unfilled : list of int
+        Only with ``return_unfilled``: the indices into ``loops`` of the holes left open (a
+        loop that is not simple in its plane, and whose grid folds).
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.linalg import spsolve
@@ -271,7 +274,8 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5):
     FN = meshtopo.face_normals(V, F, normalize=False)
     newV, newF = [], []
     nv = n
-    for loop in loops:
+    unfilled = []
+    for li, loop in enumerate(loops):
         L = np.asarray(loop, dtype=np.int64)
         m = len(L)
         if m < 3:
@@ -320,13 +324,145 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5):
         h = np.column_stack([np.ones(len(XY)), XY[:, 0], XY[:, 1], XY[:, 0] ** 2, XY[:, 0] * XY[:, 1],
                              XY[:, 1] ** 2]) @ coef
         G = _unfold_fill(G, np.concatenate([P2, XY]))
+        if (_signed_areas(np.concatenate([P2, XY]), G) <= 0).any():
+            # the harmonic grid of a non-convex loop can fold (Tutte's theorem holds for convex
+            # ones only): a slit 15 mm along the side of a sparse scan's nose folded 115 of its
+            # 371 faces and the remesh over it flipped 106. A loop simple in the plane is
+            # triangulated ear by ear instead, its long inner edges halved in the plane (a
+            # face split inside a positive face stays positive), and the new vertices lifted
+            # onto the same quadratic
+            T = _ear_clip(P2)
+            if T is None:               # not simple in the plane either: left open, said
+                unfilled.append(li)
+                continue
+            G, XY = _refine_inside(P2, T, edge)
+            XY = XY[m:]
+            k_in = len(XY)
+            h = np.column_stack([np.ones(len(XY)), XY[:, 0], XY[:, 1], XY[:, 0] ** 2,
+                                 XY[:, 0] * XY[:, 1], XY[:, 1] ** 2]) @ coef
         newV.append(c + XY @ B[:2] + h[:, None] * B[2])
         glob = np.concatenate([L, nv + np.arange(k_in)])
         newF.append(glob[G])
         nv += k_in
-    if not newF:
-        return V, F
-    return np.concatenate([V, *newV]), np.concatenate([F, *newF]).astype(np.int64)
+    out = (np.concatenate([V, *newV]), np.concatenate([F, *newF]).astype(np.int64)) if newF else (V, F)
+    return (*out, unfilled) if return_unfilled else out
+
+
+def _refine_inside(P2, T, edge):
+    """``(T', XY)``: the triangulation ``T`` (local ids into the polygon ``P2``, positive faces)
+    with every inner edge longer than ``1.5 * edge`` halved, longest first; XY holds ``P2`` and
+    then the midpoints. The polygon's own edges are never split (the skin round the hole owns
+    them), and a positive face halved gives two positive faces, so nothing turns over."""
+    XY = [tuple(p) for p in np.asarray(P2, dtype=np.float64)]
+    T = [list(map(int, t)) for t in T]
+    limit2 = (1.5 * edge) ** 2
+    for _ in range(20 * len(P2) + 100):
+        owner = {}
+        for fi, f in enumerate(T):
+            for k in range(3):
+                owner[(f[k], f[(k + 1) % 3])] = fi
+        best, L2 = None, limit2
+        for (u, v), fi in owner.items():
+            if u < v and (v, u) in owner:
+                d2 = (XY[u][0] - XY[v][0]) ** 2 + (XY[u][1] - XY[v][1]) ** 2
+                if d2 > L2:
+                    best, L2 = (u, v), d2
+        if best is None:
+            break
+        u, v = best
+        w = len(XY)
+        XY.append(((XY[u][0] + XY[v][0]) / 2, (XY[u][1] + XY[v][1]) / 2))
+        for a, b in ((u, v), (v, u)):
+            fi = owner[(a, b)]
+            f = T[fi]
+            x = next(t for t in f if t != a and t != b)
+            # f is (a, b, x) up to rotation: (a, w, x) and (w, b, x) keep its turning
+            T[fi] = [a, w, x]
+            T.append([w, b, x])
+    return np.asarray(T, dtype=np.int64), np.asarray(XY, dtype=np.float64)
+
+
+def _ear_clip(P2):
+    """A triangulation of the polygon ``P2`` (m, 2) by its own vertices: (m - 2, 3) local ids,
+    each face counter-clockwise (positive signed area), or None where the polygon is not simple.
+    A polygon that touches itself at a point (two copies of one scan vertex: a hole pinched at a
+    bow-tie) is cut there into lobes, each clipped alone. Of the ears, the one with the largest
+    height over its longest edge is cut first, so a slit closes across its width rather than in
+    slivers along it."""
+    P2 = np.asarray(P2, dtype=np.float64)
+    m = len(P2)
+    sgn = 1.0 if _polygon_area(P2) > 0 else -1.0
+    lobes, todo = [], [list(range(m))]
+    while todo:
+        idx = todo.pop()
+        Q = P2[idx]
+        same = np.flatnonzero((np.abs(Q[:, None, :] - Q[None]).max(axis=2) <= 1e-12).sum(axis=1) > 1)
+        if len(same) == 0:
+            lobes.append(idx)
+            continue
+        a = int(same[0])
+        b = int(next(k for k in same[1:] if np.abs(Q[k] - Q[a]).max() <= 1e-12))
+        todo += [idx[a:b], idx[b:] + idx[:a]]
+    tris = []
+    for idx in lobes:
+        if len(idx) < 3:
+            continue
+        if sgn * _polygon_area(P2[idx]) <= 0:
+            return None
+        # an ear whose new edge passes a hair's breadth from another vertex leaves a polygon
+        # whose remaining corners are all blocked or flat (a grid hole's staircase got stuck 14
+        # corners from the end); such ears are taken only when no other is left
+        edge = float(np.linalg.norm(np.diff(P2[idx + idx[:1]], axis=0), axis=1).mean())
+        T = _clip_simple(P2, list(idx), sgn, 0.05 * edge)
+        if T is None:
+            T = _clip_simple(P2, list(idx), sgn, 0.0)
+        if T is None:
+            return None
+        tris.append(T)
+    if not tris:
+        return None
+    T = np.concatenate(tris)
+    return T if sgn > 0 else T[:, ::-1]
+
+
+def _polygon_area(P2):
+    return 0.5 * float(np.sum(P2[:, 0] * np.roll(P2[:, 1], -1) - np.roll(P2[:, 0], -1) * P2[:, 1]))
+
+
+def _clip_simple(P2, idx, sgn, clearance):
+    """:func:`_ear_clip` of one simple polygon (``idx`` into ``P2``, turning the way ``sgn``
+    says), no ear's new edge nearer than ``clearance`` to another of its vertices; faces in the
+    polygon's own turning."""
+    tris = []
+    while len(idx) > 3:
+        I = np.asarray(idx)
+        T = np.column_stack([np.roll(I, 1), I, np.roll(I, -1)])
+        A = sgn * _signed_areas(P2, T)
+        best, score = -1, -1.0
+        for j in np.flatnonzero(A > 1e-12).tolist():
+            a, b, c = P2[T[j]]
+            Q = P2[np.setdiff1d(I, T[j])]
+            # a vertex of the rest inside (or on) the ear makes it no ear
+            d1 = sgn * ((b[0] - a[0]) * (Q[:, 1] - a[1]) - (b[1] - a[1]) * (Q[:, 0] - a[0]))
+            d2 = sgn * ((c[0] - b[0]) * (Q[:, 1] - b[1]) - (c[1] - b[1]) * (Q[:, 0] - b[0]))
+            d3 = sgn * ((a[0] - c[0]) * (Q[:, 1] - c[1]) - (a[1] - c[1]) * (Q[:, 0] - c[0]))
+            if ((d1 >= 0) & (d2 >= 0) & (d3 >= 0)).any():
+                continue
+            if clearance > 0 and len(Q):
+                ac = c - a
+                t = np.clip((Q - a) @ ac / (ac @ ac), 0.0, 1.0)
+                if (np.linalg.norm(a + t[:, None] * ac - Q, axis=1) < clearance).any():
+                    continue
+            e = np.array([np.linalg.norm(b - a), np.linalg.norm(c - b), np.linalg.norm(a - c)])
+            q = 2.0 * A[j] / (e.max() ** 2)
+            if q > score:
+                best, score = j, q
+        if best < 0:
+            return None
+        tris.append(T[best])
+        idx.pop(best)
+    tris.append(np.asarray(idx))
+    return np.asarray(tris, dtype=np.int64)
 
 
 def _signed_areas(XY, T):

@@ -109,7 +109,7 @@ def _why_no_annulus(V, F, hole, radius, locked, graph=None) -> str:
     d = edge_graph_distance(V, F, hole, 1.5 * radius, graph)
     Fb = F[(d[F] < radius).all(axis=1)]
     if len(locked) and np.isin(Fb, locked).any():
-        return "the crop border or the other eye is nearer; lower band_width_mm"
+        return "the crop border, the other eye or a hole of the scan left open is nearer; lower band_width_mm"
     e = np.sort(mc.edges_of(Fb), axis=1)
     chi = len(np.unique(Fb)) - len(np.unique(e[:, 0] * (int(Fb.max()) + 1) + e[:, 1])) + len(Fb)
     try:

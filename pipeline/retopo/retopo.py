@@ -105,7 +105,7 @@ class RetopoSettings(Settings):
     margin_notch_mm: float = setting(1.0, gt=0, le=20)       # a smoothed margin notched deeper than this, seen from the front, is smoothed again
     margin_notch_keep: float = setting(0.7, gt=0, le=1)      # ... and that kept where it leaves at most this share of the notch
     margin_notch_max_move_mm: float = setting(3.0, gt=0, le=20)  # ... no point of it moving farther
-    fill_holes_mm: float = setting(60.0, ge=0, le=1000)      # scanner holes in the crop up to this perimeter are filled (0 = off)
+    fill_holes_mm: float = setting(150.0, ge=0, le=1000)     # scanner holes in the crop up to this perimeter are filled (0 = off)
 
 
 @dataclass
@@ -200,6 +200,10 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
     return Vc, Fc, vmap
 
 
+def _perimeter(P) -> float:
+    return float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum())
+
+
 def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float, loops=None) -> list:
     """The crop's boundary loops that are holes of the scan itself: neither an eye opening (a loop
     through ``eye_vertices``, crop ids) nor made by the crop (a loop through a vertex that lost a
@@ -225,8 +229,7 @@ def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float, loops=Non
     for lp in mc.boundary_loops(Fc) if loops is None else loops:
         if eye[lp].any() or lost[vmap[lp]].any():
             continue
-        P = Vc[lp]
-        if float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum()) <= max_perimeter_mm:
+        if _perimeter(Vc[lp]) <= max_perimeter_mm:
             holes.append(lp)
     return holes
 
@@ -495,7 +498,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
                                 radius=float(e.radius)))
             if tried is not None:
                 notched[side] = {"notch_mm": round(tried[0], 4), "wider_mm": round(tried[1], 4), "kept": tried[2]}
-    holes = []
+    holes, left_open = [], []
     cbl = graph = None          # the crop's boundary loops and edge graph, while its faces are these
     if s.fill_holes_mm > 0:
         # left open, a scanner's hole in the skin stays a hole of the asset (a black spot in
@@ -504,9 +507,19 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         # every crop copy of a loop vertex (a bow-tie on the opening has one per fan)
         eye_vs = np.flatnonzero(np.isin(vmap, np.concatenate([np.asarray(e.loop_indices) for e in eyes.values()])))
         cbl = mc.boundary_loops(Fc)
-        holes = scan_holes(Vc, Fc, vmap, F, eye_vs, s.fill_holes_mm, cbl)
+        holes = scan_holes(Vc, Fc, vmap, F, eye_vs, np.inf, cbl)
+        per = [_perimeter(Vc[h]) for h in holes]
+        # a hole too large to be filled stays a hole of the asset, said in the metrics (and by
+        # the stage as a warning): the background shows through it in every render
+        left_open = [{"perimeter_mm": round(p, 1), "centre_mm": np.round(Vc[h].mean(axis=0), 1).tolist(),
+                      "why": "over fill_holes_mm"} for h, p in zip(holes, per) if p > s.fill_holes_mm]
+        holes = [h for h, p in zip(holes, per) if p <= s.fill_holes_mm]
         if holes:
-            Vc, Fc = fill_holes_smooth(Vc, Fc, holes)
+            Vc, Fc, unfilled = fill_holes_smooth(Vc, Fc, holes, return_unfilled=True)
+            left_open += [{"perimeter_mm": round(_perimeter(Vc[holes[i]]), 1),
+                           "centre_mm": np.round(Vc[holes[i]].mean(axis=0), 1).tolist(),
+                           "why": "no fill without a fold"} for i in unfilled]
+            holes = [h for i, h in enumerate(holes) if i not in unfilled]
             cbl = None
     handles_cut = []
     if s.band == "grid":
@@ -725,6 +738,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         "crop_faces": int(len(Fc)),
         "crop_subdivisions": int(refine_levels),
         "scan_holes_filled": len(holes),
+        **({"scan_holes_left_open": left_open} if left_open else {}),
         "delaunay_flips": int(n_delaunay),
         "short_edges_collapsed": int(n_short),
         "eye_rings": ring_info,
