@@ -230,7 +230,8 @@ def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
     return V2, F2, holes, np.concatenate([np.full(len(F), -1), *owner]).astype(np.int64)
 
 
-def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5, *, return_unfilled: bool = False):
+def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5, *, keep_folded_mm: float = 60.0,
+                      return_unfilled: bool = False):
     """Close each boundary loop in ``loops`` with a patch that continues the surface round it.
 
     Scanners leave small holes in the skin (a shadowed pore, a specular spot). Left open they are
@@ -249,6 +250,9 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5, *, return_unfille
         Boundary loops of ``F`` (either direction; each is oriented by its boundary half-edges).
     neighbourhood : float
         The height field's support radius, in hole radii.
+    keep_folded_mm : float
+        A hole that neither the grid nor an ear-clipped fill closes without a turned face is
+        closed by the folded grid when its perimeter is at most this, else left open.
 
     Returns
     -------
@@ -286,16 +290,7 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5, *, return_unfille
         c = P.mean(axis=0)
         nrm = FN[np.isin(F, L).any(axis=1)].sum(axis=0)
         nrm /= np.linalg.norm(nrm)
-        e1 = P[0] - c
-        e1 -= nrm * (e1 @ nrm)
-        e1 /= np.linalg.norm(e1)
-        B = np.stack([e1, np.cross(nrm, e1), nrm])          # rows: local x, y, height
-        P2 = (P - c) @ B[:2].T
-        r = float(np.linalg.norm(P2, axis=1).mean())
-        near = np.linalg.norm(V - c, axis=1) <= neighbourhood * r + 1e-12
-        Q = (V[near] - c) @ B.T
-        A = np.column_stack([np.ones(len(Q)), Q[:, 0], Q[:, 1], Q[:, 0] ** 2, Q[:, 0] * Q[:, 1], Q[:, 1] ** 2])
-        coef = np.linalg.lstsq(A, Q[:, 2], rcond=None)[0] if len(Q) >= 6 else np.r_[Q[:, 2].mean(), np.zeros(5)]
+        B, P2, r, coef = _hole_frame(V, P, c, nrm, neighbourhood)
         edge = float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).mean())
         rings = max(0, int(round(r / max(edge, 1e-12))) - 1)
         # the polar grid in local ids: 0..m-1 the loop, then the rings, the centre last
@@ -332,9 +327,30 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5, *, return_unfille
             # face split inside a positive face stays positive), and the new vertices lifted
             # onto the same quadratic
             T = _ear_clip(P2)
-            if T is None:               # not simple in the plane either: left open, said
-                unfilled.append(li)
+            if T is None:
+                # a thin twisted slit need not be simple in the skin's plane (n1402_wide's, 20
+                # vertices, crossed itself there); in the plane the loop itself spans most it
+                # can be
+                n_fit = np.linalg.svd(P - c)[2][2]
+                B2, P2b, _, coef2 = _hole_frame(V, P, c, n_fit if n_fit @ nrm >= 0 else -n_fit,
+                                                neighbourhood)
+                T = _ear_clip(P2b)
+                if T is not None:
+                    B, P2, coef = B2, P2b, coef2
+            if T is None:
+                if loop_perimeter(P) > keep_folded_mm:      # left open, said
+                    unfilled.append(li)
+                    continue
+                # a small one keeps the folded grid, as every release before this did: the
+                # remesh over it holds, and an open hole would stop the band
+                newV.append(c + XY @ B[:2] + h[:, None] * B[2])
+                newF.append(np.concatenate([L, nv + np.arange(k_in)])[G])
+                nv += k_in
                 continue
+            if _polygon_area(P2) > 0:
+                # the fill runs each loop edge backwards (the skin's face runs it forwards): a
+                # loop that turns counter-clockwise in the frame's plane gets clockwise faces
+                T = T[:, ::-1]
             G, XY = _refine_inside(P2, T, edge)
             XY = XY[m:]
             k_in = len(XY)
@@ -346,6 +362,28 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5, *, return_unfille
         nv += k_in
     out = (np.concatenate([V, *newV]), np.concatenate([F, *newF]).astype(np.int64)) if newF else (V, F)
     return (*out, unfilled) if return_unfilled else out
+
+
+def loop_perimeter(P) -> float:
+    """Length of the closed polyline ``P`` (k, 3), last point back to the first."""
+    return float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum())
+
+
+def _hole_frame(V, P, c, nrm, neighbourhood):
+    """``(B, P2, r, coef)`` of a hole's loop ``P`` round ``c`` seen along ``nrm``: the frame's
+    rows (local x, y, height), the loop in its plane, its mean radius there, and the quadratic
+    height field fitted to the vertices of ``V`` within ``neighbourhood`` radii."""
+    e1 = P[0] - c
+    e1 -= nrm * (e1 @ nrm)
+    e1 /= np.linalg.norm(e1)
+    B = np.stack([e1, np.cross(nrm, e1), nrm])          # rows: local x, y, height
+    P2 = (P - c) @ B[:2].T
+    r = float(np.linalg.norm(P2, axis=1).mean())
+    near = np.linalg.norm(V - c, axis=1) <= neighbourhood * r + 1e-12
+    Q = (V[near] - c) @ B.T
+    A = np.column_stack([np.ones(len(Q)), Q[:, 0], Q[:, 1], Q[:, 0] ** 2, Q[:, 0] * Q[:, 1], Q[:, 1] ** 2])
+    coef = np.linalg.lstsq(A, Q[:, 2], rcond=None)[0] if len(Q) >= 6 else np.r_[Q[:, 2].mean(), np.zeros(5)]
+    return B, P2, r, coef
 
 
 def _refine_inside(P2, T, edge):

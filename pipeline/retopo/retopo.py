@@ -62,7 +62,7 @@ from pipeline.retopo.eyelid_loop import (canthus_apex, orient_and_place, polylin
                                           project_to_polyline, resample_loop, smooth_lids)
 from pipeline.geometry.flips import (collapse_flipped, collapse_short_edges, count_flipped, delaunay_flips, flip_slivers, mirror_flipped,
                                      reference_face_normals, relax, repair_flips, untangle)
-from pipeline.geometry.mesh_edit import TriMesh, fill_holes_smooth
+from pipeline.geometry.mesh_edit import TriMesh, fill_holes_smooth, loop_perimeter
 from pipeline.geometry.spherefit import signed_distance as sphere_signed_distance
 from pipeline.retopo.mesh_clean import clean_mesh
 from pipeline.results import StageResult
@@ -200,10 +200,6 @@ def crop_eye_region(V, F, eyes: dict, s: RetopoSettings):
     return Vc, Fc, vmap
 
 
-def _perimeter(P) -> float:
-    return float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum())
-
-
 def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float, loops=None) -> list:
     """The crop's boundary loops that are holes of the scan itself: neither an eye opening (a loop
     through ``eye_vertices``, crop ids) nor made by the crop (a loop through a vertex that lost a
@@ -229,7 +225,7 @@ def scan_holes(Vc, Fc, vmap, F, eye_vertices, max_perimeter_mm: float, loops=Non
     for lp in mc.boundary_loops(Fc) if loops is None else loops:
         if eye[lp].any() or lost[vmap[lp]].any():
             continue
-        if _perimeter(Vc[lp]) <= max_perimeter_mm:
+        if loop_perimeter(Vc[lp]) <= max_perimeter_mm:
             holes.append(lp)
     return holes
 
@@ -508,7 +504,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         eye_vs = np.flatnonzero(np.isin(vmap, np.concatenate([np.asarray(e.loop_indices) for e in eyes.values()])))
         cbl = mc.boundary_loops(Fc)
         holes = scan_holes(Vc, Fc, vmap, F, eye_vs, np.inf, cbl)
-        per = [_perimeter(Vc[h]) for h in holes]
+        per = [loop_perimeter(Vc[h]) for h in holes]
         # a hole too large to be filled stays a hole of the asset, said in the metrics (and by
         # the stage as a warning): the background shows through it in every render
         left_open = [{"perimeter_mm": round(p, 1), "centre_mm": np.round(Vc[h].mean(axis=0), 1).tolist(),
@@ -516,7 +512,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         holes = [h for h, p in zip(holes, per) if p <= s.fill_holes_mm]
         if holes:
             Vc, Fc, unfilled = fill_holes_smooth(Vc, Fc, holes, return_unfilled=True)
-            left_open += [{"perimeter_mm": round(_perimeter(Vc[holes[i]]), 1),
+            left_open += [{"perimeter_mm": round(loop_perimeter(Vc[holes[i]]), 1),
                            "centre_mm": np.round(Vc[holes[i]].mean(axis=0), 1).tolist(),
                            "why": "no fill without a fold"} for i in unfilled]
             holes = [h for i, h in enumerate(holes) if i not in unfilled]
