@@ -211,7 +211,7 @@ def fill_holes_near(V, F, centres, near_mm, max_perimeter_mm):
     newV, newF, holes, owner = [], [], [], []
     for loop in loops:
         P = V[loop]
-        per = float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum())
+        per = loop_perimeter(P)
         if per > max_perimeter_mm or len(loop) < 3:
             continue
         if np.linalg.norm(P[:, None, :] - C[None], axis=2).min() > near_mm:
@@ -387,10 +387,11 @@ def _hole_frame(V, P, c, nrm, neighbourhood):
 
 
 def _refine_inside(P2, T, edge):
-    """``(T', XY)``: the triangulation ``T`` (local ids into the polygon ``P2``, positive faces)
-    with every inner edge longer than ``1.5 * edge`` halved, longest first; XY holds ``P2`` and
-    then the midpoints. The polygon's own edges are never split (the skin round the hole owns
-    them), and a positive face halved gives two positive faces, so nothing turns over."""
+    """``(T', XY)``: the triangulation ``T`` (local ids into the polygon ``P2``, its faces all
+    turned one way) with every inner edge longer than ``1.5 * edge`` halved, longest first; XY
+    holds ``P2`` and then the midpoints. The polygon's own edges are never split (the skin round
+    the hole owns them), and a face halved gives two faces turned as it was, so nothing turns
+    over."""
     XY = [tuple(p) for p in np.asarray(P2, dtype=np.float64)]
     T = [list(map(int, t)) for t in T]
     limit2 = (1.5 * edge) ** 2

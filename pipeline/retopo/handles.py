@@ -22,6 +22,7 @@ import numpy as np
 
 from pipeline.geometry import mesh_checks as mc
 from pipeline.geometry import meshtopo
+from pipeline.geometry.mesh_edit import loop_perimeter
 
 _FAR = 1e6          # mm: the weight of an edge at a border or a cap's cone (never on a cut loop)
 _ROOTS = 24         # roots tried per region (spread by farthest-point sampling along the edges)
@@ -183,8 +184,7 @@ def _path(pred, v):
 
 
 def loop_length(V, loop) -> float:
-    P = np.asarray(V)[np.asarray(loop)]
-    return float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).sum())
+    return loop_perimeter(np.asarray(V)[np.asarray(loop)])
 
 
 def cut_loop(V, F, loop):
