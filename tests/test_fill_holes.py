@@ -110,6 +110,200 @@ def test_ear_clip_of_a_loop_pinched_at_a_point():
     assert _ear_clip(P[::-1]) is not None and (_signed_areas(P[::-1], _ear_clip(P[::-1])) > 0).all()
 
 
+def _helicoid_slit(phi0=0.0, phi1=150.0, length=20.0, nx=41, w=0.6):
+    """A strip that twists from ``phi0`` to ``phi1`` deg about the x axis over ``length`` mm
+    (rows at s = 0, +-w, +-(w + h), h 3 mm at x = 0 and 0.2 mm from x = 6 mm on, so the
+    skin's mean normal leans to the start), with a slit |s| < w cut along it: a scanner's thin
+    slit where the skin turns (``n1402_wide``'s). Returns V, F, the slit's loop and the skin's
+    normal at each x, (0, -sin phi, cos phi)."""
+    xs = np.linspace(0.0, length, nx)
+    phi = np.radians(phi0 + (phi1 - phi0) * xs / length)
+    h = 0.2 + 2.8 * np.clip(1 - xs / 6.0, 0.0, 1.0)
+    V = np.concatenate([np.c_[xs, s * np.cos(phi), s * np.sin(phi)]
+                        for s in (-(w + h), -w + 0 * xs, 0 * xs, w + 0 * xs, w + h)])
+    i = np.arange(nx - 1)
+    F = np.concatenate([np.c_[j * nx + i, j * nx + i + 1, (j + 1) * nx + i + 1] for j in range(4)]
+                       + [np.c_[j * nx + i, (j + 1) * nx + i + 1, (j + 1) * nx + i] for j in range(4)])
+    c = V[F].mean(axis=1)
+    F = F[~((np.abs(c[:, 1] * np.cos(np.radians(phi0 + (phi1 - phi0) * c[:, 0] / length))
+                    + c[:, 2] * np.sin(np.radians(phi0 + (phi1 - phi0) * c[:, 0] / length))) < w)
+            & (c[:, 0] > 1.2) & (c[:, 0] < length - 1.2))]
+    loop = sorted(mc.boundary_loops(F), key=len)[0]
+
+    def normal(x):
+        a = np.radians(phi0 + (phi1 - phi0) * x / length)
+        return np.c_[0 * a, -np.sin(a), np.cos(a)]
+    return V, F, loop, normal
+
+
+def test_a_slit_where_the_skin_turns_is_clipped_in_its_own_plane():
+    """Seen along the mean normal of the skin round it, a slit along a strip that turns 150 deg
+    crosses itself (its two sides swap where the skin stands edge-on), so neither the grid nor
+    an ear clip in that plane closes it; in the plane the loop spans most it is simple. Before
+    that second plane this 39 mm hole was left open."""
+    from pipeline.geometry.mesh_edit import _ear_clip, _hole_frame, loop_perimeter
+
+    V, F, loop, normal = _helicoid_slit()
+    P = V[loop]
+    fn = mc.face_normals(V, F[np.isin(F, loop).any(axis=1)], normalize=False).sum(axis=0)
+    assert _ear_clip(_hole_frame(V, P, P.mean(axis=0), fn / np.linalg.norm(fn), 1.5)[1]) is None
+    assert 35.0 < loop_perimeter(P) < 45.0
+    V2, F2, unfilled = fill_holes_smooth(V, F, [loop], return_unfilled=True, keep_folded_mm=10.0)
+    assert unfilled == []
+    rep = mc.check_mesh(V2, F2)
+    assert rep.manifold and rep.boundary_loops == 1 and rep.inconsistent_edges == 0
+    assert rep.degenerate_faces == 0
+    new = F2[len(F):]
+    # every fill face faces the way the skin does where it lies
+    d = (mc.face_normals(V2, new) * normal(V2[new].mean(axis=1)[:, 0])).sum(axis=1)
+    assert d.min() > 0.98
+
+
+def test_a_hole_no_plane_closes_keeps_its_folded_grid_and_says_so():
+    """A slit along a strip turning 270 deg crosses itself seen along the skin's mean normal and
+    in the plane it spans most: under ``keep_folded_mm`` it keeps the harmonic grid, folded, and
+    is reported with its count of turned faces (retopo's ``scan_holes_filled_folded``); over it
+    it is left open, the mesh untouched."""
+    V, F, loop, _ = _helicoid_slit(phi0=0.0, phi1=270.0)
+    V2, F2, unfilled, folded = fill_holes_smooth(V, F, [loop], return_unfilled=True,
+                                                 return_folded=True)
+    assert unfilled == [] and len(folded) == 1 and folded[0][0] == 0
+    assert 0 < folded[0][1] < len(F2) - len(F)
+    assert mc.check_mesh(V2, F2).boundary_loops == 1
+    V3, F3, unfilled, folded = fill_holes_smooth(V, F, [loop], keep_folded_mm=10.0,
+                                                 return_unfilled=True, return_folded=True)
+    assert unfilled == [0] and folded == []
+    assert np.array_equal(V3, V) and np.array_equal(F3, F)
+    assert fill_holes_smooth(V, F, [], return_unfilled=True, return_folded=True)[2:] == ([], [])
+
+
+def _refine_reference(P2, T, edge):
+    """The refinement written plainly: each round, the half-edge table built afresh and the
+    longest inner edge over ``1.5 * edge`` (the first met, face by face, of equal ones) whose
+    faces are not too thin to halve, halved."""
+    XY = [tuple(p) for p in np.asarray(P2, dtype=np.float64)]
+    T = [list(map(int, t)) for t in T]
+
+    def thin(f):
+        (ax, ay), (bx, by), (cx, cy) = (XY[t] for t in f)
+        return abs((bx - ax) * (cy - ay) - (by - ay) * (cx - ax)) < 2e-6 * edge ** 2
+
+    for _ in range(20 * len(P2) + 100):
+        owner = {(f[k], f[(k + 1) % 3]): fi for fi, f in enumerate(T) for k in range(3)}
+        best, L2 = None, (1.5 * edge) ** 2
+        for (u, v) in owner:
+            if u < v and (v, u) in owner and not thin(T[owner[(u, v)]]) and not thin(T[owner[(v, u)]]):
+                d2 = (XY[u][0] - XY[v][0]) ** 2 + (XY[u][1] - XY[v][1]) ** 2
+                if d2 > L2:
+                    best, L2 = (u, v), d2
+        if best is None:
+            break
+        u, v = best
+        XY.append(((XY[u][0] + XY[v][0]) / 2, (XY[u][1] + XY[v][1]) / 2))
+        for a, b in ((u, v), (v, u)):
+            fi = owner[(a, b)]
+            x = next(t for t in T[fi] if t != a and t != b)
+            T[fi] = [a, len(XY) - 1, x]
+            T.append([len(XY) - 1, b, x])
+    return np.asarray(T, dtype=np.int64), np.asarray(XY, dtype=np.float64)
+
+
+def _clip_reference(P2, sgn, clearance):
+    """Ear clipping written plainly: every ear judged after every clip, the fattest (height over
+    its longest edge) cut, the earliest of equal ones; no ear whose new edge passes nearer than
+    ``clearance`` to another vertex."""
+    from pipeline.geometry.mesh_edit import _signed_areas
+
+    idx, tris = list(range(len(P2))), []
+    while len(idx) > 3:
+        best, q = -1, -1.0
+        for j in range(len(idx)):
+            t = [idx[j - 1], idx[j], idx[(j + 1) % len(idx)]]
+            A = sgn * _signed_areas(P2, np.array([t]))[0]
+            if not A > 1e-12:
+                continue
+            a, b, c = P2[t]
+            Q = P2[[k for k in idx if k not in t]]
+            d1 = sgn * ((b[0] - a[0]) * (Q[:, 1] - a[1]) - (b[1] - a[1]) * (Q[:, 0] - a[0]))
+            d2 = sgn * ((c[0] - b[0]) * (Q[:, 1] - b[1]) - (c[1] - b[1]) * (Q[:, 0] - b[0]))
+            d3 = sgn * ((a[0] - c[0]) * (Q[:, 1] - c[1]) - (a[1] - c[1]) * (Q[:, 0] - c[0]))
+            if ((d1 >= 0) & (d2 >= 0) & (d3 >= 0)).any():
+                continue
+            t = np.clip((Q - a) @ (c - a) / ((c - a) @ (c - a)), 0.0, 1.0)
+            if len(Q) and (np.linalg.norm(a + t[:, None] * (c - a) - Q, axis=1) < clearance).any():
+                continue
+            e = max(np.linalg.norm(b - a), np.linalg.norm(c - b), np.linalg.norm(a - c))
+            if 2.0 * A / e ** 2 > q:
+                best, q = j, 2.0 * A / e ** 2
+        if best < 0:
+            return None
+        tris.append([idx[best - 1], idx[best], idx[(best + 1) % len(idx)]])
+        idx.pop(best)
+    return np.asarray(tris + [idx], dtype=np.int64)
+
+
+def _polygons(seed=3):
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    a = np.linspace(0.3, 2 * np.pi - 0.3, 10)
+    yield np.c_[10 * np.cos(t), 10 * np.sin(t)]                                   # regular: ties
+    yield np.c_[np.cos(t), np.sin(t)] * np.where(np.arange(16) % 2, 10.0, 4.0)[:, None]   # a star
+    yield np.r_[np.c_[30 * np.cos(a), 30 * np.sin(a)], np.c_[20 * np.cos(a[::-1]), 20 * np.sin(a[::-1])]]
+    for m in (16, 16, 16, 6, 8, 11):
+        s = np.sort(rng.uniform(0, 2 * np.pi, m))
+        yield np.c_[np.cos(s), np.sin(s)] * (10 * (1 + 0.4 * rng.uniform(-1, 1, m)))[:, None]
+    # spiky: an ear beside a spike's tip is free only once the tip is cut (with a clearance)
+    yield np.array([[8.0, 4.0], [3.3, 2.6], [3.6, 4.3], [1.4, 2.1], [-0.1, 2.0], [-2.9, 2.0],
+                    [-4.7, 0.2], [-9.3, -1.6], [-8.6, -3.0], [2.8, -5.1], [3.5, -4.4]])
+    yield np.array([[-3.1, 5.1], [-6.1, 4.5], [-6.3, -4.2], [-0.2, -2.0], [0.6, -2.2], [2.0, -2.5]])
+
+
+def test_the_ear_clip_and_its_refinement_give_the_plain_versions_faces():
+    """The fill's ear clip judges again only the ears a clip can change, and its refinement
+    keeps its half-edge table and a heap of long edges up to date: both give exactly the faces
+    of the plain versions (every ear judged after every clip, the table rebuilt after every
+    split), on both turnings of polygons with equal edges, spikes, a C and random ones, with and
+    without a clearance."""
+    from pipeline.geometry.mesh_edit import _clip_simple, _polygon_area, _refine_inside
+
+    n_split = 0
+    for P in _polygons():
+        for Q in (P, P[::-1]):
+            sgn = 1.0 if _polygon_area(Q) > 0 else -1.0
+            for clearance in (1.0, 0.0):
+                T = _clip_simple(Q, list(range(len(Q))), sgn, clearance)
+                R = _clip_reference(Q, sgn, clearance)
+                assert (T is None and R is None) or np.array_equal(T, R)
+            assert T is not None
+            Tp = T if sgn > 0 else T[:, ::-1]
+            edge = float(np.linalg.norm(np.roll(Q, -1, axis=0) - Q, axis=1).mean())
+            for k in (1.0, 0.5):
+                A, XA = _refine_inside(Q, Tp, k * edge)
+                B, XB = _refine_reference(Q, Tp, k * edge)
+                assert np.array_equal(A, B) and np.array_equal(XA, XB)
+                n_split += len(XA) - len(Q)
+    assert n_split > 500                        # the refinement did split, many times
+
+
+def test_the_refinement_of_a_large_hole_stops_at_its_cap_without_a_degenerate_face():
+    """A 334-vertex C-shaped hole (167 mm round at its own edge, 1.2 mm) and the same hole
+    asked for edges of 0.05 mm: at most ``20 * m + 100`` splits, the polygon's area kept, and
+    every face at least ``5e-7 * edge ** 2`` in area, turned the polygon's way (halving
+    needles at the cap had left faces of zero area in round-off)."""
+    from pipeline.geometry.mesh_edit import _ear_clip, _polygon_area, _refine_inside, _signed_areas
+
+    a = np.linspace(0.3, 2 * np.pi - 0.3, 167)
+    P = np.r_[np.c_[30 * np.cos(a), 30 * np.sin(a)], np.c_[20 * np.cos(a[::-1]), 20 * np.sin(a[::-1])]]
+    T = _ear_clip(P)
+    assert T is not None and len(T) == len(P) - 2
+    for edge in (float(np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1).mean()), 0.05):
+        G, XY = _refine_inside(P, T, edge)
+        assert len(XY) - len(P) <= 20 * len(P) + 100 and len(G) == len(T) + 2 * (len(XY) - len(P))
+        A = _signed_areas(XY, G)
+        assert np.isclose(A.sum(), _polygon_area(P), rtol=1e-9)
+        assert A.min() >= 5e-7 * edge ** 2
+
+
 @pytest.fixture(scope="module")
 def holed_patch():
     V, F, eyes = face_patch()

@@ -494,7 +494,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
                                 radius=float(e.radius)))
             if tried is not None:
                 notched[side] = {"notch_mm": round(tried[0], 4), "wider_mm": round(tried[1], 4), "kept": tried[2]}
-    holes, left_open = [], []
+    holes, left_open, folded = [], [], []
     cbl = graph = None          # the crop's boundary loops and edge graph, while its faces are these
     if s.fill_holes_mm > 0:
         # left open, a scanner's hole in the skin stays a hole of the asset (a black spot in
@@ -511,10 +511,16 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
                       "why": "over fill_holes_mm"} for h, p in zip(holes, per) if p > s.fill_holes_mm]
         holes = [h for h, p in zip(holes, per) if p <= s.fill_holes_mm]
         if holes:
-            Vc, Fc, unfilled = fill_holes_smooth(Vc, Fc, holes, return_unfilled=True)
+            Vc, Fc, unfilled, kept = fill_holes_smooth(Vc, Fc, holes, return_unfilled=True,
+                                                       return_folded=True)
             left_open += [{"perimeter_mm": round(loop_perimeter(Vc[holes[i]]), 1),
                            "centre_mm": np.round(Vc[holes[i]].mean(axis=0), 1).tolist(),
                            "why": "no fill without a fold"} for i in unfilled]
+            # a hole neither plane closes, small enough to keep its folded grid (as every
+            # release before the ear fill did): listed, with its count of turned faces
+            folded = [{"perimeter_mm": round(loop_perimeter(Vc[holes[i]]), 1),
+                       "centre_mm": np.round(Vc[holes[i]].mean(axis=0), 1).tolist(),
+                       "faces_turned": n} for i, n in kept]
             holes = [h for i, h in enumerate(holes) if i not in unfilled]
             cbl = None
     handles_cut = []
@@ -735,6 +741,7 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
         "crop_subdivisions": int(refine_levels),
         "scan_holes_filled": len(holes),
         **({"scan_holes_left_open": left_open} if left_open else {}),
+        **({"scan_holes_filled_folded": folded} if folded else {}),
         "delaunay_flips": int(n_delaunay),
         "short_edges_collapsed": int(n_short),
         "eye_rings": ring_info,
