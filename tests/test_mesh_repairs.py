@@ -152,6 +152,48 @@ def test_collapse_short_edges_never_moves_a_fixed_vertex():
     assert n == 0 and np.array_equal(F2, F) and np.array_equal(V2, V)
 
 
+def _border_twin(V, F, x=2):
+    """The grid with its bottom-border vertex ``x`` pushed inside: a new border vertex 1e-8 mm
+    from it takes its place on the border, its two faces (to the border neighbours and ``x``)
+    of zero area, as the decimation left one on ``n1702_big_holes_near``'s crop border."""
+    t = len(V)
+    V = np.vstack([V, V[x] + [1e-8, 0.0, 0.0]])
+    extra = []
+    for nb in (x - 1, x + 1):
+        f = next(f for f in F.tolist() if x in f and nb in f)
+        k = f.index(x)
+        u, v = (x, nb) if f[(k + 1) % 3] == nb else (nb, x)
+        extra.append([v, u, t])                 # the half-edge v -> u, twin of the face's u -> v
+    return V, np.vstack([F, extra])
+
+
+def test_collapse_short_edges_drops_a_border_vertex_on_an_inner_ones_point():
+    """A fixed border vertex whose only faces lie on a zero-length edge goes, and the inner
+    vertex on its point takes its place: one border loop, no face of zero area. Without
+    ``coincident`` it stays (retopo then refused the head: two corners on one point). The inner
+    one is held here: on that head it could not go the other way (a face of its would have
+    lost all its area)."""
+    V, F = _grid()
+    V1, F1 = _border_twin(V, F)
+    border = np.concatenate(mc.boundary_loops(F1))
+    assert len(V1) - 1 in border and 2 not in border
+    border = np.r_[border, 2]
+    V2, F2, _, n = collapse_short_edges(V1, F1, {}, fixed=border, min_len=0.2)
+    assert n == 0 and np.array_equal(F2, F1)
+    V3, F3, loops3, n = collapse_short_edges(V1, F1, {"left": np.array([30, 31])}, fixed=border,
+                                             min_len=0.2, coincident=1e-6)
+    assert n == 1 and len(F3) == len(F) and len(V3) == len(V)
+    rep = mc.check_mesh(V3, F3)
+    assert rep.manifold and rep.boundary_loops == 1 and rep.inconsistent_edges == 0
+    E = mc.edges_of(F3)
+    assert np.linalg.norm(V3[E[:, 0]] - V3[E[:, 1]], axis=1).min() > 0.5
+    np.testing.assert_array_equal(V3[loops3["left"]], V[[30, 31]])
+    # a twin on a loop is never dropped
+    _, F4, _, n = collapse_short_edges(V1, F1, {"left": np.array([len(V1) - 1])}, fixed=border,
+                                       min_len=0.2, coincident=1e-6)
+    assert n == 0 and np.array_equal(F4, F1)
+
+
 def test_refine_when_an_opening_has_fewer_vertices_than_the_loop():
     """An opening of 34 boundary vertices for a 64-point loop (a narrow half blink) is subdivided
     once (68 >= 64); one of 64 or more is left alone."""

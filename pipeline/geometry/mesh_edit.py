@@ -56,11 +56,13 @@ class TriMesh:
         out.discard(v)
         return out
 
-    def collapse(self, a, b, min_cos=0.2, ref=None):
+    def collapse(self, a, b, min_cos=0.2, ref=None, lone=False):
         """Collapse vertex ``a`` into ``b`` (along an edge). Returns False if refused.
 
         ``ref`` (3,) optional reference normal the moved faces must agree with
-        (used to repair faces that are already flipped)."""
+        (used to repair faces that are already flipped). ``lone``: a border vertex whose only
+        faces are the one or two on the edge may go (they with it, ``b`` taking its place on
+        the border); refused otherwise."""
         common = [fi for fi in self.vf[a] if b in self.F[fi]]
         if len(common) not in (1, 2):
             return False
@@ -68,7 +70,7 @@ class TriMesh:
         if self.neighbours(a) & self.neighbours(b) != opp:
             return False
         moved = [fi for fi in self.vf[a] if fi not in common]
-        if not moved:
+        if not moved and not lone:
             return False
         for fi in moved:
             n0, _ = self.normal(self.F[fi])

@@ -683,7 +683,8 @@ def _retopologize(V, F, eyes: dict, settings: RetopoSettings) -> RetopoResult:
     # edges under a fifth of the median (the repairs' leftovers beside a canthus) go first
     elen = np.linalg.norm(Vn[Fn] - Vn[np.roll(Fn, -1, axis=1)], axis=2)
     Vn, Fn, loops, n_short = collapse_short_edges(Vn, Fn, loops, fixed,
-                                                  s.min_edge_fraction * float(np.median(elen)))
+                                                  s.min_edge_fraction * float(np.median(elen)),
+                                                  coincident=COINCIDENT_MM)
     if n_short:
         fixed = np.unique(np.concatenate(mc.boundary_loops(Fn)))
     for _ in range(2):
