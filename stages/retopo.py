@@ -60,6 +60,10 @@ def main(argv) -> StageResult:
         print(f"warning: {in_dir}: a hole of the scan {h['perimeter_mm']:g} mm round at "
               f"{h['centre_mm']} mm is left open ({h['why']}): renders see through it",
               file=sys.stderr)
+    for h in result.result.metrics.get("scan_holes_filled_folded") or []:
+        print(f"warning: {in_dir}: a hole of the scan {h['perimeter_mm']:g} mm round at "
+              f"{h['centre_mm']} mm is closed by a grid with {h['faces_turned']} faces turned over "
+              f"(no plane closes it without): the skin may dent there", file=sys.stderr)
     return result.result.at(args.metrics or default_metrics_path(out))
 
 
