@@ -61,8 +61,8 @@ class TriMesh:
 
         ``ref`` (3,) optional reference normal the moved faces must agree with
         (used to repair faces that are already flipped). ``lone``: a border vertex whose only
-        faces are the one or two on the edge may go (they with it, ``b`` taking its place on
-        the border); refused otherwise."""
+        faces are the one or two on the edge may go too, they with it (``b`` taking its place
+        on the border); without it, such a collapse is refused."""
         common = [fi for fi in self.vf[a] if b in self.F[fi]]
         if len(common) not in (1, 2):
             return False
