@@ -194,6 +194,23 @@ def test_collapse_short_edges_drops_a_border_vertex_on_an_inner_ones_point():
     assert n == 0 and np.array_equal(F4, F1)
 
 
+def test_a_face_the_remesher_dropped_is_put_back_but_not_a_hole_of_its_input():
+    """A hole of three edges that the remesher's input lacked (the decimation dropped a face of
+    ``n1802_depth10_noise``'s noisy crop, and its band met the hole) gets its face back, turned
+    as its neighbours; one the input had stays open."""
+    from pipeline.retopo.retopo import close_opened_triangles
+
+    V, F = _grid()
+    holed = np.delete(F, 17, axis=0)                 # an inner face of the grid
+    assert sorted(len(b) for b in mc.boundary_loops(holed)) == [3, 20]
+    F2 = close_opened_triangles(V, holed, V, F)
+    rep = mc.check_mesh(V, F2)
+    assert len(F2) == len(F) and rep.boundary_loops == 1 and rep.inconsistent_edges == 0
+    assert np.all(mc.face_normals(V, F2)[:, 2] > 0)
+    assert np.array_equal(close_opened_triangles(V, holed, V, holed), holed)
+    assert np.array_equal(close_opened_triangles(V, F, V, F), F)
+
+
 def test_refine_when_an_opening_has_fewer_vertices_than_the_loop():
     """An opening of 34 boundary vertices for a 64-point loop (a narrow half blink) is subdivided
     once (68 >= 64); one of 64 or more is left alone."""
