@@ -233,3 +233,40 @@ def test_bounds_and_float32_step():
     step = frame.check_float32(V, "m")
     assert step == float(np.spacing(np.float32(np.abs(V).max())))
     assert frame.check_float32(np.zeros((0, 3)), "m") == float(np.spacing(np.float32(0.0)))
+
+
+def test_a_third_face_on_an_edge_is_dropped_and_the_surface_kept():
+    """A flap laid on a skin edge (a hole fill over a rim face leaves one on a lid): that edge has
+    three faces, which no later stage can walk. The two that run it in opposite directions with
+    the most nearly equal normals stay (the skin); the flap goes, and is counted."""
+    V, F, hints = head_mesh(3)
+    back = int(np.argmin(V[F].mean(axis=1)[:, 2]))               # a face far from both eyes
+    a, b, c = F[back]
+    n = np.cross(V[b] - V[a], V[c] - V[a])
+    tip = 0.5 * (V[a] + V[b]) - 3.0 * n / np.linalg.norm(n)      # folded 3 mm inward off the edge
+    Vx = np.vstack([V, tip])
+    Fx = np.vstack([F, [[a, b, len(V)]]])                        # runs a -> b as the face (a, b, c) does
+    assert repair.edge_stats(Fx, len(Vx))["non_manifold"] == 1
+    r = repair.repair_mesh(Vx, Fx, hints)
+    assert np.array_equal(r.V, V) and np.array_equal(r.F, F)
+    assert r.counts["non_manifold_faces"] == 1 and r.counts["unreferenced_vertices"] == 1
+    assert r.edges == repair.edge_stats(F, len(V)) and r.edges["non_manifold"] == 0
+    # on a lid it is damage in the eye region, counted there
+    near = int(np.argmin(np.linalg.norm(V[F].mean(axis=1) - hints["left"], axis=1)))
+    a, b, c = F[near]
+    Fy = np.vstack([F, [[a, b, len(V)]]])
+    Vy = np.vstack([V, 0.5 * (V[a] + V[b]) + np.array([0.0, 0.0, 2.0])])
+    r = repair.repair_mesh(Vy, Fy, hints)
+    assert np.array_equal(r.F, F) and r.eye_region["left"]["removed"] == 1
+
+
+def test_faces_beyond_two_keep_the_consistent_pair():
+    """Three faces on one edge, two running it one way: the one whose normal agrees with the
+    face running it the other way stays. Four faces (two sheets crossing): one pair stays."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 1, 0.3], [0.5, 0, -1]], float)
+    F = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
+    # faces 0 and 1 are the flat sheet; face 2 runs 0 -> 1 too, tilted 17 deg from face 0
+    assert repair._faces_beyond_two(V, F).tolist() == [False, False, True]
+    F4 = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 5], [1, 0, 4]])
+    keep = ~repair._faces_beyond_two(V, F4)
+    assert keep.sum() == 2 and repair.edge_stats(F4[keep], len(V))["inconsistent_winding"] == 0

@@ -254,7 +254,7 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
         "vertices_out": int(len(V)), "faces_out": int(len(F)),
         "polygons_triangulated": loaded.polygons_triangulated,
         "repairs": fixed.counts,
-        "edges": repair.edge_stats(F, len(V)),
+        "edges": fixed.edges,
         "flipped_winding": flipped,
         "eye_region": fixed.eye_region,
         "hint_surface_distance_mm": hint_dist,

@@ -2,7 +2,9 @@
 
 Only repairs that cannot change the shape are made: merging coincident
 vertices, dropping zero-area and repeated faces, dropping small disconnected
-components far from the eyes ("debris"), and dropping vertices no face uses.
+components far from the eyes ("debris"), dropping the faces beyond two on an
+edge (a fold or a patch laid over the skin: the two that continue the surface
+stay), and dropping vertices no face uses.
 :func:`repair_mesh` reports exactly what it removed and refuses (ScanError) when
 the input is mostly degenerate or when the repairs would remove more than a
 small share of the faces around an eye.
@@ -61,7 +63,9 @@ class RepairResult:
         Index of each output face in the input ``F``.
     counts : dict
         What was removed: merged_vertices, degenerate_faces, duplicate_faces, debris_components,
-        debris_faces, unreferenced_vertices, small_components_kept_near_eyes.
+        debris_faces, non_manifold_faces, unreferenced_vertices, small_components_kept_near_eyes.
+    edges : dict
+        :func:`edge_stats` of the output.
     eye_region : dict
         Per eye: faces with a vertex within the radius and how many repairs removed (zero-area
         faces apart: ``degenerate_removed``; they cover no surface and do not count as damage).
@@ -73,6 +77,7 @@ class RepairResult:
     face_index: np.ndarray
     counts: dict = field(default_factory=dict)
     eye_region: dict = field(default_factory=dict)
+    edges: dict = field(default_factory=dict)
 
 
 _BLOCK = 1 << 16      # rows (faces, vertices, keys) per block: temporaries stay in cache, not fresh pages
@@ -410,6 +415,22 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
     debris = np.zeros(m0, dtype=bool)
     debris[idx] = debris_comp[labels]
     alive &= ~debris
+    del idx, labels                     # the edge keys below are the peak's largest temporary
+    face_index = np.flatnonzero(alive)
+    F2 = F1 if len(face_index) == m0 else F1[face_index]
+    # the output's edges, counted here (the stage reports them) and read for the one repair that
+    # needs them: an edge with more than two faces stops every stage that walks the surface (a
+    # hole fill laid over a rim face left a third face on a lid edge, and retopo found no
+    # closed boundary loops); of its faces the two that continue the surface stay
+    edges = edge_stats(F2, len(V1))
+    n_nm = 0
+    if edges["non_manifold"]:
+        extra = _faces_beyond_two(V1, F2)
+        n_nm = int(extra.sum())
+        alive[face_index[extra]] = False
+        face_index = face_index[~extra]
+        F2 = F1[face_index]
+        edges = edge_stats(F2, len(V1))
     # eye-region accounting (faces of the input with a vertex near the hint). Zero-area faces
     # cover no surface, so removing them damages nothing: they count neither as faces nor as lost.
     removed = ~alive & ~degenerate
@@ -424,8 +445,6 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
             raise ScanError(path, f"repairs would remove {lost} of the {total} faces ({100.0 * lost / total:.1f}%) "
                                   f"within {settings.eye_radius_mm:g} mm of the {side} eye hint, over the limit of "
                                   f"{100.0 * settings.max_eye_region_removed_fraction:g}%: the eye region is damaged")
-    face_index = np.flatnonzero(alive)
-    F2 = F1 if len(face_index) == m0 else F1[face_index]
     used = np.zeros(len(V1), dtype=bool)
     used[F2.ravel()] = True
     n_used = int(np.count_nonzero(used))
@@ -435,6 +454,7 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
         "duplicate_faces": int(dup.sum()),
         "debris_components": int(debris_comp.sum()),
         "debris_faces": int(debris.sum()),
+        "non_manifold_faces": n_nm,
         "unreferenced_vertices": int(len(V1) - n_used),
         "small_components_kept_near_eyes": int((small & near).sum()),
         "components": int(n_comp - debris_comp.sum()),
@@ -442,10 +462,35 @@ def repair_mesh(V, F, hints: dict, settings: RepairSettings = RepairSettings(), 
     if n_used == len(V1):                            # every vertex kept: the renumbering is the identity
         # C order as the gathers below give it (np.save writes a Fortran array's bytes otherwise)
         return RepairResult(V=np.ascontiguousarray(V1), F=np.ascontiguousarray(F2), vertex_index=vkeep,
-                            face_index=face_index, counts=counts, eye_region=eye_region)
+                            face_index=face_index, counts=counts, eye_region=eye_region, edges=edges)
     remap = np.cumsum(used) - 1
     return RepairResult(V=V1[used], F=remap[F2], vertex_index=vkeep[used], face_index=face_index,
-                        counts=counts, eye_region=eye_region)
+                        counts=counts, eye_region=eye_region, edges=edges)
+
+
+def _faces_beyond_two(V, F) -> np.ndarray:
+    """Mask (m,) of the faces to drop so that no edge of ``F`` has more than two: on each such
+    edge the two faces that run it in opposite directions (a consistently wound surface) with
+    the most nearly equal normals stay; where every face runs it one way, the largest. Only the
+    few faces of such edges are looked at one by one."""
+    key = _directed_edge_keys(F, len(V))
+    und = key >> 1
+    order = np.argsort(und, kind="stable")
+    su = und[order]
+    starts = np.flatnonzero(np.r_[True, su[1:] != su[:-1]])
+    lens = np.diff(np.r_[starts, len(su)])
+    drop = np.zeros(len(F), dtype=bool)
+    for s0, k in zip(starts[lens > 2].tolist(), lens[lens > 2].tolist()):
+        rows = order[s0:s0 + k]
+        faces, fwd = rows // 3, (key[rows] & 1).astype(bool)
+        P = V[F[faces]]
+        N = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+        area = np.linalg.norm(N, axis=1)
+        N = N / np.maximum(area, 1e-300)[:, None]
+        pairs = [(float(N[i] @ N[j]), i, j) for i in range(k) for j in range(i + 1, k) if fwd[i] != fwd[j]]
+        keep = {max(pairs)[1], max(pairs)[2]} if pairs else {int(np.argmax(area))}
+        drop[[f for i, f in enumerate(faces.tolist()) if i not in keep]] = True
+    return drop
 
 
 def _rows(A, idx):
