@@ -174,12 +174,12 @@ def page(results: Path) -> str:
             ("silent_over_1mm_or_3deg", "> 1 mm or 3° off, not doubted"),
             ("iris_hidden_at_rest", "iris hidden at rest"), ("open_refused", "open eyes refused")]
     out = ["# Eye placement on unseen heads: the asset's limbus and axis against the truth", "",
-           "`python -m benchmarks.bench_placement --set dev|heldout|fresh|fresh2|fresh3|fresh4|fresh5|fresh6|fresh7|fresh8|fresh9|fresh10|fresh11|fresh12|fresh13 --skip-missing` (ingest and "
+           "`python -m benchmarks.bench_placement --set dev|heldout|fresh|fresh2|fresh3|fresh4|fresh5|fresh6|fresh7|fresh8|fresh9|fresh10|fresh11|fresh12|fresh13|fresh14 --skip-missing` (ingest and "
            "remove_eyeballs with the shipped eye-region prior; per eye against scanify's limbus "
            "centre and gaze). *Before* is where the asset's limbus lay when the eye took the "
            "fitted sphere's radius (the human cornea on that sphere). Only the generated cases "
            "count (`cases`).", ""]
-    for name in ("dev", "heldout", "fresh", "fresh2", "fresh3", "fresh4", "fresh5", "fresh6", "fresh7", "fresh8", "fresh9", "fresh10", "fresh11", "fresh12", "fresh13"):
+    for name in ("dev", "heldout", "fresh", "fresh2", "fresh3", "fresh4", "fresh5", "fresh6", "fresh7", "fresh8", "fresh9", "fresh10", "fresh11", "fresh12", "fresh13", "fresh14"):
         f = results / f"placement_{name}.json"
         if not f.is_file():
             continue
@@ -219,7 +219,7 @@ IRIS_COLS = [("bound_limbus_within_0_5mm_pct", "ICT disc: limbus ≤ 0.5 mm %"),
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default="heldout", choices=("dev", "heldout", "fresh", "fresh2", "fresh3", "fresh4", "fresh5", "fresh6", "fresh7", "fresh8", "fresh9", "fresh10", "fresh11", "fresh12", "fresh13", "all"), dest="set_name")
+    ap.add_argument("--set", default="heldout", choices=("dev", "heldout", "fresh", "fresh2", "fresh3", "fresh4", "fresh5", "fresh6", "fresh7", "fresh8", "fresh9", "fresh10", "fresh11", "fresh12", "fresh13", "fresh14", "all"), dest="set_name")
     ap.add_argument("--work", default=str(ROOT / "benchmarks" / "out" / "unseen"), type=Path)
     ap.add_argument("--scanify", default=str(ROOT.parent / "shared" / "tools" / "scanify" / "scanify.py"))
     ap.add_argument("--ict", default=str(ROOT.parent / "shared" / "scans" / "ict_facekit"))
