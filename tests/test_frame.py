@@ -95,6 +95,21 @@ def test_head_size_suggests_units():
     np.testing.assert_allclose(check_head_size(np.array([[0, 0, 0], [150, 220, 180.0]]), "mm", "x"), [150, 220, 180])
 
 
+def test_head_size_fragment_not_units():
+    """A scanner's trim that left an 11.5 mm fragment is not a head in cm: the hints, 64 mm apart
+    in the declared units, say the units are right (the fourteenth fresh set's n2003_trim_tight)."""
+    V = np.array([[0, 0, 0], [11.5, 6.0, 4.0]])
+    hints = {"left": [32.0, 35, 80], "right": [-32.0, 35, 80]}
+    with pytest.raises(ScanError, match="64 mm apart in the same units, so the units are right and the mesh "
+                                        "holds only a fragment of a head") as e:
+        check_head_size(V, "mm", "scan.ply", hints=hints)
+    assert "probably" not in str(e.value)
+    with pytest.raises(ScanError, match="more than a head"):                   # a body scan, 1.8 m
+        check_head_size(np.array([[0, 0, 0], [500, 1800, 300.0]]), "mm", "scan.ply", hints=hints)
+    with pytest.raises(ScanError, match="units is probably cm"):               # hints as far off as the mesh
+        check_head_size(V, "mm", "scan.ply", hints={"left": [3.2, 3.5, 8], "right": [-3.2, 3.5, 8]})
+
+
 def test_float32_check():
     assert check_float32(np.array([[1e5, 0, 0]]), "x") < 0.01
     with pytest.raises(ScanError, match="float32"):

@@ -112,8 +112,13 @@ def check_float32(V, path, tolerance_mm: float = 0.01) -> float:
     return step
 
 
-def check_head_size(V, units: str, path, size_range_mm=(40.0, 1000.0)) -> np.ndarray:
+def check_head_size(V, units: str, path, size_range_mm=(40.0, 1000.0), *, hints=None,
+                    separation_mm=(30.0, 120.0)) -> np.ndarray:
     """Refuse a bounding box implausible for a head in the declared units.
+
+    Where the eye hints (declared in the same units) lie a plausible distance apart, the units
+    are right and the mesh is what is wrong (a fragment a scanner's trim left, or a body), so no
+    other units are suggested.
 
     Parameters
     ----------
@@ -124,6 +129,10 @@ def check_head_size(V, units: str, path, size_range_mm=(40.0, 1000.0)) -> np.nda
     path : str or os.PathLike
     size_range_mm : (2,) float
         Accepted range of the largest bounding-box side, mm.
+    hints : dict or None
+        ``{"left", "right"}`` eye hints, head-frame mm, or None.
+    separation_mm : (2,) float
+        The distance between the hints that says the units are right (:func:`check_eye_layout`).
 
     Returns
     -------
@@ -136,6 +145,13 @@ def check_head_size(V, units: str, path, size_range_mm=(40.0, 1000.0)) -> np.nda
     lo, hi = size_range_mm
     if lo <= size <= hi:
         return extent
+    if hints is not None:
+        sep = float(np.linalg.norm(np.asarray(hints["left"], float) - np.asarray(hints["right"], float)))
+        if separation_mm[0] <= sep <= separation_mm[1]:
+            what = "only a fragment of a head" if size < lo else "more than a head (crop it to the head)"
+            raise ScanError(path, f"bounding box is {size:.4g} mm across with units {units}, not a plausible "
+                                  f"head ({lo:g} to {hi:g} mm); the eye hints lie {sep:.3g} mm apart in the "
+                                  f"same units, so the units are right and the mesh holds {what}")
     scale = UNITS_TO_MM[units]
     raw = size / scale
     fits = [u for u, s in UNITS_TO_MM.items() if u != units and lo <= raw * s <= hi]

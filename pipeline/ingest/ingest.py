@@ -173,7 +173,8 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
     loaded.V = None
     hints = {s: frame.to_head_frame(h, spec.units, spec.up_axis, spec.forward_axis) for s, h in spec.hints.items()}
     step = frame.check_float32(V, mesh_file, settings.float32_tolerance_mm)
-    frame.check_head_size(V, spec.units, mesh_file, settings.head_size_mm)
+    frame.check_head_size(V, spec.units, mesh_file, settings.head_size_mm, hints=hints,
+                          separation_mm=settings.eye_separation_mm)
     separation = frame.check_eye_layout(hints["left"], hints["right"], spec.sidecar, settings.eye_separation_mm)
     fixed = repair.repair_mesh(V, loaded.F, hints, settings.repair, path=mesh_file)
     fixed.counts["merged_vertices"] += loaded.merged_vertices
