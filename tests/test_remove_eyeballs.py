@@ -760,6 +760,19 @@ def _grid(n=12):
     return V, np.asarray(F, dtype=np.int64)
 
 
+def _grid_with_region(n=12):
+    """:func:`_grid`, the faces of square (i, j) (``sq``) and an eye region over squares 4-7 x 4-7."""
+    V, F = _grid(n)
+
+    def sq(i, j):
+        return [2 * (i * n + j), 2 * (i * n + j) + 1]
+    region = np.zeros(len(F), bool)
+    for i in range(4, 8):
+        for j in range(4, 8):
+            region[sq(i, j)] = True
+    return V, F, sq, region
+
+
 def test_a_scan_hole_the_eye_region_reaches_leaves_one_simple_opening():
     """A hole touching the region at one corner (id64_in's left eye) made the cut's border a
     bow-tie, and one it reaches beyond the fit's reach (id71_out's right) a loop through
@@ -768,12 +781,7 @@ def test_a_scan_hole_the_eye_region_reaches_leaves_one_simple_opening():
     from pipeline.remove_eyeballs.remove_eyeballs import _settle_holes
 
     n = 12
-    V, F = _grid(n)
-    sq = lambda i, j: [2 * (i * n + j), 2 * (i * n + j) + 1]
-    region = np.zeros(len(F), bool)
-    for i in range(4, 8):
-        for j in range(4, 8):
-            region[sq(i, j)] = True
+    V, F, sq, region = _grid_with_region(n)
     holes = sq(8, 8) + sq(3, 5)          # one at the region's corner (8, 8), one on its x = 4 side
     keep = np.ones(len(F), bool)
     keep[holes] = False
@@ -799,6 +807,46 @@ def test_a_scan_hole_the_eye_region_reaches_leaves_one_simple_opening():
         for j in (9, 10):
             clean[full_ids[sq(i, j)]] = True
     assert np.array_equal(_settle_holes(F, clean, H), clean)
+
+
+def test_an_opening_cut_into_a_scan_hole_is_refused_with_the_hole_named():
+    """Where the cut's border meets a scanner hole at a vertex the settling could not clear
+    (n2003_trim_tight: a 168 mm trim hole over the upper lid, a strip of skin one face wide
+    between it and the opening), the refusal names the hole, its size and where it lies, not a
+    "non-simple boundary"; a cut that meets no hole gets None."""
+    from pipeline.remove_eyeballs.remove_eyeballs import _hole_at_bow_ties
+
+    n = 12
+    V, F, sq, region = _grid_with_region(n)
+    hole = [f for i in (8, 9) for j in (8, 9) for f in sq(i, j)]    # 2 x 2 squares at the corner (8, 8)
+    keep = np.ones(len(F), bool)
+    keep[hole] = False
+    region, F = region[keep], F[keep]
+    H_in = meshtopo.boundary_halfedges(F)
+
+    def cut(region):
+        used = np.zeros(len(V), bool)
+        used[F[~region].ravel()] = True
+        remap = -np.ones(len(V), np.int64)
+        remap[used] = np.arange(used.sum())
+        F2 = remap[F[~region]]
+        border = np.zeros(len(V), bool)
+        border[F[region].ravel()] = True
+        return F2, meshtopo.boundary_halfedges(F2), np.flatnonzero(used), set(remap[border & used].tolist())
+
+    F2, H2, old_ids, ids = cut(region)
+    with pytest.raises(ValueError, match="bow-tie"):
+        meshtopo.boundary_loops(F2, only=np.fromiter(ids, np.int64), H=H2)
+    perimeter, centre, count = _hole_at_bow_ties(V, H_in, H2, old_ids, ids)
+    assert perimeter == pytest.approx(8.0)         # the 2 x 2 hole's rim, unit squares
+    assert centre == [9.0, 9.0, 0.0]
+    assert count == 1
+    away = np.zeros(len(F), bool)                   # the same opening moved off the hole
+    full_ids = np.cumsum(keep) - 1
+    for i in range(1, 4):
+        for j in range(1, 4):
+            away[full_ids[sq(i, j)]] = True
+    assert _hole_at_bow_ties(V, H_in, *cut(away)[1:]) is None
 
 
 def test_a_hole_whose_every_rim_vertex_is_on_the_region_but_not_every_rim_edge_joins_it():

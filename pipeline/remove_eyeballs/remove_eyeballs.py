@@ -311,6 +311,33 @@ def _holes_through(H, vmask):
     return [bv[comp == c] for c in np.unique(comp[vmask[bv]])]
 
 
+def _hole_at_bow_ties(V, H_in, H2, old_ids, ids_new):
+    """Where the cut's boundary meets itself at vertices of the scan's own holes (``H_in``, the
+    scan's boundary half-edges; ``H2`` the cut mesh's, on its vertices ``old_ids`` of the scan;
+    ``ids_new`` the eye region's border vertices on the cut mesh): ``(perimeter mm, centre (3,)
+    rounded, bow-tie count)`` of the largest such hole, or None. The opening then runs into a
+    scanner hole through a strip of skin a face wide (``n2003_trim_tight``: a 168 mm trim hole
+    over the right eye's upper lid), and the cut has no simple loop to give."""
+    H2 = np.asarray(H2, np.int64).reshape(-1, 2)
+    out = np.bincount(H2[:, 0], minlength=len(old_ids))
+    ids = np.fromiter(ids_new, dtype=np.int64)
+    bt = old_ids[ids[out[ids] > 1]]
+    if len(bt) == 0:
+        return None
+    mask = np.zeros(len(V), bool)
+    mask[bt] = True
+    H_in = np.asarray(H_in, np.int64).reshape(-1, 2)
+    best = None
+    for loop in _holes_through(H_in, mask):
+        on = np.zeros(len(V), bool)
+        on[loop] = True
+        e = H_in[on[H_in[:, 0]]]
+        perim = float(np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1).sum())
+        if best is None or perim > best[0]:
+            best = (perim, np.round(V[loop].mean(axis=0), 1).tolist(), int(mask[loop].sum()))
+    return best
+
+
 def _holes_inside(F, remove, H=None):
     """Number of the mesh's boundary loops whose every edge belongs to a removed face (holes in
     the eye openings, which the cut absorbs). ``H``: the mesh's boundary half-edges, when already
@@ -525,6 +552,12 @@ def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, sou
         try:
             mine = meshtopo.boundary_loops(F2n, only=np.fromiter(ids_new, dtype=np.int64), H=H2)
         except ValueError as exc:
+            hole = _hole_at_bow_ties(V, H_in, H2, np.flatnonzero(used), ids_new)
+            if hole is not None:
+                raise ScanError(source, f"{s} eye: a hole in the scan ({hole[0]:.0f} mm round, centred "
+                                        f"{hole[1]}) runs into the eye's opening, meeting it at "
+                                        f"{hole[2]} vertices with no skin between them; fill the hole "
+                                        f"or scan the region again") from None
             raise ScanError(source, f"{s} eye: the cut left a non-simple boundary ({exc})") from None
         if len(mine) != 1:
             raise ScanError(source, f"{s} eye: the cut left {len(mine)} boundary loops at the eye "
