@@ -84,6 +84,9 @@ BENCHMARKS = (
     Benchmark("view_eye_sections", needs=("unseen_work",)),
     Benchmark("bench_unseen_oracle", needs=("unseen_work",)),
     Benchmark("bench_placement", args=("--set", "all", "--skip-missing"), needs=("unseen_work",)),
+    # what a perfect reader of the scan's iris could do against the same truth (the heads it left)
+    Benchmark("bench_limbus_bound", args=("--work", str(UNSEEN_WORK), "--scanify", "{scanify}",
+                                          "--ict", "{scans}/ict_facekit"), needs=("unseen_work", "scans", "scanify")),
     # the bands of the held-out heads the unseen run left (its own page: band_angles.json also
     # holds seed 5 and the fresh set, built by hand)
     Benchmark("bench_band", args=("--set", f"heldout={UNSEEN_WORK / 'build'}:{UNSEEN_WORK / 'params.yaml'}",
