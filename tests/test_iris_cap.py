@@ -93,3 +93,76 @@ def test_refit_takes_an_iris_and_keeps_the_model_on_a_dome_cornea():
     lc, ax, cap, used = iris_cap.refit_limbus(Q, dome)
     assert not used and cap is not None and cap.rms_mm > iris_cap.MAX_RMS_RATIO * 0.02
     assert np.allclose(lc, limbus_center(dome)) and np.allclose(ax, n)
+
+
+def _loop_on_sphere(c, R, yaw_deg=48.0, pitch_deg=18.0, turn_deg=0.0, k=40):
+    """A lid opening wrapped round the eye: directions on an ellipse of ``yaw_deg`` by
+    ``pitch_deg`` about +z turned ``turn_deg`` about y (lids follow a sideways look), 0.6 mm
+    outside the sphere."""
+    t = np.linspace(0.0, 2 * np.pi, k, endpoint=False)
+    yaw, pitch = np.radians(turn_deg) + np.radians(yaw_deg) * np.cos(t), np.radians(pitch_deg) * np.sin(t)
+    d = np.stack([np.cos(pitch) * np.sin(yaw), np.sin(pitch), np.cos(pitch) * np.cos(yaw)], 1)
+    return c + (R + 0.6) * d
+
+
+def test_reread_finds_an_iris_turned_into_the_corner_and_refuses_a_bare_sphere():
+    c, R, tl, hp, rp = np.array([-33.0, 34.0, 80.0]), 15.5, 30.0, 2.5, 4.5
+    n = np.array([-np.sin(np.radians(32.0)), 0.05, np.cos(np.radians(32.0))])
+    n /= np.linalg.norm(n)
+    P = _iris_eye_points(c, R, n, tl, hp, rp, noise=0.05, seed=3, reach_deg=80.0, k=3000)
+    loop = _loop_on_sphere(c, R, turn_deg=-12.0)
+    fwd = np.array([0.0, 0.0, 1.0])
+    # the scan's sphere 0.6 mm off and 0.3 mm small: read about it from the eye region's forward
+    seen = iris_cap.opening_eye_points(P, loop, c + [0.4, -0.3, 0.3], R - 0.3, fwd)
+    assert 50 < len(seen) < len(P)
+    got = iris_cap.reread_iris(seen, loop, c + [0.4, -0.3, 0.3], R - 0.3, fwd, iris_radius=6.0)
+    assert got is not None
+    cap, iris, gap = got
+    truth = c + R * np.cos(np.radians(tl)) * n
+    assert np.linalg.norm(cap.limbus_center - truth) < 0.5
+    assert np.degrees(np.arccos(min(1.0, float(cap.n @ n)))) < 2.0
+    assert gap >= iris_cap.REREAD_GAP and iris["visible_share"] >= iris_cap.REREAD_VISIBLE
+    # no iris at all: a bare sclera shows no reading clearly better than another
+    rng = np.random.default_rng(4)
+    d = rng.normal(size=(6000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    bare = iris_cap.opening_eye_points(c + R * d + rng.normal(0.0, 0.05, d.shape), loop, c, R, fwd)
+    assert iris_cap.reread_iris(bare, loop, c, R, fwd, iris_radius=6.0) is None
+    assert iris_cap.reread_iris(bare[:8], loop, c, R, fwd, iris_radius=6.0) is None
+
+
+def test_an_eye_whose_reading_hid_its_iris_is_read_again_inside_its_opening():
+    """human_eye.asset_eyes: the placement read the iris 57 deg into a corner (hidden at rest);
+    the eye surface inside the opening shows it turned 32 deg, and that reading is published, at
+    the re-read's sigma and with a doubt that says so. Without the scan's points it falls back
+    to the opening, as before."""
+    from pipeline.eyeball.geometry import EyeballParams
+    from pipeline.placement import human_eye
+
+    c, R, tl = np.array([-33.0, 34.0, 80.0]), 15.5, 30.0
+    n = np.array([-np.sin(np.radians(32.0)), 0.05, np.cos(np.radians(32.0))])
+    n /= np.linalg.norm(n)
+    P = _iris_eye_points(c, R, n, tl, 2.5, 4.5, noise=0.05, seed=3, reach_deg=80.0, k=3000)
+    loop = _loop_on_sphere(c, R, turn_deg=-12.0)
+    wrong = np.array([-np.sin(np.radians(57.0)), 0.0, np.cos(np.radians(57.0))])
+
+    def eye(near):
+        return {"limbus_center": c + 13.0 * wrong, "axis": wrong, "limbus_radius": 7.0,
+                "sigma_limbus_mm": 0.4, "sigma_axis_deg": 1.5, "source": "geometry", "center": c,
+                "radius": R, "sigma_radius": 0.5, "loop_points": loop, "prior_axis": np.array([0.0, 0.0, 1.0]),
+                **({} if near is None else {"near_points": near})}
+
+    for near, source in ((P, "geometry"), (None, "opening")):
+        got = human_eye.asset_eyes({"left": eye(near), "right": eye(near)}, eye_size="human",
+                                   eyeball=EyeballParams())["right"]
+        assert got["limbus"]["source"] == source
+        assert "lid opening at rest" in got["doubts"][0]
+        if near is None:
+            assert "placed from the opening instead" in got["doubts"][0]
+            continue
+        assert "read again from the eye surface inside the opening" in got["doubts"][0]
+        truth = c + R * np.cos(np.radians(tl)) * n
+        assert np.linalg.norm(got["limbus"]["center"] - truth) < 0.5
+        assert np.degrees(np.arccos(min(1.0, float(got["forward"] @ n)))) < 2.0
+        assert got["uncertainty"]["limbus_mm"] == iris_cap.REREAD_SIGMA[0]
+        assert got["uncertainty"]["axis_deg"] == pytest.approx(iris_cap.REREAD_SIGMA[1])

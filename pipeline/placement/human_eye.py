@@ -21,6 +21,7 @@ import numpy as np
 
 from pipeline.geometry.frame import eye_basis
 from pipeline.placement.fissure import points_in_polygon
+from pipeline.placement.iris_cap import REREAD_SIGMA, opening_eye_points, reread_iris
 
 SIDES = ("left", "right")
 #: Population eyeball radius (mm): 11.7 +- 0.45, from the axial length 23.4 +- 0.9 mm.
@@ -233,7 +234,10 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         ``axis_standoff_mm`` (the eye surface along the axis over its sides) and
         ``front_elsewhere_mm`` (the largest such standoff within reach): :func:`axis_off_front`;
         ``axis_model_sigma_deg``: how far the scan's axis reading stands off the optical axis
-        (1-sigma, deg), joined in quadrature to the stated axis sigma of an eye the scan places.
+        (1-sigma, deg), joined in quadrature to the stated axis sigma of an eye the scan places;
+        ``near_points`` (k, 3): the scan's vertices near the eye, from which an eye whose iris
+        the placement hid reads it again inside the opening before it falls back to the opening
+        (:func:`pipeline.placement.iris_cap.reread_iris`; absent: straight to the opening).
     eye_size : str
         ``human`` (radius ``r1``), ``population`` or ``fitted`` (:func:`asset_radius`).
     eyeball : EyeballParams
@@ -274,9 +278,19 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
             # and the eye region's forward place it instead (the 57 deg turn into the nose)
             was, was_sl, was_sa = iris, sl, sa
             ax = _opening_axis(e["loop_points"], e.get("prior_axis"), ax)
-            lc = opening_limbus(e["loop_points"], ax)
-            sl, sa, source = OPENING_SIGMA_MM, OPENING_AXIS_SIGMA_DEG, "opening"
-            iris = iris_in_opening(e["loop_points"], lc, ax, ir)
+            again = None if e.get("near_points") is None else reread_iris(
+                opening_eye_points(e["near_points"], e["loop_points"], e["center"], e["radius"], ax),
+                e["loop_points"], e["center"], e["radius"], ax, ir)
+            if again is not None:
+                # the eye surface inside the opening, read from many starts, shows one iris
+                # clearly (a look 38 deg out whose first reading lay forward on the right sphere)
+                cap, iris, gap = again
+                lc, ax = np.asarray(cap.limbus_center, float), np.asarray(cap.n, float)
+                sl, sa = REREAD_SIGMA
+            else:
+                lc = opening_limbus(e["loop_points"], ax)
+                sl, sa, source = OPENING_SIGMA_MM, OPENING_AXIS_SIGMA_DEG, "opening"
+                iris = iris_in_opening(e["loop_points"], lc, ax, ir)
             front = e.get("front_elsewhere_mm")
             where = (f"{was['offset_mm']:.1f} mm off the centre of the lid opening (half-width "
                      f"{was['opening_half_width_mm']:.1f} mm) over eye surface "
@@ -286,8 +300,11 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
                      f"{'outside' if not was['center_inside'] else 'mostly behind'} the lid opening")
             doubts.append(f"the placed iris lay {where} at rest ({100 * was['visible_share']:.0f} % of it inside, "
                           f"limbus +-{was_sl:.2f} mm, axis +-{was_sa:.1f} deg): "
-                          f"placed from the opening instead, iris centred, axis along the eye "
-                          f"region's forward")
+                          + ("placed from the opening instead, iris centred, axis along the eye "
+                             "region's forward" if again is None else
+                             f"read again from the eye surface inside the opening, the iris "
+                             f"{100 * iris['visible_share']:.0f} % inside it (every reading elsewhere "
+                             f"costs {gap:.1f} more)"))
         if source != "opening" and e.get("axis_model_sigma_deg"):
             # what the axis read means, not how sure the read is: the iris disc's normal is not
             # the optical axis (after the hidden-iris test, which asks how sure the fit is)

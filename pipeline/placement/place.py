@@ -21,7 +21,7 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.eyes_file import Eye
-from pipeline.placement import checks as eye_checks, human_eye
+from pipeline.placement import checks as eye_checks, human_eye, iris_cap
 from pipeline.placement.doubts import check_doubts, fissure_doubts
 from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease_deg, patch_faces
 from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_behind_loop, fit_from_fill
@@ -467,13 +467,14 @@ def scan_limbus(pl, st: PlacementSettings) -> dict:
 
 
 def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettings, limbi=None,
-               standoffs=None) -> dict:
+               standoffs=None, V=None, reread=()) -> dict:
     """The asset's eyes (:func:`human_eye.asset_eyes`) from what the scan shows: the scan's
     limbus and gaze (``limbi``: side -> :func:`scan_limbus`, computed when None), or for a
     texture placement the limbus of its anatomical eye. ``standoffs``: side -> ``(standoff,
     front)``: the ``cornea_shows`` check's value (the eye surface along the fitted axis over its
     sides, mm) and :func:`eye_checks.front_elsewhere`'s (None where not measured), which
-    :func:`human_eye.axis_off_front` reads."""
+    :func:`human_eye.axis_off_front` reads. ``V`` (n, 3): the scan's vertices, from which an eye of
+    ``reread`` (sides) the geometry placed with its iris hidden reads it again inside its opening."""
     from pipeline.eyeball.geometry import EyeballParams, placed_params
     from pipeline.placement import human_eye
 
@@ -493,6 +494,9 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
                      axis_model_sigma_deg=AXIS_MODEL_SIGMA_DEG if (lim["record"] or {}).get("used") else 0.0,
                      axis_standoff_mm=(standoffs or {}).get(s, (None, None))[0],
                      front_elsewhere_mm=(standoffs or {}).get(s, (None, None))[1])
+            if V is not None and s in reread:
+                c, reach = np.asarray(fit.center, float), float(fit.radius) + iris_cap.REREAD_SHELL_MM
+                e["near_points"] = V[np.einsum("ij,ij->i", V - c, V - c) < reach * reach]
         else:       # the anatomical eye behind the fissure (photographed, or a flat fill's boundary)
             here = placed_params(geo, fit.radius)
             sigma = FILL_SIGMA if fit.method in ("fill", "coarse") else TEXTURE_SIGMA
@@ -625,7 +629,11 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
             records[s]["front_elsewhere_mm"] = None if front is None else round(front, 4)
         standoffs[s] = (st_s, front)
     asset = asset_eyes({s: V2[loops[s][0]] for s in SIDES}, fits, placements, eyeball, st, limbi,
-                       standoffs=standoffs)
+                       standoffs=standoffs, V=V,
+                       # only inside an opening: a cut that went round part of an eye (notched, or
+                       # narrower than any fissure) is cut again behind the prior's opening below
+                       reread={s for s in SIDES if checks[s]["opening_convex"]["ok"]
+                               and checks[s]["opening_wide"]["ok"]})
     for s in SIDES:
         if asset[s]["limbus"]["source"] in ("opening", "coarse"):
             seat_behind_loop(asset[s], V2[loops[s][0]], eyeball, lim, loops[s][1])
