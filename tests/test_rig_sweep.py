@@ -182,3 +182,31 @@ def test_fold_report_names_the_eye_lid_ring_and_pitch_of_a_constructed_fold():
     assert msg.startswith("worst on the right eye's lower lid: a face turned ")
     assert f"out from loop vertex {w['loop_vertex']} of {n_loop}" in msg and "mm in the head frame" in msg
     assert f"at pitch {w['pitch_deg']:+g} deg (over from {w['first_pitch_deg']:+g} deg)" in msg
+
+
+def test_a_crease_unrolling_is_no_fold_and_skin_folding_under_is():
+    """pipeline/geometry/meshtopo.turned_over_faces: an eye region facing +z whose crease's
+    underside (facing -z) turns 130 degrees to face out as a lid comes down folds nothing; the
+    same turn of skin that faced out, now facing in, does; a closed surface (normals summing to
+    nothing) is judged by the turn alone."""
+    from pipeline.geometry.meshtopo import turned_over_faces
+
+    def turn(n, deg):
+        a = np.radians(deg)
+        R = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+        return n @ R.T
+
+    out = np.tile([0.0, 0.0, 1.0], (20, 1))                        # the region, facing +z
+    under = turn(np.array([[0.0, 0.0, 1.0]]), 140.0)               # a crease's underside, facing in
+    n0 = np.vstack([out, under])
+    unroll = n0.copy()
+    unroll[-1] = turn(under, -130.0)[0]                            # turned out again
+    assert float(n0[-1] @ unroll[-1]) < 0 and not turned_over_faces(n0, unroll).any()
+    fold = n0.copy()
+    fold[0] = turn(out[:1], 130.0)[0]                              # skin that faced out, turned in
+    assert np.flatnonzero(turned_over_faces(n0, fold)).tolist() == [0]
+    assert not turned_over_faces(n0, n0).any()
+    closed = np.vstack([out[:10], -out[:10]])                      # no way it faces
+    flip = closed.copy()
+    flip[12] = -flip[12]
+    assert np.flatnonzero(turned_over_faces(closed, flip)).tolist() == [12]

@@ -194,3 +194,25 @@ def test_polygon_normals_equal_the_loop_on_mixed_polygons():
     assert len(face) == int(np.maximum(counts - 2, 0).sum())
     np.testing.assert_array_equal(_polygon_normals(P, counts, idx, (face, a, b, c)), ref)
     assert _polygon_normals(P, [], []).shape == (0, 3)
+
+
+def test_posed_flips_count_skin_folding_under_not_a_crease_unrolling():
+    """A quad grid (facing +z) whose last row, folded under at rest (facing -z), is turned out
+    again by the offsets folds nothing; its centre pushed past a neighbour does
+    (pipeline/geometry/meshtopo.turned_over_faces)."""
+    from pipeline.usd.validate import _posed_flips
+
+    g = np.linspace(0.0, 4.0, 5)
+    X, Y = np.meshgrid(g, g)
+    P = np.column_stack([X.ravel(), Y.ravel(), np.zeros(25)])
+    P = np.vstack([P, P[20:25] + [0.0, -0.8, -0.4]])               # the row folded back under the top edge
+    quads = [[i * 5 + j, i * 5 + j + 1, (i + 1) * 5 + j + 1, (i + 1) * 5 + j] for i in range(4) for j in range(4)]
+    quads += [[20 + j, 21 + j, 26 + j, 25 + j] for j in range(4)]     # the sheet carried on: facing -z
+    counts, idx = [4] * len(quads), np.ravel(quads)
+    O = np.zeros_like(P)
+    O[25:] = [0.0, 1.6, 0.0]                                        # the crease unrolls past the edge
+    assert _posed_flips(P, counts, idx, None, [np.zeros_like(P)]) == 0
+    assert _posed_flips(P, counts, idx, None, [O]) == 0
+    O = np.zeros_like(P)
+    O[12] = 2.0 * (P[13] - P[12])                                   # the centre pushed past its right neighbour
+    assert _posed_flips(P, counts, idx, None, [O]) >= 1

@@ -371,3 +371,34 @@ def vertex_normals(V, F):
                   axis=1)
     L = np.linalg.norm(VN, axis=1, keepdims=True)
     return np.divide(VN, L, out=np.zeros_like(VN), where=L > 0)
+
+
+#: A mesh whose area-weighted normals sum to less than this share of its area faces no one way
+#: (a closed surface: an eyeball): its faces turn over by the normal's turn alone.
+FACING_MIN_SHARE = 0.5
+
+
+def turned_over_faces(n0, n1) -> np.ndarray:
+    """(m,) bool: the faces that turn over between two poses of one mesh, from their
+    area-weighted normals at rest ``n0`` and posed ``n1`` (m, 3): turned by more than 90 degrees
+    from rest, and, where the mesh faces one way (an eye region: its normals' area-weighted sum
+    at rest, at least ``FACING_MIN_SHARE`` of its area), turned away from that way. Skin folding
+    under turns from facing out to facing in; a crease unrolling turns the other way, from its
+    underside to facing out, and is no fold (the lid skin a look up draws into the upper lid's
+    crease unrolls by 130 degrees as the lid comes down: fresh21's `n2701_look_up_out_250k`,
+    a sliver whose cosine with the eye region's facing is -0.62 at rest and 0.68 looking down 25 deg)."""
+    n0 = np.asarray(n0, np.float64)
+    n1 = np.asarray(n1, np.float64)
+    turned = np.einsum("ij,ij->i", n0, n1) <= 0
+    if not turned.any():
+        return turned
+    l0 = np.linalg.norm(n0, axis=1)
+    o = n0.sum(axis=0)
+    if np.linalg.norm(o) < FACING_MIN_SHARE * l0.sum():
+        return turned
+    o = o / np.linalg.norm(o)
+    l1 = np.linalg.norm(n1, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        before = np.where(l0 > 0, (n0 @ o) / l0, 0.0)
+        after = np.where(l1 > 0, (n1 @ o) / l1, 0.0)
+    return turned & (after < before)

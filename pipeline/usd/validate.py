@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from pipeline.geometry.meshtopo import triangle_cross
+from pipeline.geometry.meshtopo import triangle_cross, turned_over_faces
 
 
 def _open(path_or_stage):
@@ -128,7 +128,8 @@ def _polygon_normals(P, counts, idx, fan=None):
 
 
 def _posed_flips(P, counts, idx, point_indices, offsets_list):
-    """Largest number of faces whose normal turns by more than 90 degrees when the shape is
+    """Largest number of faces that turn over (:func:`pipeline.geometry.meshtopo.turned_over_faces`:
+    turned by more than 90 degrees, and away from the way the mesh faces) when the shape is
     applied at each given offsets array (full weight and every inbetween)."""
     fan = _fan_triangles(counts, idx)
     N0 = _polygon_normals(P, counts, idx, fan)
@@ -141,7 +142,7 @@ def _posed_flips(P, counts, idx, point_indices, offsets_list):
         else:
             Q[point_indices] += O
         N1 = _polygon_normals(Q, counts, idx, fan)
-        worst = max(worst, int(np.count_nonzero(np.einsum("ij,ij->i", N0[ok], N1[ok]) <= 0)))
+        worst = max(worst, int(np.count_nonzero(turned_over_faces(N0, N1)[ok])))
     return worst
 
 
