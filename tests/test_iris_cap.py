@@ -106,6 +106,8 @@ def _loop_on_sphere(c, R, yaw_deg=48.0, pitch_deg=18.0, turn_deg=0.0, k=40):
 
 
 def test_reread_finds_an_iris_turned_into_the_corner_and_refuses_a_bare_sphere():
+    from pipeline.placement import human_eye
+
     c, R, tl, hp, rp = np.array([-33.0, 34.0, 80.0]), 15.5, 30.0, 2.5, 4.5
     n = np.array([-np.sin(np.radians(32.0)), 0.05, np.cos(np.radians(32.0))])
     n /= np.linalg.norm(n)
@@ -115,7 +117,7 @@ def test_reread_finds_an_iris_turned_into_the_corner_and_refuses_a_bare_sphere()
     # the scan's sphere 0.6 mm off and 0.3 mm small: read about it from the eye region's forward
     seen = iris_cap.opening_eye_points(P, loop, c + [0.4, -0.3, 0.3], R - 0.3, fwd)
     assert 50 < len(seen) < len(P)
-    got = iris_cap.reread_iris(seen, loop, c + [0.4, -0.3, 0.3], R - 0.3, fwd, iris_radius=6.0)
+    got = human_eye.reread_iris(seen, loop, c + [0.4, -0.3, 0.3], R - 0.3, fwd, iris_radius=6.0)
     assert got is not None
     cap, iris, gap = got
     truth = c + R * np.cos(np.radians(tl)) * n
@@ -127,8 +129,8 @@ def test_reread_finds_an_iris_turned_into_the_corner_and_refuses_a_bare_sphere()
     d = rng.normal(size=(6000, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     bare = iris_cap.opening_eye_points(c + R * d + rng.normal(0.0, 0.05, d.shape), loop, c, R, fwd)
-    assert iris_cap.reread_iris(bare, loop, c, R, fwd, iris_radius=6.0) is None
-    assert iris_cap.reread_iris(bare[:8], loop, c, R, fwd, iris_radius=6.0) is None
+    assert human_eye.reread_iris(bare, loop, c, R, fwd, iris_radius=6.0) is None
+    assert human_eye.reread_iris(bare[:8], loop, c, R, fwd, iris_radius=6.0) is None
 
 
 def test_an_eye_whose_reading_hid_its_iris_is_read_again_inside_its_opening():

@@ -21,7 +21,8 @@ import numpy as np
 
 from pipeline.geometry.frame import eye_basis
 from pipeline.placement.fissure import points_in_polygon
-from pipeline.placement.iris_cap import REREAD_SIGMA, opening_eye_points, reread_iris
+from pipeline.placement import iris_cap
+from pipeline.placement.iris_cap import REREAD_SIGMA, opening_eye_points
 
 SIDES = ("left", "right")
 #: Population eyeball radius (mm): 11.7 +- 0.45, from the axial length 23.4 +- 0.9 mm.
@@ -196,6 +197,24 @@ def axis_off_front(iris: dict, standoff_mm, front_mm=None) -> bool:
     return cornered or (front_mm is not None and np.isfinite(front_mm) and front_mm >= FRONT_SHOWS_MM)
 
 
+def reread_iris(P, loop_points, center, radius, forward, iris_radius: float):
+    """The iris the eye surface ``P`` (k, 3) inside the opening shows, where the placement's
+    reading put it behind a lid or into a corner: :func:`pipeline.placement.iris_cap.iris_from_starts`,
+    believed only when every reading elsewhere costs ``REREAD_GAP`` more and its iris shows in the
+    opening (at least ``REREAD_VISIBLE`` of it inside, its centre within ``REREAD_OFFSET_SHARE``
+    of the half-width: :func:`iris_in_opening` with ``iris_radius``). Returns ``(cap, iris, gap)``,
+    or None when too few points show or the reading is not believed."""
+    got = iris_cap.iris_from_starts(P, center, radius, forward)
+    if got is None:
+        return None
+    best, gap = got
+    iris = iris_in_opening(loop_points, best.limbus_center, best.n, iris_radius)
+    if (gap < iris_cap.REREAD_GAP or iris["visible_share"] < iris_cap.REREAD_VISIBLE
+            or iris["offset_mm"] > iris_cap.REREAD_OFFSET_SHARE * iris["opening_half_width_mm"]):
+        return None
+    return best, iris, gap
+
+
 def opening_limbus(loop_points, axis) -> np.ndarray:
     """The limbus centre an eye placed from its opening alone gets: the iris centred in the
     opening (the centroid of the lid margin seen along ``axis``), ``OPENING_LIMBUS_DEPTH_MM``
@@ -237,7 +256,7 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         (1-sigma, deg), joined in quadrature to the stated axis sigma of an eye the scan places;
         ``near_points`` (k, 3): the scan's vertices near the eye, from which an eye whose iris
         the placement hid reads it again inside the opening before it falls back to the opening
-        (:func:`pipeline.placement.iris_cap.reread_iris`; absent: straight to the opening).
+        (:func:`reread_iris`; absent: straight to the opening).
     eye_size : str
         ``human`` (radius ``r1``), ``population`` or ``fitted`` (:func:`asset_radius`).
     eyeball : EyeballParams

@@ -152,7 +152,7 @@ def refit_limbus(P, eye: Eye, *, radius_range=(10.0, 21.0), max_move=MAX_MOVE, m
     return cap.limbus_center, cap.n, cap, True
 
 
-#: Reading the iris again where the placement's own reading hid it (:func:`reread_iris`): the eye
+#: Reading the iris again where the placement's own reading hid it (:func:`iris_from_starts`): the eye
 #: surface inside the opening, kept ``REREAD_EDGE_MM`` off the lid margin seen along the eye
 #: region's forward (the lids' rolled edge is no eye) and within ``REREAD_SHELL_MM`` of the scan's
 #: sphere; starts every ``REREAD_STEP_DEG`` out to ``REREAD_YAW_DEG`` sideways and at
@@ -207,16 +207,13 @@ def opening_eye_points(V, loop_points, center, radius, forward, edge_mm=REREAD_E
     return V[idx[edge > edge_mm]]
 
 
-def reread_iris(P, loop_points, center, radius, forward, iris_radius: float):
-    """The iris the eye surface ``P`` (k, 3) inside the opening shows, read from many starts
-    about the scan's sphere (``center``, ``radius``) around ``forward`` (the eye region's), where
-    the placement's reading put the iris behind a lid or into a corner (the module constants
-    ``REREAD_*``). Returns ``(cap, iris, gap)``: the best :class:`IrisCap`, how its iris sits in
-    the opening (:func:`pipeline.placement.human_eye.iris_in_opening` with ``iris_radius``) and
-    how much more the best reading elsewhere costs; None when too few points show or the reading
-    is not believed."""
+def iris_from_starts(P, center, radius, forward):
+    """The iris the eye surface ``P`` (k, 3) shows, read from many starts about the scan's
+    sphere (``center``, ``radius``) around ``forward`` (the ``REREAD_*`` constants). Returns
+    ``(cap, gap)``: the cheapest :class:`IrisCap` and how much more the cheapest reading whose
+    limbus lies over ``REREAD_APART_MM`` from it costs (inf when none does); None when too few
+    points show. :func:`pipeline.placement.human_eye.reread_iris` judges it."""
     from pipeline.geometry.frame import eye_basis
-    from pipeline.placement.human_eye import iris_in_opening
 
     P = np.asarray(P, float)
     if len(P) < 12:
@@ -238,9 +235,4 @@ def reread_iris(P, loop_points, center, radius, forward, iris_radius: float):
     fits.sort(key=lambda k: k.cost)
     best = fits[0]
     apart = [k.cost for k in fits[1:] if np.linalg.norm(k.limbus_center - best.limbus_center) > REREAD_APART_MM]
-    gap = (apart[0] - best.cost) if apart else float("inf")
-    iris = iris_in_opening(loop_points, best.limbus_center, best.n, iris_radius)
-    if (gap < REREAD_GAP or iris["visible_share"] < REREAD_VISIBLE
-            or iris["offset_mm"] > REREAD_OFFSET_SHARE * iris["opening_half_width_mm"]):
-        return None
-    return best, iris, gap
+    return best, ((apart[0] - best.cost) if apart else float("inf"))
