@@ -152,7 +152,7 @@ def test_an_eye_whose_reading_hid_its_iris_is_read_again_inside_its_opening():
         return {"limbus_center": c + 13.0 * wrong, "axis": wrong, "limbus_radius": 7.0,
                 "sigma_limbus_mm": 0.4, "sigma_axis_deg": 1.5, "source": "geometry", "center": c,
                 "radius": R, "sigma_radius": 0.5, "loop_points": loop, "prior_axis": np.array([0.0, 0.0, 1.0]),
-                **({} if near is None else {"near_points": near})}
+                **({} if near is None else {"scan_points": near})}
 
     for near, source in ((P, "geometry"), (None, "opening")):
         got = human_eye.asset_eyes({"left": eye(near), "right": eye(near)}, eye_size="human",

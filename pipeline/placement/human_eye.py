@@ -254,8 +254,8 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         ``front_elsewhere_mm`` (the largest such standoff within reach): :func:`axis_off_front`;
         ``axis_model_sigma_deg``: how far the scan's axis reading stands off the optical axis
         (1-sigma, deg), joined in quadrature to the stated axis sigma of an eye the scan places;
-        ``near_points`` (k, 3): the scan's vertices near the eye, from which an eye whose iris
-        the placement hid reads it again inside the opening before it falls back to the opening
+        ``scan_points`` (k, 3): the scan's vertices, from which an eye whose iris the placement
+        hid reads it again inside the opening before it falls back to the opening
         (:func:`reread_iris`; absent: straight to the opening).
     eye_size : str
         ``human`` (radius ``r1``), ``population`` or ``fitted`` (:func:`asset_radius`).
@@ -297,8 +297,8 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
             # and the eye region's forward place it instead (the 57 deg turn into the nose)
             was, was_sl, was_sa = iris, sl, sa
             ax = _opening_axis(e["loop_points"], e.get("prior_axis"), ax)
-            again = None if e.get("near_points") is None else reread_iris(
-                opening_eye_points(e["near_points"], e["loop_points"], e["center"], e["radius"], ax),
+            again = None if e.get("scan_points") is None else reread_iris(
+                opening_eye_points(e["scan_points"], e["loop_points"], e["center"], e["radius"], ax),
                 e["loop_points"], e["center"], e["radius"], ax, ir)
             if again is not None:
                 # the eye surface inside the opening, read from many starts, shows one iris

@@ -21,7 +21,7 @@ from pipeline.geometry import meshtopo
 from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_checks import closed_polyline_distance
 from pipeline.io.eyes_file import Eye
-from pipeline.placement import checks as eye_checks, human_eye, iris_cap
+from pipeline.placement import checks as eye_checks, human_eye
 from pipeline.placement.doubts import check_doubts, fissure_doubts
 from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease_deg, patch_faces
 from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_behind_loop, fit_from_fill
@@ -495,8 +495,7 @@ def asset_eyes(loop_points: dict, fits, placements, eyeball, st: PlacementSettin
                      axis_standoff_mm=(standoffs or {}).get(s, (None, None))[0],
                      front_elsewhere_mm=(standoffs or {}).get(s, (None, None))[1])
             if V is not None and s in reread:
-                c, reach = np.asarray(fit.center, float), float(fit.radius) + iris_cap.REREAD_SHELL_MM
-                e["near_points"] = V[np.einsum("ij,ij->i", V - c, V - c) < reach * reach]
+                e["scan_points"] = V        # read only where the eye falls back (human_eye.reread_iris)
         else:       # the anatomical eye behind the fissure (photographed, or a flat fill's boundary)
             here = placed_params(geo, fit.radius)
             sigma = FILL_SIGMA if fit.method in ("fill", "coarse") else TEXTURE_SIGMA
