@@ -163,7 +163,8 @@ def refit_limbus(P, eye: Eye, *, radius_range=(10.0, 21.0), max_move=MAX_MOVE, m
 #: half-width). Chosen on the 23 eyes of the held-out and fresh14-20 heads that fell back to their
 #: opening (docs/remove_eyeballs.md, "An iris read again inside the opening"): it took 7, every
 #: one nearer the truth (limbus 0.57-1.91 mm, axis 2.9-6.2 deg, against 2.0-5.7 mm and 10-38 deg
-#: from the opening), and left the 16 whose best reading lay 4-11 mm off.
+#: from the opening), and left the 16 whose best reading had a rival near it or its iris in a
+#: corner, or whose eye no geometry placed.
 REREAD_EDGE_MM = 1.0
 REREAD_SHELL_MM = 4.0
 REREAD_YAW_DEG, REREAD_STEP_DEG = 45.0, 15.0
@@ -185,6 +186,7 @@ def opening_eye_points(V, loop_points, center, radius, forward, edge_mm=REREAD_E
     ``forward``), inside the lid loop ``loop_points`` (L, 3) seen along ``forward`` and at least
     ``edge_mm`` in from it."""
     from pipeline.geometry.frame import eye_basis
+    from pipeline.geometry.mesh_checks import closed_polyline_distance
     from pipeline.placement.fissure import points_in_polygon
 
     V = np.asarray(V, float)
@@ -198,13 +200,7 @@ def opening_eye_points(V, loop_points, center, radius, forward, edge_mm=REREAD_E
     W = w[keep] @ B.T
     inside = points_in_polygon(W, Q)
     W, idx = W[inside], np.flatnonzero(keep)[inside]
-    A, Bq = Q, np.roll(Q, -1, axis=0)
-    edge = np.full(len(W), np.inf)
-    for a, b in zip(A, Bq):
-        ab = b - a
-        t = np.clip(((W - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-        edge = np.minimum(edge, np.linalg.norm(W - (a + t[:, None] * ab), axis=1))
-    return V[idx[edge > edge_mm]]
+    return V[idx[closed_polyline_distance(W, Q) > edge_mm]]
 
 
 def iris_from_starts(P, center, radius, forward):

@@ -13,16 +13,8 @@ from pipeline.geometry.meshtopo import turned_over_faces, vertex_adjacency
 from pipeline.rig.lids import BlendShape, evaluate_shapes, lid_weights
 
 
-def turned_over(F, n0, n1) -> np.ndarray:
-    """(m,) bool: the triangles ``F`` that turn over between rest and a pose, from their
-    area-weighted normals (``n0``, ``n1``, (m, 3)): :func:`pipeline.geometry.meshtopo.turned_over_faces`
-    (turned past 90 degrees, and away from the way the eye region faces: a crease unrolling is
-    no fold)."""
-    return turned_over_faces(n0, n1)
-
-
 def flipped_faces(V, F, shapes, pitches_deg, max_pitch_deg: float) -> np.ndarray:
-    """Faces (indices) that turn over (:func:`turned_over`) at any of ``pitches_deg``."""
+    """Faces (indices) that turn over (:func:`pipeline.geometry.meshtopo.turned_over_faces`) at any of ``pitches_deg``."""
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     n0 = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
@@ -31,7 +23,7 @@ def flipped_faces(V, F, shapes, pitches_deg, max_pitch_deg: float) -> np.ndarray
     for p in pitches_deg:
         P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch_deg))
         n1 = np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])
-        bad |= ok & turned_over(F, n0, n1)
+        bad |= ok & turned_over_faces(n0, n1)
     return np.flatnonzero(bad)
 
 
@@ -122,7 +114,7 @@ def _lid_of(k: int, lateral_index: int) -> str:
 
 def fold_report(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float) -> dict | None:
     """Where the lid sweep folds: the faces the sweep counts (:func:`pipeline.rig.sweep.sweep_check`:
-    a vertex moved by a shape, turned over at some pitch: :func:`turned_over`), each given
+    a vertex moved by a shape, turned over at some pitch: :func:`pipeline.geometry.meshtopo.turned_over_faces`), each given
     to the eye and lid whose loop vertex lies nearest its centroid.
 
     Returns None when no face turns over, else a dict: ``faces`` (how many turn at some pitch),
@@ -149,7 +141,7 @@ def fold_report(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float) -> dict |
         P = evaluate_shapes(V, shapes, lid_weights(p, max_pitch_deg))
         n1 = np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])
         cos = np.einsum("ij,ij->i", n0, n1) / np.maximum(l0 * np.linalg.norm(n1, axis=1), 1e-300)
-        cos = np.where(check & turned_over(F, n0, n1), cos, np.inf)
+        cos = np.where(check & turned_over_faces(n0, n1), cos, np.inf)
         flip = cos <= 0
         first[flip & np.isnan(first)] = p
         better = cos < worst_cos

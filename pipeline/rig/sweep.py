@@ -11,7 +11,6 @@ import numpy as np
 
 from pipeline.geometry import meshtopo
 from pipeline.rig.eye_frame import EyeFrame, rotate_about_axis
-from pipeline.rig.folds import turned_over
 from pipeline.rig.lid_shapes import near_eye_skin
 from pipeline.rig.lids import MAX_PITCH_DEG, evaluate_shapes, lid_weights
 
@@ -104,7 +103,7 @@ def sweep_check(V, F, eyes, shapes, pitches_deg, max_pitch_deg: float = MAX_PITC
     dict
         ``max_gap_mm`` (margin outside the sphere), ``max_penetration_mm`` (inside),
         ``rest_max_abs_mm`` (same at pitch 0), ``flipped_faces`` (max over pitches of
-        faces turned over: :func:`pipeline.rig.folds.turned_over`), ``min_opening_mm``
+        faces turned over: :func:`pipeline.geometry.meshtopo.turned_over_faces`), ``min_opening_mm``
         (smallest upper-minus-lower lid height along vertical lines; < 0 = crossing),
         ``min_skin_clearance_mm`` (smallest distance outside the pitched eyeball surface of
         moved non-margin vertices within 2 r of the centre; ``rest_min_skin_clearance_mm`` the same at rest) and
@@ -216,7 +215,7 @@ def _sweep_pitches(pitches_deg, V, F, eyes, shapes, max_pitch_deg, corneas, n0, 
                 res["max_skin_sink_mm"] = max(res["max_skin_sink_mm"],
                                               float(np.max(rest_clear - ds)))
         n1 = meshtopo.face_normals(P, F, normalize=False)
-        flipped = int(np.count_nonzero(turned_over(F, n0, n1)[check_faces]))
+        flipped = int(np.count_nonzero(meshtopo.turned_over_faces(n0, n1)[check_faces]))
         res["flipped_faces"] = max(res["flipped_faces"], flipped)
         res["n_pitches"] += 1
     res["worst"] = worst
