@@ -196,6 +196,53 @@ def test_thin_quads_are_raised_to_the_target_angle_with_nothing_turned():
     assert _grid_angles(smooth_grid(G, d, V, F, iterations=0, raise_to=None), V, F)["min_angle_deg"] < 3.0
 
 
+def _walled_annulus(a=5.0, b=30.0, n_th=256):
+    """A surface of revolution round a hole of radius ``a`` (faces towards +z): a ledge at z = 0
+    out to ``a + 0.6``, a wall 2 mm high, then the lid's top at z = 2 out to ``b``: a lid margin
+    as a 1.2M-face scan shows it. Returns ``(V, F, on_profile)``, the last mapping a distance
+    along the profile from the hole (mm, (S,)) and directions ``u`` (S, 3) to points on it."""
+    ledge = [(a + t, 0.0) for t in np.linspace(0.0, 0.6, 7)]
+    wall = [(a + 0.6, 2.0 * s) for s in np.linspace(0.0, 1.0, 21)[1:]]
+    top = [(a + 0.6 + t, 2.0) for t in np.geomspace(0.1, b - a - 0.6, 60)]
+    prof = np.array(ledge + wall + top)
+    th = 2 * np.pi * np.arange(n_th) / n_th
+    V = np.stack([prof[:, :1] * np.cos(th)[None], prof[:, :1] * np.sin(th)[None],
+                  np.repeat(prof[:, 1:], n_th, 1)], -1).reshape(-1, 3)
+    ids = np.arange(len(prof) * n_th).reshape(len(prof), n_th)
+    p, q, r, s = ids[:-1], np.roll(ids[:-1], -1, 1), np.roll(ids[1:], -1, 1), ids[1:]
+    F = np.concatenate([np.stack([p, r, q], -1).reshape(-1, 3), np.stack([p, s, r], -1).reshape(-1, 3)])
+
+    def on_profile(t, u):
+        r = a + np.minimum(t, 0.6) + np.clip(t - 2.6, 0.0, None)
+        return r[:, None] * u + np.clip(t - 0.6, 0.0, 2.0)[:, None] * np.array([0.0, 0.0, 1.0])
+    return V, F, on_profile
+
+
+def test_rings_at_the_foot_of_a_margin_wall_climb_it():
+    """Known answer: where a dense scan's lid margin stands as a wall, rings 1 and 2 of five
+    spokes sit together at its foot (0.1 mm apart along the surface, a 7 deg triangle). No point
+    of the scan lies 0.6 of ring 2's distance out along the opening's plane near them (the top
+    is 2 mm up), so a floor taken along that plane held them there (10 deg after raising); the
+    floor taken in space, from the node inside on the spoke, lets the nodes part along the wall,
+    and every triangle ends over 25 deg with none turned, the loop and the outer ring held."""
+    V, F, on_profile = _walled_annulus()
+    S, a, rings, width = 64, 5.0, 6, 8.0
+    th = 2 * np.pi * np.arange(S) / S
+    u = np.stack([np.cos(th), np.sin(th), 0 * th], 1)
+    d = ring_distances(rings, width, 2 * np.pi * a / S)
+    G = np.stack([on_profile(np.full(S, dk), u) for dk in d])
+    G[1, 10:15] = on_profile(np.full(S, 0.55), u)[10:15]
+    G[2, 10:15] = on_profile(np.full(S, 0.65), u)[10:15]
+    before = _grid_angles(G, V, F)
+    assert before["min_angle_deg"] < 8.0 and before["flipped_faces"] == 0
+    Gr = smooth_grid(G, d, V, F, iterations=0)
+    after = _grid_angles(Gr, V, F)
+    assert after["min_angle_deg"] > 25.0 and after["flipped_faces"] == 0
+    assert np.array_equal(Gr[0], G[0]) and np.abs(Gr[-1] - G[-1]).max() < 1e-9
+    # ring 1 keeps 0.6 of the grading's first step from the loop, in space
+    assert np.linalg.norm(Gr[1] - Gr[0], axis=1).min() >= 0.6 * d[1] - 1e-9
+
+
 def _notched_disk(b=30.0, n_th=720, n_t=64):
     """A flat disk of radius ``b`` whose hole is round (radius 6) but for a tongue of the surface
     3.5 mm deep and about 2 mm wide poking into it at angle 0: the opening's loop turns inwards

@@ -540,7 +540,7 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     G[0] = loop
     if raise_to is None:
         return G
-    return _raise_angles(G, fade, lift, closest, fn, out, push * d, push_rings, target=raise_to)
+    return _raise_angles(G, fade, lift, closest, fn, push * np.diff(d, prepend=0.0), push_rings, target=raise_to)
 
 
 def _tri_quality(P, Q, R, n):
@@ -567,7 +567,7 @@ def _quad_quality(X, N):
                       np.minimum(_tri_quality(A, B, D, nA + nB + nD), _tri_quality(B, C, D, nB + nC + nD)))
 
 
-def _raise_angles(G, fade, lift, closest, fn, out, floor, push_rings, target=RAISE_TARGET_DEG,
+def _raise_angles(G, fade, lift, closest, fn, min_step, push_rings, target=RAISE_TARGET_DEG,
                   passes=RAISE_PASSES, scales=RAISE_STEPS):
     """Move the band's inner nodes (rings 1 .. R - 1) of quads with a triangle angle under
     ``target`` deg to the candidate that most raises the smallest angle of the quads round them:
@@ -575,8 +575,9 @@ def _raise_angles(G, fade, lift, closest, fn, out, floor, push_rings, target=RAI
     onto the scan with the node's lift. Elliptic smoothing leaves a quad long and thin where a
     fold of the scan (a lid crease whose wall turns past 90 deg) lies between two rings, or beside
     a canthus, where three spokes share the corner's 320 deg. A split turned against the scan
-    scores 180 less, so no move turns one over; rings 1 .. ``push_rings`` stay ``floor`` (per
-    ring) out along ``out`` and never come nearer the loop along it; the loop and the outer ring
+    scores 180 less, so no move turns one over; a node of rings 1 .. ``push_rings`` never comes
+    nearer its spoke's node on the ring inside it than ``min_step`` (per ring, mm, in space): the
+    first quads stay wide across whichever way the scan runs there; the loop and the outer ring
     (which the cut follows) are held. The nodes move by colour (ring and spoke parity: no two of
     one colour share a quad), each colour's in one batch, up to ``passes`` rounds."""
     G = G.copy()
@@ -607,12 +608,14 @@ def _raise_angles(G, fade, lift, closest, fn, out, floor, push_rings, target=RAI
                 worst = np.minimum(worst, _quad_quality(np.stack(X), np.stack(Nn)))
         return worst
 
-    # rings 1 .. push_rings never come nearer the loop along the outward direction than the
-    # smoothing left them: a first ring drawn in to square a quad leaves the lid's first quads
-    # thin across, and they turn over in the rig's sweep (id309_squint_up's lower lid)
-    floor = np.array(floor, dtype=np.float64)[:, None] * np.ones((1, S))
-    for k in range(1, min(R, push_rings + 1)):
-        floor[k] = np.maximum(floor[k], np.einsum("ij,ij->i", G[k] - G[0], out))
+    # the first rings keep their step from the ring inside them, in space: a first ring drawn in
+    # to square a quad leaves the lid's first quads thin across, and they turn over in the rig's
+    # sweep (id309_squint_up's lower lid). Not along the opening's outward direction: where the
+    # lid margin stands as a wall (a 1.2M-face scan) or the loop dives into the medial recess, no
+    # point of the scan lies that far out along it near the node, rings 1 and 2 stayed together
+    # at the wall's foot (0.04 mm apart) and no move could open their quads (2.2 deg)
+    min_step = np.asarray(min_step, dtype=np.float64)
+    pushed = min(R - 1, push_rings)
     k_all, i_all = (x.ravel() for x in np.meshgrid(np.arange(1, R), sp, indexing="ij"))
     # an odd spoke count puts spokes S - 1 and 0 side by side with one parity: the last its own
     ci = np.where((S % 2 == 1) & (i_all == S - 1), 2, i_all % 2)
@@ -636,8 +639,8 @@ def _raise_angles(G, fade, lift, closest, fn, out, floor, push_rings, target=RAI
             C = closest((base[k, i][:, None] + off).reshape(-1, 3))[2].reshape(off.shape)
             P = C + fade[k][:, None, None] * lift[i][:, None]
             nP = fn[closest(P.reshape(-1, 3))[1]].reshape(P.shape)
-            ok = (k > push_rings)[:, None] | (np.einsum("ncj,nj->nc", P - G[0, i][:, None], out[i])
-                                              >= floor[k, i][:, None] - 1e-9)
+            ok = ((k > pushed)[:, None]
+                  | (np.linalg.norm(P - G[k - 1, i][:, None], axis=2) >= min_step[k][:, None] - 1e-9))
             cq = np.where(ok, node_quality(k, i, P, nP), -np.inf)
             j = np.argmax(cq, axis=1)
             r = np.arange(len(k))
