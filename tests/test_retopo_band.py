@@ -218,7 +218,7 @@ def _walled_annulus(a=5.0, b=30.0, n_th=256):
     return V, F, on_profile
 
 
-def test_rings_at_the_foot_of_a_margin_wall_climb_it():
+def test_rings_held_together_at_the_foot_of_a_margin_wall_are_parted():
     """Known answer: where a dense scan's lid margin stands as a wall, rings 1 and 2 of five
     spokes sit together at its foot (0.1 mm apart along the surface, a 7 deg triangle). No point
     of the scan lies 0.6 of ring 2's distance out along the opening's plane near them (the top

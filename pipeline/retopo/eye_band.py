@@ -615,7 +615,6 @@ def _raise_angles(G, fade, lift, closest, fn, min_step, push_rings, target=RAISE
     # point of the scan lies that far out along it near the node, rings 1 and 2 stayed together
     # at the wall's foot (0.04 mm apart) and no move could open their quads (2.2 deg)
     min_step = np.asarray(min_step, dtype=np.float64)
-    pushed = min(R - 1, push_rings)
     k_all, i_all = (x.ravel() for x in np.meshgrid(np.arange(1, R), sp, indexing="ij"))
     # an odd spoke count puts spokes S - 1 and 0 side by side with one parity: the last its own
     ci = np.where((S % 2 == 1) & (i_all == S - 1), 2, i_all % 2)
@@ -639,8 +638,8 @@ def _raise_angles(G, fade, lift, closest, fn, min_step, push_rings, target=RAISE
             C = closest((base[k, i][:, None] + off).reshape(-1, 3))[2].reshape(off.shape)
             P = C + fade[k][:, None, None] * lift[i][:, None]
             nP = fn[closest(P.reshape(-1, 3))[1]].reshape(P.shape)
-            ok = ((k > pushed)[:, None]
-                  | (np.linalg.norm(P - G[k - 1, i][:, None], axis=2) >= min_step[k][:, None] - 1e-9))
+            ok = (k > push_rings)[:, None] | (np.linalg.norm(P - G[k - 1, i][:, None], axis=2)
+                                              >= min_step[k][:, None] - 1e-9)
             cq = np.where(ok, node_quality(k, i, P, nP), -np.inf)
             j = np.argmax(cq, axis=1)
             r = np.arange(len(k))
