@@ -28,6 +28,21 @@ ROOT = Path(__file__).resolve().parents[1]
 EYEBALL = ROOT / "rigged_assets" / "eyeball"
 
 
+def parse_sets(parser: argparse.ArgumentParser, specs: list[str]) -> list[tuple[str, Path, Path]]:
+    """``(name, builds, params)`` of each ``NAME=BUILDS:PARAMS``; a malformed or missing one ends
+    the run through ``parser.error`` (exit 2, one line naming it) before anything is built."""
+    sets = []
+    for spec in specs:
+        name, _, rest = spec.partition("=")
+        builds, _, params = rest.rpartition(":")
+        if not name or not builds or not params:
+            parser.error(f"--set {spec}: give NAME=BUILDS:PARAMS")
+        if not Path(builds).is_dir() or not Path(params).is_file():
+            parser.error(f"--set {spec}: {builds if not Path(builds).is_dir() else params} does not exist")
+        sets.append((name, Path(builds), Path(params)))
+    return sets
+
+
 def build(re_dir: Path, params: Path, out: Path) -> str | None:
     """Retopo to rig for one head into ``out``; None, or the refusing stage's last line."""
     out.mkdir(parents=True, exist_ok=True)
@@ -69,17 +84,8 @@ def main(argv=None) -> int:
     p.add_argument("--work", type=Path, required=True)
     p.add_argument("--out", default="band_angles")
     a = p.parse_args(argv)
-    sets = []
-    for spec in a.set:
-        name, _, rest = spec.partition("=")
-        builds, _, params = rest.rpartition(":")
-        if not name or not builds or not params:
-            p.error(f"--set {spec}: give NAME=BUILDS:PARAMS")
-        if not Path(builds).is_dir() or not Path(params).is_file():
-            p.error(f"--set {spec}: {builds if not Path(builds).is_dir() else params} does not exist")
-        sets.append((name, Path(builds), Path(params)))
     result = {}
-    for name, builds, params in sets:
+    for name, builds, params in parse_sets(p, a.set):
         rows = []
         for re_dir in sorted(builds.glob("*/remove_eyeballs")):
             out = a.work / name / re_dir.parent.name

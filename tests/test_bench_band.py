@@ -1,5 +1,5 @@
-"""benchmarks.bench_band refuses a malformed or missing --set before it builds anything (exit 2, one
-line naming it)."""
+"""benchmarks.bench_band and bench_band_jitter refuse a malformed or missing --set before they build
+anything (exit 2, one line naming it)."""
 
 import subprocess
 import sys
@@ -10,10 +10,12 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.parametrize("bench", ["bench_band", "bench_band_jitter"])
 @pytest.mark.parametrize("spec, says", [("seed5", "give NAME=BUILDS:PARAMS"),
                                          ("seed5=/nonexistent/builds:/nonexistent/p.yaml", "/nonexistent/builds does not exist")])
-def test_a_bad_set_is_refused_in_one_line(tmp_path, spec, says):
-    r = subprocess.run([sys.executable, "-m", "benchmarks.bench_band", "--set", spec, "--work", str(tmp_path / "w")],
+def test_a_bad_set_is_refused_in_one_line(tmp_path, spec, says, bench):
+    work = ["--work", str(tmp_path / "w")] if bench == "bench_band" else ["--out", str(tmp_path / "w")]
+    r = subprocess.run([sys.executable, "-m", f"benchmarks.{bench}", "--set", spec, *work],
                        cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 2
     assert says in r.stderr.strip().splitlines()[-1]

@@ -196,6 +196,27 @@ def test_thin_quads_are_raised_to_the_target_angle_with_nothing_turned():
     assert _grid_angles(smooth_grid(G, d, V, F, iterations=0, raise_to=None), V, F)["min_angle_deg"] < 3.0
 
 
+def test_a_grid_folded_over_three_rings_is_taken_back_towards_the_maps_grid():
+    """Known answer: the smoothing can fold the grid where the scan turns sharply (id339_laser's
+    medial corner: two spokes crossed over rings 1-3). Each node of the fold is held by the
+    others, so moving one at a time leaves it turned (5 faces); with the harmonic map's grid as
+    home (the polar grid here), nodes and then the patch round a turned quad go back towards it:
+    nothing turned, every triangle over 28 deg, the loop and the outer ring held."""
+    V, F = _planar_annulus()
+    S, a, rings, width = 64, 5.0, 6, 8.0
+    th = 2 * np.pi * np.arange(S) / S
+    d = ring_distances(rings, width, 2 * np.pi * a / S)
+    H = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+    G = H.copy()
+    G[1:4, [10, 11]] = H[1:4, [11, 10]]
+    assert _grid_angles(G, V, F)["flipped_faces"] == 6
+    assert _grid_angles(smooth_grid(G, d, V, F, iterations=0), V, F)["flipped_faces"] > 0
+    Gr = smooth_grid(G, d, V, F, iterations=0, home=H)
+    after = _grid_angles(Gr, V, F)
+    assert after["flipped_faces"] == 0 and after["min_angle_deg"] > 28.0
+    assert np.array_equal(Gr[0], G[0]) and np.abs(Gr[-1] - G[-1]).max() < 1e-9
+
+
 def _walled_annulus(a=5.0, b=30.0, n_th=256):
     """A surface of revolution round a hole of radius ``a`` (faces towards +z): a ledge at z = 0
     out to ``a + 0.6``, a wall 2 mm high, then the lid's top at z = 2 out to ``b``: a lid margin

@@ -68,6 +68,11 @@ CUT_NEAR = (0.0, 0.5, 0.8)
 RAISE_TARGET_DEG = 30.0
 RAISE_STEPS = (0.05, 0.1, 0.2, 0.35, 0.5)
 RAISE_PASSES = 30
+# ... each node also tries its place in the harmonic map's grid (one-to-one by construction) and
+# two blends towards it; a quad still turned over then has its corners, or the 4 x 4 nodes round
+# it, moved RAISE_HOME_BLENDS of the way back there together, up to RAISE_HOME_ROUNDS times
+RAISE_HOME_BLENDS = (0.25, 0.5, 0.75, 1.0)
+RAISE_HOME_ROUNDS = 4
 
 
 def ring_distances(rings: int, width: float, first: float) -> np.ndarray:
@@ -449,7 +454,7 @@ def _star_radii(to3d, th, loop, normal, width, ranges, coarse=48, fine=12):
 
 def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATIONS, tol=SMOOTH_TOL_MM,
                 push=SMOOTH_PUSH, push_rings=SMOOTH_PUSH_RINGS, lift_power=SMOOTH_LIFT_POWER, step=1.0,
-                normal=None, raise_to=RAISE_TARGET_DEG):
+                normal=None, raise_to=RAISE_TARGET_DEG, home=None):
     """Elliptic smoothing of one eye's band grid ``G`` (R + 1, S, 3) on the dense surface.
 
     The outer ring's nodes only slide along ``outer_line`` (a closed polyline on the scan that runs
@@ -471,6 +476,8 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     the nodes of quads with a triangle angle under ``raise_to`` deg are moved to raise it
     (:func:`_raise_angles`; None: not).
     ``normal``: the opening's normal (:func:`_opening_normal` of ``G[0]``) when already known.
+    ``home``: the grid the harmonic map laid (rings 1 .. R on the scan, one-to-one by
+    construction), where the raise may send nodes back; None: ``G`` as given.
     """
     from pipeline.retopo.eyelid_loop import at_arclength, polyline_arclength, project_to_polyline
 
@@ -478,6 +485,7 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     R = G.shape[0] - 1
     if R < 2:
         return G
+    home = G.copy() if home is None else np.array(home, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64)
     h = np.diff(d)
     am = 2.0 / ((h[:-1] + h[1:]) * h[:-1])                         # weight of ring k - 1
@@ -540,7 +548,8 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     G[0] = loop
     if raise_to is None:
         return G
-    return _raise_angles(G, fade, lift, closest, fn, push * np.diff(d, prepend=0.0), push_rings, target=raise_to)
+    return _raise_angles(G, fade, lift, closest, fn, push * np.diff(d, prepend=0.0), push_rings, target=raise_to,
+                         home=home)
 
 
 def _tri_quality(P, Q, R, n):
@@ -567,19 +576,45 @@ def _quad_quality(X, N):
                       np.minimum(_tri_quality(A, B, D, nA + nB + nD), _tri_quality(B, C, D, nB + nC + nD)))
 
 
+def _turns_clockwise(G, N) -> bool:
+    """Whether the grid's quads (ring k, spoke i) -> (k, i + 1) -> (k + 1, i + 1) run clockwise
+    about the scan's normals ``N`` (as ``G``, at its nodes): as the spokes are numbered round the eye."""
+    sp = np.roll(np.arange(G.shape[1]), -1)
+    a, b, c = G[0], G[0, sp], G[1, sp]
+    return bool(np.sum(np.einsum("ij,ij->i", np.cross(b - a, c - a), N[0] + N[1])) < 0)
+
+
+def grid_quality(G, N, rev=None):
+    """(R, S) :func:`_quad_quality` of every quad of the grid ``G`` (R + 1, S, 3), with ``N`` the
+    scan's normals nearest its nodes; ``rev``: :func:`_turns_clockwise` of them, when known."""
+    R, S = G.shape[0] - 1, G.shape[1]
+    sp = np.arange(S)
+    corners = [(slice(0, R), sp), (slice(0, R), np.roll(sp, -1)), (slice(1, R + 1), np.roll(sp, -1)),
+               (slice(1, R + 1), sp)]
+    if _turns_clockwise(G, N) if rev is None else rev:
+        corners = corners[::-1]
+    return _quad_quality(np.stack([G[r][:, q] for r, q in corners]), np.stack([N[r][:, q] for r, q in corners]))
+
+
 def _raise_angles(G, fade, lift, closest, fn, min_step, push_rings, target=RAISE_TARGET_DEG,
-                  passes=RAISE_PASSES, scales=RAISE_STEPS):
+                  passes=RAISE_PASSES, scales=RAISE_STEPS, home=None):
     """Move the band's inner nodes (rings 1 .. R - 1) of quads with a triangle angle under
     ``target`` deg to the candidate that most raises the smallest angle of the quads round them:
     points in the scan's tangent plane (8 directions, ``scales`` x the node's mean edge) put back
-    onto the scan with the node's lift. Elliptic smoothing leaves a quad long and thin where a
+    onto the scan with the node's lift, and, with ``home`` (the harmonic map's grid), the node's
+    place there and two blends towards it. Elliptic smoothing leaves a quad long and thin where a
     fold of the scan (a lid crease whose wall turns past 90 deg) lies between two rings, or beside
-    a canthus, where three spokes share the corner's 320 deg. A split turned against the scan
-    scores 180 less, so no move turns one over; a node of rings 1 .. ``push_rings`` never comes
-    nearer its spoke's node on the ring inside it than ``min_step`` (per ring, mm, in space): the
-    first quads stay wide across whichever way the scan runs there; the loop and the outer ring
-    (which the cut follows) are held. The nodes move by colour (ring and spoke parity: no two of
-    one colour share a quad), each colour's in one batch, up to ``passes`` rounds."""
+    a canthus, where three spokes share the corner's 320 deg; where the scan turns sharply (the
+    medial recess of a laser scan, a dense scan's margin wall) it can fold the grid, a turned quad
+    whose nodes are each held by the others. A split turned against the scan scores 180 less, so
+    no move turns one over; a node of rings 1 .. ``push_rings`` never comes nearer its spoke's
+    node on the ring inside it than ``min_step`` (per ring, mm, in space): the first quads stay
+    wide across whichever way the scan runs there; the loop and the outer ring (which the cut
+    follows) are held. The nodes move by colour (ring and spoke parity: no two of one colour share
+    a quad), each colour's in one batch, up to ``passes`` rounds. Then, with ``home``, a quad still
+    turned over has its corners, or the 4 x 4 nodes round it, moved ``RAISE_HOME_BLENDS`` of the
+    way back home together where that raises the worst quad they touch, and the nodes climb again
+    (up to ``RAISE_HOME_ROUNDS`` times)."""
     G = G.copy()
     R, S = G.shape[0] - 1, G.shape[1]
     if R < 2:
@@ -589,19 +624,15 @@ def _raise_angles(G, fade, lift, closest, fn, min_step, push_rings, target=RAISE
     ang = np.radians(np.arange(8) * 45.0)
     scales = np.asarray(scales, dtype=np.float64)
     sp = np.arange(S)
-    # the quads run (ring k, spoke i) -> (k, i + 1) -> (k + 1, i + 1): counter-clockwise about
-    # the scan's normal or clockwise, as the spokes are numbered round this eye
-    a, b, c = G[0], G[0, np.roll(sp, -1)], G[1, np.roll(sp, -1)]
-    rev = bool(np.sum(np.einsum("ij,ij->i", np.cross(b - a, c - a), N[0] + N[1])) < 0)
-
+    rev = _turns_clockwise(G, N)
     def node_quality(k, i, P, nP):
         """(n, c) smallest quality of the four quads round nodes (k, i) (n,) placed at P (n, c, 3)."""
         worst = np.full(P.shape[:2], np.inf)
         for kk in (k - 1, k):
             for ii in ((i - 1) % S, i):
-                corners = [(kk, ii), (kk, (ii + 1) % S), (kk + 1, (ii + 1) % S), (kk + 1, ii)]
+                quad = [(kk, ii), (kk, (ii + 1) % S), (kk + 1, (ii + 1) % S), (kk + 1, ii)]
                 X, Nn = [], []
-                for r, q in (corners[::-1] if rev else corners):
+                for r, q in (quad[::-1] if rev else quad):
                     me = ((r == k) & (q == i))[:, None, None]
                     X.append(np.where(me, P, G[r, q][:, None, :]))
                     Nn.append(np.where(me, nP, N[r, q][:, None, :]))
@@ -615,43 +646,99 @@ def _raise_angles(G, fade, lift, closest, fn, min_step, push_rings, target=RAISE
     # point of the scan lies that far out along it near the node, rings 1 and 2 stayed together
     # at the wall's foot (0.04 mm apart) and no move could open their quads (2.2 deg)
     min_step = np.asarray(min_step, dtype=np.float64)
+
+    def stepped(k, i, P):
+        """(n, c) bool: nodes (k, i) at P keep their step from the ring inside them."""
+        return (k > push_rings)[:, None] | (np.linalg.norm(P - G[k - 1, i][:, None], axis=2)
+                                            >= min_step[k][:, None] - 1e-9)
+
     k_all, i_all = (x.ravel() for x in np.meshgrid(np.arange(1, R), sp, indexing="ij"))
     # an odd spoke count puts spokes S - 1 and 0 side by side with one parity: the last its own
     ci = np.where((S % 2 == 1) & (i_all == S - 1), 2, i_all % 2)
     colours = [m for m in ((k_all % 2 == c0) & (ci == c1) for c0 in (0, 1) for c1 in (0, 1, 2)) if m.any()]
-    for _ in range(passes):
-        moved = False
-        for colour in colours:
-            k, i = k_all[colour], i_all[colour]
-            cur = node_quality(k, i, G[k, i][:, None], N[k, i][:, None])[:, 0]
-            sel = cur < target
-            k, i, cur = k[sel], i[sel], cur[sel]
-            if not len(k):
-                continue
-            h = sum(np.linalg.norm(G[k, i] - G[r, q], axis=1)
-                    for r, q in ((k - 1, i), (k + 1, i), (k, (i - 1) % S), (k, (i + 1) % S))) / 4.0
-            nrm = N[k, i]
-            e1 = _unit(np.cross(nrm, np.where(np.abs(nrm[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])))
-            e2 = np.cross(nrm, e1)
-            dirs = np.cos(ang)[None, :, None] * e1[:, None] + np.sin(ang)[None, :, None] * e2[:, None]
-            off = (h[:, None, None, None] * scales[None, :, None, None] * dirs[:, None]).reshape(len(k), -1, 3)
-            C = closest((base[k, i][:, None] + off).reshape(-1, 3))[2].reshape(off.shape)
-            P = C + fade[k][:, None, None] * lift[i][:, None]
-            nP = fn[closest(P.reshape(-1, 3))[1]].reshape(P.shape)
-            ok = (k > push_rings)[:, None] | (np.linalg.norm(P - G[k - 1, i][:, None], axis=2)
-                                              >= min_step[k][:, None] - 1e-9)
-            cq = np.where(ok, node_quality(k, i, P, nP), -np.inf)
-            j = np.argmax(cq, axis=1)
-            r = np.arange(len(k))
-            take = cq[r, j] > cur + 0.05
-            if not take.any():
-                continue
-            k, i, j = k[take], i[take], j[take]
-            G[k, i], N[k, i] = P[take][np.arange(len(k)), j], nP[take][np.arange(len(k)), j]
-            base[k, i] = C[take][np.arange(len(k)), j]
-            moved = True
-        if not moved:
+    # the map's grid as build_band laid it: its inner rings carry part of the loop's sideways gap
+    # from the scan, faded over the band (up to 0.5 mm off it); a blend towards it is put back
+    # onto the scan, not the grid first (projected first, id315_1200k's right band ended folded)
+    home_on = None if home is None else np.asarray(home, dtype=np.float64)[1:R]
+
+    def climb():
+        for _ in range(passes):
+            moved = False
+            for colour in colours:
+                k, i = k_all[colour], i_all[colour]
+                cur = node_quality(k, i, G[k, i][:, None], N[k, i][:, None])[:, 0]
+                sel = cur < target
+                k, i, cur = k[sel], i[sel], cur[sel]
+                if not len(k):
+                    continue
+                h = sum(np.linalg.norm(G[k, i] - G[r, q], axis=1)
+                        for r, q in ((k - 1, i), (k + 1, i), (k, (i - 1) % S), (k, (i + 1) % S))) / 4.0
+                nrm = N[k, i]
+                e1 = _unit(np.cross(nrm, np.where(np.abs(nrm[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])))
+                e2 = np.cross(nrm, e1)
+                dirs = np.cos(ang)[None, :, None] * e1[:, None] + np.sin(ang)[None, :, None] * e2[:, None]
+                off = (h[:, None, None, None] * scales[None, :, None, None] * dirs[:, None]).reshape(len(k), -1, 3)
+                Q = base[k, i][:, None] + off
+                if home_on is not None:
+                    go = home_on[k - 1, i][:, None]
+                    Q = np.concatenate([Q, go, 0.5 * (go + base[k, i][:, None]),
+                                        0.75 * go + 0.25 * base[k, i][:, None]], axis=1)
+                C = closest(Q.reshape(-1, 3))[2].reshape(Q.shape)
+                P = C + fade[k][:, None, None] * lift[i][:, None]
+                nP = fn[closest(P.reshape(-1, 3))[1]].reshape(P.shape)
+                cq = np.where(stepped(k, i, P), node_quality(k, i, P, nP), -np.inf)
+                j = np.argmax(cq, axis=1)
+                r = np.arange(len(k))
+                take = cq[r, j] > cur + 0.05
+                if not take.any():
+                    continue
+                k, i, j = k[take], i[take], j[take]
+                G[k, i], N[k, i] = P[take][np.arange(len(k)), j], nP[take][np.arange(len(k)), j]
+                base[k, i] = C[take][np.arange(len(k)), j]
+                moved = True
+            if not moved:
+                break
+
+    climb()
+    if home_on is None:
+        return G
+    # a turned quad whose nodes each hold the others where they are (id339_laser's medial corner,
+    # folded over rings 1-3 by the smoothing) is taken back towards the map's grid as a patch
+    for _ in range(RAISE_HOME_ROUNDS):
+        q = grid_quality(G, N, rev)
+        changed = False
+        for k, i in np.argwhere(q < 0.0):
+            if q[k, i] >= 0.0:
+                continue                      # a patch taken back for a quad beside it unturned it
+            best = None
+            for w in (1, 2):
+                pk, pi = (x.ravel() for x in np.meshgrid(np.arange(max(1, k - w + 1), min(R, k + w + 1)),
+                                                         np.arange(i - w + 1, i + w + 1) % S, indexing="ij"))
+                near = np.zeros(q.shape, dtype=bool)     # the quads the patch's nodes are corners of
+                for dk in (-1, 0):
+                    for di in (-1, 0):
+                        kk = pk + dk
+                        near[kk[kk >= 0], (pi[kk >= 0] + di) % S] = True
+                before = q[near].min()
+                for t in RAISE_HOME_BLENDS:
+                    C = closest((1.0 - t) * base[pk, pi] + t * home_on[pk - 1, pi])[2]
+                    G2, N2 = G.copy(), N.copy()
+                    G2[pk, pi] = C + fade[pk][:, None] * lift[pi]
+                    N2[pk, pi] = fn[closest(G2[pk, pi])[1]]
+                    if not np.all((pk > push_rings) | (np.linalg.norm(G2[pk, pi] - G2[pk - 1, pi], axis=1)
+                                                       >= min_step[pk] - 1e-9)):
+                        continue
+                    after = grid_quality(G2, N2, rev)[near].min()
+                    if after > before + 0.05 and (best is None or after > best[0]):
+                        best = (after, G2, N2, pk, pi, C)
+            if best is not None:
+                _, G, N, pk, pi, C = best
+                base[pk, pi] = C
+                q = grid_quality(G, N, rev)
+                changed = True
+        if not changed:
             break
+        climb()
     return G
 
 
