@@ -244,11 +244,19 @@ def test_rig_turns_the_strip_with_its_corner_and_keeps_it_inside(snapped):
     assert all(e.strip is not None and (~e.on_eye).sum() > 0 for e in E)
     V, F = out["V"], out["F"]
     rig = build_lid_shapes(V, F, E)
+    on_loop = np.zeros(len(V), bool)
+    for e in E:
+        on_loop[e.loop] = True
     for e in E:
         f = rig.fields[e.side]
-        q, p = e.strip[:, 0], e.strip[:, 1]
-        np.testing.assert_array_equal(f.theta_up[q], f.theta_up[p])
-        np.testing.assert_array_equal(f.theta_down[q], f.theta_down[p])
+        q = e.strip[:, 0]
+        # each strip vertex turns by the mean of its neighbours' angles (strip and loop): the
+        # loop's angles interpolated harmonically over the strip
+        for v in q:
+            nb = np.unique(F[(F == v).any(axis=1)])
+            nb = nb[(nb != v) & (np.isin(nb, q) | on_loop[nb])]
+            for th in (f.theta_up, f.theta_down):
+                assert th[v] == pytest.approx(th[nb].mean(), abs=1e-12)
         # the off-globe corner keeps its canthus's gain
         off = ~e.on_eye
         np.testing.assert_allclose(f.theta_down[e.loop[off]], f.theta_down[e.loop[0]])
@@ -265,6 +273,24 @@ def test_rig_turns_the_strip_with_its_corner_and_keeps_it_inside(snapped):
     assert res["max_gap_mm"] < 0.05 and res["max_penetration_mm"] < 0.05
     assert res["strip_max_mm"] < -0.5                     # the inner edge stays inside the eye
     assert res["min_skin_clearance_mm"] > -0.03
+
+
+def test_strip_angles_are_the_loops_interpolated_harmonically_over_the_strip():
+    """Known answer: a strip path 0 - s0 - s1 - 1 between loop vertices 0 and 1 (angles 0 and 1),
+    both also joined to loop vertex 2 (0.5) and both hung from loop vertex 0, turns s0 by 3/8 and
+    s1 by 5/8 (each the mean of its neighbours), not 0 and 0: a strip turned with its own loop
+    vertex alone sheared the face it shares with the next one (n3002_in_up folded at pitch
+    -24 deg). A strip vertex joined to no loop vertex keeps its own loop vertex's angle."""
+    from pipeline.rig.lid_shapes import _strip_angles
+
+    loop = np.array([0, 1, 2])
+    s0, s1, lone, lone2 = 3, 4, 5, 6
+    F = np.array([[0, s0, 2], [s0, s1, 2], [s1, 1, 2], [lone, lone2, 7]])
+    theta = np.array([0.0, 1.0, 0.5, 0, 0, 0, 0, 0])
+    out = _strip_angles(F, loop, np.array([s0, s1, lone, lone2]), np.array([0, 0, 2, 1]), theta)
+    # s0 and s1 also touch loop vertex 2 (0.5): s0 = (0 + s1 + 0.5) / 3, s1 = (s0 + 1 + 0.5) / 3
+    np.testing.assert_allclose(out[:2], [3.0 / 8.0, 5.0 / 8.0], atol=1e-12)
+    np.testing.assert_allclose(out[2:], [0.5, 1.0], atol=0)
 
 
 def test_rig_refuses_a_margin_off_the_eye_that_is_no_corner(snapped):
