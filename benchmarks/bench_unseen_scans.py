@@ -63,18 +63,26 @@ def asset_dir(eyeball: Path, case: str) -> Path:
     return eyeball.parent / f"{case}_asset"
 
 
+def within(line: str, root: Path) -> str:
+    """``line`` with ``root/`` taken off every path under it: a results file names a head's folders
+    relative to the benchmark's work folder, not where one machine kept it."""
+    return line.replace(str(Path(root).resolve()) + os.sep, "").replace(str(root) + os.sep, "")
+
+
 def run_chain(folder: Path, build: Path, eyeball: Path, params: Path, stop_after="usd"):
-    """Run the stages as dvc.yaml does; per stage exit code, stderr's last line and wall time."""
+    """Run the stages as dvc.yaml does; per stage exit code, stderr's last line (paths under the
+    folders' common root relative to it) and wall time."""
     from benchmarks.bench_chain import stage_commands
 
     cmds = stage_commands(folder, build, eyeball)
+    root = Path(os.path.commonpath([Path(folder).resolve(), Path(build).resolve()]))
     out = {}
     for st in STAGES:
         cmd = [sys.executable, "-m"] + [str(c) for c in cmds[st]] + [
             "--metrics", str(build / f"{st}.metrics.json"), "--params", str(params)]
         t0 = time.perf_counter()
         r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-        lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
+        lines = [within(ln, root) for ln in r.stderr.strip().splitlines() if ln.strip()]
         out[st] = {"rc": r.returncode, "time_s": round(time.perf_counter() - t0, 2),
                    "message": lines[-1] if (r.returncode and lines) else "",
                    "warnings": [ln for ln in lines if ln.startswith("warning:")],
