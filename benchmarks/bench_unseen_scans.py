@@ -42,7 +42,7 @@ from pathlib import Path
 from benchmarks.unseen import report as rep
 from tests.fixtures.unseen.cases import (  # noqa: F401  (re-exported: the oracle)
     ALL_CASES, CASES, FAMILIES, HELDOUT, SETS, _ply_write, fill_openings, generate, select)
-from tests.fixtures.unseen.metrics import eye_rows
+from tests.fixtures.unseen.metrics import eye_rows, within
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -61,12 +61,6 @@ PICTURE_RENDER = {"n_images": 8, "samples": 4, "workers": 1, "sheet_images": 8}
 def asset_dir(eyeball: Path, case: str) -> Path:
     """Where ``stage_commands`` puts the case's asset: beside the eyeball it references."""
     return eyeball.parent / f"{case}_asset"
-
-
-def within(line: str, root: Path) -> str:
-    """``line`` with ``root/`` taken off every path under it: a results file names a head's folders
-    relative to the benchmark's work folder, not where one machine kept it."""
-    return line.replace(str(Path(root).resolve()) + os.sep, "").replace(str(root) + os.sep, "")
 
 
 def run_chain(folder: Path, build: Path, eyeball: Path, params: Path, stop_after="usd"):

@@ -1,9 +1,10 @@
-"""benchmarks.bench_unseen_scans writes a head's folders relative to its work folder: a results
-file committed from one machine names no path of it."""
+"""benchmarks.bench_unseen_scans writes a head's folders relative to its work folder
+(``tests/fixtures/unseen/metrics.within``): a results file committed from one machine names no
+path of it."""
 
 from pathlib import Path
 
-from benchmarks.bench_unseen_scans import within
+from fixtures.unseen.metrics import within
 
 
 def test_paths_under_the_work_folder_are_written_relative_to_it(tmp_path):
