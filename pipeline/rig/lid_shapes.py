@@ -560,7 +560,10 @@ def _strip_angles(F, loop, q, p, theta):
     m = len(q)
     local = {int(v): j for j, v in enumerate(q)}
     on_loop = set(map(int, loop))
-    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    # only the faces that hold a strip vertex carry its edges (the whole mesh's edge list, made
+    # and walked here, was a tenth of the rig stage); np.unique keeps the edges in the same order
+    Fq = F[np.isin(F, q).any(axis=1)]
+    E = np.concatenate([Fq[:, [0, 1]], Fq[:, [1, 2]], Fq[:, [2, 0]]])
     E = np.unique(np.sort(E, axis=1), axis=0)
     Lq = np.zeros((m, m))
     rhs = np.zeros(m)
