@@ -95,6 +95,9 @@ BENCHMARKS = (
     # ... and how much their bands turn on the last bits (each grid raised again moved by 1e-9 mm)
     Benchmark("bench_band_jitter", args=("--set", f"heldout={UNSEEN_WORK / 'build'}:{UNSEEN_WORK / 'params.yaml'}",
                                          "--out", "band_jitter_heldout"), needs=("unseen_work",)),
+    # ... and their lids against the eye turned in yaw, with and without the yaw channels
+    Benchmark("bench_yaw", args=("--set", f"heldout={UNSEEN_WORK / 'build'}:{UNSEEN_WORK / 'params.yaml'}",
+                                 "--out", "yaw_heldout"), needs=("unseen_work",)),
     Benchmark("bench_usd", needs=("synthetic_build",)),
     # the home asset, and every asset the unseen run above left
     Benchmark("bench_see_through", args=(f"synthetic_head={SYNTH_ASSET.parent}:{SYNTH_BUILD / 'rig'}",

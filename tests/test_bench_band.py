@@ -1,4 +1,4 @@
-"""benchmarks.bench_band and bench_band_jitter refuse a malformed or missing --set before they build
+"""benchmarks.bench_band, bench_band_jitter and bench_yaw refuse a malformed or missing --set before they build
 anything (exit 2, one line naming it)."""
 
 import subprocess
@@ -10,7 +10,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.parametrize("bench", ["bench_band", "bench_band_jitter"])
+@pytest.mark.parametrize("bench", ["bench_band", "bench_band_jitter", "bench_yaw"])
 @pytest.mark.parametrize("spec, says", [("seed5", "give NAME=BUILDS:PARAMS"),
                                          ("seed5=/nonexistent/builds:/nonexistent/p.yaml", "/nonexistent/builds does not exist")])
 def test_a_bad_set_is_refused_in_one_line(tmp_path, spec, says, bench):

@@ -160,7 +160,8 @@ def make_label(smp: sp.Sample, settings: RenderSettings, scan: str, reply: dict 
                                         forward_cv=_normalization_forward(smp, settings)),
         "eyes": eyes,
         "eyelids": {"pitch_deg": smp.lid_pitch_deg, "weights": spec.lid_weights,
-                    "rule": "pipeline.rig.lids.lid_weights(mean lid pitch of both eyes)"},
+                    "rule": "pipeline.rig.lids.lid_weights(mean lid pitch of both eyes); "
+                            "lids_look_<in|out>_<side>_*: pipeline.rig.yaw_shapes.yaw_weights(each eye's yaw, that pitch)"},
         "landmarks": {"order": LANDMARK_ORDER, "eye": smp.side,
                       "px": smp.landmarks_px.tolist(),
                       "camera_mm": smp.landmarks_cam.tolist(),

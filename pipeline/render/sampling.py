@@ -35,7 +35,9 @@ Posing (SynthesEyes section 4.1), for one sample drawn with
    ``f`` to the gaze ``g`` (axis ``f x g``, angle ``acos(f . g)``), applied about the eyeball
    centre; no torsion. For a pure pitch this is the rotation about ``-e_x`` the lid rig assumes.
 5. **Eyelids**: channel weights from :func:`pipeline.rig.lids.lid_weights` of the mean lid
-   pitch of both eyes (:func:`pipeline.rig.lids.pitch_from_gaze`), the asset's rule.
+   pitch of both eyes (:func:`pipeline.rig.lids.pitch_from_gaze`), the asset's rule; and where
+   the asset has them (its ``yaw_rule``), each eye's ``lids_look_in/out_<side>_*`` channels from
+   its own yaw and that lid pitch (:func:`pipeline.rig.yaw_shapes.yaw_weights`).
 6. **Eyeball**: iris colour, sclera tint and veins uniform over the asset's variants; one
    pupil value ``s`` uniform in [-1, 1] (``s > 0``: ``pupil_dilate = s``, else
    ``pupil_constrict = -s``) and one iris-size value likewise (``iris_large`` / ``iris_small``).
@@ -82,6 +84,7 @@ from pipeline.render.settings import RenderSettings
 from pipeline.render.spec import EyeConfiguration, Lighting, Quality, RenderSpec
 from pipeline.rig import landmarks as lmk
 from pipeline.rig import lids
+from pipeline.rig import yaw_shapes
 
 #: Fallbacks when an asset names no variants (the eyeball asset's own, in sampling order).
 SCLERA_TINTS = tuple(sorted(_SCLERA_TINTS))
@@ -296,6 +299,11 @@ def pose_sample(asset: ra.RenderAsset, s: RenderSettings, index: int, attempt: i
                     "rotation_wxyz": matrix_to_quat(R)}
     lid_pitch = float(np.mean([gaze[sd]["lid_pitch_deg"] for sd in ra.SIDES]))
     lw = lids.lid_weights(lid_pitch, asset.max_pitch_deg)
+    yr = (asset.metadata or {}).get("yaw_rule")
+    if yr:      # each eye's lids ride on its cornea as it turns (absent from older assets)
+        have = {s.name for s in asset.lid_shapes}
+        lw.update({k: v for k, v in yaw_shapes.yaw_weights({sd: gaze[sd]["yaw_eye_deg"] for sd in ra.SIDES},
+                                                          lid_pitch, float(yr["max_yaw_deg"])).items() if k in have})
     blend = _blend(d["pupil"], d["iris"])
 
     L_head = ra.posed_landmarks(asset, side, lw, blend, rots[side])

@@ -24,6 +24,7 @@ from pipeline.rig.eye_frame import eye_frames
 from pipeline.rig.folds import describe_folds, fold_report, relax_folds
 from pipeline.rig.lid_shapes import build_lid_shapes
 from pipeline.rig.sweep import sweep_check
+from pipeline.rig import yaw_shapes as yaw
 from pipeline.rig import textures as tex
 from pipeline.results import StageResult
 
@@ -88,15 +89,19 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
     # a sliver the retopology left can still turn over under the smooth lid field: smooth the
     # skin's motion around it (the sweep below still refuses any fold that remains)
     rig.shapes, relax_rounds, relaxed = relax_folds(V, F, rig.shapes, eyes, pitches, lp.max_pitch_deg)
+    # the lids ride on the cornea as the eye turns in yaw (channels per eye, made good at every pitch)
+    yshapes = yaw.build_yaw_shapes(V, eyes, lp.surface_follow_mm, rig.shapes, lp.max_pitch_deg)
+    yshapes, yaw_rounds, yaw_damped, ysweep = yaw.settle_yaw_folds(V, F, eyes, rig.shapes, yshapes,
+                                                                   lp.max_pitch_deg) if yshapes else ([], 0, 0, {})
     t_build = time.perf_counter() - t0
 
-    arrays = lids.shapes_to_arrays(rig.shapes)
+    arrays = lids.shapes_to_arrays(rig.shapes + yshapes)
     down = rig.shape(lids.SHAPE_DOWN)
     arrays["lids_down.texture_mask"] = tex.motion_mask(len(V), down.point_indices, down.offsets)
     eyes_doc, lm_doc = {}, {}
     for e in eyes:
         lm = lmk.eyelid_landmarks(V, e)
-        lshapes = lmk.landmark_shapes(lm, e, rig)
+        lshapes = lmk.landmark_shapes(lm, e, rig) + yaw.curve_shapes(yshapes, e.side, lm.edge, lm.t)
         pre = f"landmarks.{e.side}."
         arrays[pre + "points"] = lm.points
         arrays[pre + "edge"] = lm.edge
@@ -153,11 +158,12 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
 
     doc = {
         "weight_rule": lids.weight_rule(lp.max_pitch_deg),
+        **({"yaw_rule": yaw.yaw_rule()} if yshapes else {}),
         "shapes": [{"name": s.name, "n_points": int(len(s.point_indices)),
                     "inbetweens": [{"name": n, "weight": float(w)} for n, w in
                                    zip(s.inbetween_names(), s.inbetween_weights)],
                     "max_offset_mm": float(np.linalg.norm(s.offsets, axis=1).max(initial=0.0))}
-                   for s in rig.shapes],
+                   for s in rig.shapes + yshapes],
         "n_segments": rig.n_segments,
         "eyes": eyes_doc,
         "landmarks": {
@@ -177,7 +183,8 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
         },
         "params": {k: getattr(lp, k) for k in lp.__dataclass_fields__},
         "npz_layout": {
-            "shape_names": "(s,) str: lids_up, lids_down",
+            "shape_names": "(s,) str: lids_up, lids_down, then for each eye with a corneal bulge "
+                           "lids_look_<in|out>_<side>_<pitch knot>_y<yaw knot> (yaw_rule)",
             "<shape>.point_indices": "(k,) int64 mesh vertex indices",
             "<shape>.offsets": "(k,3) float64 mm at weight 1",
             "<shape>.inbetween_weights": "(j,) float64 in (0,1)",
@@ -198,6 +205,9 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
         "sweep_step_deg": step,
         "fold_relax_rounds": int(relax_rounds), "fold_relaxed_vertices": int(relaxed),
         **{f"sweep_{k}": v for k, v in sweep.items()},
+        **{f"yaw_sweep_{k}": (list(v) if isinstance(v, tuple) else v) for k, v in ysweep.items()},
+        "yaw_fold_rounds": int(yaw_rounds), "yaw_damped_vertices": int(yaw_damped),
+        **{f"{s.name}_n_points": int(len(s.point_indices)) for s in yshapes},
         **motion,
         **{f"lid_notch_{side}_mm": round(float(n), 3) for side, n in sorted(notches.items())},
         "jagged_lids": len(warnings),

@@ -24,6 +24,7 @@ from pipeline.io.rig_file import read_rig
 from pipeline.io.scan_file import ScanRecord, read_scan_record
 from pipeline.results import StageResult
 from pipeline.rig import lids
+from pipeline.rig.yaw_shapes import yaw_rule
 
 
 def _need(path: Path) -> Path:
@@ -160,6 +161,7 @@ def build(inp: UsdInputs, out_dir: Path, name: str, all_params: dict, package: b
         "pipeline_version": pipeline.__version__,
         "units": "mm", "frame": "head frame: +Y up, +Z out of the face, +X subject's left",
         "weight_rule": lids.weight_rule(inp.max_pitch_deg),
+        **({"yaw_rule": yaw_rule()} if any(s.name.startswith("lids_look_") for s in inp.shapes) else {}),
         "eyes": {s: {"joint": f"head/eye_{s}", "center_mm": list(map(float, e.center)),
                      "radius_mm": float(e.radius), "forward": list(map(float, e.forward)),
                      # USD cannot type an empty list: no key means nothing doubted
