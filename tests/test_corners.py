@@ -375,3 +375,33 @@ def test_a_corner_run_ends_where_the_loop_passes_over_the_cornea():
     canthus = np.zeros(len(P), bool)
     canthus[[0, k]] = True                                       # the canthus itself over it
     assert np.array_equal(cn.corner_weights(P, off, li, over_cornea=canthus).weight, free.weight)
+
+
+def test_the_yaw_channels_move_the_corner_with_the_turning_cornea(snapped):
+    """The known gap the test above shows, closed by the rig's yaw channels
+    (pipeline/rig/yaw_shapes.py): posed at every pitch and yaw checked, nothing of the corner,
+    its strip's caruncle rows or the margin enters the turned eye by more than the pitch sweep's
+    0.1 mm, the inner edge stays inside it, and no face turns over; without them the cornea
+    enters the rows."""
+    from pipeline.rig import yaw_shapes as ys
+
+    mesh, eyes, frames, out, metrics = snapped
+    doc = {e.side: Eye(e.side, e.center, R, e.forward) for e in frames}
+    E = eye_frames(doc, out, profile=EyeballParams())
+    V, F = out["V"], out["F"]
+    lid = build_lid_shapes(V, F, E).shapes
+    yaw, rounds, damped, sweep = ys.settle_yaw_folds(V, F, E, lid, ys.build_yaw_shapes(V, E, 3.0, lid), 25.0)
+    pitches, yaws = np.arange(-25.0, 25.1, 6.25), np.arange(-35.0, 35.1, 3.5)
+    res = ys.yaw_sweep(V, F, E, lid + yaw, pitches, yaws, 25.0)
+    assert res["flipped_faces"] == 0 and damped == 0
+    assert max(res["max_penetration_mm"], res["max_sink_mm"], res["max_strip_sink_mm"]) <= 0.1
+    bare = ys.yaw_sweep(V, F, E, lid, pitches, yaws, 25.0)
+    assert bare["max_strip_sink_mm"] > 0.3 and bare["max_penetration_mm"] > 0.3
+    from pipeline.rig.lids import evaluate_shapes, lid_weights
+
+    for e in E:
+        inner = np.fromiter({int(p): int(v) for v, p in e.strip}.values(), np.int64)
+        for p in pitches:
+            for y in yaws:
+                P = evaluate_shapes(V, lid + yaw, {**lid_weights(p), **ys.yaw_weights({e.side: y}, p)})
+                assert ys.surface_distance(e, P[inner], ys.yaw_gaze(e, p, y)).max() < -0.5
