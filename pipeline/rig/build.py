@@ -89,7 +89,7 @@ def build_rig(mesh: Mapping, placed_eyes: dict, params, mesh_path="mesh.npz",
     # a sliver the retopology left can still turn over under the smooth lid field: smooth the
     # skin's motion around it (the sweep below still refuses any fold that remains)
     rig.shapes, relax_rounds, relaxed = relax_folds(V, F, rig.shapes, eyes, pitches, lp.max_pitch_deg)
-    # the lids ride on the cornea as the eye turns in yaw (channels per eye, made good at every pitch)
+    # the lids ride on the cornea as the eye turns in yaw (per eye, a grid of pitch x yaw poses)
     yshapes = yaw.build_yaw_shapes(V, eyes, lp.surface_follow_mm, rig.shapes, lp.max_pitch_deg)
     yshapes, yaw_rounds, yaw_damped, ysweep = yaw.settle_yaw_folds(V, F, eyes, rig.shapes, yshapes,
                                                                    lp.max_pitch_deg) if yshapes else ([], 0, 0, {})
