@@ -71,7 +71,7 @@ def main(argv) -> StageResult:
         st = dataclasses.replace(st, eye_size=scan.eye_size)
     prior = EyeRegionPrior.load(args.prior)
     res = remove_eyeballs(mesh, hints, st, source=source, texture=texture,
-                          prior=prior.register, eyeball=eyeball)
+                          prior=prior.register, eyeball=eyeball, declared_open=scan.open_eyes)
     for side in ("left", "right"):      # published, but not sure: say so where the user looks
         for doubt in res.eyes[side].doubts:
             print(f"warning: {source}: {side} eye: {doubt}", file=sys.stderr)

@@ -351,6 +351,86 @@ def test_an_eye_placed_on_a_closed_lids_bulge_is_refused_as_closed(head, monkeyp
 
     monkeypatch.setattr(pp, "place_eyes", bulging)
     h, _ = head
-    with pytest.raises(ScanError, match=r"wink\.ply: right eye looks closed: .* 19\.5 mm sphere ringed by 12\.5 deg"):
+    with pytest.raises(ScanError, match=r"wink\.ply: right eye looks closed: .* 19\.5 mm sphere ringed by 12\.5 deg"
+                                        r".* \(if the eye is open, say so in scan\.yaml: eyes\.right\.open: true\)$"):
         remove_eyeballs({"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}, _hints(h),
                         RemoveEyeballsSettings(), source="wink.ply", prior=EyeRegionPrior.load().register)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("found", ["bulge", "nothing"])
+def test_an_eye_declared_open_that_looks_closed_is_placed_behind_the_priors_opening(head, monkeypatch, found):
+    """The user declared the right eye open (scan.yaml ``eyes.right.open``), and the search found
+    a closed lid's bulge there, or no eye ringed by a lid fold at all (an open eye looking down,
+    or seen by sparse views): it is placed behind the opening the eye-region prior outlines,
+    doubted at the opening's sigma, saying it was declared open and why it looked closed, the
+    truth's limbus within 2 sigma; the left eye is placed as before. Without the prior there is
+    nothing to place it behind, and the refusal says the eye was declared open."""
+    from dataclasses import replace
+
+    from pipeline.placement import place as pp
+    from pipeline.placement.prior import EyeRegionPrior
+
+    real = pp.place_eyes
+
+    def search(*a, **k):
+        out = real(*a, **k)
+        pl = out["right"]
+        out["right"] = replace(pl, eye=replace(pl.eye, R=19.5), fold_deg=12.5) if found == "bulge" else None
+        return out
+
+    monkeypatch.setattr(pp, "place_eyes", search)
+    h, _ = head
+    mesh = {"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}
+    res = remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="open.ply",
+                          prior=EyeRegionPrior.load().register, declared_open=("right",))
+    left, right = res.eyes["left"].to_doc(), res.eyes["right"].to_doc()
+    assert left["method"] == "geometry" and right["method"] == "coarse"
+    assert right["uncertainty"]["axis_deg"] == 20.0
+    why = "fits a 19.5 mm sphere ringed by 12.5 deg" if found == "bulge" else "no eye surface ringed by a lid fold"
+    assert any(d.startswith("declared open (scan.yaml), but") and why in d
+               and d.endswith("placed behind the opening the eye-region prior outlines") for d in right["doubts"]), \
+        right["doubts"]
+    lt, _ = truth_limbus(h.ground_truth["eyes"]["right"])
+    assert np.linalg.norm(np.asarray(right["limbus"]["center"]) - lt) <= 2 * right["uncertainty"]["limbus_mm"]
+    with pytest.raises(ScanError, match=r"^open\.ply: right eye: declared open \(scan\.yaml\), but .*"
+                                        r", and no opening round it to place it behind$"):
+        remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="open.ply", prior=None,
+                        declared_open=("right",))
+
+
+@pytest.mark.slow
+def test_the_stage_reads_the_eye_declared_open_from_scan_json(head, monkeypatch, tmp_path, capsys):
+    """``open: true`` on the right eye of ingest's scan.json (scan.yaml ``eyes.right.open``)
+    reaches the placement through the stage: where the search finds no eye ringed by a lid fold
+    the stage publishes the eye behind the prior's opening (exit 0, a warning naming the
+    declaration) instead of refusing the scan as closed."""
+    import json
+
+    from fixtures import defaults_params
+    from pipeline.io.meshfile import save_mesh
+    from pipeline.placement import place as pp
+    from stages._common import run_stage
+    from stages.remove_eyeballs import main
+
+    real = pp.place_eyes
+    monkeypatch.setattr(pp, "place_eyes", lambda *a, **k: {**real(*a, **k), "right": None})
+    h, _ = head
+    ing = tmp_path / "ingest"
+    ing.mkdir()
+    save_mesh(ing / "mesh.npz", V=np.asarray(h.V, float), F=np.asarray(h.F, np.int64))
+    eyes = {s: {"hint": np.asarray(h.hints[s], float).tolist()} for s in SIDES}
+    params = defaults_params(tmp_path)
+    for declared, rc in ((False, 2), (True, 0)):
+        if declared:
+            eyes["right"]["open"] = True
+        (ing / "scan.json").write_text(json.dumps({"name": "h", "folder": "raw_scans/h", "eyes": eyes}))
+        capsys.readouterr()
+        assert run_stage(main, [str(ing), str(tmp_path / f"out{declared}"), "--params", str(params)]) == rc
+        err = capsys.readouterr().err
+        if not declared:
+            assert "error: raw_scans/h: right eye looks closed" in err and "eyes.right.open: true" in err, err
+            continue
+        doc = json.loads((tmp_path / "outTrue" / "eyes.json").read_text())
+        assert doc["right"]["method"] == "coarse" and doc["left"]["method"] == "geometry"
+        assert "warning: raw_scans/h: right eye: declared open (scan.yaml), but no eye surface" in err, err

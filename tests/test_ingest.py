@@ -54,6 +54,25 @@ def test_good_ply_ingests(tmp_path):
     assert np.einsum("ij,ij->i", T[:, 0], np.cross(T[:, 1], T[:, 2])).sum() > 0
 
 
+def test_an_eye_declared_open_reaches_remove_eyeballs(tmp_path):
+    """scan.yaml's ``eyes.<side>.open: true`` is carried into scan.json for that eye alone and
+    read back by the record remove_eyeballs reads; ``open: false`` writes what no key writes."""
+    import yaml
+
+    from pipeline.io.scan_file import read_scan_record
+
+    make_scan(tmp_path / "head")
+    data = yaml.safe_load((tmp_path / "head" / "scan.yaml").read_text())
+    data["eyes"]["right"]["open"] = True
+    data["eyes"]["left"]["open"] = False
+    (tmp_path / "head" / "scan.yaml").write_text(yaml.safe_dump(data))
+    out = tmp_path / "build" / "ingest"
+    assert ingest(tmp_path / "head", out) == 0
+    scan = json.loads((out / "scan.json").read_text())
+    assert scan["eyes"]["right"]["open"] is True and set(scan["eyes"]["left"]) == {"hint"}
+    assert read_scan_record(out).open_eyes == ("right",)
+
+
 def test_obj_with_seams_mtl_texture(tmp_path):
     """Per-corner UVs survive exactly (positions are not split at seams); MTL map_Kd texture is kept."""
     folder = tmp_path / "objscan"

@@ -182,6 +182,18 @@ def c_hint_nan(f, t):
     (f / "scan.yaml").write_text(yaml.safe_dump(data))  # written as .nan
 
 
+def c_open_not_bool(f, t):
+    data = yaml.safe_load((f / "scan.yaml").read_text())
+    data["eyes"]["left"]["open"] = "yes please"
+    (f / "scan.yaml").write_text(yaml.safe_dump(data))
+
+
+def c_open_typo(f, t):
+    data = yaml.safe_load((f / "scan.yaml").read_text())
+    data["eyes"]["right"]["opne"] = True      # silently ignored, it would refuse an open eye as closed
+    (f / "scan.yaml").write_text(yaml.safe_dump(data))
+
+
 def c_hints_swapped(f, t):
     _, _, hints = head_mesh()
     write_sidecar(f, {"left": hints["right"], "right": hints["left"]})
@@ -354,6 +366,8 @@ CASES = [
     (c_hint_far, "scan.yaml", "from the mesh surface"),
     (c_hint_nan, "scan.yaml", "is not finite"),
     (c_hints_swapped, "scan.yaml", "left eye hint lies on the subject's right"),
+    (c_open_not_bool, "scan.yaml", "eyes.left.open must be true or false, got 'yes please'"),
+    (c_open_typo, "scan.yaml", "unknown key eyes.right.opne (did you mean 'open'?)"),
     (c_texture_bomb, "bomb.png", "over the limit"),
     (c_texture_without_uv, "skin.png", "no texture coordinates"),
     (c_mtl_texture_escape, "scan.mtl", "leaves the scan folder"),

@@ -240,7 +240,9 @@ def _ingest(folder, spec, settings: IngestSettings) -> IngestResult:
         "name": Path(folder).name or spec.folder.name,
         "source_sha256": source_sha256(spec.folder, files),
         "licence": spec.licence,
-        "eyes": {s: {"hint": [float(x) for x in hints[s]]} for s in ("left", "right")},
+        # "open" only where the user declared it: an undeclared scan keeps the same bytes
+        "eyes": {s: {"hint": [float(x) for x in hints[s]], **({"open": True} if s in spec.open_eyes else {})}
+                 for s in ("left", "right")},
         "texture": "texture.png" if texture is not None else None,
         "units_in": spec.units,
         "up_axis_in": spec.up_axis,

@@ -10,7 +10,9 @@ that is not exactly what the scan folder contract (DESIGN.md) describes:
 ``up_axis``       one of ``+X -X +Y -Y +Z -Z``
 ``forward_axis``  one of the same, not parallel to ``up_axis``
 ``eyes``          ``{left: {hint: [x, y, z]}, right: {hint: [x, y, z]}}`` finite numbers,
-                  scan coordinates and units
+                  scan coordinates and units; optional ``open: true`` on an eye: the subject's
+                  eye is open (where the scan shows too little of it to tell, it is placed
+                  behind the opening the skin outlines, doubted, not refused as closed)
 ``licence``       non-empty str
 ``eye_size``      optional: ``human`` | ``population`` | ``fitted``, this scan's asset eye
                   (over ``remove_eyeballs.eye_size``; procedural identities say ``population``)
@@ -45,6 +47,7 @@ KNOWN_KEYS = ("mesh", "texture", "units", "up_axis", "forward_axis", "eyes", "li
 EYE_SIZES = ("human", "population", "fitted")
 FREE_FORM_KEYS = ("source", "notes", "description", "name", "comment")
 EYE_SIDES = ("left", "right")
+EYE_KEYS = ("hint", "open")
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
 TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")   # PNG, JPEG, TIFF: pipeline.io.formats.image
 DEFAULT_MAX_YAML_BYTES = 65536
@@ -77,6 +80,8 @@ class ScanSpec:
         ``remove_eyeballs.eye_size``; None: the project's.
     unknown_keys : tuple of str
         Top-level keys that are neither known nor free-form (tolerated, reported).
+    open_eyes : tuple of str
+        The sides whose ``eyes.<side>.open`` is true: declared open by the user.
     """
 
     folder: Path
@@ -90,6 +95,7 @@ class ScanSpec:
     licence: str = ""
     unknown_keys: tuple = ()
     eye_size: str | None = None
+    open_eyes: tuple = ()
 
     @property
     def scale_to_mm(self) -> float:
@@ -198,6 +204,22 @@ def _hint(eyes, side: str, sidecar: Path) -> np.ndarray:
     return np.array(hint, dtype=np.float64)
 
 
+def _declared_open(eyes, side: str, sidecar: Path) -> bool:
+    """``eyes.<side>.open`` (absent: False); a misspelt key beside ``hint`` is refused, since
+    a silently ignored ``opne: true`` would refuse an open eye as closed after all."""
+    entry = eyes[side]
+    for key in entry:
+        if key in EYE_KEYS or not isinstance(key, str):
+            continue
+        close = difflib.get_close_matches(key, EYE_KEYS, n=1, cutoff=0.6)
+        if close:
+            raise ScanError(sidecar, f"unknown key eyes.{side}.{key} (did you mean {close[0]!r}?)")
+    value = entry.get("open", False)
+    if not isinstance(value, bool):
+        raise ScanError(sidecar, f"eyes.{side}.open must be true or false, got {short_repr(value)}")
+    return value
+
+
 def parse_sidecar(data, folder, sidecar) -> ScanSpec:
     """Validate an already-parsed sidecar mapping.
 
@@ -254,6 +276,7 @@ def parse_sidecar(data, folder, sidecar) -> ScanSpec:
     if not isinstance(eyes, dict):
         raise ScanError(sidecar, f"eyes must be a mapping with left and right, got {_type_name(eyes)}")
     hints = {side: _hint(eyes, side, sidecar) for side in EYE_SIDES}
+    open_eyes = tuple(side for side in EYE_SIDES if _declared_open(eyes, side, sidecar))
     mesh = safe_path(folder, data["mesh"], sidecar, "mesh", MESH_SUFFIXES)
     texture = None
     if data.get("texture") is not None:
@@ -263,7 +286,8 @@ def parse_sidecar(data, folder, sidecar) -> ScanSpec:
         raise ScanError(sidecar, f"eye_size must be one of {', '.join(EYE_SIZES)}, got {short_repr(eye_size)}")
     return ScanSpec(folder=folder, sidecar=Path(sidecar), mesh=mesh, texture=texture, units=units,
                     up_axis=axes["up_axis"], forward_axis=axes["forward_axis"], hints=hints,
-                    licence=licence.strip(), unknown_keys=tuple(unknown), eye_size=eye_size)
+                    licence=licence.strip(), unknown_keys=tuple(unknown), eye_size=eye_size,
+                    open_eyes=open_eyes)
 
 
 def read_sidecar(folder, max_yaml_bytes: int = DEFAULT_MAX_YAML_BYTES) -> ScanSpec:

@@ -50,6 +50,8 @@ class ScanRecord:
     eye_size : str or None
         The scan's own asset eye size (scan.yaml ``eye_size``), None where it leaves it to
         ``remove_eyeballs.eye_size``.
+    open_eyes : tuple of str
+        The sides the user declared open (scan.yaml ``eyes.<side>.open``).
     """
 
     path: Path
@@ -60,6 +62,7 @@ class ScanRecord:
     folder: str | None
     doc: dict = field(repr=False)
     eye_size: str | None = None
+    open_eyes: tuple = ()
 
 
 def write_scan_record(path, scan: dict, folder) -> None:
@@ -97,5 +100,7 @@ def read_scan_record(path) -> ScanRecord:
     eye_size = doc.get("eye_size")
     if eye_size is not None and eye_size not in EYE_SIZES:
         raise ScanError(path, f"eye_size must be one of {', '.join(EYE_SIZES)}, got {eye_size!r:.40}")
+    open_eyes = tuple(s for s in SIDES if doc["eyes"][s].get("open", False) is True)
     return ScanRecord(path=path, name=text("name"), hints=hints, source_sha256=str(doc.get("source_sha256", "")),
-                      licence=str(doc.get("licence", "")), folder=text("folder"), doc=doc, eye_size=eye_size)
+                      licence=str(doc.get("licence", "")), folder=text("folder"), doc=doc, eye_size=eye_size,
+                      open_eyes=open_eyes)

@@ -93,25 +93,29 @@ def narrow_beside_wide(opening_wide: dict, side: str) -> str | None:
     return None
 
 
-def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSettings, front=None):
+def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSettings, front=None,
+                     declared=False):
     """The eye behind the opening of an eye the scan's shape cannot place
     (:func:`pipeline.placement.fill.fit_behind_loop`), as behind a scanner's flat fill. The
     opening is the eye surface the search labelled (``err.region``: too few vertices to place
     the eye from its shape) or, where that lay outside the lids (``err.region`` None), the faces
     inside the eye-region prior's lid margin (:func:`prior_opening`). ``err`` again when there
-    is no such opening."""
+    is no such opening (``declared``: an eye the user declared open, whose refusal says that no
+    opening was found to place it behind)."""
     region, by = err.region, "it was found in"
+    refusal = err if not declared else ScanError(
+        err.path, f"{err.problem}, and no opening round it to place it behind")
     if region is None:
         region = prior_opening(mesh, front, hint, st.patch_radius_mm + 5.0)
         by = "the eye-region prior outlines"
     if region is None or not region.any():
-        raise err
+        raise refusal
     try:
         loops = meshtopo.boundary_loops(mesh.F[region])
     except ValueError:
-        raise err from None
+        raise refusal from None
     if len(loops) != 1:
-        raise err
+        raise refusal
     fit = fit_behind_loop(mesh, loops[0], region, side, st.radius_prior_mm, None, "coarse")
     fit.why = f"{err.problem.split(': ', 1)[1]}: placed behind the opening {by}"
     return fit
@@ -238,13 +242,18 @@ LID_BULGE_RADIUS_MM = 18.0
 LID_BULGE_FOLD_DEG = 13.0
 
 
+#: What a refusal as closed tells the user who knows better.
+OPEN_HOW = " (if the eye is open, say so in scan.yaml: eyes.{side}.open: true)"
+
+
 def lid_bulge(pl) -> bool:
     """Whether a placement's eye is a closed lid's bulge (:data:`LID_BULGE_RADIUS_MM`)."""
     return float(pl.eye.R) > LID_BULGE_RADIUS_MM and float(pl.fold_deg) < LID_BULGE_FOLD_DEG
 
 
 def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, filled=None,
-               uv=None, texture=None, prior=None, source="mesh", coarse=None, placed=None):
+               uv=None, texture=None, prior=None, source="mesh", coarse=None, placed=None,
+               declared_open=()):
     """Place both eyes jointly (:func:`pipeline.placement.fit.place_eyes`) on the surface around
     the hints; an eye the geometry cannot place falls back to the colour texture when there is one.
     An opening a scanner filled flat (:func:`pipeline.placement.fill.find_flat_fill`) is placed
@@ -259,7 +268,10 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
     ``coarse``: side -> why, eyes to place behind the opening the eye-region prior outlines
     whatever the geometry found (a cut round part of an eye, :class:`NarrowOpening`);
     ``placed``: what the search of an earlier call on the same surface found (its ``searched``;
-    the search is not run again).
+    the search is not run again). ``declared_open``: the sides the user declared open (scan.yaml
+    ``eyes.<side>.open``): an eye that looks closed there (no eye surface ringed by a lid fold,
+    too little of it, a closed lid's bulge) is placed behind the opening the eye-region prior
+    outlines, doubted, instead of refused.
     Returns ``(mesh, fits, placements, searched)``: the :class:`EyeMesh`, per side an
     :class:`EyeFit` (its region on ``F``), the :class:`pipeline.placement.uncertainty.Placement`
     (None for an eye placed from its texture, a fill or its opening) and what the search found
@@ -348,11 +360,20 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             err = ScanError(source, f"{s} eye looks closed (or too little of the eyeball shows to place "
                                     f"it): no eye surface ringed by a lid fold "
                                     f"near the hint {np.round(hints[s], 2).tolist()}")
+        if s in declared_open and not isinstance(err, CoarseEye):
+            # the user says this eye is open: what looked closed is too little of it to place from
+            # its shape, so its opening and the anatomy place it, doubted, as a coarse eye's
+            err = CoarseEye(source, f"{s} eye: declared open (scan.yaml), but "
+                                    f"{err.problem.split(': ', 1)[1] if ': ' in err.problem else err.problem}",
+                            None)
+        elif s not in declared_open and not isinstance(err, CoarseEye):
+            err = ScanError(source, f"{err.problem}{OPEN_HOW.format(side=s)}")
         if not (st.texture_fallback and has_tex):
             if not isinstance(err, CoarseEye):
                 raise err
             # no photograph to read the eye from: its opening and the anatomy place it, doubted
-            fits[s] = _fit_from_coarse(mesh, err, s, hints[s], st, None if front is None else front.get(s))
+            fits[s] = _fit_from_coarse(mesh, err, s, hints[s], st, None if front is None else front.get(s),
+                                       declared=s in declared_open)
             placements[s] = None
             continue
         try:
@@ -369,8 +390,15 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             # then shows to be skin)
             why = ("no eye surface ringed by a lid fold" if placements[s] is None
                    else "too little eye surface to place it from the geometry")
+            if s in declared_open:
+                fits[s] = _fit_from_coarse(mesh, CoarseEye(
+                    source, f"{s} eye: declared open (scan.yaml), but {why} and no eye colours in the texture",
+                    None), s, hints[s], st, None if front is None else front.get(s), declared=True)
+                placements[s] = None
+                continue
             raise ScanError(source, f"{s} eye looks closed: {why}, and no eye colours in the "
-                                    f"texture, near the hint {np.round(hints[s], 2).tolist()}") from None
+                                    f"texture, near the hint {np.round(hints[s], 2).tolist()}"
+                                    f"{OPEN_HOW.format(side=s)}") from None
         placements[s] = None
     for s in SIDES:
         if front is not None and front.get(s) is not None:

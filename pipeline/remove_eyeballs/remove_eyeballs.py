@@ -365,7 +365,7 @@ def _holes_inside(F, remove, H=None):
 
 
 def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source="mesh",
-                     texture=None, prior=None, coarse=None, placed=None):
+                     texture=None, prior=None, coarse=None, placed=None, declared_open=()):
     """Place both eyes (:func:`pipeline.placement.place.place_pair`) on the surface around the
     hints, its holes near the eyes closed for the fit; each hole then goes with the opening or
     the skin (:func:`_opening_holes`).
@@ -375,7 +375,7 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
     placements, median_edge, searched)``: per side an :class:`EyeFit` (its region on the full
     mesh) and the :class:`pipeline.placement.uncertainty.Placement` (None for an eye placed from
     its texture, a fill or its opening), the scan's median edge length, and what the search
-    found (:func:`place_pair`). ``coarse``, ``placed``: as :func:`place_pair`'s."""
+    found (:func:`place_pair`). ``coarse``, ``placed``, ``declared_open``: as :func:`place_pair`'s."""
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     median_edge, max_edge = median_edge_length(V, F, with_max=True)
@@ -395,7 +395,8 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
                                             sub_arrays["FUV"][rim[hole_of_face[n_local:]]]])
     _, fits, placements, searched = place_pair(Vs, Fs, hints, st, median_edge=median_edge,
                                      filled=hole_of_face >= 0, uv=sub_arrays, texture=texture,
-                                     prior=prior, source=source, coarse=coarse, placed=placed)
+                                     prior=prior, source=source, coarse=coarse, placed=placed,
+                                     declared_open=declared_open)
     for fit in fits.values():       # back to full-mesh ids
         region = np.zeros(len(F), bool)
         region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
@@ -407,7 +408,7 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
 
 
 def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSettings | None = None, *,
-                    source="mesh", texture=None, prior=None, eyeball=None) -> RemovalResult:
+                    source="mesh", texture=None, prior=None, eyeball=None, declared_open=()) -> RemovalResult:
     """Fit both eyes and cut the scanned eyeball surface out of the head mesh.
 
     Parameters
@@ -428,6 +429,9 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
         The parametric eyeball the asset carries (its ``r1`` and ``iris_radius``; default the
         paper's): the asset's eye is that eyeball anchored at the scan's limbus
         (:mod:`pipeline.placement.human_eye`).
+    declared_open : tuple of str
+        The sides the user declared open (scan.yaml ``eyes.<side>.open``): an eye that looks
+        closed there is placed behind the opening the eye-region prior outlines, doubted.
 
     Returns
     -------
@@ -441,8 +445,10 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
     # scan) depends on the faces only: a child finds it while the eyes are placed (pipeline.fork)
     job = fork_call(meshtopo.boundary_mask, np.asarray(mesh_arrays["F"], dtype=np.int64))
     fits, placements, median_edge, searched = place_near_hints(mesh_arrays, hints, st, source=source,
-                                                               texture=texture, prior=prior)
-    cut = dict(source=source, texture=texture, eyeball=eyeball, boundary=(mesh_arrays, fork_result(job)[0]))
+                                                               texture=texture, prior=prior,
+                                                               declared_open=declared_open)
+    cut = dict(source=source, texture=texture, eyeball=eyeball, boundary=(mesh_arrays, fork_result(job)[0]),
+               declared_open=declared_open)
     coarse, first = {}, None
 
     def both(exc):      # the first refusal and why the eye placed again is refused too, one line
@@ -480,14 +486,14 @@ def _place_again(mesh_arrays, hints, st, coarse: dict, searched, prior, cut):
     the eye-region prior outlines and the others from what the first search found
     (``searched``; the search is not run again)."""
     return place_near_hints(mesh_arrays, hints, st, source=cut["source"], texture=cut["texture"],
-                            prior=prior, coarse=coarse, placed=searched)
+                            prior=prior, coarse=coarse, placed=searched, declared_open=cut["declared_open"])
 
 
 def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, source, texture,
-                   eyeball, boundary=None) -> RemovalResult:
+                   eyeball, boundary=None, declared_open=()) -> RemovalResult:
     """Cut both placed eyes' regions out of the scan and judge what is published
     (:func:`remove_eyeballs`). ``boundary``: ``(arrays, meshtopo.boundary_mask(arrays["F"]))``
-    when already found."""
+    when already found; ``declared_open`` was the placement's alone (:func:`place_pair`)."""
     # an eye placed from its texture is cut along the fissure the photograph shows: the faces
     # near that outline are split first (pipeline/remove_eyeballs/fissure_cut.py)
     scan_arrays = mesh_arrays
