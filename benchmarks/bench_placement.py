@@ -14,6 +14,7 @@ closed counts as right when refused as closed.
 
     .venv/bin/python -m benchmarks.bench_placement --set heldout [--work benchmarks/out/unseen]
         [--skip-missing]      # only the cases already generated (bench_unseen_scans --generate-only)
+        [--declare-open]      # their copies with both eyes declared open (bench_unseen_scans --declare-open)
 
 Writes ``benchmarks/results/placement_<set>.json`` (summary + per-eye rows).
 """
@@ -268,19 +269,21 @@ def main(argv=None):
     ap.add_argument("--show-heldout", action="store_true", help="print held-out cases one by one")
     ap.add_argument("--out", default=None, help="results file stem (default placement_<set>)")
     ap.add_argument("--page", action="store_true", help="only write placement.md from the results")
+    ap.add_argument("--declare-open", action="store_true",
+                    help="the scan folders bench_unseen_scans --declare-open made (WORK/scans_open)")
     a = ap.parse_args(argv)
     if a.page:
         (a.results / "placement.md").write_text(page(a.results))
         return 0
     rows, outcomes = [], []
     for case in select(a.set_name):
-        folder = a.work / "scans" / case["name"]
+        folder = a.work / ("scans_open" if a.declare_open else "scans") / case["name"]
         if not (folder / ".case").is_file():
             if a.skip_missing:
                 print(f"{case['name']:28s} not generated, skipped", flush=True)
                 continue
             folder = generate(case, a.work, Path(a.scanify), Path(a.ict))
-        res = place(folder, a.work / "placement" / case["name"])
+        res = place(folder, a.work / ("placement_open" if a.declare_open else "placement") / case["name"])
         o = {"case": case["name"], "family": case["family"], "expect": case.get("expect", "asset")}
         if "refused" in res:
             res["refused"] = res["refused"].replace(f"{a.work}/", "")      # no machine's paths in results

@@ -4,6 +4,7 @@
         [--work benchmarks/out/unseen] [--scanify ../shared/tools/scanify/scanify.py]
         [--ict ../shared/scans/ict_facekit] [--generate-only] [--stop-after usd|rig|...]
         [--pictures DIR] [--results benchmarks/results] [--out unseen_scans] [--markdown]
+        [--declare-open]
 
 Cases (``tests/fixtures/unseen/cases.py``): a ``dev`` set to develop on and a ``heldout`` set (new identity
 seeds) to measure on; every family in both: ICT-FaceKit heads made scan-like by ``scanify``
@@ -19,6 +20,10 @@ nothing eye-related is changed). Per eye it measures the placement, what a camer
 lid margin and canthi and the stated uncertainty against the truth (``tests/fixtures/unseen/metrics.py``),
 and judges the rows by issue 21's bounds per family and per set (``benchmarks.unseen.report``).
 Held-out cases print no per-case figures (``--show-heldout`` does): they are for the summary.
+
+``--declare-open`` runs each case from a copy of its scan folder whose scan.yaml declares both eyes
+open (``eyes.<side>.open: true``, what a user whose open-eyed scan was refused as closed is told
+to write), into ``<work>/scans_open`` and ``<work>/build_open``.
 
 ``--pictures DIR`` takes the given cases to the asset with its preview and renders a few labelled
 images of each (``PICTURE_RENDER``) into ``DIR``: ``<case>_preview.png``, ``<case>_renders.png``
@@ -58,6 +63,19 @@ PICTURE_RENDER = {"n_images": 8, "samples": 4, "workers": 1, "sheet_images": 8}
 
 
 # ----------------------------------------------------------------------------- chain
+def declared_open(folder: Path, out: Path) -> Path:
+    """A copy of the scan ``folder`` at ``out`` whose scan.yaml declares both eyes open."""
+    import yaml
+
+    shutil.rmtree(out, ignore_errors=True)
+    shutil.copytree(folder, out)
+    doc = yaml.safe_load((out / "scan.yaml").read_text(encoding="utf-8"))
+    for s in SIDES:
+        doc["eyes"][s]["open"] = True
+    (out / "scan.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+    return out
+
+
 def asset_dir(eyeball: Path, case: str) -> Path:
     """Where ``stage_commands`` puts the case's asset: beside the eyeball it references."""
     return eyeball.parent / f"{case}_asset"
@@ -252,6 +270,8 @@ def main():
                     help="print held-out cases' figures too (by default only the summary shows them)")
     ap.add_argument("--markdown", action="store_true", help="print the README tables of the last results")
     ap.add_argument("--out", default="unseen_scans")
+    ap.add_argument("--declare-open", action="store_true",
+                    help="declare both eyes of every case open in a copy of its scan.yaml")
     args = ap.parse_args()
     if args.markdown:
         rows = json.loads((args.results / f"{args.out}.json").read_text())["rows"]
@@ -279,6 +299,8 @@ def main():
     rows = []
     for c in cases:
         folder, build = work / "scans" / c["name"], work / "build" / c["name"]
+        if args.declare_open:
+            folder, build = declared_open(folder, work / "scans_open" / c["name"]), work / "build_open" / c["name"]
         shutil.rmtree(build, ignore_errors=True)
         shutil.rmtree(asset_dir(eyeball, c["name"]), ignore_errors=True)
         chain = run_chain(folder, build, eyeball, params, stop_after)
