@@ -447,8 +447,7 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
     fits, placements, median_edge, searched = place_near_hints(mesh_arrays, hints, st, source=source,
                                                                texture=texture, prior=prior,
                                                                declared_open=declared_open)
-    cut = dict(source=source, texture=texture, eyeball=eyeball, boundary=(mesh_arrays, fork_result(job)[0]),
-               declared_open=declared_open)
+    cut = dict(source=source, texture=texture, eyeball=eyeball, boundary=(mesh_arrays, fork_result(job)[0]))
     coarse, first = {}, None
 
     def both(exc):      # the first refusal and why the eye placed again is refused too, one line
@@ -476,24 +475,25 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
         try:
             # every other eye as the search found it: one it placed from its opening (a coarse
             # photogrammetry head's) is placed so again, not taken for closed
-            fits, placements, median_edge, _ = _place_again(mesh_arrays, hints, st, coarse, searched, prior, cut)
+            fits, placements, median_edge, _ = _place_again(mesh_arrays, hints, st, coarse, searched, prior, cut,
+                                                            declared_open)
         except ScanError as exc:
             raise both(exc) from None
 
 
-def _place_again(mesh_arrays, hints, st, coarse: dict, searched, prior, cut):
+def _place_again(mesh_arrays, hints, st, coarse: dict, searched, prior, cut, declared_open=()):
     """:func:`place_near_hints` with the eyes ``coarse`` (side -> why) placed behind the opening
     the eye-region prior outlines and the others from what the first search found
     (``searched``; the search is not run again)."""
     return place_near_hints(mesh_arrays, hints, st, source=cut["source"], texture=cut["texture"],
-                            prior=prior, coarse=coarse, placed=searched, declared_open=cut["declared_open"])
+                            prior=prior, coarse=coarse, placed=searched, declared_open=declared_open)
 
 
 def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, source, texture,
-                   eyeball, boundary=None, declared_open=()) -> RemovalResult:
+                   eyeball, boundary=None) -> RemovalResult:
     """Cut both placed eyes' regions out of the scan and judge what is published
     (:func:`remove_eyeballs`). ``boundary``: ``(arrays, meshtopo.boundary_mask(arrays["F"]))``
-    when already found; ``declared_open`` was the placement's alone (:func:`place_pair`)."""
+    when already found."""
     # an eye placed from its texture is cut along the fissure the photograph shows: the faces
     # near that outline are split first (pipeline/remove_eyeballs/fissure_cut.py)
     scan_arrays = mesh_arrays
