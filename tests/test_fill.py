@@ -314,6 +314,62 @@ def test_an_eye_whose_folded_optima_rest_on_the_radius_bound_is_placed_behind_th
         remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="bound.ply", prior=None)
 
 
+@pytest.mark.slow
+def test_both_eyes_no_eye_is_a_pair_of_closed_lids(head, monkeypatch):
+    """Both eyes' folded optima rest on the radius bound: neither side shows an eye's surface,
+    as a pair of closed lids does, so the scan is refused as closed in one line that says how
+    to declare the eyes open; declared open, both are placed behind the prior's opening."""
+    import pipeline.placement.place as place
+    from pipeline.placement.fit import AtRadiusBound
+    from pipeline.placement.prior import EyeRegionPrior
+
+    h, _ = head
+    monkeypatch.setattr(place, "place_eyes", lambda *a, **k: {s: AtRadiusBound(21.0, 14.2) for s in SIDES})
+    mesh = {"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}
+    prior = EyeRegionPrior.load().register
+    with pytest.raises(ScanError) as err:
+        remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="pair.ply", prior=prior)
+    msg = str(err.value)
+    assert msg.startswith("pair.ply: both eyes look closed: ") and "\n" not in msg, msg
+    assert "left: the eye surface ringed by a lid fold (14 deg) fits only a sphere" in msg
+    assert msg.endswith("eyes.left.open: true and eyes.right.open: true)"), msg
+    res = remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="pair.ply", prior=prior,
+                          declared_open=("left", "right"))
+    for s in SIDES:
+        doc = res.eyes[s].to_doc()
+        assert doc["method"] == "coarse" and res.fits[s].no_eye is None
+        assert any("fits only a sphere on the radius range's bound" in d for d in doc["doubts"]), doc["doubts"]
+        lt, _ = truth_limbus(h.ground_truth["eyes"][s])
+        assert np.linalg.norm(np.asarray(doc["limbus"]["center"]) - lt) <= 2 * doc["uncertainty"]["limbus_mm"]
+
+
+@pytest.mark.parametrize("why, refused", [
+    (("off_margin", "notched"), True), (("at_bound", "off_margin"), True),
+    (("off_margin", None), False),      # one eye behind the opening for a narrow cut: a coarse scan's
+    (("off_margin", "geometry"), False),    # the other eye shows its surface: an open eye
+])
+def test_the_pair_rule_reads_why_each_eye_was_placed_behind_its_opening(why, refused):
+    """Known answers of ``closed_pair``: refused only when both eyes are coarse for a reason of
+    ``NO_EYE``, and never when an eye is declared open."""
+    from pipeline.placement.eye_fit import EyeFit
+    from pipeline.remove_eyeballs.remove_eyeballs import closed_pair
+
+    def fit(s, w):
+        return EyeFit(side=s, center=np.zeros(3), radius=12.0, forward=np.array([0.0, 0.0, 1.0]),
+                      residual_rms_mm=0.0, n_inliers=0, method="geometry" if w == "geometry" else "coarse",
+                      region=np.zeros(1, bool), why=f"because {w}: placed behind the opening the eye-region "
+                                                   f"prior outlines", no_eye=None if w == "geometry" else w)
+
+    fits = {s: fit(s, w) for s, w in zip(SIDES, why)}
+    if refused:
+        with pytest.raises(ScanError, match=f"^x.ply: both eyes look closed: .*left: because {why[0]}; "
+                                            f"right: because {why[1]}\\)"):
+            closed_pair(fits, "x.ply")
+    else:
+        closed_pair(fits, "x.ply")
+    closed_pair(fits, "x.ply", declared_open=("left",))
+
+
 def test_a_wide_sphere_barely_folded_is_a_closed_lid():
     """Known answers of ``lid_bulge`` at its limits: a sphere over 18 mm ringed by a fold under
     13 deg is a closed lid's bulge (the cached blink's and wink's closed eyes: 18.3-19.7 mm at

@@ -46,11 +46,21 @@ def fill_faces(V, F, ratio):
 class CoarseEye(ScanError):
     """An open eye the scan's shape cannot place: ``region`` (m,) bool, the opening its too few
     eye vertices were found in (one simple loop round it), or None when the eye the geometry
-    found lies outside the lids (:func:`_outside_margin`)."""
+    found lies outside the lids (:func:`_outside_margin`). ``no_eye``: one of :data:`NO_EYE`
+    when the surface the search found was judged no eye's (the placed fit carries it)."""
 
-    def __init__(self, path, problem, region):
+    def __init__(self, path, problem, region, no_eye=None):
         super().__init__(path, problem)
-        self.region = region
+        self.region, self.no_eye = region, no_eye
+
+
+#: Why the surface the search found round an eye is no eye's, as a closed lid's is: it lies
+#: outside the opening the skin round it outlines (``off_margin``), its every folded optimum
+#: rests on the radius range's bound (``at_bound``), or the cut round it is notched with the
+#: iris it would place outside it (``notched``). An eye placed behind the prior's opening for one
+#: of these on both sides is a pair of closed lids unless the user declares it open
+#: (``remove_eyeballs.closed_pair``, docs/remove_eyeballs.md "A pair of closed lids").
+NO_EYE = ("off_margin", "at_bound", "notched")
 
 
 class NarrowOpening(ScanError):
@@ -61,9 +71,9 @@ class NarrowOpening(ScanError):
     stage places it again behind the opening the eye-region prior outlines (``place_pair``'s
     ``coarse``)."""
 
-    def __init__(self, path, problem, side, width_mm, why="with no iris in it"):
+    def __init__(self, path, problem, side, width_mm, why="with no iris in it", notched=False):
         super().__init__(path, problem)
-        self.side, self.width_mm, self.why = side, float(width_mm), why
+        self.side, self.width_mm, self.why, self.notched = side, float(width_mm), why, notched
 
 
 # A person's two palpebral fissures are about one width (their difference is a millimetre or two
@@ -118,6 +128,7 @@ def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSet
         raise refusal
     fit = fit_behind_loop(mesh, loops[0], region, side, st.radius_prior_mm, None, "coarse")
     fit.why = f"{err.problem.split(': ', 1)[1]}: placed behind the opening {by}"
+    fit.no_eye = None if declared else getattr(err, "no_eye", None)
     return fit
 
 
@@ -253,7 +264,7 @@ def lid_bulge(pl) -> bool:
 
 def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, filled=None,
                uv=None, texture=None, prior=None, source="mesh", coarse=None, placed=None,
-               declared_open=()):
+               declared_open=(), notched=()):
     """Place both eyes jointly (:func:`pipeline.placement.fit.place_eyes`) on the surface around
     the hints; an eye the geometry cannot place falls back to the colour texture when there is one.
     An opening a scanner filled flat (:func:`pipeline.placement.fill.find_flat_fill`) is placed
@@ -268,7 +279,8 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
     ``coarse``: side -> why, eyes to place behind the opening the eye-region prior outlines
     whatever the geometry found (a cut round part of an eye, :class:`NarrowOpening`);
     ``placed``: what the search of an earlier call on the same surface found (its ``searched``;
-    the search is not run again). ``declared_open``: the sides the user declared open (scan.yaml
+    the search is not run again); ``notched``: the sides of ``coarse`` whose cut was notched
+    with the iris outside it (their fits' ``no_eye``). ``declared_open``: the sides the user declared open (scan.yaml
     ``eyes.<side>.open``): an eye that looks closed there (no eye surface ringed by a lid fold,
     too little of it, a closed lid's bulge) is placed behind the opening the eye-region prior
     outlines, doubted, instead of refused.
@@ -321,20 +333,20 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         off = None if placements[s] is None or front is None else _outside_margin(
             limbus_center(placements[s].eye), front.get(s))
         if s in coarse:
-            err = CoarseEye(source, f"{s} eye: {coarse[s]}", None)
+            err = CoarseEye(source, f"{s} eye: {coarse[s]}", None, "notched" if s in notched else None)
         elif off is not None and off > PRIOR_MARGIN_SLACK_MM:
             # the eye the geometry found lies off the opening the lids around it outline (a coarse
             # photogrammetry head's right eye: on the lower lid, 8.6 mm outside, 13.7 mm off
             # with a 1.1 mm sigma): no eye this scan shows
             err = CoarseEye(source, f"{s} eye: the eye surface the geometry found lies {off:.1f} mm "
                                     f"outside the lid margin that the skin around it outlines "
-                                    f"(eye-region prior; limit {PRIOR_MARGIN_SLACK_MM:g} mm)", None)
+                                    f"(eye-region prior; limit {PRIOR_MARGIN_SLACK_MM:g} mm)", None, "off_margin")
         elif bound is not None:
             # an open eye's surface too small to size (every folded optimum at the range's bound):
             # placed behind the opening the eye-region prior outlines, as a coarse scan's
             err = CoarseEye(source, f"{s} eye: the eye surface ringed by a lid fold ({bound.fold_deg:.0f} deg) "
                                     f"fits only a sphere on the radius range's bound ({bound.radius:.1f} mm): "
-                                    f"too little of it shows to size the eye", None)
+                                    f"too little of it shows to size the eye", None, "at_bound")
         elif placements[s] is not None and not (st.texture_fallback and has_tex) and lid_bulge(placements[s]):
             # with a photograph the fissure it shows judges such a sphere (_photo_disagrees)
             pl = placements[s]
@@ -699,7 +711,8 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                                         f"{eye_checks.describe('opening_convex', checks[s]['opening_convex'])}, "
                                         f"and the iris lay outside it (the eye would be placed from this "
                                         f"opening)", s, checks[s]["opening_wide"]["value"],
-                                why=f"and fills {100 * fill:.0f} % of its hull with the iris outside it")
+                                why=f"and fills {100 * fill:.0f} % of its hull with the iris outside it",
+                                notched=True)
         o = narrow_beside_wide({k: checks[k]["opening_wide"] for k in SIDES}, s)
         if o is not None:
             # an iris in a loop beside a fissure this much wider: the iris the cut holds is part

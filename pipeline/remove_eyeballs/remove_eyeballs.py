@@ -32,7 +32,7 @@ from pipeline.geometry.frame import eye_basis
 from pipeline.geometry.mesh_edit import fill_holes_near
 from pipeline.geometry.spherefit import signed_distance
 from pipeline.placement.eye_fit import eye_surface_distance, local_mesh, median_edge_length
-from pipeline.placement.place import NarrowOpening, judge_pair, place_pair
+from pipeline.placement.place import NO_EYE, NarrowOpening, judge_pair, place_pair
 from pipeline.remove_eyeballs.fissure_cut import move_loop_onto, openings_at_fissures
 from pipeline.remove_eyeballs.settings import RemoveEyeballsSettings
 from pipeline.results import StageResult
@@ -365,7 +365,7 @@ def _holes_inside(F, remove, H=None):
 
 
 def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source="mesh",
-                     texture=None, prior=None, coarse=None, placed=None, declared_open=()):
+                     texture=None, prior=None, coarse=None, placed=None, declared_open=(), notched=()):
     """Place both eyes (:func:`pipeline.placement.place.place_pair`) on the surface around the
     hints, its holes near the eyes closed for the fit; each hole then goes with the opening or
     the skin (:func:`_opening_holes`).
@@ -375,7 +375,8 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
     placements, median_edge, searched)``: per side an :class:`EyeFit` (its region on the full
     mesh) and the :class:`pipeline.placement.uncertainty.Placement` (None for an eye placed from
     its texture, a fill or its opening), the scan's median edge length, and what the search
-    found (:func:`place_pair`). ``coarse``, ``placed``, ``declared_open``: as :func:`place_pair`'s."""
+    found (:func:`place_pair`). ``coarse``, ``placed``, ``declared_open``, ``notched``: as
+    :func:`place_pair`'s."""
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     median_edge, max_edge = median_edge_length(V, F, with_max=True)
@@ -396,7 +397,7 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
     _, fits, placements, searched = place_pair(Vs, Fs, hints, st, median_edge=median_edge,
                                      filled=hole_of_face >= 0, uv=sub_arrays, texture=texture,
                                      prior=prior, source=source, coarse=coarse, placed=placed,
-                                     declared_open=declared_open)
+                                     declared_open=declared_open, notched=notched)
     for fit in fits.values():       # back to full-mesh ids
         region = np.zeros(len(F), bool)
         region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
@@ -448,7 +449,7 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
                                                                texture=texture, prior=prior,
                                                                declared_open=declared_open)
     cut = dict(source=source, texture=texture, eyeball=eyeball, boundary=(mesh_arrays, fork_result(job)[0]))
-    coarse, first = {}, None
+    coarse, notched, first = {}, set(), None
 
     def both(exc):      # the first refusal and why the eye placed again is refused too, one line
         return ScanError(source, f"{first.problem}; placed behind the opening the eye-region prior "
@@ -456,7 +457,7 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
 
     while True:
         try:
-            return _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, **cut)
+            result = _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, **cut)
         except NarrowOpening as exc:
             if prior is None:
                 raise
@@ -467,26 +468,47 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
             # the opening the eye-region prior outlines in the skin round it, doubted
             coarse[exc.side] = (f"the cut round the eye the geometry found spans {exc.width_mm:.1f} mm "
                                 f"{exc.why}")
+            if exc.notched:
+                notched.add(exc.side)
             first = first or exc
         except ScanError as exc:
             if first is None:
                 raise
             raise both(exc) from None
+        else:
+            closed_pair(result.fits, source, declared_open)
+            return result
         try:
             # every other eye as the search found it: one it placed from its opening (a coarse
             # photogrammetry head's) is placed so again, not taken for closed
             fits, placements, median_edge, _ = _place_again(mesh_arrays, hints, st, coarse, searched, prior, cut,
-                                                            declared_open)
+                                                            declared_open, notched)
         except ScanError as exc:
             raise both(exc) from None
 
 
-def _place_again(mesh_arrays, hints, st, coarse: dict, searched, prior, cut, declared_open=()):
+def closed_pair(fits: dict, source, declared_open=()) -> None:
+    """Refuse a pair of closed lids: both eyes placed behind the prior's opening because the
+    surface the search found round each was no eye's (``EyeFit.no_eye``, :data:`NO_EYE`), and
+    neither declared open. A closed lid's bulge offers the search a sphere ringed by a fold that
+    lies off the opening the skin outlines, or whose cut is notched round an iris outside it; an
+    open eye the scan shows offers its own surface on at least one side. A ScanError naming
+    ``source`` and what each eye's search found."""
+    if declared_open or not all(fits[s].method == "coarse" and fits[s].no_eye in NO_EYE for s in SIDES):
+        return
+    why = "; ".join(f"{s}: {fits[s].why.rsplit(': placed behind', 1)[0]}" for s in SIDES)
+    raise ScanError(source, f"both eyes look closed: the surface the search found round neither eye is "
+                            f"an eye's, as closed lids give ({why}) (if the eyes are open, say so in "
+                            f"scan.yaml: eyes.left.open: true and eyes.right.open: true)")
+
+
+def _place_again(mesh_arrays, hints, st, coarse: dict, searched, prior, cut, declared_open=(), notched=()):
     """:func:`place_near_hints` with the eyes ``coarse`` (side -> why) placed behind the opening
     the eye-region prior outlines and the others from what the first search found
     (``searched``; the search is not run again)."""
     return place_near_hints(mesh_arrays, hints, st, source=cut["source"], texture=cut["texture"],
-                            prior=prior, coarse=coarse, placed=searched, declared_open=declared_open)
+                            prior=prior, coarse=coarse, placed=searched, declared_open=declared_open,
+                            notched=notched)
 
 
 def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, source, texture,
