@@ -343,6 +343,39 @@ def test_both_eyes_no_eye_is_a_pair_of_closed_lids(head, monkeypatch):
         assert np.linalg.norm(np.asarray(doc["limbus"]["center"]) - lt) <= 2 * doc["uncertainty"]["limbus_mm"]
 
 
+@pytest.mark.slow
+def test_an_eye_showing_too_little_surface_is_placed_behind_the_priors_opening(head, monkeypatch):
+    """The search's eye labels too little eye surface (``min_open_area_mm2``): a sliver, no eye
+    to place from. One such eye beside an eye the geometry places is placed behind the prior's
+    opening, saying why (a coarse photogrammetry head's right eye, 0.0 mm2); both such eyes are
+    a pair of closed lids, refused in one line."""
+    import pipeline.placement.place as place
+    from pipeline.placement.prior import EyeRegionPrior
+
+    h, _ = head
+    mesh = {"V": np.asarray(h.V, float), "F": np.asarray(h.F, np.int64)}
+    prior = EyeRegionPrior.load().register
+    real = place._fit_from_placement
+
+    def small_right(mesh_, pl, hint, side, st, source, ignore):
+        if side == "right":
+            st = RemoveEyeballsSettings(min_open_area_mm2=1000.0)
+        return real(mesh_, pl, hint, side, st, source, ignore)
+
+    monkeypatch.setattr(place, "_fit_from_placement", small_right)
+    res = remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(), source="small.ply", prior=prior)
+    left, right = res.eyes["left"].to_doc(), res.eyes["right"].to_doc()
+    assert left["method"] == "geometry" and right["method"] == "coarse"
+    assert any(d.startswith("too little eye surface to place it from the geometry: ") and "(less than 1000)" in d
+               for d in right["doubts"]), right["doubts"]
+    lt, _ = truth_limbus(h.ground_truth["eyes"]["right"])
+    assert np.linalg.norm(np.asarray(right["limbus"]["center"]) - lt) <= 2 * right["uncertainty"]["limbus_mm"]
+    monkeypatch.setattr(place, "_fit_from_placement", real)
+    with pytest.raises(ScanError, match="^small.ply: both eyes look closed: .*left: too little eye surface"):
+        remove_eyeballs(mesh, _hints(h), RemoveEyeballsSettings(min_open_area_mm2=1000.0), source="small.ply",
+                        prior=prior)
+
+
 @pytest.mark.parametrize("why, refused", [
     (("off_margin", "notched"), True), (("at_bound", "off_margin"), True),
     (("off_margin", None), False),      # one eye behind the opening for a narrow cut: a coarse scan's

@@ -60,7 +60,7 @@ class CoarseEye(ScanError):
 #: iris it would place outside it (``notched``). An eye placed behind the prior's opening for one
 #: of these on both sides is a pair of closed lids unless the user declares it open
 #: (``remove_eyeballs.closed_pair``, docs/remove_eyeballs.md "A pair of closed lids").
-NO_EYE = ("off_margin", "at_bound", "notched")
+NO_EYE = ("off_margin", "at_bound", "notched", "too_small")
 
 
 class NarrowOpening(ScanError):
@@ -113,8 +113,9 @@ def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSet
     is no such opening (``declared``: an eye the user declared open, whose refusal says that no
     opening was found to place it behind)."""
     region, by = err.region, "it was found in"
-    refusal = err if not declared else ScanError(
-        err.path, f"{err.problem}, and no opening round it to place it behind")
+    refusal = ScanError(err.path, f"{err.problem}, and no opening round it to place it behind"
+                                  f"{'' if declared or err.no_eye is None else OPEN_HOW.format(side=side)}"
+                        ) if declared or err.no_eye is not None else err
     if region is None:
         region = prior_opening(mesh, front, hint, st.patch_radius_mm + 5.0)
         by = "the eye-region prior outlines"
@@ -197,7 +198,8 @@ COARSE_DEPTH_MM = 4.0
 def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, source, ignore):
     """The :class:`EyeFit` of one placed eye: the removal region is the eye-labelled surface
     (faces whose three vertices are eye, and the unmeasured fills inside it), made one simple
-    loop; a closed eye (little eye surface, or no lid fold around it) is a ScanError."""
+    loop. Too little eye surface is a :class:`CoarseEye` (``no_eye`` ``too_small``), and too few
+    scan vertices on it one to place behind its own opening."""
     V, F = mesh.V, mesh.F
     eye_v = np.zeros(len(V), bool)
     eye_v[pl.patch.verts[pl.lab]] = True
@@ -216,9 +218,11 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, so
     cornea = cornea_sphere(e)
     crease = lid_crease_deg(mesh, region) if region.any() else 0.0
     if area < st.min_open_area_mm2:
-        raise ScanError(source, f"{side} eye looks closed (or too little of the eyeball shows to place "
-                                f"it): {area:.1f} mm2 of eye surface near "
-                                f"{np.round(hint, 2).tolist()} (less than {st.min_open_area_mm2:g})")
+        # a sliver of eye the search found ringed by a fold: no eye's surface to place from, as
+        # a closed lid's; placed behind the prior's opening and counted by the pair rule
+        raise CoarseEye(source, f"{side} eye: too little eye surface to place it from the geometry: "
+                                f"{area:.1f} mm2 near {np.round(hint, 2).tolist()} (less than "
+                                f"{st.min_open_area_mm2:g})", None, "too_small")
     n_eye = int(np.count_nonzero(pl.lab))
     if n_eye < st.min_eye_vertices:     # a coarse scan (james: 3 mm faces) cannot show a cornea
         raise CoarseEye(source, f"{side} eye: too little of the eyeball shows to place it from the "
