@@ -489,6 +489,25 @@ def test_synthetic_head_ground_truth(seed, triangles, noise, shape):
         assert loop_d <= 0.5, (s, loop_d)
 
 
+@pytest.mark.parametrize("off_mm", [-1.0, 1.0])
+def test_the_priors_own_start_is_searched_whatever_the_drawn_spheres_rank(off_mm):
+    """With one start kept, the test head's best drawn sphere is its cornea's (8.1 mm, not the
+    eye); the eye-region prior's best start along its axis (its front put ``off_mm`` beside the
+    truth's) is searched as well, at the true 12 mm: the search does not hang on whether a drawn
+    pair leads into the eye's basin (fresh26's hooded eye missed it on one set of kernels)."""
+    from pipeline.placement.cues import Cues, build_patch
+    from pipeline.placement.fit import hypotheses, hypothesis_pairs
+
+    mesh, hints, truth = make_head(0.7)
+    p = build_patch(mesh["V"], mesh["F"], hints["left"], 20.0)
+    axis = np.array([0.0, 0.0, 1.0])
+    front = truth["left"]["center"] + [off_mm, 0.0, 0.0] + truth["left"]["radius"] * axis
+    starts = hypotheses(p, Cues(front=front, axis=axis), (6.0, 21.0),
+                        hypothesis_pairs(p, np.random.default_rng(0)), keep=1)
+    assert len(starts) == 2 and abs(starts[0].R - 8.08) < 0.05, [(e.c, e.R) for e in starts]
+    assert starts[1].R == 12.0 and np.allclose(starts[1].c + starts[1].R * axis, front)
+
+
 def test_spherefit_helpers():
     """2-point oriented hypotheses, radius standard error, one-sided 'nothing inside' residuals."""
     from pipeline.geometry.spherefit import radius_sigma, refine_sphere, sphere_from_normals
@@ -637,7 +656,8 @@ def hooded_identity(tmp_path_factory):
 
 def _remove_eyeballs(ident, out, rival_restarts=True):
     """The stage on the identity's ingest in a pinned subprocess; ``rival_restarts=False``
-    searches as before issue 30's fix (restarts from the best optimum only)."""
+    searches as before issue 30's fix (restarts from the best optimum only) and before the
+    prior's own start was always searched (that start alone finds this eye too)."""
     import subprocess
     import sys
 
@@ -647,6 +667,7 @@ def _remove_eyeballs(ident, out, rival_restarts=True):
     rival = "fit.RIVAL_MM" if rival_restarts else "float('inf')"
     script.write_text("from pipeline.kernels import pin_process\npin_process()\n"
                       f"import pipeline.placement.fit as fit\nfit.RIVAL_MM = {rival}\n"
+                      f"fit.PRIOR_OWN_START = {rival_restarts}\n"
                       "from stages._common import stage_exit\nfrom stages.remove_eyeballs import main\n"
                       "stage_exit(main)\n")
     return subprocess.run([sys.executable, str(script), str(ident["ingest"]), str(out), "--params",

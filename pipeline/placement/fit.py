@@ -35,6 +35,7 @@ RESTARTS_KEEP = 4                  # turned gazes refined in full after one roun
 # of 60 eyes against 52, median limbus sigma 1.10 against 1.05 mm (docs/remove_eyeballs.md Speed)
 PROFILE_ITERS, PROFILE_NFEV = 1, 10
 RIVAL_MM = 3.0                     # an optimum this far from the best is another basin: restarted too
+PRIOR_OWN_START = True             # the prior's best start refined whatever the drawn spheres rank
 NP = 8                  # parameters per eye besides the radius: c (3), gaze (2), ha, tl, hb
 # least-squares stops: a relative change of 1e-5 in a cost of ~1e3 is 0.01 of an energy whose
 # rivals are weighed at a temperature of 5, and a step of 1e-5 of |x| (~80, the centre in mm)
@@ -264,6 +265,7 @@ def hypotheses(p: Patch, cues: Cues, radius_range, drawn, keep=3, min_fold_deg=1
             if (radius_range[0] <= r <= radius_range[1] and v[2] > 0.6 * np.linalg.norm(v)
                     and abs(np.linalg.norm(v) - r) < 4.0):
                 cands.append(Eye(c, r, unit(v) if cues.axis is None else cues.axis))
+    n_drawn = len(cands)
     if cues.front is not None:
         for R in np.arange(np.ceil(radius_range[0]), radius_range[1] + 1e-9, 1.0):
             cands.append(Eye(cues.front - R * cues.axis, float(R), cues.axis))
@@ -284,14 +286,21 @@ def hypotheses(p: Patch, cues: Cues, radius_range, drawn, keep=3, min_fold_deg=1
         segs = [segment(p, Eye(e0.c, e0.R, e0.n, ha)) for ha in (0.0, 0.5, 1.0)]
         j = int(np.argmin([E for _, E in segs]))
         if fold_deg(p, segs[j][0]) >= min_fold_deg:
-            scored.append((segs[j][1], Eye(e0.c, e0.R, e0.n, (0.0, 0.5, 1.0)[j])))
+            scored.append((segs[j][1], Eye(e0.c, e0.R, e0.n, (0.0, 0.5, 1.0)[j]), i >= n_drawn))
     scored.sort(key=lambda t: t[0])
     pick = []
-    for E, e in scored:
+    for E, e, _ in scored:
         if all(np.linalg.norm(e.c - e2.c) > 1.0 or abs(e.R - e2.R) > 0.7 for _, e2 in pick):
             pick.append((E, e))
         if len(pick) >= keep:
             break
+    # the prior's own best start is refined too, whatever the drawn spheres rank: when no drawn
+    # pair leads into the true eye's basin the search otherwise hangs on last-bit arithmetic
+    # (fresh26's hooded synthetic_hood0.7_s3207, docs/known-gaps.md)
+    own = next(((E, e) for E, e, from_prior in scored if from_prior), None) if PRIOR_OWN_START else None
+    if own is not None and all(np.linalg.norm(own[1].c - e2.c) > 1.0 or abs(own[1].R - e2.R) > 0.7
+                               for _, e2 in pick):
+        pick.append(own)
     return [e for _, e in pick]
 
 
