@@ -53,8 +53,7 @@ class EyeFit:
     radius_sigma: float = float("inf")
     prior_axis: np.ndarray | None = field(default=None, repr=False)   # the eye region's forward
     why: str | None = None      # why the eye was placed as it was, when that is a doubt
-    # where the eye the search found was judged no eye (its surface off the opening the skin
-    # outlines, or only on the radius range's bound): a closed lid gives that (place.NO_EYE)
+    # why the surface the search found was judged no eye's, as a closed lid's (place.NO_EYE)
     no_eye: str | None = None
 
 

@@ -56,8 +56,9 @@ class CoarseEye(ScanError):
 
 #: Why the surface the search found round an eye is no eye's, as a closed lid's is: it lies
 #: outside the opening the skin round it outlines (``off_margin``), its every folded optimum
-#: rests on the radius range's bound (``at_bound``), or the cut round it is notched with the
-#: iris it would place outside it (``notched``). An eye placed behind the prior's opening for one
+#: rests on the radius range's bound (``at_bound``), the cut round it is notched with the
+#: iris it would place outside it (``notched``), or it labels too little eye surface
+#: (``too_small``). An eye placed behind the prior's opening for one
 #: of these on both sides is a pair of closed lids unless the user declares it open
 #: (``remove_eyeballs.closed_pair``, docs/remove_eyeballs.md "A pair of closed lids").
 NO_EYE = ("off_margin", "at_bound", "notched", "too_small")
@@ -113,9 +114,10 @@ def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSet
     is no such opening (``declared``: an eye the user declared open, whose refusal says that no
     opening was found to place it behind)."""
     region, by = err.region, "it was found in"
-    refusal = ScanError(err.path, f"{err.problem}, and no opening round it to place it behind"
-                                  f"{'' if declared or err.no_eye is None else OPEN_HOW.format(side=side)}"
-                        ) if declared or err.no_eye is not None else err
+    refusal = err
+    if declared or err.no_eye is not None:
+        how = "" if declared else OPEN_HOW.format(side=side)
+        refusal = ScanError(err.path, f"{err.problem}, and no opening round it to place it behind{how}")
     if region is None:
         region = prior_opening(mesh, front, hint, st.patch_radius_mm + 5.0)
         by = "the eye-region prior outlines"
@@ -129,7 +131,7 @@ def _fit_from_coarse(mesh: EyeMesh, err: CoarseEye, side, hint, st: PlacementSet
         raise refusal
     fit = fit_behind_loop(mesh, loops[0], region, side, st.radius_prior_mm, None, "coarse")
     fit.why = f"{err.problem.split(': ', 1)[1]}: placed behind the opening {by}"
-    fit.no_eye = None if declared else getattr(err, "no_eye", None)
+    fit.no_eye = None if declared else err.no_eye
     return fit
 
 
@@ -268,7 +270,7 @@ def lid_bulge(pl) -> bool:
 
 def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, filled=None,
                uv=None, texture=None, prior=None, source="mesh", coarse=None, placed=None,
-               declared_open=(), notched=()):
+               declared_open=()):
     """Place both eyes jointly (:func:`pipeline.placement.fit.place_eyes`) on the surface around
     the hints; an eye the geometry cannot place falls back to the colour texture when there is one.
     An opening a scanner filled flat (:func:`pipeline.placement.fill.find_flat_fill`) is placed
@@ -283,8 +285,7 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
     ``coarse``: side -> why, eyes to place behind the opening the eye-region prior outlines
     whatever the geometry found (a cut round part of an eye, :class:`NarrowOpening`);
     ``placed``: what the search of an earlier call on the same surface found (its ``searched``;
-    the search is not run again); ``notched``: the sides of ``coarse`` whose cut was notched
-    with the iris outside it (their fits' ``no_eye``). ``declared_open``: the sides the user declared open (scan.yaml
+    the search is not run again). ``declared_open``: the sides the user declared open (scan.yaml
     ``eyes.<side>.open``): an eye that looks closed there (no eye surface ringed by a lid fold,
     too little of it, a closed lid's bulge) is placed behind the opening the eye-region prior
     outlines, doubted, instead of refused.
@@ -337,7 +338,7 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
         off = None if placements[s] is None or front is None else _outside_margin(
             limbus_center(placements[s].eye), front.get(s))
         if s in coarse:
-            err = CoarseEye(source, f"{s} eye: {coarse[s]}", None, "notched" if s in notched else None)
+            err = CoarseEye(source, f"{s} eye: {coarse[s]}", None)
         elif off is not None and off > PRIOR_MARGIN_SLACK_MM:
             # the eye the geometry found lies off the opening the lids around it outline (a coarse
             # photogrammetry head's right eye: on the lower lid, 8.6 mm outside, 13.7 mm off

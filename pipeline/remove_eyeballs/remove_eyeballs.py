@@ -365,7 +365,7 @@ def _holes_inside(F, remove, H=None):
 
 
 def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, source="mesh",
-                     texture=None, prior=None, coarse=None, placed=None, declared_open=(), notched=()):
+                     texture=None, prior=None, coarse=None, placed=None, declared_open=()):
     """Place both eyes (:func:`pipeline.placement.place.place_pair`) on the surface around the
     hints, its holes near the eyes closed for the fit; each hole then goes with the opening or
     the skin (:func:`_opening_holes`).
@@ -375,8 +375,7 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
     placements, median_edge, searched)``: per side an :class:`EyeFit` (its region on the full
     mesh) and the :class:`pipeline.placement.uncertainty.Placement` (None for an eye placed from
     its texture, a fill or its opening), the scan's median edge length, and what the search
-    found (:func:`place_pair`). ``coarse``, ``placed``, ``declared_open``, ``notched``: as
-    :func:`place_pair`'s."""
+    found (:func:`place_pair`). ``coarse``, ``placed``, ``declared_open``: as :func:`place_pair`'s."""
     V = np.asarray(mesh_arrays["V"], dtype=np.float64)
     F = np.asarray(mesh_arrays["F"], dtype=np.int64)
     median_edge, max_edge = median_edge_length(V, F, with_max=True)
@@ -397,7 +396,7 @@ def place_near_hints(mesh_arrays, hints: dict, st: RemoveEyeballsSettings, *, so
     _, fits, placements, searched = place_pair(Vs, Fs, hints, st, median_edge=median_edge,
                                      filled=hole_of_face >= 0, uv=sub_arrays, texture=texture,
                                      prior=prior, source=source, coarse=coarse, placed=placed,
-                                     declared_open=declared_open, notched=notched)
+                                     declared_open=declared_open)
     for fit in fits.values():       # back to full-mesh ids
         region = np.zeros(len(F), bool)
         region[faces[_opening_holes(fit.region, Fs, holes, hole_of_face, n_local)]] = True
@@ -482,7 +481,10 @@ def remove_eyeballs(mesh_arrays: Mapping, hints: dict, st: RemoveEyeballsSetting
             # every other eye as the search found it: one it placed from its opening (a coarse
             # photogrammetry head's) is placed so again, not taken for closed
             fits, placements, median_edge, _ = _place_again(mesh_arrays, hints, st, coarse, searched, prior, cut,
-                                                            declared_open, notched)
+                                                            declared_open)
+            for s in notched:   # a cut notched round an iris outside it: no eye's surface (NO_EYE)
+                if fits[s].method == "coarse" and s not in declared_open:
+                    fits[s].no_eye = "notched"
         except ScanError as exc:
             raise both(exc) from None
 
@@ -502,13 +504,12 @@ def closed_pair(fits: dict, source, declared_open=()) -> None:
                             f"scan.yaml: eyes.left.open: true and eyes.right.open: true)")
 
 
-def _place_again(mesh_arrays, hints, st, coarse: dict, searched, prior, cut, declared_open=(), notched=()):
+def _place_again(mesh_arrays, hints, st, coarse: dict, searched, prior, cut, declared_open=()):
     """:func:`place_near_hints` with the eyes ``coarse`` (side -> why) placed behind the opening
     the eye-region prior outlines and the others from what the first search found
     (``searched``; the search is not run again)."""
     return place_near_hints(mesh_arrays, hints, st, source=cut["source"], texture=cut["texture"],
-                            prior=prior, coarse=coarse, placed=searched, declared_open=declared_open,
-                            notched=notched)
+                            prior=prior, coarse=coarse, placed=searched, declared_open=declared_open)
 
 
 def _cut_and_judge(mesh_arrays, hints, st, fits, placements, median_edge, *, source, texture,
