@@ -306,6 +306,52 @@ def test_turn_yaws_about_up_then_pitches_up():
     assert abs(np.degrees(np.arcsin(v[1])) + 30.0) < 1e-9 and abs(np.degrees(np.arctan2(v[0], v[2])) - 45.0) < 1e-9
 
 
+def _mode(e, energy=0.0, fold=30.0):
+    return fit.Mode(e, np.ones(3, bool), energy, None, fold)
+
+
+def test_cornea_starts_put_a_globe_behind_the_sphere_the_search_found():
+    """Known answers: every start is a globe 1.5 times the found sphere, its anterior cap's sphere
+    centred where the found sphere is, along the eye region's forward and each turned gaze; a
+    sphere larger than a cornea gets none, nor does one bulging like a globe with its own cornea,
+    nor a search that found no folded optimum."""
+    c = np.array([30.0, 2.0, 5.0])
+    fwd = np.array([0.0, 0.0, 1.0])
+    found = [_mode(model.Eye(c, 10.0, fwd, -0.4)), _mode(model.Eye(c + 5.0, 10.5, fwd), energy=-1.0, fold=3.0)]
+    starts = fit.cornea_starts(found, cues.Cues(axis=fwd), 12.0, (10.0, 21.0))
+    assert len(starts) == 1 + len(fit.GAZE_RESTARTS_DEG)
+    np.testing.assert_allclose(starts[0].n, fwd)
+    turned = {tuple(np.round(e.n, 9)) for e in starts[1:]}
+    assert turned == {tuple(np.round(fit._turn(fwd, y, q), 9)) for y, q in fit.GAZE_RESTARTS_DEG}
+    for e in starts:
+        assert e.R == pytest.approx(15.0) and e.ha == fit.CORNEA_HA
+        z0, r = model._cap(e.R, e.ha, e.tl)
+        np.testing.assert_allclose(e.c + z0 * e.n, c, atol=1e-12)     # the cap's sphere where the found one is
+        assert 9.0 < r < 10.5                                        # and about as large
+    assert fit.cornea_starts([_mode(model.Eye(c, 13.0, fwd, -0.4))], cues.Cues(axis=fwd), 12.0, (10.0, 21.0)) == []
+    assert fit.cornea_starts([_mode(model.Eye(c, 11.0, fwd, 1.2))], cues.Cues(axis=fwd), 12.0, (10.0, 21.0)) == []
+    assert fit.cornea_starts([_mode(model.Eye(c, 10.0, fwd), fold=3.0)], cues.Cues(axis=fwd), 12.0, (10.0, 21.0)) == []
+
+
+def test_the_lowest_cornea_starts_are_refined_in_full():
+    """``_finished`` refines the lowest of the modes one round took the cornea starts to, beside
+    the turned starts': from a sphere through the cornea of a 14.6 mm eye looking 24 deg out,
+    the search ends at the true globe, where without them it has nothing."""
+    R = 14.6
+    mesh, hints, gt = make_head(0.5, seed=0, radii=(R, R), gaze_yaw_deg=24.0)
+    p = cues.build_patch(mesh["V"], mesh["F"], hints["left"], 20.0)
+    fwd = np.array([0.0, 0.0, 1.0])
+    cu = cues.Cues(front=gt["left"]["center"] + R * fwd, axis=fwd, front_sigma=4.0, radius_prior=(12.0, 3.0))
+    rr = (10.0, 21.0)
+    g = gt["left"]["gaze"]
+    cornea = model.Eye(gt["left"]["center"] + (R * 13.5 / 12.0 - R * 8.0 / 12.0) * g, R * 8.0 / 12.0, fwd, 0.0)
+    first = [fit.refine(p, e, cu, rr, iters=1, fold=False) for e in fit.cornea_starts([_mode(cornea)], cu, 12.0, rr)]
+    assert fit._finished(p, cu, [], [], rr, 12.0)[0] == []
+    best = fit._finished(p, cu, [], [], rr, 12.0, cornea=first)[0][0]
+    assert abs(best.eye.R - R) < 0.6 and np.degrees(np.arccos(best.eye.n @ g)) < 4.0
+    assert np.linalg.norm(best.eye.c - gt["left"]["center"]) < 0.6
+
+
 @pytest.mark.slow
 def test_a_gaze_turned_off_the_priors_forward_is_found():
     """Both corneas turned 25 deg towards +X while the eye-region prior says straight ahead: the

@@ -21,7 +21,8 @@ from pipeline.fork import fork_call, fork_result
 from pipeline.geometry.spherefit import sphere_from_normals
 from pipeline.placement.cues import (COARSE_VERTICES, Cues, Patch, ResidualRows, build_patch, coarse_patch,
                                      fold_deg, midplane_x, prior_blocks, residual_jacobians, segment, unary_costs)
-from pipeline.placement.model import HA_RANGE, HB_RANGE, LIMBUS_RANGE, Eye, limbus_center, rays, surface_residual, unit
+from pipeline.placement.model import (HA_RANGE, HB_RANGE, LIMBUS_DEG, LIMBUS_RANGE, Eye, _cap, limbus_center, rays,
+                                      surface_residual, unit)
 from pipeline.placement.uncertainty import laplace, placement_of, share_radius
 
 SIDES = ("left", "right")
@@ -406,6 +407,42 @@ def turned_starts(found, cues: Cues, min_fold_deg):
             for e, n in starts for yaw, pitch in GAZE_RESTARTS_DEG]
 
 
+#: The globe behind a scanned cornea the search took for the globe: this many times its radius
+#: (the paper's eye 12 / 8 mm, ICT-FaceKit's 14.6 / 9.3), its cap this prominent
+#: (:data:`pipeline.placement.model.HA_RANGE`; the scanned domes' fits end at 1.4).
+CORNEA_GLOBE_RATIO, CORNEA_HA = 1.5, 1.2
+#: Only a sphere no larger than this (mm) may be a cornea: ICT-FaceKit's scanned corneas are
+#: 7.5-10.8 mm, their globes 13-17.8 mm (the paper's cornea 8 mm); and only one whose own cap
+#: bulges less than a cornea would (anterior height under this: a sphere through a dome carries
+#: none, ``n3505``'s -0.3 and -0.7, where the procedural heads' 11-12.4 mm globes carry 1.2-1.6).
+CORNEA_MAX_MM, CORNEA_MAX_HA = 12.5, 0.5
+CORNEA_KEEP = 2                   # the globe-behind-the-cornea starts refined in full after one round
+
+
+def cornea_starts(found, cues: Cues, min_fold_deg, radius_range):
+    """Starts for the globe behind the best optimum of ``found`` read as its cornea: a scan that
+    shows the cornea's dome (a scanned cornea, a gaze turned far) can offer the search a small
+    sphere through the dome, its cap a bump of the sclera beside it, in a basin the turned
+    starts (which keep its centre and radius) never leave (fresh29's ``n3505_dome_out_90k``:
+    10.7 mm spheres through the corneas of 14.6 mm eyes looking 24 deg out, turned 37-42 deg
+    the other way; from the truth the same fit ends 110 lower). A globe
+    ``CORNEA_GLOBE_RATIO`` times as large whose cap sphere is centred where that sphere is,
+    along the eye region's forward and every turn of ``GAZE_RESTARTS_DEG``; none when that
+    sphere is larger than a cornea or carries a cornea's bulge itself (``CORNEA_MAX_MM``,
+    ``CORNEA_MAX_HA``)."""
+    ok = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()), key=lambda m: m.energy)
+    if not ok:
+        return []
+    e = ok[0].eye
+    R = min(CORNEA_GLOBE_RATIO * e.R, radius_range[1] - 1.0)
+    if e.R > CORNEA_MAX_MM or e.ha >= CORNEA_MAX_HA or R < e.R + 1.0:
+        return []
+    z0, _ = _cap(R, CORNEA_HA, LIMBUS_DEG[0])
+    axis = e.n if cues.axis is None else np.asarray(cues.axis, float)
+    return [Eye(e.c - z0 * n, float(R), n, CORNEA_HA, LIMBUS_DEG[0], 0.0)
+            for n in [axis] + [_turn(axis, y, q) for y, q in GAZE_RESTARTS_DEG]]
+
+
 def restarts_refined(p: Patch, first, cues: Cues, radius_range):
     """The full refinement of the few lowest of ``first`` (the modes one round took the turned
     starts to): most turned starts fall back into the start's basin or wander off within one
@@ -469,14 +506,18 @@ def _hypothesised(p: Patch, cues: Cues, drawn, radius_range, min_fold_deg, lapla
     return found
 
 
-def _finished(p: Patch, cues: Cues, found, first, radius_range, min_fold_deg, laplace=False):
+def _finished(p: Patch, cues: Cues, found, first, radius_range, min_fold_deg, laplace=False, cornea=()):
     """The last part of one eye's search, from its refined hypotheses ``found`` and the modes one
     round took its turned starts to (``first``): the restarts' refinement and the polish.
     Returns ``(modes, at_bound)``: the local optima that count as an open eye (:func:`_placeable`),
     the lowest first, and, where there is none, an :class:`AtRadiusBound` for folded optima on a
     bound of the radius range (else None). ``laplace``: the lowest mode's Laplace part is made (to
-    travel with it from a child)."""
-    found = polish(p, found + restarts_refined(p, first, cues, radius_range), cues, radius_range)
+    travel with it from a child). ``cornea``: the modes one round took its :func:`cornea_starts`
+    to, whose ``CORNEA_KEEP`` lowest are refined in full beside the turned starts' (one round
+    leaves them above the small sphere they start from)."""
+    lowest = [m.eye for m in sorted(cornea, key=lambda t: t.energy)[:CORNEA_KEEP]]
+    found = polish(p, found + restarts_refined(p, first, cues, radius_range)
+                   + _refine_each(p, lowest, cues, radius_range, REFINE_ITERS - 1), cues, radius_range)
     modes = sorted((m for m in found if _placeable(m, radius_range, min_fold_deg)), key=lambda m: m.energy)
     if laplace and modes:
         modes[0].fit.cov        # noqa: B018
@@ -520,6 +561,8 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     found = {"right": _hypothesised(patches["right"], cues["right"], drawn["right"], radius_range, min_fold_deg)}
     found["left"] = fork_result(job)[0]
     starts = [(s, e) for s in SIDES for e in turned_starts(found[s], cues[s], min_fold_deg)]
+    n_turned = len(starts)
+    starts += [(s, e) for s in SIDES for e in cornea_starts(found[s], cues[s], min_fold_deg, radius_range)]
 
     def first_rounds(part):
         return [refine(patches[s], e, cues[s], radius_range, iters=1, fold=False) for s, e in part]
@@ -529,11 +572,12 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     rest = first_rounds(starts[half:])
     xm = midplane_x(V, hints)
     first = fork_result(job)[0] + rest
-    mine = {s: [m for (side, _), m in zip(starts, first) if side == s] for s in SIDES}
+    mine = {s: [m for (side, _), m in zip(starts[:n_turned], first) if side == s] for s in SIDES}
+    dome = {s: [m for (side, _), m in zip(starts[n_turned:], first[n_turned:]) if side == s] for s in SIDES}
     job = fork_call(_finished, patches["left"], cues["left"], found["left"], mine["left"], radius_range,
-                    min_fold_deg, laplace=True)
+                    min_fold_deg, laplace=True, cornea=dome["left"])
     done = {"right": _finished(patches["right"], cues["right"], found["right"], mine["right"], radius_range,
-                               min_fold_deg)}
+                               min_fold_deg, cornea=dome["right"])}
     done["left"] = fork_result(job)[0]
     modes = {s: done[s][0] for s in SIDES}
     at_bound = {s: done[s][1] for s in SIDES if done[s][1] is not None}
