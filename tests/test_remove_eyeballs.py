@@ -901,6 +901,28 @@ def test_a_hole_whose_every_rim_vertex_is_on_the_region_but_not_every_rim_edge_j
     assert meshtopo.boundary_component_count(F[~settled]) == loops_in - 1 + 1
 
 
+def test_a_scan_hole_pinched_at_a_vertex_inside_the_region_goes_with_the_opening():
+    """A scanner's hole pinched at a vertex into two lobes, every face round the pinch on the eye's
+    region (fresh31's ``n3703_squint_in``): the pinch leaves with the region, and the cut's border
+    is the grid's and one simple opening. Settling used to take the faces round the pinch off the
+    region, which left the scan's own bow-tie on the opening and the scan refused."""
+    from pipeline.remove_eyeballs.remove_eyeballs import _settle_holes
+
+    n = 12
+    V, F, sq, region = _grid_with_region(n)
+    keep = np.ones(len(F), bool)
+    keep[sq(5, 5) + sq(6, 6)] = False         # two squares that meet at the grid point (6, 6)
+    region, F = region[keep], F[keep]
+    H = meshtopo.boundary_halfedges(F)
+    pinch = 6 * (n + 1) + 6
+    assert (H[:, 0] == pinch).sum() == 2      # the scan's own bow-tie
+    settled = _settle_holes(F, region, H)
+    assert np.array_equal(settled, region)    # nothing to settle: the pinch goes with the region
+    loops = meshtopo.boundary_loops(F[~settled])
+    assert len(loops) == 2 and not np.isin(pinch, F[~settled])
+    assert sorted(len(lp) for lp in loops) == [16, 48]     # the opening (4 x 4 squares), the border
+
+
 def test_no_two_loop_vertices_are_moved_onto_one_point():
     """Known answers of ``_apart``: two loop vertices 0.35 mm apart moved onto one point (they
     averaged the same lift-off points) would fold the faces between them flat; the later is left

@@ -264,7 +264,13 @@ def _settle_holes(F, region, H, min_share=0.3, rounds=6):
         key = a * n + b
         border = ~np.isin(b * n + a, key)
         deg = np.bincount(a[border], minlength=n) + np.bincount(b[border], minlength=n)
-        bad = deg > 2
+        # only a vertex the cut keeps can pinch its boundary: one whose every face goes with the
+        # region (a scanner's hole pinched at a vertex, both its fans inside) leaves no vertex
+        # there (fresh31's `n3703_squint_in`: losing those fans left the scan's own pinch on the
+        # opening's loop, and the scan was refused for a bow-tie)
+        kept = np.zeros(n, bool)
+        kept[F[~new].ravel()] = True
+        bad = (deg > 2) & kept
         if bad.any():
             new &= ~meshtopo.faces_touching(F, bad)
         if np.array_equal(new, out):
