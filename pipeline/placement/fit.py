@@ -6,7 +6,9 @@ axis), ranked by the graph-cut energy; the best few are refined by alternating t
 robust least-squares fit of ``(c, R, n, ha, tl)`` (EM). The best of them is refitted again from
 gazes turned up to 45 deg away (:func:`gaze_restarts`; the least squares does not cross from
 the eye region's forward to a gaze turned in, out or down), and so is the rival optimum more
-than ``RIVAL_MM`` away that the eye-region prior points to; the two lowest are polished.
+than ``RIVAL_MM`` away that the eye-region prior points to; a best optimum that may be a scanned
+cornea (a small sphere with no bulge of its own) is refitted from the globe behind it too
+(:func:`cornea_starts`); the two lowest are polished.
 Then the joint fit of both eyes (one radius when they agree, a loose mirror prior on the
 centres); its uncertainty is :mod:`pipeline.placement.uncertainty`'s.
 """
@@ -573,11 +575,11 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     xm = midplane_x(V, hints)
     first = fork_result(job)[0] + rest
     mine = {s: [m for (side, _), m in zip(starts[:n_turned], first) if side == s] for s in SIDES}
-    dome = {s: [m for (side, _), m in zip(starts[n_turned:], first[n_turned:]) if side == s] for s in SIDES}
+    cornea = {s: [m for (side, _), m in zip(starts[n_turned:], first[n_turned:]) if side == s] for s in SIDES}
     job = fork_call(_finished, patches["left"], cues["left"], found["left"], mine["left"], radius_range,
-                    min_fold_deg, laplace=True, cornea=dome["left"])
+                    min_fold_deg, laplace=True, cornea=cornea["left"])
     done = {"right": _finished(patches["right"], cues["right"], found["right"], mine["right"], radius_range,
-                               min_fold_deg, cornea=dome["right"])}
+                               min_fold_deg, cornea=cornea["right"])}
     done["left"] = fork_result(job)[0]
     modes = {s: done[s][0] for s in SIDES}
     at_bound = {s: done[s][1] for s in SIDES if done[s][1] is not None}
