@@ -44,6 +44,7 @@ REPORT = ROOT / "benchmarks" / "out" / "run_all.json"
 NOT_BENCHMARKS = {"__init__", "run_all", "results_files",   # the runner and what benchmarks share
                   "derive_eye_prior",                    # a tool: derives the shipped eye-region prior
                   "bench_dataset_presets",               # compares with another checkout: needs --base
+                  "bench_placement_ab",                  # compares two source trees: needs --a and --b
                   "bench_quick"}                         # make bench-quick: bench_chain + render vs budget.yaml
 
 
