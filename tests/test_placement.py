@@ -333,6 +333,56 @@ def test_cornea_starts_put_a_globe_behind_the_sphere_the_search_found():
     assert fit.cornea_starts([_mode(model.Eye(c, 10.0, fwd), fold=3.0)], cues.Cues(axis=fwd), 12.0, (10.0, 21.0)) == []
 
 
+def test_partner_starts_offer_the_other_eyes_gaze_as_it_is_and_mirrored():
+    """Known answers: the best optimum's sphere and cap with the other eye's best gaze, as it is
+    and mirrored in x, each only where the eye looks more than ``PARTNER_DEG`` away from it; none
+    when either eye's search holds no optimum."""
+    c = np.array([30.0, 2.0, 5.0])
+    mine = model.unit(np.array([-0.6, -0.5, 0.62]))             # turned 50 deg in and down
+    g = model.unit(np.array([0.3, 0.0, 1.0]))                    # the other eye: 17 deg to +x
+    found = [_mode(model.Eye(c, 14.0, mine, 0.3, 29.0, 0.1)), _mode(model.Eye(c + 4.0, 13.0, g), energy=1.0)]
+    other = [_mode(model.Eye(-c, 14.5, g, 1.0)), _mode(model.Eye(-c, 14.5, mine, 1.0), energy=1.0)]
+    starts = fit.partner_starts(found, other)
+    assert len(starts) == 2
+    np.testing.assert_allclose(starts[0].n, g, atol=1e-12)
+    np.testing.assert_allclose(starts[1].n, g * [-1.0, 1.0, 1.0], atol=1e-12)
+    for e in starts:
+        np.testing.assert_allclose(e.c, c)
+        assert (e.R, e.ha, e.tl, e.hb) == (14.0, 0.3, 29.0, 0.1)
+    near = model.unit(g * [-1.0, 1.0, 1.0] + [0.0, 0.2, 0.0])    # 11 deg from the mirrored gaze, 42 from g
+    (start,) = fit.partner_starts([_mode(model.Eye(c, 14.0, near))], other)
+    np.testing.assert_allclose(start.n, g, atol=1e-12)
+    ahead = np.array([0.0, 0.0, 1.0])                            # 17 deg from g and from its mirror
+    assert fit.partner_starts([_mode(model.Eye(c, 14.0, ahead))], other) == []
+    assert fit.partner_starts(found, []) == [] and fit.partner_starts([], other) == []
+
+
+def test_a_partner_start_is_refined_in_full():
+    """``partnered``: an eye whose search holds only a gaze turned 45 deg in and 20 down (a fit
+    from there stays 48 deg off) ends at the true gaze from the other eye's, lower; a start that
+    falls back into an optimum the search holds adds nothing."""
+    R = 12.0
+    mesh, hints, gt = make_head(0.5, seed=0, radii=(R, R), gaze_yaw_deg=20.0)
+    p = cues.build_patch(mesh["V"], mesh["F"], hints["left"], 20.0)
+    fwd = np.array([0.0, 0.0, 1.0])
+    cu = cues.Cues(front=gt["left"]["center"] + R * fwd, axis=fwd, front_sigma=4.0, radius_prior=(12.0, 3.0))
+    rr = (10.0, 21.0)
+    g = gt["left"]["gaze"]
+    wrong = fit._turn(g, -45.0, -20.0)
+    stuck = fit._finished(p, cu, [fit.refine(p, model.Eye(gt["left"]["center"], R, wrong, 1.2), cu, rr)], [], rr,
+                          12.0)[0]
+    assert np.degrees(np.arccos(stuck[0].eye.n @ g)) > 40.0
+    starts = fit.partner_starts(stuck, [_mode(model.Eye(gt["right"]["center"], R, g, 1.2))])
+    assert any(np.allclose(e.n, g) for e in starts)
+    modes = fit.partnered(p, cu, stuck, starts, rr, 12.0)
+    best = modes[0]
+    assert best.energy < stuck[0].energy
+    assert np.degrees(np.arccos(best.eye.n @ g)) < 3.0
+    assert np.linalg.norm(best.eye.c - gt["left"]["center"]) < 0.5
+    again = fit.partnered(p, cu, modes, [best.eye], rr, 12.0)
+    assert len(again) == len(modes) and again[0] is best
+
+
 def test_the_lowest_cornea_starts_are_refined_in_full():
     """``_finished`` refines the lowest of the modes one round took the cornea starts to, beside
     the turned starts': from a sphere through the cornea of a 14.6 mm eye looking 24 deg out,

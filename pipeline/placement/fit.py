@@ -8,9 +8,10 @@ gazes turned up to 45 deg away (:func:`gaze_restarts`; the least squares does no
 the eye region's forward to a gaze turned in, out or down), and so is the rival optimum more
 than ``RIVAL_MM`` away that the eye-region prior points to; a best optimum that may be a scanned
 cornea (a small sphere with no bulge of its own) is refitted from the globe behind it too
-(:func:`cornea_starts`); the two lowest are polished.
-Then the joint fit of both eyes (one radius when they agree, a loose mirror prior on the
-centres); its uncertainty is :mod:`pipeline.placement.uncertainty`'s.
+(:func:`cornea_starts`); the two lowest are polished. An eye looking more than ``PARTNER_DEG``
+away from the other eye's best gaze (as it is, or mirrored) is refitted from that gaze
+(:func:`partner_starts`). Then the joint fit of both eyes (one radius when they agree, a loose
+mirror prior on the centres); its uncertainty is :mod:`pipeline.placement.uncertainty`'s.
 """
 
 from __future__ import annotations
@@ -445,6 +446,48 @@ def cornea_starts(found, cues: Cues, min_fold_deg, radius_range):
             for n in [axis] + [_turn(axis, y, q) for y, q in GAZE_RESTARTS_DEG]]
 
 
+#: The other eye's gaze is offered to an eye whose best optimum looks more than this many degrees
+#: away from it, both as the same gaze and mirrored (eyes turn together, or in and out alike).
+PARTNER_DEG = 20.0
+
+
+def partner_starts(modes, other):
+    """Starts for one eye from the other eye's search (``modes``, ``other``: each eye's
+    placeable optima, the lowest first): its best optimum with the other eye's best gaze, as it
+    is and mirrored in the midplane (x), each where it looks more than ``PARTNER_DEG`` away.
+    An eye's search can settle on a sphere whose cap is a bump of sclera or lid beside the
+    cornea, its gaze 40-60 deg off, while its partner looks the true way; the turned starts
+    (15-45 deg about the wrong gaze) lose their first round there (``n3003_wide_noise``'s right
+    eye: 50 deg off from its own search, 4 deg from its partner's gaze, lower)."""
+    if not modes or not other:
+        return []
+    e, n = modes[0].eye, other[0].eye.n
+    cos = np.cos(np.radians(PARTNER_DEG))
+    gazes = [g for g in (n, mirror(n, 0.0)) if float(np.dot(g, e.n)) < cos]
+    return [Eye(e.c, e.R, unit(g), e.ha, e.tl, e.hb) for g in gazes]
+
+
+SAME_MM, SAME_DEG = 0.05, 0.5     # an optimum this close to one the search holds is that one
+
+
+def _same(a: Eye, b: Eye) -> bool:
+    return (float(np.linalg.norm(np.asarray(a.c) - b.c)) < SAME_MM and abs(a.R - b.R) < SAME_MM
+            and float(np.degrees(np.arccos(np.clip(np.dot(a.n, b.n), -1.0, 1.0)))) < SAME_DEG)
+
+
+def partnered(p: Patch, cues: Cues, modes, starts, radius_range, min_fold_deg, laplace=False):
+    """``modes`` with the optima :func:`partner_starts` ``starts`` end at (refined as far as
+    a polished optimum is), the lowest first: those that count as an open eye, and not one the
+    search already holds (a start that falls back into the best optimum's basin changes
+    nothing). ``laplace``: the lowest mode's Laplace part is made (as :func:`_finished`)."""
+    new = [m for m in _refine_each(p, starts, cues, radius_range, REFINE_ITERS + POLISH_ITERS)
+           if _placeable(m, radius_range, min_fold_deg) and not any(_same(m.eye, k.eye) for k in modes)]
+    out = sorted(list(modes) + new, key=lambda m: m.energy)
+    if laplace:
+        out[0].fit.cov          # noqa: B018
+    return out
+
+
 def restarts_refined(p: Patch, first, cues: Cues, radius_range):
     """The full refinement of the few lowest of ``first`` (the modes one round took the turned
     starts to): most turned starts fall back into the start's basin or wander off within one
@@ -586,6 +629,16 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     if not all(modes[s] for s in SIDES):
         return {s: at_bound.get(s) if not modes[s] else _on_full(placement_of(
             patches[s], modes[s], None, temperature, sigma_scale), full[s]) for s in SIDES}
+    # an eye looking away from its partner is started from the partner's gaze too
+    pst = {s: partner_starts(modes[s], modes[o]) for s, o in zip(SIDES, SIDES[::-1])}
+    if pst["left"]:
+        job = fork_call(partnered, patches["left"], cues["left"], modes["left"], pst["left"], radius_range,
+                        min_fold_deg, laplace=True)
+    if pst["right"]:
+        modes["right"] = partnered(patches["right"], cues["right"], modes["right"], pst["right"], radius_range,
+                                   min_fold_deg)
+    if pst["left"]:
+        modes["left"] = fork_result(job)[0]
     best = {s: modes[s][0] for s in SIDES}
     # one radius for the two eyes when they agree; then a joint fit with a loose mirror prior
     sr = {s: float(np.sqrt(max(best[s].fit.cov[3, 3], 1e-6))) for s in SIDES}
