@@ -656,8 +656,9 @@ def hooded_identity(tmp_path_factory):
 
 def _remove_eyeballs(ident, out, rival_restarts=True):
     """The stage on the identity's ingest in a pinned subprocess; ``rival_restarts=False``
-    searches as before issue 30's fix (restarts from the best optimum only) and before the
-    prior's own start was always searched (that start alone finds this eye too)."""
+    searches as before issue 30's fix (restarts from the best optimum only), before the prior's
+    own start was always searched (that start alone finds this eye too) and before the partner's
+    gaze was a start (with it alone the search places this eye from the geometry)."""
     import subprocess
     import sys
 
@@ -668,6 +669,7 @@ def _remove_eyeballs(ident, out, rival_restarts=True):
     script.write_text("from pipeline.kernels import pin_process\npin_process()\n"
                       f"import pipeline.placement.fit as fit\nfit.RIVAL_MM = {rival}\n"
                       f"fit.PRIOR_OWN_START = {rival_restarts}\n"
+                      f"fit.PARTNER_DEG = {'fit.PARTNER_DEG' if rival_restarts else 180.0}\n"
                       "from stages._common import stage_exit\nfrom stages.remove_eyeballs import main\n"
                       "stage_exit(main)\n")
     return subprocess.run([sys.executable, str(script), str(ident["ingest"]), str(out), "--params",
