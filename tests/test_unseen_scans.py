@@ -226,6 +226,19 @@ def test_margin_and_canthi_against_a_known_opening(side):
     assert c["canthus_lateral_in_view_mm"] == pytest.approx(0.5)
 
 
+def test_a_case_marked_not_ideal_scans_icts_own_eyeball():
+    # the non_ideal_eye family was scanned with --ideal-eyes for its first two weeks: what a case
+    # says of its eye must be what scanify is asked for
+    from fixtures.unseen.cases import ALL_CASES
+
+    scanned = [c for c in ALL_CASES if c["kind"] in ("scanify", "filled")]
+    not_ideal = [c for c in scanned if c.get("ideal", True) is False]
+    assert {c["name"] for c in not_ideal} >= {"id39_icteye", "id40_icteye_up", "id329_icteye", "id330_icteye_down"}
+    assert all("--ideal-eyes" not in c["args"] for c in not_ideal)
+    assert all("--ideal-eyes" in c["args"] for c in scanned if c.get("ideal", True))
+    assert all(c.get("ideal", True) is False for c in scanned if c["family"] == "non_ideal_eye")
+
+
 def test_refusals_that_say_closed():
     from fixtures.unseen.metrics import says_closed
 
