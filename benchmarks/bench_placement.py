@@ -15,6 +15,8 @@ closed counts as right when refused as closed.
     .venv/bin/python -m benchmarks.bench_placement --set heldout [--work benchmarks/out/unseen]
         [--skip-missing]      # only the cases already generated (bench_unseen_scans --generate-only)
         [--declare-open]      # their copies with both eyes declared open (bench_unseen_scans --declare-open)
+        [--only NAME ...] [--merge]   # these cases only; --merge: into the set's results file,
+                                      # the other cases' rows kept as they are there
 
 Writes ``benchmarks/results/placement_<set>.json`` (summary + per-eye rows).
 """
@@ -164,6 +166,30 @@ def _iris_summary(rows: list, pct) -> dict:
             "scan_disc_axis_err_median_deg": round(float(np.median(sd)), 2) if len(sd) else None}
 
 
+def results_doc(set_name: str, rows: list, outcomes: list) -> dict:
+    """The results file's document: the summaries (all, ICT-FaceKit heads only, per family) of
+    ``rows`` (:func:`eye_rows`) and ``outcomes`` (one per case), and both lists."""
+    ict = [r for r in rows if r["family"] != "synthetic"]
+    fams = sorted({r["family"] for r in rows})
+    return {"set": set_name, "summary": summary(rows, outcomes),
+            "summary_ict": summary(ict, [o for o in outcomes if o["family"] != "synthetic"]),
+            "per_family": {f: summary([r for r in rows if r["family"] == f],
+                                      [o for o in outcomes if o["family"] == f]) for f in fams},
+            "outcomes": outcomes, "eyes": rows}
+
+
+def merged(old: dict, rows: list, outcomes: list) -> dict:
+    """``old`` (a results document) with the cases of ``outcomes`` run again: their outcomes and
+    eye rows replace the old ones in place (a new case goes last), every summary made again."""
+    new = {o["case"]: o for o in outcomes}
+    names = [o["case"] for o in old["outcomes"]]
+    out_o = [new.get(n, o) for n, o in zip(names, old["outcomes"])] + [o for o in outcomes if o["case"] not in names]
+    order = {n: i for i, n in enumerate(o["case"] for o in out_o)}
+    kept = [r for r in old["eyes"] if r["case"] not in new]
+    out_r = sorted(kept + list(rows), key=lambda r: (order[r["case"]], r["side"] != "left"))
+    return results_doc(old["set"], out_r, out_o)
+
+
 def page(results: Path) -> str:
     """benchmarks/results/placement.md from placement_<set>.json of every set run (dev, held-out,
     then the fresh sets, each made after the placement was tuned: nothing was tuned on them)."""
@@ -271,12 +297,15 @@ def main(argv=None):
     ap.add_argument("--page", action="store_true", help="only write placement.md from the results")
     ap.add_argument("--declare-open", action="store_true",
                     help="the scan folders bench_unseen_scans --declare-open made (WORK/scans_open)")
+    ap.add_argument("--only", nargs="*", default=None, help="case names or families")
+    ap.add_argument("--merge", action="store_true",
+                    help="merge these cases into the existing results file (the others kept as they are)")
     a = ap.parse_args(argv)
     if a.page:
         (a.results / "placement.md").write_text(page(a.results))
         return 0
     rows, outcomes = [], []
-    for case in select(a.set_name):
+    for case in select(a.set_name, a.only):
         folder = a.work / ("scans_open" if a.declare_open else "scans") / case["name"]
         if not (folder / ".case").is_file():
             if a.skip_missing:
@@ -303,15 +332,15 @@ def main(argv=None):
                     f"axis {x['axis_err_deg']:.1f} deg (sigma {x['sigma_axis_deg'] or 0:.1f}) "
                     f"d{len(x['doubts'])}" for x in r), flush=True)
         outcomes.append(o)
-    ict = [r for r in rows if r["family"] != "synthetic"]
-    fams = sorted({r["family"] for r in rows})
-    doc = {"set": a.set_name, "summary": summary(rows, outcomes),
-           "summary_ict": summary(ict, [o for o in outcomes if o["family"] != "synthetic"]),
-           "per_family": {f: summary([r for r in rows if r["family"] == f],
-                                     [o for o in outcomes if o["family"] == f]) for f in fams},
-           "outcomes": outcomes, "eyes": rows}
     a.results.mkdir(parents=True, exist_ok=True)
     out = a.results / f"{a.out or 'placement_' + a.set_name}.json"
+    if a.merge:
+        if not out.is_file():
+            print(f"error: {out}: no results file to merge into", file=sys.stderr)
+            return 2
+        doc = merged(json.loads(out.read_text()), rows, outcomes)
+    else:
+        doc = results_doc(a.set_name, rows, outcomes)
     out.write_text(json.dumps(doc, indent=1) + "\n")
     print(json.dumps(doc["summary"]), f"\n-> {out.relative_to(ROOT) if out.is_relative_to(ROOT) else out}")
     return 0
