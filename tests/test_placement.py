@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, extra_scans_dir
-from pipeline.placement import cues, fit, model
+from pipeline.placement import cues, fit, model, place
 from fixtures.eye_heads import make_head
 
 
@@ -357,17 +357,22 @@ def test_partner_starts_offer_the_other_eyes_gaze_as_it_is_and_mirrored():
     assert fit.partner_starts(found, []) == [] and fit.partner_starts([], other) == []
 
 
+def _left_eye_looking_out(R=12.0):
+    """The procedural head's left eye (radius ``R``) looking 20 deg out: its patch, cues, radius
+    range, truth and gaze."""
+    mesh, hints, gt = make_head(0.5, seed=0, radii=(R, R), gaze_yaw_deg=20.0)
+    p = cues.build_patch(mesh["V"], mesh["F"], hints["left"], 20.0)
+    fwd = np.array([0.0, 0.0, 1.0])
+    cu = cues.Cues(front=gt["left"]["center"] + R * fwd, axis=fwd, front_sigma=4.0, radius_prior=(12.0, 3.0))
+    return p, cu, (10.0, 21.0), gt, gt["left"]["gaze"]
+
+
 def test_a_partner_start_is_refined_in_full():
     """``partnered``: an eye whose search holds only a gaze turned 45 deg in and 20 down (a fit
     from there stays 48 deg off) ends at the true gaze from the other eye's, lower; a start that
     falls back into an optimum the search holds adds nothing."""
     R = 12.0
-    mesh, hints, gt = make_head(0.5, seed=0, radii=(R, R), gaze_yaw_deg=20.0)
-    p = cues.build_patch(mesh["V"], mesh["F"], hints["left"], 20.0)
-    fwd = np.array([0.0, 0.0, 1.0])
-    cu = cues.Cues(front=gt["left"]["center"] + R * fwd, axis=fwd, front_sigma=4.0, radius_prior=(12.0, 3.0))
-    rr = (10.0, 21.0)
-    g = gt["left"]["gaze"]
+    p, cu, rr, gt, g = _left_eye_looking_out(R)
     wrong = fit._turn(g, -45.0, -20.0)
     stuck = fit._finished(p, cu, [fit.refine(p, model.Eye(gt["left"]["center"], R, wrong, 1.2), cu, rr)], [], rr,
                           12.0)[0]
@@ -381,6 +386,59 @@ def test_a_partner_start_is_refined_in_full():
     assert np.linalg.norm(best.eye.c - gt["left"]["center"]) < 0.5
     again = fit.partnered(p, cu, modes, [best.eye], rr, 12.0)
     assert len(again) == len(modes) and again[0] is best
+
+
+def test_admitted_replaces_a_rejected_lowest_mode_with_the_next_one_admitted():
+    """Known answers: the modes as they are when ``ok`` admits the lowest; else those it admits
+    on spheres no larger than a lid's bulge ringed by a fold of 15 deg, in their order; all of
+    them when there are none or there is no test."""
+    c = np.array([30.0, 0.0, 0.0])
+    fwd = np.array([0.0, 0.0, 1.0])
+    modes = [_mode(model.Eye(c + [0.0, 0.0, dz], R, fwd), energy=float(i), fold=fold)
+             for i, (dz, R, fold) in enumerate(((9.0, 14.0, 30.0), (0.0, 19.0, 30.0), (0.0, 14.0, 30.0),
+                                                (0.5, 14.0, 13.0), (1.0, 15.0, 20.0), (8.0, 14.0, 30.0)))]
+    near = (lambda e: abs(e.c[2]) < 5.0)
+    assert fit.admitted(modes, near) == [modes[2], modes[4]]
+    assert fit.REPLACEMENT_MAX_RADIUS_MM == place.LID_BULGE_RADIUS_MM
+    assert fit.admitted(modes[1:], near) is not None and fit.admitted(modes[1:], near)[0] is modes[1]
+    assert fit.admitted(modes, lambda e: False) == modes
+    assert fit.admitted(modes[:2], near) == modes[:2]
+    assert fit.admitted(modes, None) is modes and fit.admitted([], near) == []
+
+
+def test_the_lowest_admitted_mode_carries_its_laplace_part_from_a_child():
+    """``_finished(..., laplace=True, ok=...)``, as place_eyes runs one side in a child: the fit of
+    the lowest mode ``ok`` admits keeps its Laplace part through pickling (the parent reads it
+    without the closure that made it), where the lowest mode's is not made."""
+    import pickle
+
+    R = 12.0
+    p, cu, rr, gt, g = _left_eye_looking_out(R)
+    found = [fit.refine(p, model.Eye(gt["left"]["center"], R, n, 1.2), cu, rr) for n in (g, fit._turn(g, -45.0, -20.0))]
+    true = (lambda e: np.degrees(np.arccos(np.clip(e.n @ g, -1.0, 1.0))) < 10.0)
+    modes = fit._finished(p, cu, found, [], rr, 12.0, laplace=True, ok=lambda e: not true(e))[0]
+    assert len(modes) >= 2 and true(modes[0].eye)
+    back = pickle.loads(pickle.dumps(modes))
+    kept = fit.admitted(back, lambda e: not true(e))
+    assert not true(kept[0].eye) and kept[0].fit.cov.shape[0] >= 4
+    with pytest.raises(RuntimeError, match="Laplace approximation was not made"):
+        back[0].fit.cov     # noqa: B018
+
+
+def test_an_eye_outside_the_priors_lid_margin_is_not_admitted():
+    """``place._inside_margin``: a limbus inside the registered margin (a 10 mm circle seen along
+    +z) or within ``PRIOR_MARGIN_SLACK_MM`` outside it is admitted, one 4 mm outside is not, and
+    a side the prior did not register admits every eye."""
+    from pipeline.placement import place
+
+    t = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+    margin = np.stack([10.0 * np.cos(t), 10.0 * np.sin(t), np.full(16, 10.0)], axis=1)
+    ok = place._inside_margin({"left": {"margin": margin, "axis": np.array([0.0, 0.0, 1.0])}, "right": None})
+    fwd = np.array([0.0, 0.0, 1.0])
+    assert ok("left", model.Eye(np.zeros(3), 12.0, fwd))
+    assert ok("left", model.Eye(np.array([12.5, 0.0, 0.0]), 12.0, fwd))
+    assert not ok("left", model.Eye(np.array([14.0, 0.0, 0.0]), 12.0, fwd))
+    assert ok("right", model.Eye(np.array([40.0, 0.0, 0.0]), 12.0, fwd))
 
 
 def test_the_lowest_cornea_starts_are_refined_in_full():

@@ -475,16 +475,17 @@ def _same(a: Eye, b: Eye) -> bool:
             and float(np.degrees(np.arccos(np.clip(np.dot(a.n, b.n), -1.0, 1.0)))) < SAME_DEG)
 
 
-def partnered(p: Patch, cues: Cues, modes, starts, radius_range, min_fold_deg, laplace=False):
+def partnered(p: Patch, cues: Cues, modes, starts, radius_range, min_fold_deg, laplace=False, ok=None):
     """``modes`` with the optima :func:`partner_starts` ``starts`` end at (refined as far as
     a polished optimum is), the lowest first: those that count as an open eye, and not one the
     search already holds (a start that falls back into the best optimum's basin changes
-    nothing). ``laplace``: the lowest mode's Laplace part is made (as :func:`_finished`)."""
+    nothing). ``laplace``: the lowest mode's Laplace part is made (as :func:`_finished`; of
+    the lowest that ``ok`` admits, :func:`admitted`)."""
     new = [m for m in _refine_each(p, starts, cues, radius_range, REFINE_ITERS + POLISH_ITERS)
            if _placeable(m, radius_range, min_fold_deg) and not any(_same(m.eye, k.eye) for k in modes)]
     out = sorted(list(modes) + new, key=lambda m: m.energy)
     if laplace:
-        out[0].fit.cov          # noqa: B018
+        admitted(out, ok)[0].fit.cov          # noqa: B018
     return out
 
 
@@ -551,7 +552,8 @@ def _hypothesised(p: Patch, cues: Cues, drawn, radius_range, min_fold_deg, lapla
     return found
 
 
-def _finished(p: Patch, cues: Cues, found, first, radius_range, min_fold_deg, laplace=False, cornea=()):
+def _finished(p: Patch, cues: Cues, found, first, radius_range, min_fold_deg, laplace=False, cornea=(),
+              ok=None):
     """The last part of one eye's search, from its refined hypotheses ``found`` and the modes one
     round took its turned starts to (``first``): the restarts' refinement and the polish.
     Returns ``(modes, at_bound)``: the local optima that count as an open eye (:func:`_placeable`),
@@ -565,7 +567,7 @@ def _finished(p: Patch, cues: Cues, found, first, radius_range, min_fold_deg, la
                    + _refine_each(p, lowest, cues, radius_range, REFINE_ITERS - 1), cues, radius_range)
     modes = sorted((m for m in found if _placeable(m, radius_range, min_fold_deg)), key=lambda m: m.energy)
     if laplace and modes:
-        modes[0].fit.cov        # noqa: B018
+        admitted(modes, ok)[0].fit.cov        # noqa: B018
     at_bound = None
     if not modes:
         bound = sorted((m for m in found if m.fold_deg >= min_fold_deg and m.lab.any()), key=lambda m: m.energy)
@@ -577,11 +579,39 @@ def _finished(p: Patch, cues: Cues, found, first, radius_range, min_fold_deg, la
 MIDPLANE_ROUNDS = 6     # the midplane's search takes about as long as this many first rounds
 
 
+#: An optimum placed instead of a lowest one that ``admissible`` rejected is no sphere larger than
+#: this (mm, the lid-bulge rule's radius, ``place.LID_BULGE_RADIUS_MM``) and is ringed by a lid
+#: fold of at least ``REPLACEMENT_MIN_FOLD_DEG``: it is less sure than a lowest optimum, so it must
+#: show an open eye more clearly than any surface that was no eye did on the cached unseen heads
+#: (the blinks' best optima 9.5-12.1 deg, closed lids' bulges 12.4-12.9 deg and 18.3-19.7 mm,
+#: the optima the margin test let through on the blinks `n3008_blink_200k_noise` 12.9-13.5 deg and
+#: `n3208_blink_holes` 20.9 mm, and the rejected lowest optima of `id330_icteye_down` 13.6-14.1
+#: deg), where those it let through on open eyes were ringed by 16.5-23.5 deg on 13.9-16.0 mm.
+REPLACEMENT_MAX_RADIUS_MM = 18.0
+REPLACEMENT_MIN_FOLD_DEG = 15.0
+
+
+def admitted(modes, ok):
+    """``modes`` (the lowest first) as they are when ``ok`` (callable ``Eye -> bool``, or None)
+    admits the lowest; else those it admits on a sphere of at most
+    ``REPLACEMENT_MAX_RADIUS_MM`` ringed by a fold of at least ``REPLACEMENT_MIN_FOLD_DEG``, or
+    all of them when there are none (the caller then judges the lowest as before)."""
+    if ok is None or not modes or ok(modes[0].eye):
+        return modes
+    kept = [m for m in modes if ok(m.eye) and m.eye.R <= REPLACEMENT_MAX_RADIUS_MM
+            and m.fold_deg >= REPLACEMENT_MIN_FOLD_DEG]
+    return kept or modes
+
+
 def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prior=None,
                ignore=None, seed=0, temperature=20.0, sigma_scale=1.0, shared_radius_z=2.5,
-               sym_sigma_mm=1.0, min_fold_deg=20.0, coarse_vertices=COARSE_VERTICES):
+               sym_sigma_mm=1.0, min_fold_deg=20.0, coarse_vertices=COARSE_VERTICES, admissible=None):
     """Place both eyes (module doc). ``prior``: callable ``(side) -> dict(front, axis, sigma)``
-    or None. The search runs on each patch simplified to about ``coarse_vertices``
+    or None. ``admissible``: callable ``(side, Eye) -> bool`` or None: a lowest optimum it
+    rejects is no eye of that side (an eye whose limbus lies outside the lid margin the skin
+    round it outlines), and the lowest optimum it admits is placed instead, the rejected ones
+    left out of its rivals (:func:`admitted`); that placement is marked ``passed_over``. The
+    search runs on each patch simplified to about ``coarse_vertices``
     (:func:`pipeline.placement.cues.coarse_patch`; a patch with fill faces as it is), and the
     placed eye then labels the full patch. Only local optima ringed by a lid fold of ``min_fold_deg`` count as an open eye;
     an eye with none is returned as None (closed, or nothing eye-like near the hint), and one
@@ -619,26 +649,31 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     first = fork_result(job)[0] + rest
     mine = {s: [m for (side, _), m in zip(starts[:n_turned], first) if side == s] for s in SIDES}
     cornea = {s: [m for (side, _), m in zip(starts[n_turned:], first[n_turned:]) if side == s] for s in SIDES}
+    ok = {s: None if admissible is None else (lambda e, s=s: admissible(s, e)) for s in SIDES}
     job = fork_call(_finished, patches["left"], cues["left"], found["left"], mine["left"], radius_range,
-                    min_fold_deg, laplace=True, cornea=cornea["left"])
+                    min_fold_deg, laplace=True, cornea=cornea["left"], ok=ok["left"])
     done = {"right": _finished(patches["right"], cues["right"], found["right"], mine["right"], radius_range,
                                min_fold_deg, cornea=cornea["right"])}
     done["left"] = fork_result(job)[0]
-    modes = {s: done[s][0] for s in SIDES}
+    modes = {s: admitted(done[s][0], ok[s]) for s in SIDES}
+    passed = {s: bool(modes[s]) and modes[s][0] is not done[s][0][0] for s in SIDES}
     at_bound = {s: done[s][1] for s in SIDES if done[s][1] is not None}
     if not all(modes[s] for s in SIDES):
-        return {s: at_bound.get(s) if not modes[s] else _on_full(placement_of(
-            patches[s], modes[s], None, temperature, sigma_scale), full[s]) for s in SIDES}
+        return {s: at_bound.get(s) if not modes[s] else replace(_on_full(placement_of(
+            patches[s], modes[s], None, temperature, sigma_scale), full[s]), passed_over=passed[s]) for s in SIDES}
     # an eye looking away from its partner is started from the partner's gaze too
     pst = {s: partner_starts(modes[s], modes[o]) for s, o in zip(SIDES, SIDES[::-1])}
     if pst["left"]:
         job = fork_call(partnered, patches["left"], cues["left"], modes["left"], pst["left"], radius_range,
-                        min_fold_deg, laplace=True)
+                        min_fold_deg, laplace=True, ok=ok["left"])
     if pst["right"]:
         modes["right"] = partnered(patches["right"], cues["right"], modes["right"], pst["right"], radius_range,
                                    min_fold_deg)
     if pst["left"]:
         modes["left"] = fork_result(job)[0]
+    again = {s: admitted(modes[s], ok[s]) for s in SIDES}
+    passed = {s: passed[s] or again[s][0] is not modes[s][0] for s in SIDES}
+    modes = again
     best = {s: modes[s][0] for s in SIDES}
     # one radius for the two eyes when they agree; then a joint fit with a loose mirror prior
     sr = {s: float(np.sqrt(max(best[s].fit.cov[3, 3], 1e-6))) for s in SIDES}
@@ -662,7 +697,7 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     job = fork_call(placed, 0, "left")      # the two sides' profiles side by side, as their searches
     out = {"right": placed(1, "right")}
     out["left"] = fork_result(job)[0]
-    out = {s: replace(out[s], patch=full[s]) for s in SIDES}
+    out = {s: replace(out[s], patch=full[s], passed_over=passed[s]) for s in SIDES}
     return share_radius(out)
 
 

@@ -192,6 +192,21 @@ def _outside_margin(point, front) -> float | None:
 #: eyes the truth's lay at most 1.0 mm outside and every placed one within 1.0 mm.
 PRIOR_MARGIN_SLACK_MM = 3.0
 
+def _inside_margin(front):
+    """``(side, Eye) -> bool``: whether the eye's limbus lies within ``PRIOR_MARGIN_SLACK_MM``
+    of the lid margin the eye-region prior registered round that side (``front``: side -> its
+    registration or None; an unregistered side admits every eye). The search's lowest optimum
+    outside it is no eye this scan shows there (the ``off_margin`` fallback below); a higher one
+    inside it, ringed by a lid fold, is: `id330_icteye_down`, scanned with ICT's own eyeball
+    looking down, had its lowest optima on 19-20 mm spheres 7-9 mm outside both margins (folds of
+    14 deg) and the true eyes' 150 above them (within 1.1-1.7 mm and 3 deg, folds of 20-22 deg),
+    and was refused as a pair of closed lids."""
+    def ok(side, eye) -> bool:
+        off = _outside_margin(limbus_center(eye), front.get(side))
+        return off is None or off <= PRIOR_MARGIN_SLACK_MM
+    return ok
+
+
 #: How far behind the prior's lid margin a coarse eye's opening reaches (mm): the skin beyond
 #: the canthi falls back 5 mm and more (in front of the margin, inside the lids, is the eye).
 COARSE_DEPTH_MM = 4.0
@@ -324,7 +339,7 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
             prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
             temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
-            min_fold_deg=st.min_crease_deg)
+            min_fold_deg=st.min_crease_deg, admissible=None if front is None else _inside_margin(front))
     searched = dict(placements)     # what the search found, before the fallbacks below drop it
     fits, photographed = {}, {}     # photographed: side -> the texture's eye, where it overrules
     has_tex = texture is not None and "UV" in uv and "FUV" in uv
@@ -368,6 +383,11 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
                 photo = _photo_disagrees(mesh, fits[s], uv, texture, hints[s], s, st, source) if (
                     st.texture_fallback and has_tex) else None
                 if photo is None:
+                    if placements[s].passed_over:
+                        fits[s].why = (f"the search's lowest optimum lay over {PRIOR_MARGIN_SLACK_MM:g} mm "
+                                       f"outside the lid margin that the skin around it outlines: placed "
+                                       f"from the next one inside it, a {placements[s].eye.R:.1f} mm sphere "
+                                       f"ringed by a lid fold of {placements[s].fold_deg:.1f} deg")
                     continue
                 share, photographed[s] = photo
                 err = CoarseEye(source, f"{s} eye: only {100 * share:.0f} % of the eye surface the geometry "
@@ -377,6 +397,11 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             err = ScanError(source, f"{s} eye looks closed (or too little of the eyeball shows to place "
                                     f"it): no eye surface ringed by a lid fold "
                                     f"near the hint {np.round(hints[s], 2).tolist()}")
+        if isinstance(err, CoarseEye) and err.no_eye is None and getattr(placements[s], "passed_over", False):
+            # the search's lowest optimum lay off the margin and the one placed instead gives no
+            # eye either (a cut round it too narrow, too few vertices): no eye's surface, as a
+            # closed lid's, for the pair rule
+            err.no_eye = "off_margin"
         if s in declared_open and not isinstance(err, CoarseEye):
             # the user says this eye is open: what looked closed is too little of it to place from
             # its shape, so its opening and the anatomy place it, doubted, as a coarse eye's
@@ -678,6 +703,17 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                        # narrower than any fissure) is cut again behind the prior's opening below
                        reread={s for s in SIDES if checks[s]["opening_convex"]["ok"]
                                and checks[s]["opening_wide"]["ok"]})
+    for s in SIDES:
+        if getattr(placements[s], "passed_over", False) and asset[s]["limbus"]["source"] in ("opening", "coarse"):
+            # an optimum placed instead of the search's lowest (which lay off the margin) is
+            # believed only when its iris shows in the cut round it: one whose iris the asset
+            # would take from that opening is a lid's crease, not an eye (the closed eye of the
+            # wink n3501_wink_left_noise: a cut 9 mm low, the eye 10.7 mm off), and the eye is
+            # placed behind the prior's opening as before, no eye's surface for the pair rule
+            raise NarrowOpening(source, f"{s} eye: the optimum placed instead of the search's lowest (outside "
+                                        f"the lid margin) puts its iris outside the cut round it", s,
+                                checks[s]["opening_wide"]["value"],
+                                why="round the optimum after one outside the lid margin, its iris outside it")
     for s in SIDES:
         if asset[s]["limbus"]["source"] in ("opening", "coarse"):
             seat_behind_loop(asset[s], V2[loops[s][0]], eyeball, lim, loops[s][1])
