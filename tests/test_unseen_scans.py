@@ -239,6 +239,27 @@ def test_a_case_marked_not_ideal_scans_icts_own_eyeball():
     assert all(c.get("ideal", True) is False for c in scanned if c["family"] == "non_ideal_eye")
 
 
+def test_eye_holes_drop_a_bow_tie_left_between_two_removed_eye_vertices():
+    """On a 12 x 12 grid, removing the faces round two eye vertices two apart on a diagonal
+    leaves the skin vertex between them a bow-tie (two wedges of faces meeting only there): its
+    faces go too, and the two holes become one simple rim round all three."""
+    from fixtures.unseen.cases import eye_holes
+    from pipeline.geometry import meshtopo
+
+    n = 12
+    xs, ys = np.meshgrid(np.arange(n), np.arange(n))
+    V = np.stack([xs.ravel(), ys.ravel(), np.zeros(n * n)], 1).astype(float)
+    F = np.array([f for i in range(n - 1) for j in range(n - 1)
+                  for a in [i * n + j] for f in ((a, a + 1, a + n + 1), (a, a + n + 1, a + n))])
+    labels = np.zeros(n * n, np.uint8)
+    labels[[4 * n + 4, 6 * n + 6]] = 1
+    V2, F2, L2, rims = eye_holes(V, F, labels)
+    assert len(rims) == 1
+    centre = np.flatnonzero((V2[:, :2] == [5.0, 5.0]).all(axis=1))
+    assert len(centre) == 1 and not np.isin(F2, centre).any()
+    assert len(meshtopo.boundary_loops(F2)) == 2         # the rim and the grid's own edge
+
+
 def test_refusals_that_say_closed():
     from fixtures.unseen.metrics import says_closed
 
