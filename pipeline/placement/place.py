@@ -26,7 +26,7 @@ from pipeline.placement.doubts import check_doubts, fissure_doubts
 from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease_deg, patch_faces
 from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_behind_loop, fit_from_fill
 from pipeline.placement.fissure import points_in_polygon
-from pipeline.placement.fit import AtRadiusBound, place_eyes
+from pipeline.placement.fit import LID_BULGE_FOLD_DEG, LID_BULGE_RADIUS_MM, AtRadiusBound, place_eyes
 from pipeline.placement.iris_cap import AXIS_MODEL_SIGMA_DEG
 from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
 from pipeline.placement.settings import PlacementSettings
@@ -192,6 +192,7 @@ def _outside_margin(point, front) -> float | None:
 #: eyes the truth's lay at most 1.0 mm outside and every placed one within 1.0 mm.
 PRIOR_MARGIN_SLACK_MM = 3.0
 
+
 def _inside_margin(front):
     """``(side, Eye) -> bool``: whether the eye's limbus lies within ``PRIOR_MARGIN_SLACK_MM``
     of the lid margin the eye-region prior registered round that side (``front``: side -> its
@@ -259,27 +260,13 @@ def _fit_from_placement(mesh: EyeMesh, pl, hint, side, st: PlacementSettings, so
                   capped=False, inliers=rv, radius_sigma=pl.sigma_radius_mm)
 
 
-#: An eye the search places on a sphere over ``LID_BULGE_RADIUS_MM`` ringed by a fold under
-#: ``LID_BULGE_FOLD_DEG`` is a closed lid's bulge: the closed eyes the geometry placed on the
-#: cached unseen heads (the blink `n1208_blink_100k`'s two, 18.3 / 19.3 mm at 12.4 / 12.6 deg, the
-#: wink `n1408_wink_right`'s closed one, 19.7 mm at 12.9 deg) lay there, and none of the 165 open
-#: eyes of the held-out and fresh heads did (folds under 14 deg: four eyes, on 13-17 mm spheres;
-#: spheres over 18 mm: ten, ringed by 17-28 deg). An open eye's lids rise off it in a fold; a
-#: sphere laid over a closed lid is wide and barely folded where it meets the skin. One open eye
-#: of the dev heads lies there too, and its head is refused: `id19_squint_down`'s right (a squint
-#: looking down, 20.0 mm at 11.7 deg, placed 3.9 mm / 19 deg off at +-4.5 mm / 12.5 deg before).
-#: A scan with a photograph is judged by the fissure it shows instead (``PHOTO_INSIDE_MIN``): a
-#: hooded head's skin under its fold fits such a sphere too, and the texture places that eye.
-LID_BULGE_RADIUS_MM = 18.0
-LID_BULGE_FOLD_DEG = 13.0
-
-
 #: What a refusal as closed tells the user who knows better.
 OPEN_HOW = " (if the eye is open, say so in scan.yaml: eyes.{side}.open: true)"
 
 
 def lid_bulge(pl) -> bool:
-    """Whether a placement's eye is a closed lid's bulge (:data:`LID_BULGE_RADIUS_MM`)."""
+    """Whether a placement's eye is a closed lid's bulge
+    (:data:`pipeline.placement.fit.LID_BULGE_RADIUS_MM`)."""
     return float(pl.eye.R) > LID_BULGE_RADIUS_MM and float(pl.fold_deg) < LID_BULGE_FOLD_DEG
 
 
