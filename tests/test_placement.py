@@ -631,3 +631,36 @@ def test_the_laplace_part_scales_with_the_eyes_residual():
     rough = residual_scaled(pl, 0.3)                    # twice the cues' noise
     assert rough.sigma_limbus_mm == pytest.approx(np.hypot(0.3, 0.8))
     assert (rough.sigma_center_mm, rough.sigma_radius_mm) == (1.0, 0.5)     # the scan sphere's: kept
+
+
+def test_an_undetermined_fit_states_bounded_finite_sigmas():
+    """uncertainty.placement_of: a fit whose information is singular (every Jacobian zero: the
+    inverse of the 1e-9 ridge, 10^4-10^5 mm) or whose inverse failed (infinite) states every sigma
+    at UNDETERMINED_MM / UNDETERMINED_DEG, finite, and its doubts read "undetermined"; a fit with
+    information keeps its own sigmas."""
+    from types import SimpleNamespace
+
+    from pipeline.placement.uncertainty import (UNDETERMINED_DEG, UNDETERMINED_MM, laplace, placement_of,
+                                                plus_minus)
+
+    eye = model.Eye(np.array([30.0, 0.0, 0.0]), 12.0, np.array([0.0, 0.0, 1.0]))
+
+    def placed(cov, lcov):
+        f = SimpleNamespace(cov=cov, shares=[{"sclera": 1.0}], limbus_cov=[lcov])
+        return placement_of(None, [SimpleNamespace(eye=eye, lab=None, energy=0.0, fold_deg=20.0, fit=f)],
+                            None, 5.0, 3.0)
+
+    cov, _, C = laplace({"0:sclera": np.zeros((40, 4))}, np.zeros(4), [[0, 1, 2, 3]], 1, 1)
+    assert np.sqrt(np.trace(cov[:3, :3])) > 1e4                    # what the ridge alone leaves
+    for pl in (placed(cov, np.full((6, 6), 1e9)), placed(np.full((4, 4), np.inf), np.full((6, 6), np.inf)),
+               placed(np.full((4, 4), np.nan), np.full((6, 6), np.nan))):
+        assert (pl.sigma_center_mm, pl.sigma_radius_mm, pl.sigma_limbus_mm) == (UNDETERMINED_MM,) * 3
+        assert pl.sigma_axis_deg == UNDETERMINED_DEG
+        assert pl.sigma_laplace_mm == (UNDETERMINED_MM, UNDETERMINED_MM)
+        assert pl.limbus_laplace == (UNDETERMINED_MM, UNDETERMINED_DEG)
+        assert plus_minus(pl.sigma_limbus_mm, "mm") == plus_minus(pl.sigma_axis_deg, "deg") == "undetermined"
+    good = placed(np.diag([0.04, 0.04, 0.04, 0.01]), np.diag([0.01] * 3 + [1e-4] * 3))
+    assert (good.sigma_center_mm, good.sigma_radius_mm) == pytest.approx((np.sqrt(0.12) * 3.0, 0.3), rel=1e-12)
+    assert good.sigma_axis_deg == pytest.approx(np.degrees(np.sqrt(3e-4) * 3.0), rel=1e-12)
+    assert plus_minus(0.6, "mm") == "+-0.60 mm" and plus_minus(7.25, "deg", 1) == "+-7.2 deg"
+    assert plus_minus(99.99, "mm") == "+-99.99 mm" and plus_minus(float("nan"), "mm") == "undetermined"

@@ -23,6 +23,7 @@ from pipeline.geometry.frame import eye_basis
 from pipeline.placement.fissure import points_in_polygon
 from pipeline.placement import iris_cap
 from pipeline.placement.iris_cap import REREAD_SIGMA, opening_eye_points
+from pipeline.placement.uncertainty import plus_minus
 
 SIDES = ("left", "right")
 #: Population eyeball radius (mm): 11.7 +- 0.45, from the axial length 23.4 +- 0.9 mm.
@@ -318,7 +319,7 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
                      if cornered else
                      f"{'outside' if not was['center_inside'] else 'mostly behind'} the lid opening")
             doubts.append(f"the placed iris lay {where} at rest ({100 * was['visible_share']:.0f} % of it inside, "
-                          f"limbus +-{was_sl:.2f} mm, axis +-{was_sa:.1f} deg): "
+                          f"limbus {plus_minus(was_sl, 'mm')}, axis {plus_minus(was_sa, 'deg', 1)}): "
                           + ("placed from the opening instead, iris centred, axis along the eye "
                              "region's forward" if again is None else
                              f"read again from the eye surface inside the opening, the iris "
@@ -339,8 +340,8 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
             c, d = np.asarray(e["center"], float), float(np.dot(lc - np.asarray(e["center"], float), ax))
         sc = math.sqrt(sl ** 2 + (d * math.radians(sa)) ** 2 + sr ** 2)
         if source != "opening" and (sl > doubt_limbus_sigma_mm or sa > doubt_axis_sigma_deg):
-            doubts.append(f"placed from little evidence ({source}): limbus centre +-{sl:.2f} mm, "
-                          f"axis +-{sa:.1f} deg (1 sigma)")
+            doubts.append(f"placed from little evidence ({source}): limbus centre {plus_minus(sl, 'mm')}, "
+                          f"axis {plus_minus(sa, 'deg', 1)} (1 sigma)")
         out[s] = {"center": c, "radius": r, "forward": ax,
                   "limbus": {"center": lc, "radius": float(e["limbus_radius"]), "source": source,
                              "depth_mm": d},

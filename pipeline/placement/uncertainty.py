@@ -133,6 +133,27 @@ def residual_scaled(pl, rms_mm: float):
                    limbus_laplace=(ll * f, la * f))
 
 
+#: A 1-sigma past these says the data do not locate the eye at all: a near-singular Gauss-Newton
+#: information (a cue-less direction, or the inverse failing: infinite) gives sigmas of 10^6 mm.
+#: They are held here, so every record stays finite (the JSON writers refuse inf) and a doubt reads
+#: "undetermined" (:func:`plus_minus`): 100 mm is ten eye radii, past any head's eye region; 180
+#: deg is every gaze.
+UNDETERMINED_MM = 100.0
+UNDETERMINED_DEG = 180.0
+
+
+def _bounded(sigma: float, cap: float) -> float:
+    """``sigma`` held to ``cap`` (NaN or infinite gives ``cap``)."""
+    return float(min(sigma, cap)) if np.isfinite(sigma) else float(cap)
+
+
+def plus_minus(sigma: float, unit: str, digits: int = 2) -> str:
+    """``+-sigma unit``, or ``undetermined`` at or past :data:`UNDETERMINED_MM` (mm) or
+    :data:`UNDETERMINED_DEG` (deg)."""
+    cap = UNDETERMINED_DEG if unit == "deg" else UNDETERMINED_MM
+    return "undetermined" if not sigma < cap else f"+-{sigma:.{digits}f} {unit}"
+
+
 def placement_of(p, modes, joint, temperature, sigma_scale, profile=None):
     """The :class:`Placement` of the best of ``modes`` (local optima, the best first) on patch
     ``p``: its Laplace covariance (from the joint fit ``joint = (fit, eye index, shared radius)``,
@@ -145,11 +166,11 @@ def placement_of(p, modes, joint, temperature, sigma_scale, profile=None):
         cov, ci, ri, shares = m0.fit.cov, [0, 1, 2], 3, m0.fit.shares[0]
     var_c = float(np.trace(cov[np.ix_(ci, ci)])) * sigma_scale ** 2
     var_r = float(cov[ri, ri]) * sigma_scale ** 2
-    lap = (float(np.sqrt(var_c)), float(np.sqrt(var_r)))
+    lap = (_bounded(np.sqrt(var_c), UNDETERMINED_MM), _bounded(np.sqrt(var_r), UNDETERMINED_MM))
     lc = (fit.limbus_cov[i] if joint is not None else m0.fit.limbus_cov[0])
     var_l = float(np.trace(lc[:3, :3])) * sigma_scale ** 2
     var_a = float(np.trace(lc[3:, 3:])) * sigma_scale ** 2       # rad^2 (small angles)
-    lap_l = (float(np.sqrt(var_l)), float(np.degrees(np.sqrt(var_a))))
+    lap_l = (_bounded(np.sqrt(var_l), UNDETERMINED_MM), _bounded(np.degrees(np.sqrt(var_a)), UNDETERMINED_DEG))
     l0 = limbus_center(m0.eye)
     # other local optima, weighted by their energy: a second explanation nearly as good widens
     # the uncertainty by how far away it lies
@@ -173,7 +194,9 @@ def placement_of(p, modes, joint, temperature, sigma_scale, profile=None):
     cues = sorted((CUE_NAMES.get(k, k) for k, v in shares.items() if v >= 0.05),
                   key=lambda k: -shares.get({v: kk for kk, v in CUE_NAMES.items()}.get(k, k), 0))
     prof = None if profile is None else (profile[0], profile[1] - m0.energy)
-    return Placement(m0.eye, m0.lab, p, float(np.sqrt(var_c)), float(np.sqrt(var_r)), cues,
+    return Placement(m0.eye, m0.lab, p, _bounded(np.sqrt(var_c), UNDETERMINED_MM),
+                     _bounded(np.sqrt(var_r), UNDETERMINED_MM), cues,
                      {CUE_NAMES.get(k, k): round(v, 4) for k, v in shares.items()},
                      [(m.eye.c, m.eye.R, m.energy - e0) for m in modes], m0.fold_deg, prof, lap,
-                     float(np.sqrt(var_l)), float(np.degrees(np.sqrt(var_a))), lap_l)
+                     _bounded(np.sqrt(var_l), UNDETERMINED_MM), _bounded(np.degrees(np.sqrt(var_a)), UNDETERMINED_DEG),
+                     lap_l)
