@@ -79,6 +79,31 @@ def test_corner_weights_fade_toward_an_off_globe_canthus():
     assert none.on_eye.all() and len(none.medial) == len(none.lateral) == 0
 
 
+def test_a_run_fades_over_at_least_min_run_mm_beside_a_canthus_just_off_the_globe():
+    """A lateral canthus 2.35 mm off the globe beside lid points 2.0 mm off (within a margin's
+    reach, so a run measured by distance alone would end at the next point, one edge away, and
+    the snap move it its whole way: fresh41's n4702_icteye_cams6 folded there): the weight rises
+    from 0 at the canthus over at least MIN_RUN_MM of arc along each lid, monotone, and is 1
+    beyond it; the medial canthus, on the globe, has no run."""
+    _, _, frames = lifted_region()
+    e = frames[0]
+    V = two_eye_region(R)[0]
+    P = V[e.loop]
+    li = e.lateral_index
+    off = np.full(len(P), 2.0)
+    off[li] = 2.35
+    runs = cn.corner_weights(P, off, li)
+    assert len(runs.medial) == 0 and runs.weight[li] == 0.0
+    for seq in (np.arange(li, -1, -1), np.concatenate([np.arange(li, len(P)), [0]])):
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P[seq], axis=0), axis=1))])
+        w = runs.weight[seq]
+        near = s < cn.MIN_RUN_MM
+        assert near.sum() >= 3                              # the loop's edges are shorter than the run
+        assert w[near].max() < 1.0 and np.all(np.diff(w[near]) > 0)
+        assert w[~near].min() == 1.0
+    assert set(runs.lateral.tolist()) == set(np.flatnonzero(runs.weight < 1).tolist())
+
+
 def test_a_run_never_covers_more_than_its_share_of_a_lid():
     _, _, frames = lifted_region()
     e = frames[0]

@@ -14,7 +14,8 @@ A run is measured from each canthus along both lids while the loop stands off mo
 lid, whatever the distance says: a mid-lid far off the eye is a placement error, which the
 ``remove_eyeballs`` self-checks see). Inside a run the snap weight is a smoothstep of the arc
 length from the canthus over the run's length (0 at the canthus, which keeps its place, 1 where
-the lid meets the eye), so the snapped margin leaves the eye smoothly, whatever the distances.
+the lid meets the eye), so the snapped margin leaves the eye smoothly, whatever the distances; a
+run fades over at least ``MIN_RUN_MM`` of arc, however near the eye the next lid points lie.
 """
 
 from __future__ import annotations
@@ -34,6 +35,12 @@ CORNER_MAX_SHARE = 0.35
 #: A corner run that the cornea cuts short (``corner_weights``' ``over_cornea``) keeps at least
 #: this arc from its canthus, else it runs on as if no cornea were there.
 MIN_STOPPED_RUN_MM = 2.0
+#: Every corner run fades over at least this arc from its canthus (or its lid's ``max_share``):
+#: a canthus just past ``off_globe_mm`` beside lid points just inside it otherwise keeps its place
+#: while the next point, one loop edge away, moves its whole way onto the eye, and the lid snapped
+#: so near its canthus folds there (fresh41's `n4702_icteye_cams6`: its left lateral canthus 2.35
+#: mm off, its neighbours moved 1.98 / 2.35 mm, a 2 deg sliver that turned over looking down).
+MIN_RUN_MM = MIN_STOPPED_RUN_MM
 #: A loop point is over the cornea where the globe under it lies this far inside the eye's outer
 #: surface (the cornea's bulge; the sclera's seam blend stays under it).
 OVER_CORNEA_MM = 0.05
@@ -139,6 +146,8 @@ def corner_weights(P, off, lateral_index: int, off_globe_mm: float = MARGIN_OFF_
             if end < len(seq) - 1 and stop[seq[end]] and s[end] < MIN_STOPPED_RUN_MM:
                 # cut short by the cornea: a lid snapped so near its canthus would fold there
                 end = _run_end(seq, s, off, off_globe_mm, cap, None)
+            while end < len(seq) - 1 and s[end] < min(MIN_RUN_MM, cap):
+                end += 1            # too short a fade folds the lid beside its canthus (MIN_RUN_MM)
             # the lid meets the eye at seq[end]: the weight rises over the arc up to it
             span = max(s[end], 1e-9)
             for j in range(1, end):
