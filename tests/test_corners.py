@@ -71,8 +71,15 @@ def test_corner_weights_fade_toward_an_off_globe_canthus():
     assert np.all(np.diff(up) >= 0) and np.all(np.diff(np.concatenate([[0.0], down])) >= 0)
     assert up[-1] == 1.0 and down[-1] == 1.0
     assert set(runs.medial.tolist()) == set(np.flatnonzero(runs.weight < 1).tolist())
-    # every vertex of a run stands farther off than a lid margin can
-    assert off[runs.medial].min() > cn.MARGIN_OFF_GLOBE_MM
+    # every vertex of a run stands farther off than a lid margin can, or lies within the
+    # MIN_RUN_MM of arc from its canthus that every run fades over
+    L, li = len(P), e.lateral_index
+    arc = np.full(L, np.inf)
+    for seq in (np.arange(0, li + 1), np.concatenate([[0], np.arange(L - 1, li - 1, -1)])):
+        arc[seq] = np.minimum(arc[seq], np.concatenate(
+            [[0.0], np.cumsum(np.linalg.norm(np.diff(P[seq], axis=0), axis=1))]))
+    member = runs.medial[1:]
+    assert np.all((off[member] > cn.MARGIN_OFF_GLOBE_MM) | (arc[member] < cn.MIN_RUN_MM))
     # nothing off the globe: no run, every weight 1
     P0 = frames[1].center + R * (P - e.center) / np.linalg.norm(P - e.center, axis=1)[:, None]
     none = cn.corner_weights(P0, np.zeros(len(P0)), e.lateral_index)
