@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from fixtures import face_patch
+import pipeline.retopo.eye_band as eb
 from pipeline.geometry import mesh_checks as mc
 from pipeline.retopo.eye_band import (band_report, build_band, grid_quads, ring_distances, smooth_grid, split_quads,
                                       zip_strip_maxmin)
@@ -215,6 +216,39 @@ def test_a_grid_folded_over_three_rings_is_taken_back_towards_the_maps_grid():
     after = _grid_angles(Gr, V, F)
     assert after["flipped_faces"] == 0 and after["min_angle_deg"] > 28.0
     assert np.array_equal(Gr[0], G[0]) and np.abs(Gr[-1] - G[-1]).max() < 1e-9
+
+
+def test_a_band_left_under_the_floor_climbs_again_from_the_smoothed_grid_and_keeps_the_better(monkeypatch):
+    """The climb ends where each node of a thin quad is held by the others (n4505_icteye_1m's lower
+    lids: 17.7 / 18.5 deg, one face turned). A band left under RAISE_AGAIN_BELOW_DEG climbs again
+    from the smoothed grid with RAISE_AGAIN_TARGET_DEG, and the grid with the larger smallest angle
+    is kept; a band over the floor climbs once."""
+    V, F = _planar_annulus()
+    S, a, rings, width = 64, 5.0, 6, 8.0
+    th = 2 * np.pi * np.arange(S) / S
+    d = ring_distances(rings, width, 2 * np.pi * a / S)
+    H = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+    thin = H.copy()
+    thin[3, 10] = 0.97 * H[3, 11] + 0.03 * H[3, 10]                 # a 2 deg sliver
+    thinner = H.copy()
+    thinner[3, 10] = 0.99 * H[3, 11] + 0.01 * H[3, 10]
+    calls = []
+
+    def climb(results):
+        def fake(G, *args, target, home=None, **kw):
+            calls.append((target, G.copy()))
+            return results[len(calls) - 1].copy()
+        return fake
+
+    for results, kept in (([thin, H], H), ([thin, thinner], thin), ([H], H)):
+        calls.clear()
+        monkeypatch.setattr(eb, "_raise_angles", climb(results))
+        out = smooth_grid(H, d, V, F, iterations=0)
+        assert np.array_equal(out, kept)
+        assert [t for t, _ in calls] == ([eb.RAISE_TARGET_DEG, eb.RAISE_AGAIN_TARGET_DEG] if len(results) == 2
+                                         else [eb.RAISE_TARGET_DEG])
+        assert all(np.array_equal(G, calls[0][1]) for _, G in calls)   # both from the smoothed grid
+    assert _grid_angles(thin, V, F)["min_angle_deg"] < eb.RAISE_AGAIN_BELOW_DEG <= _grid_angles(H, V, F)["min_angle_deg"]
 
 
 def _walled_annulus(a=5.0, b=30.0, n_th=256):
