@@ -148,14 +148,23 @@ def test_a_handle_round_the_opening_is_named_in_the_refusal():
                              "there has 1 handle: a tunnel through the scan, Euler characteristic -2)")
 
 
+POLAR_S, POLAR_A, POLAR_RINGS, POLAR_WIDTH = 64, 5.0, 6, 8.0
+
+
+def _polar_grid():
+    """``(d, G)``: the ring distances and the polar grid (rings + 1, spokes, 3) of the flat
+    annulus's hole (:func:`_planar_annulus`), graded as a band is."""
+    th = 2 * np.pi * np.arange(POLAR_S) / POLAR_S
+    d = ring_distances(POLAR_RINGS, POLAR_WIDTH, 2 * np.pi * POLAR_A / POLAR_S)
+    return d, np.stack([(POLAR_A + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+
+
 def test_smoothing_keeps_the_polar_grid_and_pulls_a_cut_tip_out():
     """The polar grid of a flat annulus is (nearly) a fixed point of smooth_grid; a ring 1 node
     pulled in behind a spike of the loop (a canthus apex) is pushed back out beyond it."""
     V, F = _planar_annulus()
-    S, a, rings, width = 64, 5.0, 6, 8.0
-    th = 2 * np.pi * np.arange(S) / S
-    d = ring_distances(rings, width, 2 * np.pi * a / S)
-    G = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+    a, width = POLAR_A, POLAR_WIDTH
+    d, G = _polar_grid()
     Gs = smooth_grid(G, d, V, F, raise_to=None)
     assert np.array_equal(Gs[0], G[0])
     assert np.abs(Gs - G).max() < 0.1
@@ -180,10 +189,8 @@ def test_thin_quads_are_raised_to_the_target_angle_with_nothing_turned():
     loop and the outer ring are held) until no triangle is under 28 deg
     and none is turned over (28: the target is 30)."""
     V, F = _planar_annulus()
-    S, a, rings, width = 64, 5.0, 6, 8.0
-    th = 2 * np.pi * np.arange(S) / S
-    d = ring_distances(rings, width, 2 * np.pi * a / S)
-    G = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+    a, width = POLAR_A, POLAR_WIDTH
+    d, G = _polar_grid()
     assert _grid_angles(G, V, F)["min_angle_deg"] == pytest.approx(20.74, abs=0.01)
     G[3, 10] = 0.97 * G[3, 11] + 0.03 * G[3, 10]
     before = _grid_angles(G, V, F)
@@ -204,10 +211,7 @@ def test_a_grid_folded_over_three_rings_is_taken_back_towards_the_maps_grid():
     home (the polar grid here), nodes and then the patch round a turned quad go back towards it:
     nothing turned, every triangle over 28 deg, the loop and the outer ring held."""
     V, F = _planar_annulus()
-    S, a, rings, width = 64, 5.0, 6, 8.0
-    th = 2 * np.pi * np.arange(S) / S
-    d = ring_distances(rings, width, 2 * np.pi * a / S)
-    H = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+    d, H = _polar_grid()
     G = H.copy()
     G[1:4, [10, 11]] = H[1:4, [11, 10]]
     assert _grid_angles(G, V, F)["flipped_faces"] == 6
@@ -224,10 +228,7 @@ def test_a_band_left_under_the_floor_climbs_again_from_the_smoothed_grid_and_kee
     from the smoothed grid with RAISE_AGAIN_TARGET_DEG, and the grid with the larger smallest angle
     is kept; a band over the floor climbs once."""
     V, F = _planar_annulus()
-    S, a, rings, width = 64, 5.0, 6, 8.0
-    th = 2 * np.pi * np.arange(S) / S
-    d = ring_distances(rings, width, 2 * np.pi * a / S)
-    H = np.stack([(a + dk) * np.stack([np.cos(th), np.sin(th), 0 * th], 1) for dk in d])
+    d, H = _polar_grid()
     thin = H.copy()
     thin[3, 10] = 0.97 * H[3, 11] + 0.03 * H[3, 10]                 # a 2 deg sliver
     thinner = H.copy()
