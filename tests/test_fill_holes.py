@@ -96,6 +96,65 @@ def test_a_crescent_hole_is_closed_without_a_fold():
     assert len(r_new) > 0 and ((r_new > 2.4) & (r_new < 3.6)).all()
 
 
+def test_a_fill_adds_no_edge_the_skin_already_has():
+    """The crescent's ear clip joins loop vertices by chords; where the skin already joins two of
+    them by an edge of its own (here a fin of two faces standing on that edge off the plane: the
+    loop wraps a fold the plane flattens, as round n5103_icteye_300k_out_up's lower lid), that
+    chord is not used, so no edge gets a third face, and the hole is still closed: the way the
+    plane faces where a clip avoids the chord (a chord the plain clip can do without, and one
+    it cannot), else by the folded grid, said."""
+    from pipeline.geometry.mesh_edit import _ear_clip, _hole_frame, _joined_chords
+
+    V0, F0 = _grid(n=61, step=0.25)
+    c = V0[F0].mean(axis=1)
+    r = np.linalg.norm(c[:, :2], axis=1)
+    a = np.degrees(np.arctan2(c[:, 1], c[:, 0]))
+    F0 = F0[~((r > 2.5) & (r < 3.5) & (np.abs(a) < 160))]
+    (L,) = _hole_loops(F0)
+    P2 = _hole_frame(V0, V0[L], V0[L].mean(axis=0), np.array([0.0, 0.0, 1.0]), 1.5)[1]
+    pos = {int(v): i for i, v in enumerate(L)}
+    _, F_plain = fill_holes_smooth(V0, F0, [L])
+    chords = sorted({tuple(sorted((pos[int(x)], pos[int(y)]))) for f in F_plain[len(F0):]
+                     for x, y in zip(f, np.roll(f, -1)) if int(x) in pos and int(y) in pos}
+                    - {tuple(sorted((i, (i + 1) % len(L)))) for i in range(len(L))})
+    base = _joined_chords(F0, L)
+    stuck = [ch for ch in chords if _ear_clip(P2, base | {ch}) is None]
+    free = [ch for ch in chords if ch not in stuck]
+    assert stuck and free
+    for i, j in (free[len(free) // 2], stuck[0]):
+        assert (i, j) not in base
+        va, vc = int(L[i]), int(L[j])
+        tips = np.array([V0[va] + V0[vc] + [0.0, 0.0, 2.0], V0[va] + V0[vc] - [0.0, 0.0, 2.0]]) / 2.0
+        V = np.concatenate([V0, tips])
+        F = np.concatenate([F0, [[va, vc, len(V) - 2], [vc, va, len(V) - 1]]])
+        assert (i, j) in _joined_chords(F, L)
+        V2, F2, unfilled, folded = fill_holes_smooth(V, F, [L], return_unfilled=True, return_folded=True)
+        e = np.sort(np.concatenate([F2[:, [0, 1]], F2[:, [1, 2]], F2[:, [2, 0]]]), axis=1)
+        assert np.unique(e, axis=0, return_counts=True)[1].max() == 2
+        assert unfilled == []
+        if not folded:
+            n = mc.face_normals(V2, F2[len(F):], normalize=False)
+            assert (n[:, 2] > 0).all()                             # every fill face turned up
+            hole = abs(0.5 * float(np.sum(P2[:, 0] * np.roll(P2[:, 1], -1) - np.roll(P2[:, 0], -1) * P2[:, 1])))
+            assert np.isclose(0.5 * n[:, 2].sum(), hole)           # and they tile the hole
+
+
+def test_ear_clip_joins_no_forbidden_pair():
+    """A convex hexagon clipped with a pair forbidden: a triangulation of it that never joins
+    that pair; a square with both diagonals forbidden has none."""
+    from pipeline.geometry.mesh_edit import _ear_clip, _signed_areas
+
+    t = np.radians(np.arange(6) * 60.0)
+    P = np.column_stack([np.cos(t), np.sin(t)])
+    for forbid in ({(0, 2)}, {(1, 3)}, {(0, 2), (0, 3), (0, 4)}):
+        T = _ear_clip(P, frozenset(forbid))
+        assert T is not None and len(T) == 4 and (_signed_areas(P, T) > 0).all()
+        assert np.isclose(_signed_areas(P, T).sum(), 1.5 * np.sqrt(3.0))
+        assert not any(tuple(sorted((int(x), int(y)))) in forbid for f in T for x, y in zip(f, np.roll(f, -1)))
+    Q = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    assert _ear_clip(Q, frozenset({(0, 2), (1, 3)})) is None
+
+
 def test_ear_clip_of_a_loop_pinched_at_a_point():
     """Two squares touching at one corner, walked as one loop through two copies of that corner
     (a scan's hole pinched at a bow-tie): each lobe is clipped alone, every face positive."""

@@ -331,7 +331,12 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5, *, keep_folded_mm
             # triangulated ear by ear instead, its long inner edges halved in the plane (a
             # face split inside a positive face stays positive), and the new vertices lifted
             # onto the same quadratic
-            T = _ear_clip(P2)
+            # a chord between two loop vertices that the skin already joins by an edge (the
+            # loop passes both ends of a face's edge: the hole wraps a fold that the plane flattens
+            # onto it) may not be a fill edge too: that edge would get a third face, and the crop
+            # round n5103_icteye_300k_out_up's lower lid was then no annulus for the band
+            forbid = _joined_chords(F, L)
+            T = _ear_clip(P2, forbid)
             if T is None:
                 # a thin twisted slit need not be simple in the skin's plane (n1402_wide's, 20
                 # vertices, crossed itself there); in the plane the loop itself spans most it
@@ -339,7 +344,7 @@ def fill_holes_smooth(V, F, loops, neighbourhood: float = 1.5, *, keep_folded_mm
                 n_fit = np.linalg.svd(P - c)[2][2]
                 B2, P2b, _, coef2 = _hole_frame(V, P, c, n_fit if n_fit @ nrm >= 0 else -n_fit,
                                                 neighbourhood)
-                T = _ear_clip(P2b)
+                T = _ear_clip(P2b, forbid)
                 if T is not None:
                     B, P2, coef = B2, P2b, coef2
             if T is None:
@@ -471,13 +476,14 @@ def _refine_inside(P2, T, edge):
     return np.asarray(T, dtype=np.int64), np.asarray(XY, dtype=np.float64)
 
 
-def _ear_clip(P2):
+def _ear_clip(P2, forbid=frozenset()):
     """A triangulation of the polygon ``P2`` (m, 2) by its own vertices: (m - 2, 3) local ids,
     each face counter-clockwise (positive signed area), or None where the polygon is not simple.
     A polygon that touches itself at a point (two copies of one scan vertex: a hole pinched at a
     bow-tie) is cut there into lobes, each clipped alone. Of the ears, the one with the largest
     height over its longest edge is cut first, so a slit closes across its width rather than in
-    slivers along it."""
+    slivers along it. ``forbid``: pairs ``(i, j)``, ``i < j`` (local ids) that may not be joined
+    by a new edge (:func:`_joined_chords`); None where no triangulation avoids them."""
     P2 = np.asarray(P2, dtype=np.float64)
     m = len(P2)
     sgn = 1.0 if _polygon_area(P2) > 0 else -1.0
@@ -502,9 +508,9 @@ def _ear_clip(P2):
         # whose remaining corners are all blocked or flat (a grid hole's staircase got stuck 14
         # corners from the end); such ears are taken only when no other is left
         edge = float(np.linalg.norm(np.diff(P2[idx + idx[:1]], axis=0), axis=1).mean())
-        T = _clip_simple(P2, list(idx), sgn, 0.05 * edge)
+        T = _clip_simple(P2, list(idx), sgn, 0.05 * edge, forbid)
         if T is None:
-            T = _clip_simple(P2, list(idx), sgn, 0.0)
+            T = _clip_simple(P2, list(idx), sgn, 0.0, forbid)
         if T is None:
             return None
         tris.append(T)
@@ -514,14 +520,37 @@ def _ear_clip(P2):
     return T if sgn > 0 else T[:, ::-1]
 
 
+def _joined_chords(F, L) -> frozenset:
+    """Pairs ``(i, j)``, ``i < j``, of positions in the loop ``L`` (k,) whose vertices an edge of
+    the faces ``F`` (m, 3) joins, other than the loop's own edges: chords a fill may not add."""
+    L = np.asarray(L, dtype=np.int64)
+    k = len(L)
+    on = np.isin(F, L)
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])[np.concatenate(
+        [on[:, 0] & on[:, 1], on[:, 1] & on[:, 2], on[:, 2] & on[:, 0]])]
+    if not len(E):
+        return frozenset()
+    where = {}
+    for pos, v in enumerate(L.tolist()):
+        where.setdefault(v, []).append(pos)
+    out = set()
+    for a, b in E.tolist():
+        for i in where[a]:
+            for j in where[b]:
+                if (i - j) % k not in (1, k - 1) and i != j:
+                    out.add((min(i, j), max(i, j)))
+    return frozenset(out)
+
+
 def _polygon_area(P2):
     return 0.5 * float(np.sum(P2[:, 0] * np.roll(P2[:, 1], -1) - np.roll(P2[:, 0], -1) * P2[:, 1]))
 
 
-def _clip_simple(P2, idx, sgn, clearance):
+def _clip_simple(P2, idx, sgn, clearance, forbid=frozenset()):
     """:func:`_ear_clip` of one simple polygon (``idx`` into ``P2``, turning the way ``sgn``
-    says), no ear's new edge nearer than ``clearance`` to another of its vertices; faces in the
-    polygon's own turning. Of equally good ears the one earliest in ``idx`` is cut first.
+    says), no ear's new edge nearer than ``clearance`` to another of its vertices nor one of the
+    pairs ``forbid``; faces in the polygon's own turning. Of equally good ears the one earliest
+    in ``idx`` is cut first.
 
     An ear's score depends only on its corner's two neighbours and on which vertices are
     left: clipping a corner changes its two neighbours' ears, and can only free an ear the
@@ -537,6 +566,8 @@ def _clip_simple(P2, idx, sgn, clearance):
     I = np.asarray(idx)
 
     def judge(j):
+        if forbid and (min(I[prv[j]], I[nxt[j]]), max(I[prv[j]], I[nxt[j]])) in forbid:
+            return None
         a, b, c = P2[I[[prv[j], j, nxt[j]]]]
         A = sgn * float(_signed_areas(P2, I[[[prv[j], j, nxt[j]]]])[0])
         if not A > 1e-12:
