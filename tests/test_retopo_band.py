@@ -66,6 +66,26 @@ def test_band_on_a_disk_with_a_hole_is_the_polar_grid():
     assert rep["flipped_faces"] == 0 and rep["min_angle_deg"] > 20.0
 
 
+def test_the_band_region_shrinks_to_its_floor_itself():
+    """Known answer: the region is shrunk by 0.85 from ``param_mm`` (20 mm) until it is an annulus
+    clear of the locked border, and not below 1.25 x the band's width (10 mm). The steps pass that
+    floor at 10.44 mm; a crop border 10.38-10.88 mm out along the mesh's edges (a flat annulus
+    15.2 mm round a 5 mm hole) is within 10.44 and not within 10, so the floor itself gives the
+    band (fresh47's filled_n5306_icteye_100k: the crop's back edge by its left lateral corner)."""
+    from pipeline.retopo.eye_rings import edge_graph_distance
+
+    V, F = _planar_annulus(b=15.2)
+    S, a, rings, width = 64, 5.0, 6, 8.0
+    th = 2 * np.pi * np.arange(S) / S
+    loop = np.stack([a * np.cos(th), a * np.sin(th), 0 * th], 1)
+    hole, border = sorted(mc.boundary_loops(F), key=lambda b: np.linalg.norm(V[b], axis=1).mean())
+    d = edge_graph_distance(V, F, hole, 30.0)
+    assert 1.25 * width < d[border].min() < 20.0 * 0.85 ** 4
+    G, info = build_band(loop, V, F, hole, rings, width, 2 * np.pi * a / S, 20.0, locked=border)
+    assert info["region_mm"] == pytest.approx(1.25 * width)
+    assert np.linalg.norm(G[-1, :, :2], axis=1).max() < 15.2 and info["param_inverted_triangles"] == 0
+
+
 def _eccentric_slit(a=9.0, b=3.0, R=30.0, cx=16.0, h=0.6, seed=0):
     """A flat disk of radius ``R`` centred ``cx`` mm to the side of an elliptic opening (semi-axes
     ``a``, ``b``: a narrow fissure), jittered grid vertices (z = 0, faces towards +z)."""

@@ -302,11 +302,16 @@ def build_band(targets, ref_V, ref_F, hole, rings, width, first, param_mm, locke
         from pipeline.retopo.eye_rings import edge_graph
 
         graph = edge_graph(ref_V, ref_F)
-    radius, region = float(param_mm), None
-    while region is None and radius >= 1.25 * width:
+    # shrinking by 0.85 from 20 mm passes the floor at 10.4 mm: the floor itself is tried last
+    # (fresh47's filled_n5306_icteye_100k: the crop's back edge lay within 10.4 mm of its left
+    # opening's lateral corner, not within 10)
+    radius, region, floor = float(param_mm), None, 1.25 * width
+    while region is None:
         region = annulus_region(ref_V, ref_F, hole, radius, locked, graph)
         if region is None:
-            radius *= 0.85
+            if radius <= floor:
+                break
+            radius = max(0.85 * radius, floor)
     if region is None:
         raise ValueError(f"no annulus of the dense surface {1.25 * width:.1f} mm round the eye opening "
                          f"({_why_no_annulus(ref_V, ref_F, hole, 1.25 * width, locked, graph)})")
@@ -483,7 +488,9 @@ def smooth_grid(G, d, ref_V, ref_F, outer_line=None, iterations=SMOOTH_ITERATION
     over them fades out over the band afterwards, as ``(1 - d / d[-1]) ** lift_power``. Ring 0
     (the loop) is held. Stops after ``iterations`` sweeps or once no node moved ``tol`` mm; then
     the nodes of quads with a triangle angle under ``raise_to`` deg are moved to raise it
-    (:func:`_raise_angles`; None: not).
+    (:func:`_raise_angles`; None: not); a band that climb leaves with a triangle under
+    ``RAISE_AGAIN_BELOW_DEG`` climbs again from the smoothed grid towards
+    ``RAISE_AGAIN_TARGET_DEG``, and the grid with the larger smallest angle is returned.
     ``normal``: the opening's normal (:func:`_opening_normal` of ``G[0]``) when already known.
     ``home``: the grid the harmonic map laid (rings 1 .. R on the scan, one-to-one by
     construction), where the raise may send nodes back; None: ``G`` as given.
