@@ -380,6 +380,26 @@ def _overlapping_zones():
     return mesh, {"left": eye, "right": eye}
 
 
+def test_an_eye_that_does_not_fill_its_opening_is_refused_in_one_line(tmp_path):
+    """The left eye moved 3 mm back along its gaze leaves its whole loop 2.7 mm off it, past a
+    margin's 2.1 mm, so the corner runs take most of the loop (each at most its share of a lid):
+    no lid can be rigged on that eye, and snap says which eye and why, with its canthi's
+    distances (fresh48's 40k-face head and dome blink reached the rig before, and were refused
+    there in its own terms). 2 mm back it snaps, no corner run at all."""
+    from pipeline.errors import ScanError
+
+    mesh, eyes = _two_eye_mesh(tmp_path)
+    c, r, f = eyes["left"]
+    for back, refused in ((2.0, False), (3.0, True)):
+        moved = {**eyes, "left": (np.asarray(c) - back * np.asarray(f), r, f)}
+        if refused:
+            with pytest.raises(ScanError, match=r"left eye: the lid margin rests on the eye placed in it along "
+                                                r"only 22 of its 72 points \(its canthi stand 2\.7 and 2\.7 mm off"):
+                sn.snap_mesh(mesh, moved, EyeballParams(), sn.SnapSettings())
+        else:
+            assert sn.snap_mesh(mesh, moved, EyeballParams(), sn.SnapSettings())[2]["left"]["corner_vertices"] == 0
+
+
 @pytest.mark.parametrize("case", ["apart", "overlapping"])
 def test_snap_mesh_equals_one_eye_after_the_other(case, tmp_path):
     mesh, eyes = _two_eye_mesh(tmp_path) if case == "apart" else _overlapping_zones()

@@ -519,6 +519,17 @@ def snap_mesh(mesh: dict, eyes: dict, params, st: SnapSettings, source="mesh.npz
                                    for s in SIDES)
     runs = {first: runs1, second: runs2}
     for s in SIDES:
+        on, n = int(runs[s].on_eye.sum()), len(loops[s])
+        if on < n // 2:
+            # the corner runs cover most of the loop: the eye does not fill the opening its lids
+            # outline (a coarse scan's or a closed lid's eye placed from little evidence), and the
+            # rig cannot close lids on it (fresh48's 40k-face head and dome blink)
+            raise ScanError(source, f"{s} eye: the lid margin rests on the eye placed in it along only {on} "
+                                    f"of its {n} points (its canthi stand "
+                                    f"{metrics[s]['medial_canthus_off_mm']:.1f} and "
+                                    f"{metrics[s]['lateral_canthus_off_mm']:.1f} mm off it, a margin at most "
+                                    f"{st.corner_off_globe_mm:g} mm): that eye does not fill the opening, and "
+                                    f"no lids can be rigged on it")
         out[f"loop_snap_{s}"] = runs[s].weight
     out = _close_all_corners(out, loops, runs, placed, st)
     for s in SIDES:
