@@ -103,7 +103,7 @@ def test_a_fill_adds_no_edge_the_skin_already_has():
     chord is not used, so no edge gets a third face, and the hole is still closed: the way the
     plane faces where a clip avoids the chord (a chord the plain clip can do without, and one
     it cannot), else by the folded grid, said."""
-    from pipeline.geometry.mesh_edit import _ear_clip, _hole_frame, _joined_chords
+    from pipeline.geometry.mesh_edit import _ear_clip, _hole_frame, _joined_chords, _polygon_area
 
     V0, F0 = _grid(n=61, step=0.25)
     c = V0[F0].mean(axis=1)
@@ -135,8 +135,7 @@ def test_a_fill_adds_no_edge_the_skin_already_has():
         if not folded:
             n = mc.face_normals(V2, F2[len(F):], normalize=False)
             assert (n[:, 2] > 0).all()                             # every fill face turned up
-            hole = abs(0.5 * float(np.sum(P2[:, 0] * np.roll(P2[:, 1], -1) - np.roll(P2[:, 0], -1) * P2[:, 1])))
-            assert np.isclose(0.5 * n[:, 2].sum(), hole)           # and they tile the hole
+            assert np.isclose(0.5 * n[:, 2].sum(), abs(_polygon_area(P2)))   # and they tile the hole
 
 
 def test_ear_clip_joins_no_forbidden_pair():
