@@ -10,8 +10,8 @@ import pytest
 from fixtures import face_patch
 import pipeline.retopo.eye_band as eb
 from pipeline.geometry import mesh_checks as mc
-from pipeline.retopo.eye_band import (band_report, build_band, grid_quads, ring_distances, smooth_grid, split_quads,
-                                      zip_strip_maxmin)
+from pipeline.retopo.eye_band import (band_report, build_band, grid_quads, ring_distances, ring_offset_steps, smooth_grid,
+                                      split_quads, zip_strip_maxmin)
 from pipeline.retopo.retopo import RetopoSettings, retopologize
 
 
@@ -246,7 +246,8 @@ def test_a_band_left_under_the_floor_climbs_again_from_the_smoothed_grid_and_kee
     """The climb ends where each node of a thin quad is held by the others (n4505_icteye_1m's lower
     lids: 17.7 / 18.5 deg, one face turned). A band left under RAISE_AGAIN_BELOW_DEG climbs again
     from the smoothed grid with RAISE_AGAIN_TARGET_DEG, and the grid with the larger smallest angle
-    is kept; a band over the floor climbs once."""
+    is kept; a band over the floor climbs once. Both climbs keep the rings even (RAISE_ZIG); a band
+    they leave under the floor climbs both ways again without that, and the better grid is kept."""
     V, F = _planar_annulus()
     d, H = _polar_grid()
     thin = H.copy()
@@ -256,20 +257,47 @@ def test_a_band_left_under_the_floor_climbs_again_from_the_smoothed_grid_and_kee
     calls = []
 
     def climb(results):
-        def fake(G, *args, target, home=None, **kw):
-            calls.append((target, G.copy()))
+        def fake(G, *args, target, home=None, zig=eb.RAISE_ZIG, **kw):
+            calls.append((target, zig, G.copy()))
             return results[len(calls) - 1].copy()
         return fake
 
-    for results, kept in (([thin, H], H), ([thin, thinner], thin), ([H], H)):
+    T1, T2, Z = eb.RAISE_TARGET_DEG, eb.RAISE_AGAIN_TARGET_DEG, eb.RAISE_ZIG
+    for results, kept, asked in (([thin, H], H, [(T1, Z), (T2, Z)]),
+                                 ([thin, thinner, thinner, thinner], thin, [(T1, Z), (T2, Z), (T1, None), (T2, None)]),
+                                 ([thin, thinner, thinner, H], H, [(T1, Z), (T2, Z), (T1, None), (T2, None)]),
+                                 ([H], H, [(T1, Z)])):
         calls.clear()
         monkeypatch.setattr(eb, "_raise_angles", climb(results))
         out = smooth_grid(H, d, V, F, iterations=0)
         assert np.array_equal(out, kept)
-        assert [t for t, _ in calls] == ([eb.RAISE_TARGET_DEG, eb.RAISE_AGAIN_TARGET_DEG] if len(results) == 2
-                                         else [eb.RAISE_TARGET_DEG])
-        assert all(np.array_equal(G, calls[0][1]) for _, G in calls)   # both from the smoothed grid
+        assert [(t, z) for t, z, _ in calls] == asked
+        assert all(np.array_equal(G, calls[0][2]) for _, _, G in calls)   # each from the smoothed grid
+    assert Z is not None
     assert _grid_angles(thin, V, F)["min_angle_deg"] < eb.RAISE_AGAIN_BELOW_DEG <= _grid_angles(H, V, F)["min_angle_deg"]
+
+
+def test_the_climb_keeps_each_ring_even_along_the_spokes(monkeypatch):
+    """Known answer: climbing the flat annulus's polar grid (an even grid: every ring at one
+    distance along every spoke) to 30 deg, the free climb moves the nodes by colour and leaves them
+    alternately in and out along their spokes, 0.76 of a ring's step: a saw-tooth ring (on
+    n5504_icteye_scale14_in's upper lid, a crease's lip taken by every other node: a row of spikes
+    in the preview). No move takes a node or its ring neighbours farther from their neighbours'
+    mean than RAISE_ZIG of the ring's step (0.5 here) unless they already were: the rings stay
+    within it, every triangle still over 28 deg, nothing turned."""
+    V, F = _planar_annulus()
+    d, H = _polar_grid()
+    assert ring_offset_steps(H, d) < 1e-9
+    monkeypatch.setattr(eb, "RAISE_ZIG", None)
+    free = smooth_grid(H, d, V, F, iterations=0)
+    assert ring_offset_steps(free, d) > 0.7
+    monkeypatch.setattr(eb, "RAISE_ZIG", 0.5)
+    even = smooth_grid(H, d, V, F, iterations=0)
+    # a node's two neighbours of its own colour move in the same batch: a hair over, at most
+    assert ring_offset_steps(even, d) <= 0.5 + 0.02
+    after = _grid_angles(even, V, F)
+    assert after["min_angle_deg"] > 28.0 and after["flipped_faces"] == 0
+    assert np.array_equal(even[0], H[0]) and np.abs(even[-1] - H[-1]).max() < 0.05
 
 
 def _walled_annulus(a=5.0, b=30.0, n_th=256):
@@ -418,6 +446,12 @@ def test_grid_band_ids_are_fixed_and_built(patch):
     assert int(np.count_nonzero(r.poly_counts == 4)) == 2 * 4 * 32
     m = r.metrics["band"]
     assert m["kind"] == "grid" and m["ids"] == {"left": [0, nb], "right": [nb, 2 * nb]}
+    # how evenly each band's rings lie along the spokes: the grid's own figure, in ring steps
+    for side in ("left", "right"):
+        G = r.V[r.band[side]]
+        assert m[side]["ring_offset_steps"] == pytest.approx(
+            ring_offset_steps(G, m[side]["ring_distances_mm"]), abs=1e-3)
+        assert 0.0 <= m[side]["ring_offset_steps"] < 3.0
 
 
 def test_two_heads_have_the_same_band_ids(patch):
