@@ -406,6 +406,34 @@ def test_admitted_replaces_a_rejected_lowest_mode_with_the_next_one_admitted():
     assert fit.admitted(modes, None) is modes and fit.admitted([], near) == []
 
 
+def test_a_large_sphere_weakly_ringed_is_passed_over_for_the_next_clear_eye():
+    """Known answers: a lowest mode on a sphere over 18 mm ringed by 13-15 deg (a 100k-face
+    photogrammetry head's left: 20.9 mm at 13.4 deg over its cheek, 10 mm below the eye, beside
+    the true eye's 16.1 mm at 17.5 deg) is no eye, margin test or not: the next mode no larger
+    than 18 mm ringed by 15 deg is placed instead, and the reason says why. Under 13 deg it is a
+    closed lid's bulge, judged (refused) as before; at 15 deg or on 18 mm it is placed."""
+    c = np.array([30.0, 0.0, 0.0])
+    fwd = np.array([0.0, 0.0, 1.0])
+
+    def modes_of(*rf):
+        return [_mode(model.Eye(c, R, fwd), energy=float(i), fold=fold) for i, (R, fold) in enumerate(rf)]
+
+    cheek = modes_of((20.9, 13.4), (19.5, 14.0), (16.1, 17.5), (13.2, 18.6))
+    assert fit.passed_over_why(cheek, None) == "weak_fold"
+    assert fit.admitted(cheek, None) == cheek[2:]
+    assert fit.admitted(cheek, lambda e: True) == cheek[2:]
+    # no clear eye after it: the lowest is judged as before
+    assert fit.admitted(cheek[:2], None) == cheek[:2]
+    # the margin test's reason comes first
+    assert fit.passed_over_why(cheek, lambda e: False) == "off_margin"
+    for lowest in ((20.9, 12.9), (20.9, fit.REPLACEMENT_MIN_FOLD_DEG), (fit.REPLACEMENT_MAX_RADIUS_MM, 13.4)):
+        ms = modes_of(lowest, (16.1, 17.5))
+        assert fit.passed_over_why(ms, None) == "" and fit.admitted(ms, None) is ms
+    assert fit.passed_over_why([], None) == ""
+    assert fit.LID_BULGE_FOLD_DEG < fit.REPLACEMENT_MIN_FOLD_DEG
+    assert set(place.PASSED_OVER) == set(place.PASSED_OVER_SHORT) == {"off_margin", "weak_fold"}
+
+
 def test_the_lowest_admitted_mode_carries_its_laplace_part_from_a_child():
     """``_finished(..., laplace=True, ok=...)``, as place_eyes runs one side in a child: the fit of
     the lowest mode ``ok`` admits keeps its Laplace part through pickling (the parent reads it

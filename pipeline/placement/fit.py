@@ -606,14 +606,35 @@ REPLACEMENT_MAX_RADIUS_MM = LID_BULGE_RADIUS_MM
 REPLACEMENT_MIN_FOLD_DEG = 15.0
 
 
+def passed_over_why(modes, ok) -> str:
+    """Why the lowest of ``modes`` is no eye of this side, or "" when it may be one:
+    ``off_margin`` where ``ok`` (callable ``Eye -> bool``, or None) rejects it, ``weak_fold``
+    where it is a sphere over ``REPLACEMENT_MAX_RADIUS_MM`` ringed by a fold between
+    ``LID_BULGE_FOLD_DEG`` (under it: a closed lid's bulge, refused as closed) and
+    ``REPLACEMENT_MIN_FOLD_DEG``. Over the 385 eyes the geometry placed on the cached unseen heads,
+    the five placed on such a sphere were all wrong: a 100k-face photogrammetry head's left on a
+    21 mm sphere over its cheek (10.96 mm off, the cut round it then torn through the cheek), a
+    60k-face head's (7.71 mm), a blink's closed eye (16.4 mm) and two half blinks' turned 23-27
+    deg; open eyes on spheres that large were ringed by 17-28 deg."""
+    if not modes:
+        return ""
+    if ok is not None and not ok(modes[0].eye):
+        return "off_margin"
+    m = modes[0]
+    if m.eye.R > REPLACEMENT_MAX_RADIUS_MM and LID_BULGE_FOLD_DEG <= m.fold_deg < REPLACEMENT_MIN_FOLD_DEG:
+        return "weak_fold"
+    return ""
+
+
 def admitted(modes, ok):
-    """``modes`` (the lowest first) as they are when ``ok`` (callable ``Eye -> bool``, or None)
-    admits the lowest; else those it admits on a sphere of at most
-    ``REPLACEMENT_MAX_RADIUS_MM`` ringed by a fold of at least ``REPLACEMENT_MIN_FOLD_DEG``, or
-    all of them when there are none (the caller then judges the lowest as before)."""
-    if ok is None or not modes or ok(modes[0].eye):
+    """``modes`` (the lowest first) as they are when the lowest may be an eye of this side
+    (:func:`passed_over_why`); else those ``ok`` (callable ``Eye -> bool``, or None) admits on a
+    sphere of at most ``REPLACEMENT_MAX_RADIUS_MM`` ringed by a fold of at least
+    ``REPLACEMENT_MIN_FOLD_DEG``, or all of them when there are none (the caller then judges the
+    lowest as before)."""
+    if not passed_over_why(modes, ok):
         return modes
-    kept = [m for m in modes if ok(m.eye) and m.eye.R <= REPLACEMENT_MAX_RADIUS_MM
+    kept = [m for m in modes if (ok is None or ok(m.eye)) and m.eye.R <= REPLACEMENT_MAX_RADIUS_MM
             and m.fold_deg >= REPLACEMENT_MIN_FOLD_DEG]
     return kept or modes
 
@@ -624,8 +645,10 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     """Place both eyes (module doc). ``prior``: callable ``(side) -> dict(front, axis, sigma)``
     or None. ``admissible``: callable ``(side, Eye) -> bool`` or None: a lowest optimum it
     rejects is no eye of that side (an eye whose limbus lies outside the lid margin the skin
-    round it outlines), and the lowest optimum it admits is placed instead, the rejected ones
-    left out of its rivals (:func:`admitted`); that placement is marked ``passed_over``. The
+    round it outlines), nor is a lowest optimum on a large sphere weakly ringed
+    (:func:`passed_over_why`), and the lowest optimum it admits is placed instead, the rejected
+    ones left out of its rivals (:func:`admitted`); that placement is marked ``passed_over``
+    with the reason. The
     search runs on each patch simplified to about ``coarse_vertices``
     (:func:`pipeline.placement.cues.coarse_patch`; a patch with fill faces as it is), and the
     placed eye then labels the full patch. Only local optima ringed by a lid fold of ``min_fold_deg`` count as an open eye;
@@ -671,7 +694,8 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
                                min_fold_deg, cornea=cornea["right"])}
     done["left"] = fork_result(job)[0]
     modes = {s: admitted(done[s][0], ok[s]) for s in SIDES}
-    passed = {s: bool(modes[s]) and modes[s][0] is not done[s][0][0] for s in SIDES}
+    passed = {s: passed_over_why(done[s][0], ok[s]) if modes[s] and modes[s][0] is not done[s][0][0] else ""
+              for s in SIDES}
     at_bound = {s: done[s][1] for s in SIDES if done[s][1] is not None}
     if not all(modes[s] for s in SIDES):
         return {s: at_bound.get(s) if not modes[s] else replace(_on_full(placement_of(
@@ -687,7 +711,8 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     if pst["left"]:
         modes["left"] = fork_result(job)[0]
     again = {s: admitted(modes[s], ok[s]) for s in SIDES}
-    passed = {s: passed[s] or again[s][0] is not modes[s][0] for s in SIDES}
+    passed = {s: passed[s] or (passed_over_why(modes[s], ok[s]) if again[s][0] is not modes[s][0] else "")
+              for s in SIDES}
     modes = again
     best = {s: modes[s][0] for s in SIDES}
     # one radius for the two eyes when they agree; then a joint fit with a loose mirror prior

@@ -26,7 +26,8 @@ from pipeline.placement.doubts import check_doubts, fissure_doubts
 from pipeline.placement.eye_fit import EyeFit, EyeMesh, clean_region, lid_crease_deg, patch_faces
 from pipeline.placement.fill import FILL_SIGMA, find_flat_fill, fit_behind_loop, fit_from_fill
 from pipeline.placement.fissure import points_in_polygon
-from pipeline.placement.fit import LID_BULGE_FOLD_DEG, LID_BULGE_RADIUS_MM, AtRadiusBound, place_eyes
+from pipeline.placement.fit import (LID_BULGE_FOLD_DEG, LID_BULGE_RADIUS_MM, REPLACEMENT_MAX_RADIUS_MM,
+                                   REPLACEMENT_MIN_FOLD_DEG, AtRadiusBound, place_eyes)
 from pipeline.placement.iris_cap import AXIS_MODEL_SIGMA_DEG
 from pipeline.placement.model import cornea_sphere, limbus_center, surface_residual
 from pipeline.placement.settings import PlacementSettings
@@ -191,6 +192,17 @@ def _outside_margin(point, front) -> float | None:
 #: How far outside the prior's lid margin a scanned eye's limbus may lie (mm): on 62 held-out
 #: eyes the truth's lay at most 1.0 mm outside and every placed one within 1.0 mm.
 PRIOR_MARGIN_SLACK_MM = 3.0
+
+#: Why the search's lowest optimum was passed over (``Placement.passed_over``,
+#: :func:`pipeline.placement.fit.passed_over_why`), as a doubt begins and as a refusal says it.
+PASSED_OVER = {
+    "off_margin": f"the search's lowest optimum lay over {PRIOR_MARGIN_SLACK_MM:g} mm outside the lid margin "
+                  f"that the skin around it outlines",
+    "weak_fold": f"the search's lowest optimum was a sphere over {REPLACEMENT_MAX_RADIUS_MM:g} mm ringed by a "
+                 f"lid fold under {REPLACEMENT_MIN_FOLD_DEG:g} deg, a cheek's or a lid's, no eye",
+}
+PASSED_OVER_SHORT = {"off_margin": "outside the lid margin",
+                     "weak_fold": "a large sphere weakly ringed"}
 
 
 def _inside_margin(front):
@@ -371,10 +383,9 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
                     st.texture_fallback and has_tex) else None
                 if photo is None:
                     if placements[s].passed_over:
-                        fits[s].why = (f"the search's lowest optimum lay over {PRIOR_MARGIN_SLACK_MM:g} mm "
-                                       f"outside the lid margin that the skin around it outlines: placed "
-                                       f"from the next one inside it, a {placements[s].eye.R:.1f} mm sphere "
-                                       f"ringed by a lid fold of {placements[s].fold_deg:.1f} deg")
+                        fits[s].why = (f"{PASSED_OVER[placements[s].passed_over]}: placed from the next "
+                                       f"one inside it, a {placements[s].eye.R:.1f} mm sphere ringed by a "
+                                       f"lid fold of {placements[s].fold_deg:.1f} deg")
                     continue
                 share, photographed[s] = photo
                 err = CoarseEye(source, f"{s} eye: only {100 * share:.0f} % of the eye surface the geometry "
@@ -384,10 +395,10 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             err = ScanError(source, f"{s} eye looks closed (or too little of the eyeball shows to place "
                                     f"it): no eye surface ringed by a lid fold "
                                     f"near the hint {np.round(hints[s], 2).tolist()}")
-        if isinstance(err, CoarseEye) and err.no_eye is None and getattr(placements[s], "passed_over", False):
-            # the search's lowest optimum lay off the margin and the one placed instead gives no
-            # eye either (a cut round it too narrow, too few vertices): no eye's surface, as a
-            # closed lid's, for the pair rule
+        if isinstance(err, CoarseEye) and err.no_eye is None and getattr(placements[s], "passed_over", ""):
+            # the search's lowest optimum was no eye (off the margin, a large sphere weakly ringed)
+            # and the one placed instead gives no eye either (a cut round it too narrow, too few
+            # vertices): no eye's surface, as a closed lid's, for the pair rule
             err.no_eye = "off_margin"
         if s in declared_open and not isinstance(err, CoarseEye):
             # the user says this eye is open: what looked closed is too little of it to place from
@@ -691,16 +702,17 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                        reread={s for s in SIDES if checks[s]["opening_convex"]["ok"]
                                and checks[s]["opening_wide"]["ok"]})
     for s in SIDES:
-        if getattr(placements[s], "passed_over", False) and asset[s]["limbus"]["source"] in ("opening", "coarse"):
+        if getattr(placements[s], "passed_over", "") and asset[s]["limbus"]["source"] in ("opening", "coarse"):
             # an optimum placed instead of the search's lowest (which lay off the margin) is
             # believed only when its iris shows in the cut round it: one whose iris the asset
             # would take from that opening is a lid's crease, not an eye (the closed eye of the
             # wink n3501_wink_left_noise: a cut 9 mm low, the eye 10.7 mm off), and the eye is
             # placed behind the prior's opening as before, no eye's surface for the pair rule
-            raise NarrowOpening(source, f"{s} eye: the optimum placed instead of the search's lowest (outside "
-                                        f"the lid margin) puts its iris outside the cut round it", s,
+            lowest = PASSED_OVER_SHORT[placements[s].passed_over]
+            raise NarrowOpening(source, f"{s} eye: the optimum placed instead of the search's lowest ({lowest}) "
+                                        f"puts its iris outside the cut round it", s,
                                 checks[s]["opening_wide"]["value"],
-                                why="round the optimum after one outside the lid margin, its iris outside it")
+                                why=f"round the optimum after one {lowest}, its iris outside it")
     for s in SIDES:
         if asset[s]["limbus"]["source"] in ("opening", "coarse"):
             seat_behind_loop(asset[s], V2[loops[s][0]], eyeball, lim, loops[s][1])
