@@ -703,11 +703,11 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                                and checks[s]["opening_wide"]["ok"]})
     for s in SIDES:
         if getattr(placements[s], "passed_over", "") and asset[s]["limbus"]["source"] in ("opening", "coarse"):
-            # an optimum placed instead of the search's lowest (which lay off the margin) is
-            # believed only when its iris shows in the cut round it: one whose iris the asset
-            # would take from that opening is a lid's crease, not an eye (the closed eye of the
-            # wink n3501_wink_left_noise: a cut 9 mm low, the eye 10.7 mm off), and the eye is
-            # placed behind the prior's opening as before, no eye's surface for the pair rule
+            # an optimum placed instead of the search's lowest (off the margin, or a large sphere
+            # weakly ringed) is believed only when its iris shows in the cut round it: one whose
+            # iris the asset would take from that opening is a lid's crease, not an eye (the closed
+            # eye of the wink n3501_wink_left_noise: a cut 9 mm low, the eye 10.7 mm off), and the
+            # eye is placed behind the prior's opening as before, no eye's surface for the pair rule
             lowest = PASSED_OVER_SHORT[placements[s].passed_over]
             raise NarrowOpening(source, f"{s} eye: the optimum placed instead of the search's lowest ({lowest}) "
                                         f"puts its iris outside the cut round it", s,

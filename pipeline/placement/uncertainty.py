@@ -78,7 +78,7 @@ class Placement:
     sigma_limbus_mm: float = 0.0      # calibrated 1-sigma of the limbus centre (RMS 3-D error)
     sigma_axis_deg: float = 0.0       # ... of the gaze (optical axis), degrees
     limbus_laplace: tuple = (0.0, 0.0)  # the Laplace part of (sigma_limbus_mm, sigma_axis_deg)
-    passed_over: str = ""           # why the search's lowest optimum was no eye of this side, "" if it was one (fit.passed_over_why)
+    passed_over: str = ""           # why the search's lowest optimum was no eye here ("": it was; fit.passed_over_why)
 
 
 def share_radius(out):

@@ -86,9 +86,10 @@ RAISE_AGAIN_TARGET_DEG = 40.0
 # RAISE_ZIG x the ring's step from the mean of its own two ring neighbours (unless it already is):
 # the climb moves nodes by colour, and where every other node of a ring takes a crease's lip it
 # leaves a saw-tooth ring, a row of spikes in the preview (n5504_icteye_scale14_in's upper lids,
-# ring_offset_steps 2.2). A band the even climbs leave under RAISE_AGAIN_BELOW_DEG climbs freely as well and
-# the better grid is kept: the floor first. 1.0 changed 52 of 203 cached heads, none under the
-# floor or turned that was not before (docs/retopo.md); 0.5 left that head's right band at 19.6 deg
+# ring_offset_steps 2.2). A band the even climbs leave under RAISE_AGAIN_BELOW_DEG climbs freely
+# as well and the better grid is kept: the floor first. 1.0 changed 52 of 203 cached heads, none
+# under the floor or turned that was not before (docs/retopo.md); 0.5 left that head's right band
+# at 19.6 deg
 RAISE_ZIG = 1.0
 
 
