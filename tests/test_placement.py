@@ -397,11 +397,11 @@ def test_admitted_replaces_a_rejected_lowest_mode_with_the_next_one_admitted():
     modes = [_mode(model.Eye(c + [0.0, 0.0, dz], R, fwd), energy=float(i), fold=fold)
              for i, (dz, R, fold) in enumerate(((9.0, 14.0, 30.0), (0.0, 19.0, 30.0), (0.0, 14.0, 30.0),
                                                 (0.5, 14.0, 13.0), (1.0, 15.0, 20.0), (8.0, 14.0, 30.0)))]
-    near = (lambda e: abs(e.c[2]) < 5.0)
+    near = (lambda m: "" if abs(m.eye.c[2]) < 5.0 else "off_margin")
     assert fit.admitted(modes, near) == [modes[2], modes[4]]
     assert fit.REPLACEMENT_MAX_RADIUS_MM == place.LID_BULGE_RADIUS_MM
     assert fit.admitted(modes[1:], near) is not None and fit.admitted(modes[1:], near)[0] is modes[1]
-    assert fit.admitted(modes, lambda e: False) == modes
+    assert fit.admitted(modes, lambda m: "off_margin") == modes
     assert fit.admitted(modes[:2], near) == modes[:2]
     assert fit.admitted(modes, None) is modes and fit.admitted([], near) == []
 
@@ -421,17 +421,18 @@ def test_a_large_sphere_weakly_ringed_is_passed_over_for_the_next_clear_eye():
     cheek = modes_of((20.9, 13.4), (19.5, 14.0), (16.1, 17.5), (13.2, 18.6))
     assert fit.passed_over_why(cheek, None) == "weak_fold"
     assert fit.admitted(cheek, None) == cheek[2:]
-    assert fit.admitted(cheek, lambda e: True) == cheek[2:]
+    assert fit.admitted(cheek, lambda m: "") == cheek[2:]
     # no clear eye after it: the lowest is judged as before
     assert fit.admitted(cheek[:2], None) == cheek[:2]
     # the margin test's reason comes first
-    assert fit.passed_over_why(cheek, lambda e: False) == "off_margin"
+    assert fit.passed_over_why(cheek, lambda m: "off_margin") == "off_margin"
+    assert fit.passed_over_why(cheek, lambda m: "below_margin") == "below_margin"
     for lowest in ((20.9, 12.9), (20.9, fit.REPLACEMENT_MIN_FOLD_DEG), (fit.REPLACEMENT_MAX_RADIUS_MM, 13.4)):
         ms = modes_of(lowest, (16.1, 17.5))
         assert fit.passed_over_why(ms, None) == "" and fit.admitted(ms, None) is ms
     assert fit.passed_over_why([], None) == ""
     assert fit.LID_BULGE_FOLD_DEG < fit.REPLACEMENT_MIN_FOLD_DEG
-    assert set(place.PASSED_OVER) == set(place.PASSED_OVER_SHORT) == {"off_margin", "weak_fold"}
+    assert set(place.PASSED_OVER) == set(place.PASSED_OVER_SHORT) == {"off_margin", "below_margin", "weak_fold"}
 
 
 def test_the_lowest_admitted_mode_carries_its_laplace_part_from_a_child():
@@ -444,29 +445,64 @@ def test_the_lowest_admitted_mode_carries_its_laplace_part_from_a_child():
     p, cu, rr, gt, g = _left_eye_looking_out(R)
     found = [fit.refine(p, model.Eye(gt["left"]["center"], R, n, 1.2), cu, rr) for n in (g, fit._turn(g, -45.0, -20.0))]
     true = (lambda e: np.degrees(np.arccos(np.clip(e.n @ g, -1.0, 1.0))) < 10.0)
-    modes = fit._finished(p, cu, found, [], rr, 12.0, laplace=True, ok=lambda e: not true(e))[0]
+    modes = fit._finished(p, cu, found, [], rr, 12.0, laplace=True,
+                          ok=lambda m: "off_margin" if true(m.eye) else "")[0]
     assert len(modes) >= 2 and true(modes[0].eye)
     back = pickle.loads(pickle.dumps(modes))
-    kept = fit.admitted(back, lambda e: not true(e))
+    kept = fit.admitted(back, lambda m: "off_margin" if true(m.eye) else "")
     assert not true(kept[0].eye) and kept[0].fit.cov.shape[0] >= 4
     with pytest.raises(RuntimeError, match="Laplace approximation was not made"):
         back[0].fit.cov     # noqa: B018
 
 
 def test_an_eye_outside_the_priors_lid_margin_is_not_admitted():
-    """``place._inside_margin``: a limbus inside the registered margin (a 10 mm circle seen along
-    +z) or within ``PRIOR_MARGIN_SLACK_MM`` outside it is admitted, one 4 mm outside is not, and
-    a side the prior did not register admits every eye."""
+    """``place._admissible``: a limbus inside the registered margin (a 10 mm circle seen along
+    +z) or within ``PRIOR_MARGIN_SLACK_MM`` outside it is admitted, one 4 mm outside is not
+    (``off_margin``), and a side the prior did not register admits every eye."""
     from pipeline.placement import place
 
     t = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
     margin = np.stack([10.0 * np.cos(t), 10.0 * np.sin(t), np.full(16, 10.0)], axis=1)
-    ok = place._inside_margin({"left": {"margin": margin, "axis": np.array([0.0, 0.0, 1.0])}, "right": None})
+    why = place._admissible({"left": {"margin": margin, "axis": np.array([0.0, 0.0, 1.0])}, "right": None})
     fwd = np.array([0.0, 0.0, 1.0])
-    assert ok("left", model.Eye(np.zeros(3), 12.0, fwd))
-    assert ok("left", model.Eye(np.array([12.5, 0.0, 0.0]), 12.0, fwd))
-    assert not ok("left", model.Eye(np.array([14.0, 0.0, 0.0]), 12.0, fwd))
-    assert ok("right", model.Eye(np.array([40.0, 0.0, 0.0]), 12.0, fwd))
+    assert why("left", _mode(model.Eye(np.zeros(3), 12.0, fwd))) == ""
+    assert why("left", _mode(model.Eye(np.array([12.5, 0.0, 0.0]), 12.0, fwd))) == ""
+    assert why("left", _mode(model.Eye(np.array([14.0, 0.0, 0.0]), 12.0, fwd))) == "off_margin"
+    assert why("right", _mode(model.Eye(np.array([40.0, 0.0, 0.0]), 12.0, fwd))) == ""
+
+
+def test_an_eye_centred_below_the_priors_lid_margin_is_a_cheeks_sphere():
+    """``place._admissible``: the human eye an optimum implies (``CENTRE_DEPTH_MM`` behind its
+    limbus centre along its axis) centred over ``BELOW_MARGIN_MM`` below the middle of the
+    registered margin (a 10 mm circle seen along +z, head +y up) is ``below_margin``, however the
+    sphere is sized or turned: a 20 mm sphere 6 mm low looking up out of the cheek, its limbus
+    inside the margin; one 3 mm low, or 6 mm high, is admitted. A closed lid's bulge (over 18 mm
+    ringed by under 13 deg) is left to be refused as closed."""
+    from pipeline.placement import place
+
+    t = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+    margin = np.stack([10.0 * np.cos(t), 10.0 * np.sin(t), np.full(16, 10.0)], axis=1)
+    why = place._admissible({"left": {"margin": margin, "axis": np.array([0.0, 0.0, 1.0])}})
+
+    def eye_below(drop, R, up_deg=0.0):
+        """A sphere of radius ``R`` whose implied human centre lies ``drop`` mm below the margin's
+        middle, its axis turned ``up_deg`` up."""
+        a = np.radians(up_deg)
+        n = np.array([0.0, np.sin(a), np.cos(a)])
+        centre = np.array([0.0, -drop, 10.0 - place.CENTRE_DEPTH_MM])
+        lc = centre + place.CENTRE_DEPTH_MM * n
+        return model.Eye(lc - R * np.cos(np.radians(model.LIMBUS_DEG[0])) * n, R, n)
+
+    assert place.CENTRE_DEPTH_MM == pytest.approx(10.0, abs=0.1)
+    for R, up in ((12.0, 0.0), (20.0, 0.0), (20.0, 25.0), (15.0, -20.0)):
+        assert place._below_margin(eye_below(6.0, R, up), {"margin": margin, "axis": np.array([0.0, 0.0, 1.0])}) \
+            == pytest.approx(6.0, abs=1e-9)
+        assert why("left", _mode(eye_below(6.0, R, up), fold=16.0)) == "below_margin"
+        assert why("left", _mode(eye_below(3.0, R, up), fold=16.0)) == ""
+        assert why("left", _mode(eye_below(-6.0, R, up), fold=16.0)) == ""
+    assert why("left", _mode(eye_below(6.0, 20.0), fold=12.9)) == ""
+    assert why("left", _mode(eye_below(6.0, 18.0), fold=12.9)) == "below_margin"
+    assert place._below_margin(eye_below(6.0, 12.0), None) is None
 
 
 def test_the_lowest_cornea_starts_are_refined_in_full():

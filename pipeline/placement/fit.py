@@ -607,9 +607,10 @@ REPLACEMENT_MIN_FOLD_DEG = 15.0
 
 
 def passed_over_why(modes, ok) -> str:
-    """Why the lowest of ``modes`` is no eye of this side, or "" when it may be one:
-    ``off_margin`` where ``ok`` (callable ``Eye -> bool``, or None) rejects it, ``weak_fold``
-    where it is a sphere over ``REPLACEMENT_MAX_RADIUS_MM`` ringed by a fold between
+    """Why the lowest of ``modes`` is no eye of this side, or "" when it may be one: the reason
+    ``ok`` (callable ``Mode -> str``, "" where the mode may be an eye; or None) gives for it
+    (``off_margin``, ``below_margin``: :func:`pipeline.placement.place._admissible`), else
+    ``weak_fold`` where it is a sphere over ``REPLACEMENT_MAX_RADIUS_MM`` ringed by a fold between
     ``LID_BULGE_FOLD_DEG`` (under it: a closed lid's bulge, refused as closed) and
     ``REPLACEMENT_MIN_FOLD_DEG``. Over the 385 eyes the geometry placed on the cached unseen heads,
     the five placed on such a sphere were all wrong: a 100k-face photogrammetry head's left on a
@@ -618,8 +619,9 @@ def passed_over_why(modes, ok) -> str:
     deg; open eyes on spheres that large were ringed by 17-28 deg."""
     if not modes:
         return ""
-    if ok is not None and not ok(modes[0].eye):
-        return "off_margin"
+    why = ok(modes[0]) if ok is not None else ""
+    if why:
+        return why
     m = modes[0]
     if m.eye.R > REPLACEMENT_MAX_RADIUS_MM and LID_BULGE_FOLD_DEG <= m.fold_deg < REPLACEMENT_MIN_FOLD_DEG:
         return "weak_fold"
@@ -628,13 +630,13 @@ def passed_over_why(modes, ok) -> str:
 
 def admitted(modes, ok):
     """``modes`` (the lowest first) as they are when the lowest may be an eye of this side
-    (:func:`passed_over_why`); else those ``ok`` (callable ``Eye -> bool``, or None) admits on a
-    sphere of at most ``REPLACEMENT_MAX_RADIUS_MM`` ringed by a fold of at least
-    ``REPLACEMENT_MIN_FOLD_DEG``, or all of them when there are none (the caller then judges the
-    lowest as before)."""
+    (:func:`passed_over_why`); else those ``ok`` (callable ``Mode -> str``, or None) gives no
+    reason against on a sphere of at most ``REPLACEMENT_MAX_RADIUS_MM`` ringed by a fold of at
+    least ``REPLACEMENT_MIN_FOLD_DEG``, or all of them when there are none (the caller then judges
+    the lowest as before)."""
     if not passed_over_why(modes, ok):
         return modes
-    kept = [m for m in modes if (ok is None or ok(m.eye)) and m.eye.R <= REPLACEMENT_MAX_RADIUS_MM
+    kept = [m for m in modes if (ok is None or not ok(m)) and m.eye.R <= REPLACEMENT_MAX_RADIUS_MM
             and m.fold_deg >= REPLACEMENT_MIN_FOLD_DEG]
     return kept or modes
 
@@ -643,9 +645,10 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
                ignore=None, seed=0, temperature=20.0, sigma_scale=1.0, shared_radius_z=2.5,
                sym_sigma_mm=1.0, min_fold_deg=20.0, coarse_vertices=COARSE_VERTICES, admissible=None):
     """Place both eyes (module doc). ``prior``: callable ``(side) -> dict(front, axis, sigma)``
-    or None. ``admissible``: callable ``(side, Eye) -> bool`` or None: a lowest optimum it
-    rejects is no eye of that side (an eye whose limbus lies outside the lid margin the skin
-    round it outlines), nor is a lowest optimum on a large sphere weakly ringed
+    or None. ``admissible``: callable ``(side, Mode) -> str`` or None: a lowest optimum it gives
+    a reason against is no eye of that side (an eye whose limbus lies outside the lid margin the
+    skin round it outlines, or whose centre lies below it), nor is a lowest optimum on a large
+    sphere weakly ringed
     (:func:`passed_over_why`), and the lowest optimum it admits is placed instead, the rejected
     ones left out of its rivals (:func:`admitted`); that placement is marked ``passed_over``
     with the reason. The
@@ -687,7 +690,7 @@ def place_eyes(V, F, hints, *, patch_radius_mm, radius_range, radius_prior, prio
     first = fork_result(job)[0] + rest
     mine = {s: [m for (side, _), m in zip(starts[:n_turned], first) if side == s] for s in SIDES}
     cornea = {s: [m for (side, _), m in zip(starts[n_turned:], first[n_turned:]) if side == s] for s in SIDES}
-    ok = {s: None if admissible is None else (lambda e, s=s: admissible(s, e)) for s in SIDES}
+    ok = {s: None if admissible is None else (lambda m, s=s: admissible(s, m)) for s in SIDES}
     job = fork_call(_finished, patches["left"], cues["left"], found["left"], mine["left"], radius_range,
                     min_fold_deg, laplace=True, cornea=cornea["left"], ok=ok["left"])
     done = {"right": _finished(patches["right"], cues["right"], found["right"], mine["right"], radius_range,

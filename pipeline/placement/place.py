@@ -193,31 +193,66 @@ def _outside_margin(point, front) -> float | None:
 #: eyes the truth's lay at most 1.0 mm outside and every placed one within 1.0 mm.
 PRIOR_MARGIN_SLACK_MM = 3.0
 
+#: How far below the middle of the prior's lid margin (seen along its axis) the rotation centre
+#: of the human eye an optimum implies may lie (mm; its limbus centre less the paper's eye's
+#: 10 mm along its axis, :func:`pipeline.placement.human_eye.limbus_depth`). On the cached unseen
+#: heads with a truth (553 eyes of 285 heads, their searches' optima recorded) the truth's lay at
+#: most 1.4 mm below it, and every optimum within 2.5 mm of the truth's limbus at most 1.8 mm
+#: (2424 of them); the 32 lowest optima over 4 mm below were all 4.4 mm or more off: spheres on
+#: the cheek under the lower lid, ringed by the fold beneath it, centred 4.4-13.5 mm below (a
+#: 60k-face photogrammetry head's right, 20 mm ringed by 15.5 deg, 6.7 mm below and 10 mm off,
+#: its true eye's 4.4 mm above).
+BELOW_MARGIN_MM = 4.0
+CENTRE_DEPTH_MM = 10.0
+
 #: Why the search's lowest optimum was passed over (``Placement.passed_over``,
 #: :func:`pipeline.placement.fit.passed_over_why`), as a doubt begins and as a refusal says it.
 PASSED_OVER = {
     "off_margin": f"the search's lowest optimum lay over {PRIOR_MARGIN_SLACK_MM:g} mm outside the lid margin "
                   f"that the skin around it outlines",
+    "below_margin": f"the search's lowest optimum put the eye's centre over {BELOW_MARGIN_MM:g} mm below the "
+                    f"middle of the lid margin that the skin around it outlines, a cheek's sphere",
     "weak_fold": f"the search's lowest optimum was a sphere over {REPLACEMENT_MAX_RADIUS_MM:g} mm ringed by a "
                  f"lid fold under {REPLACEMENT_MIN_FOLD_DEG:g} deg, a cheek's or a lid's, no eye",
 }
-PASSED_OVER_SHORT = {"off_margin": "outside the lid margin",
+PASSED_OVER_SHORT = {"off_margin": "outside the lid margin", "below_margin": "below the lid margin",
                      "weak_fold": "a large sphere weakly ringed"}
 
 
-def _inside_margin(front):
-    """``(side, Eye) -> bool``: whether the eye's limbus lies within ``PRIOR_MARGIN_SLACK_MM``
-    of the lid margin the eye-region prior registered round that side (``front``: side -> its
-    registration or None; an unregistered side admits every eye). The search's lowest optimum
-    outside it is no eye this scan shows there (the ``off_margin`` fallback below); a higher one
-    inside it, ringed by a lid fold, is: `id330_icteye_down`, scanned with ICT's own eyeball
-    looking down, had its lowest optima on 19-20 mm spheres 7-9 mm outside both margins (folds of
-    14 deg) and the true eyes' 150 above them (within 1.1-1.7 mm and 3 deg, folds of 20-22 deg),
-    and was refused as a pair of closed lids."""
-    def ok(side, eye) -> bool:
-        off = _outside_margin(limbus_center(eye), front.get(side))
-        return off is None or off <= PRIOR_MARGIN_SLACK_MM
-    return ok
+def _below_margin(eye, front) -> float | None:
+    """How far below the middle of the eye-region prior's lid margin (seen along its axis) the
+    rotation centre of the human eye ``eye`` implies lies (mm; ``CENTRE_DEPTH_MM`` behind its
+    limbus centre; negative above), or None without a registration (``front``)."""
+    plane = _margin_plane(front)
+    if plane is None:
+        return None
+    o, _, B, _ = plane
+    centre = limbus_center(eye) - CENTRE_DEPTH_MM * np.asarray(eye.n, float)
+    return -float((centre - o) @ B[1])
+
+
+def _admissible(front):
+    """``(side, Mode) -> str``: why the mode is no eye this scan shows on that side ("" where it
+    may be one), from the lid margin the eye-region prior registered round it (``front``: side ->
+    its registration or None; an unregistered side admits every mode): ``off_margin`` where its
+    limbus lies over ``PRIOR_MARGIN_SLACK_MM`` outside the margin, ``below_margin`` where the
+    human eye it implies is centred over ``BELOW_MARGIN_MM`` below the margin's middle. The
+    search's lowest optimum that is no eye is passed over for a higher one (the fallbacks below
+    where there is none): `id330_icteye_down`, scanned with ICT's own eyeball looking down, had
+    its lowest optima on 19-20 mm spheres 7-9 mm outside both margins (folds of 14 deg) and the
+    true eyes' 150 above them (within 1.1-1.7 mm and 3 deg, folds of 20-22 deg), and was refused
+    as a pair of closed lids. A closed lid's bulge (:func:`lid_bulge`) is left to be refused as
+    closed whatever its centre: a wink's lies 4.4 mm below."""
+    def why(side, mode) -> str:
+        fr = front.get(side)
+        off = _outside_margin(limbus_center(mode.eye), fr)
+        if off is not None and off > PRIOR_MARGIN_SLACK_MM:
+            return "off_margin"
+        below = _below_margin(mode.eye, fr)
+        if below is not None and below > BELOW_MARGIN_MM and not lid_bulge(mode):
+            return "below_margin"
+        return ""
+    return why
 
 
 #: How far behind the prior's lid margin a coarse eye's opening reaches (mm): the skin beyond
@@ -338,7 +373,7 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
             radius_prior=(st.radius_prior_mm, st.radius_prior_sigma_mm),
             prior=None if front is None else front.get, ignore=ignore, seed=st.seed,
             temperature=st.uncertainty_temperature, sigma_scale=st.uncertainty_scale,
-            min_fold_deg=st.min_crease_deg, admissible=None if front is None else _inside_margin(front))
+            min_fold_deg=st.min_crease_deg, admissible=None if front is None else _admissible(front))
     searched = dict(placements)     # what the search found, before the fallbacks below drop it
     fits, photographed = {}, {}     # photographed: side -> the texture's eye, where it overrules
     has_tex = texture is not None and "UV" in uv and "FUV" in uv
@@ -396,7 +431,7 @@ def place_pair(V, F, hints: dict, st: PlacementSettings, *, median_edge: float, 
                                     f"it): no eye surface ringed by a lid fold "
                                     f"near the hint {np.round(hints[s], 2).tolist()}")
         if isinstance(err, CoarseEye) and err.no_eye is None and getattr(placements[s], "passed_over", ""):
-            # the search's lowest optimum was no eye (off the margin, a large sphere weakly ringed)
+            # the search's lowest optimum was no eye (off the margin, below it, a large sphere weakly ringed)
             # and the one placed instead gives no eye either (a cut round it too narrow, too few
             # vertices): no eye's surface, as a closed lid's, for the pair rule
             err.no_eye = "off_margin"
@@ -703,8 +738,8 @@ def judge_pair(V, F, V2, loops: dict, fits: dict, placements: dict, st: Placemen
                                and checks[s]["opening_wide"]["ok"]})
     for s in SIDES:
         if getattr(placements[s], "passed_over", "") and asset[s]["limbus"]["source"] in ("opening", "coarse"):
-            # an optimum placed instead of the search's lowest (off the margin, or a large sphere
-            # weakly ringed) is believed only when its iris shows in the cut round it: one whose
+            # an optimum placed instead of the search's lowest (off the margin, below it, or a large
+            # sphere weakly ringed) is believed only when its iris shows in the cut round it: one whose
             # iris the asset would take from that opening is a lid's crease, not an eye (the closed
             # eye of the wink n3501_wink_left_noise: a cut 9 mm low, the eye 10.7 mm off), and the
             # eye is placed behind the prior's opening as before, no eye's surface for the pair rule
