@@ -410,3 +410,34 @@ def test_retopo_leaves_the_holes_open_when_told(holed_patch):
     r = retopologize(V, F, eyes, s)
     assert r.metrics["scan_holes_filled"] == 0
     assert mc.check_mesh(r.V, r.F).boundary_loops == 5
+
+
+def test_a_hole_pinched_at_a_split_bow_tie_is_closed_whole():
+    """Two square holes in a plane grid touching at one corner, that corner split into one copy
+    per fan of skin (as the crop splits a scan's bow-ties: fresh37's ``n4303_icteye_dome_wide``),
+    so the hole is one loop through both copies: the fill closes it completely, lobe by lobe,
+    the copies welded into one vertex. Without the weld each lobe closed at its own copy and a
+    sliver of boundary edges stayed open at the pinch, 1 mm from the eye's opening."""
+    from pipeline.geometry import meshtopo
+
+    n = 8
+    xs, ys = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    V = np.c_[xs.ravel(), ys.ravel(), 0.01 * (xs.ravel() - 3.5) ** 2]
+    cells = [(i, j) for i in range(n - 1) for j in range(n - 1) if (i, j) not in {(2, 2), (3, 3)}]
+    F = np.concatenate([[[i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1],
+                         [i * n + j, (i + 1) * n + j + 1, i * n + j + 1]] for i, j in cells])
+    F, parent = meshtopo.split_fans(F, len(V))
+    V = V[parent]
+    assert len(V) == n * n + 1                              # the pinch in two copies
+    loops = mc.boundary_loops(F)
+    hole = next(lp for lp in loops if len(lp) == 8)
+    assert len(np.unique(V[hole], axis=0)) == 7             # one loop through both copies
+    V2, F2, unfilled = fill_holes_smooth(V, F, [hole], return_unfilled=True)
+    assert unfilled == []
+    left = mc.boundary_loops(F2)
+    assert len(left) == 1 and len(left[0]) == 4 * (n - 1)   # only the grid's outer border
+    e = np.sort(np.concatenate([F2[:, [0, 1]], F2[:, [1, 2]], F2[:, [2, 0]]]), axis=1)
+    assert np.unique(e, axis=0, return_counts=True)[1].max() == 2
+    N = meshtopo.face_normals(V2, F2)
+    assert (N[:, 2] > 0).all()                              # every face up, the fill's as the skin's
+    assert len(np.unique(F2)) == len(V2) - 1                # the other copy is left unused
