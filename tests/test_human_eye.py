@@ -269,3 +269,44 @@ def test_an_eye_placed_from_its_opening_is_set_back_until_its_lids_may_rest_on_i
     assert seat_behind_loop(deep, ring, EyeballParams(), lim, 32) == 0.0
     assert np.allclose(deep["center"], 0.0) and deep["doubts"] == []
     assert loop_on_asset_eye(ring, deep, EyeballParams(), lim, 32)["value"] > lim.max_loop_off_mm
+
+
+def test_two_eyes_turned_apart_in_elevation_widen_both_sigmas():
+    """A person's two eyes turn up and down together (the truths of 277 unseen heads within
+    6 deg): a pair the geometry placed 12 deg apart in elevation (fresh51's 200k wink: its
+    closed left eye 34 deg off at a stated 7.5 deg) has one eye turned, and either may be it:
+    both join the difference to their axis sigma and the limbus's swing about the centre to
+    their limbus sigma, in quadrature, and say so; the eyes themselves do not move. 7 deg
+    apart, both looking 20 deg up together, or a partner placed from its opening changes
+    nothing."""
+    L = _almond()
+
+    def down(deg):
+        a = math.radians(deg)
+        return [0.0, -math.sin(a), math.cos(a)]
+
+    def pair(left_deg, right_deg):
+        scan = {"left": _scan_eye([0.0, 0.0, 10.0], down(left_deg), L, sigma=(0.4, 1.5)),
+                "right": _scan_eye([0.0, 0.0, 10.0], down(right_deg), L, sigma=(0.4, 1.5))}
+        return human_eye.asset_eyes(scan, eye_size="human", eyeball=EyeballParams())
+
+    assert human_eye.elevation_difference_deg(down(12.0), down(0.0)) == pytest.approx(12.0)
+    assert human_eye.elevation_difference_deg(down(-20.0), down(-20.0)) == pytest.approx(0.0, abs=1e-9)
+    apart, near, up = pair(12.0, 0.0), pair(7.0, 0.0), pair(-20.0, -20.0)
+    d = human_eye.limbus_depth(EyeballParams())
+    for s in ("left", "right"):
+        u = apart[s]["uncertainty"]
+        assert u["axis_deg"] == pytest.approx(math.hypot(1.5, 12.0))
+        assert u["limbus_mm"] == pytest.approx(math.hypot(0.4, d * math.sin(math.radians(12.0))))
+        assert u["center_mm"] > near[s]["uncertainty"]["center_mm"]
+        assert any("differ in elevation by 12.0 deg" in x for x in apart[s]["doubts"])
+        for quiet in (near, up):
+            assert (quiet[s]["uncertainty"]["limbus_mm"], quiet[s]["uncertainty"]["axis_deg"]) == (0.4, 1.5)
+            assert not any("elevation" in x for x in quiet[s]["doubts"])
+    assert np.allclose(apart["left"]["forward"], down(12.0)) and np.allclose(apart["right"]["forward"], down(0.0))
+    assert human_eye.ELEVATION_PAIR_DEG == 8.0
+    # an eye placed from its opening looks along the eye region's forward: no reading of its gaze
+    scan = {"left": _scan_eye([0.0, 0.0, 10.0], down(12.0), L, sigma=(0.4, 1.5)),
+            "right": {**_scan_eye([0.0, 0.0, 10.0], down(0.0), L, sigma=(0.4, 1.5)), "source": "opening"}}
+    one = human_eye.asset_eyes(scan, eye_size="human", eyeball=EyeballParams())
+    assert one["left"]["uncertainty"]["axis_deg"] == 1.5 and not any("elevation" in x for x in one["left"]["doubts"])
