@@ -349,7 +349,7 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
         c = anchor_center(lc, ax, placed)
         if eye_size == "fitted" and source != "opening":     # today's scan-shaped globe, as fitted
             c, d = np.asarray(e["center"], float), float(np.dot(lc - np.asarray(e["center"], float), ax))
-        sc = math.sqrt(sl ** 2 + (d * math.radians(sa)) ** 2 + sr ** 2)
+        sc = centre_sigma(sl, sa, d, sr)
         if source != "opening" and (sl > doubt_limbus_sigma_mm or sa > doubt_axis_sigma_deg):
             doubts.append(f"placed from little evidence ({source}): limbus centre {plus_minus(sl, 'mm')}, "
                           f"axis {plus_minus(sa, 'deg', 1)} (1 sigma)")
@@ -366,13 +366,18 @@ def asset_eyes(scan: dict, *, eye_size: str, eyeball,
             u, d = out[s]["uncertainty"], out[s]["limbus"]["depth_mm"]
             u["limbus_mm"] = math.hypot(u["limbus_mm"], d * math.sin(math.radians(de)))
             u["axis_deg"] = math.hypot(u["axis_deg"], de)
-            u["center_mm"] = math.sqrt(u["limbus_mm"] ** 2 + (d * math.radians(u["axis_deg"])) ** 2
-                                       + u["radius_mm"] ** 2)
+            u["center_mm"] = centre_sigma(u["limbus_mm"], u["axis_deg"], d, u["radius_mm"])
             out[s]["doubts"].append(
                 f"the two eyes' axes differ in elevation by {de:.1f} deg (a person's turn up and down "
                 f"together, within a few degrees): one of them is turned; limbus centre "
                 f"{plus_minus(u['limbus_mm'], 'mm')}, axis {plus_minus(u['axis_deg'], 'deg', 1)} (1 sigma)")
     return out
+
+
+def centre_sigma(limbus_mm, axis_deg, depth_mm, radius_mm) -> float:
+    """1-sigma (mm) of the rotation centre of an eye anchored ``depth_mm`` behind its limbus:
+    the limbus's, the axis's swing of that arm and the radius's, in quadrature."""
+    return math.sqrt(limbus_mm ** 2 + (depth_mm * math.radians(axis_deg)) ** 2 + radius_mm ** 2)
 
 
 def elevation_difference_deg(left, right) -> float:
